@@ -1,0 +1,1 @@
+"""Thin command-line layer: argument parsing, calls into the libraries, exit codes."""

@@ -1,0 +1,55 @@
+"""``vertebra`` entry point. One module per subcommand, each with
+``add_arguments(parser)`` and ``run(args) -> int``; heavy imports live inside ``run``.
+
+Exit codes (DESIGN.md §5): 0 success; 1 solved but not converged or target not
+reached; 2 bad input (the message names the file, the field and the reason).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from store.errors import CatalogueError, GeometryError, SceneError, VertebraError
+
+# name -> (module, one-line help). Adding a subcommand touches this table and its module.
+SUBCOMMANDS = {
+    "simulate": ("cli.simulate", "forward quasi-static equilibrium of a scene"),
+    "invert": ("cli.invert", "actuation that brings effectors to targets"),
+    "design": ("cli.design", "mesh, solve and condense one segment into the catalogue"),
+    "sweep": ("cli.sweep", "design-space sweep into the catalogue"),
+    "catalogue": ("cli.catalogue", "list, show, verify, merge, export catalogue entries"),
+    "demo": ("cli.demo", "the main job on an embedded default, end to end"),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="vertebra", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name, (module_name, help_text) in SUBCOMMANDS.items():
+        module = importlib.import_module(module_name)
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        module.add_arguments(p)
+        p.set_defaults(_run=module.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args._run(args))
+    except (SceneError, CatalogueError, GeometryError) as error:
+        print(f"vertebra {args.command}: error: {error}", file=sys.stderr)
+        return 2
+    except VertebraError as error:
+        print(f"vertebra {args.command}: {type(error).__name__}: {error}", file=sys.stderr)
+        return 1
+    except FileNotFoundError as error:
+        print(f"vertebra {args.command}: error: {error.filename}: file not found", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
