@@ -1,0 +1,607 @@
+"""Constraint-space QP of the inverse model (paper §IV, eqs. 11–13).
+
+After linearisation and projection into constraint space (paper eqs. 11–12) the
+inverse step is a small dense problem in the actuator efforts ``λ`` (n actuators,
+m = 3·effectors rows)::
+
+    δe(λ) = δe_free + W_ea λ            predicted effector gaps      (paper eq. 11)
+    δa(λ) = δa_free + W_aa λ            predicted actuator displacement (paper eq. 12)
+
+    minimise   ½ ‖Wₑ^{1/2} δe(λ)‖²  +  ½ ρ Σᵢ dᵢ λᵢ²                 (paper eq. 13 + regulariser)
+    subject to λ_lower ≤ λ ≤ λ_upper,   δa_lower ≤ δa(λ) ≤ δa_upper
+
+The regulariser makes the answer unique when ``W_eaᵀ W_ea`` is only semi-definite
+(16 tendons, one 3-D target). It is the **actuation energy** each actuator spends
+on its own displacement, ``dᵢ λᵢ² = |W_aa,ii| λᵢ²`` (joules whatever the actuator:
+N·m for a cable, Pa·m³ for a chamber), so it is invariant to the units of each
+actuator and homogeneous across mixed cable/chamber actuation. ``ρ = ε·s`` with a
+dimensionless ``ε`` (default 1e-8) and ``s = meanᵢ(Hᵢᵢ/dᵢ)`` (m²/J; ``H`` the
+weighted Hessian of the effector term): every ratio ``Hᵢᵢ/dᵢ`` has the same units
+for every actuator, and a mean (not a sum) does not grow with the number of
+actuators. When ``W_aa`` is not given, ``dᵢ = Hᵢᵢ`` (Marquardt scaling), again
+per-actuator unit invariant. ``ε`` is small enough that the fixed point of the
+converged inverse is biased by ≈ ε × (effector motion) ≪ 1e-6 m (measured in
+``benchmarks/bench_qp.py``), and large enough that the active-set solver sees a
+Hessian with condition ≲ 1/ε.
+
+Backends implement :class:`QPBackend` and register in ``BACKENDS``; adding one
+touches one function here. The default ``"daqp"`` (exact dual active-set solver,
+called directly for speed; chosen by ``benchmarks/bench_qp.py``), the paper's
+projected ``"gauss-seidel"`` (pure numpy), and ``"qpsolvers:<name>"`` for any
+solver ``qpsolvers`` knows (clarabel, osqp, proxqp, daqp, …).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Protocol
+
+import numpy as np
+
+__all__ = [
+    "ConstraintProblem",
+    "QuadraticForm",
+    "ConstraintSolution",
+    "QPBackend",
+    "BACKENDS",
+    "DEFAULT_BACKEND",
+    "DEFAULT_REGULARISATION",
+    "register_backend",
+    "get_backend",
+    "available_backends",
+    "quadratic_form",
+    "solve_constraint_problem",
+]
+
+DEFAULT_REGULARISATION = 1e-8
+DEFAULT_BACKEND = "daqp"
+
+
+def _vector(name: str, value, n: int) -> np.ndarray:
+    arr = np.array(value, dtype=float).reshape(-1) if np.ndim(value) else np.full(n, float(value))
+    if arr.shape != (n,):
+        raise ValueError(f"len({name}) = {arr.size}, but it must be {n}")
+    if np.isnan(arr).any():
+        raise ValueError(f"{name} contains NaN")
+    return arr
+
+
+@dataclass(frozen=True)
+class ConstraintProblem:
+    """One linearised inverse step in constraint space (paper eqs. 11–13).
+
+    ``W_ea`` (m×n) and ``delta_e_free`` (m) are required; ``effector_weights`` (m,
+    one per effector row, > 0) default to one. ``lambda_lower``/``lambda_upper``
+    bound the actuator efforts (±inf allowed). Actuator displacement bounds need
+    ``W_aa`` (n×n) and ``delta_a_free`` (n). ``lambda0`` (n) is a warm start (the
+    current actuation), ``regularisation`` the dimensionless ``ε`` above.
+    """
+
+    W_ea: np.ndarray
+    delta_e_free: np.ndarray
+    lambda_lower: np.ndarray | float = -np.inf
+    lambda_upper: np.ndarray | float = np.inf
+    effector_weights: np.ndarray | float = 1.0
+    W_aa: np.ndarray | None = None
+    delta_a_free: np.ndarray | None = None
+    displacement_lower: np.ndarray | float = -np.inf
+    displacement_upper: np.ndarray | float = np.inf
+    lambda0: np.ndarray | None = None
+    regularisation: float = DEFAULT_REGULARISATION
+
+    def __post_init__(self):
+        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 (frozen dataclass)
+        W_ea = np.array(self.W_ea, dtype=float)
+        if W_ea.ndim != 2 or W_ea.shape[1] == 0:
+            raise ValueError(f"W_ea must be a 2-D (m, n) array with n ≥ 1, got shape {W_ea.shape}")
+        if not np.isfinite(W_ea).all():
+            raise ValueError("W_ea contains non-finite values")
+        m, n = W_ea.shape
+        set_("W_ea", W_ea)
+        de = _vector("delta_e_free", self.delta_e_free, m)
+        if not np.isfinite(de).all():
+            raise ValueError("delta_e_free contains non-finite values")
+        set_("delta_e_free", de)
+        lo = _vector("lambda_lower", self.lambda_lower, n)
+        hi = _vector("lambda_upper", self.lambda_upper, n)
+        bad = np.flatnonzero(lo > hi)
+        if bad.size:
+            i = bad[0]
+            raise ValueError(f"lambda_lower[{i}] = {lo[i]} > lambda_upper[{i}] = {hi[i]}")
+        set_("lambda_lower", lo)
+        set_("lambda_upper", hi)
+        w = _vector("effector_weights", self.effector_weights, m)
+        if not (np.isfinite(w).all() and (w > 0).all()):
+            raise ValueError(f"effector_weights must be finite and > 0, got min {w.min()}")
+        set_("effector_weights", w)
+        if (self.W_aa is None) != (self.delta_a_free is None):
+            raise ValueError("W_aa and delta_a_free must be given together")
+        if self.W_aa is not None:
+            W_aa = np.array(self.W_aa, dtype=float)
+            if W_aa.shape != (n, n):
+                raise ValueError(f"W_aa.shape = {W_aa.shape}, but it must be ({n}, {n})")
+            if not np.isfinite(W_aa).all():
+                raise ValueError("W_aa contains non-finite values")
+            set_("W_aa", W_aa)
+            da = _vector("delta_a_free", self.delta_a_free, n)
+            if not np.isfinite(da).all():
+                raise ValueError("delta_a_free contains non-finite values")
+            set_("delta_a_free", da)
+        dlo = _vector("displacement_lower", self.displacement_lower, n)
+        dhi = _vector("displacement_upper", self.displacement_upper, n)
+        bad = np.flatnonzero(dlo > dhi)
+        if bad.size:
+            i = bad[0]
+            raise ValueError(f"displacement_lower[{i}] = {dlo[i]} > displacement_upper[{i}] = {dhi[i]}")
+        if self.W_aa is None and (np.isfinite(dlo).any() or np.isfinite(dhi).any()):
+            raise ValueError("displacement bounds need W_aa and delta_a_free")
+        set_("displacement_lower", dlo)
+        set_("displacement_upper", dhi)
+        if self.lambda0 is not None:
+            l0 = _vector("lambda0", self.lambda0, n)
+            set_("lambda0", np.where(np.isfinite(l0), l0, 0.0))
+        eps = float(self.regularisation)
+        if not (np.isfinite(eps) and eps >= 0):
+            raise ValueError(f"regularisation must be finite and ≥ 0, got {eps}")
+        set_("regularisation", eps)
+
+    @property
+    def n_actuators(self) -> int:
+        return self.W_ea.shape[1]
+
+    @property
+    def n_rows(self) -> int:
+        return self.W_ea.shape[0]
+
+    def start(self) -> np.ndarray:
+        """Warm start clipped into the λ box (zeros clipped when none is given)."""
+        l0 = np.zeros(self.n_actuators) if self.lambda0 is None else self.lambda0
+        return np.clip(l0, self.lambda_lower, self.lambda_upper)
+
+    def predict(self, lam: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """Linearised effector gaps and actuator displacements for efforts ``lam``."""
+        de = self.delta_e_free + self.W_ea @ lam
+        da = None if self.W_aa is None else self.delta_a_free + self.W_aa @ lam
+        return de, da
+
+
+@dataclass(frozen=True)
+class QuadraticForm:
+    """``½ λᵀPλ + qᵀλ + c`` with box ``lower ≤ λ ≤ upper`` and rows ``row_lower ≤ G λ ≤ row_upper``.
+
+    ``G`` holds only the actuator-displacement rows with at least one finite bound.
+    """
+
+    P: np.ndarray
+    q: np.ndarray
+    c: float
+    lower: np.ndarray
+    upper: np.ndarray
+    G: np.ndarray
+    row_lower: np.ndarray
+    row_upper: np.ndarray
+    rows: np.ndarray  # actuator index of each row of G
+    regularisation_weight: float  # ρ = ε·s, absolute
+    energy_diagonal: np.ndarray  # d_i
+
+
+def quadratic_form(problem: ConstraintProblem, displacement_lower=None, displacement_upper=None) -> QuadraticForm:
+    """Build the QP of paper eq. 13 with the scale-free energy regulariser (module docstring)."""
+    Wsq = problem.W_ea * problem.effector_weights[:, None]
+    H = problem.W_ea.T @ Wsq
+    q = Wsq.T @ problem.delta_e_free
+    c = 0.5 * float(problem.delta_e_free @ (problem.effector_weights * problem.delta_e_free))
+    h = np.diag(H).copy()
+    if problem.W_aa is not None:
+        d = np.abs(np.diag(problem.W_aa)).copy()
+    else:
+        d = h.copy()
+    # An actuator with no own displacement (d = 0) would be left unregularised:
+    # floor d relative to the others so the Hessian stays definite.
+    dmax = d.max() if d.size else 0.0
+    d = np.maximum(d, 1e-12 * dmax if dmax > 0 else 1.0)
+    ratio = h / d
+    s = float(ratio.mean()) if ratio.mean() > 0 else 1.0
+    rho = problem.regularisation * s
+    P = H + np.diag(rho * d)
+    P = 0.5 * (P + P.T)
+    dlo = problem.displacement_lower if displacement_lower is None else displacement_lower
+    dhi = problem.displacement_upper if displacement_upper is None else displacement_upper
+    rows = np.flatnonzero(np.isfinite(dlo) | np.isfinite(dhi))
+    if rows.size:
+        G = problem.W_aa[rows]
+        row_lower = dlo[rows] - problem.delta_a_free[rows]
+        row_upper = dhi[rows] - problem.delta_a_free[rows]
+    else:
+        G = np.zeros((0, problem.n_actuators))
+        row_lower = row_upper = np.zeros(0)
+    return QuadraticForm(
+        P=P, q=q, c=c, lower=problem.lambda_lower, upper=problem.lambda_upper,
+        G=G, row_lower=row_lower, row_upper=row_upper, rows=rows,
+        regularisation_weight=rho, energy_diagonal=d,
+    )
+
+
+@dataclass(frozen=True)
+class BackendOutput:
+    actuation: np.ndarray
+    iterations: int
+    converged: bool
+    status: str
+
+
+class QPBackend(Protocol):
+    """What an inverse QP solver provides. ``solve`` never raises for a feasible box."""
+
+    name: str
+
+    def solve(self, qp: QuadraticForm, start: np.ndarray, *, tolerance: float,
+              max_iterations: int) -> BackendOutput: ...
+
+
+@dataclass(frozen=True)
+class ConstraintSolution:
+    """Result of one constraint-space solve, with diagnostics."""
+
+    actuation: np.ndarray  # λ (n,)
+    delta_e: np.ndarray  # predicted effector gaps (m,)
+    delta_a: np.ndarray | None  # predicted actuator displacements (n,)
+    effector_error: float  # ‖δe‖ (m), unweighted
+    objective: float
+    stationarity: float  # box-KKT residual in effector units (m); see _stationarity
+    iterations: int
+    converged: bool
+    status: str  # "optimal" | "max_iterations" | "relaxed" | backend status
+    backend: str
+    time_s: float
+    active_lower: np.ndarray  # bool (n,)
+    active_upper: np.ndarray
+    active_displacement_lower: np.ndarray
+    active_displacement_upper: np.ndarray
+    displacement_relaxation: np.ndarray  # how far infeasible displacement bounds were widened (n,)
+    regularisation_weight: float = 0.0
+    extras: dict = field(default_factory=dict)
+
+
+# --------------------------------------------------------------------------- registry
+
+BACKENDS: dict[str, Callable[[], QPBackend]] = {}
+
+
+def register_backend(name: str, factory: Callable[[], QPBackend]) -> None:
+    """Register a backend factory under ``name`` (adding a solver touches one place)."""
+    BACKENDS[name] = factory
+
+
+def available_backends() -> list[str]:
+    """Backend names whose libraries import here."""
+    names = ["gauss-seidel"]
+    try:
+        import daqp  # noqa: F401
+
+        names.append("daqp")
+    except ImportError:
+        pass
+    try:
+        import qpsolvers
+
+        names += [f"qpsolvers:{s}" for s in qpsolvers.available_solvers]
+    except ImportError:
+        pass
+    return names
+
+
+def get_backend(name: str) -> QPBackend:
+    if name in BACKENDS:
+        return BACKENDS[name]()
+    if name.startswith("qpsolvers:"):
+        return QpsolversBackend(name.split(":", 1)[1])
+    raise ValueError(f"unknown QP backend {name!r}; known: {sorted(BACKENDS)} or 'qpsolvers:<solver>'")
+
+
+# --------------------------------------------------------------------------- Gauss–Seidel
+
+
+class GaussSeidelBackend:
+    """Projected Gauss–Seidel (paper §IV, after [6]).
+
+    Box bounds only: the primal coordinate sweep ``λᵢ ← clip(λᵢ − (Pλ + q)ᵢ / Pᵢᵢ)``.
+    With actuator-displacement rows: the same sweep with each coordinate step also
+    clipped to keep every row feasible (bounds hold at every iterate; see ``_rows``).
+    Stops when the largest update, measured in
+    effector units (``√Pᵢᵢ·|Δλᵢ|``, metres), or the motion of the effectors over a
+    whole sweep (``√(ΔλᵀPΔλ)``), falls under ``tolerance``.
+    In the redundant case the sweep converges quickly in effector space but only
+    slowly (rate ~ε) along the null space that the regulariser decides: Gauss–Seidel
+    then stops at "one solution among all the possible" (paper §IV) that depends
+    on the warm start, not at the unique regularised optimum of the exact QP.
+    """
+
+    name = "gauss-seidel"
+
+    def __init__(self, relaxation: float = 1.0):
+        self.relaxation = relaxation
+
+    def solve(self, qp, start, *, tolerance, max_iterations):
+        if qp.G.shape[0] == 0:
+            return self._primal(qp, start, tolerance, max_iterations)
+        return self._rows(qp, start, tolerance, max_iterations)
+
+    def _primal(self, qp, start, tol, max_it):
+        P, q, lo, hi = qp.P, qp.q, qp.lower, qp.upper
+        lam = start.astype(float).copy()
+        diag = np.diag(P).copy()
+        sq = np.sqrt(diag)
+        n = lam.size
+        Pl = P.tolist()  # python floats: the sweep is scalar work, lists beat numpy here
+        lam_l = lam.tolist()
+        ql, lol, hil, dl = q.tolist(), lo.tolist(), hi.tolist(), diag.tolist()
+        omega = self.relaxation
+        it = 0
+        converged = False
+        while it < max_it:
+            it += 1
+            step = 0.0
+            for i in range(n):
+                row = Pl[i]
+                g = ql[i]
+                for j in range(n):
+                    g += row[j] * lam_l[j]
+                new = lam_l[i] - omega * g / dl[i]
+                new = lol[i] if new < lol[i] else (hil[i] if new > hil[i] else new)
+                dv = abs(new - lam_l[i]) * sq[i]
+                if dv > step:
+                    step = dv
+                lam_l[i] = new
+            lam_new = np.array(lam_l)
+            moved = lam_new - lam
+            lam = lam_new
+            # effector-space motion of the whole sweep, ‖Wₑ^{1/2} W_ea Δλ‖ = √(Δλᵀ H Δλ)
+            if step <= tol or float(moved @ (P @ moved)) <= tol * tol:
+                converged = True
+                break
+        return BackendOutput(lam, it, converged, "optimal" if converged else "max_iterations")
+
+    def _rows(self, qp, start, tol, max_it):
+        """Feasible coordinate descent: each coordinate step is clipped so that every
+        displacement row stays inside its bounds (the start is feasible, see the driver).
+        Bounds therefore hold at every iterate; with a row active the sweep can stall
+        short of the optimum (coordinate descent under coupled constraints), which the
+        exact backends do not — use them when stroke limits bind."""
+        P, q, G = qp.P, qp.q, qp.G
+        lam = start.astype(float).copy()
+        diag = np.diag(P)
+        sq = np.sqrt(diag)
+        n = lam.size
+        g_row = G @ lam
+        rlo, rhi = qp.row_lower, qp.row_upper
+        it, converged = 0, False
+        while it < max_it:
+            it += 1
+            before = lam.copy()
+            step = 0.0
+            for i in range(n):
+                g = q[i] + P[i] @ lam
+                delta = -g / diag[i]
+                lo_i, hi_i = qp.lower[i] - lam[i], qp.upper[i] - lam[i]
+                col = G[:, i]
+                pos, neg = col > 0, col < 0
+                # rows: rlo - g_row ≤ col·Δ ≤ rhi - g_row
+                if pos.any():
+                    hi_i = min(hi_i, np.min((rhi[pos] - g_row[pos]) / col[pos]))
+                    lo_i = max(lo_i, np.max((rlo[pos] - g_row[pos]) / col[pos]))
+                if neg.any():
+                    hi_i = min(hi_i, np.min((rlo[neg] - g_row[neg]) / col[neg]))
+                    lo_i = max(lo_i, np.max((rhi[neg] - g_row[neg]) / col[neg]))
+                delta = min(max(delta, min(lo_i, 0.0)), max(hi_i, 0.0))
+                if delta != 0.0:
+                    lam[i] += delta
+                    g_row += col * delta
+                    step = max(step, abs(delta) * sq[i])
+            moved = lam - before
+            if step <= tol or float(moved @ (P @ moved)) <= tol * tol:
+                converged = True
+                break
+        return BackendOutput(np.clip(lam, qp.lower, qp.upper), it, converged,
+                             "optimal" if converged else "max_iterations")
+
+
+register_backend("gauss-seidel", GaussSeidelBackend)
+
+
+# --------------------------------------------------------------------------- exact QPs
+
+
+class DaqpBackend:
+    """DAQP dual active-set solver, called directly (no conversion layer), warm-started."""
+
+    name = "daqp"
+    wants_scaling = True
+
+    def solve(self, qp, start, *, tolerance, max_iterations):
+        import daqp  # lazy: optional at import time
+
+        n = qp.P.shape[0]
+        A = np.ascontiguousarray(qp.G) if qp.G.shape[0] else np.zeros((0, n))
+        bupper = np.concatenate([qp.upper, qp.row_upper])
+        blower = np.concatenate([qp.lower, qp.row_lower])
+        sense = np.zeros(bupper.size, dtype=np.int32)
+        x, _f, flag, info = daqp.solve(
+            np.ascontiguousarray(qp.P), qp.q.copy(), A, bupper, blower, sense,
+            iter_limit=max_iterations, primal_start=start.copy(), eps_prox=0.0,
+        )
+        ok = flag in (1, 2)
+        status = {1: "optimal", 2: "optimal", -1: "infeasible", -2: "cycling", -3: "unbounded",
+                  -4: "max_iterations", -5: "nonconvex"}.get(flag, f"daqp exitflag {flag}")
+        lam = np.clip(np.asarray(x, dtype=float), qp.lower, qp.upper) if ok else start.copy()
+        return BackendOutput(lam, int(info.get("iterations", 0)), ok, status)
+
+
+register_backend("daqp", DaqpBackend)
+
+
+_QPSOLVERS_SETTINGS = {
+    # tight settings so that the comparison in bench_qp.py is about speed at equal accuracy
+    "clarabel": dict(tol_gap_abs=1e-10, tol_gap_rel=1e-10, tol_feas=1e-10),
+    "osqp": dict(eps_abs=1e-10, eps_rel=1e-10, max_iter=100000, polishing=True),
+    "proxqp": dict(eps_abs=1e-12, eps_rel=0.0),
+}
+
+
+class QpsolversBackend:
+    """Any solver known to ``qpsolvers`` (imported lazily)."""
+
+    def __init__(self, solver: str):
+        self.solver = solver
+        self.name = f"qpsolvers:{solver}"
+        self.wants_scaling = True
+
+    def solve(self, qp, start, *, tolerance, max_iterations):
+        import qpsolvers
+
+        G_rows, h_rows = [], []
+        gu, gl = np.isfinite(qp.row_upper), np.isfinite(qp.row_lower)
+        if gu.any():
+            G_rows.append(qp.G[gu])
+            h_rows.append(qp.row_upper[gu])
+        if gl.any():
+            G_rows.append(-qp.G[gl])
+            h_rows.append(-qp.row_lower[gl])
+        G = np.vstack(G_rows) if G_rows else None
+        h = np.concatenate(h_rows) if h_rows else None
+        problem = qpsolvers.Problem(qp.P, qp.q, G, h, lb=qp.lower, ub=qp.upper)
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            sol = qpsolvers.solve_problem(problem, solver=self.solver, initvals=start,
+                                          **_QPSOLVERS_SETTINGS.get(self.solver, {}))
+        ok = bool(sol.found) and sol.x is not None
+        lam = np.clip(np.asarray(sol.x, dtype=float), qp.lower, qp.upper) if ok else start.copy()
+        iters = sol.extras.get("iter", sol.extras.get("iterations", 0)) if isinstance(sol.extras, dict) else 0
+        if not isinstance(iters, (int, np.integer)):
+            iters = getattr(iters, "iter", 0) if iters is not None else 0
+        return BackendOutput(lam, int(iters or 0), ok, "optimal" if ok else "failed")
+
+
+# --------------------------------------------------------------------------- driver
+
+
+def _stationarity(qp: QuadraticForm, lam: np.ndarray) -> float:
+    """Projected-gradient step in effector units (m): zero exactly at the box-QP optimum.
+
+    Only meaningful without displacement rows (their multipliers are not in it);
+    NaN otherwise.
+    """
+    if qp.G.shape[0]:
+        return float("nan")
+    diag = np.diag(qp.P)
+    g = qp.P @ lam + qp.q
+    proj = np.clip(lam - g / diag, qp.lower, qp.upper)
+    return float(np.max(np.abs(proj - lam) * np.sqrt(diag), initial=0.0))
+
+
+def _minimal_displacement_violation(problem: ConstraintProblem):
+    """Closest reachable actuator displacements when the displacement bounds cannot all hold.
+
+    Bounded least squares (``scipy.optimize.lsq_linear``) over λ in its box and a
+    point ``t`` in the displacement box: ``min ‖δa_free + W_aa λ − t‖²``.
+    Returns the best λ and the displacement ``δa`` there.
+    """
+    from scipy.optimize import lsq_linear
+
+    n = problem.n_actuators
+    A = np.hstack([problem.W_aa, -np.eye(n)])
+    # scale columns so that λ (N or Pa) and t (m or m³) are comparable for the solver
+    col = np.maximum(np.abs(A).max(axis=0), 1e-300)
+    lb = np.concatenate([problem.lambda_lower, problem.displacement_lower]) * col
+    ub = np.concatenate([problem.lambda_upper, problem.displacement_upper]) * col
+    res = lsq_linear(A / col, -problem.delta_a_free, bounds=(lb, ub), method="bvls", tol=1e-14)
+    lam = np.clip(res.x[:n] / col[:n], problem.lambda_lower, problem.lambda_upper)
+    return lam, problem.delta_a_free + problem.W_aa @ lam
+
+
+def solve_constraint_problem(
+    problem: ConstraintProblem,
+    backend: str | QPBackend = DEFAULT_BACKEND,
+    *,
+    tolerance: float = 1e-10,
+    max_iterations: int | None = None,
+) -> ConstraintSolution:
+    """Solve one inverse step; never violates the λ box.
+
+    ``tolerance`` (iterative backends) is relative to the weighted free gap
+    ``‖Wₑ^{1/2} δe_free‖``: Gauss–Seidel stops when no sweep moves the effectors
+    by more than ``tolerance`` times it. When the actuator
+    displacement bounds cannot all be met inside the λ box (linearisation error
+    near a stroke limit), they are widened by the least amount that makes them
+    feasible, ``status`` says ``"relaxed"`` and ``displacement_relaxation`` by how
+    much. An unreachable target needs nothing special: the QP returns the closest
+    reach and ``effector_error`` says how far it is.
+    """
+    t0 = time.perf_counter()
+    be = get_backend(backend) if isinstance(backend, str) else backend
+    if max_iterations is None:
+        max_iterations = 5000 if be.name == "gauss-seidel" else 1000
+    n = problem.n_actuators
+    start = problem.start()
+    dlo, dhi = problem.displacement_lower, problem.displacement_upper
+    relaxation = np.zeros(n)
+    relaxed = False
+    if problem.W_aa is not None and (np.isfinite(dlo).any() or np.isfinite(dhi).any()):
+        _, da0 = problem.predict(start)
+        slack = 1e-9 * np.maximum(np.abs(da0), np.abs(np.where(np.isfinite(dlo), dlo, 0.0))) + 1e-300
+        if ((da0 < dlo - slack) | (da0 > dhi + slack)).any():
+            # the warm start breaks a stroke limit: start from the least-violating λ instead
+            start, da_best = _minimal_displacement_violation(problem)
+            slack = 1e-9 * np.maximum(np.abs(da_best), np.abs(np.where(np.isfinite(dlo), dlo, 0.0))) + 1e-300
+            below, above = da_best < dlo - slack, da_best > dhi + slack
+            if below.any() or above.any():  # infeasible: widen by the least amount
+                relaxation = np.where(below, dlo - da_best, 0.0) + np.where(above, da_best - dhi, 0.0)
+                dlo = np.where(below, da_best, dlo)
+                dhi = np.where(above, da_best, dhi)
+                relaxed = True
+    qp = quadratic_form(problem, dlo, dhi)
+    # iterative backends stop on an effector-unit step relative to the free gap
+    scale_m = float(np.sqrt(problem.delta_e_free @ (problem.effector_weights * problem.delta_e_free)))
+    tol = tolerance * max(scale_m, 1e-300)
+    if getattr(be, "wants_scaling", False):
+        # Jacobi scaling λ = S y, S = diag(1/√Pᵢᵢ): unit diagonal whatever the units of
+        # the actuators, so absolute pivot/singularity tolerances inside the library
+        # see a well-scaled problem (the raw P of a stiff robot is ~1e-8 in SI units).
+        S = 1.0 / np.sqrt(np.diag(qp.P))
+        scaled = QuadraticForm(
+            P=qp.P * S[:, None] * S[None, :], q=qp.q * S, c=qp.c, lower=qp.lower / S,
+            upper=qp.upper / S, G=qp.G * S[None, :], row_lower=qp.row_lower, row_upper=qp.row_upper,
+            rows=qp.rows, regularisation_weight=qp.regularisation_weight, energy_diagonal=qp.energy_diagonal,
+        )
+        if qp.G.shape[0]:  # and unit rows for the displacement constraints
+            rs = 1.0 / np.maximum(np.abs(scaled.G).max(axis=1), 1e-300)
+            scaled = QuadraticForm(**{**scaled.__dict__, "G": scaled.G * rs[:, None],
+                                      "row_lower": scaled.row_lower * rs, "row_upper": scaled.row_upper * rs})
+        out = be.solve(scaled, start / S, tolerance=tol, max_iterations=max_iterations)
+        lam = np.clip(out.actuation * S, problem.lambda_lower, problem.lambda_upper)
+    else:
+        out = be.solve(qp, start, tolerance=tol, max_iterations=max_iterations)
+        lam = out.actuation
+    de, da = problem.predict(lam)
+    objective = 0.5 * float(lam @ qp.P @ lam) + float(qp.q @ lam) + qp.c
+    atol_l = 1e-9 * np.maximum(1.0, np.abs(lam))
+    act_lo = np.isfinite(problem.lambda_lower) & (lam <= problem.lambda_lower + atol_l)
+    act_hi = np.isfinite(problem.lambda_upper) & (lam >= problem.lambda_upper - atol_l)
+    if da is not None:
+        atol_d = 1e-9 * np.maximum(np.abs(da), 1e-30) + 1e-15
+        act_dlo = np.isfinite(dlo) & (da <= dlo + atol_d)
+        act_dhi = np.isfinite(dhi) & (da >= dhi - atol_d)
+    else:
+        act_dlo = act_dhi = np.zeros(n, dtype=bool)
+    status = "relaxed" if (relaxed and out.converged) else out.status
+    return ConstraintSolution(
+        actuation=lam, delta_e=de, delta_a=da, effector_error=float(np.linalg.norm(de)),
+        objective=objective, stationarity=_stationarity(qp, lam), iterations=out.iterations,
+        converged=out.converged, status=status, backend=be.name, time_s=time.perf_counter() - t0,
+        active_lower=act_lo, active_upper=act_hi, active_displacement_lower=act_dlo,
+        active_displacement_upper=act_dhi, displacement_relaxation=relaxation,
+        regularisation_weight=qp.regularisation_weight,
+    )

@@ -1,0 +1,202 @@
+"""Constraint-space QP of the inverse model (paper eqs. 11–13) on seeded synthetic problems.
+
+The synthetic problems are built like the real ones: an SPD stiffness ``K``, cable
+Jacobians ``Ja`` with ``B = -Jaᵀ`` (a tension shortens its cable), effector rows
+``Je``; ``W_ea = Je K⁻¹ B`` and ``W_aa = Ja K⁻¹ B`` (paper eqs. 11–12).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from solver.inverse.qp import (
+    ConstraintProblem,
+    available_backends,
+    quadratic_form,
+    solve_constraint_problem,
+)
+
+# The default exact backend (active set: exact to round-off) and one interior-point
+# solver through qpsolvers (accurate to its gap tolerance, ~1e-7 relative in effort).
+EXACT = ["daqp"]
+INTERIOR = [b for b in ("qpsolvers:clarabel",) if b in available_backends()]
+
+
+def synthetic(seed, n_act=16, n_rows=3, n_dof=60, reach=0.5):
+    """A tendon-like constraint problem; ``reach`` < 1 makes the target reachable."""
+    rng = np.random.default_rng(seed)
+    A = rng.normal(size=(n_dof, n_dof))
+    K = A @ A.T + n_dof * np.eye(n_dof)
+    Ja = rng.normal(size=(n_act, n_dof)) * 1e-2
+    Je = rng.normal(size=(n_rows, n_dof))
+    Kinv_B = np.linalg.solve(K, -Ja.T)
+    W_ea, W_aa = Je @ Kinv_B, Ja @ Kinv_B
+    lam_target = rng.uniform(0.0, 10.0, n_act)
+    return W_ea, -(W_ea @ lam_target) * reach, W_aa, lam_target
+
+
+def test_validation_names_the_numbers():
+    W_ea, de, W_aa, _ = synthetic(0, n_act=4)
+    with pytest.raises(ValueError, match="len\\(delta_e_free\\) = 2, but it must be 3"):
+        ConstraintProblem(W_ea, de[:2])
+    with pytest.raises(ValueError, match="lambda_lower\\[1\\] = 5.0 > lambda_upper\\[1\\] = 1.0"):
+        ConstraintProblem(W_ea, de, lambda_lower=[0, 5, 0, 0], lambda_upper=1.0)
+    with pytest.raises(ValueError, match="W_aa.shape"):
+        ConstraintProblem(W_ea, de, W_aa=W_aa[:3, :3], delta_a_free=np.zeros(4))
+    with pytest.raises(ValueError, match="displacement bounds need W_aa"):
+        ConstraintProblem(W_ea, de, displacement_upper=1.0)
+    with pytest.raises(ValueError, match="effector_weights"):
+        ConstraintProblem(W_ea, de, effector_weights=[1, 0, 1])
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("exact", EXACT)
+def test_gauss_seidel_and_exact_qp_agree_when_well_posed(seed, exact):
+    # n_act ≤ rows and full column rank: one optimum. Gauss–Seidel stops at a sweep
+    # that moves the effectors by < 1e-10 × the free gap; the optimum is then known to
+    # ~1e-10 × cond(H) relative in effort, so 1e-6 leaves margin for cond(H) ≲ 1e4 here,
+    # and the predicted gaps agree to 1e-8 of the free gap.
+    W_ea, de, W_aa, _ = synthetic(seed, n_act=4, n_rows=6)
+    problem = ConstraintProblem(W_ea, de, lambda_lower=0.0, lambda_upper=6.0,
+                                W_aa=W_aa, delta_a_free=np.zeros(4))
+    gs = solve_constraint_problem(problem, "gauss-seidel")
+    qp = solve_constraint_problem(problem, exact)
+    assert gs.converged and qp.converged
+    scale = np.linalg.norm(de)
+    assert np.linalg.norm(gs.delta_e - qp.delta_e) <= 1e-8 * scale
+    np.testing.assert_allclose(gs.actuation, qp.actuation, rtol=0, atol=1e-6 * np.abs(qp.actuation).max())
+
+
+@pytest.mark.parametrize("backend", ["gauss-seidel", *EXACT, *INTERIOR])
+def test_bounds_are_never_violated(backend):
+    # Tight effort boxes and stroke limits on random problems: the λ box is exact
+    # (the result is clipped), the displacement rows hold to 1e-9 relative (solver
+    # feasibility tolerance) — or are reported as relaxed when they cannot hold.
+    rng = np.random.default_rng(7)
+    for seed in range(6):
+        W_ea, de, W_aa, _ = synthetic(seed, n_act=8, reach=3.0)
+        lo = rng.uniform(0.0, 0.5, 8)
+        hi = lo + rng.uniform(0.5, 2.0, 8)
+        dlo = -np.abs(W_aa).sum(axis=1) * 0.7  # stroke limit inside the box's reach
+        problem = ConstraintProblem(W_ea, de, lambda_lower=lo, lambda_upper=hi, W_aa=W_aa,
+                                    delta_a_free=np.zeros(8), displacement_lower=dlo)
+        sol = solve_constraint_problem(problem, backend, max_iterations=20000)
+        assert np.all(sol.actuation >= lo) and np.all(sol.actuation <= hi)
+        if sol.status != "relaxed":
+            assert np.all(sol.delta_a >= dlo - 1e-9 * np.abs(dlo)), backend
+        else:
+            assert np.all(sol.delta_a >= dlo - sol.displacement_relaxation - 1e-9 * np.abs(dlo))
+
+
+@pytest.mark.parametrize("backend", ["gauss-seidel", *EXACT])
+def test_unreachable_target_gives_the_closest_reach(backend):
+    # Independent reference: bounded least squares (scipy lsq_linear) on the same
+    # regularised objective. Equal optimal objective to 1e-7 relative (GS stops at
+    # 1e-10 relative effector motion per sweep; the objective is quadratic in it).
+    from scipy.optimize import lsq_linear
+
+    W_ea, de, W_aa, _ = synthetic(3, n_act=6, reach=10.0)
+    problem = ConstraintProblem(W_ea, de, lambda_lower=0.0, lambda_upper=5.0, W_aa=W_aa,
+                                delta_a_free=np.zeros(6))
+    sol = solve_constraint_problem(problem, backend, max_iterations=20000)
+    qf = quadratic_form(problem)
+    A = np.vstack([W_ea, np.diag(np.sqrt(qf.regularisation_weight * qf.energy_diagonal))])
+    b = np.concatenate([-de, np.zeros(6)])
+    ref = lsq_linear(A, b, bounds=(0.0, 5.0), method="bvls", tol=1e-15)
+    ref_objective = 0.5 * float(np.sum((A @ ref.x - b) ** 2))
+    assert sol.effector_error > 0.1 * np.linalg.norm(de)  # really out of reach
+    assert sol.objective == pytest.approx(ref_objective, rel=1e-7)
+    assert sol.active_upper.any()  # the closest reach pulls some actuators to their limit
+
+
+def test_infeasible_stroke_limits_are_relaxed_minimally_and_reported():
+    # A stroke limit above the free displacement at zero effort cannot hold with λ ≥ 0
+    # (pulling only shortens the cable): the step relaxes it by exactly the deficit.
+    W_ea, de, W_aa, _ = synthetic(5, n_act=4)
+    da_free = np.full(4, -1e-3)
+    problem = ConstraintProblem(W_ea, de, lambda_lower=0.0, lambda_upper=10.0, W_aa=W_aa,
+                                delta_a_free=da_free, displacement_lower=-5e-4)
+    for backend in ["gauss-seidel", *EXACT, *INTERIOR]:
+        sol = solve_constraint_problem(problem, backend)
+        assert sol.status == "relaxed"
+        assert np.all(sol.actuation >= 0.0) and np.all(sol.actuation <= 10.0)
+        # the best any λ ≥ 0 can do is λ = 0 (W_aa ≤ 0 on its diagonal): deficit 5e-4
+        np.testing.assert_allclose(sol.displacement_relaxation, 5e-4, rtol=1e-6)
+
+
+@pytest.mark.parametrize("exact", EXACT)
+def test_redundant_actuation_has_a_unique_solution(exact):
+    # 16 tendons, one 3-D target: W_eaᵀW_ea has rank 3. From any warm start the exact
+    # QP returns the same efforts (the regulariser makes the QP strictly convex); 1e-6
+    # relative is the solver's accuracy on a Hessian of condition ~1/ε = 1e8.
+    W_ea, de, W_aa, _ = synthetic(11)
+    rng = np.random.default_rng(1)
+    sols = []
+    for _ in range(4):
+        problem = ConstraintProblem(W_ea, de, lambda_lower=0.0, lambda_upper=20.0, W_aa=W_aa,
+                                    delta_a_free=np.zeros(16), lambda0=rng.uniform(0, 20, 16))
+        sol = solve_constraint_problem(problem, exact)
+        assert sol.converged
+        # reachable: the regulariser biases the effector by ≪ 1e-6 of the gap
+        assert sol.effector_error <= 1e-6 * np.linalg.norm(de)
+        sols.append(sol.actuation)
+    for lam in sols[1:]:
+        np.testing.assert_allclose(lam, sols[0], rtol=0, atol=1e-6 * np.abs(sols[0]).max())
+
+
+def test_redundant_actuation_is_smooth_along_a_circle():
+    # The solution map of a strictly convex QP is continuous, so uniformly spaced
+    # targets give efforts without jumps: no step larger than 5× the median step
+    # (an arbitrary choice among many solutions would jump by O(λ) instead).
+    W_ea, de0, W_aa, _ = synthetic(2)
+    r = 0.3 * np.linalg.norm(de0)
+    u, v = np.linalg.qr(np.random.default_rng(0).normal(size=(3, 2)))[0].T
+    lam = None
+    path = []
+    for th in np.linspace(0, 2 * np.pi, 121):
+        de = de0 + r * (np.cos(th) * u + np.sin(th) * v)
+        problem = ConstraintProblem(W_ea, de, lambda_lower=0.0, lambda_upper=20.0, W_aa=W_aa,
+                                    delta_a_free=np.zeros(16), lambda0=lam)
+        sol = solve_constraint_problem(problem)
+        assert sol.converged
+        lam = sol.actuation
+        path.append(lam)
+    steps = np.linalg.norm(np.diff(path, axis=0), axis=1)
+    assert steps.max() <= 5 * np.median(steps)
+    assert np.linalg.norm(path[-1] - path[0]) <= 1e-6 * np.abs(path[0]).max()  # closed loop
+
+
+def test_regulariser_is_invariant_to_units_and_actuator_count():
+    # Units: tension in mN instead of N for half the actuators, mm instead of m for the
+    # effector: the same physical answer. The regularised Hessian has condition ~1/ε =
+    # 1e8, so round-off alone moves efforts by ~1e-8 relative: 1e-6 is the tolerance.
+    W_ea, de, W_aa, _ = synthetic(4, n_act=6)
+    base = solve_constraint_problem(ConstraintProblem(W_ea, de, lambda_lower=0.0, lambda_upper=20.0,
+                                                      W_aa=W_aa, delta_a_free=np.zeros(6)))
+    s = np.array([1e3, 1, 1e3, 1, 1e3, 1])  # λ' = s λ
+    scaled = solve_constraint_problem(ConstraintProblem(
+        1e3 * W_ea / s, 1e3 * de, lambda_lower=0.0, lambda_upper=20.0 * s,
+        W_aa=W_aa / s[None, :] / s[:, None], delta_a_free=np.zeros(6)))
+    np.testing.assert_allclose(scaled.actuation / s, base.actuation, rtol=1e-6, atol=1e-9 * base.actuation.max())
+    # Count: every actuator doubled (two identical cables) shares the effort; the sum
+    # equals the original to the regulariser's O(ε) effect on a reachable target.
+    W2 = np.hstack([W_ea, W_ea])
+    Waa2 = np.block([[W_aa, W_aa], [W_aa, W_aa]])
+    dup = solve_constraint_problem(ConstraintProblem(W2, de, lambda_lower=0.0, lambda_upper=20.0,
+                                                     W_aa=Waa2, delta_a_free=np.zeros(12)))
+    np.testing.assert_allclose(dup.actuation[:6], dup.actuation[6:], rtol=0, atol=1e-6 * dup.actuation.max())
+    assert np.linalg.norm(dup.delta_e) <= 1e-6 * np.linalg.norm(de)
+    assert np.linalg.norm(base.delta_e) <= 1e-6 * np.linalg.norm(de)
+
+
+@pytest.mark.parametrize("interior", INTERIOR)
+def test_interior_point_backend_agrees_with_active_set(interior):
+    # Clarabel stops at a duality gap of 1e-10 on the Jacobi-scaled problem: efforts
+    # agree with DAQP's active-set answer to ~1e-7 relative; 1e-5 leaves margin.
+    W_ea, de, W_aa, _ = synthetic(8, n_act=5, n_rows=6, reach=2.0)
+    problem = ConstraintProblem(W_ea, de, lambda_lower=0.0, lambda_upper=8.0, W_aa=W_aa,
+                                delta_a_free=np.zeros(5))
+    a = solve_constraint_problem(problem, "daqp")
+    b = solve_constraint_problem(problem, interior)
+    np.testing.assert_allclose(b.actuation, a.actuation, rtol=0, atol=1e-5 * np.abs(a.actuation).max())
