@@ -1,0 +1,294 @@
+"""Sweep machinery with a cheap fake job: spec parsing, expansion, resume, failure isolation.
+
+The real designer/catalogue end-to-end sweeps are in tests/test_sweep_real.py.
+The fake backend below is module-level so spawned worker processes can import it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from designer.executors import EXECUTORS, Crash, make_executor
+from designer.sweep import (SweepBackend, expand, failure_log_path, latin_hypercube_unit, load_spec,
+                            parse_spec, plan_sweep, run_sweep)
+from store.entry import SegmentEntry, content_key
+from store.errors import CatalogueError, GeometryError, SceneError
+
+# --------------------------------------------------------------------------- fake backend
+
+CALLS = []          # tasks the fake job saw (serial executor only: same process)
+
+
+def fake_canonical(family, parameters):
+    out = {"youngs_modulus": 1.0e6, "poisson_ratio": 0.3, **parameters}
+    for name in ("radius", "length"):
+        if name not in out:
+            raise GeometryError(f"parameter {name!r} is required")
+        if not out[name] > 0:
+            raise GeometryError(f"parameter {name!r} must be > 0, got {out[name]}")
+    return out
+
+
+def fake_key(task):
+    return content_key({"family": task.family, "parameters": task.parameters,
+                        "mesh_size": task.mesh_size, "order": task.order})
+
+
+def fake_job(task):
+    CALLS.append(task.index)
+    p = task.parameters
+    if p.get("explode"):
+        raise RuntimeError(f"boom in task {task.index}")
+    if p.get("crash"):
+        os._exit(3)                                      # a worker dying hard (segfault-like)
+    area = np.pi * p["radius"] ** 2
+    compliance = np.diag([1.0, 1.0, p["length"] / (p["youngs_modulus"] * area), 2.0, 2.0, 3.0])
+    return SegmentEntry(key=fake_key(task), name=task.name or f"fake-{task.index}", family=task.family,
+                        parameters=p, compliance=compliance, cavity_volumes=[], mass=0.0,
+                        center_of_mass=[0, 0, p["length"] / 2],
+                        provenance={"omp": os.environ.get("OMP_NUM_THREADS")})
+
+
+def fake_store(path, entry):
+    """A stand-in catalogue: one JSON line per entry (appends are atomic enough for a test)."""
+    with open(path, "a") as handle:
+        handle.write(json.dumps({"key": entry.key, "name": entry.name}) + "\n")
+    return entry.key
+
+
+def fake_contains(path, key):
+    return key in stored_keys(path)
+
+
+def stored_keys(path):
+    if not os.path.exists(path):
+        return []
+    return [json.loads(line)["key"] for line in Path(path).read_text().splitlines()]
+
+
+FAKE = SweepBackend(job=fake_job, store=fake_store, contains=fake_contains, canonical=fake_canonical,
+                    key=fake_key, families=lambda: ["rod", "tube"])
+
+
+def spec_dict(**sampler):
+    return {"family": "rod", "parameters": {"youngs_modulus": 2.0e6}, "mesh_size": 0.004, "order": 1,
+            **sampler}
+
+
+def run_fake(spec, catalogue, **kwargs):
+    kwargs.setdefault("executor", "serial")
+    return run_sweep(spec, catalogue, backend=FAKE, progress=False, **kwargs)
+
+
+# --------------------------------------------------------------------------- expansion
+
+def test_grid_is_the_cartesian_product_in_spec_order():
+    spec = parse_spec(spec_dict(grid={"radius": [0.01, 0.02, 0.03], "length": [0.04, 0.05]}))
+    tasks = expand(spec)
+    assert [(t.parameters["radius"], t.parameters["length"]) for t in tasks] == [
+        (0.01, 0.04), (0.01, 0.05), (0.02, 0.04), (0.02, 0.05), (0.03, 0.04), (0.03, 0.05)]
+    assert all(t.parameters["youngs_modulus"] == 2.0e6 and t.mesh_size == 0.004 and t.order == 1 for t in tasks)
+    assert [t.index for t in tasks] == list(range(6))
+
+
+def test_list_accepts_array_of_tables_and_sets():
+    sets = [{"radius": 0.01, "length": 0.04}, {"radius": 0.02, "length": 0.03, "poisson_ratio": 0.45}]
+    for form in (sets, {"sets": sets}):
+        tasks = expand(parse_spec(spec_dict(list=form)))
+        assert [t.parameters for t in tasks] == [{"youngs_modulus": 2.0e6, **s} for s in sets]
+
+
+@pytest.mark.parametrize("samples, seed", [(7, 0), (20, 3)])
+def test_lhs_puts_one_sample_in_every_stratum(samples, seed):
+    # Latin hypercube property, checked in the sampled (linear or log) coordinate:
+    # for every parameter, floor(n * fraction) over the n samples is a permutation
+    # of 0..n-1. The 1e-9 margin only guards the floor against rounding at a
+    # stratum edge after exp/log; strata are 1/n >= 0.05 wide.
+    lhs = {"ranges": {"radius": [0.004, 0.012], "youngs_modulus": [1e5, 1e8]}, "samples": samples,
+           "seed": seed, "log": ["youngs_modulus"]}
+    tasks = expand(parse_spec({"family": "rod", "parameters": {"length": 0.04}, "lhs": lhs}))
+    assert len(tasks) == samples
+    r = np.array([t.parameters["radius"] for t in tasks])
+    e = np.array([t.parameters["youngs_modulus"] for t in tasks])
+    fractions = {"radius": (r - 0.004) / 0.008, "youngs_modulus": (np.log10(e) - 5.0) / 3.0}
+    for name, u in fractions.items():
+        assert np.all((u > -1e-9) & (u < 1 + 1e-9)), name
+        strata = np.floor(np.clip(u, 0, 1 - 1e-12) * samples).astype(int)
+        assert sorted(strata) == list(range(samples)), name
+    # seeded: the same seed gives the same tasks (resume relies on it), another seed does not
+    again = expand(parse_spec({"family": "rod", "parameters": {"length": 0.04}, "lhs": lhs}))
+    assert [t.parameters for t in again] == [t.parameters for t in tasks]
+    other = expand(parse_spec({"family": "rod", "parameters": {"length": 0.04}, "lhs": {**lhs, "seed": seed + 1}}))
+    assert [t.parameters for t in other] != [t.parameters for t in tasks]
+
+
+def test_lhs_unit_sampler_stratifies_in_every_dimension():
+    u = latin_hypercube_unit(4, 50, seed=11)
+    for column in u.T:
+        assert sorted(np.floor(column * 50).astype(int)) == list(range(50))
+
+
+def test_lhs_integer_parameters_are_rounded():
+    lhs = {"ranges": {"convolutions": [2, 6], "radius": [0.01, 0.02]}, "samples": 5, "seed": 1,
+           "integer": ["convolutions"]}
+    tasks = expand(parse_spec({"family": "bellows", "lhs": lhs}))
+    values = [t.parameters["convolutions"] for t in tasks]
+    assert all(isinstance(v, int) and 2 <= v <= 6 for v in values)
+
+
+# --------------------------------------------------------------------------- bad specs
+
+@pytest.mark.parametrize("data, field", [
+    ({"family": "rod", "grid": {"radius": [0.01]}, "mesh_sise": 0.004}, "mesh_sise"),
+    ({"family": "rod", "grid": {"radius": 0.01}}, "grid.radius"),
+    ({"family": "rod", "grid": {"radius": [0.01]}, "list": [{"radius": 0.01}]}, "list"),
+    ({"family": "rod"}, "grid"),
+    ({"grid": {"radius": [0.01]}}, "family"),
+    ({"family": "rod", "parameters": {"radius": 0.01}, "grid": {"radius": [0.02]}}, "grid.radius"),
+    ({"family": "rod", "lhs": {"ranges": {"radius": [0.01, 0.02]}, "samples": 4}}, "lhs.seed"),
+    ({"family": "rod", "lhs": {"ranges": {"radius": [0.02, 0.01]}, "samples": 4, "seed": 0}}, "lhs.ranges.radius"),
+    ({"family": "rod", "lhs": {"ranges": {"radius": [0.01, 0.02]}, "samples": 4, "seed": 0, "sead": 1}}, "lhs.sead"),
+    ({"family": "rod", "list": [{"radius": 0.01}], "order": 3}, "order"),
+    ({"family": "rod", "list": {"set": []}}, "list.set"),
+])
+def test_bad_spec_names_the_field(data, field):
+    with pytest.raises(SceneError) as info:
+        parse_spec(data, source="bad.toml")
+    assert info.value.field == field
+    assert "bad.toml" in str(info.value) and field in str(info.value)
+
+
+def test_load_spec_names_the_file_and_field(tmp_path):
+    path = tmp_path / "sweep.toml"
+    path.write_text('family = "rod"\nmesh_size = 0.004\ncolour = "red"\n[grid]\nradius = [0.01]\n')
+    with pytest.raises(SceneError) as info:
+        load_spec(path)
+    assert info.value.file == str(path) and info.value.field == "colour"
+    path.write_text('family = "rod"\n[grid\n')
+    with pytest.raises(SceneError, match="not valid TOML"):
+        load_spec(path)
+
+
+def test_unknown_family_and_bad_name_template_are_spec_errors(tmp_path):
+    with pytest.raises(SceneError) as info:
+        run_fake(parse_spec({"family": "rodd", "grid": {"radius": [0.01], "length": [0.04]}}), tmp_path / "c")
+    assert info.value.field == "family"
+    spec = parse_spec({"family": "rod", "name": "rod-{diameter}", "grid": {"radius": [0.01], "length": [0.04]}})
+    with pytest.raises(SceneError) as info:
+        run_fake(spec, tmp_path / "c")
+    assert info.value.field == "name" and "diameter" in str(info.value)
+
+
+def test_missing_catalogue_directory_is_a_catalogue_error(tmp_path):
+    spec = parse_spec(spec_dict(grid={"radius": [0.01], "length": [0.04]}))
+    with pytest.raises(CatalogueError):
+        run_fake(spec, tmp_path / "no" / "such" / "cat.h5")
+
+
+def test_unknown_executor_and_scheduler_misuse_are_rejected():
+    assert {"serial", "local", "dask"} <= set(EXECUTORS)
+    with pytest.raises(SceneError):
+        make_executor("slurm")
+    with pytest.raises(SceneError):
+        make_executor("local", scheduler="tcp://127.0.0.1:8786")
+    with pytest.raises(SceneError):
+        make_executor("local", workers=0)
+
+
+# --------------------------------------------------------------------------- resume, duplicates
+
+def test_resume_skips_done_work_and_rerun_does_nothing(tmp_path):
+    catalogue = tmp_path / "cat.jsonl"
+    spec = parse_spec(spec_dict(grid={"radius": [0.01, 0.02, 0.03], "length": [0.04, 0.05]},
+                                name="rod-r{radius}-L{length}"))
+    # a previous, interrupted run had done two of the six tasks
+    plan = plan_sweep(spec, catalogue, backend=FAKE)
+    for task in plan.todo[:2]:
+        fake_store(catalogue, fake_job(task))
+    CALLS.clear()
+    report = run_fake(spec, catalogue)
+    assert sorted(CALLS) == [2, 3, 4, 5]
+    assert len(report.completed) == 4 and len(report.skipped) == 2 and report.exit_code == 0
+    assert sorted(stored_keys(catalogue)) == sorted(t.key for t in plan.todo)
+    assert report.completed[0].name == "rod-r0.02-L0.04"
+    CALLS.clear()
+    again = run_fake(spec, catalogue)
+    assert CALLS == [] and len(again.skipped) == 6 and not again.completed and again.exit_code == 0
+    assert not failure_log_path(catalogue).exists()
+
+
+def test_repeated_parameter_sets_run_once(tmp_path):
+    spec = parse_spec(spec_dict(list=[{"radius": 0.01, "length": 0.04}, {"radius": 0.02, "length": 0.04},
+                                      {"radius": 0.01, "length": 0.04}]))
+    CALLS.clear()
+    report = run_fake(spec, tmp_path / "cat.jsonl")
+    assert sorted(CALLS) == [0, 1]
+    assert [(t.index, first) for t, first in report.duplicates] == [(2, 0)]
+    assert [row["status"] for row in report.status()] == ["done", "done", "duplicate"]
+
+
+def test_dry_run_designs_nothing(tmp_path):
+    spec = parse_spec(spec_dict(grid={"radius": [0.01, -0.02], "length": [0.04]}))
+    CALLS.clear()
+    report = run_fake(spec, tmp_path / "cat.jsonl", dry_run=True)
+    assert CALLS == [] and len(report.todo) == 1 and len(report.failures) == 1 and report.exit_code == 1
+    assert not (tmp_path / "cat.jsonl").exists() and not failure_log_path(tmp_path / "cat.jsonl").exists()
+
+
+# --------------------------------------------------------------------------- failures
+
+def test_failures_are_isolated_and_logged(tmp_path):
+    catalogue = tmp_path / "cat.jsonl"
+    spec = parse_spec(spec_dict(list=[{"radius": 0.01, "length": 0.04},
+                                      {"radius": -0.01, "length": 0.04},             # invalid geometry
+                                      {"radius": 0.02, "length": 0.04, "explode": True},
+                                      {"radius": 0.03, "length": 0.04}]))
+    CALLS.clear()
+    report = run_fake(spec, catalogue)
+    assert report.exit_code == 1
+    assert sorted(CALLS) == [0, 2, 3]                       # the invalid task never reached the job
+    assert [o.index for o in report.completed] == [0, 3]
+    assert len(stored_keys(catalogue)) == 2
+    lines = [json.loads(line) for line in failure_log_path(catalogue).read_text().splitlines()]
+    assert [(r["index"], r["stage"], r["error_type"]) for r in sorted(lines, key=lambda r: r["index"])] == [
+        (1, "validate", "GeometryError"), (2, "design", "RuntimeError")]
+    by_index = {r["index"]: r for r in lines}
+    assert by_index[1]["parameters"]["radius"] == -0.01 and "radius" in by_index[1]["message"]
+    assert by_index[2]["message"] == "boom in task 2" and "RuntimeError" in by_index[2]["traceback"]
+    assert by_index[2]["key"] and by_index[2]["parameters"]["explode"] is True
+    for record in lines:
+        assert record["version"] == 1 and record["sweep"] == "<dict>" and record["catalogue"] == str(catalogue)
+        assert record["family"] == "rod" and record["mesh_size"] == 0.004 and record["order"] == 1
+    # a re-run retries the failed task only (the invalid one is re-reported, not run)
+    CALLS.clear()
+    again = run_fake(spec, catalogue)
+    assert CALLS == [2] and again.exit_code == 1 and len(again.skipped) == 2
+
+
+def test_local_pool_survives_a_dying_worker(tmp_path):
+    # Two spawned workers; task 0 kills its worker process, which breaks the pool
+    # and fails every task then in flight. Those are re-run one at a time, so only
+    # task 0 is reported (as a worker crash) and the seven others land.
+    catalogue = tmp_path / "cat.jsonl"
+    sets = [{"radius": 0.01, "length": 0.04, "crash": True}] + [
+        {"radius": 0.01 * (i + 2), "length": 0.04} for i in range(7)]
+    report = run_fake(parse_spec(spec_dict(list=sets)), catalogue, executor="local", workers=2)
+    assert [(f.index, f.stage, f.error_type) for f in report.failures] == [(0, "worker", "WorkerCrashed")]
+    assert [o.index for o in report.completed] == list(range(1, 8))
+    assert sorted(stored_keys(catalogue)) == sorted(o.key for o in report.completed)
+    # the workers ran in other processes with BLAS/OpenMP pinned to one thread
+    assert {o.worker["omp_num_threads"] for o in report.completed} == {"1"}
+    assert all(o.worker["pid"] != os.getpid() for o in report.completed)
+    assert report.exit_code == 1
+
+
+def test_serial_executor_turns_escaping_errors_into_crashes():
+    with make_executor("serial") as executor:
+        results = dict(executor.map_unordered(lambda x: 1 / x, [1, 0, 2]))
+    assert results[1] == 1 and results[2] == 0.5
+    assert isinstance(results[0], Crash) and results[0].error_type == "ZeroDivisionError"
