@@ -292,3 +292,31 @@ def test_serial_executor_turns_escaping_errors_into_crashes():
         results = dict(executor.map_unordered(lambda x: 1 / x, [1, 0, 2]))
     assert results[1] == 1 and results[2] == 0.5
     assert isinstance(results[0], Crash) and results[0].error_type == "ZeroDivisionError"
+
+
+def test_dask_runs_the_same_tasks_as_serial_and_isolates_failures(tmp_path):
+    # Same fake job on a dask LocalCluster (2 single-threaded worker processes):
+    # the same keys land, the exploding task is reported with its worker traceback.
+    sets = [{"radius": 0.01 * (i + 1), "length": 0.04} for i in range(4)]
+    sets[2]["explode"] = True
+    spec = parse_spec(spec_dict(list=sets))
+    serial = run_fake(spec, tmp_path / "serial.jsonl")
+    dask = run_fake(spec, tmp_path / "dask.jsonl", executor="dask", workers=2)
+    assert [o.key for o in dask.completed] == [o.key for o in serial.completed]
+    assert [o.compliance for o in dask.completed] == [o.compliance for o in serial.completed]
+    assert [(f.index, f.stage, f.error_type) for f in dask.failures] == [(2, "design", "RuntimeError")]
+    assert "boom in task 2" in dask.failures[0].traceback
+    assert {o.worker["omp_num_threads"] for o in dask.completed} == {"1"}
+    assert dask.executor == {"name": "dask", "workers": 2}
+
+
+def test_dask_executor_connects_to_a_running_scheduler(tmp_path):
+    # --scheduler ADDRESS: the sweep is a client of a cluster it did not start.
+    from dask.distributed import LocalCluster
+
+    spec = parse_spec(spec_dict(grid={"radius": [0.01, 0.02], "length": [0.04]}))
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        report = run_fake(spec, tmp_path / "cat.jsonl", executor="dask", scheduler=cluster.scheduler_address)
+    assert report.exit_code == 0 and len(report.completed) == 2
+    assert report.executor == {"name": "dask", "workers": 1, "scheduler": cluster.scheduler_address}
+    assert sorted(stored_keys(tmp_path / "cat.jsonl")) == sorted(o.key for o in report.completed)
