@@ -1,0 +1,269 @@
+"""Inverse simulation of a trunk (paper §IV): linearise → constraint space → QP → step.
+
+At a state ``q`` with actuation ``λ0`` the lead's model gives the out-of-balance force
+``r``, the banded factor of ``K``, the actuator forces ``B`` and the Jacobians ``Ja``,
+``Je`` (docs/solver-api.md). One multi-right-hand-side banded solve
+``[K⁻¹r, K⁻¹B]`` (cost linear in frames × actuators) gives everything::
+
+    dq(λ)  = K⁻¹ r + K⁻¹B (λ − λ0)                                  (paper eq. 10)
+    δe(λ)  = e − target + Je K⁻¹ r − W_ea λ0 + W_ea λ,  W_ea = Je K⁻¹ B  (paper eq. 11)
+    δa(λ)  = a + Ja K⁻¹ r − W_aa λ0 + W_aa λ,           W_aa = Ja K⁻¹ B  (paper eq. 12)
+
+The QP (``solver.inverse.qp``, paper eq. 13) is posed in the *total* actuation λ, so its
+bounds are the actuator limits and its regulariser the actuation energy. Then either
+
+* **tick** (real time): ``state ← model.step(state, dq(λ))`` — one Newton-like update per
+  control tick; the next tick's ``K⁻¹ r`` term corrects the remaining imbalance; or
+* **converged** (static inverse): ``model.solve(λ, initial=step)`` to equilibrium, then
+  linearise again, until the effector error is within tolerance or stops falling.
+
+Both warm-start from the previous state, actuation and QP solution along a trajectory.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from solver.inverse.qp import (
+    DEFAULT_BACKEND,
+    DEFAULT_REGULARISATION,
+    ConstraintProblem,
+    ConstraintSolution,
+    solve_constraint_problem,
+)
+from store.errors import ConvergenceError
+
+__all__ = ["InverseSettings", "InverseStep", "InverseController", "constraint_problem", "MODES"]
+
+
+@dataclass(frozen=True)
+class InverseSettings:
+    """Knobs of the inverse. ``tolerance`` is the effector error (m) counted as reached."""
+
+    mode: str = "converged"
+    backend: str = DEFAULT_BACKEND
+    regularisation: float = DEFAULT_REGULARISATION
+    tolerance: float = 1e-6
+    max_iterations: int = 30  # outer linearise–QP–solve iterations (converged mode)
+    patience: int = 3  # converged mode stops after this many iterations without progress …
+    progress: float = 0.01  # … where progress means cutting the best error by this fraction
+    qp_tolerance: float = 1e-10
+
+    def __post_init__(self):
+        if self.mode not in MODES:
+            raise ValueError(f"mode must be one of {sorted(MODES)}, got {self.mode!r}")
+        if not (self.tolerance > 0 and math.isfinite(self.tolerance)):
+            raise ValueError(f"tolerance must be a positive length (m), got {self.tolerance}")
+        if self.max_iterations < 1:
+            raise ValueError(f"max_iterations must be ≥ 1, got {self.max_iterations}")
+        if not (0.0 < self.progress < 1.0) or self.patience < 1:
+            raise ValueError(f"need 0 < progress < 1 and patience ≥ 1, got {self.progress}, {self.patience}")
+
+
+@dataclass
+class InverseStep:
+    """Outcome of one inverse step (one target), with diagnostics."""
+
+    actuation: np.ndarray  # (n_act,) cables then chambers
+    state: object  # solver.State
+    targets: np.ndarray  # (n_eff, 3)
+    positions: np.ndarray  # (n_eff, 3) effector positions at ``state``
+    errors: np.ndarray  # (n_eff,) |position − target| (m)
+    displacements: np.ndarray  # (n_act,) actuator displacements at ``state``
+    reached: bool  # every error ≤ tolerance
+    equilibrium: bool  # ``state`` is a converged equilibrium (converged mode)
+    iterations: int  # outer iterations
+    qp: ConstraintSolution  # last QP
+    timings: dict = field(default_factory=dict)  # linearise_s, W_s, qp_s, step_s, solve_s, total_s
+    status: str = ""
+
+
+def constraint_problem(lin, targets: np.ndarray, actuation: np.ndarray, *, weights: np.ndarray,
+                       lambda_bounds, displacement_bounds, regularisation: float,
+                       lambda0: np.ndarray | None = None):
+    """Project a linearisation into constraint space (paper eqs. 10–12).
+
+    Returns ``(problem, K⁻¹r, K⁻¹B, timings)``. One banded solve with ``1 + n_act``
+    right-hand sides; ``W_ea`` uses only the rows of ``K⁻¹[r, B]`` that the effector
+    Jacobian touches (the effectors' frames).
+    """
+    t0 = time.perf_counter()
+    B = lin.actuator_forces
+    rhs = np.empty((B.shape[0], 1 + B.shape[1]))
+    rhs[:, 0] = lin.residual
+    rhs[:, 1:] = B
+    X = lin.solve(rhs)
+    t1 = time.perf_counter()
+    Je = lin.effector_jacobian
+    cols = np.flatnonzero(np.any(Je != 0.0, axis=0))  # the effector frames' DoFs only
+    JeX = Je[:, cols] @ X[cols]
+    JaX = lin.actuator_jacobian @ X
+    W_ea, W_aa = JeX[:, 1:], JaX[:, 1:]
+    delta_e_free = (lin.effector_positions - targets).reshape(-1) + JeX[:, 0] - W_ea @ actuation
+    delta_a_free = lin.actuator_displacements + JaX[:, 0] - W_aa @ actuation
+    problem = ConstraintProblem(
+        W_ea=W_ea, delta_e_free=delta_e_free,
+        lambda_lower=lambda_bounds[0], lambda_upper=lambda_bounds[1],
+        effector_weights=np.repeat(weights, 3), W_aa=W_aa, delta_a_free=delta_a_free,
+        displacement_lower=displacement_bounds[0], displacement_upper=displacement_bounds[1],
+        lambda0=actuation if lambda0 is None else lambda0, regularisation=regularisation,
+    )
+    t2 = time.perf_counter()
+    return problem, X[:, 0], X[:, 1:], {"solve_KB_s": t1 - t0, "W_s": t2 - t0}
+
+
+class InverseController:
+    """Runs the inverse on one compiled model; keeps state and actuation between targets
+    (warm start along a trajectory). Build once, call :meth:`step` many times."""
+
+    def __init__(self, model, settings: InverseSettings | None = None, *, actuation=None, state=None):
+        self.model = model
+        self.settings = settings or InverseSettings()
+        n_act = len(model.actuator_names)
+        if n_act == 0:
+            raise ValueError("the scene has no actuators (cables or chambers) to invert for")
+        if len(model.effector_names) == 0:
+            raise ValueError("the scene has no effectors to bring to targets")
+        lo, hi = (np.asarray(b, dtype=float) for b in model.actuator_bounds)
+        self.lambda_bounds = (lo, hi)
+        self.displacement_bounds = tuple(np.asarray(b, dtype=float) for b in model.displacement_bounds)
+        start = np.zeros(n_act) if actuation is None else np.asarray(actuation, dtype=float)
+        self.actuation = np.clip(start, lo, hi)
+        self.state = (state or model.rest_state).copy()
+        self.equilibrium = False
+        self.weights = np.asarray(model.effector_weights, dtype=float)
+
+    # ------------------------------------------------------------------ pieces
+    def _errors(self, positions, targets):
+        return np.linalg.norm(positions - targets, axis=1)
+
+    def _linearised_step(self, targets, timings):
+        """linearise → W → QP at the current state/actuation. Returns (qp solution, dq)."""
+        t0 = time.perf_counter()
+        lin = self.model.linearise(self.state, self.actuation)
+        t1 = time.perf_counter()
+        problem, Kr, KB, t_w = constraint_problem(
+            lin, targets, self.actuation, weights=self.weights, lambda_bounds=self.lambda_bounds,
+            displacement_bounds=self.displacement_bounds, regularisation=self.settings.regularisation)
+        sol = solve_constraint_problem(problem, self.settings.backend, tolerance=self.settings.qp_tolerance)
+        t2 = time.perf_counter()
+        dq = Kr + KB @ (sol.actuation - self.actuation)
+        timings["linearise_s"] = timings.get("linearise_s", 0.0) + (t1 - t0)
+        timings["W_s"] = timings.get("W_s", 0.0) + t_w["W_s"]
+        timings["qp_s"] = timings.get("qp_s", 0.0) + sol.time_s
+        timings["inverse_s"] = timings.get("inverse_s", 0.0) + (t2 - t0)
+        return sol, dq
+
+    def _result(self, targets, sol, iterations, timings, t_start, equilibrium, status=""):
+        positions = self.model.effector_positions(self.state)
+        errors = self._errors(positions, targets)
+        timings["total_s"] = time.perf_counter() - t_start
+        return InverseStep(
+            actuation=self.actuation.copy(), state=self.state, targets=targets.copy(),
+            positions=positions, errors=errors,
+            displacements=self.model.actuator_displacements(self.state, self.actuation),
+            reached=bool(np.all(errors <= self.settings.tolerance)), equilibrium=equilibrium,
+            iterations=iterations, qp=sol, timings=timings, status=status)
+
+    # ------------------------------------------------------------------ modes
+    def tick(self, targets) -> InverseStep:
+        """One linearise–QP–step (real-time mode): no Newton solve; ``state`` is the
+        linearised prediction, not an equilibrium (the next tick corrects it)."""
+        targets = self._targets(targets)
+        t_start = time.perf_counter()
+        timings: dict = {}
+        sol, dq = self._linearised_step(targets, timings)
+        t0 = time.perf_counter()
+        self.state = self.model.step(self.state, dq)
+        self.actuation = sol.actuation
+        self.equilibrium = False
+        timings["step_s"] = time.perf_counter() - t0
+        return self._result(targets, sol, 1, timings, t_start, False, status="tick")
+
+    def converge(self, targets) -> InverseStep:
+        """Static inverse: repeat linearise → QP → equilibrium solve until the effectors are
+        within tolerance or the error stops falling (unreachable: closest reach)."""
+        targets = self._targets(targets)
+        t_start = time.perf_counter()
+        timings: dict = {"solve_s": 0.0}
+        s = self.settings
+        if not self.equilibrium:
+            self._equilibrate(self.actuation, self.state, timings)
+        error = float(np.max(self._errors(self.model.effector_positions(self.state), targets)))
+        best, idle = error, 0
+        sol, status, iterations = None, "max_iterations", 0
+        for iterations in range(1, s.max_iterations + 1):
+            sol, dq = self._linearised_step(targets, timings)
+            lam_old, state_old = self.actuation, self.state
+            new_error = math.inf
+            # Backtrack on the actuation change when the linear prediction overshoots
+            # (large steps) or the equilibrium solve fails.
+            for fraction in (1.0, 0.5, 0.25, 0.125, 0.0625):
+                lam = lam_old + fraction * (sol.actuation - lam_old)
+                guess = self.model.step(state_old, fraction * dq)
+                try:
+                    self._equilibrate(lam, guess, timings)
+                except ConvergenceError:
+                    try:  # the stepped guess may be poor: start from the last equilibrium
+                        self._equilibrate(lam, state_old, timings)
+                    except ConvergenceError:
+                        self.actuation, self.state = lam_old, state_old
+                        continue
+                new_error = float(np.max(self._errors(self.model.effector_positions(self.state), targets)))
+                if new_error <= error or fraction == 0.0625:
+                    break
+            if not math.isfinite(new_error):
+                status = "equilibrium_failed"
+                self.actuation, self.state = lam_old, state_old
+                break
+            error = new_error
+            if error <= s.tolerance:
+                status = "reached"
+                break
+            if error < (1.0 - s.progress) * best:
+                best, idle = error, 0
+            else:
+                idle += 1
+                if idle >= s.patience:
+                    status = "closest_reach"  # the error stopped falling: unreachable or a bound binds
+                    break
+        timings["iterations"] = iterations
+        return self._result(targets, sol, iterations, timings, t_start, self.equilibrium, status=status)
+
+    def step(self, targets) -> InverseStep:
+        """One step in the configured mode."""
+        return MODES[self.settings.mode](self, targets)
+
+    def track(self, trajectory) -> list[InverseStep]:
+        """Targets (n_steps, n_eff, 3) in order, warm-starting each step from the last."""
+        trajectory = np.asarray(trajectory, dtype=float)
+        return [self.step(t) for t in trajectory]
+
+    # ------------------------------------------------------------------ helpers
+    def _equilibrate(self, actuation, guess, timings):
+        t0 = time.perf_counter()
+        try:
+            result = self.model.solve(actuation, initial=guess)
+        finally:
+            timings["solve_s"] = timings.get("solve_s", 0.0) + time.perf_counter() - t0
+        self.actuation = np.asarray(actuation, dtype=float).copy()
+        self.state = result.state
+        self.equilibrium = True
+
+    def _targets(self, targets) -> np.ndarray:
+        n_eff = len(self.model.effector_names)
+        t = np.asarray(targets, dtype=float).reshape(n_eff, 3) if np.size(targets) == 3 * n_eff else None
+        if t is None:
+            raise ValueError(f"targets must hold {n_eff}×3 values (effectors "
+                             f"{', '.join(self.model.effector_names)}), got shape {np.shape(targets)}")
+        if not np.isfinite(t).all():
+            bad = [self.model.effector_names[k] for k in np.flatnonzero(~np.isfinite(t).all(axis=1))]
+            raise ValueError(f"effector(s) {', '.join(bad)} have no target")
+        return t
+
+
+MODES = {"converged": InverseController.converge, "tick": InverseController.tick}
