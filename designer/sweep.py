@@ -487,7 +487,6 @@ def plan_sweep(spec: SweepSpec, catalogue, *, backend: SweepBackend = DEFAULT_BA
             raise SceneError(f"unknown family {spec.family!r}; known: {', '.join(sorted(families))}",
                              file=spec.source, field="family")
     tasks, todo, skipped, duplicates, invalid = [], [], [], [], []
-    exists = os.path.exists(catalogue)
     first_with_key: dict[str, int] = {}
     for raw in expand(spec):
         task = replace(raw, parameters=_json_ready(raw.parameters))
@@ -507,7 +506,7 @@ def plan_sweep(spec: SweepSpec, catalogue, *, backend: SweepBackend = DEFAULT_BA
         tasks.append(task)
         if task.key in first_with_key:
             duplicates.append((task, first_with_key[task.key]))
-        elif exists and backend.contains(catalogue, task.key):
+        elif backend.contains(catalogue, task.key):   # the store also sees committed, unmerged shards
             first_with_key[task.key] = task.index
             skipped.append(task)
         else:

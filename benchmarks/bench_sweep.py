@@ -1,0 +1,186 @@
+"""Sweep throughput: entries per minute with 1 and 2 local workers and with dask.
+
+Two measurements, in one run:
+
+1. **Real entries.** The same grid of coarse rod entries (real gmsh + scikit-fem
+   + HDF5 catalogue) swept into a fresh catalogue by each executor
+   configuration: wall time from the call to the report (pool or cluster start
+   included), entries per minute, the mean time a worker spent per entry, and
+   the parallel efficiency ``sum(task seconds) / (workers * wall)``.
+2. **Executor overhead.** A no-op job (a tiny entry built in memory, not stored)
+   over many tasks: start-up time of the pool/cluster (first task) and the
+   per-task round-trip cost, local vs dask.
+
+The machine is shared (2 cores, other work running): the load average is
+recorded next to the numbers. Results: benchmarks/results/sweep.json and .md.
+
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_sweep.py [--entries 6] [--mesh-size 0.004]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import tempfile
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from designer.sweep import DEFAULT_BACKEND, SweepBackend, parse_spec, run_sweep  # noqa: E402
+from store.entry import SegmentEntry, content_key  # noqa: E402
+
+RESULTS = ROOT / "benchmarks" / "results"
+
+
+# ---- no-op backend for the overhead measurement (module level: picklable) ----
+
+def noop_canonical(family, parameters):
+    return dict(parameters)
+
+
+def noop_key(task):
+    return content_key({"i": task.parameters["i"]})
+
+
+def noop_job(task):
+    return SegmentEntry(key=noop_key(task), name=f"noop-{task.index}", family="noop", parameters=task.parameters,
+                        compliance=[[1.0 if i == j else 0.0 for j in range(6)] for i in range(6)],
+                        cavity_volumes=[], mass=0.0, center_of_mass=[0, 0, 0])
+
+
+def noop_store(path, entry):
+    return entry.key
+
+
+def noop_contains(path, key):
+    return False
+
+
+NOOP = SweepBackend(job=noop_job, store=noop_store, contains=noop_contains, canonical=noop_canonical,
+                    key=noop_key, families=None)
+
+CONFIGURATIONS = [("local", 1), ("local", 2), ("dask", 1), ("dask", 2)]
+
+
+def rod_spec(entries: int, mesh_size: float, order: int):
+    radii = [0.004 + 0.0005 * i for i in range(entries)]
+    return parse_spec({
+        "family": "rod", "mesh_size": mesh_size, "order": order, "estimate_accuracy": False,
+        "name": "bench-rod-r{radius}",
+        "parameters": {"length": 0.02, "youngs_modulus": 1.0e6, "poisson_ratio": 0.3},
+        "grid": {"radius": radii},
+    }, source="<bench_sweep>")
+
+
+def real_rows(entries: int, mesh_size: float, order: int) -> list[dict]:
+    spec = rod_spec(entries, mesh_size, order)
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for executor, workers in CONFIGURATIONS:
+            catalogue = Path(tmp) / f"{executor}-{workers}.h5"
+            load_before = os.getloadavg()[0]
+            report = run_sweep(spec, catalogue, executor=executor, workers=workers, progress=False)
+            busy = sum(o.seconds for o in report.completed)
+            rows.append({
+                "executor": executor, "workers": workers, "entries": len(report.completed),
+                "failed": len(report.failures), "wall_s": report.elapsed_s,
+                "entries_per_minute": report.entries_per_minute,
+                "mean_task_s": busy / max(1, len(report.completed)),
+                "efficiency": busy / (workers * report.elapsed_s),
+                "load_before": load_before, "load_after": os.getloadavg()[0],
+                "keys": [o.key for o in report.completed],
+            })
+            print(f"  real  {executor:5s} x{workers}: {rows[-1]['entries']} entries in {report.elapsed_s:6.1f} s "
+                  f"= {rows[-1]['entries_per_minute'] or 0:6.2f}/min, mean task {rows[-1]['mean_task_s']:.2f} s, "
+                  f"efficiency {rows[-1]['efficiency']:.2f}, load {load_before:.1f}", file=sys.stderr)
+    reference = rows[0]["keys"]
+    for row in rows:
+        row["same_keys_as_local_1"] = sorted(row.pop("keys")) == sorted(reference)
+    return rows
+
+
+def overhead_rows(tasks: int) -> list[dict]:
+    """Executor cost alone: the sweep's worker function with a no-op job, timed at each result."""
+    from functools import partial
+
+    from designer.executors import make_executor
+    from designer.sweep import execute_task, expand
+
+    items = expand(parse_spec({"family": "noop", "list": [{"i": i} for i in range(tasks)]}, source="<noop>"))
+    function = partial(execute_task, noop_job, noop_store, "unused")
+    rows = []
+    for executor, workers in [("serial", 1)] + CONFIGURATIONS:
+        start = time.perf_counter()
+        with make_executor(executor, workers=workers) as pool:
+            entered = time.perf_counter()
+            stamps = [time.perf_counter() for _ in pool.map_unordered(function, items)]
+        closed = time.perf_counter()
+        rows.append({"executor": executor, "workers": workers, "tasks": tasks,
+                     "start_s": entered - start, "first_result_s": stamps[0] - start,
+                     "per_task_ms": 1e3 * (stamps[-1] - stamps[0]) / (tasks - 1),
+                     "shutdown_s": closed - stamps[-1]})
+        r = rows[-1]
+        print(f"  noop  {executor:6s} x{workers}: start {r['start_s']:.2f} s, first result {r['first_result_s']:.2f} s, "
+              f"{r['per_task_ms']:.2f} ms/task, shutdown {r['shutdown_s']:.2f} s", file=sys.stderr)
+    return rows
+
+
+def markdown(result: dict) -> str:
+    lines = [
+        "# Sweep throughput (benchmarks/bench_sweep.py)", "",
+        f"{result['date']}, {result['host']}, {result['cpus']} CPUs shared with other work "
+        f"(load average at start {result['load_start']:.2f}); Python {result['python']}.", "",
+        f"## Real coarse rod entries ({result['real']['entries']} rods, mesh_size {result['real']['mesh_size']} m, "
+        f"order {result['real']['order']}, no accuracy estimate, fresh HDF5 catalogue each)", "",
+        "| executor | workers | entries | wall s | entries/min | mean task s | efficiency | load before | same keys |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in result["real"]["rows"]:
+        lines.append(f"| {r['executor']} | {r['workers']} | {r['entries']} | {r['wall_s']:.1f} | "
+                     f"{(r['entries_per_minute'] or 0):.2f} | {r['mean_task_s']:.2f} | {r['efficiency']:.2f} | "
+                     f"{r['load_before']:.1f} | {r['same_keys_as_local_1']} |")
+    lines += ["", "Wall time includes starting the pool or the dask LocalCluster. Efficiency = sum of worker "
+              "task seconds / (workers x wall).", "",
+              f"## Executor overhead (no-op job, {result['overhead'][0]['tasks']} tasks)", "",
+              "| executor | workers | start s | first result s | per task ms | shutdown s |",
+              "|---|---|---|---|---|---|"]
+    for r in result["overhead"]:
+        lines.append(f"| {r['executor']} | {r['workers']} | {r['start_s']:.2f} | {r['first_result_s']:.2f} | "
+                     f"{r['per_task_ms']:.2f} | {r['shutdown_s']:.2f} |")
+    lines += ["", "start: entering the executor (dask: LocalCluster and Client); first result: until the first "
+              "task came back (local: spawning workers and importing vertebra in them); per task: "
+              "(last - first result) / (tasks - 1), i.e. throughput cost per task once running."]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--entries", type=int, default=6)
+    parser.add_argument("--mesh-size", type=float, default=0.004)
+    parser.add_argument("--order", type=int, default=2)
+    parser.add_argument("--noop-tasks", type=int, default=200)
+    args = parser.parse_args(argv)
+    result = {"date": datetime.now(timezone.utc).isoformat(timespec="seconds"), "host": platform.node(),
+              "cpus": os.cpu_count(), "python": platform.python_version(), "load_start": os.getloadavg()[0],
+              "omp_num_threads": os.environ.get("OMP_NUM_THREADS")}
+    print("executor overhead (no-op job):", file=sys.stderr)
+    result["overhead"] = overhead_rows(args.noop_tasks)
+    print("real coarse rod entries:", file=sys.stderr)
+    result["real"] = {"entries": args.entries, "mesh_size": args.mesh_size, "order": args.order,
+                      "rows": real_rows(args.entries, args.mesh_size, args.order)}
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / "sweep.json").write_text(json.dumps(result, indent=1) + "\n")
+    text = markdown(result)
+    (RESULTS / "sweep.md").write_text(text)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
