@@ -1,0 +1,22 @@
+"""designer/: parametrised segments and vertebrae → gmsh → scikit-fem → condensed catalogue entries.
+
+Public API (DESIGN.md §1, §2)::
+
+    designer.FAMILIES                                  # name -> family (rod, tube, bellows, pneumatic, tapered_pneumatic)
+    designer.canonical_parameters(family, parameters)  # validated, defaults filled (GeometryError before meshing)
+    designer.entry_key(family, parameters, mesh_size=None, order=2)   # content key without meshing
+    designer.design_segment(family, parameters, ...)   # -> store.entry.SegmentEntry
+    designer.vertebra_properties(parameters)           # rigid vertebra disc: mass, centre of mass, inertia
+
+Heavy imports (gmsh, scikit-fem, pyamg, meshio) happen inside the functions.
+"""
+
+from designer.families import FAMILIES, Family, Parameter, register_family
+from designer.segment import canonical_parameters, design_segment, entry_key, resolve_mesh_size
+from designer.vertebra import VERTEBRA_PARAMETERS, vertebra_properties, vertebra_snippet
+
+__all__ = [
+    "FAMILIES", "Family", "Parameter", "register_family",
+    "canonical_parameters", "entry_key", "design_segment", "resolve_mesh_size",
+    "VERTEBRA_PARAMETERS", "vertebra_properties", "vertebra_snippet",
+]

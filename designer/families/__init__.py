@@ -1,0 +1,142 @@
+"""Geometry families of intervertebral segments: a registry (STYLE.md §4).
+
+A family names its parameters (with defaults), checks the geometric conditions
+BEFORE any meshing (``GeometryError`` naming the parameter and the violated
+condition), builds its solid with the gmsh OpenCASCADE kernel and classifies
+the boundary surfaces of that solid into the physical groups every segment has:
+``bottom`` (z = 0, coupled rigidly to frame a), ``top`` (z = length, coupled to
+frame b), ``cavity_k`` (walls of sealed cavity k) and ``wall`` (free surface).
+
+Cavities run through the whole segment and are sealed by the rigid vertebrae at
+both ends (as the chambers of a CBHA-like section pass through its vertebrae):
+the pressure acts on the cavity walls and on the two caps, i.e. on the rigid
+end faces, over the hole area (see ``designer.fem``).
+
+Adding a family touches one module: define a :class:`Family` subclass and
+decorate it with ``@register_family``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from store.errors import GeometryError
+
+FAMILIES: dict[str, "Family"] = {}
+
+
+def register_family(cls):
+    """Class decorator: instantiate the family and register it by its ``name``."""
+    family = cls()
+    if family.name in FAMILIES:
+        raise ValueError(f"family {family.name!r} registered twice")
+    FAMILIES[family.name] = family
+    return cls
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """One design parameter. ``default=None`` means required."""
+
+    name: str
+    description: str
+    default: float | int | None = None
+    integer: bool = False
+    unit: str = ""
+
+
+MATERIAL = (
+    Parameter("youngs_modulus", "Young's modulus", unit="Pa"),
+    Parameter("poisson_ratio", "Poisson's ratio"),
+    Parameter("density", "mass density (0 = massless)", default=0.0, unit="kg/m^3"),
+)
+
+
+def require(condition: bool, parameter: str, message: str) -> None:
+    """Raise ``GeometryError`` naming ``parameter`` unless ``condition`` holds."""
+    if not condition:
+        raise GeometryError(f"parameter {parameter!r}: {message}")
+
+
+def check_material(p: dict) -> None:
+    require(p["youngs_modulus"] > 0, "youngs_modulus", f"must be > 0, got {p['youngs_modulus']}")
+    require(-1.0 < p["poisson_ratio"] < 0.5, "poisson_ratio",
+            f"must satisfy -1 < poisson_ratio < 0.5, got {p['poisson_ratio']}")
+    require(p["density"] >= 0, "density", f"must be >= 0, got {p['density']}")
+
+
+class Family:
+    """Base class of a geometry family (one per module, registered)."""
+
+    name: str = ""
+    description: str = ""
+    parameters: tuple[Parameter, ...] = ()
+    is_segment: bool = True
+
+    # ---- parameters ----------------------------------------------------
+    def canonical(self, parameters: dict) -> dict:
+        """Validated parameters with defaults filled, floats/ints normalised."""
+        if not isinstance(parameters, dict):
+            raise GeometryError(f"family {self.name!r}: parameters must be a dict, got {type(parameters).__name__}")
+        known = {p.name: p for p in self.parameters}
+        unknown = sorted(set(parameters) - set(known))
+        if unknown:
+            raise GeometryError(
+                f"family {self.name!r}: unknown parameter {unknown[0]!r} (known: {', '.join(sorted(known))})")
+        out = {}
+        for spec in self.parameters:
+            value = parameters.get(spec.name, spec.default)
+            if value is None:
+                raise GeometryError(f"family {self.name!r}: parameter {spec.name!r} is required ({spec.description})")
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                try:
+                    value = float(value)
+                except (TypeError, ValueError):
+                    raise GeometryError(f"parameter {spec.name!r}: not a number: {value!r}") from None
+            if spec.integer:
+                if float(value) != int(value):
+                    raise GeometryError(f"parameter {spec.name!r}: must be an integer, got {value!r}")
+                value = int(value)
+            else:
+                value = float(value)
+                if not math.isfinite(value):
+                    raise GeometryError(f"parameter {spec.name!r}: must be finite, got {value!r}")
+            out[spec.name] = value
+        self.check(out)
+        return out
+
+    def check(self, p: dict) -> None:
+        """Geometric and material conditions; raise GeometryError."""
+        raise NotImplementedError
+
+    # ---- geometry --------------------------------------------------------
+    def length(self, p: dict) -> float:
+        return p["length"]
+
+    def n_cavities(self, p: dict) -> int:
+        return 0
+
+    def default_mesh_size(self, p: dict) -> float:
+        raise NotImplementedError
+
+    def build(self, occ, p: dict) -> list[tuple[int, int]]:
+        """Create the solid with ``gmsh.model.occ``; return its volume dimTags."""
+        raise NotImplementedError
+
+    def classify(self, point, p: dict) -> str:
+        """Name of the physical group of the boundary surface through ``point``
+        (a point on a lateral surface): ``cavity_k`` or ``wall``. End faces are
+        recognised by the caller (z = 0, z = length)."""
+        raise NotImplementedError
+
+
+def nearest(distances: dict[str, float]) -> str:
+    return min(distances, key=distances.get)
+
+
+def _load_modules() -> None:
+    # importing registers; one module per family
+    from designer.families import rod, tube, bellows, pneumatic, tapered_pneumatic  # noqa: F401
+
+
+_load_modules()

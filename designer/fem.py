@@ -1,0 +1,265 @@
+"""Linear elasticity of one segment with scikit-fem, rigid end faces, condensation.
+
+Rigid coupling (paper eq. 1–3). The displacement of every FE node on an end face
+follows the 6-DoF frame of that face: ``u = t + θ × (x - c)`` with ``c`` the
+face centre on the axis, i.e. ``u_face = T q_frame``. The reduced unknowns are
+the interior DoFs ``u_i`` and the frame DoFs ``q``; the reduced stiffness is
+``Pᵀ K P`` with ``P = diag(I, T)`` (a Galerkin master–slave reduction — not
+``skfem.utils.mpc``, which drops the slave rows, FIELD-NOTES). We never form it:
+with ``K_iq = K_it T`` and ``K_qq = Tᵀ K_tt T`` the frame DoFs are condensed by
+a Schur complement
+
+    S = K_qq − K_qiᵀ K_ii⁻¹ K_iq        (frame stiffness; C = S⁻¹, paper eq. 2)
+
+which needs ``K_ii⁻¹`` applied to 6 (+ one per cavity) right-hand sides only;
+``K_ii`` is a Dirichlet elasticity matrix, so AMG with rigid-body modes fits.
+
+Cavities. Unit pressure in cavity k loads the cavity walls (``-dot(n, v)`` with
+the solid's outward normal ``n``) and the two rigid caps that seal it (the
+vertebrae: force ``A_cap`` along the cavity's outward normal, applied to the
+frames). The same linear form measures the volume growth of the cavity
+(``ΔV = ∫ u·n_cav`` over walls and caps), so the (6+n)×(6+n) compliance
+``[[C, G], [Gᵀ, V]]`` is symmetric by Maxwell–Betti. The cap areas and first
+moments come from the wall integrals by the divergence theorem, so the discrete
+pressure load is exactly self-equilibrated (a rigid motion of the whole segment
+does no work against it) — the condition for the condensed link to be exact
+when frame a is not clamped.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from store.errors import GeometryError
+
+
+def skew(v) -> np.ndarray:
+    x, y, z = v
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+
+
+def rigid_map(doflocs: np.ndarray, components: np.ndarray, centre) -> np.ndarray:
+    """T (n_dofs × 6): displacement component of each DoF for frame motion ``[t; θ]`` at ``centre``:
+    ``u = t + θ × (x − c)``."""
+    r = doflocs - np.asarray(centre, dtype=float)[:, None]          # (3, n)
+    n = components.size
+    T = np.zeros((n, 6))
+    T[np.arange(n), components] = 1.0
+    rx, ry, rz = r
+    # θ × r = (θy rz − θz ry, θz rx − θx rz, θx ry − θy rx)
+    rot = np.zeros((n, 3))
+    c0, c1, c2 = components == 0, components == 1, components == 2
+    rot[c0, 1], rot[c0, 2] = rz[c0], -ry[c0]
+    rot[c1, 0], rot[c1, 2] = -rz[c1], rx[c1]
+    rot[c2, 0], rot[c2, 1] = ry[c2], -rx[c2]
+    T[:, 3:] = rot
+    return T
+
+
+def rigid_body_modes(doflocs: np.ndarray, components: np.ndarray) -> np.ndarray:
+    """(n_dofs × 6) rigid-body modes (translations, rotations about the origin)."""
+    return rigid_map(doflocs, components, np.zeros(3))
+
+
+@dataclass
+class SegmentFE:
+    """Assembled FE model of one segment: stiffness, face maps, cavity loads, mass data."""
+
+    mesh: object
+    basis: object
+    K: object                       # full sparse stiffness (n_dofs × n_dofs)
+    length: float
+    order: int
+    faces: dict                     # "bottom"/"top" -> dict(dofs, T (n×6), centre)
+    cavity_loads: list              # per cavity: full load vector of unit pressure on the walls
+    cap_wrenches: list              # per cavity: {"bottom": 6-vector on frame a, "top": 6-vector on frame b}
+    cavity_volumes: np.ndarray
+    mass: float
+    center_of_mass: np.ndarray
+    components: np.ndarray          # component (0, 1, 2) of each DoF
+    timings: dict = field(default_factory=dict)
+
+    @property
+    def n_dofs(self) -> int:
+        return self.K.shape[0]
+
+    @property
+    def n_cavities(self) -> int:
+        return len(self.cavity_loads)
+
+    def interior(self, faces=("bottom", "top")) -> np.ndarray:
+        mask = np.ones(self.n_dofs, dtype=bool)
+        for name in faces:
+            mask[self.faces[name]["dofs"]] = False
+        return np.flatnonzero(mask)
+
+
+def _facet_index(mesh, corner: np.ndarray, name: str) -> np.ndarray:
+    """Indices into ``mesh.facets`` of the triangles ``corner`` (n × 3 vertex indices)."""
+    nv = np.int64(mesh.t.max() + 1)
+    f = np.sort(mesh.facets, axis=0).astype(np.int64)
+    keys = (f[0] * nv + f[1]) * nv + f[2]
+    c = np.sort(corner, axis=1).astype(np.int64)
+    wanted = (c[:, 0] * nv + c[:, 1]) * nv + c[:, 2]
+    order = np.argsort(keys)
+    pos = np.searchsorted(keys, wanted, sorter=order)
+    pos = np.clip(pos, 0, keys.size - 1)
+    found = order[pos]
+    if not np.all(keys[found] == wanted):
+        raise GeometryError(f"group {name!r}: {int(np.sum(keys[found] != wanted))} boundary triangles "
+                            "do not match mesh facets")
+    return np.unique(found)
+
+
+def build_fe(mesh_data, youngs_modulus: float, poisson_ratio: float, density: float,
+             n_cavities: int, length: float) -> SegmentFE:
+    """Assemble the segment: scikit-fem mesh from the gmsh arrays, P1/P2 vector basis,
+    stiffness, rigid face maps, cavity loads, cap wrenches, rest volumes, mass."""
+    from skfem import (Basis, ElementTetP1, ElementTetP2, ElementVector, FacetBasis, Functional,
+                       LinearForm, MeshTet1, MeshTet2, asm)
+    from skfem.helpers import dot
+    from skfem.models.elasticity import lame_parameters, linear_elasticity
+
+    start = time.perf_counter()
+    order = mesh_data.order
+    mesh_cls, element = (MeshTet1, ElementTetP1()) if order == 1 else (MeshTet2, ElementTetP2())
+    mesh = mesh_cls(np.ascontiguousarray(mesh_data.nodes.T), np.ascontiguousarray(mesh_data.tets.T))
+    intorder = 2 * order
+    basis = Basis(mesh, ElementVector(element), intorder=intorder)
+    K = asm(linear_elasticity(*lame_parameters(youngs_modulus, poisson_ratio)), basis).tocsr()
+    n_dofs = basis.N
+    components = np.empty(n_dofs, dtype=np.int64)
+    every = basis.get_dofs(np.arange(mesh.facets.shape[1]))   # all facets -> all DoFs
+    for c in range(3):
+        for group in (every.nodal, every.edge):
+            if f"u^{c + 1}" in group:
+                components[group[f"u^{c + 1}"]] = c
+    doflocs = basis.doflocs
+
+    faces = {}
+    for name, centre in (("bottom", (0.0, 0.0, 0.0)), ("top", (0.0, 0.0, length))):
+        facets = _facet_index(mesh, mesh_data.facets[name], name)
+        dofs = np.sort(basis.get_dofs(facets).all())
+        faces[name] = {"dofs": dofs, "centre": np.array(centre),
+                       "T": rigid_map(doflocs[:, dofs], components[dofs], centre)}
+
+    pressure = LinearForm(lambda v, w: -dot(w.n, v))
+    cavity_loads, cap_wrenches, volumes = [], [], []
+    for k in range(n_cavities):
+        facets = _facet_index(mesh, mesh_data.facets[f"cavity_{k}"], f"cavity_{k}")
+        fb = FacetBasis(mesh, ElementVector(element), facets=facets, intorder=intorder + 2)
+        cavity_loads.append(asm(pressure, fb))
+        wrench_a, wrench_b, volume = _caps(fb, length, Functional)
+        cap_wrenches.append({"bottom": wrench_a, "top": wrench_b})
+        volumes.append(volume)
+
+    scalar = Basis(mesh, element, intorder=intorder)
+    one = Functional(lambda w: density + 0.0 * w.x[0])
+    mass = float(asm(one, scalar))
+    vol = float(asm(Functional(lambda w: 1.0 + 0.0 * w.x[0]), scalar))
+    centroid = np.array([float(asm(Functional(lambda w, i=i: w.x[i]), scalar)) for i in range(3)]) / vol
+    timings = {"assemble_s": time.perf_counter() - start}
+    return SegmentFE(mesh=mesh, basis=basis, K=K, length=length, order=order, faces=faces,
+                     cavity_loads=cavity_loads, cap_wrenches=cap_wrenches,
+                     cavity_volumes=np.array(volumes, dtype=float), mass=mass, center_of_mass=centroid,
+                     components=components, timings=timings)
+
+
+def _caps(fb, length: float, Functional):
+    """Cap wrenches of unit pressure and the rest volume of one cavity, from wall integrals.
+
+    ``n_c = −n`` is the cavity's outward normal on the walls; on the caps it is
+    ``+e_z`` (top, z = L) and ``−e_z`` (bottom, z = 0). Divergence theorem on the
+    closed cavity (walls + caps), with the fields (x/2, y/2, 0), (0, 0, z),
+    (x²/2, 0, 0) and (0, 0, x z) / (0, 0, x (z − L)) giving the volume, the top
+    cap area, ∫ x dV and the caps' first moments.
+    """
+    from skfem import asm
+
+    def integral(f):
+        return float(asm(Functional(f), fb))
+
+    nc = lambda w, i: -w.n[i]  # noqa: E731
+    V = integral(lambda w: 0.5 * (w.x[0] * nc(w, 0) + w.x[1] * nc(w, 1)))
+    Zw = integral(lambda w: w.x[2] * nc(w, 2))
+    Fz = integral(lambda w: nc(w, 2))
+    A_top = (V - Zw) / length
+    A_bot = A_top + Fz                       # net force on the closed cavity is zero
+    first = {}
+    for i, axis in ((0, "x"), (1, "y")):
+        Q = integral(lambda w, i=i: 0.5 * w.x[i] ** 2 * nc(w, i))
+        first[("top", axis)] = (Q - integral(lambda w, i=i: w.x[i] * w.x[2] * nc(w, 2))) / length
+        first[("bot", axis)] = (Q - integral(lambda w, i=i: w.x[i] * (w.x[2] - length) * nc(w, 2))) / length
+    # wrench of unit pressure on frame b (at (0,0,L)): force A e_z, moment ∫ (x, y, 0) × e_z dA
+    wrench_b = np.array([0.0, 0.0, A_top, first[("top", "y")], -first[("top", "x")], 0.0])
+    # on frame a (at the origin): force −A e_z, moment ∫ (x, y, 0) × (−e_z) dA
+    wrench_a = np.array([0.0, 0.0, -A_bot, -first[("bot", "y")], first[("bot", "x")], 0.0])
+    return wrench_a, wrench_b, V
+
+
+@dataclass
+class Condensation:
+    """Result of condensing a segment onto its frame(s)."""
+
+    stiffness: np.ndarray           # S (6m × 6m), m = number of free frames
+    pressure_wrench: np.ndarray     # g (6m × n): condensed unit-pressure loads on the frames
+    interior_volume: np.ndarray     # F_iᵀ K_ii⁻¹ F_i (n × n)
+    info: dict
+    solve_s: float
+
+    def compliance(self) -> np.ndarray:
+        """[[C, G], [Gᵀ, V]] (clamped frame a, one free frame b)."""
+        C = np.linalg.inv(self.stiffness)
+        C = 0.5 * (C + C.T)
+        G = C @ self.pressure_wrench
+        V = self.interior_volume + self.pressure_wrench.T @ G
+        V = 0.5 * (V + V.T)
+        return np.block([[C, G], [G.T, V]])
+
+
+def condense(fe: SegmentFE, frames=("top",), linear_solver: str = "auto", amg_threshold: int | None = None,
+             extra_rhs: np.ndarray | None = None) -> Condensation:
+    """Schur complement onto the frames in ``frames`` (the other end face, if any, is clamped).
+
+    ``frames=("top",)`` gives the clamped-a compliance; ``("bottom", "top")`` the
+    free-free 12×12 frame stiffness (with its six rigid-body modes).
+    """
+    from designer.linsolve import get_solver
+
+    start = time.perf_counter()
+    interior = fe.interior()
+    K = fe.K
+    Kii = K[interior][:, interior]
+    blocks = []
+    for name in frames:
+        face = fe.faces[name]
+        blocks.append((K[interior][:, face["dofs"]] @ face["T"]))
+    Kiq = np.hstack(blocks)
+    m6 = 6 * len(frames)
+    Kqq = np.zeros((m6, m6))
+    for a, na in enumerate(frames):
+        for b, nb in enumerate(frames):
+            fa, fb_ = fe.faces[na], fe.faces[nb]
+            Kqq[6 * a:6 * a + 6, 6 * b:6 * b + 6] = fa["T"].T @ (K[fa["dofs"]][:, fb_["dofs"]] @ fb_["T"])
+    n = fe.n_cavities
+    Fi = np.column_stack([f[interior] for f in fe.cavity_loads]) if n else np.zeros((interior.size, 0))
+    Fq = np.zeros((m6, n))
+    for k, f in enumerate(fe.cavity_loads):
+        for a, name in enumerate(frames):
+            face = fe.faces[name]
+            Fq[6 * a:6 * a + 6, k] = face["T"].T @ f[face["dofs"]] + fe.cap_wrenches[k][name]
+    rhs = np.hstack([Kiq, Fi] + ([extra_rhs[interior]] if extra_rhs is not None else []))
+    solver = get_solver(linear_solver, interior.size, amg_threshold)
+    modes = rigid_body_modes(fe.basis.doflocs[:, interior], fe.components[interior])
+    X, info = solver.solve(Kii, rhs, modes)
+    Xq, Xf = X[:, :m6], X[:, m6:m6 + n]
+    S = Kqq - Kiq.T @ Xq
+    S = 0.5 * (S + S.T)
+    g = Fq - Kiq.T @ Xf
+    Vi = Fi.T @ Xf
+    info = dict(info, interior_dofs=int(interior.size))
+    return Condensation(stiffness=S, pressure_wrench=g, interior_volume=Vi, info=info,
+                        solve_s=time.perf_counter() - start)

@@ -1,0 +1,186 @@
+"""Mesh a segment with gmsh (OpenCASCADE kernel) into plain arrays.
+
+One gmsh per process (FIELD-NOTES): :func:`mesh_segment` initialises gmsh,
+sets every option it relies on explicitly (one thread, fixed seed, algorithms,
+sizes, element order), builds the family's solid, names the physical groups
+(``bottom``, ``top``, ``cavity_k``, ``wall`` and always ``volume``), meshes,
+reads nodes/elements straight from the gmsh API and finalises gmsh — so it is
+safe to call in a worker process and leaves no global state behind.
+
+The boundary triangles of every physical group are returned with the mesh:
+scikit-fem loses the tags of second-order meshes, so :mod:`designer.fem`
+builds its facet sets from these triangles instead of re-reading a file.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from store.errors import GeometryError
+
+# gmsh tetra10 node order -> scikit-fem/VTK order (edges (0,1),(1,2),(0,2),(0,3),(1,3),(2,3))
+_GMSH_TET10_TO_SKFEM = [0, 1, 2, 3, 4, 5, 6, 7, 9, 8]
+_TET_TYPE = {1: 4, 2: 11}      # gmsh element type of a tetrahedron of order 1 / 2
+_TRI_TYPE = {1: 2, 2: 9}
+
+GMSH_OPTIONS = {
+    "General.Terminal": 0,
+    "General.Verbosity": 2,
+    "General.NumThreads": 1,
+    "Geometry.Tolerance": 1e-10,
+    "Geometry.OCCFixDegenerated": 0,
+    "Geometry.OCCFixSmallEdges": 0,
+    "Geometry.OCCFixSmallFaces": 0,
+    "Mesh.RandomSeed": 1,
+    "Mesh.Algorithm": 6,            # Frontal-Delaunay (2D)
+    "Mesh.Algorithm3D": 1,          # Delaunay (3D)
+    "Mesh.MeshSizeFromPoints": 0,
+    "Mesh.MeshSizeFromCurvature": 0,
+    "Mesh.MeshSizeExtendFromBoundary": 1,
+    "Mesh.MeshSizeFactor": 1.0,
+    "Mesh.Optimize": 1,
+    "Mesh.OptimizeNetgen": 0,
+    "Mesh.HighOrderOptimize": 0,
+    "Mesh.SecondOrderLinear": 0,    # second-order nodes on the curved geometry
+    "Mesh.MaxNumThreads1D": 1,
+    "Mesh.MaxNumThreads2D": 1,
+    "Mesh.MaxNumThreads3D": 1,
+}
+
+
+@dataclass
+class MeshData:
+    """A tetrahedral mesh as arrays. Vertices come first in ``nodes``.
+
+    ``tets``: (n_tets, 4) or (n_tets, 10) node indices in scikit-fem order;
+    ``facets``: group name -> (n, 3) corner node indices of its boundary triangles.
+    """
+
+    nodes: np.ndarray
+    tets: np.ndarray
+    n_vertices: int
+    facets: dict
+    order: int
+    mesh_size: float
+    gmsh_version: str
+    mesh_s: float = 0.0
+    groups: list = field(default_factory=list)
+
+    def __post_init__(self):
+        if self.nodes.ndim != 2 or self.nodes.shape[1] != 3:
+            raise ValueError(f"nodes: shape {self.nodes.shape}, expected (n, 3)")
+        expected = 4 if self.order == 1 else 10
+        if self.tets.ndim != 2 or self.tets.shape[1] != expected:
+            raise ValueError(f"tets: shape {self.tets.shape}, expected (n, {expected}) for order {self.order}")
+
+
+def gmsh_version() -> str:
+    import gmsh
+    return str(gmsh.__version__)
+
+
+def _classify_surfaces(gmsh, family, p, volumes) -> dict[str, list[int]]:
+    length = family.length(p)
+    tol = 1e-7 * max(length, 1e-12)
+    boundary = gmsh.model.getBoundary(volumes, combined=True, oriented=False, recursive=False)
+    groups: dict[str, list[int]] = {}
+    for dim, tag in boundary:
+        # OCC pads bounding boxes by ~1e-7 m: flatness is judged relative to the length
+        _, _, zmin, _, _, zmax = gmsh.model.getBoundingBox(dim, tag)
+        lo, hi = gmsh.model.getParametrizationBounds(dim, tag)
+        point = gmsh.model.getValue(dim, tag, [0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1])])
+        flat = abs(zmax - zmin) < 1e-3 * length
+        if flat and abs(point[2]) < tol:
+            name = "bottom"
+        elif flat and abs(point[2] - length) < tol:
+            name = "top"
+        else:
+            name = family.classify(tuple(point), p)
+        groups.setdefault(name, []).append(abs(tag))
+    return groups
+
+
+def mesh_segment(family, p: dict, mesh_size: float, order: int = 2) -> MeshData:
+    """Build and mesh ``family`` with canonical parameters ``p``. Runs gmsh in-process."""
+    import gmsh
+
+    if order not in _TET_TYPE:
+        raise GeometryError(f"parameter 'order': must be 1 or 2, got {order}")
+    if not (mesh_size > 0 and math.isfinite(mesh_size)):
+        raise GeometryError(f"parameter 'mesh_size': must be a positive number, got {mesh_size}")
+    start = time.perf_counter()
+    gmsh.initialize(readConfigFiles=False, interruptible=False)
+    try:
+        for name, value in GMSH_OPTIONS.items():
+            gmsh.option.setNumber(name, value)
+        gmsh.option.setNumber("Mesh.MeshSizeMin", 0.0)
+        gmsh.option.setNumber("Mesh.MeshSizeMax", float(mesh_size))
+        gmsh.option.setNumber("Mesh.ElementOrder", int(order))
+        gmsh.model.add(f"{family.name}")
+        volumes = family.build(gmsh.model.occ, p)
+        gmsh.model.occ.synchronize()
+        volumes = [dt for dt in volumes if dt[0] == 3]
+        if len(volumes) != 1:
+            raise GeometryError(f"family {family.name!r}: the geometry is not one connected solid "
+                                f"({len(volumes)} volumes); check the parameters")
+        groups = _classify_surfaces(gmsh, family, p, volumes)
+        n_cav = family.n_cavities(p)
+        for required in ["bottom", "top"] + [f"cavity_{k}" for k in range(n_cav)]:
+            if required not in groups:
+                raise GeometryError(f"family {family.name!r}: no surface found for group {required!r}; "
+                                    "check the parameters")
+        for name, tags in sorted(groups.items()):
+            gmsh.model.addPhysicalGroup(2, tags, name=name)
+        gmsh.model.addPhysicalGroup(3, [t for _, t in volumes], name="volume")
+        gmsh.model.mesh.generate(3)
+        if order == 2:
+            gmsh.model.mesh.setOrder(2)
+        data = _extract(gmsh, order, groups)
+        data.mesh_size = float(mesh_size)
+        data.gmsh_version = gmsh_version()
+        data.mesh_s = time.perf_counter() - start
+        return data
+    finally:
+        gmsh.finalize()
+
+
+def _extract(gmsh, order: int, groups: dict) -> MeshData:
+    node_tags, coords, _ = gmsh.model.mesh.getNodes()
+    coords = np.asarray(coords, dtype=float).reshape(-1, 3)
+    tag_to_row = np.full(int(node_tags.max()) + 1, -1, dtype=np.int64)
+    tag_to_row[node_tags.astype(np.int64)] = np.arange(node_tags.size)
+    _, tet_nodes = gmsh.model.mesh.getElementsByType(_TET_TYPE[order])
+    npe = 4 if order == 1 else 10
+    tets = tag_to_row[np.asarray(tet_nodes, dtype=np.int64).reshape(-1, npe)]
+    if order == 2:
+        tets = tets[:, _GMSH_TET10_TO_SKFEM]
+    if tets.size == 0:
+        raise GeometryError("gmsh produced no tetrahedra (mesh_size too large or geometry degenerate?)")
+    # renumber: vertices first, then edge nodes; drop nodes not used by any tetrahedron
+    vertices = np.unique(tets[:, :4])
+    others = np.setdiff1d(np.unique(tets), vertices)
+    new = np.full(coords.shape[0], -1, dtype=np.int64)
+    new[vertices] = np.arange(vertices.size)
+    new[others] = vertices.size + np.arange(others.size)
+    order_rows = np.concatenate([vertices, others])
+    nodes = coords[order_rows]
+    tets = new[tets]
+    facets = {}
+    for name, tags in groups.items():
+        tris = []
+        for tag in tags:
+            types, _, tri_nodes = gmsh.model.mesh.getElements(2, tag)
+            for etype, nn in zip(types, tri_nodes):
+                if etype == _TRI_TYPE[order]:
+                    k = 3 if order == 1 else 6
+                    tris.append(np.asarray(nn, dtype=np.int64).reshape(-1, k)[:, :3])
+        corner = new[tag_to_row[np.concatenate(tris)]] if tris else np.zeros((0, 3), dtype=np.int64)
+        if np.any(corner < 0) or np.any(corner >= vertices.size):
+            raise GeometryError(f"group {name!r}: boundary triangles not attached to the volume mesh")
+        facets[name] = corner
+    return MeshData(nodes=nodes, tets=tets.astype(np.int64), n_vertices=int(vertices.size),
+                    facets=facets, order=order, mesh_size=0.0, gmsh_version="", groups=sorted(groups))

@@ -1,0 +1,211 @@
+"""Design one segment: parameters → gmsh → scikit-fem → condensed catalogue entry.
+
+``design_segment`` is safe in a worker process: gmsh is initialised and
+finalised inside (one gmsh per process), BLAS threads are pinned to one, every
+gmsh option is set explicitly with a fixed seed. It does not write anywhere;
+``store.catalogue.add_entry(path, entry)`` does.
+"""
+
+from __future__ import annotations
+
+import datetime
+import math
+import platform
+import socket
+import time
+import warnings
+from importlib import metadata
+
+import numpy as np
+
+from designer.families import FAMILIES, Family
+from store.entry import SegmentEntry, content_key
+from store.errors import GeometryError
+
+#: bump when a change in designer/ changes the numbers of an entry (part of the key)
+ALGORITHM_VERSION = "designer-1"
+#: layout of the key payload
+KEY_SCHEMA = 1
+#: mesh-size ratio of the refined mesh used for the accuracy estimate
+REFINEMENT = 1.5
+#: Poisson ratio above which P1 tetrahedra lock (FIELD-NOTES: ν = 0.499 P1 lateral 1.24 vs P2 2.89)
+LOCKING_POISSON = 0.45
+
+
+class LockingWarning(UserWarning):
+    """First-order tetrahedra lock for nearly incompressible material: use order=2."""
+
+
+def family_of(family) -> Family:
+    if isinstance(family, Family):
+        return family
+    if family not in FAMILIES:
+        raise GeometryError(f"unknown family {family!r} (known: {', '.join(sorted(FAMILIES))})")
+    return FAMILIES[family]
+
+
+def canonical_parameters(family, parameters: dict) -> dict:
+    """Validated parameters with defaults filled (GeometryError before any meshing)."""
+    return family_of(family).canonical(dict(parameters))
+
+
+def _round(x: float, digits: int = 6) -> float:
+    return float(f"{x:.{digits}g}")
+
+
+def resolve_mesh_size(family, parameters: dict, mesh_size: float | None = None) -> float:
+    """The mesh size used: given, or the family's default (rounded to 6 significant digits)."""
+    fam = family_of(family)
+    if mesh_size is None:
+        return _round(fam.default_mesh_size(canonical_parameters(fam, parameters)))
+    mesh_size = float(mesh_size)
+    if not (mesh_size > 0 and math.isfinite(mesh_size)):
+        raise GeometryError(f"parameter 'mesh_size': must be a positive number, got {mesh_size}")
+    return mesh_size
+
+
+def _version(distribution: str) -> str:
+    try:
+        return metadata.version(distribution)
+    except metadata.PackageNotFoundError:
+        return "unknown"
+
+
+def result_versions() -> dict:
+    """Versions that change the numbers of an entry (part of the content key)."""
+    return {"gmsh": _version("gmsh"), "scikit-fem": _version("scikit-fem"),
+            "algorithm": ALGORITHM_VERSION, "key_schema": KEY_SCHEMA}
+
+
+def key_payload(family, parameters: dict, *, mesh_size=None, order: int = 2) -> dict:
+    fam = family_of(family)
+    p = canonical_parameters(fam, parameters)
+    if order not in (1, 2):
+        raise GeometryError(f"parameter 'order': must be 1 or 2, got {order!r}")
+    return {"family": fam.name, "parameters": p,
+            "mesh": {"mesh_size": resolve_mesh_size(fam, p, mesh_size), "order": int(order)},
+            "versions": result_versions()}
+
+
+def entry_key(family, parameters: dict, *, mesh_size=None, order: int = 2) -> str:
+    """Content key of the entry WITHOUT meshing (store.content_key of the key payload)."""
+    return content_key(key_payload(family, parameters, mesh_size=mesh_size, order=order))
+
+
+def compliance_change(C_ref: np.ndarray, C: np.ndarray) -> float:
+    """Scale-free difference of two compliances: max |ΔC_ij| / sqrt(C_ii C_jj) (with C_ref's diagonal),
+    so translations, rotations and volumes are compared in their own units."""
+    d = np.sqrt(np.abs(np.diag(C_ref)))
+    return float(np.max(np.abs(C - C_ref) / np.outer(d, d)))
+
+
+def _say(progress, message: str) -> None:
+    if progress is not None:
+        progress(message)
+
+
+def solve_segment(family, parameters: dict, *, mesh_size=None, order: int = 2, linear_solver: str = "auto",
+                  amg_threshold: int | None = None, progress=None):
+    """Mesh, assemble and condense. Returns ``(compliance, fe, mesh_data, condensation, timings)``."""
+    from designer.fem import build_fe, condense
+    from designer.geometry import mesh_segment
+
+    fam = family_of(family)
+    p = canonical_parameters(fam, parameters)
+    h = resolve_mesh_size(fam, p, mesh_size)
+    start = time.perf_counter()
+    _say(progress, f"{fam.name}: meshing (h = {h:.4g} m, order {order})")
+    mesh_data = mesh_segment(fam, p, h, order)
+    _say(progress, f"{fam.name}: {mesh_data.tets.shape[0]} tetrahedra, {3 * mesh_data.nodes.shape[0]} DoFs; assembling")
+    fe = build_fe(mesh_data, p["youngs_modulus"], p["poisson_ratio"], p["density"], fam.n_cavities(p), fam.length(p))
+    _say(progress, f"{fam.name}: condensing ({linear_solver} linear solver)")
+    cond = condense(fe, ("top",), linear_solver=linear_solver, amg_threshold=amg_threshold)
+    compliance = cond.compliance()
+    timings = {"mesh_s": mesh_data.mesh_s, "assemble_s": fe.timings["assemble_s"], "solve_s": cond.solve_s,
+               "total_s": time.perf_counter() - start}
+    return compliance, fe, mesh_data, cond, timings
+
+
+def design_segment(family, parameters: dict, *, mesh_size=None, order: int = 2, name: str | None = None,
+                   linear_solver: str = "auto", estimate_accuracy: bool = True, progress=None,
+                   amg_threshold: int | None = None) -> SegmentEntry:
+    """Condensed catalogue entry of one segment (DESIGN.md §2).
+
+    ``progress``: optional callable receiving one-line status messages.
+    ``linear_solver``: "auto" | "direct" | "amg" (auto: direct below
+    ``designer.linsolve.AUTO_THRESHOLD`` interior unknowns, overridable with ``amg_threshold``).
+    ``estimate_accuracy``: also solve on a mesh refined by ``REFINEMENT`` and store the
+    relative compliance change in ``entry.accuracy``.
+    """
+    from designer.threads import pin_blas_threads
+
+    pin_blas_threads(1)
+    fam = family_of(family)
+    p = canonical_parameters(fam, parameters)
+    h = resolve_mesh_size(fam, p, mesh_size)
+    key = entry_key(fam, p, mesh_size=h, order=order)
+    warn = []
+    if order == 1 and p["poisson_ratio"] >= LOCKING_POISSON:
+        message = (f"poisson_ratio = {p['poisson_ratio']} with order 1: linear tetrahedra lock as ν → 0.5 "
+                   "(compliance underestimated); use order 2")
+        warnings.warn(message, LockingWarning, stacklevel=2)
+        _say(progress, f"warning: {message}")
+        warn.append(message)
+    compliance, fe, mesh_data, cond, timings = solve_segment(
+        fam, p, mesh_size=h, order=order, linear_solver=linear_solver, amg_threshold=amg_threshold,
+        progress=progress)
+    accuracy = {"method": "none", "warnings": warn}
+    if estimate_accuracy:
+        h_ref = h / REFINEMENT
+        _say(progress, f"{fam.name}: accuracy estimate on a refined mesh (h = {h_ref:.4g} m)")
+        ref, fe_ref, _, cond_ref, t_ref = solve_segment(fam, p, mesh_size=h_ref, order=order,
+                                                        linear_solver=linear_solver,
+                                                        amg_threshold=amg_threshold, progress=progress)
+        change = compliance_change(ref, compliance)
+        accuracy = {"method": f"refined mesh h/{REFINEMENT}", "relative_change": change,
+                    "relative_change_C": compliance_change(ref[:6, :6], compliance[:6, :6]),
+                    "refined_mesh_size": h_ref, "refined_dofs": int(fe_ref.n_dofs),
+                    "refined_total_s": t_ref["total_s"], "warnings": warn}
+        _say(progress, f"{fam.name}: relative compliance change vs refined mesh {change:.3g}")
+    n = fe.n_cavities
+    date = datetime.datetime.now(datetime.timezone.utc).replace(microsecond=0).isoformat()
+    provenance = {
+        "versions": {**result_versions(), "numpy": np.__version__, "scipy": _version("scipy"),
+                     "pyamg": _version("pyamg"), "python": platform.python_version(),
+                     "vertebra": _version("vertebra")},
+        "date": date, "host": socket.gethostname(),
+        "linear_solver": {k: v for k, v in cond.info.items() if k != "iterations"}
+        | ({"max_iterations": max(cond.info["iterations"])} if "iterations" in cond.info else {}),
+    }
+    mesh = {"nodes": int(mesh_data.nodes.shape[0]), "elements": int(mesh_data.tets.shape[0]),
+            "dofs": int(fe.n_dofs), "interior_dofs": int(cond.info["interior_dofs"]),
+            "order": int(order), "mesh_size": float(h), "element": "tetra10" if order == 2 else "tetra4",
+            "mesher": f"gmsh {mesh_data.gmsh_version} OCC"}
+    return SegmentEntry(
+        key=key, name=name or f"{fam.name}-{key[:8]}", family=fam.name, parameters=p,
+        compliance=compliance, cavity_volumes=fe.cavity_volumes.reshape(n), mass=fe.mass,
+        center_of_mass=fe.center_of_mass, rest_translation=np.array([0.0, 0.0, fam.length(p)]),
+        rest_quaternion=np.array([1.0, 0.0, 0.0, 0.0]), mesh=mesh, accuracy=accuracy,
+        timings={k: float(v) for k, v in timings.items()}, provenance=provenance)
+
+
+def entry_document(entry: SegmentEntry) -> dict:
+    """The DESIGN.md §5 JSON document of ``vertebra design --json``."""
+    return {"key": entry.key, "name": entry.name, "compliance": entry.compliance.tolist(),
+            "cavity_volumes": entry.cavity_volumes.tolist(), "mass": entry.mass,
+            "dofs": int(entry.mesh.get("dofs", 0)), "accuracy": dict(entry.accuracy),
+            "timing": {k: float(entry.timings.get(k, 0.0)) for k in ("mesh_s", "assemble_s", "solve_s", "total_s")}}
+
+
+def export_mesh(family, parameters: dict, path: str, *, mesh_size=None, order: int = 2) -> None:
+    """Write the segment mesh with its physical groups to a file meshio can write (e.g. .vtu)."""
+    import meshio
+
+    from designer.geometry import mesh_segment
+
+    fam = family_of(family)
+    p = canonical_parameters(fam, parameters)
+    data = mesh_segment(fam, p, resolve_mesh_size(fam, p, mesh_size), order)
+    cell = "tetra10" if order == 2 else "tetra"
+    tets = data.tets  # scikit-fem and VTK share the tetra10 node order
+    meshio.write(path, meshio.Mesh(data.nodes, [(cell, tets)]))
