@@ -59,7 +59,12 @@ DEFAULT_BACKEND = "daqp"
 
 
 def _vector(name: str, value, n: int) -> np.ndarray:
-    arr = np.array(value, dtype=float).reshape(-1) if np.ndim(value) else np.full(n, float(value))
+    if np.ndim(value) == 0:
+        v = float(value)
+        if v != v:
+            raise ValueError(f"{name} is NaN")
+        return np.full(n, v)
+    arr = np.asarray(value, dtype=float).reshape(-1)
     if arr.shape != (n,):
         raise ValueError(f"len({name}) = {arr.size}, but it must be {n}")
     if np.isnan(arr).any():
@@ -89,10 +94,11 @@ class ConstraintProblem:
     displacement_upper: np.ndarray | float = np.inf
     lambda0: np.ndarray | None = None
     regularisation: float = DEFAULT_REGULARISATION
+    _has_rows: bool = field(default=False, init=False, repr=False, compare=False)
 
     def __post_init__(self):
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 (frozen dataclass)
-        W_ea = np.array(self.W_ea, dtype=float)
+        W_ea = np.asarray(self.W_ea, dtype=float)
         if W_ea.ndim != 2 or W_ea.shape[1] == 0:
             raise ValueError(f"W_ea must be a 2-D (m, n) array with n ≥ 1, got shape {W_ea.shape}")
         if not np.isfinite(W_ea).all():
@@ -105,9 +111,8 @@ class ConstraintProblem:
         set_("delta_e_free", de)
         lo = _vector("lambda_lower", self.lambda_lower, n)
         hi = _vector("lambda_upper", self.lambda_upper, n)
-        bad = np.flatnonzero(lo > hi)
-        if bad.size:
-            i = bad[0]
+        if (lo > hi).any():
+            i = int(np.flatnonzero(lo > hi)[0])
             raise ValueError(f"lambda_lower[{i}] = {lo[i]} > lambda_upper[{i}] = {hi[i]}")
         set_("lambda_lower", lo)
         set_("lambda_upper", hi)
@@ -118,7 +123,7 @@ class ConstraintProblem:
         if (self.W_aa is None) != (self.delta_a_free is None):
             raise ValueError("W_aa and delta_a_free must be given together")
         if self.W_aa is not None:
-            W_aa = np.array(self.W_aa, dtype=float)
+            W_aa = np.asarray(self.W_aa, dtype=float)
             if W_aa.shape != (n, n):
                 raise ValueError(f"W_aa.shape = {W_aa.shape}, but it must be ({n}, {n})")
             if not np.isfinite(W_aa).all():
@@ -130,14 +135,15 @@ class ConstraintProblem:
             set_("delta_a_free", da)
         dlo = _vector("displacement_lower", self.displacement_lower, n)
         dhi = _vector("displacement_upper", self.displacement_upper, n)
-        bad = np.flatnonzero(dlo > dhi)
-        if bad.size:
-            i = bad[0]
+        if (dlo > dhi).any():
+            i = int(np.flatnonzero(dlo > dhi)[0])
             raise ValueError(f"displacement_lower[{i}] = {dlo[i]} > displacement_upper[{i}] = {dhi[i]}")
-        if self.W_aa is None and (np.isfinite(dlo).any() or np.isfinite(dhi).any()):
+        has_rows = bool(np.isfinite(dlo).any() or np.isfinite(dhi).any())
+        if self.W_aa is None and has_rows:
             raise ValueError("displacement bounds need W_aa and delta_a_free")
         set_("displacement_lower", dlo)
         set_("displacement_upper", dhi)
+        set_("_has_rows", has_rows)
         if self.lambda0 is not None:
             l0 = _vector("lambda0", self.lambda0, n)
             set_("lambda0", np.where(np.isfinite(l0), l0, 0.0))
@@ -192,23 +198,25 @@ def quadratic_form(problem: ConstraintProblem, displacement_lower=None, displace
     H = problem.W_ea.T @ Wsq
     q = Wsq.T @ problem.delta_e_free
     c = 0.5 * float(problem.delta_e_free @ (problem.effector_weights * problem.delta_e_free))
-    h = np.diag(H).copy()
+    n = H.shape[0]
+    h = H.flat[:: n + 1].copy()
     if problem.W_aa is not None:
-        d = np.abs(np.diag(problem.W_aa)).copy()
+        d = np.abs(problem.W_aa.flat[:: n + 1])
     else:
         d = h.copy()
     # An actuator with no own displacement (d = 0) would be left unregularised:
     # floor d relative to the others so the Hessian stays definite.
     dmax = d.max() if d.size else 0.0
     d = np.maximum(d, 1e-12 * dmax if dmax > 0 else 1.0)
-    ratio = h / d
-    s = float(ratio.mean()) if ratio.mean() > 0 else 1.0
+    s = float((h / d).mean())
+    s = s if s > 0 else 1.0
     rho = problem.regularisation * s
-    P = H + np.diag(rho * d)
-    P = 0.5 * (P + P.T)
+    P = H  # symmetric by construction (Wᵀ diag(w) W)
+    P.flat[:: n + 1] += rho * d
     dlo = problem.displacement_lower if displacement_lower is None else displacement_lower
     dhi = problem.displacement_upper if displacement_upper is None else displacement_upper
-    rows = np.flatnonzero(np.isfinite(dlo) | np.isfinite(dhi))
+    rows = (np.flatnonzero(np.isfinite(dlo) | np.isfinite(dhi))
+            if (problem._has_rows or displacement_lower is not None) else np.zeros(0, dtype=int))
     if rows.size:
         G = problem.W_aa[rows]
         row_lower = dlo[rows] - problem.delta_a_free[rows]
@@ -249,7 +257,7 @@ class ConstraintSolution:
     delta_a: np.ndarray | None  # predicted actuator displacements (n,)
     effector_error: float  # ‖δe‖ (m), unweighted
     objective: float
-    stationarity: float  # box-KKT residual in effector units (m); see _stationarity
+    stationarity: float  # projected-gradient step in effector units (m), 0 at a box-QP optimum; NaN with displacement rows
     iterations: int
     converged: bool
     status: str  # "optimal" | "max_iterations" | "relaxed" | backend status
@@ -488,20 +496,6 @@ class QpsolversBackend:
 # --------------------------------------------------------------------------- driver
 
 
-def _stationarity(qp: QuadraticForm, lam: np.ndarray) -> float:
-    """Projected-gradient step in effector units (m): zero exactly at the box-QP optimum.
-
-    Only meaningful without displacement rows (their multipliers are not in it);
-    NaN otherwise.
-    """
-    if qp.G.shape[0]:
-        return float("nan")
-    diag = np.diag(qp.P)
-    g = qp.P @ lam + qp.q
-    proj = np.clip(lam - g / diag, qp.lower, qp.upper)
-    return float(np.max(np.abs(proj - lam) * np.sqrt(diag), initial=0.0))
-
-
 def _minimal_displacement_violation(problem: ConstraintProblem):
     """Closest reachable actuator displacements when the displacement bounds cannot all hold.
 
@@ -549,7 +543,7 @@ def solve_constraint_problem(
     dlo, dhi = problem.displacement_lower, problem.displacement_upper
     relaxation = np.zeros(n)
     relaxed = False
-    if problem.W_aa is not None and (np.isfinite(dlo).any() or np.isfinite(dhi).any()):
+    if problem._has_rows:
         _, da0 = problem.predict(start)
         slack = 1e-9 * np.maximum(np.abs(da0), np.abs(np.where(np.isfinite(dlo), dlo, 0.0))) + 1e-300
         if ((da0 < dlo - slack) | (da0 > dhi + slack)).any():
@@ -570,36 +564,46 @@ def solve_constraint_problem(
         # Jacobi scaling λ = S y, S = diag(1/√Pᵢᵢ): unit diagonal whatever the units of
         # the actuators, so absolute pivot/singularity tolerances inside the library
         # see a well-scaled problem (the raw P of a stiff robot is ~1e-8 in SI units).
-        S = 1.0 / np.sqrt(np.diag(qp.P))
+        S = 1.0 / np.sqrt(qp.P.flat[:: n + 1])
+        G, row_lower, row_upper = qp.G, qp.row_lower, qp.row_upper
+        if G.shape[0]:  # and unit rows for the displacement constraints
+            G = G * S[None, :]
+            rs = 1.0 / np.maximum(np.abs(G).max(axis=1), 1e-300)
+            G, row_lower, row_upper = G * rs[:, None], row_lower * rs, row_upper * rs
         scaled = QuadraticForm(
-            P=qp.P * S[:, None] * S[None, :], q=qp.q * S, c=qp.c, lower=qp.lower / S,
-            upper=qp.upper / S, G=qp.G * S[None, :], row_lower=qp.row_lower, row_upper=qp.row_upper,
-            rows=qp.rows, regularisation_weight=qp.regularisation_weight, energy_diagonal=qp.energy_diagonal,
+            P=qp.P * np.outer(S, S), q=qp.q * S, c=qp.c, lower=qp.lower / S, upper=qp.upper / S,
+            G=G, row_lower=row_lower, row_upper=row_upper, rows=qp.rows,
+            regularisation_weight=qp.regularisation_weight, energy_diagonal=qp.energy_diagonal,
         )
-        if qp.G.shape[0]:  # and unit rows for the displacement constraints
-            rs = 1.0 / np.maximum(np.abs(scaled.G).max(axis=1), 1e-300)
-            scaled = QuadraticForm(**{**scaled.__dict__, "G": scaled.G * rs[:, None],
-                                      "row_lower": scaled.row_lower * rs, "row_upper": scaled.row_upper * rs})
         out = be.solve(scaled, start / S, tolerance=tol, max_iterations=max_iterations)
         lam = np.clip(out.actuation * S, problem.lambda_lower, problem.lambda_upper)
     else:
         out = be.solve(qp, start, tolerance=tol, max_iterations=max_iterations)
         lam = out.actuation
     de, da = problem.predict(lam)
-    objective = 0.5 * float(lam @ qp.P @ lam) + float(qp.q @ lam) + qp.c
-    atol_l = 1e-9 * np.maximum(1.0, np.abs(lam))
-    act_lo = np.isfinite(problem.lambda_lower) & (lam <= problem.lambda_lower + atol_l)
-    act_hi = np.isfinite(problem.lambda_upper) & (lam >= problem.lambda_upper - atol_l)
-    if da is not None:
-        atol_d = 1e-9 * np.maximum(np.abs(da), 1e-30) + 1e-15
-        act_dlo = np.isfinite(dlo) & (da <= dlo + atol_d)
-        act_dhi = np.isfinite(dhi) & (da >= dhi - atol_d)
+    g = qp.P @ lam + qp.q
+    objective = 0.5 * float(lam @ (g + qp.q)) + qp.c
+    lo, hi = problem.lambda_lower, problem.lambda_upper
+    # "active" = within 1e-9 of the bound, relative to the bound or the effort itself
+    atol_l = 1e-9 * np.maximum(np.abs(lam), np.where(np.isfinite(lo), np.abs(lo), 0.0)) + 1e-300
+    act_lo = lam <= lo + atol_l
+    act_hi = lam >= hi - atol_l
+    if da is not None and problem._has_rows:
+        atol_d = 1e-9 * np.abs(da) + 1e-300
+        act_dlo = da <= dlo + atol_d
+        act_dhi = da >= dhi - atol_d
     else:
         act_dlo = act_dhi = np.zeros(n, dtype=bool)
+    if qp.G.shape[0]:
+        stationarity = float("nan")
+    else:
+        diag = qp.P.flat[:: n + 1]
+        proj = np.clip(lam - g / diag, lo, hi)
+        stationarity = float(np.max(np.abs(proj - lam) * np.sqrt(diag)))
     status = "relaxed" if (relaxed and out.converged) else out.status
     return ConstraintSolution(
         actuation=lam, delta_e=de, delta_a=da, effector_error=float(np.linalg.norm(de)),
-        objective=objective, stationarity=_stationarity(qp, lam), iterations=out.iterations,
+        objective=objective, stationarity=stationarity, iterations=out.iterations,
         converged=out.converged, status=status, backend=be.name, time_s=time.perf_counter() - t0,
         active_lower=act_lo, active_upper=act_hi, active_displacement_lower=act_dlo,
         active_displacement_upper=act_dhi, displacement_relaxation=relaxation,

@@ -1,0 +1,167 @@
+"""Benchmark of the constraint-space QP backends (solver/inverse/qp.py).
+
+Which library solves the inverse QP (paper eq. 13) fastest at equal accuracy, and what
+the regularisation ε costs in bias and buys in smoothness. Synthetic problems built like
+the real ones (SPD K, cables with B = −Jaᵀ, W_ea = Je K⁻¹ B, W_aa = Ja K⁻¹ B), seeded.
+
+Rows:
+* backend × (actuators, effector rows, reachable/unreachable, stroke limits): median solve
+  time through ``solve_constraint_problem`` (validation + scaling + solve + diagnostics)
+  and the effort/objective error against DAQP at its tightest (active set: exact);
+* ε: reachable-target bias (predicted effector error / free gap) and smoothness of
+  16-tendon efforts along a circle (max step / median step).
+
+Run: ``.venv/bin/python benchmarks/bench_qp.py [--quick]``; writes
+``benchmarks/results/qp.json`` and ``benchmarks/results/qp.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from solver.inverse.qp import ConstraintProblem, available_backends, solve_constraint_problem  # noqa: E402
+
+RESULTS = Path(__file__).resolve().parent / "results"
+
+
+def synthetic(seed, n_act, n_rows, n_dof=60, reach=0.5):
+    rng = np.random.default_rng(seed)
+    A = rng.normal(size=(n_dof, n_dof))
+    K = A @ A.T + n_dof * np.eye(n_dof)
+    Ja = rng.normal(size=(n_act, n_dof)) * 1e-2
+    Je = rng.normal(size=(n_rows, n_dof))
+    X = np.linalg.solve(K, -Ja.T)
+    W_ea, W_aa = Je @ X, Ja @ X
+    return W_ea, -(W_ea @ rng.uniform(0.0, 10.0, n_act)) * reach, W_aa
+
+
+def problem_for(case, seed, eps=None):
+    W_ea, de, W_aa = synthetic(seed, case["n_act"], case["n_rows"], reach=case["reach"])
+    kw = {}
+    if case["stroke"]:
+        kw["displacement_lower"] = -0.6 * np.abs(W_aa).sum(axis=1)
+    if eps is not None:
+        kw["regularisation"] = eps
+    return ConstraintProblem(W_ea, de, lambda_lower=0.0, lambda_upper=20.0, W_aa=W_aa,
+                             delta_a_free=np.zeros(case["n_act"]), **kw)
+
+
+def time_backend(problem, backend, repeats):
+    solve_constraint_problem(problem, backend)  # warm-up (lazy imports)
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        sol = solve_constraint_problem(problem, backend)
+        times.append(time.perf_counter() - t0)
+    return sol, float(np.median(times))
+
+
+def backend_table(quick):
+    cases = []
+    for n_act, n_rows in [(4, 3), (8, 3), (16, 3), (16, 6), (32, 6)]:
+        for reach, stroke in [(0.5, False), (3.0, False), (3.0, True)]:
+            cases.append(dict(n_act=n_act, n_rows=n_rows, reach=reach, stroke=stroke))
+    if quick:
+        cases = cases[::3]
+    backends = available_backends()
+    rows = []
+    repeats = 20 if quick else 100
+    for case in cases:
+        for seed in range(2 if quick else 3):
+            problem = problem_for(case, seed)
+            ref, _ = time_backend(problem, "daqp", 1)
+            scale = max(np.abs(ref.actuation).max(), 1e-300)
+            for backend in backends:
+                reps = max(3, repeats // 20) if backend in ("gauss-seidel", "qpsolvers:proxqp") else repeats
+                sol, t = time_backend(problem, backend, reps)
+                rows.append(dict(
+                    backend=backend, seed=seed, **case, time_s=t, status=sol.status, converged=sol.converged,
+                    effort_error=float(np.abs(sol.actuation - ref.actuation).max() / scale),
+                    objective_rel=float((sol.objective - ref.objective) / max(abs(ref.objective), 1e-300)),
+                    effector_error=sol.effector_error,
+                    bound_violation=float(max(np.max(problem.lambda_lower - sol.actuation),
+                                              np.max(sol.actuation - problem.lambda_upper),
+                                              np.max(problem.displacement_lower - sol.delta_a)
+                                              - np.max(sol.displacement_relaxation, initial=0.0), 0.0)),
+                ))
+    return rows
+
+
+def epsilon_table(quick):
+    rows = []
+    n_steps = 61 if quick else 181
+    for eps in [1e-4, 1e-6, 1e-8, 1e-10]:
+        biases = []
+        for seed in range(3):
+            problem = problem_for(dict(n_act=16, n_rows=3, reach=0.5, stroke=False), seed, eps)
+            sol = solve_constraint_problem(problem, "daqp")
+            biases.append(sol.effector_error / np.linalg.norm(problem.delta_e_free) if sol.converged else np.nan)
+        W_ea, de0, W_aa = synthetic(2, 16, 3)
+        r = 0.3 * np.linalg.norm(de0)
+        u, v = np.linalg.qr(np.random.default_rng(0).normal(size=(3, 2)))[0].T
+        lam, path, ok = None, [], True
+        for th in np.linspace(0, 2 * np.pi, n_steps):
+            p = ConstraintProblem(W_ea, de0 + r * (np.cos(th) * u + np.sin(th) * v), lambda_lower=0.0,
+                                  lambda_upper=20.0, W_aa=W_aa, delta_a_free=np.zeros(16), lambda0=lam,
+                                  regularisation=eps)
+            sol = solve_constraint_problem(p, "daqp")
+            ok &= sol.converged
+            lam = sol.actuation
+            path.append(lam)
+        steps = np.linalg.norm(np.diff(path, axis=0), axis=1)
+        rows.append(dict(epsilon=eps, bias_max=float(np.nanmax(biases)), all_converged=bool(ok),
+                         smoothness=float(steps.max() / np.median(steps)),
+                         mean_tension=float(np.mean(np.sum(path, axis=1)))))
+    return rows
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true")
+    args = parser.parse_args(argv)
+    rows = backend_table(args.quick)
+    eps_rows = epsilon_table(args.quick)
+
+    # summary per backend and case size
+    summary = {}
+    for r in rows:
+        key = (r["backend"], r["n_act"], r["n_rows"], r["stroke"])
+        s = summary.setdefault(key, dict(times=[], err=[], viol=[], fail=0))
+        s["times"].append(r["time_s"])
+        s["err"].append(r["effort_error"])
+        s["viol"].append(r["bound_violation"])
+        s["fail"] += not r["converged"]
+    lines = ["# QP backends (synthetic constraint-space problems)", "",
+             f"host: {platform.node()} · python {platform.python_version()} · "
+             f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS')}", "",
+             "| backend | actuators | rows | stroke limits | median time | max effort error vs DAQP | max bound violation | not converged |",
+             "|---|---|---|---|---|---|---|---|"]
+    for (backend, n_act, n_rows, stroke), s in sorted(summary.items(), key=lambda kv: (kv[0][1], kv[0][2], kv[0][3], kv[0][0])):
+        lines.append(f"| {backend} | {n_act} | {n_rows} | {stroke} | {np.median(s['times']) * 1e6:.0f} µs | "
+                     f"{max(s['err']):.1e} | {max(s['viol']):.1e} | {s['fail']} |")
+    lines += ["", "## Regularisation ε (16 tendons, one 3-D target; DAQP)", "",
+              "| ε | reachable bias (error / free gap) | circle: max step / median step | mean total tension |",
+              "|---|---|---|---|"]
+    for r in eps_rows:
+        lines.append(f"| {r['epsilon']:.0e} | {r['bias_max']:.1e} | {r['smoothness']:.2f}"
+                     f"{'' if r['all_converged'] else ' (some failed)'} | {r['mean_tension']:.3g} |")
+    text = "\n".join(lines)
+    print(text)
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / "qp.json").write_text(json.dumps({"rows": rows, "epsilon": eps_rows,
+                                                 "quick": args.quick, "host": platform.node()}, indent=1))
+    (RESULTS / "qp.md").write_text(text + "\n")
+
+
+if __name__ == "__main__":
+    main()
