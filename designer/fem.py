@@ -114,6 +114,29 @@ def _facet_index(mesh, corner: np.ndarray, name: str) -> np.ndarray:
     return np.unique(found)
 
 
+def assemble_elasticity(vector_basis, scalar_basis, lam: float, mu: float):
+    """Isotropic linear elasticity stiffness, vectorised over elements and quadrature points.
+
+    Same matrix as ``skfem.models.elasticity.linear_elasticity`` (checked to round-off in
+    tests/test_designer_fem.py) but ~40× faster for P2: with ``u = φ_a e_i``,
+    ``K[(a,i),(b,j)] = ∫ λ ∂_iφ_a ∂_jφ_b + μ (δ_ij ∇φ_a·∇φ_b + ∂_jφ_a ∂_iφ_b)``.
+    Local vector DoF ``(a, i)`` is ``3a + i`` in scikit-fem's ``ElementVector``.
+    """
+    from scipy.sparse import coo_matrix
+
+    grads = np.array([b[0].grad for b in scalar_basis.basis])           # (nb, 3, nel, nq)
+    M = np.einsum("aieq,bjeq,eq->eabij", grads, grads, scalar_basis.dx, optimize=True)
+    trace = np.einsum("eabkk->eab", M)
+    local = lam * M + mu * np.swapaxes(M, 3, 4) + mu * trace[..., None, None] * np.eye(3)
+    nb = grads.shape[0]
+    local = local.transpose(0, 1, 3, 2, 4).reshape(-1, 3 * nb, 3 * nb)
+    dofs = vector_basis.element_dofs.T                                      # (nel, 3nb)
+    rows = np.broadcast_to(dofs[:, :, None], local.shape).ravel()
+    cols = np.broadcast_to(dofs[:, None, :], local.shape).ravel()
+    n = vector_basis.N
+    return coo_matrix((local.ravel(), (rows, cols)), shape=(n, n)).tocsr()
+
+
 def build_fe(mesh_data, youngs_modulus: float, poisson_ratio: float, density: float,
              n_cavities: int, length: float) -> SegmentFE:
     """Assemble the segment: scikit-fem mesh from the gmsh arrays, P1/P2 vector basis,
@@ -121,7 +144,7 @@ def build_fe(mesh_data, youngs_modulus: float, poisson_ratio: float, density: fl
     from skfem import (Basis, ElementTetP1, ElementTetP2, ElementVector, FacetBasis, Functional,
                        LinearForm, MeshTet1, MeshTet2, asm)
     from skfem.helpers import dot
-    from skfem.models.elasticity import lame_parameters, linear_elasticity
+    from skfem.models.elasticity import lame_parameters
 
     start = time.perf_counter()
     order = mesh_data.order
@@ -129,7 +152,8 @@ def build_fe(mesh_data, youngs_modulus: float, poisson_ratio: float, density: fl
     mesh = mesh_cls(np.ascontiguousarray(mesh_data.nodes.T), np.ascontiguousarray(mesh_data.tets.T))
     intorder = 2 * order
     basis = Basis(mesh, ElementVector(element), intorder=intorder)
-    K = asm(linear_elasticity(*lame_parameters(youngs_modulus, poisson_ratio)), basis).tocsr()
+    scalar = Basis(mesh, element, intorder=intorder)
+    K = assemble_elasticity(basis, scalar, *lame_parameters(youngs_modulus, poisson_ratio))
     n_dofs = basis.N
     components = np.empty(n_dofs, dtype=np.int64)
     every = basis.get_dofs(np.arange(mesh.facets.shape[1]))   # all facets -> all DoFs
@@ -156,7 +180,6 @@ def build_fe(mesh_data, youngs_modulus: float, poisson_ratio: float, density: fl
         cap_wrenches.append({"bottom": wrench_a, "top": wrench_b})
         volumes.append(volume)
 
-    scalar = Basis(mesh, element, intorder=intorder)
     one = Functional(lambda w: density + 0.0 * w.x[0])
     mass = float(asm(one, scalar))
     vol = float(asm(Functional(lambda w: 1.0 + 0.0 * w.x[0]), scalar))

@@ -1,0 +1,151 @@
+"""``vertebra design FAMILY [--set NAME=VALUE ...] [--mesh-size H] [--order 1|2] --catalogue FILE``
+
+Mesh, solve and condense one segment into the catalogue (DESIGN.md §5). If the
+content key is already in the catalogue the entry is reused, not recomputed.
+``vertebra design vertebra --set radius=.. --set thickness=.. --set density=..``
+prints a rigid vertebra's mass properties as a scene snippet (no catalogue).
+Progress and logs go to stderr; ``--json`` prints one JSON document on stdout.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+
+from store.errors import GeometryError
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("family", metavar="FAMILY",
+                        help="rod | tube | bellows | pneumatic | tapered_pneumatic | vertebra")
+    parser.add_argument("--set", dest="values", action="append", default=[], metavar="NAME=VALUE",
+                        help="a design parameter (repeatable), e.g. --set radius=0.01")
+    parser.add_argument("--mesh-size", type=float, default=None, metavar="H", help="target element size, m")
+    parser.add_argument("--order", type=int, choices=(1, 2), default=2, help="element order (default 2)")
+    parser.add_argument("--catalogue", metavar="FILE", help="HDF5 catalogue to add the entry to")
+    parser.add_argument("--name", default=None, help="entry name (default FAMILY-<key prefix>)")
+    parser.add_argument("--export-mesh", metavar="FILE.vtu", default=None, help="also write the mesh (meshio)")
+    parser.add_argument("--json", action="store_true", help="print the entry as JSON on stdout")
+    parser.add_argument("--no-accuracy", action="store_true", help="skip the refined-mesh accuracy estimate")
+    parser.add_argument("--linear-solver", choices=("auto", "direct", "amg"), default="auto")
+
+
+def parse_values(values: list[str]) -> dict:
+    """``NAME=VALUE`` strings to a dict of numbers (GeometryError names the bad one)."""
+    out = {}
+    for item in values:
+        name, sep, text = item.partition("=")
+        name = name.strip()
+        if not sep or not name:
+            raise GeometryError(f"--set {item!r}: expected NAME=VALUE")
+        text = text.strip()
+        try:
+            value = int(text)
+        except ValueError:
+            try:
+                value = float(text)
+            except ValueError:
+                raise GeometryError(f"parameter {name!r}: not a number: {text!r}") from None
+        out[name] = value
+    return out
+
+
+def _log(message: str) -> None:
+    print(f"vertebra design: {message}", file=sys.stderr, flush=True)
+
+
+def _print_json(document) -> None:
+    json.dump(document, sys.stdout, allow_nan=False)
+    sys.stdout.write("\n")
+
+
+def _run_vertebra(args, values) -> int:
+    from designer.vertebra import vertebra_properties, vertebra_snippet
+
+    props = vertebra_properties(values)
+    if args.json:
+        _print_json({k: props[k] for k in ("mass", "center_of_mass", "inertia", "thickness", "holes", "parameters")})
+    else:
+        print(vertebra_snippet(props))
+    return 0
+
+
+def run(args) -> int:
+    from designer.threads import pin_blas_threads
+
+    pin_blas_threads(1)
+    import designer
+    from designer.segment import entry_document, export_mesh
+
+    values = parse_values(args.values)
+    if args.family == "vertebra":
+        return _run_vertebra(args, values)
+    if args.catalogue is None:
+        raise GeometryError("--catalogue FILE is required to design a segment")
+    family = designer.FAMILIES.get(args.family)
+    if family is None:
+        raise GeometryError(f"unknown family {args.family!r} (known: {', '.join(sorted(designer.FAMILIES))}, vertebra)")
+    parameters = designer.canonical_parameters(family, values)          # GeometryError before meshing
+    key = designer.entry_key(family, parameters, mesh_size=args.mesh_size, order=args.order)
+
+    from store import catalogue
+
+    start = time.perf_counter()
+    if catalogue.has_entry(args.catalogue, key):
+        with catalogue.open_catalogue(args.catalogue) as cat:
+            entry = cat.load(key)
+        _log(f"key {key} is already in {args.catalogue} (entry {entry.name!r}): reusing it, nothing recomputed")
+    else:
+        entry = designer.design_segment(family, parameters, mesh_size=args.mesh_size, order=args.order,
+                                        name=args.name, linear_solver=args.linear_solver,
+                                        estimate_accuracy=not args.no_accuracy, progress=_log)
+        stored = catalogue.add_entry(args.catalogue, entry)
+        _log(f"added {entry.name!r} (key {stored}) to {args.catalogue} in {time.perf_counter() - start:.2f} s")
+    if args.export_mesh:
+        export_mesh(family, parameters, args.export_mesh, mesh_size=args.mesh_size, order=args.order)
+        _log(f"mesh written to {args.export_mesh}")
+    document = entry_document(entry)
+    if args.json:
+        _print_json(document)
+        return 0
+    t = document["timing"]
+    acc = entry.accuracy
+    print(f"key       {entry.key}\nname      {entry.name}\nfamily    {entry.family}\n"
+          f"dofs      {document['dofs']} (order {entry.mesh.get('order')}, h = {entry.mesh.get('mesh_size')})")
+    names = ["x", "y", "z", "θx", "θy", "θz"] + [f"V{k}" for k in range(entry.n_cavities)]
+    print("compliance diagonal  " + "  ".join(f"{n}={v:.4g}" for n, v in zip(names, entry.compliance.diagonal())))
+    if entry.n_cavities:
+        print("cavity volumes       " + "  ".join(f"{v:.4g}" for v in entry.cavity_volumes) + " m^3")
+    print(f"mass      {entry.mass:.6g} kg, centre of mass {list(map(float, entry.center_of_mass))}")
+    if "relative_change" in acc:
+        print(f"accuracy  relative compliance change vs refined mesh (h/{acc['method'].split('/')[-1]}): "
+              f"{acc['relative_change']:.3g}")
+    for warning in acc.get("warnings", []):
+        print(f"warning   {warning}")
+    print(f"timing    mesh {t['mesh_s']:.2f} s, assemble {t['assemble_s']:.2f} s, solve {t['solve_s']:.2f} s, "
+          f"total {t['total_s']:.2f} s")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Stand-alone entry (``python -m cli.design``), same exit codes as ``vertebra design``."""
+    import argparse
+
+    from store.errors import CatalogueError, SceneError, VertebraError
+
+    parser = argparse.ArgumentParser(prog="vertebra design", description=__doc__.splitlines()[0])
+    add_arguments(parser)
+    args = parser.parse_args(argv)
+    try:
+        return int(run(args))
+    except (SceneError, CatalogueError, GeometryError) as error:
+        print(f"vertebra design: error: {error}", file=sys.stderr)
+        return 2
+    except VertebraError as error:
+        print(f"vertebra design: {type(error).__name__}: {error}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
