@@ -1,0 +1,553 @@
+"""The compiled trunk: frames joined by compliance links, with cables, chambers, loads,
+gravity and effectors, and its quasi-static Newton solver (paper eq. 9).
+
+``build_model(scene)`` compiles a :class:`~solver.scene.Scene` once into a
+:class:`TrunkModel`; ``model.solve(actuation)`` then runs many times without
+re-parsing or re-allocating the structure. Only what the scene uses is evaluated in
+the hot path: no cables → no cable terms, no gravity → no gravity terms, and so on.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from solver.banded import BandLayout, factor_cholesky, factor_lu
+from solver.beam import timoshenko_compliance
+from solver.elements import LinkGeometry, cable_gradient, link_gradient, pair_tangent
+from solver.rotations import cross, hat, qexp, qmul, qrotate, se3_log
+from store.errors import ConvergenceError, SceneError
+
+
+@dataclass
+class State:
+    """Pose of every frame; frame 0 is the clamped base."""
+
+    positions: np.ndarray     # (n_frames, 3) world
+    quaternions: np.ndarray   # (n_frames, 4) [w, x, y, z]
+
+    def copy(self) -> "State":
+        return State(self.positions.copy(), self.quaternions.copy())
+
+
+@dataclass
+class StaticResult:
+    """Outcome of a forward solve, with its diagnostics."""
+
+    converged: bool
+    iterations: int
+    residual: float
+    state: State
+    actuation: np.ndarray
+    residual_history: list = field(default_factory=list)
+    load_steps: int = 1
+    factorization: str = "cholesky"
+    timings: dict = field(default_factory=dict)
+
+
+@dataclass
+class Linearisation:
+    """Tangent of the equilibrium at a state (paper eqs. 10–12); see docs/solver-api.md."""
+
+    residual: np.ndarray
+    factor: object
+    actuator_forces: np.ndarray
+    actuator_jacobian: np.ndarray
+    effector_jacobian: np.ndarray
+    effector_positions: np.ndarray
+    actuator_displacements: np.ndarray
+
+    def solve(self, rhs: np.ndarray) -> np.ndarray:
+        """``K⁻¹ rhs`` with the banded factor (one or many right-hand sides)."""
+        return self.factor.solve(np.asarray(rhs, dtype=float))
+
+
+@dataclass
+class _Evaluation:
+    gradient: np.ndarray          # (n_frames, 6) of the potential, dead moments included (as −M)
+    energy: float                 # potential (dead moments excluded: not conservative)
+    lower: np.ndarray | None = None
+    upper: np.ndarray | None = None
+
+
+def _rest_twist(quaternion, translation):
+    xi, Jl_inv = se3_log(np.asarray(quaternion, float), np.asarray(translation, float))
+    return xi, Jl_inv
+
+
+def _strain_map(quaternion, translation):
+    """``A = ∂ξ/∂δ`` at rest: δ = [Δx; Δθ] of b in a's axes (DESIGN §2) → link strain."""
+    xi0, Jl_inv = _rest_twist(quaternion, translation)
+    shift = np.eye(6)
+    shift[:3, 3:] = hat(np.asarray(translation, float))   # ζ = [Δx − Δθ × d0; Δθ]
+    return xi0, Jl_inv @ shift
+
+
+def build_model(scene, entries: dict | None = None) -> "TrunkModel":
+    """Compile a scene. ``entries`` maps entry names to ``SegmentEntry`` objects; when
+    omitted, the entries the scene names (and only those) are read from its catalogue."""
+    needed = sorted({s.entry for s in scene.segments if s.type == "entry"})
+    entries = dict(entries or {})
+    missing = [name for name in needed if name not in entries]
+    if missing:
+        from store import catalogue  # lazy: beam-only scenes never touch HDF5
+        with catalogue.open_catalogue(scene.catalogue) as cat:
+            for name in missing:
+                entries[name] = cat.load(name)
+    return TrunkModel(scene, entries)
+
+
+class TrunkModel:
+    """A compiled trunk. Build with :func:`build_model`."""
+
+    def __init__(self, scene, entries: dict):
+        self.scene = scene
+        self._compile_links(scene, entries)
+        self._compile_actuators(scene)
+        self._compile_loads(scene)
+        self.layout = BandLayout(self.n_frames - 1, self.span)
+        self.rest_state = self._rest_state(scene)
+        self.rest_cable_lengths = self.cable_lengths(self.rest_state)
+        self._reference_cache = (None, None)
+
+    # ------------------------------------------------------------------ compile
+    def _compile_links(self, scene, entries):
+        K, xi0, S, quats, trans, Vs, covers = [], [], [], [], [], [], []
+        frame_mass, frame_moment = [0.0], [np.zeros(3)]
+        vertebra_frames, segment_of_link, repetition_end = [0], [], []
+        spans = []
+        chambers = scene.chambers
+        for seg_index, seg in enumerate(scene.segments):
+            if seg.type == "beam":
+                l = seg.length / seg.elements
+                C = timoshenko_compliance(l, seg.youngs_modulus, seg.shear_modulus, seg.section)
+                q0, d0 = np.array([1.0, 0, 0, 0]), np.array([0.0, 0.0, l])
+                G, V = np.zeros((6, 0)), np.zeros((0, 0))
+                link_mass, com = seg.density * seg.section.area * l, np.array([0.0, 0.0, 0.5 * l])
+            else:
+                entry = entries[seg.entry]
+                C, G, V = entry.C, entry.G, entry.V
+                q0, d0 = entry.rest_quaternion, entry.rest_translation
+                link_mass, com = entry.mass, entry.center_of_mass
+            xi_rest, A = _strain_map(q0, d0)
+            K_xi = np.linalg.inv(A @ C @ A.T)
+            K_xi = 0.5 * (K_xi + K_xi.T)
+            for _ in range(seg.count):
+                vertebra_index = len(vertebra_frames)
+                for _ in range(seg.elements):
+                    K.append(K_xi), xi0.append(xi_rest), quats.append(q0), trans.append(d0)
+                    # which chambers act through this link's cavities (DESIGN §3: one per segment)
+                    P = np.zeros((6, len(chambers)))
+                    cover = np.zeros(len(chambers), bool)
+                    for j, ch in enumerate(chambers):
+                        if ch.first <= vertebra_index <= ch.last:
+                            if ch.cavity >= G.shape[1]:
+                                raise SceneError(
+                                    f"segment {seg_index} ending at vertebra {vertebra_index} has "
+                                    f"{G.shape[1]} cavities; chamber {ch.name!r} uses cavity {ch.cavity}",
+                                    file=scene.source, field=f"chamber[{j}].cavity")
+                            P[:, j] = A @ G[:, ch.cavity]
+                            cover[j] = True
+                    S.append(P), covers.append(cover)
+                    Vc = np.zeros((len(chambers), len(chambers)))
+                    idx = [j for j in range(len(chambers)) if cover[j]]
+                    for j in idx:
+                        for k in idx:
+                            Vc[j, k] = V[chambers[j].cavity, chambers[k].cavity]
+                    Vs.append(Vc)
+                    # segment mass lumped on the link's end frames by the lever rule along its axis
+                    t = float(np.clip(com[2] / d0[2], 0.0, 1.0)) if d0[2] != 0 else 0.5
+                    lateral = np.array([com[0], com[1], 0.0])
+                    frame_mass[-1] += (1 - t) * link_mass
+                    frame_moment[-1] = frame_moment[-1] + (1 - t) * link_mass * lateral
+                    frame_mass.append(t * link_mass)
+                    frame_moment.append(t * link_mass * lateral)
+                    segment_of_link.append(seg_index)
+                vertebra_frames.append(len(frame_mass) - 1)
+                frame_mass[-1] += seg.vertebra.mass
+                frame_moment[-1] = frame_moment[-1] + seg.vertebra.mass * np.asarray(seg.vertebra.center_of_mass)
+                spans.append(seg.elements)
+        self.n_frames = len(frame_mass)
+        self.n_links = self.n_frames - 1
+        self.link_stiffness = np.array(K)
+        self.link_rest = np.array(xi0)
+        self.link_rest_quaternion = np.array(quats)
+        self.link_rest_translation = np.array(trans)
+        self.link_pressure_map = np.array(S).reshape(self.n_links, 6, len(chambers))
+        self.chamber_volume_compliance = np.sum(Vs, axis=0) if Vs else np.zeros((0, 0))
+        self.frame_mass = np.array(frame_mass)
+        self.frame_moment = np.array(frame_moment)
+        self.vertebra_frames = np.array(vertebra_frames)
+        self.repetition_spans = spans
+        self.span = max([1] + [s for s in spans])
+        self.length_scale = float(np.sum(np.linalg.norm(self.link_rest_translation, axis=1)))
+        rest_volumes = np.zeros(len(chambers))
+        for j, ch in enumerate(chambers):
+            for seg_index, seg in enumerate(scene.segments):
+                if seg.type == "entry":
+                    first_vertebra = 1 + sum(s.count for s in scene.segments[:seg_index])
+                    reps = [first_vertebra + r for r in range(seg.count) if ch.first <= first_vertebra + r <= ch.last]
+                    rest_volumes[j] += len(reps) * entries[seg.entry].cavity_volumes[ch.cavity]
+        self.chamber_rest_volumes = rest_volumes
+        for j, ch in enumerate(chambers):
+            if not np.any(self.link_pressure_map[:, :, j]) and ch.first <= ch.last:
+                raise SceneError(f"chamber {ch.name!r} covers no segment with cavities (vertebrae {ch.first}..{ch.last})",
+                                 file=scene.source, field=f"chamber[{j}]")
+
+    def _compile_actuators(self, scene):
+        pa, pb, ha, hb, owner = [], [], [], [], []
+        for c, cable in enumerate(scene.cables):
+            hole = cable.radius * np.array([math.cos(cable.angle), math.sin(cable.angle), 0.0])
+            route = [self.vertebra_frames[v] for v in range(cable.first - 1, cable.last + 1)]
+            for f_a, f_b in zip(route[:-1], route[1:]):
+                pa.append(f_a), pb.append(f_b), ha.append(hole), hb.append(hole), owner.append(c)
+        self.cable_piece_a = np.array(pa, int)
+        self.cable_piece_b = np.array(pb, int)
+        self.cable_hole_a = np.array(ha).reshape(-1, 3)
+        self.cable_hole_b = np.array(hb).reshape(-1, 3)
+        self.cable_piece_owner = np.array(owner, int)
+        self.n_cables = len(scene.cables)
+        self.n_chambers = len(scene.chambers)
+        self.actuator_names = [c.name for c in scene.cables] + [c.name for c in scene.chambers]
+        self.default_actuation = np.array([c.tension for c in scene.cables] + [c.pressure for c in scene.chambers])
+        self.actuator_bounds = (
+            np.array([c.min_tension for c in scene.cables] + [c.min_pressure for c in scene.chambers]),
+            np.array([c.max_tension for c in scene.cables] + [c.max_pressure for c in scene.chambers]))
+        self.displacement_bounds = (
+            np.array([c.min_stroke for c in scene.cables] + [c.min_volume_growth for c in scene.chambers]),
+            np.array([c.max_stroke for c in scene.cables] + [c.max_volume_growth for c in scene.chambers]))
+
+    def _compile_loads(self, scene):
+        dead = np.zeros((self.n_frames, 6))
+        for load in scene.loads:
+            frame = self.vertebra_frames[load.vertebra]
+            dead[frame, :3] += load.force
+            dead[frame, 3:] += load.moment
+        self.dead_loads = dead
+        self.has_dead_forces = bool(np.any(dead[:, :3]))
+        self.has_dead_moments = bool(np.any(dead[:, 3:]))
+        self.gravity = None if scene.gravity is None or not any(scene.gravity) else np.array(scene.gravity)
+        self.has_gravity = self.gravity is not None and bool(np.any(self.frame_mass))
+        self.effector_names = [e.name for e in scene.effectors]
+        self.effector_frames = np.array([self.vertebra_frames[e.vertebra] for e in scene.effectors], int)
+        self.effector_offsets = np.array([e.offset for e in scene.effectors], float).reshape(-1, 3)
+        self.effector_targets = np.array([e.target if e.target is not None else (np.nan,) * 3
+                                          for e in scene.effectors], float).reshape(-1, 3)
+        self.effector_weights = np.array([e.weight for e in scene.effectors], float)
+
+    def _rest_state(self, scene) -> State:
+        positions = np.zeros((self.n_frames, 3))
+        quaternions = np.zeros((self.n_frames, 4))
+        positions[0], quaternions[0] = scene.base_position, scene.base_quaternion
+        for k in range(self.n_links):
+            positions[k + 1] = positions[k] + qrotate(quaternions[k], self.link_rest_translation[k])
+            quaternions[k + 1] = qmul(quaternions[k], self.link_rest_quaternion[k])
+        return State(positions, quaternions)
+
+    # ------------------------------------------------------------------ physics
+    @property
+    def n_dof(self) -> int:
+        return 6 * (self.n_frames - 1)
+
+    def _actuation(self, actuation) -> np.ndarray:
+        if actuation is None:
+            return self.default_actuation.copy()
+        actuation = np.asarray(actuation, dtype=float).reshape(-1)
+        if actuation.shape != self.default_actuation.shape:
+            raise ValueError(f"actuation has {actuation.size} values, the model has "
+                             f"{self.default_actuation.size} actuators ({', '.join(self.actuator_names)})")
+        return actuation
+
+    def _link_rest(self, pressures):
+        if self.n_chambers == 0 or not np.any(pressures):
+            return self.link_rest
+        return self.link_rest + self.link_pressure_map @ pressures   # pressure shifts the rest pose: G p
+
+    def _evaluate(self, state: State, actuation: np.ndarray, scale: float, tangent: bool) -> _Evaluation:
+        x, q = state.positions, state.quaternions
+        grad = np.zeros((self.n_frames, 6))
+        lower = upper = None
+        if tangent:
+            lower, upper = self.layout.new_blocks()
+        xi_rest = self._link_rest(scale * actuation[self.n_cables:])
+        args = (q[:-1], x[:-1], q[1:], x[1:], self.link_stiffness, xi_rest)
+        if tangent:
+            g, energy, H = pair_tangent(link_gradient, *args)
+            lower[:, 0] += H[:, 6:, 6:]
+            lower[:-1, 0] += H[1:, :6, :6]
+            lower[:-1, 1] += H[1:, 6:, :6]
+            upper[:-1, 1] += H[1:, :6, 6:]
+        else:
+            g, energy = link_gradient(*args)
+        grad[:-1] += g[:, :6]
+        grad[1:] += g[:, 6:]
+        total = float(np.sum(energy))
+
+        tensions = scale * actuation[:self.n_cables]
+        if self.n_cables and np.any(tensions):
+            a, b = self.cable_piece_a, self.cable_piece_b
+            args = (q[a], x[a], q[b], x[b], self.cable_hole_a, self.cable_hole_b, tensions[self.cable_piece_owner])
+            if tangent:
+                g, energy, H = pair_tangent(cable_gradient, *args)
+                free = a > 0
+                s = b - a
+                np.add.at(lower, (b - 1, 0), H[:, 6:, 6:])
+                np.add.at(lower, (a[free] - 1, 0), H[free, :6, :6])
+                np.add.at(lower, (a[free] - 1, s[free]), H[free, 6:, :6])
+                np.add.at(upper, (a[free] - 1, s[free]), H[free, :6, 6:])
+            else:
+                g, energy = cable_gradient(*args)
+            np.add.at(grad, a, g[:, :6])
+            np.add.at(grad, b, g[:, 6:])
+            total += float(np.sum(energy))
+
+        if self.has_gravity:
+            weight = scale * self.gravity
+            lever = qrotate(q, self.frame_moment)                 # R s: first moment in world axes
+            grad[:, :3] -= self.frame_mass[:, None] * weight
+            grad[:, 3:] -= cross(lever, weight)                   # moment (R s) × m g at the frame
+            total -= float(np.sum(self.frame_mass * (x @ weight)) + np.sum(lever @ weight))
+            if tangent:
+                lower[:, 0, 3:, 3:] -= hat(weight) @ hat(lever[1:])
+
+        if self.has_dead_forces or self.has_dead_moments:
+            grad -= scale * self.dead_loads
+            total -= float(scale * np.sum(self.dead_loads[:, :3] * x))
+        return _Evaluation(grad, total, lower, upper)
+
+    def _factor(self, ev: _Evaluation, shift: float = 0.0):
+        """Factor the tangent: banded Cholesky of its symmetric part when it is exact to use
+        it (no dead moments), banded LU otherwise; ``shift`` adds μ·diag."""
+        lower, upper = ev.lower, ev.upper
+        if shift:
+            lower = lower.copy()
+            diag = np.einsum("cii->ci", lower[:, 0])
+            scale = np.abs(diag) + 1e-300
+            lower[:, 0] += shift * np.einsum("ci,ij->cij", scale, np.eye(6))
+        if not self.has_dead_moments:
+            factor = factor_cholesky(self.layout.symmetric_band(lower, upper))
+            if factor is not None:
+                return factor, "shifted" if shift else "cholesky"
+        factor = factor_lu(self.layout.general_band(lower, upper), self.layout.kd)
+        return factor, ("shifted-lu" if shift else "lu") if factor is not None else None
+
+    def step(self, state: State, dq: np.ndarray) -> State:
+        """Retraction: rotations by the exponential map; positions by rotating each chord with its
+        end frames' mean rotation increment and re-summing from the base (FIELD-NOTES: keeps
+        stiff axial links from absorbing spurious stretch in large rotation steps)."""
+        d = np.zeros((self.n_frames, 6))
+        d[1:] = np.asarray(dq).reshape(-1, 6)
+        quaternions = qmul(qexp(d[:, 3:]), state.quaternions)
+        quaternions /= np.linalg.norm(quaternions, axis=1, keepdims=True)
+        chords = np.diff(state.positions, axis=0)
+        mean_rotation = 0.5 * (d[:-1, 3:] + d[1:, 3:])
+        chords = (qrotate(qexp(mean_rotation), chords) + np.diff(d[:, :3], axis=0)
+                  - cross(mean_rotation, chords))
+        positions = np.empty_like(state.positions)
+        positions[0] = state.positions[0]
+        positions[1:] = state.positions[0] + np.cumsum(chords, axis=0)
+        return State(positions, quaternions)
+
+    def _reference_force(self, actuation) -> float:
+        """Force scale of the problem: the out-of-balance load at the rest pose (full load).
+        Residuals are measured relative to it, so tolerances are unit-scale invariant."""
+        key = actuation.tobytes()
+        if self._reference_cache[0] == key:
+            return self._reference_cache[1]
+        r0 = self._evaluate(self.rest_state, actuation, 1.0, tangent=False).gradient[1:]
+        value = max(np.max(np.abs(r0[:, :3]), initial=0.0), np.max(np.abs(r0[:, 3:]), initial=0.0) / self.length_scale)
+        self._reference_cache = (key, value)
+        return value
+
+    def _residual_norm(self, r: np.ndarray, reference: float) -> float:
+        r = r.reshape(-1, 6)
+        force = np.max(np.abs(r[:, :3]))
+        moment = np.max(np.abs(r[:, 3:])) / self.length_scale
+        return float(max(force, moment) / reference)
+
+    # ------------------------------------------------------------------ solve
+    def solve(self, actuation=None, initial: State | None = None, *, tolerance=None,
+              max_iterations=None, load_steps=None, raise_on_failure=True) -> StaticResult:
+        """Quasi-static equilibrium (paper eq. 9) by Newton with line search and automatic load
+        stepping. Raises :class:`ConvergenceError` (with the partial result) on failure."""
+        start = time.perf_counter()
+        settings = self.scene.solver
+        tol = settings.tolerance if tolerance is None else tolerance
+        max_iter = settings.max_iterations if max_iterations is None else max_iterations
+        steps = settings.load_steps if load_steps is None else load_steps
+        actuation = self._actuation(actuation)
+        reference = self._reference_force(actuation)
+        history, kinds = [], set()
+        if reference == 0.0:
+            state = (initial or self.rest_state).copy()
+            ev = self._evaluate(state, actuation, 1.0, tangent=False)
+            if not np.any(ev.gradient[1:]):
+                return StaticResult(True, 0, 0.0, state, actuation, [0.0], 1, "none",
+                                    {"solve_s": time.perf_counter() - start})
+            reference = max(np.max(np.abs(ev.gradient[1:, :3])), np.max(np.abs(ev.gradient[1:, 3:])) / self.length_scale)
+
+        state = (initial or self.rest_state).copy()
+        scale, increment = 0.0, 1.0 / steps
+        if initial is not None:
+            scale, increment = 0.0, 1.0   # warm start: try the full load from the given pose first
+        iterations, stages = 0, 0
+        last_good = state
+        converged = False
+        residual = math.inf
+        while True:
+            target = min(1.0, scale + increment)
+            stage_tol = tol if target >= 1.0 else max(tol, 1e-6)
+            ok, state_new, its, residual = self._newton(last_good, actuation, target, stage_tol,
+                                                        max_iter, reference, history, kinds)
+            iterations += its
+            stages += 1
+            if ok:
+                last_good, scale = state_new, target
+                if scale >= 1.0:
+                    converged = True
+                    break
+                increment = min(2.0 * increment, 1.0 - scale)
+            else:
+                if initial is not None and scale == 0.0 and last_good is not self.rest_state and stages == 1:
+                    last_good = self.rest_state.copy()   # warm start failed: step the load from rest
+                    increment = 1.0 / steps
+                    continue
+                increment *= 0.5
+                if increment < 1e-4 or iterations > 50 * max_iter:
+                    break
+        result = StaticResult(converged, iterations, float(residual), last_good if converged else state_new,
+                              actuation, history, stages, "+".join(sorted(kinds)) or "none",
+                              {"solve_s": time.perf_counter() - start})
+        if not converged and raise_on_failure:
+            raise ConvergenceError(
+                f"Newton did not converge: scaled residual {residual:.3g} > {tol:g} after {iterations} "
+                f"iterations and {stages} load stages (reached load factor {scale:.4g})", result)
+        return result
+
+    def _below_resolution(self, state: State, dq: np.ndarray) -> bool:
+        d = dq.reshape(-1, 6)
+        extent = self.length_scale + np.max(np.abs(state.positions))
+        return bool(np.max(np.abs(d[:, :3])) <= 1e-13 * extent and np.max(np.abs(d[:, 3:])) <= 1e-13)
+
+    def _newton(self, state, actuation, scale, tol, max_iter, reference, history, kinds):
+        """Newton iterations at a fixed load factor. Returns (ok, state, iterations, residual)."""
+        ev = self._evaluate(state, actuation, scale, tangent=True)
+        r = -ev.gradient[1:].reshape(-1)
+        residual = self._residual_norm(r, reference * max(scale, 1e-300))
+        moments = scale * self.dead_loads[1:, 3:].reshape(-1) if self.has_dead_moments else None
+        for iteration in range(max_iter + 1):
+            history.append(residual)
+            if not math.isfinite(residual):
+                return False, state, iteration, residual
+            if residual <= tol:
+                return True, state, iteration, residual
+            if iteration == max_iter:
+                break
+            accepted = False
+            for shift in (0.0, 1e-8, 1e-6, 1e-4, 1e-2, 1.0):
+                factor, kind = self._factor(ev, shift)
+                if factor is None:
+                    continue
+                dq = factor.solve(r)
+                if self._below_resolution(state, dq):
+                    # the correction is below the floating-point resolution of the poses: the
+                    # residual left is rounding, not error; stop here and report it as it is
+                    kinds.add(kind)
+                    return True, state, iteration, residual
+                slope = -float(r @ dq)
+                if slope >= 0.0 and shift == 0.0 and kind != "cholesky":
+                    continue      # indefinite tangent: the pure Newton step is no descent direction
+                alpha = 1.0
+                while alpha > 1e-3:
+                    trial = self.step(state, alpha * dq)
+                    ev_trial = self._evaluate(trial, actuation, scale, tangent=True)
+                    r_trial = -ev_trial.gradient[1:].reshape(-1)
+                    res_trial = self._residual_norm(r_trial, reference * max(scale, 1e-300))
+                    work = 0.0 if moments is None else alpha * float(moments @ dq.reshape(-1, 6)[:, 3:].reshape(-1))
+                    merit_ok = (ev_trial.energy - work <= ev.energy + 1e-4 * alpha * slope
+                                + 1e-12 * abs(ev.energy))
+                    if math.isfinite(res_trial) and (merit_ok or res_trial < residual):
+                        accepted = True
+                        break
+                    alpha *= 0.5
+                if accepted:
+                    kinds.add(kind)
+                    break
+            if not accepted:
+                return False, state, iteration + 1, residual
+            state, ev, r, residual = trial, ev_trial, r_trial, res_trial
+        return False, state, max_iter, residual
+
+    # ------------------------------------------------------------------ outputs
+    def cable_lengths(self, state: State) -> np.ndarray:
+        x, q = state.positions, state.quaternions
+        a, b = self.cable_piece_a, self.cable_piece_b
+        if not self.n_cables:
+            return np.zeros(0)
+        d = (x[b] + qrotate(q[b], self.cable_hole_b)) - (x[a] + qrotate(q[a], self.cable_hole_a))
+        return np.bincount(self.cable_piece_owner, np.linalg.norm(d, axis=1), minlength=self.n_cables)
+
+    def chamber_volume_growth(self, state: State, pressures: np.ndarray) -> np.ndarray:
+        """ΔV_j = Σ_links (A G_j)ᵀ K e + V p (DESIGN §2: reciprocity gives the Gᵀ row)."""
+        if not self.n_chambers:
+            return np.zeros(0)
+        x, q = state.positions, state.quaternions
+        e = LinkGeometry.of(q[:-1], x[:-1], q[1:], x[1:]).twist() - self._link_rest(pressures)
+        w = np.einsum("nij,nj->ni", self.link_stiffness, e)
+        return np.einsum("nij,ni->j", self.link_pressure_map, w) + self.chamber_volume_compliance @ pressures
+
+    def actuator_displacements(self, state: State, actuation=None) -> np.ndarray:
+        actuation = self._actuation(actuation)
+        return np.concatenate([self.cable_lengths(state) - self.rest_cable_lengths,
+                               self.chamber_volume_growth(state, actuation[self.n_cables:])])
+
+    def effector_positions(self, state: State) -> np.ndarray:
+        f = self.effector_frames
+        return state.positions[f] + qrotate(state.quaternions[f], self.effector_offsets)
+
+    def linearise(self, state: State, actuation=None) -> Linearisation:
+        """Tangent stiffness factor, actuator and effector Jacobians at ``state``."""
+        actuation = self._actuation(actuation)
+        ev = self._evaluate(state, actuation, 1.0, tangent=True)
+        factor = None
+        for shift in (0.0, 1e-8, 1e-6, 1e-4):
+            factor, _ = self._factor(ev, shift)
+            if factor is not None:
+                break
+        if factor is None:
+            raise ConvergenceError("tangent stiffness is singular at this state")
+        x, q = state.positions, state.quaternions
+        n_act = self.n_cables + self.n_chambers
+        jac = np.zeros((n_act, self.n_frames, 6))
+        if self.n_cables:
+            a, b = self.cable_piece_a, self.cable_piece_b
+            g, _ = cable_gradient(q[a], x[a], q[b], x[b], self.cable_hole_a, self.cable_hole_b,
+                                  np.ones(a.size))
+            np.add.at(jac, (self.cable_piece_owner, a), g[:, :6])
+            np.add.at(jac, (self.cable_piece_owner, b), g[:, 6:])
+        forces = -jac.copy()                          # cable: −τ ∂L/∂q
+        if self.n_chambers:
+            geometry = LinkGeometry.of(q[:-1], x[:-1], q[1:], x[1:])
+            c = np.einsum("nij,njk->nki", self.link_stiffness, self.link_pressure_map)   # K A G, (n, chamber, 6)
+            g = geometry.generalised_force(geometry.transport(c))                         # (n, chamber, 12)
+            chamber_jac = np.zeros((self.n_chambers, self.n_frames, 6))
+            chamber_jac[:, :-1] += np.moveaxis(g[..., :6], 1, 0)
+            chamber_jac[:, 1:] += np.moveaxis(g[..., 6:], 1, 0)
+            jac[self.n_cables:] = chamber_jac
+            forces[self.n_cables:] = chamber_jac       # ∂r/∂p = (∂e/∂q)ᵀ K A G = Jaᵀ
+        n_eff = len(self.effector_names)
+        Je = np.zeros((3 * n_eff, self.n_frames, 6))
+        lever = qrotate(state.quaternions[self.effector_frames], self.effector_offsets)
+        for k, frame in enumerate(self.effector_frames):
+            Je[3 * k:3 * k + 3, frame, :3] = np.eye(3)
+            Je[3 * k:3 * k + 3, frame, 3:] = -hat(lever[k])
+        return Linearisation(
+            residual=-ev.gradient[1:].reshape(-1), factor=factor,
+            actuator_forces=forces[:, 1:].reshape(n_act, -1).T.copy(),
+            actuator_jacobian=jac[:, 1:].reshape(n_act, -1),
+            effector_jacobian=Je[:, 1:].reshape(3 * n_eff, -1),
+            effector_positions=self.effector_positions(state),
+            actuator_displacements=self.actuator_displacements(state, actuation))

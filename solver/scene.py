@@ -1,0 +1,397 @@
+"""Scene files (DESIGN.md §4, TOML version 1): loading and validation.
+
+Every table is read through :class:`_Table`, which consumes the fields it knows and
+raises :class:`SceneError` naming the file, the dotted field and the reason for unknown
+fields, wrong types and impossible values. A valid :class:`Scene` is immutable and holds
+SI values only (degrees are converted where a field name says ``_deg``).
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from solver.beam import Section
+from store.errors import SceneError
+
+SEGMENT_TYPES = ("beam", "entry")
+
+
+@dataclass(frozen=True)
+class SolverSettings:
+    tolerance: float = 1e-9
+    max_iterations: int = 100
+    load_steps: int = 1
+
+
+@dataclass(frozen=True)
+class VertebraSpec:
+    mass: float = 0.0
+    center_of_mass: tuple = (0.0, 0.0, 0.0)   # in the vertebra's frame
+
+
+@dataclass(frozen=True)
+class SegmentSpec:
+    type: str
+    count: int
+    vertebra: VertebraSpec
+    elements: int = 1
+    # beam
+    length: float = 0.0
+    youngs_modulus: float = 0.0
+    shear_modulus: float = 0.0
+    section: Section | None = None
+    density: float = 0.0
+    # entry
+    entry: str = ""
+
+
+@dataclass(frozen=True)
+class CableSpec:
+    name: str
+    radius: float
+    angle: float            # rad, about local +z from local +x
+    first: int              # first vertebra it passes through ("from")
+    last: int               # vertebra where it is terminated ("to")
+    tension: float = 0.0
+    min_tension: float = 0.0
+    max_tension: float = math.inf
+    min_stroke: float = -math.inf
+    max_stroke: float = math.inf
+
+
+@dataclass(frozen=True)
+class ChamberSpec:
+    name: str
+    cavity: int
+    first: int
+    last: int
+    pressure: float = 0.0
+    min_pressure: float = 0.0
+    max_pressure: float = math.inf
+    min_volume_growth: float = -math.inf
+    max_volume_growth: float = math.inf
+
+
+@dataclass(frozen=True)
+class LoadSpec:
+    vertebra: int
+    force: tuple = (0.0, 0.0, 0.0)
+    moment: tuple = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class EffectorSpec:
+    name: str
+    vertebra: int
+    offset: tuple = (0.0, 0.0, 0.0)
+    target: tuple | None = None
+    weight: float = 1.0
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A validated scene. Vertebra indices are resolved (no negative indices remain)."""
+
+    segments: tuple
+    name: str = ""
+    solver: SolverSettings = SolverSettings()
+    gravity: tuple | None = None
+    base_position: tuple = (0.0, 0.0, 0.0)
+    base_quaternion: tuple = (1.0, 0.0, 0.0, 0.0)
+    catalogue: str | None = None
+    cables: tuple = ()
+    chambers: tuple = ()
+    loads: tuple = ()
+    effectors: tuple = ()
+    source: str = "<scene>"
+
+    @property
+    def n_vertebrae(self) -> int:
+        return 1 + sum(s.count for s in self.segments)
+
+
+class _Table:
+    """Reads typed fields from one TOML table and rejects the ones it never read."""
+
+    def __init__(self, data, path: str, source: str):
+        if not isinstance(data, dict):
+            raise SceneError(f"expected a table, got {type(data).__name__}", file=source, field=path or None)
+        self.data, self.path, self.source, self.used = data, path, source, set()
+
+    def _name(self, key):
+        return f"{self.path}.{key}" if self.path else key
+
+    def error(self, key, reason):
+        return SceneError(reason, file=self.source, field=self._name(key))
+
+    def has(self, key):
+        return key in self.data
+
+    def raw(self, key, default=None):
+        self.used.add(key)
+        return self.data.get(key, default)
+
+    def number(self, key, default=None, *, positive=False, nonneg=False, required=False, integer=False):
+        if key not in self.data:
+            if required:
+                raise self.error(key, "required field is missing")
+            return default
+        value = self.raw(key)
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise self.error(key, f"expected a number, got {type(value).__name__} {value!r}")
+        if integer and not isinstance(value, int):
+            raise self.error(key, f"expected an integer, got {value!r}")
+        if not math.isfinite(value) and not (value == math.inf and not positive and not integer):
+            raise self.error(key, f"expected a finite number, got {value!r}")
+        if positive and not value > 0:
+            raise self.error(key, f"must be > 0, got {value!r}")
+        if nonneg and not value >= 0:
+            raise self.error(key, f"must be >= 0, got {value!r}")
+        return int(value) if integer else float(value)
+
+    def vector(self, key, n, default=None, *, required=False):
+        if key not in self.data:
+            if required:
+                raise self.error(key, "required field is missing")
+            return default
+        value = self.raw(key)
+        if (not isinstance(value, list) or len(value) != n
+                or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in value)):
+            raise self.error(key, f"expected a list of {n} numbers, got {value!r}")
+        if not all(math.isfinite(v) for v in value):
+            raise self.error(key, f"expected finite numbers, got {value!r}")
+        return tuple(float(v) for v in value)
+
+    def string(self, key, default=None, *, required=False, choices=None):
+        if key not in self.data:
+            if required:
+                raise self.error(key, "required field is missing")
+            return default
+        value = self.raw(key)
+        if not isinstance(value, str) or not value:
+            raise self.error(key, f"expected a non-empty string, got {value!r}")
+        if choices and value not in choices:
+            raise self.error(key, f"must be one of {', '.join(choices)}, got {value!r}")
+        return value
+
+    def table(self, key):
+        return _Table(self.raw(key, {}), self._name(key), self.source)
+
+    def tables(self, key):
+        value = self.raw(key, [])
+        if not isinstance(value, list):
+            raise self.error(key, f"expected an array of tables ([[{key}]]), got {type(value).__name__}")
+        return [_Table(item, f"{self._name(key)}[{i}]", self.source) for i, item in enumerate(value)]
+
+    def done(self):
+        unknown = sorted(set(self.data) - self.used)
+        if unknown:
+            raise self.error(unknown[0], "unknown field")
+
+
+def load_scene(path) -> Scene:
+    """Read and validate a TOML scene file."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise SceneError("file not found", file=str(path))
+    except OSError as error:
+        raise SceneError(f"cannot read: {error.strerror}", file=str(path))
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as error:
+        raise SceneError(f"not valid TOML: {error}", file=str(path))
+    return parse_scene(data, source=str(path), base_dir=path.parent)
+
+
+def parse_scene(data: dict, source: str = "<dict>", base_dir=".") -> Scene:
+    """Validate a scene given as a dictionary (the parsed TOML)."""
+    top = _Table(data, "", source)
+    name = top.string("name", "")
+    version = top.number("version", 1, integer=True)
+    if version != 1:
+        raise top.error("version", f"unsupported scene version {version} (this vertebra reads version 1)")
+
+    st = top.table("solver")
+    settings = SolverSettings(
+        tolerance=st.number("tolerance", 1e-9, positive=True),
+        max_iterations=st.number("max_iterations", 100, positive=True, integer=True),
+        load_steps=st.number("load_steps", 1, positive=True, integer=True),
+    )
+    st.done()
+
+    gravity = None
+    if top.has("gravity"):
+        gt = top.table("gravity")
+        gravity = gt.vector("vector", 3, required=True)
+        gt.done()
+
+    bt = top.table("base")
+    base_position = bt.vector("position", 3, (0.0, 0.0, 0.0))
+    base_quaternion = bt.vector("quaternion", 4, (1.0, 0.0, 0.0, 0.0))
+    norm = math.sqrt(sum(v * v for v in base_quaternion))
+    if abs(norm - 1.0) > 1e-6:
+        raise bt.error("quaternion", f"must have unit norm, got norm {norm:.6g}")
+    base_quaternion = tuple(v / norm for v in base_quaternion)
+    bt.done()
+
+    catalogue = None
+    if top.has("catalogue"):
+        ct = top.table("catalogue")
+        catalogue = str(Path(base_dir) / ct.string("path", required=True))
+        ct.done()
+
+    segment_tables = top.tables("segment")
+    if not segment_tables:
+        raise SceneError("a scene needs at least one [[segment]]", file=source, field="segment")
+    segments = tuple(_parse_segment(t) for t in segment_tables)
+    if any(s.type == "entry" for s in segments) and catalogue is None:
+        raise SceneError("segments of type 'entry' need a [catalogue] path", file=source, field="catalogue.path")
+    n_vertebrae = 1 + sum(s.count for s in segments)
+
+    def vertebra_index(table, key, default=None, *, allow_base=True):
+        index = table.number(key, default, integer=True, required=default is None)
+        resolved = index + n_vertebrae if index < 0 else index
+        lowest = 0 if allow_base else 1
+        if not lowest <= resolved < n_vertebrae:
+            raise table.error(key, f"vertebra {index} out of range: the scene has vertebrae 0..{n_vertebrae - 1}"
+                                   + ("" if allow_base else " and 0 is the clamped base"))
+        return resolved
+
+    names = set()
+
+    def unique_name(table, kind):
+        value = table.string("name", required=True)
+        if value in names:
+            raise table.error("name", f"duplicate actuator/effector name {value!r}")
+        names.add(value)
+        return value
+
+    cables = []
+    for t in top.tables("cable"):
+        first = vertebra_index(t, "from", 1, allow_base=False)
+        last = vertebra_index(t, "to", allow_base=False)
+        if last < first:
+            raise t.error("to", f"terminating vertebra {last} comes before the first vertebra {first}")
+        cable = CableSpec(
+            name=unique_name(t, "cable"), radius=t.number("radius", required=True, nonneg=True),
+            angle=math.radians(t.number("angle_deg", 0.0)), first=first, last=last,
+            tension=t.number("tension", 0.0), min_tension=t.number("min_tension", 0.0),
+            max_tension=t.number("max_tension", math.inf),
+            min_stroke=t.number("min_stroke", -math.inf), max_stroke=t.number("max_stroke", math.inf),
+        )
+        if cable.min_tension > cable.max_tension:
+            raise t.error("min_tension", f"{cable.min_tension} exceeds max_tension {cable.max_tension}")
+        t.done()
+        cables.append(cable)
+
+    chambers = []
+    for t in top.tables("chamber"):
+        first = vertebra_index(t, "from", 1, allow_base=False)
+        last = vertebra_index(t, "to", allow_base=False)
+        if last < first:
+            raise t.error("to", f"last vertebra {last} comes before the first vertebra {first}")
+        chamber = ChamberSpec(
+            name=unique_name(t, "chamber"), cavity=t.number("cavity", 0, integer=True, nonneg=True),
+            first=first, last=last, pressure=t.number("pressure", 0.0),
+            min_pressure=t.number("min_pressure", 0.0), max_pressure=t.number("max_pressure", math.inf),
+            min_volume_growth=t.number("min_volume_growth", -math.inf),
+            max_volume_growth=t.number("max_volume_growth", math.inf),
+        )
+        if chamber.min_pressure > chamber.max_pressure:
+            raise t.error("min_pressure", f"{chamber.min_pressure} exceeds max_pressure {chamber.max_pressure}")
+        t.done()
+        chambers.append(chamber)
+
+    loads = []
+    for t in top.tables("load"):
+        loads.append(LoadSpec(vertebra=vertebra_index(t, "vertebra", allow_base=False),
+                              force=t.vector("force", 3, (0.0, 0.0, 0.0)),
+                              moment=t.vector("moment", 3, (0.0, 0.0, 0.0))))
+        t.done()
+
+    effectors = []
+    for t in top.tables("effector"):
+        effectors.append(EffectorSpec(name=unique_name(t, "effector"), vertebra=vertebra_index(t, "vertebra", -1),
+                                      offset=t.vector("offset", 3, (0.0, 0.0, 0.0)),
+                                      target=t.vector("target", 3, None),
+                                      weight=t.number("weight", 1.0, positive=True)))
+        t.done()
+    top.done()
+    return Scene(segments=segments, name=name, solver=settings, gravity=gravity, base_position=base_position,
+                 base_quaternion=base_quaternion, catalogue=catalogue, cables=tuple(cables),
+                 chambers=tuple(chambers), loads=tuple(loads), effectors=tuple(effectors), source=source)
+
+
+def _parse_vertebra(t: _Table) -> VertebraSpec:
+    spec = VertebraSpec(mass=t.number("mass", 0.0, nonneg=True),
+                        center_of_mass=t.vector("center_of_mass", 3, (0.0, 0.0, 0.0)))
+    t.raw("inertia")  # accepted for completeness (statics does not need it); validated below
+    inertia = t.data.get("inertia")
+    if inertia is not None and not (isinstance(inertia, list) and len(inertia) in (3, 9)):
+        raise t.error("inertia", "expected 3 principal moments or 9 matrix entries")
+    t.done()
+    return spec
+
+
+def _parse_section(t: _Table, poisson_ratio: float) -> Section:
+    shape = t.string("shape", None, choices=("circle", "tube"))
+    try:
+        if shape == "circle":
+            section = Section.circle(t.number("radius", required=True, positive=True), poisson_ratio)
+        elif shape == "tube":
+            outer = t.number("outer_radius", required=True, positive=True)
+            inner = t.number("inner_radius", required=True, nonneg=True)
+            if inner >= outer:
+                raise t.error("inner_radius", f"{inner} must be smaller than outer_radius {outer}")
+            section = Section.tube(outer, inner, poisson_ratio)
+        else:
+            area = t.number("area", required=True, positive=True)
+            shear = t.number("shear_area", math.inf, positive=True)
+            section = Section(area=area, Ixx=t.number("Ixx", required=True, positive=True),
+                              Iyy=t.number("Iyy", required=True, positive=True),
+                              J=t.number("J", required=True, positive=True),
+                              shear_area_x=t.number("shear_area_x", shear, positive=True),
+                              shear_area_y=t.number("shear_area_y", shear, positive=True))
+    except ValueError as error:
+        raise SceneError(str(error), file=t.source, field=t.path)
+    t.done()
+    return section
+
+
+def _parse_segment(t: _Table) -> SegmentSpec:
+    kind = t.string("type", required=True, choices=SEGMENT_TYPES)
+    count = t.number("count", 1, integer=True, positive=True)
+    elements = t.number("elements", 1, integer=True, positive=True)
+    vertebra = _parse_vertebra(t.table("vertebra"))
+    if kind == "entry":
+        entry = t.string("entry", required=True)
+        if elements != 1:
+            raise t.error("elements", "a catalogue entry is condensed onto two frames: elements must be 1")
+        t.done()
+        return SegmentSpec(type=kind, count=count, vertebra=vertebra, entry=entry)
+    length = t.number("length", required=True, positive=True)
+    E = t.number("youngs_modulus", required=True, positive=True)
+    if t.has("poisson_ratio") and t.has("shear_modulus"):
+        raise t.error("shear_modulus", "give poisson_ratio or shear_modulus, not both")
+    if t.has("shear_modulus"):
+        G = t.number("shear_modulus", positive=True)
+        nu = E / (2 * G) - 1.0
+    else:
+        nu = t.number("poisson_ratio", 0.3)
+        if not -1.0 < nu < 0.5:
+            raise t.error("poisson_ratio", f"must lie in (-1, 0.5), got {nu}")
+        G = E / (2 * (1 + nu))
+    section = _parse_section(t.table("section"), nu)
+    if not t.has("section"):
+        raise t.error("section", "required field is missing")
+    density = t.number("density", 0.0, nonneg=True)
+    t.done()
+    return SegmentSpec(type=kind, count=count, vertebra=vertebra, elements=elements, length=length,
+                       youngs_modulus=E, shear_modulus=G, section=section, density=density)
