@@ -205,17 +205,29 @@ def _fixed_string(text: str) -> np.ndarray:
 
 
 def _read_string_attr(group, name: str, what: str, limit: int) -> str:
+    """Read a scalar string attribute, checking its stored size before reading it."""
     import h5py
 
-    if name not in group.attrs:
-        raise CatalogueError(f"{what}: attribute {name!r} missing")
-    attr_id = h5py.h5a.open(group.id, name.encode())
+    try:
+        attr_id = h5py.h5a.open(group.id, name.encode())
+    except (KeyError, OSError, ValueError):
+        raise CatalogueError(f"{what}: attribute {name!r} missing") from None
     size = attr_id.get_storage_size()
     if size > limit:
         raise CatalogueError(f"{what}: attribute {name!r} is {size} bytes > limit {limit}")
-    value = group.attrs[name]
-    if isinstance(value, np.ndarray) and value.shape == ():
-        value = value[()]
+    dtype = attr_id.dtype
+    if attr_id.shape != ():
+        raise CatalogueError(f"{what}: attribute {name!r} is not a scalar")
+    if dtype.kind == "S":                       # fixed-length: what vertebra writes
+        buf = np.empty((), dtype=dtype)
+        attr_id.read(buf)
+        value = buf[()]
+    else:                                       # e.g. a variable-length string from another tool
+        value = group.attrs[name]
+        if isinstance(value, np.ndarray) and value.shape == ():
+            value = value[()]
+        if isinstance(value, (str, bytes)) and len(value) > limit:
+            raise CatalogueError(f"{what}: attribute {name!r} longer than limit {limit}")
     if isinstance(value, bytes):
         try:
             return value.decode("utf-8")
@@ -224,6 +236,24 @@ def _read_string_attr(group, name: str, what: str, limit: int) -> str:
     if isinstance(value, str):
         return value
     raise CatalogueError(f"{what}: attribute {name!r} is not a string")
+
+
+def _read_float_array(group, field: str, what: str) -> np.ndarray:
+    import h5py
+
+    try:
+        did = h5py.h5d.open(group.id, field.encode())
+    except (KeyError, OSError, ValueError):
+        raise CatalogueError(f"{what}: dataset {field!r} missing") from None
+    dtype, shape = did.dtype, did.shape
+    if dtype not in (np.dtype("<f8"), np.dtype(">f8")):
+        raise CatalogueError(f"{what}: dataset {field!r} has dtype {dtype}, expected float64")
+    if len(shape) > 2 or any(s > MAX_ARRAY_SIDE for s in shape):
+        raise CatalogueError(f"{what}: dataset {field!r} has shape {shape}")
+    arr = np.empty(shape, dtype="<f8")
+    if arr.size:
+        did.read(h5py.h5s.ALL, h5py.h5s.ALL, arr)
+    return arr
 
 
 def write_entry(entries_group, enc: EncodedEntry) -> None:
@@ -252,24 +282,18 @@ def read_entry(group, key: str, what: str) -> SegmentEntry:
     if not isinstance(group, h5py.Group):
         raise CatalogueError(f"{what}: entry {key} is not a group")
     try:
-        arrays = {}
-        for field in ARRAY_FIELDS:
-            ds = group.get(field)
-            if not isinstance(ds, h5py.Dataset):
-                raise CatalogueError(f"{what}: entry {key}: dataset {field!r} missing")
-            if ds.dtype != np.dtype("<f8") and ds.dtype != np.dtype(">f8"):
-                raise CatalogueError(f"{what}: entry {key}: dataset {field!r} has dtype {ds.dtype}, expected float64")
-            if ds.ndim > 2 or any(s > MAX_ARRAY_SIDE for s in ds.shape):
-                raise CatalogueError(f"{what}: entry {key}: dataset {field!r} has shape {ds.shape}")
-            arrays[field] = np.asarray(ds[()], dtype="<f8")
+        arrays = {field: _read_float_array(group, field, f"{what}: entry {key}") for field in ARRAY_FIELDS}
         name = _read_string_attr(group, "name", f"{what}: entry {key}", 4 * MAX_TEXT_CHARS)
         family = _read_string_attr(group, "family", f"{what}: entry {key}", 4 * MAX_TEXT_CHARS)
-        if "mass" not in group.attrs:
-            raise CatalogueError(f"{what}: entry {key}: attribute 'mass' missing")
-        mass = np.asarray(group.attrs["mass"])
-        if mass.shape != () or mass.dtype.kind != "f":
+        try:
+            mass_id = h5py.h5a.open(group.id, b"mass")
+        except (KeyError, OSError, ValueError):
+            raise CatalogueError(f"{what}: entry {key}: attribute 'mass' missing") from None
+        if mass_id.shape != () or mass_id.dtype.kind != "f":
             raise CatalogueError(f"{what}: entry {key}: attribute 'mass' is not a float scalar")
-        mass = float(mass)
+        mass_buf = np.empty((), dtype="<f8")
+        mass_id.read(mass_buf)
+        mass = float(mass_buf)
         dicts = {}
         for field in DICT_FIELDS:
             text = _read_string_attr(group, field, f"{what}: entry {key}", MAX_JSON_BYTES)
@@ -349,9 +373,17 @@ def read_index(f, what: str) -> dict:
         texts = ds.asstr()[()] if ds.shape[0] else []
     except (OSError, ValueError, UnicodeDecodeError) as error:
         raise CatalogueError(f"{what}: '/index' unreadable ({error})") from None
+    parsed = None
+    if all(len(t) <= MAX_JSON_BYTES for t in texts):
+        try:        # one C-level parse of all rows; per-row parsing below only on trouble
+            parsed = parse_json("[" + ",".join(texts) + "]", f"{what}: index", limit=1 << 62)
+        except CatalogueError:
+            parsed = None
+        if not isinstance(parsed, list) or len(parsed) != len(texts):
+            parsed = None
     rows = {}
     for i, text in enumerate(texts):
-        row = parse_json(text, f"{what}: index row {i}")
+        row = parsed[i] if parsed is not None else parse_json(text, f"{what}: index row {i}")
         if not isinstance(row, dict) or not isinstance(row.get("key"), str):
             raise CatalogueError(f"{what}: index row {i} is not an entry row")
         check_key(row["key"], f"{what}: index row {i}: ")

@@ -284,9 +284,12 @@ def _conflict_fields(f, src, key, what_new) -> list[str]:
 def _take(f, rows, new_rows, src, src_path, what, report, *, exclude) -> bool:
     """Merge the entries of one open source into ``f``. Returns False if it conflicted."""
     clean = True
-    for key in list(read_index(src, what)):
+    for key, src_row in read_index(src, what).items():
         if key == exclude:
             report.removed.append(key)
+            continue
+        if key in rows and rows[key]["content"] == src_row["content"]:
+            report.skipped.append(key)          # same content already here: nothing to read or write
             continue
         if key not in src["entries"]:
             raise CatalogueError(f"{what}: index lists {key} but the entry group is missing")
