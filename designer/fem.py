@@ -286,3 +286,30 @@ def condense(fe: SegmentFE, frames=("top",), linear_solver: str = "auto", amg_th
     info = dict(info, interior_dofs=int(interior.size))
     return Condensation(stiffness=S, pressure_wrench=g, interior_volume=Vi, info=info,
                         solve_s=time.perf_counter() - start)
+
+
+def face_load(fe: SegmentFE, name: str, pressures) -> np.ndarray:
+    """Generalised load on the frame of face ``name`` from cavity pressures (walls + cap)."""
+    face = fe.faces[name]
+    out = np.zeros(6)
+    for k, p in enumerate(np.reshape(pressures, -1) if fe.n_cavities else []):
+        out += p * (face["T"].T @ fe.cavity_loads[k][face["dofs"]] + fe.cap_wrenches[k][name])
+    return out
+
+
+def displacement_field(fe: SegmentFE, q_top, pressures=None, q_bottom=None) -> np.ndarray:
+    """Full nodal displacement for given frame motions and cavity pressures (direct solve):
+    faces follow their frames rigidly, the interior solves ``K_ii u_i = F_i p − K_i,faces u_faces``."""
+    from scipy.sparse.linalg import splu
+
+    u = np.zeros(fe.n_dofs)
+    u[fe.faces["top"]["dofs"]] = fe.faces["top"]["T"] @ np.asarray(q_top, float)
+    if q_bottom is not None:
+        u[fe.faces["bottom"]["dofs"]] = fe.faces["bottom"]["T"] @ np.asarray(q_bottom, float)
+    interior = fe.interior()
+    rhs = -(fe.K @ u)[interior]
+    if pressures is not None:
+        for k, p in enumerate(np.reshape(pressures, -1)):
+            rhs += p * fe.cavity_loads[k][interior]
+    u[interior] = splu(fe.K[interior][:, interior].tocsc(), permc_spec="MMD_AT_PLUS_A").solve(rhs)
+    return u
