@@ -7,11 +7,18 @@ reached; 2 bad input (the message names the file, the field and the reason).
 
 from __future__ import annotations
 
-import argparse
-import importlib
-import sys
+import os
 
-from store.errors import CatalogueError, GeometryError, SceneError, VertebraError
+# One BLAS thread per process: on small banded systems threads only add overhead (and on a
+# 2-core machine they made AMG 5–25× slower, FIELD-NOTES). Set before numpy is imported.
+for _variable in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_variable, "1")
+
+import argparse  # noqa: E402
+import importlib  # noqa: E402
+import sys  # noqa: E402
+
+from store.errors import CatalogueError, GeometryError, SceneError, VertebraError  # noqa: E402
 
 # name -> (module, one-line help). Adding a subcommand touches this table and its module.
 SUBCOMMANDS = {

@@ -46,6 +46,8 @@ class StaticResult:
     load_steps: int = 1
     factorization: str = "cholesky"
     timings: dict = field(default_factory=dict)
+    rounding_limited: bool = False   # stopped because the Newton correction fell below the
+                                     # floating-point resolution of the poses (residual is rounding)
 
 
 @dataclass
@@ -418,9 +420,11 @@ class TrunkModel:
                 increment *= 0.5
                 if increment < 1e-4 or iterations > 50 * max_iter:
                     break
+        limited = "rounding-limited" in kinds
+        kinds.discard("rounding-limited")
         result = StaticResult(converged, iterations, float(residual), last_good if converged else state_new,
                               actuation, history, stages, "+".join(sorted(kinds)) or "none",
-                              {"solve_s": time.perf_counter() - start})
+                              {"solve_s": time.perf_counter() - start}, rounding_limited=limited and converged)
         if not converged and raise_on_failure:
             raise ConvergenceError(
                 f"Newton did not converge: scaled residual {residual:.3g} > {tol:g} after {iterations} "
@@ -456,6 +460,7 @@ class TrunkModel:
                     # the correction is below the floating-point resolution of the poses: the
                     # residual left is rounding, not error; stop here and report it as it is
                     kinds.add(kind)
+                    kinds.add("rounding-limited")
                     return True, state, iteration, residual
                 slope = -float(r @ dq)
                 if slope >= 0.0 and shift == 0.0 and kind != "cholesky":

@@ -49,8 +49,9 @@ class InverseSettings:
     regularisation: float = DEFAULT_REGULARISATION
     tolerance: float = 1e-6
     max_iterations: int = 30  # outer linearise–QP–solve iterations (converged mode)
-    patience: int = 3  # converged mode stops after this many iterations without progress …
+    patience: int = 3  # converged mode gives up after this many iterations without progress …
     progress: float = 0.01  # … where progress means cutting the best error by this fraction
+    actuation_tolerance: float = 1e-6  # … and, reached or not, once λ changes by less than this (relative)
     qp_tolerance: float = 1e-10
 
     def __post_init__(self):
@@ -221,17 +222,25 @@ class InverseController:
                 self.actuation, self.state = lam_old, state_old
                 break
             error = new_error
+            # Relative change of the actuation. Reaching the target is not enough: in the
+            # redundant null space the effort settles on the unique regularised fixed point
+            # only when λ stops moving (so the answer does not depend on the path taken).
+            change = float(np.max(np.abs(self.actuation - lam_old)) /
+                           max(np.max(np.abs(self.actuation)), np.max(np.abs(lam_old)), 1e-300))
+            settled = change <= s.actuation_tolerance
             if error <= s.tolerance:
                 status = "reached"
-                break
+                if settled:
+                    break
+                continue
             if error < (1.0 - s.progress) * best:
                 best, idle = error, 0
             else:
                 idle += 1
-                if idle >= s.patience:
+                if (idle >= s.patience and settled) or idle >= 3 * s.patience:
                     status = "closest_reach"  # the error stopped falling: unreachable or a bound binds
                     break
-        timings["iterations"] = iterations
+            status = "max_iterations"
         return self._result(targets, sol, iterations, timings, t_start, self.equilibrium, status=status)
 
     def step(self, targets) -> InverseStep:

@@ -1,0 +1,58 @@
+"""``vertebra simulate SCENE [--json] [--plot FILE.png] [--vtk FILE]``: forward statics."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+
+def add_arguments(parser):
+    parser.add_argument("scene", help="scene file (TOML, DESIGN.md §4) or gallery:NAME")
+    parser.add_argument("--json", action="store_true", help="print one JSON document on stdout")
+    parser.add_argument("--plot", metavar="FILE.png", help="write a picture of the equilibrium")
+    parser.add_argument("--vtk", metavar="FILE", help="write backbone and cables for ParaView (.vtu)")
+
+
+def load_any_scene(name: str):
+    """A scene file, or ``gallery:NAME`` for a gallery scene."""
+    import solver
+    if name.startswith("gallery:"):
+        from solver import gallery
+        return gallery.load(name.split(":", 1)[1])
+    return solver.load_scene(name)
+
+
+def run(args) -> int:
+    import solver
+    from solver.report import plot_static, static_report, write_vtk
+    from store.errors import ConvergenceError
+
+    scene = load_any_scene(args.scene)
+    model = solver.build_model(scene)
+    try:
+        result = model.solve()
+    except ConvergenceError as error:
+        result = error.result
+        print(f"vertebra simulate: {error}", file=sys.stderr)
+    report = static_report(model, result)
+    if args.plot:
+        plot_static(model, result, args.plot)
+        print(f"wrote {args.plot}", file=sys.stderr)
+    if args.vtk:
+        write_vtk(model, result.state, args.vtk)
+        print(f"wrote {args.vtk}", file=sys.stderr)
+    if args.json:
+        json.dump(report, sys.stdout)
+        sys.stdout.write("\n")
+    else:
+        status = "converged" if result.converged else "NOT converged"
+        print(f"{scene.name or args.scene}: {status} in {result.iterations} iterations "
+              f"({report['diagnostics']['load_stages']} load stages), residual {result.residual:.3g}, "
+              f"{1e3 * result.timings['solve_s']:.3f} ms")
+        for name, value in report["effectors"].items():
+            print(f"  effector {name}: {' '.join(f'{v:+.6f}' for v in value['position'])} m")
+        for name, value in report["cables"].items():
+            print(f"  cable {name}: tension {value['tension']:g} N, stroke {value['stroke']:+.6g} m")
+        for name, value in report["chambers"].items():
+            print(f"  chamber {name}: pressure {value['pressure']:g} Pa, volume growth {value['volume_growth']:+.6g} m³")
+    return 0 if result.converged else 1

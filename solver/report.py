@@ -1,0 +1,143 @@
+"""Results as plain data (the JSON contract of DESIGN.md §5) and as pictures or VTK files.
+
+Matplotlib and meshio are imported lazily inside the functions that draw or write, so
+``import solver`` stays light.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from solver.model import State, StaticResult, TrunkModel
+
+
+def _pose(position, quaternion) -> dict:
+    return {"position": [float(v) for v in position], "quaternion": [float(v) for v in quaternion]}
+
+
+def static_report(model: TrunkModel, result: StaticResult) -> dict:
+    """The ``vertebra simulate --json`` document."""
+    state = result.state
+    actuation = result.actuation
+    lengths = model.cable_lengths(state)
+    volume = model.chamber_volume_growth(state, actuation[model.n_cables:])
+    effectors = model.effector_positions(state)
+    return {
+        "converged": bool(result.converged),
+        "iterations": int(result.iterations),
+        "residual": float(result.residual),
+        "vertebrae": [_pose(state.positions[f], state.quaternions[f]) for f in model.vertebra_frames],
+        "frames": [_pose(p, q) for p, q in zip(state.positions, state.quaternions)],
+        "effectors": {name: {"position": [float(v) for v in effectors[k]]}
+                      for k, name in enumerate(model.effector_names)},
+        "cables": {cable.name: {"tension": float(actuation[k]), "length": float(lengths[k]),
+                                "stroke": float(lengths[k] - model.rest_cable_lengths[k])}
+                   for k, cable in enumerate(model.scene.cables)},
+        "chambers": {chamber.name: {"pressure": float(actuation[model.n_cables + k]),
+                                    "volume_growth": float(volume[k])}
+                     for k, chamber in enumerate(model.scene.chambers)},
+        "timing": {key: float(value) for key, value in result.timings.items()},
+        "diagnostics": {"load_stages": int(result.load_steps), "factorization": result.factorization,
+                        "rounding_limited": bool(result.rounding_limited),
+                        "frames": int(model.n_frames), "residual_history": [float(r) for r in result.residual_history]},
+    }
+
+
+def cable_paths(model: TrunkModel, state: State) -> list[np.ndarray]:
+    """World polyline of each cable through its holes."""
+    x, q = state.positions, state.quaternions
+    from solver.rotations import qrotate
+    paths = []
+    for k in range(model.n_cables):
+        pieces = np.flatnonzero(model.cable_piece_owner == k)
+        a, b = model.cable_piece_a[pieces], model.cable_piece_b[pieces]
+        start = x[a[:1]] + qrotate(q[a[:1]], model.cable_hole_a[pieces[:1]])
+        rest = x[b] + qrotate(q[b], model.cable_hole_b[pieces])
+        paths.append(np.vstack([start, rest]))
+    return paths
+
+
+def _vertebra_radius(model: TrunkModel) -> float:
+    radii = [c.radius for c in model.scene.cables]
+    return 1.3 * max(radii) if radii and max(radii) > 0 else 0.03 * model.length_scale
+
+
+def draw_trunk(ax, model: TrunkModel, state: State, *, rest: bool = True, targets: bool = True):
+    """Draw backbone, vertebrae (discs), cables and effectors on a 3D matplotlib axis."""
+    from solver.rotations import qrotate
+    if rest:
+        r = model.rest_state.positions
+        ax.plot(r[:, 0], r[:, 1], r[:, 2], color="0.75", lw=1, ls="--", label="rest")
+    x = state.positions
+    ax.plot(x[:, 0], x[:, 1], x[:, 2], color="k", lw=2, label="backbone")
+    radius = _vertebra_radius(model)
+    angle = np.linspace(0, 2 * np.pi, 33)
+    circle = np.stack([radius * np.cos(angle), radius * np.sin(angle), 0 * angle], -1)
+    for f in model.vertebra_frames:
+        ring = state.positions[f] + qrotate(state.quaternions[f][None], circle)
+        ax.plot(ring[:, 0], ring[:, 1], ring[:, 2], color="tab:blue", lw=1)
+    for k, path in enumerate(cable_paths(model, state)):
+        ax.plot(path[:, 0], path[:, 1], path[:, 2], lw=1, color=f"C{(k % 8) + 1}")
+    if model.effector_names:
+        e = model.effector_positions(state)
+        ax.scatter(e[:, 0], e[:, 1], e[:, 2], color="tab:red", s=25, label="effectors")
+        t = model.effector_targets
+        if targets and np.all(np.isfinite(t)):
+            ax.scatter(t[:, 0], t[:, 1], t[:, 2], marker="x", color="tab:green", s=40, label="targets")
+    _equal_axes(ax, np.vstack([x, model.rest_state.positions]))
+
+
+def _equal_axes(ax, points):
+    centre = 0.5 * (points.max(0) + points.min(0))
+    half = 0.55 * max(np.ptp(points, axis=0).max(), 1e-9)
+    ax.set_xlim(centre[0] - half, centre[0] + half)
+    ax.set_ylim(centre[1] - half, centre[1] + half)
+    ax.set_zlim(centre[2] - half, centre[2] + half)
+    ax.set_xlabel("x [m]"), ax.set_ylabel("y [m]"), ax.set_zlabel("z [m]")
+
+
+def plot_static(model: TrunkModel, result: StaticResult, path: str, title: str | None = None):
+    """Write a PNG of the equilibrium shape (3D view and x–z side view)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig = plt.figure(figsize=(11, 5.5))
+    ax = fig.add_subplot(1, 2, 1, projection="3d")
+    draw_trunk(ax, model, result.state)
+    ax.legend(loc="upper left", fontsize=8)
+    side = fig.add_subplot(1, 2, 2)
+    r, x = model.rest_state.positions, result.state.positions
+    side.plot(r[:, 0], r[:, 2], color="0.75", ls="--", label="rest")
+    side.plot(x[:, 0], x[:, 2], color="k", lw=2, label="x–z")
+    side.plot(x[:, 1], x[:, 2], color="tab:orange", lw=1, label="y–z")
+    v = x[model.vertebra_frames]
+    side.scatter(v[:, 0], v[:, 2], s=12, color="tab:blue", label="vertebrae")
+    side.set_aspect("equal", adjustable="datalim")
+    side.set_xlabel("x or y [m]"), side.set_ylabel("z [m]"), side.legend(fontsize=8)
+    status = "converged" if result.converged else "NOT converged"
+    fig.suptitle(title or f"{model.scene.name or 'scene'}: {status} in {result.iterations} iterations, "
+                          f"residual {result.residual:.2g}")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def write_vtk(model: TrunkModel, state: State, path: str):
+    """Backbone and cables as VTK line cells (``.vtu``, ``.vtk`` … by extension, via meshio)."""
+    import meshio
+    points = [state.positions]
+    lines = [np.stack([np.arange(model.n_frames - 1), np.arange(1, model.n_frames)], -1)]
+    kind = [np.zeros(model.n_frames - 1, int)]
+    offset = model.n_frames
+    for k, path_points in enumerate(cable_paths(model, state)):
+        points.append(path_points)
+        n = len(path_points)
+        lines.append(offset + np.stack([np.arange(n - 1), np.arange(1, n)], -1))
+        kind.append(np.full(n - 1, k + 1))
+        offset += n
+    is_vertebra = np.zeros(offset, int)
+    is_vertebra[model.vertebra_frames] = 1
+    mesh = meshio.Mesh(np.vstack(points), [("line", np.vstack(lines))],
+                       point_data={"vertebra": is_vertebra},
+                       cell_data={"kind": [np.concatenate(kind)]})
+    mesh.write(path)
