@@ -51,7 +51,7 @@ class InverseSettings:
     max_iterations: int = 30  # outer linearise–QP–solve iterations (converged mode)
     patience: int = 3  # converged mode gives up after this many iterations without progress …
     progress: float = 0.01  # … where progress means cutting the best error by this fraction
-    actuation_tolerance: float = 1e-6  # … and, reached or not, once λ changes by less than this (relative)
+    actuation_tolerance: float = 1e-4  # … and, reached or not, once λ changes by less than this (relative)
     qp_tolerance: float = 1e-10
 
     def __post_init__(self):
@@ -201,6 +201,9 @@ class InverseController:
             sol, dq = self._linearised_step(targets, timings)
             lam_old, state_old = self.actuation, self.state
             new_error = math.inf
+            # what the linear model promises (a bound may force it above the current error)
+            predicted = float(np.max(np.linalg.norm(sol.delta_e.reshape(-1, 3), axis=1)))
+            acceptable = max(error, 1.1 * predicted + s.tolerance)
             # Backtrack on the actuation change when the linear prediction overshoots
             # (large steps) or the equilibrium solve fails.
             for fraction in (1.0, 0.5, 0.25, 0.125, 0.0625):
@@ -215,7 +218,7 @@ class InverseController:
                         self.actuation, self.state = lam_old, state_old
                         continue
                 new_error = float(np.max(self._errors(self.model.effector_positions(self.state), targets)))
-                if new_error <= error or fraction == 0.0625:
+                if new_error <= acceptable or fraction == 0.0625:
                     break
             if not math.isfinite(new_error):
                 status = "equilibrium_failed"
