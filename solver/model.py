@@ -551,8 +551,8 @@ class TrunkModel:
             Je[3 * k:3 * k + 3, frame, 3:] = -hat(lever[k])
         return Linearisation(
             residual=-ev.gradient[1:].reshape(-1), factor=factor,
-            actuator_forces=forces[:, 1:].reshape(n_act, -1).T.copy(),
-            actuator_jacobian=jac[:, 1:].reshape(n_act, -1),
-            effector_jacobian=Je[:, 1:].reshape(3 * n_eff, -1),
+            actuator_forces=forces[:, 1:].reshape(n_act, self.n_dof).T.copy(),
+            actuator_jacobian=jac[:, 1:].reshape(n_act, self.n_dof),
+            effector_jacobian=Je[:, 1:].reshape(3 * n_eff, self.n_dof),
             effector_positions=self.effector_positions(state),
             actuator_displacements=self.actuator_displacements(state, actuation))
