@@ -180,6 +180,44 @@ def has_entry(path, key: str) -> bool:
 
 # ---------------------------------------------------------------- writing
 
+def _lookup(path: Path, keys: list[str]) -> dict:
+    """key -> (content digest or its 16-hex-digit prefix, file holding it) for the keys
+    already in the catalogue file or in a committed shard. Reads no entry data and opens
+    no single-entry shard (their names carry key and content digest)."""
+    from store.schema import read_stored_digests
+
+    found = {}
+    if path.exists():
+        with open_checked(path) as f:
+            entries = f["entries"]
+            for key in keys:
+                if key in entries:
+                    found[key] = (read_stored_digests(entries[key], f"{path}: entry {key}")[1], path)
+    for shard in reversed(list_shards(path)):          # oldest shard wins, as in the merger
+        if shard.name.startswith("batch@"):
+            try:
+                with open_checked(shard, f"shard {shard}") as f:
+                    rows = read_index(f, f"shard {shard}")
+            except CatalogueError:
+                continue
+            hits = {k: (rows[k]["content"], shard) for k in keys if k in rows}
+        else:
+            key, _, digest = shard.name[: -len(".h5")].rpartition("@")
+            hits = {key: ("sha256:" + digest, shard)} if key in keys else {}
+        for key, hit in hits.items():
+            if key not in found or found[key][1] != path:
+                found[key] = hit
+    return found
+
+
+def _fields_against(source: Path, enc: EncodedEntry) -> list[str]:
+    try:
+        with open_checked(source) as f:
+            return differing_fields(read_entry(f["entries"][enc.key], enc.key, str(source)), enc.entry)
+    except (CatalogueError, KeyError):
+        return ["?"]
+
+
 def add_entries(path, entries, *, consolidate: bool = True, timeout: float = LOCK_TIMEOUT_S) -> list[str]:
     """Add several entries in one shard (one merge): the bulk path for sweeps.
 
@@ -195,28 +233,17 @@ def add_entries(path, entries, *, consolidate: bool = True, timeout: float = LOC
         seen[enc.key] = enc
     encs = list(seen.values())
     todo, pending_only = [], False
-    if path.exists() or shards_dir(path).is_dir():
-        try:
-            cat = Catalogue(path)
-        except CatalogueError:
-            if path.exists():
-                raise
-            cat = None
-        if cat is not None:
-            with cat:
-                for enc in encs:
-                    if enc.key not in cat:
-                        todo.append(enc)
-                        continue
-                    if cat._rows[enc.key]["content"] != enc.content:
-                        fields = differing_fields(cat.load(enc.key), enc.entry)
-                        raise CatalogueError(f"{path}: entry {enc.key} already exists with different "
-                                             f"content ({', '.join(fields)}); nothing written")
-                    pending_only |= enc.key in cat._shard_of
-        else:
-            todo = encs
-    else:
-        todo = encs
+    known = _lookup(path, [enc.key for enc in encs])
+    for enc in encs:
+        found = known.get(enc.key)
+        if found is None:
+            todo.append(enc)
+            continue
+        content, source = found
+        if not enc.content.startswith(content):
+            raise CatalogueError(f"{path}: entry {enc.key} already exists with different content "
+                                 f"({', '.join(_fields_against(source, enc))}); nothing written")
+        pending_only |= source != path
     if not todo:
         if consolidate and pending_only:
             _consolidate_quietly(path, None, timeout)
