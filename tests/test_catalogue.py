@@ -435,3 +435,54 @@ def test_cli_verify_and_merge_exit_codes(cat3, tmp_path, monkeypatch, capsys):
     assert code == 2 and out == "" and "not an HDF5 file" in err
     code, _, err = vertebra(["ls", tmp_path / "absent.h5"], monkeypatch, capsys)
     assert code == 2 and "no such catalogue file" in err
+
+
+# ---------------------------------------------------------------- less common paths
+
+def test_reader_survives_a_merge_between_open_and_load(tmp_path):
+    path = tmp_path / "c.h5"
+    catalogue.add_entry(path, make_entry(0))
+    late = [make_entry(1), make_entry(2)]
+    catalogue.add_entries(path, late, consolidate=False)          # one batch shard of two
+    assert [p.name.split("@")[0] for p in shards.list_shards(path)] == ["batch"]
+    assert all(catalogue.has_entry(path, e.key) for e in late)
+    with catalogue.open_catalogue(path) as cat:
+        assert sorted(cat.pending) == sorted(e.key for e in late)
+        catalogue.consolidate(path)                              # shard merged and deleted
+        assert shards.list_shards(path) == []
+        assert_same_entry(late[1], cat.load(late[1].key))        # found in the new file
+    with catalogue.open_catalogue(path) as cat:
+        assert cat.pending == [] and len(cat) == 3
+
+
+def test_lock_timeout_leaves_the_entry_committed(tmp_path, caplog):
+    path = tmp_path / "c.h5"
+    catalogue.add_entry(path, make_entry(0))
+    with shards.catalogue_lock(path, timeout=1):                  # another merger is busy
+        key = catalogue.add_entry(path, make_entry(1), timeout=0.2)
+        assert "stays committed as a shard" in caplog.text
+        with catalogue.open_catalogue(path) as cat:
+            assert key in cat.pending
+            assert_same_entry(make_entry(1), cat.load(key))
+    catalogue.add_entry(path, make_entry(2))                      # next writer merges both
+    with catalogue.open_catalogue(path) as cat:
+        assert cat.pending == [] and len(cat) == 3
+
+
+def test_index_and_entries_disagreeing_is_reported(cat3):
+    path, entries = cat3
+    with h5py.File(path, "r+") as f:                              # an outside tool deleting a group
+        del f["entries"][entries[0].key]
+    with catalogue.open_catalogue(path) as cat:
+        with pytest.raises(CatalogueError, match="entry group is missing"):
+            cat.load(entries[0].key)
+    problems = catalogue.verify(path)
+    assert problems == [f"{path}: index lists {entries[0].key} but there is no such entry group"]
+
+
+def test_same_key_pending_with_different_content_is_refused(tmp_path):
+    path = tmp_path / "c.h5"
+    catalogue.add_entry(path, make_entry(0), consolidate=False)
+    with pytest.raises(CatalogueError, match=r"already exists with different content \(mass\)"):
+        catalogue.add_entry(path, make_entry(0, mass=42.0))
+    assert len(shards.list_shards(path)) == 1
