@@ -66,15 +66,20 @@ def _show(args) -> int:
 def _verify(args) -> int:
     from store import catalogue
 
+    from store.errors import CatalogueError
+
     problems = catalogue.verify(args.file)
-    with catalogue.open_catalogue(args.file) as cat:
-        n = len(cat)
+    try:
+        with catalogue.open_catalogue(args.file) as cat:
+            n = len(cat)
+    except CatalogueError:               # e.g. a broken index: already among the problems
+        n = None
     if args.json:
         _print_json({"ok": not problems, "entries": n, "problems": problems})
     else:
         for p in problems:
             print(p)
-        print(f"{args.file}: {n} entries, " + ("OK" if not problems else f"{len(problems)} problem(s)"),
+        print(f"{args.file}: {'?' if n is None else n} entries, " + ("OK" if not problems else f"{len(problems)} problem(s)"),
               file=sys.stderr)
     return 0 if not problems else 2
 

@@ -486,3 +486,12 @@ def test_same_key_pending_with_different_content_is_refused(tmp_path):
     with pytest.raises(CatalogueError, match=r"already exists with different content \(mass\)"):
         catalogue.add_entry(path, make_entry(0, mass=42.0))
     assert len(shards.list_shards(path)) == 1
+
+
+def test_cli_verify_prints_problems_of_a_broken_index(cat3, monkeypatch, capsys):
+    path, _ = cat3
+    with h5py.File(path, "r+") as f:                              # garbage appended to the index
+        f["index"].resize((4,))
+        f["index"][3] = "{not json"
+    code, out, _ = vertebra(["verify", path], monkeypatch, capsys)
+    assert code == 2 and "invalid JSON" in out
