@@ -80,6 +80,8 @@ class SegmentFE:
     mass: float
     center_of_mass: np.ndarray
     components: np.ndarray          # component (0, 1, 2) of each DoF
+    node_dofs: np.ndarray = None    # (n_nodes, 3) DoFs of each mesh node
+    cavity_surfaces: list = field(default_factory=list)   # per cavity: designer.surface.Surface of its walls
     timings: dict = field(default_factory=dict)
 
     @property
@@ -97,7 +99,7 @@ class SegmentFE:
         return np.flatnonzero(mask)
 
 
-def _facet_index(mesh, corner: np.ndarray, name: str) -> np.ndarray:
+def _facet_index(mesh, corner: np.ndarray, name: str, unique: bool = True) -> np.ndarray:
     """Indices into ``mesh.facets`` of the triangles ``corner`` (n × 3 vertex indices)."""
     nv = np.int64(mesh.t.max() + 1)
     f = np.sort(mesh.facets, axis=0).astype(np.int64)
@@ -111,7 +113,7 @@ def _facet_index(mesh, corner: np.ndarray, name: str) -> np.ndarray:
     if not np.all(keys[found] == wanted):
         raise GeometryError(f"group {name!r}: {int(np.sum(keys[found] != wanted))} boundary triangles "
                             "do not match mesh facets")
-    return np.unique(found)
+    return np.unique(found) if unique else found
 
 
 def assemble_elasticity(vector_basis, scalar_basis, lam: float, mu: float):
@@ -141,10 +143,10 @@ def build_fe(mesh_data, youngs_modulus: float, poisson_ratio: float, density: fl
              n_cavities: int, length: float) -> SegmentFE:
     """Assemble the segment: scikit-fem mesh from the gmsh arrays, P1/P2 vector basis,
     stiffness, rigid face maps, cavity loads, cap wrenches, rest volumes, mass."""
-    from skfem import (Basis, ElementTetP1, ElementTetP2, ElementVector, FacetBasis, Functional,
-                       LinearForm, MeshTet1, MeshTet2, asm)
-    from skfem.helpers import dot
+    from skfem import Basis, ElementTetP1, ElementTetP2, ElementVector, Functional, MeshTet1, MeshTet2, asm
     from skfem.models.elasticity import lame_parameters
+
+    from designer.surface import Surface
 
     start = time.perf_counter()
     order = mesh_data.order
@@ -155,28 +157,34 @@ def build_fe(mesh_data, youngs_modulus: float, poisson_ratio: float, density: fl
     scalar = Basis(mesh, element, intorder=intorder)
     K = assemble_elasticity(basis, scalar, *lame_parameters(youngs_modulus, poisson_ratio))
     n_dofs = basis.N
-    components = np.empty(n_dofs, dtype=np.int64)
-    every = basis.get_dofs(np.arange(mesh.facets.shape[1]))   # all facets -> all DoFs
-    for c in range(3):
-        for group in (every.nodal, every.edge):
-            if f"u^{c + 1}" in group:
-                components[group[f"u^{c + 1}"]] = c
     doflocs = basis.doflocs
+    # node (mesh numbering) -> its three displacement DoFs
+    node_dofs = np.empty((mesh_data.nodes.shape[0], 3), dtype=np.int64)
+    for a in range(mesh_data.tets.shape[1]):
+        for c in range(3):
+            node_dofs[mesh_data.tets[:, a], c] = basis.element_dofs[3 * a + c]
+    components = np.empty(n_dofs, dtype=np.int64)
+    components[node_dofs] = np.arange(3)[None, :]
+
+    def surface(name):
+        triangles = mesh_data.facets[name]
+        facets = _facet_index(mesh, triangles[:, :3], name, unique=False)
+        tets = mesh.t[:, mesh.f2t[0, facets]]
+        opposite = tets.sum(axis=0) - triangles[:, :3].sum(axis=1)     # the tet vertex off the face
+        return Surface.build(mesh_data.nodes, triangles, mesh_data.nodes[opposite])
 
     faces = {}
     for name, centre in (("bottom", (0.0, 0.0, 0.0)), ("top", (0.0, 0.0, length))):
-        facets = _facet_index(mesh, mesh_data.facets[name], name)
-        dofs = np.sort(basis.get_dofs(facets).all())
+        dofs = np.sort(node_dofs[np.unique(mesh_data.facets[name])].reshape(-1))
         faces[name] = {"dofs": dofs, "centre": np.array(centre),
                        "T": rigid_map(doflocs[:, dofs], components[dofs], centre)}
 
-    pressure = LinearForm(lambda v, w: -dot(w.n, v))
-    cavity_loads, cap_wrenches, volumes = [], [], []
+    cavity_loads, cap_wrenches, volumes, cavity_surfaces = [], [], [], []
     for k in range(n_cavities):
-        facets = _facet_index(mesh, mesh_data.facets[f"cavity_{k}"], f"cavity_{k}")
-        fb = FacetBasis(mesh, ElementVector(element), facets=facets, intorder=intorder + 2)
-        cavity_loads.append(asm(pressure, fb))
-        wrench_a, wrench_b, volume = _caps(fb, length, Functional)
+        walls = surface(f"cavity_{k}")
+        cavity_surfaces.append(walls)
+        cavity_loads.append(walls.load(node_dofs, n_dofs))          # −∫ n·v dA, unit pressure
+        wrench_a, wrench_b, volume = _caps(walls, length)
         cap_wrenches.append({"bottom": wrench_a, "top": wrench_b})
         volumes.append(volume)
 
@@ -188,34 +196,34 @@ def build_fe(mesh_data, youngs_modulus: float, poisson_ratio: float, density: fl
     return SegmentFE(mesh=mesh, basis=basis, K=K, length=length, order=order, faces=faces,
                      cavity_loads=cavity_loads, cap_wrenches=cap_wrenches,
                      cavity_volumes=np.array(volumes, dtype=float), mass=mass, center_of_mass=centroid,
-                     components=components, timings=timings)
+                     components=components, timings=timings, node_dofs=node_dofs,
+                     cavity_surfaces=cavity_surfaces)
 
 
-def _caps(fb, length: float, Functional):
+def _caps(walls, length: float):
     """Cap wrenches of unit pressure and the rest volume of one cavity, from wall integrals.
 
     ``n_c = −n`` is the cavity's outward normal on the walls; on the caps it is
     ``+e_z`` (top, z = L) and ``−e_z`` (bottom, z = 0). Divergence theorem on the
     closed cavity (walls + caps), with the fields (x/2, y/2, 0), (0, 0, z),
     (x²/2, 0, 0) and (0, 0, x z) / (0, 0, x (z − L)) giving the volume, the top
-    cap area, ∫ x dV and the caps' first moments.
+    cap area, ∫ x dV and the caps' first moments. Exact on the discrete geometry.
     """
-    from skfem import asm
+    x = walls.x
+    zero = np.zeros(x.shape[:2])
 
-    def integral(f):
-        return float(asm(Functional(f), fb))
+    def flux_c(fx, fy, fz):                     # ∫ F·n_c dA over the walls
+        return -walls.flux(np.stack([fx + zero, fy + zero, fz + zero], axis=-1))
 
-    nc = lambda w, i: -w.n[i]  # noqa: E731
-    V = integral(lambda w: 0.5 * (w.x[0] * nc(w, 0) + w.x[1] * nc(w, 1)))
-    Zw = integral(lambda w: w.x[2] * nc(w, 2))
-    Fz = integral(lambda w: nc(w, 2))
-    A_top = (V - Zw) / length
-    A_bot = A_top + Fz                       # net force on the closed cavity is zero
+    X, Y, Z = x[..., 0], x[..., 1], x[..., 2]
+    V = flux_c(0.5 * X, 0.5 * Y, 0.0)
+    A_top = (V - flux_c(0.0, 0.0, Z)) / length
+    A_bot = A_top + flux_c(0.0, 0.0, 1.0)       # net force on the closed cavity is zero
     first = {}
-    for i, axis in ((0, "x"), (1, "y")):
-        Q = integral(lambda w, i=i: 0.5 * w.x[i] ** 2 * nc(w, i))
-        first[("top", axis)] = (Q - integral(lambda w, i=i: w.x[i] * w.x[2] * nc(w, 2))) / length
-        first[("bot", axis)] = (Q - integral(lambda w, i=i: w.x[i] * (w.x[2] - length) * nc(w, 2))) / length
+    for axis, C in (("x", X), ("y", Y)):
+        Q = flux_c(0.5 * C ** 2, 0.0, 0.0) if axis == "x" else flux_c(0.0, 0.5 * C ** 2, 0.0)   # ∫ C dV
+        first[("top", axis)] = (Q - flux_c(0.0, 0.0, C * Z)) / length
+        first[("bot", axis)] = (Q - flux_c(0.0, 0.0, C * (Z - length))) / length
     # wrench of unit pressure on frame b (at (0,0,L)): force A e_z, moment ∫ (x, y, 0) × e_z dA
     wrench_b = np.array([0.0, 0.0, A_top, first[("top", "y")], -first[("top", "x")], 0.0])
     # on frame a (at the origin): force −A e_z, moment ∫ (x, y, 0) × (−e_z) dA
@@ -241,6 +249,14 @@ class Condensation:
         V = self.interior_volume + self.pressure_wrench.T @ G
         V = 0.5 * (V + V.T)
         return np.block([[C, G], [G.T, V]])
+
+
+def _asymmetry(A: np.ndarray) -> float:
+    """max |A − Aᵀ| relative to the diagonal scale (0 for an empty matrix)."""
+    if A.size == 0:
+        return 0.0
+    d = np.sqrt(np.abs(np.diag(A)))
+    return float(np.max(np.abs(A - A.T) / np.outer(d, d)))
 
 
 def condense(fe: SegmentFE, frames=("top",), linear_solver: str = "auto", amg_threshold: int | None = None,
@@ -280,10 +296,11 @@ def condense(fe: SegmentFE, frames=("top",), linear_solver: str = "auto", amg_th
     X, info = solver.solve(Kii, rhs, modes)
     Xq, Xf = X[:, :m6], X[:, m6:m6 + n]
     S = Kqq - Kiq.T @ Xq
-    S = 0.5 * (S + S.T)
     g = Fq - Kiq.T @ Xf
     Vi = Fi.T @ Xf
-    info = dict(info, interior_dofs=int(interior.size))
+    info = dict(info, interior_dofs=int(interior.size), asymmetry_S=_asymmetry(S), asymmetry_V=_asymmetry(Vi))
+    S = 0.5 * (S + S.T)
+    Vi = 0.5 * (Vi + Vi.T)
     return Condensation(stiffness=S, pressure_wrench=g, interior_volume=Vi, info=info,
                         solve_s=time.perf_counter() - start)
 
@@ -299,17 +316,23 @@ def face_load(fe: SegmentFE, name: str, pressures) -> np.ndarray:
 
 def displacement_field(fe: SegmentFE, q_top, pressures=None, q_bottom=None) -> np.ndarray:
     """Full nodal displacement for given frame motions and cavity pressures (direct solve):
-    faces follow their frames rigidly, the interior solves ``K_ii u_i = F_i p − K_i,faces u_faces``."""
+    faces follow their frames rigidly, the interior solves ``K_ii u_i = F_i p − K_i,faces u_faces``.
+    ``q_top`` (6,) or (6, m) for m load cases at once (then ``pressures`` (n, m))."""
     from scipy.sparse.linalg import splu
 
-    u = np.zeros(fe.n_dofs)
-    u[fe.faces["top"]["dofs"]] = fe.faces["top"]["T"] @ np.asarray(q_top, float)
+    q_top = np.asarray(q_top, float)
+    single = q_top.ndim == 1
+    Q = q_top.reshape(6, -1)
+    m = Q.shape[1]
+    u = np.zeros((fe.n_dofs, m))
+    u[fe.faces["top"]["dofs"]] = fe.faces["top"]["T"] @ Q
     if q_bottom is not None:
-        u[fe.faces["bottom"]["dofs"]] = fe.faces["bottom"]["T"] @ np.asarray(q_bottom, float)
+        u[fe.faces["bottom"]["dofs"]] = fe.faces["bottom"]["T"] @ np.asarray(q_bottom, float).reshape(6, -1)
     interior = fe.interior()
     rhs = -(fe.K @ u)[interior]
     if pressures is not None:
-        for k, p in enumerate(np.reshape(pressures, -1)):
-            rhs += p * fe.cavity_loads[k][interior]
+        P = np.asarray(pressures, float).reshape(fe.n_cavities, -1)
+        for k in range(fe.n_cavities):
+            rhs += fe.cavity_loads[k][interior][:, None] * P[k][None, :]
     u[interior] = splu(fe.K[interior][:, interior].tocsc(), permc_spec="MMD_AT_PLUS_A").solve(rhs)
-    return u
+    return u[:, 0] if single else u

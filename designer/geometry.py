@@ -57,7 +57,8 @@ class MeshData:
     """A tetrahedral mesh as arrays. Vertices come first in ``nodes``.
 
     ``tets``: (n_tets, 4) or (n_tets, 10) node indices in scikit-fem order;
-    ``facets``: group name -> (n, 3) corner node indices of its boundary triangles.
+    ``facets``: group name -> (n, 3) or (n, 6) node indices of its boundary triangles
+    (gmsh order: corners, then edge nodes (0,1), (1,2), (2,0)).
     """
 
     nodes: np.ndarray
@@ -177,10 +178,11 @@ def _extract(gmsh, order: int, groups: dict) -> MeshData:
             for etype, nn in zip(types, tri_nodes):
                 if etype == _TRI_TYPE[order]:
                     k = 3 if order == 1 else 6
-                    tris.append(np.asarray(nn, dtype=np.int64).reshape(-1, k)[:, :3])
-        corner = new[tag_to_row[np.concatenate(tris)]] if tris else np.zeros((0, 3), dtype=np.int64)
-        if np.any(corner < 0) or np.any(corner >= vertices.size):
+                    tris.append(np.asarray(nn, dtype=np.int64).reshape(-1, k))
+        k = 3 if order == 1 else 6
+        triangles = new[tag_to_row[np.concatenate(tris)]] if tris else np.zeros((0, k), dtype=np.int64)
+        if np.any(triangles < 0) or np.any(triangles[:, :3] >= vertices.size):
             raise GeometryError(f"group {name!r}: boundary triangles not attached to the volume mesh")
-        facets[name] = corner
+        facets[name] = triangles
     return MeshData(nodes=nodes, tets=tets.astype(np.int64), n_vertices=int(vertices.size),
                     facets=facets, order=order, mesh_size=0.0, gmsh_version="", groups=sorted(groups))
