@@ -52,6 +52,7 @@ class InverseSettings:
     patience: int = 3  # converged mode gives up after this many iterations without progress …
     progress: float = 0.01  # … where progress means cutting the best error by this fraction
     actuation_tolerance: float = 1e-4  # … and, reached or not, once λ changes by less than this (relative)
+    settle_iterations: int = 3  # extra iterations allowed, once reached, for λ to settle
     qp_tolerance: float = 1e-10
 
     def __post_init__(self):
@@ -81,6 +82,7 @@ class InverseStep:
     qp: ConstraintSolution  # last QP
     timings: dict = field(default_factory=dict)  # linearise_s, W_s, qp_s, step_s, solve_s, total_s
     status: str = ""
+    actuation_change: float = math.nan  # relative change of λ in the last iteration (converged mode)
 
 
 def constraint_problem(lin, targets: np.ndarray, actuation: np.ndarray, *, weights: np.ndarray,
@@ -195,7 +197,7 @@ class InverseController:
         if not self.equilibrium:
             self._equilibrate(self.actuation, self.state, timings)
         error = float(np.max(self._errors(self.model.effector_positions(self.state), targets)))
-        best, idle = error, 0
+        best, idle, reached_for, change = error, 0, 0, math.nan
         sol, status, iterations = None, "max_iterations", 0
         for iterations in range(1, s.max_iterations + 1):
             sol, dq = self._linearised_step(targets, timings)
@@ -233,7 +235,12 @@ class InverseController:
             settled = change <= s.actuation_tolerance
             if error <= s.tolerance:
                 status = "reached"
-                if settled:
+                reached_for += 1
+                # In the redundant null space the Gauss–Newton fixed point of the regularised
+                # problem can cycle (the neglected curvature of e(λ) times the µm residual is
+                # of the order of the tiny regulariser): allow a few iterations to settle,
+                # then keep the last reached λ (docs/inverse.md, "uniqueness").
+                if settled or reached_for > s.settle_iterations:
                     break
                 continue
             if error < (1.0 - s.progress) * best:
@@ -244,7 +251,9 @@ class InverseController:
                     status = "closest_reach"  # the error stopped falling: unreachable or a bound binds
                     break
             status = "max_iterations"
-        return self._result(targets, sol, iterations, timings, t_start, self.equilibrium, status=status)
+        result = self._result(targets, sol, iterations, timings, t_start, self.equilibrium, status=status)
+        result.actuation_change = change
+        return result
 
     def step(self, targets) -> InverseStep:
         """One step in the configured mode."""

@@ -1,0 +1,198 @@
+"""Benchmark of the inverse step (paper §IV): linearise → W → QP → step.
+
+Rows:
+1. each gallery robot: median time of one real-time inverse step split into
+   ``linearise`` (lead's tangent + banded factor), ``W`` (one multi-RHS banded solve for
+   K⁻¹[r, B] and the products giving W_ea, W_aa, δe_free, δa_free), ``QP`` (DAQP through
+   ``solve_constraint_problem``) and ``step`` (retraction), plus the whole tick;
+   the paper reports ~5 ms (2 ms for W) on 3 vertebrae and ~13 ms (9 ms for W) on the
+   5-vertebra 16-tendon robot (SOFA, 2.66 GHz i7);
+2. growth with frames (links per segment) and with actuators (tendons) on the 16-tendon robot;
+3. the speed/accuracy knob "one linearise–QP step per tick vs converged": per-step cost and
+   effector error of the equilibrium under the commanded actuation along a reachable loop.
+
+Run: ``.venv/bin/python benchmarks/bench_inverse.py [--quick]``; writes
+``benchmarks/results/inverse.json`` and ``benchmarks/results/inverse.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import solver  # noqa: E402
+from solver.gallery import load  # noqa: E402
+from solver.inverse.controller import InverseController, InverseSettings, constraint_problem  # noqa: E402
+from solver.inverse.qp import solve_constraint_problem  # noqa: E402
+
+RESULTS = Path(__file__).resolve().parent / "results"
+PAPER = {"paper_3v_4t": "~5 ms (W ~2 ms)", "paper_3v_8t": "~5 ms (W ~2 ms)",
+         "paper_5v_16t": "~13 ms (W ~9 ms)"}
+
+
+def median_time(fn, repeats):
+    """Median CPU time of this thread (``time.thread_time``): on 2 cores shared by several
+    jobs, wall-clock medians measure the scheduler, not the code (wall medians were ~3×
+    the CPU time at load 4.6). ``WALL`` collects wall-clock medians for the record."""
+    fn()
+    cpu, wall = [], []
+    for _ in range(repeats):
+        c0, w0 = time.thread_time(), time.perf_counter()
+        fn()
+        cpu.append(time.thread_time() - c0)
+        wall.append(time.perf_counter() - w0)
+    WALL.append(float(np.median(wall)))
+    return float(np.median(cpu))
+
+
+WALL: list = []
+
+
+def breakdown(model, repeats, actuation=None):
+    n_act = len(model.actuator_names)
+    lam = np.full(n_act, 0.3) if actuation is None else actuation
+    state = model.solve(lam).state
+    targets = model.effector_positions(state) + 1e-3
+    kw = dict(weights=model.effector_weights, lambda_bounds=model.actuator_bounds,
+              displacement_bounds=model.displacement_bounds, regularisation=1e-8)
+    lin = model.linearise(state, lam)
+    problem, Kr, KB, _ = constraint_problem(lin, targets, lam, **kw)
+    sol = solve_constraint_problem(problem)
+    dq = Kr + KB @ (sol.actuation - lam)
+    t_lin = median_time(lambda: model.linearise(state, lam), repeats)
+    t_w = median_time(lambda: constraint_problem(lin, targets, lam, **kw), repeats)
+    t_qp = median_time(lambda: solve_constraint_problem(problem), repeats)
+    t_step = median_time(lambda: model.step(state, dq), repeats)
+    controller = InverseController(model, InverseSettings(mode="tick"), actuation=lam, state=state)
+
+    def tick():
+        controller.state, controller.actuation = state, lam
+        controller.step(targets)
+
+    t_tick = median_time(tick, repeats)
+    wall_tick = WALL[-1]
+    return dict(wall_tick_s=wall_tick, frames=int(model.n_frames), actuators=n_act, effectors=len(model.effector_names),
+                linearise_s=t_lin, W_s=t_w, qp_s=t_qp, step_s=t_step, tick_s=t_tick,
+                qp_iterations=int(sol.iterations))
+
+
+def scaled_scene(name, elements=None, n_cables=None):
+    scene = load(name)
+    if elements is not None:
+        scene = dataclasses.replace(scene, segments=tuple(dataclasses.replace(s, elements=elements)
+                                                          for s in scene.segments))
+    if n_cables is not None:
+        base = scene.cables
+        cables = []
+        for k in range(n_cables):
+            c = base[k % len(base)]
+            cables.append(dataclasses.replace(c, name=f"c{k}", angle=c.angle + 0.1 * (k // len(base))))
+        scene = dataclasses.replace(scene, cables=tuple(cables))
+    return scene
+
+
+def reachable_loop(model, scene, n_points, base=0.1, amplitude=1.0):
+    angles = np.array([c.angle for c in scene.cables])
+    loop, state = [], None
+    for theta in np.linspace(0.0, 2 * np.pi, n_points):
+        lam = base + amplitude * np.maximum(0.0, np.cos(theta - angles))
+        state = model.solve(lam, initial=state).state
+        loop.append(model.effector_positions(state))
+    return np.array(loop)
+
+
+def modes_table(n_points):
+    rows = []
+    for label, keep in [("tip only", ("tip",)), ("mid + tip (posture)", ("mid", "tip"))]:
+        scene = load("paper_5v_16t")
+        scene = dataclasses.replace(scene, effectors=tuple(e for e in scene.effectors if e.name in keep))
+        model = solver.build_model(scene)
+        loop = reachable_loop(model, scene, n_points)
+        for mode in ("tick", "converged"):
+            controller = InverseController(model, InverseSettings(mode=mode))
+            controller.step(loop[0])  # start on the loop (not timed)
+            if mode == "tick":
+                for _ in range(5):
+                    controller.step(loop[0])
+            times, errors, state = [], [], None
+            for target in loop[1:]:
+                t0 = time.thread_time()
+                step = controller.step(target)
+                times.append(time.thread_time() - t0)
+                state = step.state if step.equilibrium else model.solve(step.actuation, initial=step.state).state
+                errors.append(float(np.max(np.linalg.norm(model.effector_positions(state) - target, axis=1))))
+            rows.append(dict(effectors=label, mode=mode, median_step_s=float(np.median(times)),
+                             max_step_s=float(np.max(times)), median_error_m=float(np.median(errors)),
+                             max_error_m=float(np.max(errors)),
+                             loop_step_m=float(np.median(np.linalg.norm(np.diff(loop, axis=0), axis=2)))))
+    return rows
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true")
+    args = parser.parse_args(argv)
+    repeats = 30 if args.quick else 200
+
+    scenes = []
+    for name in ["paper_3v_4t", "paper_3v_8t", "paper_5v_16t", "tendon_two_section"]:
+        row = breakdown(solver.build_model(load(name)), repeats)
+        scenes.append(dict(scene=name, paper=PAPER.get(name, ""), **row))
+    frames = []
+    for elements in ([2, 8, 32] if args.quick else [2, 4, 8, 16, 32, 64]):
+        model = solver.build_model(scaled_scene("paper_5v_16t", elements=elements))
+        frames.append(dict(elements_per_segment=elements, **breakdown(model, max(5, repeats // max(1, elements // 4)))))
+    actuators = []
+    for n_cables in ([4, 16, 64] if args.quick else [4, 8, 16, 32, 64]):
+        model = solver.build_model(scaled_scene("paper_5v_16t", n_cables=n_cables))
+        actuators.append(breakdown(model, repeats))
+    modes = modes_table(13 if args.quick else 37)
+
+    ms = lambda v: f"{v * 1e3:.3f}"  # noqa: E731
+    host = (f"host: {platform.node()} · {platform.processor() or platform.machine()} · python "
+            f"{platform.python_version()} · OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS')} · "
+            f"load average {os.getloadavg()[0]:.1f} (2 cores shared)")
+    head = "| frames | actuators | effectors | linearise ms | W ms | QP ms | step ms | tick ms | tick wall ms |"
+    sep = "|---|---|---|---|---|---|---|---|---|"
+    fmt = lambda r: (f"| {r['frames']} | {r['actuators']} | {r['effectors']} | {ms(r['linearise_s'])} | "  # noqa: E731
+                     f"{ms(r['W_s'])} | {ms(r['qp_s'])} | {ms(r['step_s'])} | {ms(r['tick_s'])} | "
+                     f"{ms(r['wall_tick_s'])} |")
+    lines = ["# Inverse step timings (median CPU time of the thread; see median_time)", "", host, "",
+             "## Gallery robots", "",
+             "| scene " + head + " paper |", "|---" + sep + "---|"]
+    for r in scenes:
+        lines.append(f"| {r['scene']} " + fmt(r) + f" {r['paper']} |")
+    lines += ["", "## Growing frames (paper_5v_16t, links per segment)", "", "| links/segment " + head,
+              "|---" + sep]
+    for r in frames:
+        lines.append(f"| {r['elements_per_segment']} " + fmt(r))
+    lines += ["", "## Growing actuators (paper_5v_16t, tendons)", "", head, sep]
+    for r in actuators:
+        lines.append(fmt(r))
+    lines += ["", "## One step per tick vs converged (paper_5v_16t along a reachable loop)", "",
+              "| effectors | mode | median step ms | max step ms | median error m | max error m | target spacing m |",
+              "|---|---|---|---|---|---|---|"]
+    for r in modes:
+        lines.append(f"| {r['effectors']} | {r['mode']} | {ms(r['median_step_s'])} | {ms(r['max_step_s'])} | "
+                     f"{r['median_error_m']:.2e} | {r['max_error_m']:.2e} | {r['loop_step_m']:.2e} |")
+    text = "\n".join(lines)
+    print(text)
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / "inverse.json").write_text(json.dumps(
+        {"scenes": scenes, "frames": frames, "actuators": actuators, "modes": modes,
+         "quick": args.quick, "host": host}, indent=1))
+    (RESULTS / "inverse.md").write_text(text + "\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,134 @@
+"""The paper's robots tracking a circle (paper §V-a, Fig. 6) with the inverse model.
+
+* tip only: the tip of ``paper_3v_4t`` / ``paper_3v_8t`` / ``paper_5v_16t`` runs around a
+  horizontal circle about the robot's axis;
+* ``--posture`` (16-tendon robot): two effectors, vertebra 2 ("mid") and the tip, follow
+  two circles at once — posture control, not only the tip.
+
+Tendons around a stiff backbone can bend it but barely shorten it (~1 µm per N), so
+the targets must lie on the reachable surface: the circles are placed at the height
+a forward solution reaches for the chosen bending radius (the robot is axisymmetric).
+
+    .venv/bin/python examples/inverse/track_circle.py --scene paper_5v_16t --posture \
+        --points 60 --mode converged --csv circle.csv --plot circle.png
+
+The CSV it writes is a ``vertebra invert --trajectory`` file for the same effectors.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+
+import solver  # noqa: E402
+from solver.gallery import load  # noqa: E402
+from solver.inverse.controller import InverseController, InverseSettings  # noqa: E402
+from solver.inverse.trajectory import Trajectory, write_trajectory  # noqa: E402
+
+
+def scene_for(name: str, posture: bool):
+    scene = load(name)
+    keep = ("mid", "tip") if posture else ("tip",)
+    effectors = tuple(e for e in scene.effectors if e.name in keep)
+    if len(effectors) != len(keep):
+        raise SystemExit(f"{name} has no effectors named {keep}")
+    return dataclasses.replace(scene, effectors=effectors)
+
+
+def bent_pose(model, scene, tension: float):
+    """Effector positions when the tendons at angle 0 pull with ``tension`` (and, for the
+    16-tendon robot, the shorter ones at angle 0 half as much)."""
+    lam = np.zeros(len(model.actuator_names))
+    for j, cable in enumerate(scene.cables):
+        if abs(np.cos(cable.angle) - 1.0) < 1e-9:
+            lam[j] = tension if cable.last == max(c.last for c in scene.cables) else 0.5 * tension
+    return model.effector_positions(model.solve(lam).state)
+
+
+def circle_targets(model, scene, radius: float, n_points: int) -> np.ndarray:
+    """(n_points, n_eff, 3): the bent pose whose tip is ``radius`` off the axis, rotated
+    about the axis (z) through one turn."""
+    lo, hi = 0.0, float(np.max(model.actuator_bounds[1][np.isfinite(model.actuator_bounds[1])]))
+    for _ in range(40):  # bisection on the tension for the tip offset
+        mid = 0.5 * (lo + hi)
+        tip = bent_pose(model, scene, mid)[-1]
+        lo, hi = (mid, hi) if np.hypot(tip[0], tip[1]) < radius else (lo, mid)
+    pose = bent_pose(model, scene, 0.5 * (lo + hi))
+    theta = np.linspace(0.0, 2 * np.pi, n_points)
+    c, s = np.cos(theta), np.sin(theta)
+    rot = np.stack([np.stack([c, -s, 0 * c], -1), np.stack([s, c, 0 * c], -1),
+                    np.stack([0 * c, 0 * c, 1 + 0 * c], -1)], 1)  # (n, 3, 3)
+    return np.einsum("nij,ej->nei", rot, pose)
+
+
+def run(scene_name="paper_5v_16t", posture=False, radius=0.01, points=36, mode="converged",
+        csv=None, plot=None, quiet=False):
+    scene = scene_for(scene_name, posture)
+    model = solver.build_model(scene)
+    targets = circle_targets(model, scene, radius, points)
+    if csv:
+        write_trajectory(csv, Trajectory(targets, np.arange(points, dtype=float)), model.effector_names)
+    controller = InverseController(model, InverseSettings(mode=mode))
+    efforts, errors, times, achieved = [], [], [], []
+    for k, target in enumerate(targets):
+        t0 = time.thread_time()
+        step = controller.step(target)
+        times.append(time.thread_time() - t0)
+        state = step.state if step.equilibrium else model.solve(step.actuation, initial=step.state).state
+        positions = model.effector_positions(state)
+        achieved.append(positions)
+        errors.append(np.linalg.norm(positions - target, axis=1))
+        efforts.append(step.actuation)
+    efforts, errors, achieved = np.array(efforts), np.array(errors), np.array(achieved)
+    moves = np.linalg.norm(np.diff(efforts, axis=0), axis=1)
+    summary = dict(scene=scene_name, effectors=list(model.effector_names), mode=mode, points=points,
+                   radius=radius, max_error_m=float(errors.max()), median_step_cpu_s=float(np.median(times)),
+                   max_effort_jump_over_median=float(moves.max() / max(np.median(moves), 1e-300)),
+                   max_tension=float(efforts.max()))
+    if not quiet:
+        for key, value in summary.items():
+            print(f"{key}: {value}")
+    if plot:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        fig = plt.figure(figsize=(11, 4.8))
+        ax = fig.add_subplot(1, 2, 1, projection="3d")
+        for e, name in enumerate(model.effector_names):
+            ax.plot(*targets[:, e].T, "--", label=f"{name} target")
+            ax.plot(*achieved[:, e].T, "o", ms=2, label=f"{name} achieved")
+        ax.legend(fontsize=7)
+        ax2 = fig.add_subplot(1, 2, 2)
+        ax2.plot(efforts)
+        ax2.set_xlabel("step")
+        ax2.set_ylabel("tension (N)")
+        fig.tight_layout()
+        fig.savefig(plot, dpi=110)
+        plt.close(fig)
+    return summary
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--scene", default="paper_5v_16t", choices=["paper_3v_4t", "paper_3v_8t", "paper_5v_16t"])
+    p.add_argument("--posture", action="store_true", help="mid + tip (16-tendon robot)")
+    p.add_argument("--radius", type=float, default=0.01, help="tip circle radius, m")
+    p.add_argument("--points", type=int, default=36)
+    p.add_argument("--mode", choices=["converged", "tick"], default="converged")
+    p.add_argument("--csv")
+    p.add_argument("--plot")
+    a = p.parse_args(argv)
+    run(a.scene, a.posture, a.radius, a.points, a.mode, a.csv, a.plot)
+
+
+if __name__ == "__main__":
+    main()
