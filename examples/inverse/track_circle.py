@@ -56,7 +56,7 @@ def circle_targets(model, scene, radius: float, n_points: int) -> np.ndarray:
     """(n_points, n_eff, 3): the bent pose whose tip is ``radius`` off the axis, rotated
     about the axis (z) through one turn."""
     lo, hi = 0.0, float(np.max(model.actuator_bounds[1][np.isfinite(model.actuator_bounds[1])]))
-    for _ in range(40):  # bisection on the tension for the tip offset
+    for _ in range(30):  # bisection on the tension for the tip offset (20 N / 2^30)
         mid = 0.5 * (lo + hi)
         tip = bent_pose(model, scene, mid)[-1]
         lo, hi = (mid, hi) if np.hypot(tip[0], tip[1]) < radius else (lo, mid)
