@@ -13,21 +13,12 @@ def add_arguments(parser):
     parser.add_argument("--vtk", metavar="FILE", help="write backbone and cables for ParaView (.vtu)")
 
 
-def load_any_scene(name: str):
-    """A scene file, or ``gallery:NAME`` for a gallery scene."""
-    import solver
-    if name.startswith("gallery:"):
-        from solver import gallery
-        return gallery.load(name.split(":", 1)[1])
-    return solver.load_scene(name)
-
-
 def run(args) -> int:
     import solver
     from solver.report import plot_static, static_report, write_vtk
     from store.errors import ConvergenceError
 
-    scene = load_any_scene(args.scene)
+    scene = solver.load_scene(args.scene)
     model = solver.build_model(scene)
     try:
         result = model.solve()

@@ -119,8 +119,7 @@ class TrunkModel:
     def _compile_links(self, scene, entries):
         K, xi0, S, quats, trans, Vs, covers = [], [], [], [], [], [], []
         frame_mass, frame_moment = [0.0], [np.zeros(3)]
-        vertebra_frames, segment_of_link, repetition_end = [0], [], []
-        spans = []
+        vertebra_frames, segment_of_link = [0], []
         chambers = scene.chambers
         for seg_index, seg in enumerate(scene.segments):
             if seg.type == "beam":
@@ -171,7 +170,6 @@ class TrunkModel:
                 vertebra_frames.append(len(frame_mass) - 1)
                 frame_mass[-1] += seg.vertebra.mass
                 frame_moment[-1] = frame_moment[-1] + seg.vertebra.mass * np.asarray(seg.vertebra.center_of_mass)
-                spans.append(seg.elements)
         self.n_frames = len(frame_mass)
         self.n_links = self.n_frames - 1
         self.link_stiffness = np.array(K)
@@ -183,8 +181,6 @@ class TrunkModel:
         self.frame_mass = np.array(frame_mass)
         self.frame_moment = np.array(frame_moment)
         self.vertebra_frames = np.array(vertebra_frames)
-        self.repetition_spans = spans
-        self.span = max([1] + [s for s in spans])
         self.length_scale = float(np.sum(np.linalg.norm(self.link_rest_translation, axis=1)))
         rest_volumes = np.zeros(len(chambers))
         for j, ch in enumerate(chambers):
@@ -211,6 +207,9 @@ class TrunkModel:
         self.cable_hole_a = np.array(ha).reshape(-1, 3)
         self.cable_hole_b = np.array(hb).reshape(-1, 3)
         self.cable_piece_owner = np.array(owner, int)
+        # links couple neighbouring frames (block offset 1); a cable piece couples the frames of two
+        # consecutive vertebrae, `elements` links apart: the band is as wide as the widest coupling
+        self.span = int(max(1, np.max(self.cable_piece_b - self.cable_piece_a, initial=1)))
         self.n_cables = len(scene.cables)
         self.n_chambers = len(scene.chambers)
         self.actuator_names = [c.name for c in scene.cables] + [c.name for c in scene.chambers]
@@ -442,14 +441,17 @@ class TrunkModel:
         r = -ev.gradient[1:].reshape(-1)
         residual = self._residual_norm(r, reference * max(scale, 1e-300))
         moments = scale * self.dead_loads[1:, 3:].reshape(-1) if self.has_dead_moments else None
+        best, best_at = residual, 0
         for iteration in range(max_iter + 1):
             history.append(residual)
             if not math.isfinite(residual):
                 return False, state, iteration, residual
             if residual <= tol:
                 return True, state, iteration, residual
-            if iteration == max_iter:
-                break
+            if residual < 0.5 * best:
+                best, best_at = residual, iteration
+            if iteration == max_iter or iteration - best_at > 20:
+                break     # out of iterations, or no progress for 20 iterations: smaller load step
             accepted = False
             for shift in (0.0, 1e-8, 1e-6, 1e-4, 1e-2, 1.0):
                 factor, kind = self._factor(ev, shift)
@@ -484,7 +486,7 @@ class TrunkModel:
             if not accepted:
                 return False, state, iteration + 1, residual
             state, ev, r, residual = trial, ev_trial, r_trial, res_trial
-        return False, state, max_iter, residual
+        return False, state, iteration, residual
 
     # ------------------------------------------------------------------ outputs
     def cable_lengths(self, state: State) -> np.ndarray:

@@ -195,7 +195,10 @@ class _Table:
 
 
 def load_scene(path) -> Scene:
-    """Read and validate a TOML scene file."""
+    """Read and validate a TOML scene file; ``gallery:NAME`` names a gallery scene."""
+    if str(path).startswith("gallery:"):
+        from solver.gallery import path as gallery_path   # lazy: the gallery imports this module
+        path = gallery_path(str(path).split(":", 1)[1])
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
@@ -395,3 +398,34 @@ def _parse_segment(t: _Table) -> SegmentSpec:
     t.done()
     return SegmentSpec(type=kind, count=count, vertebra=vertebra, elements=elements, length=length,
                        youngs_modulus=E, shear_modulus=G, section=section, density=density)
+
+
+def _toml_value(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, float)):
+        if isinstance(value, float) and not math.isfinite(value):
+            return ("" if value > 0 else "-") + "inf" if math.isinf(value) else "nan"
+        return repr(value)
+    if isinstance(value, str):
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(value, dict):
+        return "{ " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in value.items()) + " }"
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return "[" + ", ".join(_toml_value(v.item() if hasattr(v, "item") else v) for v in value) + "]"
+    raise TypeError(f"cannot write {type(value).__name__} to TOML")
+
+
+def scene_toml(data: dict) -> str:
+    """Write a scene dictionary (as :func:`parse_scene` takes it) as TOML text."""
+    lines, tables = [], []
+    for key, value in data.items():
+        if isinstance(value, dict):
+            tables.append((f"[{key}]", value))
+        elif isinstance(value, list) and value and all(isinstance(v, dict) for v in value):
+            tables.extend((f"[[{key}]]", item) for item in value)
+        else:
+            lines.append(f"{key} = {_toml_value(value)}")
+    for header, table in tables:
+        lines += ["", header] + [f"{k} = {_toml_value(v)}" for k, v in table.items()]
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,120 @@
+"""``vertebra demo [--out DIR]``: the whole pipeline on embedded defaults, end to end.
+
+1. forward statics of the gallery's two-section tendon robot (picture, VTK);
+2. design: a CBHA-like pneumatic trunk (two tapered three-chamber sections) meshed with
+   gmsh, condensed with scikit-fem into an HDF5 catalogue, verified, then simulated forward
+   under chamber pressures (picture);
+3. inverse: the paper's 16-tendon robot tracking a circle with its tip, and the pneumatic
+   trunk reaching a target with its chamber pressures (pictures, JSON).
+
+Every stage runs the same code as the corresponding ``vertebra`` subcommand.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+
+def add_arguments(parser):
+    parser.add_argument("--out", default="demo-output", help="directory for pictures, catalogue and JSON")
+    parser.add_argument("--points", type=int, default=24, help="trajectory points of the circle")
+
+
+def _banner(text: str):
+    print(f"\n== {text}", flush=True)
+
+
+def _command(argv, stdout_path: Path | None = None) -> int:
+    """Run one ``vertebra`` subcommand; its stdout goes to ``stdout_path`` when given."""
+    from cli.main import main
+    print("$ vertebra " + " ".join(argv), flush=True)
+    if stdout_path is None:
+        return main(argv)
+    saved = sys.stdout
+    with open(stdout_path, "w") as handle:
+        sys.stdout = handle
+        try:
+            return main(argv)
+        finally:
+            sys.stdout = saved
+
+
+def _reachable_circle(scene_name: str, tension: float):
+    """A tip circle the axisymmetric tendon robot can reach: the tip position under one
+    pulled tendon gives the circle's radius and height."""
+    import numpy as np
+
+    import solver
+    model = solver.build_model(solver.load_scene(f"gallery:{scene_name}"))
+    actuation = np.zeros(len(model.actuator_names))
+    actuation[-1] = tension          # a tendon terminated at the tip
+    tip = model.effector_positions(model.solve(actuation).state)[model.effector_names.index("tip")]
+    return np.array([0.0, 0.0, tip[2]]), float(np.hypot(tip[0], tip[1]))
+
+
+def run(args) -> int:
+    import numpy as np
+
+    from solver.inverse.trajectory import Trajectory, circle, write_trajectory
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    started = time.perf_counter()
+    summary = {}
+
+    _banner("1/3 forward statics: two-section tendon robot (gallery:tendon_two_section)")
+    code = _command(["simulate", "gallery:tendon_two_section", "--plot", str(out / "tendon_forward.png"),
+                     "--vtk", str(out / "tendon_forward.vtu")])
+    summary["tendon_forward"] = code
+
+    _banner("2/3 design → catalogue → forward: CBHA-like pneumatic trunk")
+    from designer.gallery import cbha_catalogue
+    from solver.scene import scene_toml
+    catalogue_path = out / "cbha.h5"
+    t0 = time.perf_counter()
+    cbha = cbha_catalogue(catalogue_path, coarse=True)
+    print(f"catalogue {catalogue_path}: {len(cbha['entries'])} entries in {time.perf_counter() - t0:.1f} s")
+    scene = dict(cbha["scene"])
+    scene["catalogue"] = {"path": catalogue_path.name}
+    scene_path = out / "cbha.toml"
+    scene_path.write_text(scene_toml(scene))
+    summary["catalogue_verify"] = _command(["catalogue", "verify", str(catalogue_path)])
+    summary["cbha_forward"] = _command(["simulate", str(scene_path), "--json", "--plot", str(out / "cbha_forward.png")],
+                                       stdout_path=out / "cbha_forward.json")
+    forward = json.loads((out / "cbha_forward.json").read_text())
+    print(f"  tip at {np.round(forward['effectors']['tip']['position'], 4).tolist()} m after "
+          f"{forward['iterations']} Newton iterations ({1e3 * forward['timing']['solve_s']:.2f} ms)")
+
+    _banner("3/3 inverse: 16-tendon robot tracks a circle; pneumatic trunk reaches a target")
+    centre, radius = _reachable_circle("paper_5v_16t", 4.0)
+    targets = circle(centre, radius, args.points)
+    trajectory_path = out / "circle.csv"
+    write_trajectory(trajectory_path, Trajectory(targets[:, None, :], np.arange(args.points, dtype=float)), ["tip"])
+    tip_only = out / "paper_5v_16t_tip.toml"
+    import tomllib
+    data = tomllib.loads(Path(__import__("solver.gallery", fromlist=["path"]).path("paper_5v_16t")).read_text())
+    data["effector"] = [e for e in data["effector"] if e["name"] == "tip"]
+    tip_only.write_text(scene_toml(data))
+    summary["tendon_inverse"] = _command(["invert", str(tip_only), "--trajectory", str(trajectory_path), "--mode", "tick",
+                                          "--json", "--plot", str(out / "tendon_inverse.png")],
+                                         stdout_path=out / "tendon_inverse.json")
+    inverse = json.loads((out / "tendon_inverse.json").read_text())
+    errors = [step["effectors"]["tip"]["error"] for step in inverse["steps"]]
+    print(f"  {len(errors)} ticks, tip error median {1e3 * np.median(errors):.3f} mm, max {1e3 * max(errors):.3f} mm, "
+          f"median step {1e3 * inverse['timing']['median_step_s']:.3f} ms")
+    summary["cbha_inverse"] = _command(["invert", str(scene_path), "--json", "--plot", str(out / "cbha_inverse.png")],
+                                       stdout_path=out / "cbha_inverse.json")
+    reach = json.loads((out / "cbha_inverse.json").read_text())["steps"][-1]
+    print(f"  chamber pressures {', '.join(f'{k} {v / 1e5:.3f} bar' for k, v in reach['chambers'].items())}; "
+          f"tip error {1e3 * reach['effectors']['tip']['error']:.4f} mm")
+
+    summary["total_s"] = time.perf_counter() - started
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    print(f"\nDemo finished in {summary['total_s']:.0f} s; pictures and data in {out}/")
+    failed = {k: v for k, v in summary.items() if k != "total_s" and v != 0}
+    if failed:
+        print(f"stages with a non-zero exit code: {failed}", file=sys.stderr)
+        return 1
+    return 0
