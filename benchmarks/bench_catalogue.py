@@ -113,7 +113,6 @@ def main(argv=None) -> int:
         # 1. sequential add_entry into a fresh catalogue
         fresh = tmp / "fresh.h5"
         seq = [make_entry(i, seed=1) for i in range(args.sequential)]
-        _, t_add = timed(lambda: None)
         t_add = []
         for e in seq:
             t0 = time.perf_counter()

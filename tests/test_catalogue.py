@@ -7,7 +7,6 @@ so array comparisons here are exact, not toleranced.
 from __future__ import annotations
 
 import json
-import os
 import re
 import shutil
 from pathlib import Path
