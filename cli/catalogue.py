@@ -187,4 +187,10 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    return args._action(args)
+    try:
+        return args._action(args)
+    except BrokenPipeError:              # e.g. `vertebra catalogue ls FILE | head`: not an error
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
