@@ -87,6 +87,7 @@ def vertebra_properties(parameters: dict) -> dict:
         first += m * np.array([x, y, 0.0])
         inertia += _cylinder(m, r, t, x, y)
     com = first / mass if mass > 0 else np.zeros(3)
+    com[np.abs(com) < 1e-12 * p["radius"]] = 0.0          # round-off of symmetric hole patterns
     inertia_com = inertia - mass * (com @ com * np.eye(3) - np.outer(com, com))
     return {"parameters": p, "mass": mass, "center_of_mass": com.tolist(), "inertia": inertia_com.tolist(),
             "thickness": t, "holes": holes}

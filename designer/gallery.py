@@ -1,0 +1,150 @@
+"""Canonical designs reused by the example, the tests, the benchmarks and the demo (STYLE.md §8).
+
+``cbha_catalogue(path)``: a CBHA-like pneumatic trunk (after Festo's Compact Bionic
+Handling Assistant): two tapered sections of three chambers, eight vertebrae per
+section. Each section tapers linearly; each of its eight intervertebral slices is a
+``tapered_pneumatic`` entry with the radii of that slice (16 distinct entries). The
+chambers of a section run through its vertebrae, so one scene ``[[chamber]]`` per
+chamber spans the eight segments of its section (pressure 0–1.5 bar).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+from designer.segment import design_segment, entry_key
+from designer.vertebra import vertebra_properties
+
+#: geometry of the two sections (bottom -> top), SI units
+CBHA_SECTIONS = (
+    {"length": 0.24, "outer_radius": (0.045, 0.036), "chamber_radius": (0.011, 0.009),
+     "chamber_offset": (0.024, 0.019)},
+    {"length": 0.20, "outer_radius": (0.036, 0.026), "chamber_radius": (0.009, 0.0065),
+     "chamber_offset": (0.019, 0.0135)},
+)
+CBHA_MATERIAL = {"youngs_modulus": 0.5e6, "poisson_ratio": 0.45, "density": 1100.0}   # soft silicone
+CBHA_VERTEBRAE_PER_SECTION = 8
+CBHA_MAX_PRESSURE = 1.5e5          # 1.5 bar
+CBHA_VERTEBRA = {"thickness": 0.003, "density": 1150.0}                               # rigid polyamide ring
+
+
+def _lerp(pair, t):
+    return pair[0] + (pair[1] - pair[0]) * t
+
+
+def cbha_slices(coarse: bool = True) -> list[dict]:
+    """Parameters, mesh size and name of the 16 tapered slices (bottom to top)."""
+    out = []
+    n = CBHA_VERTEBRAE_PER_SECTION
+    for s, section in enumerate(CBHA_SECTIONS):
+        length = section["length"] / n
+        for k in range(n):
+            t0, t1 = k / n, (k + 1) / n
+            p = {"length": length, "chambers": 3, "chamber_angle": math.pi / 2, **CBHA_MATERIAL}
+            for name in ("outer_radius", "chamber_radius", "chamber_offset"):
+                p[f"bottom_{name}"] = round(_lerp(section[name], t0), 9)
+                p[f"top_{name}"] = round(_lerp(section[name], t1), 9)
+            r = min(p["bottom_chamber_radius"], p["top_chamber_radius"])
+            # coarse: ~1 element size of a chamber radius (P2 curved); fine: half of it
+            mesh_size = round((1.2 if coarse else 0.6) * r, 6)
+            out.append({"name": f"cbha-s{s + 1}-{k + 1}", "section": s, "slice": k,
+                        "parameters": p, "mesh_size": mesh_size})
+    return out
+
+
+def cbha_vertebra(section: int, slice_index: int) -> dict:
+    """A ring vertebra at the top of a slice: outer radius of the trunk there, holes = chambers."""
+    sec = CBHA_SECTIONS[section]
+    t = (slice_index + 1) / CBHA_VERTEBRAE_PER_SECTION
+    return vertebra_properties({"radius": _lerp(sec["outer_radius"], t), **CBHA_VERTEBRA, "holes": 3,
+                                "hole_radius": _lerp(sec["chamber_radius"], t),
+                                "hole_offset": _lerp(sec["chamber_offset"], t), "hole_angle": math.pi / 2})
+
+
+def cbha_scene(names: list[str], catalogue: str, pressures=None) -> dict:
+    """Scene dictionary (DESIGN.md §4) for the 16 entries ``names`` (bottom to top)."""
+    n = CBHA_VERTEBRAE_PER_SECTION
+    pressures = pressures or {}
+    segments = []
+    for i, name in enumerate(names):
+        v = cbha_vertebra(i // n, i % n)
+        segments.append({"type": "entry", "entry": name, "count": 1,
+                         "vertebra": {"mass": v["mass"], "center_of_mass": v["center_of_mass"]}})
+    chambers = []
+    for s in range(len(CBHA_SECTIONS)):
+        for c in range(3):
+            label = f"s{s + 1}c{c}"
+            chambers.append({"name": label, "cavity": c, "from": s * n + 1, "to": (s + 1) * n,
+                             "pressure": float(pressures.get(label, 0.0)), "min_pressure": 0.0,
+                             "max_pressure": CBHA_MAX_PRESSURE})
+    length = sum(sec["length"] for sec in CBHA_SECTIONS)
+    return {"name": "CBHA-like pneumatic trunk", "solver": {"tolerance": 1e-9, "max_iterations": 100},
+            "gravity": {"vector": [0.0, 0.0, -9.81]}, "catalogue": {"path": catalogue},
+            "segment": segments, "chamber": chambers,
+            "effector": [{"name": "tip", "vertebra": -1, "offset": [0.0, 0.0, 0.0],
+                          "target": [0.05, 0.0, 0.9 * length], "weight": 1.0}]}
+
+
+def cbha_catalogue(path, *, coarse: bool = True, estimate_accuracy: bool = True, progress=None,
+                   scene_catalogue: str | None = None, pressures=None) -> dict:
+    """Design the 16 CBHA slices into the catalogue at ``path`` (entries already there, by
+    content key, are reused) and return ``{"entries": [{name, key, section, slice, reused,
+    total_s}], "scene": scene dict}``. ``scene_catalogue`` is the catalogue path written in the
+    scene (default: ``path`` as given); ``pressures`` maps chamber names (``s1c0`` …) to Pa."""
+    from store import catalogue
+
+    rows, new = [], []
+    for item in cbha_slices(coarse):
+        key = entry_key("tapered_pneumatic", item["parameters"], mesh_size=item["mesh_size"], order=2)
+        row = {k: item[k] for k in ("name", "section", "slice")} | {"key": key}
+        start = time.perf_counter()
+        if catalogue.has_entry(path, key):
+            row["reused"] = True
+        else:
+            if progress:
+                progress(f"designing {item['name']} (h = {item['mesh_size']} m)")
+            entry = design_segment("tapered_pneumatic", item["parameters"], mesh_size=item["mesh_size"], order=2,
+                                   name=item["name"], estimate_accuracy=estimate_accuracy)
+            new.append(entry)
+            row["reused"] = False
+            row["dofs"] = entry.mesh["dofs"]
+            row["accuracy"] = entry.accuracy.get("relative_change")
+        row["total_s"] = time.perf_counter() - start
+        rows.append(row)
+    if new:
+        catalogue.add_entries(path, new)
+    scene = cbha_scene([r["key"] for r in rows], str(path) if scene_catalogue is None else scene_catalogue,
+                       pressures)
+    return {"entries": rows, "scene": scene}
+
+
+# --------------------------------------------------------------------------- TOML
+def _toml_value(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, float)):
+        return repr(float(value)) if isinstance(value, float) else str(value)
+    if isinstance(value, str):
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{ " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in value.items()) + " }"
+    raise TypeError(f"cannot write {type(value).__name__} to TOML")
+
+
+def scene_to_toml(scene: dict, header: str = "") -> str:
+    """A scene dictionary as TOML: scalars first, then tables, then arrays of tables
+    (nested dicts inside an array-of-tables element become inline tables)."""
+    lines = [f"# {line}" for line in header.splitlines()]
+    scalars = {k: v for k, v in scene.items() if not isinstance(v, (dict, list))}
+    lines += [f"{k} = {_toml_value(v)}" for k, v in scalars.items()]
+    for k, v in scene.items():
+        if isinstance(v, dict):
+            lines += ["", f"[{k}]"] + [f"{kk} = {_toml_value(vv)}" for kk, vv in v.items()]
+    for k, v in scene.items():
+        if isinstance(v, list) and v and isinstance(v[0], dict):
+            for item in v:
+                lines += ["", f"[[{k}]]"] + [f"{kk} = {_toml_value(vv)}" for kk, vv in item.items()]
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,67 @@
+"""The CBHA-like gallery trunk: entries into a catalogue, reuse by key, a scene the runtime
+solver accepts, and the physics of a pressurised chamber."""
+
+from __future__ import annotations
+
+import tomllib
+
+import numpy as np
+import pytest
+
+from designer.gallery import CBHA_MAX_PRESSURE, cbha_catalogue, cbha_slices, scene_to_toml
+
+
+def test_cbha_slices_taper_and_are_valid():
+    slices = cbha_slices(coarse=True)
+    assert len(slices) == 16 and len({s["name"] for s in slices}) == 16
+    import designer
+    for s in slices:
+        designer.canonical_parameters("tapered_pneumatic", s["parameters"])     # no GeometryError
+    # continuous taper: each slice starts where the previous one ended (within a section)
+    for a, b in zip(slices, slices[1:]):
+        if a["section"] == b["section"]:
+            assert a["parameters"]["top_outer_radius"] == pytest.approx(b["parameters"]["bottom_outer_radius"])
+
+
+@pytest.fixture(scope="module")
+def cbha(tmp_path_factory):
+    path = tmp_path_factory.mktemp("cbha") / "catalogue.h5"
+    # coarse and without accuracy estimates to fit the test budget (the example keeps them)
+    return path, cbha_catalogue(path, coarse=True, estimate_accuracy=False)
+
+
+def test_cbha_catalogue_entries_and_reuse(cbha):
+    path, result = cbha
+    keys = [row["key"] for row in result["entries"]]
+    assert len(set(keys)) == 16 and not any(row["reused"] for row in result["entries"])
+    again = cbha_catalogue(path, coarse=True, estimate_accuracy=False)
+    assert [row["key"] for row in again["entries"]] == keys and all(row["reused"] for row in again["entries"])
+    from store import catalogue
+    with catalogue.open_catalogue(path) as cat:
+        entries = [cat.load(k) for k in keys]
+    # thinner slices higher up: the bending compliance grows along each section
+    bending = [e.C[3, 3] for e in entries]
+    assert all(b1 > b0 for b0, b1 in zip(bending[:8], bending[1:8]))
+    assert all(b1 > b0 for b0, b1 in zip(bending[8:], bending[9:]))
+
+
+def test_cbha_scene_solves_and_bends_away_from_the_pressurised_chamber(cbha, tmp_path):
+    solver = pytest.importorskip("solver")
+    path, result = cbha
+    scene = dict(result["scene"])
+    text = scene_to_toml(scene)
+    assert tomllib.loads(text)["chamber"][0]["max_pressure"] == CBHA_MAX_PRESSURE       # TOML round trip
+    (tmp_path / "cbha.toml").write_text(text)
+    model = solver.build_model(solver.load_scene(tmp_path / "cbha.toml"))
+    assert model.n_chambers == 6
+    rest = model.effector_positions(model.rest_state)[0]
+    pressures = np.zeros(6)
+    pressures[0] = CBHA_MAX_PRESSURE                          # section 1, chamber 0 (at +y)
+    loaded = model.solve(pressures)
+    assert loaded.converged
+    tip = model.effector_positions(loaded.state)[0]
+    # the pressurised side lengthens: the trunk bends towards −y, by more than 1 % of its length
+    assert tip[1] < rest[1] - 0.01 * 0.44
+    # the pressurised chamber grows, its volume growth is positive
+    growth = model.actuator_displacements(loaded.state, pressures)
+    assert growth[0] > 0
