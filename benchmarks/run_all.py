@@ -1,0 +1,35 @@
+"""Run every benchmark script (``benchmarks/bench_*.py``) in turn; each prints its tables and
+saves them under ``benchmarks/results/``. Usage: ``make bench`` or
+``python benchmarks/run_all.py [NAME ...]`` (e.g. ``solver inverse``)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).parent
+
+
+def main(argv: list[str]) -> int:
+    scripts = sorted(HERE.glob("bench_*.py"))
+    if argv:
+        scripts = [s for s in scripts if s.stem.removeprefix("bench_") in argv]
+    env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1", MPLBACKEND="Agg")
+    failed = []
+    for script in scripts:
+        print(f"\n### {script.name}", flush=True)
+        start = time.perf_counter()
+        code = subprocess.call([sys.executable, str(script)], env=env, cwd=HERE.parent)
+        print(f"### {script.name}: exit {code} after {time.perf_counter() - start:.0f} s", flush=True)
+        if code:
+            failed.append(script.name)
+    if failed:
+        print(f"failed: {', '.join(failed)}", file=sys.stderr)
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
