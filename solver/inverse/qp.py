@@ -483,7 +483,7 @@ class QpsolversBackend:
 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            sol = qpsolvers.solve_problem(problem, solver=self.solver, initvals=start,
+            sol = qpsolvers.solve_problem(problem, solver=self.solver, initvals=start, verbose=False,
                                           **_QPSOLVERS_SETTINGS.get(self.solver, {}))
         ok = bool(sol.found) and sol.x is not None
         lam = np.clip(np.asarray(sol.x, dtype=float), qp.lower, qp.upper) if ok else start.copy()
