@@ -4,6 +4,7 @@
 ``controller`` drives a ``solver.TrunkModel`` (linearise → W → QP → step).
 """
 
+from solver.inverse.controller import InverseController, InverseSettings, InverseStep, invert
 from solver.inverse.qp import (
     BACKENDS,
     DEFAULT_BACKEND,
@@ -19,6 +20,10 @@ from solver.inverse.qp import (
 )
 
 __all__ = [
+    "InverseController",
+    "InverseSettings",
+    "InverseStep",
+    "invert",
     "BACKENDS",
     "DEFAULT_BACKEND",
     "DEFAULT_REGULARISATION",

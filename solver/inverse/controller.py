@@ -37,7 +37,7 @@ from solver.inverse.qp import (
 )
 from store.errors import ConvergenceError
 
-__all__ = ["InverseSettings", "InverseStep", "InverseController", "constraint_problem", "MODES"]
+__all__ = ["InverseSettings", "InverseStep", "InverseController", "constraint_problem", "invert", "MODES"]
 
 
 @dataclass(frozen=True)
@@ -288,3 +288,11 @@ class InverseController:
 
 
 MODES = {"converged": InverseController.converge, "tick": InverseController.tick}
+
+
+def invert(model, targets=None, *, actuation=None, state=None, **settings) -> InverseStep:
+    """One inverse solve on ``model`` (converged mode unless ``mode="tick"``): the
+    actuation bringing the effectors to ``targets`` (default: the scene's targets).
+    ``settings`` are :class:`InverseSettings` fields."""
+    controller = InverseController(model, InverseSettings(**settings), actuation=actuation, state=state)
+    return controller.step(model.effector_targets if targets is None else targets)
