@@ -79,6 +79,8 @@ def rod_spec(entries: int, mesh_size: float, order: int):
 
 
 def real_rows(entries: int, mesh_size: float, order: int) -> list[dict]:
+    from store import catalogue as catalogue_module
+
     spec = rod_spec(entries, mesh_size, order)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -87,17 +89,22 @@ def real_rows(entries: int, mesh_size: float, order: int) -> list[dict]:
             load_before = os.getloadavg()[0]
             report = run_sweep(spec, catalogue, executor=executor, workers=workers, progress=False)
             busy = sum(o.seconds for o in report.completed)
+            with catalogue_module.open_catalogue(catalogue) as cat:
+                dofs = [cat.load(o.key).mesh.get("dofs", 0) for o in report.completed]
             rows.append({
+                "mesh_size": mesh_size, "order": order, "dofs_mean": sum(dofs) / max(1, len(dofs)),
                 "executor": executor, "workers": workers, "entries": len(report.completed),
                 "failed": len(report.failures), "wall_s": report.elapsed_s,
                 "entries_per_minute": report.entries_per_minute,
                 "mean_task_s": busy / max(1, len(report.completed)),
+                "mean_task_cpu_s": sum(o.cpu_seconds for o in report.completed) / max(1, len(report.completed)),
                 "efficiency": busy / (workers * report.elapsed_s),
                 "load_before": load_before, "load_after": os.getloadavg()[0],
                 "keys": [o.key for o in report.completed],
             })
-            print(f"  real  {executor:5s} x{workers}: {rows[-1]['entries']} entries in {report.elapsed_s:6.1f} s "
-                  f"= {rows[-1]['entries_per_minute'] or 0:6.2f}/min, mean task {rows[-1]['mean_task_s']:.2f} s, "
+            print(f"  real  h={mesh_size} {executor:5s} x{workers}: {rows[-1]['entries']} entries in {report.elapsed_s:6.1f} s "
+                  f"= {rows[-1]['entries_per_minute'] or 0:6.2f}/min, mean task {rows[-1]['mean_task_s']:.2f} s "
+                  f"(cpu {rows[-1]['mean_task_cpu_s']:.2f} s), "
                   f"efficiency {rows[-1]['efficiency']:.2f}, load {load_before:.1f}", file=sys.stderr)
     reference = rows[0]["keys"]
     for row in rows:
@@ -136,17 +143,22 @@ def markdown(result: dict) -> str:
         "# Sweep throughput (benchmarks/bench_sweep.py)", "",
         f"{result['date']}, {result['host']}, {result['cpus']} CPUs shared with other work "
         f"(load average at start {result['load_start']:.2f}); Python {result['python']}.", "",
-        f"## Real coarse rod entries ({result['real']['entries']} rods, mesh_size {result['real']['mesh_size']} m, "
-        f"order {result['real']['order']}, no accuracy estimate, fresh HDF5 catalogue each)", "",
-        "| executor | workers | entries | wall s | entries/min | mean task s | efficiency | load before | same keys |",
-        "|---|---|---|---|---|---|---|---|---|",
+        f"## Real coarse rod entries ({result['real']['entries']} rods of radius 4-7.5 mm, length 20 mm, "
+        f"P{result['real']['order']}, no accuracy estimate, a fresh HDF5 catalogue for each row)", "",
+        "| mesh size m | DoFs (mean) | executor | workers | entries | wall s | entries/min | mean task s "
+        "| mean task CPU s | efficiency | load before | same keys |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in result["real"]["rows"]:
-        lines.append(f"| {r['executor']} | {r['workers']} | {r['entries']} | {r['wall_s']:.1f} | "
-                     f"{(r['entries_per_minute'] or 0):.2f} | {r['mean_task_s']:.2f} | {r['efficiency']:.2f} | "
+        lines.append(f"| {r['mesh_size']} | {r['dofs_mean'] or 0:.0f} | {r['executor']} | {r['workers']} | "
+                     f"{r['entries']} | {r['wall_s']:.1f} | "
+                     f"{(r['entries_per_minute'] or 0):.2f} | {r['mean_task_s']:.2f} | {r['mean_task_cpu_s']:.2f} | "
+                     f"{r['efficiency']:.2f} | "
                      f"{r['load_before']:.1f} | {r['same_keys_as_local_1']} |")
     lines += ["", "Wall time includes starting the pool or the dask LocalCluster. Efficiency = sum of worker "
-              "task seconds / (workers x wall).", "",
+              "task seconds / (workers x wall). Mean task s is the wall time a worker spent per entry, mean task "
+              "CPU s the CPU time its process got meanwhile: when they differ, the worker waited for a core "
+              "(the 2 cores are shared with other jobs; the load average is the 1-minute one before each row).", "",
               f"## Executor overhead (no-op job, {result['overhead'][0]['tasks']} tasks)", "",
               "| executor | workers | start s | first result s | per task ms | shutdown s |",
               "|---|---|---|---|---|---|"]
@@ -161,8 +173,8 @@ def markdown(result: dict) -> str:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--entries", type=int, default=6)
-    parser.add_argument("--mesh-size", type=float, default=0.004)
+    parser.add_argument("--entries", type=int, default=8)
+    parser.add_argument("--mesh-size", type=float, nargs="+", default=[0.004, 0.0015])
     parser.add_argument("--order", type=int, default=2)
     parser.add_argument("--noop-tasks", type=int, default=200)
     args = parser.parse_args(argv)
@@ -172,8 +184,8 @@ def main(argv=None) -> int:
     print("executor overhead (no-op job):", file=sys.stderr)
     result["overhead"] = overhead_rows(args.noop_tasks)
     print("real coarse rod entries:", file=sys.stderr)
-    result["real"] = {"entries": args.entries, "mesh_size": args.mesh_size, "order": args.order,
-                      "rows": real_rows(args.entries, args.mesh_size, args.order)}
+    result["real"] = {"entries": args.entries, "mesh_sizes": args.mesh_size, "order": args.order,
+                      "rows": [row for h in args.mesh_size for row in real_rows(args.entries, h, args.order)]}
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / "sweep.json").write_text(json.dumps(result, indent=1) + "\n")
     text = markdown(result)

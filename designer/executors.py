@@ -193,8 +193,10 @@ class LocalExecutor:
         pin_threads()
         return self
 
-    def __exit__(self, *exc_info):
-        self._shutdown()
+    def __exit__(self, exc_type, *exc_info):
+        # On an error (Ctrl-C) stop the workers at once instead of waiting for
+        # their tasks: the store guarantees a killed writer loses only its own entry.
+        self._shutdown(terminate=exc_type is not None)
         for variable, value in self._saved_environment.items():
             if value is None:
                 os.environ.pop(variable, None)
@@ -211,10 +213,16 @@ class LocalExecutor:
                                          initializer=pin_threads)
         return self._pool
 
-    def _shutdown(self):
-        if self._pool is not None:
-            self._pool.shutdown(wait=True, cancel_futures=True)
-            self._pool = None
+    def _shutdown(self, terminate: bool = False):
+        if self._pool is None:
+            return
+        if terminate:
+            # ProcessPoolExecutor has no public "terminate": its worker processes
+            # are in ``_processes`` (CPython 3.8-3.13).
+            for process in list((getattr(self._pool, "_processes", None) or {}).values()):
+                process.terminate()
+        self._pool.shutdown(wait=not terminate, cancel_futures=True)
+        self._pool = None
 
     def map_unordered(self, function, items):
         from concurrent.futures import FIRST_COMPLETED, wait

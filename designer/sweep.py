@@ -380,7 +380,8 @@ class TaskOutcome:
     ok: bool
     name: str | None = None
     compliance: list | None = None     # the entry's full compliance, nested lists
-    seconds: float = 0.0
+    seconds: float = 0.0               # wall time in the worker, design + store
+    cpu_seconds: float = 0.0           # CPU time of the worker process meanwhile (contention = seconds - cpu)
     stage: str | None = None           # where it failed: "design" | "store"
     error_type: str | None = None
     message: str | None = None
@@ -399,7 +400,7 @@ def execute_task(job: Callable, store: Callable, catalogue: str, task: Task) -> 
     Only ``job`` and ``store`` travel to the workers (pickled), not the whole backend.
     """
     pin_threads()
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), time.process_time()
     common = {"index": task.index, "worker": worker_info()}
     try:
         entry = job(task)
@@ -415,6 +416,7 @@ def execute_task(job: Callable, store: Callable, catalogue: str, task: Task) -> 
                            message=str(error) or repr(error), traceback=_short_traceback(), **common)
     compliance = entry.compliance.tolist()
     seconds = time.perf_counter() - start
+    common["cpu_seconds"] = time.process_time() - cpu_start
     if task.key is not None and key != task.key:
         # The entry landed, but under another key than entry_key predicted:
         # resuming could never skip it. That is a bug worth an exit code 1.
@@ -553,9 +555,13 @@ class SweepReport:
     dry_run: bool = False
     failure_log: str | None = None
     todo: tuple = ()                  # the tasks that were (or, for a dry run, would be) run
+    interrupted: bool = False         # stopped by Ctrl-C before every task had run
 
     @property
     def exit_code(self) -> int:
+        """0 all done; 1 some task failed; 130 interrupted (like a shell's Ctrl-C)."""
+        if self.interrupted:
+            return 130
         return 1 if self.failures else 0
 
     @property
@@ -594,7 +600,7 @@ class SweepReport:
             "catalogue": self.catalogue, "executor": self.executor, "dry_run": self.dry_run,
             "tasks": len(self.tasks), "completed": len(self.completed), "skipped": len(self.skipped),
             "duplicates": len(self.duplicates), "failed": len(self.failures),
-            "planned": len(self.todo) if self.dry_run else None,
+            "planned": len(self.todo) if self.dry_run else None, "interrupted": self.interrupted,
             "entries": self.status(),
             "failures": [{"index": f.index, "key": f.key, "parameters": f.parameters, "stage": f.stage,
                           "error_type": f.error_type, "message": f.message} for f in self.failures],
@@ -608,6 +614,9 @@ class SweepReport:
                  + (f"{len(self.todo)} to run, " if self.dry_run else f"{len(self.completed)} done, ")
                  + f"{len(self.skipped)} already in {self.catalogue}, {len(self.duplicates)} duplicates, "
                  f"{len(self.failures)} failed"]
+        if self.interrupted:
+            not_run = sum(1 for row in self.status() if row.get("status") == "not run")
+            lines.append(f"  interrupted: {not_run} tasks not run; run the same command again to resume")
         if self.entries_per_minute is not None:
             lines.append(f"  {self.elapsed_s:.1f} s, {self.entries_per_minute:.2f} entries/min "
                          f"({self.executor.get('name')}, {self.executor.get('workers')} workers)")
@@ -648,6 +657,7 @@ def run_sweep(spec: SweepSpec | str | os.PathLike, catalogue, *, executor: str =
     log_path = failure_log_path(catalogue)
     failures = list(plan.invalid)
     completed = []
+    interrupted = False
     pool = make_executor(executor, workers=workers, scheduler=scheduler, start_method=start_method)
     if dry_run:
         return SweepReport(spec, catalogue, pool.describe(), plan.tasks, (), plan.skipped, plan.duplicates,
@@ -672,10 +682,14 @@ def run_sweep(spec: SweepSpec | str | os.PathLike, catalogue, *, executor: str =
                         append_failures(log_path, [failure.record(spec, catalogue)])
                         bar.set_postfix(failed=len(failures) - len(plan.invalid), refresh=False)
                     bar.update(1)
+        except KeyboardInterrupt:
+            # Ctrl-C: the executor has stopped its workers (a killed writer loses only
+            # its own unfinished entry); what landed stays, a re-run resumes.
+            interrupted = True
         finally:
             bar.close()
     description = pool.describe()
     return SweepReport(spec, catalogue, description, plan.tasks, tuple(sorted(completed, key=lambda o: o.index)),
                        plan.skipped, plan.duplicates, tuple(sorted(failures, key=lambda f: f.index)),
                        time.perf_counter() - start, failure_log=str(log_path) if failures else None,
-                       todo=plan.todo)
+                       todo=plan.todo, interrupted=interrupted)

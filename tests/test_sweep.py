@@ -351,3 +351,22 @@ def test_workers_fill_the_real_hdf5_catalogue_and_resume_skips(tmp_path):
     CALLS.clear()
     again = run_sweep(spec, path, executor="serial", backend=backend, progress=False)
     assert CALLS == [] and len(again.skipped) == 6 and again.exit_code == 0
+
+
+def interrupting_job(task):
+    if task.index == 2:
+        raise KeyboardInterrupt
+    return fake_job(task)
+
+
+def test_ctrl_c_keeps_what_landed_and_a_rerun_resumes(tmp_path):
+    catalogue = tmp_path / "cat.jsonl"
+    spec = parse_spec(spec_dict(grid={"radius": [0.01, 0.02, 0.03, 0.04], "length": [0.04]}))
+    interrupted = run_sweep(spec, catalogue, executor="serial", progress=False,
+                            backend=SweepBackend(**{**FAKE.__dict__, "job": interrupting_job}))
+    assert interrupted.interrupted and interrupted.exit_code == 130
+    assert [o.index for o in interrupted.completed] == [0, 1]
+    assert [row["status"] for row in interrupted.status()] == ["done", "done", "not run", "not run"]
+    CALLS.clear()
+    resumed = run_fake(spec, catalogue)
+    assert sorted(CALLS) == [2, 3] and len(resumed.skipped) == 2 and resumed.exit_code == 0
