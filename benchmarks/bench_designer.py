@@ -1,0 +1,182 @@
+"""Designer benchmark: cost and accuracy of condensing a segment, per mesh size and element order.
+
+For a rod (R = 10 mm, L = 40 mm, E = 1 MPa, ν = 0.3 — the FIELD-NOTES cylinder) and one
+pneumatic segment (3 chambers, ν = 0.45): DoFs, mesh / assemble / solve seconds and the
+compliance error against the finest mesh (scale-free: max |ΔC_ij| / sqrt(C_ii C_jj)); the
+rod rows also give the axial and lateral compliance over the closed forms. Then direct vs
+AMG solve time (the ``auto`` threshold) and the time to condense a ~50,000-DoF segment
+(acceptance: ≤ 10 s). Prints a table, writes benchmarks/results/designer.json and .md.
+
+    OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 python benchmarks/bench_designer.py [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import socket
+import sys
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_name, "1")
+
+import numpy as np  # noqa: E402
+
+from designer.linsolve import AUTO_THRESHOLD  # noqa: E402
+from designer.segment import compliance_change, design_segment, solve_segment  # noqa: E402
+from designer.threads import pin_blas_threads  # noqa: E402
+
+RESULTS = Path(__file__).resolve().parent / "results"
+E, NU = 1.0e6, 0.3
+ROD = dict(radius=0.01, length=0.04, youngs_modulus=E, poisson_ratio=NU)
+PNEUMATIC = dict(outer_radius=0.02, chamber_radius=0.005, chamber_offset=0.011, length=0.02,
+                 youngs_modulus=E, poisson_ratio=0.45, density=1100.0)
+
+
+def rod_closed_forms():
+    R, L = ROD["radius"], ROD["length"]
+    A, I, G = math.pi * R ** 2, math.pi * R ** 4 / 4, E / (2 * (1 + NU))
+    kappa = 6 * (1 + NU) / (7 + 6 * NU)
+    return {"axial": L / (E * A), "lateral": L ** 3 / (3 * E * I) + L / (kappa * G * A)}
+
+
+def run_case(family, parameters, h, order, linear_solver="auto"):
+    C, fe, mesh, cond, t = solve_segment(family, parameters, mesh_size=h, order=order, linear_solver=linear_solver)
+    row = {"family": family, "order": order, "mesh_size": h, "dofs": int(fe.n_dofs),
+           "interior_dofs": int(cond.info["interior_dofs"]), "solver": cond.info["solver"],
+           "mesh_s": t["mesh_s"], "assemble_s": t["assemble_s"], "solve_s": t["solve_s"], "total_s": t["total_s"]}
+    if "iterations" in cond.info:
+        row["pcg_iterations"] = max(cond.info["iterations"])
+    return row, C
+
+
+def mesh_study(family, parameters, sizes, reference, log):
+    log(f"{family}: reference P{reference[1]} h = {reference[0]}")
+    ref_row, C_ref = run_case(family, parameters, reference[0], reference[1])
+    ref_row["reference"] = True
+    rows = [ref_row]
+    for order, hs in sizes.items():
+        for h in hs:
+            row, C = run_case(family, parameters, h, order)
+            row["error"] = compliance_change(C_ref, C)
+            if family == "rod":
+                forms = rod_closed_forms()
+                row["axial_over_closed_form"] = C[2, 2] / forms["axial"]
+                row["lateral_over_timoshenko"] = C[0, 0] / forms["lateral"]
+            rows.append(row)
+            log(f"  P{order} h={h:<7} dofs={row['dofs']:>6} err={row['error']:.2e} total={row['total_s']:.2f}s")
+    ref_row["error"] = 0.0
+    if family == "rod":
+        forms = rod_closed_forms()
+        ref_row["axial_over_closed_form"] = C_ref[2, 2] / forms["axial"]
+        ref_row["lateral_over_timoshenko"] = C_ref[0, 0] / forms["lateral"]
+    return rows
+
+
+def crossover(sizes, log):
+    rows = []
+    for order, h in sizes:
+        for solver in ("direct", "amg"):
+            row, _ = run_case("rod", ROD, h, order, linear_solver=solver)
+            rows.append(row)
+            log(f"  P{order} h={h} {solver:6} interior={row['interior_dofs']:>6} solve={row['solve_s']:.2f}s")
+    return rows
+
+
+def markdown(result) -> str:
+    out = [f"# Designer benchmark ({result['date']}, {result['host']})", "",
+           f"Python {result['python']}, one BLAS thread; machine shared (load average at start "
+           f"{result['load_average']}). Error = scale-free compliance difference to the reference "
+           "(finest) mesh, max |ΔC_ij| / sqrt(C_ii C_jj).", ""]
+    for title, key in (("Rod R = 10 mm, L = 40 mm, E = 1 MPa, ν = 0.3", "rod"),
+                       ("Pneumatic segment, 3 chambers, ν = 0.45", "pneumatic")):
+        out += [f"## {title}", "",
+                "| order | h (mm) | DoFs | solver | mesh s | assemble s | solve s | total s | error |"
+                + (" axial / L/EA | lateral / Timoshenko |" if key == "rod" else ""),
+                "|---|---|---|---|---|---|---|---|---|" + ("---|---|" if key == "rod" else "")]
+        for r in result[key]:
+            line = (f"| P{r['order']}{' (ref)' if r.get('reference') else ''} | {1000 * r['mesh_size']:.3g} | "
+                    f"{r['dofs']} | {r['solver']} | {r['mesh_s']:.2f} | {r['assemble_s']:.2f} | {r['solve_s']:.2f} | "
+                    f"{r['total_s']:.2f} | {r['error']:.2e} |")
+            if key == "rod":
+                line += f" {r['axial_over_closed_form']:.4f} | {r['lateral_over_timoshenko']:.4f} |"
+            out.append(line)
+        out.append("")
+    out += ["## Direct (SuperLU) vs AMG-PCG solve time", "",
+            f"`auto` switches to AMG at {AUTO_THRESHOLD} interior unknowns.", "",
+            "| order | h (mm) | interior DoFs | direct solve s | AMG solve s | PCG iterations |", "|---|---|---|---|---|---|"]
+    cross = result["crossover"]
+    for d, a in zip(cross[::2], cross[1::2]):
+        out.append(f"| P{d['order']} | {1000 * d['mesh_size']:.3g} | {d['interior_dofs']} | {d['solve_s']:.2f} | "
+                   f"{a['solve_s']:.2f} | {a.get('pcg_iterations', '-')} |")
+    big = result["large"]
+    out += ["", "## Condensing a ~50,000-DoF segment (acceptance ≤ 10 s)", "",
+            f"P{big['order']} rod, h = {1000 * big['mesh_size']:.3g} mm: {big['dofs']} DoFs, solver {big['solver']} "
+            f"({big.get('pcg_iterations', '-')} PCG iterations per load case): mesh {big['mesh_s']:.2f} s, "
+            f"assemble {big['assemble_s']:.2f} s, solve {big['solve_s']:.2f} s, **total {big['total_s']:.2f} s** "
+            f"— {'PASS' if big['total_s'] <= 10 else 'FAIL'}.", ""]
+    acc = result["accuracy_cost"]
+    out += ["## Cost of the per-entry accuracy estimate", "",
+            f"Default pneumatic segment (P2, default mesh size): design without estimate {acc['without_s']:.2f} s, "
+            f"with estimate (second solve on h/1.5) {acc['with_s']:.2f} s; estimated relative change "
+            f"{acc['relative_change']:.3g}.", ""]
+    return "\n".join(out)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="fewer, coarser meshes (smoke run)")
+    args = parser.parse_args(argv)
+    pin_blas_threads(1)
+
+    def log(message):
+        print(message, file=sys.stderr, flush=True)
+
+    start = time.perf_counter()
+    if args.quick:
+        rod_sizes = {1: [0.01, 0.005], 2: [0.01, 0.005]}
+        rod_ref, pn_ref = (0.0035, 2), (0.004, 2)
+        pn_sizes = {1: [0.006], 2: [0.006]}
+        cross_sizes, large_h = [(2, 0.005)], 0.004
+    else:
+        rod_sizes = {1: [0.01, 0.007, 0.005, 0.0035, 0.0025, 0.00177], 2: [0.01, 0.007, 0.005, 0.0035, 0.0025]}
+        rod_ref = (0.0019, 2)
+        pn_sizes = {1: [0.006, 0.004, 0.003, 0.002], 2: [0.008, 0.006, 0.004, 0.003]}
+        pn_ref = (0.0022, 2)
+        cross_sizes = [(1, 0.0025), (1, 0.0016), (2, 0.005), (2, 0.0035), (2, 0.0028)]
+        large_h = 0.0019
+    result = {"date": datetime.now(timezone.utc).replace(microsecond=0).isoformat(), "host": socket.gethostname(),
+              "python": platform.python_version(), "load_average": [round(x, 2) for x in os.getloadavg()],
+              "rod_parameters": ROD, "pneumatic_parameters": PNEUMATIC}
+    result["rod"] = mesh_study("rod", ROD, rod_sizes, rod_ref, log)
+    result["pneumatic"] = mesh_study("pneumatic", PNEUMATIC, pn_sizes, pn_ref, log)
+    log("direct vs AMG")
+    result["crossover"] = crossover(cross_sizes, log)
+    log(f"large segment: P2 rod h = {large_h}")
+    result["large"], _ = run_case("rod", ROD, large_h, 2)
+    t0 = time.perf_counter()
+    design_segment("pneumatic", PNEUMATIC, estimate_accuracy=False)
+    without = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    entry = design_segment("pneumatic", PNEUMATIC, estimate_accuracy=True)
+    result["accuracy_cost"] = {"without_s": without, "with_s": time.perf_counter() - t0,
+                               "relative_change": entry.accuracy["relative_change"]}
+    result["benchmark_s"] = time.perf_counter() - start
+    text = markdown(result)
+    print(text)
+    if not args.quick:
+        RESULTS.mkdir(parents=True, exist_ok=True)
+        (RESULTS / "designer.json").write_text(json.dumps(result, indent=1, default=float) + "\n")
+        (RESULTS / "designer.md").write_text(text)
+        log(f"written {RESULTS / 'designer.json'} and designer.md")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
