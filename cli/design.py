@@ -103,8 +103,9 @@ def run(args) -> int:
         stored = catalogue.add_entry(args.catalogue, entry)
         _log(f"added {entry.name!r} (key {stored}) to {args.catalogue} in {time.perf_counter() - start:.2f} s")
     if args.export_mesh:
-        export_mesh(family, parameters, args.export_mesh, mesh_size=args.mesh_size, order=args.order)
-        _log(f"mesh written to {args.export_mesh}")
+        legend = export_mesh(family, parameters, args.export_mesh, mesh_size=args.mesh_size, order=args.order)
+        _log(f"mesh written to {args.export_mesh} (cell data 'group': "
+             + ", ".join(f"{k}={v}" for k, v in legend.items()) + ")")
     document = entry_document(entry)
     if args.json:
         _print_json(document)

@@ -19,11 +19,14 @@ import numpy as np
 
 from store.errors import ConvergenceError, VertebraError
 
-AUTO_THRESHOLD = 20_000     # interior unknowns; measured crossover in benchmarks/results/designer.md
+AUTO_THRESHOLD = 12_000     # interior unknowns; measured crossover ~14k (P2 rod), direct 7.8 s at 20k (pneumatic): benchmarks/results/designer.md
 AMG_RTOL = 1e-9             # relative residual of each PCG solve
 #: polynomial smoothing: ~2.4× faster than pyamg's default block Gauss–Seidel on a 45k-DoF P2
 #: rod here (same iteration count), and symmetric, as PCG requires
 AMG_SMOOTHER = ("chebyshev", {"degree": 3})
+#: strength threshold: 0.1 (pyamg's default 0) coarsens less aggressively — 3 levels instead of 2,
+#: 30 instead of 46 PCG iterations and ~40 % less time on a 45k-unknown P2 pneumatic, ν = 0.45
+AMG_STRENGTH = ("symmetric", {"theta": 0.1})
 
 
 class LinearSolver(Protocol):
@@ -67,7 +70,7 @@ class AMG:
             raise VertebraError(f"AMG needs 3×3 nodal blocks, got {A.shape[0]} unknowns")
         ml = pyamg.smoothed_aggregation_solver(A.tobsr(blocksize=(3, 3)), B=modes, coarse_solver="splu",
                                                max_coarse=500, presmoother=AMG_SMOOTHER,
-                                               postsmoother=AMG_SMOOTHER)
+                                               postsmoother=AMG_SMOOTHER, strength=AMG_STRENGTH)
         M = ml.aspreconditioner()
         B = np.asarray(B, dtype=float)
         X = np.zeros_like(B)

@@ -200,8 +200,11 @@ def entry_document(entry: SegmentEntry) -> dict:
             "timing": {k: float(entry.timings.get(k, 0.0)) for k in ("mesh_s", "assemble_s", "solve_s", "total_s")}}
 
 
-def export_mesh(family, parameters: dict, path: str, *, mesh_size=None, order: int = 2) -> None:
-    """Write the segment mesh with its physical groups to a file meshio can write (e.g. .vtu)."""
+def export_mesh(family, parameters: dict, path: str, *, mesh_size=None, order: int = 2) -> dict:
+    """Write the segment mesh to a file meshio can write (e.g. .vtu): the tetrahedra (cell
+    data ``group`` = 0) and the boundary triangles of every physical group (``group`` = 1, 2, …).
+    Returns the legend ``{group name: id}``. gmsh meshes deterministically (fixed seed and
+    options), so this is the mesh ``design_segment`` used for the same settings."""
     import meshio
 
     from designer.geometry import mesh_segment
@@ -209,6 +212,12 @@ def export_mesh(family, parameters: dict, path: str, *, mesh_size=None, order: i
     fam = family_of(family)
     p = canonical_parameters(fam, parameters)
     data = mesh_segment(fam, p, resolve_mesh_size(fam, p, mesh_size), order)
-    cell = "tetra10" if order == 2 else "tetra"
-    tets = data.tets  # scikit-fem and VTK share the tetra10 node order
-    meshio.write(path, meshio.Mesh(data.nodes, [(cell, tets)]))
+    legend = {"volume": 0} | {name: i + 1 for i, name in enumerate(sorted(data.facets))}
+    # scikit-fem, VTK and meshio share the tetra10 node order; triangle6 too (corners, then edges)
+    cells = [("tetra10" if order == 2 else "tetra", data.tets)]
+    groups = [np.zeros(len(data.tets), dtype=np.int32)]
+    for name in sorted(data.facets):
+        cells.append(("triangle6" if order == 2 else "triangle", data.facets[name]))
+        groups.append(np.full(len(data.facets[name]), legend[name], dtype=np.int32))
+    meshio.write(path, meshio.Mesh(data.nodes, cells, cell_data={"group": groups}))
+    return legend

@@ -26,8 +26,8 @@ def pin_blas_threads(threads: int = 1) -> int:
     pinned = 0
     try:
         with open("/proc/self/maps") as maps:
-            paths = {line.split()[-1] for line in maps if "openblas" in line.lower() and line.strip().endswith(".so")
-                     or "openblas" in line.lower() and ".so" in line.split()[-1]}
+            fields = [line.split() for line in maps]
+        paths = {f[-1] for f in fields if len(f) >= 6 and "openblas" in f[-1].lower() and ".so" in f[-1]}
     except OSError:
         return 0
     for path in sorted(paths):

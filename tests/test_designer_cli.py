@@ -40,7 +40,9 @@ def _run(*args, timeout=300):
 
 def test_design_json_document_and_reuse(tmp_path):
     catalogue = str(tmp_path / "cat.h5")
-    first = _run("design", "rod", *ROD, "--mesh-size", "0.01", "--catalogue", catalogue, "--json", "--name", "rod-a")
+    vtu = tmp_path / "rod.vtu"
+    first = _run("design", "rod", *ROD, "--mesh-size", "0.01", "--catalogue", catalogue, "--json", "--name", "rod-a",
+                 "--export-mesh", str(vtu))
     assert first.returncode == 0, first.stderr
     document = json.loads(first.stdout)                       # stdout holds one JSON document only
     assert set(document) == {"key", "name", "compliance", "cavity_volumes", "mass", "dofs", "accuracy", "timing"}
@@ -53,6 +55,14 @@ def test_design_json_document_and_reuse(tmp_path):
     assert document["key"] == designer.entry_key("rod", {"radius": 0.01, "length": 0.04, "youngs_modulus": 1e6,
                                                          "poisson_ratio": 0.3}, mesh_size=0.01)
     assert "meshing" in first.stderr                           # progress goes to stderr
+    # the exported mesh is the one that was condensed: same element and node counts (round trip)
+    import meshio
+    from store import catalogue as store_catalogue
+    with store_catalogue.open_catalogue(catalogue) as cat:
+        stored = cat.load(document["key"])
+    mesh = meshio.read(vtu)
+    assert len(mesh.cells_dict["tetra10"]) == stored.mesh["elements"] and len(mesh.points) == stored.mesh["nodes"]
+    assert set(np.unique(np.concatenate(mesh.cell_data["group"]))) == {0, 1, 2, 3}   # volume, bottom, top, wall
     again = _run("design", "rod", *ROD, "--mesh-size", "0.01", "--catalogue", catalogue, "--json")
     assert again.returncode == 0, again.stderr
     assert "already in" in again.stderr and "meshing" not in again.stderr
