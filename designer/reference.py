@@ -40,7 +40,7 @@ def chain_fe_solve(fes: list[SegmentFE], tip_wrench, pressures=None) -> dict:
     offsets = np.concatenate([[0], np.cumsum(sizes)])
     n_int = int(offsets[-1])
     n = n_int + 6 * m
-    blocks, rhs = [], np.zeros(n)
+    rhs = np.zeros(n)
 
     def frame_cols(frame):                # global columns of frame ``frame`` (1..m), None if clamped
         return None if frame == 0 else n_int + 6 * (frame - 1) + np.arange(6)
@@ -55,7 +55,6 @@ def chain_fe_solve(fes: list[SegmentFE], tip_wrench, pressures=None) -> dict:
         i = interiors[s]
         gi = offsets[s] + np.arange(i.size)
         K = fe.K
-        parts = {"i": (gi, None)}
         maps = {}
         for name, frame in (("bottom", s), ("top", s + 1)):
             face = fe.faces[name]
@@ -77,7 +76,6 @@ def chain_fe_solve(fes: list[SegmentFE], tip_wrench, pressures=None) -> dict:
         for name, (cols, face) in maps.items():
             if cols is not None:
                 rhs[cols] += face_load(fe, name, p)
-        del parts
     rhs[frame_cols(m)] += np.asarray(tip_wrench, float)
     A = sp.csc_matrix((np.concatenate(vals_all), (np.concatenate(rows_all), np.concatenate(cols_all))),
                       shape=(n, n))

@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from designer.families import Parameter, require
+from designer.families import Family, Parameter, require
 
 VERTEBRA_PARAMETERS = (
     Parameter("radius", "disc radius", unit="m"),
@@ -28,35 +28,38 @@ VERTEBRA_PARAMETERS = (
 )
 
 
+class VertebraDisc(Family):
+    """Parameters and conditions of a rigid vertebra (not a segment family: not registered)."""
+
+    name = "vertebra"
+    parameters = VERTEBRA_PARAMETERS
+    is_segment = False
+
+    def check(self, p):
+        require(p["radius"] > 0, "radius", f"must be > 0, got {p['radius']}")
+        require(p["thickness"] > 0, "thickness", f"must be > 0, got {p['thickness']}")
+        require(p["density"] >= 0, "density", f"must be >= 0, got {p['density']}")
+        require(p["holes"] >= 0, "holes", f"must be >= 0, got {p['holes']}")
+        require(0 <= p["inner_radius"] < p["radius"], "inner_radius",
+                f"must satisfy 0 <= inner_radius < radius, got {p['inner_radius']}")
+        if p["holes"] == 0:
+            return
+        n, r, d = p["holes"], p["hole_radius"], p["hole_offset"]
+        require(r > 0, "hole_radius", f"must be > 0 when holes > 0, got {r}")
+        rim = p["radius"] - d - r
+        require(rim > 0, "hole_offset", f"holes pierce the rim: radius - hole_offset - hole_radius = {rim:.6g} must be > 0")
+        if p["inner_radius"] > 0:
+            web = d - r - p["inner_radius"]
+            require(web > 0, "hole_offset",
+                    f"holes pierce the central bore: hole_offset - hole_radius - inner_radius = {web:.6g} must be > 0")
+        if n >= 2:
+            gap = 2 * d * math.sin(math.pi / n) - 2 * r
+            require(gap > 0, "hole_radius",
+                    f"holes intersect: 2*hole_offset*sin(pi/holes) - 2*hole_radius = {gap:.6g} must be > 0")
+
+
 def canonical_vertebra(parameters: dict) -> dict:
-    from designer.families import Family
-
-    class _Vertebra(Family):
-        name = "vertebra"
-        parameters = VERTEBRA_PARAMETERS
-
-        def check(self, p):
-            require(p["radius"] > 0, "radius", f"must be > 0, got {p['radius']}")
-            require(p["thickness"] > 0, "thickness", f"must be > 0, got {p['thickness']}")
-            require(p["density"] >= 0, "density", f"must be >= 0, got {p['density']}")
-            require(p["holes"] >= 0, "holes", f"must be >= 0, got {p['holes']}")
-            require(0 <= p["inner_radius"] < p["radius"], "inner_radius",
-                    f"must satisfy 0 <= inner_radius < radius, got {p['inner_radius']}")
-            if p["holes"] > 0:
-                n, r, d = p["holes"], p["hole_radius"], p["hole_offset"]
-                require(r > 0, "hole_radius", f"must be > 0 when holes > 0, got {r}")
-                rim = p["radius"] - d - r
-                require(rim > 0, "hole_offset", f"holes pierce the rim: radius - hole_offset - hole_radius = {rim:.6g} must be > 0")
-                if p["inner_radius"] > 0 or n == 1 and d < r:
-                    web = d - r - p["inner_radius"]
-                    require(web > 0 or (n == 1 and p["inner_radius"] == 0), "hole_offset",
-                            f"holes pierce the central bore: hole_offset - hole_radius - inner_radius = {web:.6g} must be > 0")
-                if n >= 2:
-                    gap = 2 * d * math.sin(math.pi / n) - 2 * r
-                    require(gap > 0, "hole_radius",
-                            f"holes intersect: 2*hole_offset*sin(pi/holes) - 2*hole_radius = {gap:.6g} must be > 0")
-
-    return _Vertebra().canonical(dict(parameters))
+    return VertebraDisc().canonical(dict(parameters))
 
 
 def _cylinder(mass: float, radius: float, thickness: float, x: float, y: float) -> np.ndarray:
