@@ -370,3 +370,14 @@ def test_ctrl_c_keeps_what_landed_and_a_rerun_resumes(tmp_path):
     CALLS.clear()
     resumed = run_fake(spec, catalogue)
     assert sorted(CALLS) == [2, 3] and len(resumed.skipped) == 2 and resumed.exit_code == 0
+
+
+def test_forkserver_start_method_runs_tasks_and_fork_is_refused(tmp_path):
+    spec = parse_spec(spec_dict(grid={"radius": [0.01, 0.02, 0.03], "length": [0.04]}))
+    report = run_fake(spec, tmp_path / "cat.jsonl", executor="local", workers=2, start_method="forkserver")
+    assert report.exit_code == 0 and len(report.completed) == 3
+    assert {o.worker["omp_num_threads"] for o in report.completed} == {"1"}
+    assert report.executor == {"name": "local", "workers": 2, "start_method": "forkserver"}
+    with pytest.raises(SceneError) as info:
+        make_executor("local", start_method="fork")     # gmsh's global state must not be forked
+    assert info.value.field == "start_method"
