@@ -18,7 +18,7 @@ import numpy as np
 from solver.banded import BandLayout, factor_cholesky, factor_lu
 from solver.beam import timoshenko_compliance
 from solver.elements import LinkGeometry, cable_gradient, link_gradient, pair_tangent
-from solver.rotations import cross, hat, qexp, qmul, qrotate, se3_log
+from solver.rotations import cross, hat, matvec, qconj, qexp, qmatrix, qmul, qrotate, se3_exp, se3_log
 from store.errors import ConvergenceError, SceneError
 
 
@@ -336,20 +336,38 @@ class TrunkModel:
         return factor, ("shifted-lu" if shift else "lu") if factor is not None else None
 
     def step(self, state: State, dq: np.ndarray) -> State:
-        """Retraction: rotations by the exponential map; positions by rotating each chord with its
-        end frames' mean rotation increment and re-summing from the base (FIELD-NOTES: keeps
-        stiff axial links from absorbing spurious stretch in large rotation steps)."""
+        """Retraction in strain space: each link's twist ``ξ = log(T_a⁻¹ T_b)`` moves by its
+        linearised change ``J_l⁻¹ ζ(dq)`` and the chain is rebuilt from the base by composing
+        ``exp(ξ)`` (a parallel prefix product, O(log n) numpy calls). To first order this is the
+        update ``x + dx``, ``exp(dφ) R`` (so Newton keeps its quadratic convergence), but a step
+        that predicts no stretch of a link creates none: stiff axial and shear links no longer
+        absorb spurious strain when frames rotate (FIELD-NOTES' trap, taken to its end)."""
         d = np.zeros((self.n_frames, 6))
         d[1:] = np.asarray(dq).reshape(-1, 6)
-        quaternions = qmul(qexp(d[:, 3:]), state.quaternions)
-        quaternions /= np.linalg.norm(quaternions, axis=1, keepdims=True)
-        chords = np.diff(state.positions, axis=0)
-        mean_rotation = 0.5 * (d[:-1, 3:] + d[1:, 3:])
-        chords = (qrotate(qexp(mean_rotation), chords) + np.diff(d[:, :3], axis=0)
-                  - cross(mean_rotation, chords))
-        positions = np.empty_like(state.positions)
-        positions[0] = state.positions[0]
-        positions[1:] = state.positions[0] + np.cumsum(chords, axis=0)
+        q, x = state.quaternions, state.positions
+        qa, qb = q[:-1], q[1:]
+        Ra_T = np.swapaxes(qmatrix(qa), -1, -2)
+        p = matvec(Ra_T, x[1:] - x[:-1])
+        xi, Jl_inv = se3_log(qmul(qconj(qa), qb), p)
+        omega_b = matvec(Ra_T, d[1:, 3:])
+        zeta = np.concatenate([matvec(Ra_T, d[1:, :3] - d[:-1, :3]) + cross(p, omega_b),
+                               omega_b - matvec(Ra_T, d[:-1, 3:])], -1)
+        rel_q, rel_p = se3_exp(xi + matvec(Jl_inv, zeta))
+        # inclusive prefix composition T_0..k = T_0 ∘ … ∘ T_k (Hillis–Steele scan)
+        shift = 1
+        while shift < self.n_links:
+            head_q, head_p = rel_q[:-shift], rel_p[:-shift]
+            tail_p = head_p + qrotate(head_q, rel_p[shift:])
+            tail_q = qmul(head_q, rel_q[shift:])
+            rel_q = np.concatenate([rel_q[:shift], tail_q])
+            rel_p = np.concatenate([rel_p[:shift], tail_p])
+            shift *= 2
+        quaternions = np.empty_like(q)
+        positions = np.empty_like(x)
+        quaternions[0], positions[0] = q[0], x[0]
+        quaternions[1:] = qmul(q[0], rel_q)
+        quaternions[1:] /= np.linalg.norm(quaternions[1:], axis=1, keepdims=True)
+        positions[1:] = x[0] + qrotate(q[0], rel_p)
         return State(positions, quaternions)
 
     def _reference_force(self, actuation) -> float:
@@ -476,7 +494,7 @@ class TrunkModel:
                     work = 0.0 if moments is None else alpha * float(moments @ dq.reshape(-1, 6)[:, 3:].reshape(-1))
                     merit_ok = (ev_trial.energy - work <= ev.energy + 1e-4 * alpha * slope
                                 + 1e-12 * abs(ev.energy))
-                    if math.isfinite(res_trial) and (merit_ok or res_trial < residual):
+                    if math.isfinite(res_trial) and merit_ok:
                         accepted = True
                         break
                     alpha *= 0.5

@@ -60,11 +60,20 @@ def test_coil_beyond_two_turns():
     assert result.converged and np.hypot(tip[0] - expected[0], tip[2] - expected[1]) < 1e-6
 
 
-def test_absurd_load_raises_convergence_error_without_nan():
+def test_absurd_load_converges_or_raises_never_nan():
+    # 1 MN on a 1 mm steel wire: PL²/EI ≈ 1.6e6 and strains of ~500 under the linear law; the
+    # model's answer is a wire stretched along the force. Either that, or a ConvergenceError with
+    # a finite partial state — never NaN.
     model = cantilever(10, 0.5, 200e9, 1e-3, force=(1e6, 0, 0))
-    with pytest.raises(ConvergenceError) as info:
-        model.solve(max_iterations=30)
-    assert np.all(np.isfinite(info.value.result.state.positions))
+    try:
+        result = model.solve(max_iterations=30)
+    except ConvergenceError as error:
+        result = error.result
+        assert not result.converged
+    else:
+        tip = result.state.positions[-1]
+        assert result.converged and abs(tip[2]) < 1e-2 * tip[0]
+    assert np.all(np.isfinite(result.state.positions)) and np.all(np.isfinite(result.state.quaternions))
 
 
 def test_tiny_loads_resolve_at_the_rounding_floor():
