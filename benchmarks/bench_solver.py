@@ -24,7 +24,8 @@ compared.
 
 Run: ``OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_solver.py [--quick]``;
 writes ``benchmarks/results/solver.json`` and ``benchmarks/results/solver.md``
-(``--quick`` writes ``solver-quick.*`` into a scratch directory given by ``--out`` or the results dir).
+(``--quick`` writes ``solver-quick.*`` into ``--out`` or, by default, a temporary directory: a smoke
+run never touches the committed results).
 """
 
 from __future__ import annotations
@@ -789,7 +790,13 @@ def main(argv=None):
     ap.add_argument("--only", nargs="*", default=None,
                     help="sections to run (scaling gallery accuracy coil tolerance one_step)")
     args = ap.parse_args(argv)
-    out_dir = args.out or RESULTS
+    if args.out:
+        out_dir = args.out
+    elif args.quick:
+        import tempfile
+        out_dir = Path(tempfile.gettempdir()) / f"bench_solver_quick_{os.getuid()}"
+    else:
+        out_dir = RESULTS
     out_dir.mkdir(parents=True, exist_ok=True)
     stem = "solver-quick" if args.quick else "solver"
     start = time.perf_counter()
