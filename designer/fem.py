@@ -69,7 +69,8 @@ class SegmentFE:
     """Assembled FE model of one segment: stiffness, face maps, cavity loads, mass data."""
 
     mesh: object
-    basis: object
+    basis: object                   # scalar scikit-fem basis (P1/P2) on the mesh
+    doflocs: np.ndarray             # (3, n_dofs) location of each displacement DoF
     K: object                       # full sparse stiffness (n_dofs × n_dofs)
     length: float
     order: int
@@ -116,13 +117,22 @@ def _facet_index(mesh, corner: np.ndarray, name: str, unique: bool = True) -> np
     return np.unique(found) if unique else found
 
 
-def assemble_elasticity(vector_basis, scalar_basis, lam: float, mu: float):
+def vector_element_dofs(scalar_basis) -> np.ndarray:
+    """(3·nb, nel) DoFs of the vector field: scikit-fem's ``ElementVector`` numbers the DoF of
+    component ``c`` at scalar DoF ``s`` as ``3 s + c`` and local DoF ``(a, c)`` as ``3 a + c``
+    (checked against ``Basis(mesh, ElementVector(e))`` in tests/test_designer_fem.py)."""
+    e = scalar_basis.element_dofs
+    return (3 * e[:, None, :] + np.arange(3)[None, :, None]).reshape(-1, e.shape[1])
+
+
+def assemble_elasticity(scalar_basis, lam: float, mu: float):
     """Isotropic linear elasticity stiffness, vectorised over elements and quadrature points.
 
     Same matrix as ``skfem.models.elasticity.linear_elasticity`` (checked to round-off in
     tests/test_designer_fem.py) but ~40× faster for P2: with ``u = φ_a e_i``,
     ``K[(a,i),(b,j)] = ∫ λ ∂_iφ_a ∂_jφ_b + μ (δ_ij ∇φ_a·∇φ_b + ∂_jφ_a ∂_iφ_b)``.
-    Local vector DoF ``(a, i)`` is ``3a + i`` in scikit-fem's ``ElementVector``.
+    Local vector DoF ``(a, i)`` is ``3a + i`` (:func:`vector_element_dofs`). Building only the
+    scalar basis also saves the vector basis' own isoparametric set-up.
     """
     from scipy.sparse import coo_matrix
 
@@ -132,10 +142,10 @@ def assemble_elasticity(vector_basis, scalar_basis, lam: float, mu: float):
     local = lam * M + mu * np.swapaxes(M, 3, 4) + mu * trace[..., None, None] * np.eye(3)
     nb = grads.shape[0]
     local = local.transpose(0, 1, 3, 2, 4).reshape(-1, 3 * nb, 3 * nb)
-    dofs = vector_basis.element_dofs.T                                      # (nel, 3nb)
+    dofs = vector_element_dofs(scalar_basis).T                              # (nel, 3nb)
     rows = np.broadcast_to(dofs[:, :, None], local.shape).ravel()
     cols = np.broadcast_to(dofs[:, None, :], local.shape).ravel()
-    n = vector_basis.N
+    n = 3 * scalar_basis.N
     return coo_matrix((local.ravel(), (rows, cols)), shape=(n, n)).tocsr()
 
 
@@ -143,7 +153,7 @@ def build_fe(mesh_data, youngs_modulus: float, poisson_ratio: float, density: fl
              n_cavities: int, length: float) -> SegmentFE:
     """Assemble the segment: scikit-fem mesh from the gmsh arrays, P1/P2 vector basis,
     stiffness, rigid face maps, cavity loads, cap wrenches, rest volumes, mass."""
-    from skfem import Basis, ElementTetP1, ElementTetP2, ElementVector, Functional, MeshTet1, MeshTet2, asm
+    from skfem import Basis, ElementTetP1, ElementTetP2, Functional, MeshTet1, MeshTet2, asm
     from skfem.models.elasticity import lame_parameters
 
     from designer.surface import Surface
@@ -153,16 +163,16 @@ def build_fe(mesh_data, youngs_modulus: float, poisson_ratio: float, density: fl
     mesh_cls, element = (MeshTet1, ElementTetP1()) if order == 1 else (MeshTet2, ElementTetP2())
     mesh = mesh_cls(np.ascontiguousarray(mesh_data.nodes.T), np.ascontiguousarray(mesh_data.tets.T))
     intorder = 2 * order
-    basis = Basis(mesh, ElementVector(element), intorder=intorder)
     scalar = Basis(mesh, element, intorder=intorder)
-    K = assemble_elasticity(basis, scalar, *lame_parameters(youngs_modulus, poisson_ratio))
-    n_dofs = basis.N
-    doflocs = basis.doflocs
+    K = assemble_elasticity(scalar, *lame_parameters(youngs_modulus, poisson_ratio))
+    n_dofs = 3 * scalar.N
+    doflocs = np.repeat(scalar.doflocs, 3, axis=1)                       # location of each vector DoF
     # node (mesh numbering) -> its three displacement DoFs
+    element_dofs = vector_element_dofs(scalar)
     node_dofs = np.empty((mesh_data.nodes.shape[0], 3), dtype=np.int64)
     for a in range(mesh_data.tets.shape[1]):
         for c in range(3):
-            node_dofs[mesh_data.tets[:, a], c] = basis.element_dofs[3 * a + c]
+            node_dofs[mesh_data.tets[:, a], c] = element_dofs[3 * a + c]
     components = np.empty(n_dofs, dtype=np.int64)
     components[node_dofs] = np.arange(3)[None, :]
 
@@ -193,7 +203,7 @@ def build_fe(mesh_data, youngs_modulus: float, poisson_ratio: float, density: fl
     vol = float(asm(Functional(lambda w: 1.0 + 0.0 * w.x[0]), scalar))
     centroid = np.array([float(asm(Functional(lambda w, i=i: w.x[i]), scalar)) for i in range(3)]) / vol
     timings = {"assemble_s": time.perf_counter() - start}
-    return SegmentFE(mesh=mesh, basis=basis, K=K, length=length, order=order, faces=faces,
+    return SegmentFE(mesh=mesh, basis=scalar, doflocs=doflocs, K=K, length=length, order=order, faces=faces,
                      cavity_loads=cavity_loads, cap_wrenches=cap_wrenches,
                      cavity_volumes=np.array(volumes, dtype=float), mass=mass, center_of_mass=centroid,
                      components=components, timings=timings, node_dofs=node_dofs,
@@ -292,7 +302,7 @@ def condense(fe: SegmentFE, frames=("top",), linear_solver: str = "auto", amg_th
             Fq[6 * a:6 * a + 6, k] = face["T"].T @ f[face["dofs"]] + fe.cap_wrenches[k][name]
     rhs = np.hstack([Kiq, Fi] + ([extra_rhs[interior]] if extra_rhs is not None else []))
     solver = get_solver(linear_solver, interior.size, amg_threshold)
-    modes = rigid_body_modes(fe.basis.doflocs[:, interior], fe.components[interior])
+    modes = rigid_body_modes(fe.doflocs[:, interior], fe.components[interior])
     X, info = solver.solve(Kii, rhs, modes)
     Xq, Xf = X[:, :m6], X[:, m6:m6 + n]
     S = Kqq - Kiq.T @ Xq
