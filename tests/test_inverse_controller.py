@@ -213,3 +213,25 @@ def test_chambers_inverse_reaches_the_target():
     step = InverseController(model, InverseSettings()).step(targets)
     assert step.reached and np.all(step.errors <= 1e-6)
     assert _within_bounds(model, step.actuation)
+
+
+def test_hybrid_cables_and_chambers_in_one_qp():
+    # Tensions (N) and pressures (Pa) side by side: the energy regulariser is in joules
+    # for both, so one QP serves them (paper §VI: hybrid actuation). The inverse of a
+    # forward solution under a mixed actuation reaches the target to 1e-6 m within bounds.
+    entry = pneumatic_entry()
+    scene = solver.parse_scene({
+        "catalogue": {"path": "unused.h5"},
+        "segment": [{"type": "entry", "entry": entry.name, "count": 4}],
+        "chamber": [{"name": f"c{k}", "cavity": k, "from": 1, "to": 4, "min_pressure": 0.0,
+                     "max_pressure": 1.5e5} for k in range(3)],
+        "cable": [{"name": f"t{k}", "radius": 0.011, "angle_deg": 60.0 + 120.0 * k, "from": 1, "to": 4,
+                   "min_tension": 0.0, "max_tension": 5.0} for k in range(3)],
+        "effector": [{"name": "tip", "vertebra": -1}],
+    })
+    model = solver.build_model(scene, entries={entry.name: entry})
+    assert model.actuator_names == ["t0", "t1", "t2", "c0", "c1", "c2"]
+    targets = _forward_targets(model, np.array([0.5, 0.0, 0.0, 3e4, 0.0, 1e4]))
+    step = InverseController(model, InverseSettings()).step(targets)
+    assert step.reached and np.all(step.errors <= 1e-6)
+    assert _within_bounds(model, step.actuation)
