@@ -385,3 +385,11 @@ def test_forkserver_start_method_runs_tasks_and_fork_is_refused(tmp_path):
     with pytest.raises(SceneError) as info:
         make_executor("local", start_method="fork")     # gmsh's global state must not be forked
     assert info.value.field == "start_method"
+
+
+def test_progress_bar_goes_to_stderr_only(tmp_path, capsys):
+    spec = parse_spec(spec_dict(grid={"radius": [0.01, 0.02], "length": [0.04]}))
+    run_sweep(spec, tmp_path / "cat.jsonl", executor="serial", backend=FAKE, progress=True)
+    captured = capsys.readouterr()
+    assert captured.out == ""                       # stdout stays clean for --json
+    assert "sweep rod" in captured.err and "2/2" in captured.err
