@@ -76,6 +76,27 @@ class LinkGeometry:
         ym = inverse_jacobian_transpose(w[..., 3:] - QTu)
         return np.concatenate([yf, ym], -1)
 
+    def strain_change(self, zeta: np.ndarray) -> np.ndarray:
+        """``J_l⁻¹(ξ) ζ``: the change of the twist under a left twist ``ζ`` in ``a``'s frame,
+        ``[J⁻¹(ζ_ρ − Q J⁻¹ζ_φ); J⁻¹ζ_φ]`` with ``Qu`` in cross products (Barfoot eq. 7.86)."""
+        phi, rho = self.phi, self.rho
+        c2, a1, a2, a3 = (self.coef[..., k:k + 1] for k in range(4))
+
+        def inverse_jacobian(v):                   # J⁻¹ v = v − ½ φ×v + c2 φ×(φ×v)
+            fv = cross(phi, v)
+            return v - 0.5 * fv + c2 * cross(phi, fv)
+
+        u = inverse_jacobian(zeta[..., 3:])
+        A = cross(phi, u)
+        B = cross(rho, u)
+        D = cross(rho, A)
+        E = cross(phi, B)
+        F = cross(phi, D)
+        H = cross(rho, cross(phi, A))
+        Qu = (0.5 * B + a1 * (E + D + F) + a2 * (cross(phi, E) + H - 3.0 * F)
+              + a3 * (cross(phi, H) + cross(phi, F)))
+        return np.concatenate([inverse_jacobian(zeta[..., :3] - Qu), u], -1)
+
     def generalised_force(self, y: np.ndarray) -> np.ndarray:
         """Generalised force on ``[a, b]`` of a wrench ``y`` (dual of left twists in a) — the
         transport of paper eqs. 5–7: ``g_a = −[R_a y_f; R_a y_m]``, ``g_b = [R_a y_f; R_a (y_m − p × y_f)]``."""

@@ -18,7 +18,7 @@ import numpy as np
 from solver.banded import BandLayout, factor_cholesky, factor_lu
 from solver.beam import timoshenko_compliance
 from solver.elements import LinkGeometry, cable_gradient, link_gradient, pair_tangent
-from solver.rotations import cross, hat, matvec, qconj, qexp, qmatrix, qmul, qrotate, se3_exp, se3_log
+from solver.rotations import cross, hat, matvec, qexp, qmul, qrotate, se3_exp, se3_log
 from store.errors import ConvergenceError, SceneError
 
 
@@ -345,14 +345,11 @@ class TrunkModel:
         d = np.zeros((self.n_frames, 6))
         d[1:] = np.asarray(dq).reshape(-1, 6)
         q, x = state.quaternions, state.positions
-        qa, qb = q[:-1], q[1:]
-        Ra_T = np.swapaxes(qmatrix(qa), -1, -2)
-        p = matvec(Ra_T, x[1:] - x[:-1])
-        xi, Jl_inv = se3_log(qmul(qconj(qa), qb), p)
-        omega_b = matvec(Ra_T, d[1:, 3:])
-        zeta = np.concatenate([matvec(Ra_T, d[1:, :3] - d[:-1, :3]) + cross(p, omega_b),
-                               omega_b - matvec(Ra_T, d[:-1, 3:])], -1)
-        rel_q, rel_p = se3_exp(xi + matvec(Jl_inv, zeta))
+        geometry = LinkGeometry.of(q[:-1], x[:-1], q[1:], x[1:])
+        Ra_T = np.swapaxes(geometry.Ra, -1, -2)
+        local = matvec(Ra_T[:, None], np.stack([d[1:, :3] - d[:-1, :3], d[1:, 3:], d[:-1, 3:]], 1))
+        zeta = np.concatenate([local[:, 0] + cross(geometry.p, local[:, 1]), local[:, 1] - local[:, 2]], -1)
+        rel_q, rel_p = se3_exp(geometry.twist() + geometry.strain_change(zeta))
         # inclusive prefix composition T_0..k = T_0 ∘ … ∘ T_k (Hillis–Steele scan)
         shift = 1
         while shift < self.n_links:
