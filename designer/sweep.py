@@ -671,7 +671,9 @@ def run_sweep(spec: SweepSpec | str | os.PathLike, catalogue, *, executor: str =
                    disable=not progress, dynamic_ncols=True)
         try:
             with pool:
-                function = partial(execute_task, backend.job, backend.store, catalogue)
+                # absolute: dask workers may run in another directory (or on another
+                # machine that mounts the same shared filesystem at the same path)
+                function = partial(execute_task, backend.job, backend.store, os.path.abspath(catalogue))
                 for task, result in pool.map_unordered(function, plan.todo):
                     task = by_index[task.index]
                     if isinstance(result, TaskOutcome) and result.ok:
