@@ -18,7 +18,7 @@ import numpy as np
 from solver.banded import BandLayout, factor_cholesky, factor_lu
 from solver.beam import timoshenko_compliance
 from solver.elements import LinkGeometry, cable_gradient, link_gradient, pair_tangent
-from solver.rotations import cross, hat, matvec, qexp, qmul, qrotate, se3_exp, se3_log
+from solver.rotations import cross, hat, matvec, qmul, qrotate, se3_exp, se3_log
 from store.errors import ConvergenceError, SceneError
 
 

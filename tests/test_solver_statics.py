@@ -8,7 +8,7 @@ import pytest
 import solver
 from solver.analytic import arc_tip, elastica_tip
 from solver.beam import Section, timoshenko_compliance
-from solver.rotations import qlog, qrotate
+from solver.rotations import qlog
 from store.errors import ConvergenceError
 
 E, NU, RADIUS, LENGTH = 200e9, 0.3, 1e-3, 0.5
