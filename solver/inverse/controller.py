@@ -60,6 +60,10 @@ class InverseSettings:
             raise ValueError(f"mode must be one of {sorted(MODES)}, got {self.mode!r}")
         if not (self.tolerance > 0 and math.isfinite(self.tolerance)):
             raise ValueError(f"tolerance must be a positive length (m), got {self.tolerance}")
+        if not (math.isfinite(self.regularisation) and self.regularisation >= 0):
+            raise ValueError(f"regularisation must be finite and ≥ 0, got {self.regularisation}")
+        if not (self.qp_tolerance > 0):
+            raise ValueError(f"qp_tolerance must be > 0, got {self.qp_tolerance}")
         if self.max_iterations < 1:
             raise ValueError(f"max_iterations must be ≥ 1, got {self.max_iterations}")
         if not (0.0 < self.progress < 1.0) or self.patience < 1:
