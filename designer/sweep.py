@@ -43,6 +43,7 @@ FAILURE_LOG_SUFFIX = ".failures.jsonl"
 TOP_LEVEL_FIELDS = ("family", "parameters", "mesh_size", "order", "name", "description",
                     "linear_solver", "estimate_accuracy")
 LHS_FIELDS = ("ranges", "samples", "seed", "log", "integer")
+LHS_DIGITS = 6                        # significant digits kept of each Latin-hypercube value
 
 
 # --------------------------------------------------------------------------- spec
@@ -183,7 +184,9 @@ def _expand_lhs(lhs: LatinHypercube) -> list[dict]:
                 value = float(np.exp(np.log(low) + u * (np.log(high) - np.log(low))))
             else:
                 value = float(low + u * (high - low))
-            values[name] = int(round(value)) if name in lhs.integer else value
+            # 6 significant digits: readable names and parameters, and keys that do not
+            # hinge on the last bits of exp/log on one platform (resume across machines)
+            values[name] = int(round(value)) if name in lhs.integer else float(f"{value:.{LHS_DIGITS}g}")
         tasks.append(values)
     return tasks
 
