@@ -309,7 +309,9 @@ class DaskExecutor:
             except (OSError, TimeoutError) as error:
                 raise SceneError(f"cannot reach dask scheduler {self.scheduler!r}: {error}",
                                  field="scheduler") from None
-            self.workers = len(self._client.scheduler_info().get("workers", {})) or self.workers
+            # one task at a time per worker *process* (designer.sweep serialises the
+            # job inside a process): processes, not threads, are the parallelism
+            self.workers = len(self._client.nthreads()) or self.workers
         else:
             environment = {variable: "1" for variable in THREAD_VARIABLES}
             self._cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,

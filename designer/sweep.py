@@ -26,6 +26,7 @@ import math
 import os
 import string
 import sys
+import threading
 import time
 import traceback
 from dataclasses import dataclass, field, replace
@@ -397,6 +398,12 @@ def _short_traceback(limit: int = 4000) -> str:
     return text if len(text) <= limit else "...\n" + text[-limit:]
 
 
+# gmsh keeps global state and is not thread-safe: if a worker process runs
+# several tasks in threads (a dask worker started with --nthreads > 1), they
+# take turns here instead of corrupting each other's model.
+_ONE_JOB_PER_PROCESS = threading.Lock()
+
+
 def execute_task(job: Callable, store: Callable, catalogue: str, task: Task) -> TaskOutcome:
     """Run in a worker: ``entry = job(task)``, then ``store(catalogue, entry)``. Never raises.
 
@@ -406,7 +413,8 @@ def execute_task(job: Callable, store: Callable, catalogue: str, task: Task) -> 
     start, cpu_start = time.perf_counter(), time.process_time()
     common = {"index": task.index, "worker": worker_info()}
     try:
-        entry = job(task)
+        with _ONE_JOB_PER_PROCESS:
+            entry = job(task)
     except Exception as error:  # noqa: BLE001 - one task's failure must not stop the sweep
         return TaskOutcome(key=task.key, ok=False, seconds=time.perf_counter() - start, stage="design",
                            error_type=type(error).__name__, message=str(error) or repr(error),

@@ -395,3 +395,35 @@ def test_progress_bar_goes_to_stderr_only(tmp_path, capsys):
     captured = capsys.readouterr()
     assert captured.out == ""                       # stdout stays clean for --json
     assert "sweep rod" in captured.err and "2/2" in captured.err
+
+
+ACTIVE = []
+
+
+def overlap_detecting_job(task):
+    """Fails if another job runs in this process at the same time (as two gmsh models would)."""
+    import time as _time
+
+    ACTIVE.append(task.index)
+    try:
+        _time.sleep(0.05)
+        if len(ACTIVE) > 1:
+            raise RuntimeError(f"jobs {ACTIVE} ran at once in one process")
+        return fake_job(task)
+    finally:
+        ACTIVE.remove(task.index)
+
+
+def test_multithreaded_dask_worker_runs_one_job_at_a_time(tmp_path):
+    # A cluster started by someone else with 2 threads per worker process: the
+    # sweep's process-wide lock makes the tasks take turns (gmsh is not
+    # thread-safe). Without the lock the 50 ms jobs would overlap and fail.
+    from dask.distributed import LocalCluster
+
+    spec = parse_spec(spec_dict(grid={"radius": [0.01, 0.02, 0.03, 0.04], "length": [0.04]}))
+    backend = SweepBackend(**{**FAKE.__dict__, "job": overlap_detecting_job})
+    with LocalCluster(n_workers=1, threads_per_worker=2, processes=True, dashboard_address=None) as cluster:
+        report = run_sweep(spec, tmp_path / "cat.jsonl", executor="dask", scheduler=cluster.scheduler_address,
+                           backend=backend, progress=False)
+    assert report.exit_code == 0, report.summary()
+    assert len(report.completed) == 4 and len({o.worker["pid"] for o in report.completed}) == 1
