@@ -62,13 +62,42 @@ def pin_threads() -> None:
         os.environ[variable] = "1"
 
 
+def blas_threads() -> int | None:
+    """Threads the loaded OpenBLAS really uses (None if none is loaded or it cannot be asked).
+
+    Reads the shared objects mapped into this process (Linux) and calls
+    ``openblas_get_num_threads`` (numpy's and scipy's wheels ship prefixed copies).
+    """
+    import ctypes
+
+    try:
+        with open("/proc/self/maps") as maps:
+            paths = sorted({line.split()[-1] for line in maps
+                            if "openblas" in line.lower() and ".so" in line.split()[-1]})
+    except OSError:
+        return None
+    for path in paths:
+        try:
+            library = ctypes.CDLL(path)
+        except OSError:
+            continue
+        for symbol in ("scipy_openblas_get_num_threads64_", "scipy_openblas_get_num_threads",
+                       "openblas_get_num_threads64_", "openblas_get_num_threads"):
+            function = getattr(library, symbol, None)
+            if function is not None:
+                function.restype = ctypes.c_int
+                return int(function())
+    return None
+
+
 def worker_info() -> dict:
-    """Who ran a task: host, process id and the thread pinning it saw."""
+    """Who ran a task: host, process id, the thread pinning it saw and the BLAS threads in use."""
     return {
         "host": socket.gethostname(),
         "pid": os.getpid(),
         "omp_num_threads": os.environ.get("OMP_NUM_THREADS"),
         "openblas_num_threads": os.environ.get("OPENBLAS_NUM_THREADS"),
+        "blas_threads": blas_threads(),
     }
 
 

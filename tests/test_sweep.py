@@ -272,10 +272,12 @@ def test_failures_are_isolated_and_logged(tmp_path):
     assert CALLS == [2] and again.exit_code == 1 and len(again.skipped) == 2
 
 
-def test_local_pool_survives_a_dying_worker(tmp_path):
+def test_local_pool_survives_a_dying_worker(tmp_path, monkeypatch):
     # Two spawned workers; task 0 kills its worker process, which breaks the pool
     # and fails every task then in flight. Those are re-run one at a time, so only
     # task 0 is reported (as a worker crash) and the seven others land.
+    for variable in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+        monkeypatch.setenv(variable, "4")              # the parent's setting must not reach the workers
     catalogue = tmp_path / "cat.jsonl"
     sets = [{"radius": 0.01, "length": 0.04, "crash": True}] + [
         {"radius": 0.01 * (i + 2), "length": 0.04} for i in range(7)]
@@ -289,8 +291,12 @@ def test_local_pool_survives_a_dying_worker(tmp_path):
     assert set(stored_keys(catalogue)) == {o.key for o in report.completed}, summary
     # the workers ran in other processes with BLAS/OpenMP pinned to one thread
     assert {o.worker["omp_num_threads"] for o in report.completed} == {"1"}
+    # numpy is imported while a spawned worker starts (before its initializer runs),
+    # so only the parent-side pinning makes OpenBLAS itself single-threaded
+    assert {o.worker["blas_threads"] for o in report.completed} <= {1, None}
     assert all(o.worker["pid"] != os.getpid() for o in report.completed)
     assert report.exit_code == 1
+    assert os.environ["OMP_NUM_THREADS"] == "4"       # and the parent's environment is restored
 
 
 def test_serial_executor_turns_escaping_errors_into_crashes():
@@ -300,9 +306,10 @@ def test_serial_executor_turns_escaping_errors_into_crashes():
     assert isinstance(results[0], Crash) and results[0].error_type == "ZeroDivisionError"
 
 
-def test_dask_runs_the_same_tasks_as_serial_and_isolates_failures(tmp_path):
+def test_dask_runs_the_same_tasks_as_serial_and_isolates_failures(tmp_path, monkeypatch):
     # Same fake job on a dask LocalCluster (2 single-threaded worker processes):
     # the same keys land, the exploding task is reported with its worker traceback.
+    monkeypatch.setenv("OMP_NUM_THREADS", "4")      # the workers must still get 1
     sets = [{"radius": 0.01 * (i + 1), "length": 0.04} for i in range(4)]
     sets[2]["explode"] = True
     spec = parse_spec(spec_dict(list=sets))
