@@ -32,7 +32,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from designer.sweep import DEFAULT_BACKEND, SweepBackend, parse_spec, run_sweep  # noqa: E402
+from designer.sweep import SweepBackend, parse_spec, run_sweep  # noqa: E402
 from store.entry import SegmentEntry, content_key  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
