@@ -63,7 +63,7 @@ def noop_contains(path, key):
 
 
 NOOP = SweepBackend(job=noop_job, store=noop_store, contains=noop_contains, canonical=noop_canonical,
-                    key=noop_key, families=None)
+                    key=noop_key, families=None, catalogue_keys=None)
 
 CONFIGURATIONS = [("local", 1), ("local", 2), ("dask", 1), ("dask", 2)]
 

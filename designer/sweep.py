@@ -335,6 +335,20 @@ def _catalogue_has(path: str, key: str) -> bool:
     return catalogue.has_entry(path, key)
 
 
+def _catalogue_keys(path: str) -> set | None:
+    """Every key of an existing catalogue (file and committed shards) in one read; None: ask per key."""
+    from store import catalogue
+    from store.errors import CatalogueError
+
+    if not os.path.exists(path):
+        return None                   # only shards, or nothing: has_entry knows how to look
+    try:
+        with catalogue.open_catalogue(path) as cat:
+            return {row["key"] for row in cat.list()}
+    except (CatalogueError, OSError):
+        return None
+
+
 def _designer_canonical(family: str, parameters: dict) -> dict:
     import designer
 
@@ -359,7 +373,10 @@ class SweepBackend:
 
     ``job(task) -> SegmentEntry`` and ``store(path, entry) -> key`` run in the
     workers; ``canonical``, ``key`` and ``contains`` run in the parent before
-    any work; ``families()`` lists known families (``None``: do not check).
+    any work; ``families()`` lists known families (``None``: do not check);
+    ``catalogue_keys(path)`` optionally returns every key at once (a set) so
+    planning a large sweep does not open the catalogue once per task (``None``
+    or a ``None`` result: ``contains`` is asked per key).
     """
 
     job: Callable = design_job
@@ -368,6 +385,7 @@ class SweepBackend:
     canonical: Callable = _designer_canonical
     key: Callable = _designer_key
     families: Callable | None = _designer_families
+    catalogue_keys: Callable | None = _catalogue_keys
 
 
 DEFAULT_BACKEND = SweepBackend()
@@ -501,6 +519,11 @@ def plan_sweep(spec: SweepSpec, catalogue, *, backend: SweepBackend = DEFAULT_BA
                              file=spec.source, field="family")
     tasks, todo, skipped, duplicates, invalid = [], [], [], [], []
     first_with_key: dict[str, int] = {}
+    known = backend.catalogue_keys(catalogue) if backend.catalogue_keys is not None else None
+
+    def in_catalogue(key: str) -> bool:
+        return key in known if known is not None else backend.contains(catalogue, key)
+
     for raw in expand(spec):
         task = replace(raw, parameters=_json_ready(raw.parameters))
         try:
@@ -519,7 +542,7 @@ def plan_sweep(spec: SweepSpec, catalogue, *, backend: SweepBackend = DEFAULT_BA
         tasks.append(task)
         if task.key in first_with_key:
             duplicates.append((task, first_with_key[task.key]))
-        elif backend.contains(catalogue, task.key):   # the store also sees committed, unmerged shards
+        elif in_catalogue(task.key):   # the store also sees committed, unmerged shards
             first_with_key[task.key] = task.index
             skipped.append(task)
         else:
