@@ -22,7 +22,8 @@ The machine may be shared: every timing is a median (the minimum is kept too), t
 is recorded before and after each section, and only ratios measured in the same run should be
 compared.
 
-Run: ``OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_solver.py [--quick]``;
+Run: ``OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_solver.py [--quick] [--commit REV]``
+(``--commit`` benchmarks that commit's ``solver/`` from a snapshot, whatever the working tree holds);
 writes ``benchmarks/results/solver.json`` and ``benchmarks/results/solver.md``
 (``--quick`` writes ``solver-quick.*`` into ``--out`` or, by default, a temporary directory: a smoke
 run never touches the committed results).
@@ -49,7 +50,9 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 import scipy  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
+# BENCH_SOLVER_ROOT (set by --commit) points at a snapshot of the repository to benchmark
+ROOT = Path(os.environ.get("BENCH_SOLVER_ROOT") or Path(__file__).resolve().parents[1])
+REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import solver  # noqa: E402
@@ -179,6 +182,11 @@ def fmt_time(s):
 
 
 def git_info():
+    snapshot = os.environ.get("BENCH_SOLVER_SNAPSHOT")
+    if snapshot:
+        return {"commit": snapshot, "solver_dirty": False, "solver_diff_sha1": None, "solver_diff_files": [],
+                "snapshot": True}
+
     def run(*args):
         try:
             return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True, timeout=20).stdout
@@ -248,10 +256,10 @@ def bench_scaling(quick):
                "per_iteration_s": t["median_s"] / max(result.iterations, 1),
                "per_iteration_cpu_s": t["cpu_median_s"] / max(result.iterations, 1),
                "per_evaluation_s": t["median_s"] / max(evals["tangent"] + evals["gradient"], 1),
-               "tangent_eval_s": t_tan["median_s"], "gradient_eval_s": t_grad["median_s"],
-               "band_assembly_s": t_band["median_s"], "cholesky_factor_s": t_fac["median_s"],
-               "cholesky_solve_s": t_sol["median_s"], "cholesky_factor_solve_s": t_fs["median_s"],
-               "lu_factor_solve_s": t_lu["median_s"], "retraction_s": t_step["median_s"],
+               "tangent_eval_s": t_tan["cpu_median_s"], "gradient_eval_s": t_grad["cpu_median_s"],
+               "band_assembly_s": t_band["cpu_median_s"], "cholesky_factor_s": t_fac["cpu_median_s"],
+               "cholesky_solve_s": t_sol["cpu_median_s"], "cholesky_factor_solve_s": t_fs["cpu_median_s"],
+               "lu_factor_solve_s": t_lu["cpu_median_s"], "retraction_s": t_step["cpu_median_s"],
                "tip_error_vs_elastica": err, "loadavg": la}
         rows.append(row)
         print(f"  {links:>6} links  {fmt_time(t['median_s']):>10} [CPU {fmt_time(t['cpu_median_s'])}]  it {result.iterations:>2}  "
@@ -311,27 +319,32 @@ def warm_trajectory(kind, base_model_fn, ticks, scene_name):
     first = models[0].solve(acts[0])
     models[0].solve(acts[0], initial=first.state)          # warm-up of the warm path
     # two separate passes (each pays the per-tick set-up, e.g. the reference force of a new load)
-    cold_t, cold_it, cold_conv, cold_pos = [], [], [], []
+    cold_t, cold_it, cold_conv, cold_pos, cold_c = [], [], [], [], []
     for k in range(1, ticks + 1):
         gc.disable()
+        c0 = time.process_time()
         t0 = time.perf_counter()
         cold = models[k].solve(acts[k])
         cold_t.append(time.perf_counter() - t0)
+        cold_c.append(time.process_time() - c0)
         gc.enable()
         cold_it.append(cold.iterations), cold_conv.append(cold.converged), cold_pos.append(cold.state.positions)
-    warm_t, warm_it, warm_conv = [], [], []
+    warm_t, warm_it, warm_conv, warm_c = [], [], [], []
     prev, diff = first, 0.0
     for k in range(1, ticks + 1):
         gc.disable()
+        c0 = time.process_time()
         t0 = time.perf_counter()
         warm = models[k].solve(acts[k], initial=prev.state)
         warm_t.append(time.perf_counter() - t0)
+        warm_c.append(time.process_time() - c0)
         gc.enable()
         warm_it.append(warm.iterations), warm_conv.append(warm.converged)
         diff = max(diff, float(np.max(np.abs(warm.state.positions - cold_pos[k - 1]))))
         prev = warm
     return {"scene": scene_name, "change": kind, "ticks": ticks,
             "cold_median_s": float(np.median(cold_t)), "warm_median_s": float(np.median(warm_t)),
+            "cold_cpu_median_s": float(np.median(cold_c)), "warm_cpu_median_s": float(np.median(warm_c)),
             "cold_iterations_median": float(np.median(cold_it)), "warm_iterations_median": float(np.median(warm_it)),
             "all_converged": bool(all(warm_conv) and all(cold_conv)),
             "max_position_difference_m": diff, "speedup": float(np.median(cold_t) / np.median(warm_t))}
@@ -395,8 +408,8 @@ def bench_gallery(quick):
     _, t_step = timed(lambda: model.step(state, rhs * 0.0), 201)
     _, evals = count_evaluations(model, lambda: model.solve())
     c20 = {"wall": t, "iterations": int(result.iterations), "evaluations": evals,
-           "tangent_eval_s": t_tan["median_s"], "gradient_eval_s": t_grad["median_s"],
-           "cholesky_factor_solve_s": t_fs["median_s"], "retraction_s": t_step["median_s"],
+           "tangent_eval_s": t_tan["cpu_median_s"], "gradient_eval_s": t_grad["cpu_median_s"],
+           "cholesky_factor_solve_s": t_fs["cpu_median_s"], "retraction_s": t_step["cpu_median_s"],
            "target_s": 1e-3, "met": bool(t["median_s"] <= 1e-3), "loadavg": loadavg()}
     print(f"  cantilever 20 links: {fmt_time(t['median_s'])} (min {fmt_time(t['min_s'])}), "
           f"{result.iterations} it, {evals['tangent']} tangent evals of {fmt_time(t_tan['median_s'])}, "
@@ -550,6 +563,7 @@ def one_step_case(label, model_a, model_b, act_a, act_b, L):
     _, t_warm = timed(lambda: model_b.solve(act_b, initial=a.state), 41)
     warm = model_b.solve(act_b, initial=a.state)
     row.update({"one_step_s": t_step["median_s"], "warm_converged_s": t_warm["median_s"],
+                "one_step_cpu_s": t_step["cpu_median_s"], "warm_converged_cpu_s": t_warm["cpu_median_s"],
                 "warm_iterations": int(warm.iterations)})
     return row
 
@@ -629,7 +643,8 @@ def markdown(res):
     w("Solves timed in interleaved rounds over all sizes (median of the round medians; min; CPU time); "
       "the pieces of one iteration timed separately at the converged state.\n")
     w("| links | frames | half bw | solve (min) [CPU] | iterations | tangent+gradient evals | time / iteration "
-      "| tangent eval | band assembly | Cholesky factor+solve | LU factor+solve | residual | tip err vs elastica |")
+      "(wall / CPU) | tangent eval (CPU) | band assembly (CPU) | Cholesky factor+solve (CPU) | LU factor+solve (CPU) "
+      "| residual | tip err vs elastica |")
     w("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in sc["rows"]:
         if "skipped" in r:
@@ -637,7 +652,7 @@ def markdown(res):
             continue
         w(f"| {r['links']} | {r['frames']} | {r['kd']} | {fmt_time(r['solve']['median_s'])} "
           f"({fmt_time(r['solve']['min_s'])}) [{fmt_time(r['solve']['cpu_median_s'])}] | {r['iterations']} | {r['evaluations_tangent']}+{r['evaluations_gradient']} | "
-          f"{fmt_time(r['per_iteration_s'])} | {fmt_time(r['tangent_eval_s'])} | {fmt_time(r['band_assembly_s'])} | "
+          f"{fmt_time(r['per_iteration_s'])} / {fmt_time(r['per_iteration_cpu_s'])} | {fmt_time(r['tangent_eval_s'])} | {fmt_time(r['band_assembly_s'])} | "
           f"{fmt_time(r['cholesky_factor_solve_s'])} | {fmt_time(r['lu_factor_solve_s'])} | "
           f"{r['residual']:.1e}{' (r)' if r['rounding_limited'] else ''} | {pct(r['tip_error_vs_elastica'])} |")
     ex = sc["exponents"]
@@ -675,13 +690,14 @@ def markdown(res):
       f"Cholesky factor+solve {fmt_time(c['cholesky_factor_solve_s'])}, retraction {fmt_time(c['retraction_s'])}. "
       f"Target ≤ 1 ms: {'met' if c['met'] else '**not met**'}.\n")
     w("Warm-started re-solves along a trajectory of 1 % changes per tick (`initial=previous.state`):\n")
-    w("| scene | change | ticks | cold median | cold iterations | warm median | warm iterations | speed-up | "
+    w("| scene | change | ticks | cold median (CPU) | cold iterations | warm median (CPU) | warm iterations | speed-up (CPU) | "
       "max |warm − cold| position | all converged |")
     w("|---|---|---|---|---|---|---|---|---|---|")
     for r in g["warm"]:
-        w(f"| {r['scene']} | {r['change']} | {r['ticks']} | {fmt_time(r['cold_median_s'])} | "
-          f"{r['cold_iterations_median']:.0f} | {fmt_time(r['warm_median_s'])} | {r['warm_iterations_median']:.0f} | "
-          f"{r['speedup']:.2f}× | {r['max_position_difference_m']:.1e} m | {r['all_converged']} |")
+        w(f"| {r['scene']} | {r['change']} | {r['ticks']} | {fmt_time(r['cold_median_s'])} "
+          f"({fmt_time(r['cold_cpu_median_s'])}) | {r['cold_iterations_median']:.0f} | {fmt_time(r['warm_median_s'])} "
+          f"({fmt_time(r['warm_cpu_median_s'])}) | {r['warm_iterations_median']:.0f} | "
+          f"{r['speedup']:.2f}× ({r['cold_cpu_median_s'] / r['warm_cpu_median_s']:.2f}×) | {r['max_position_difference_m']:.1e} m | {r['all_converged']} |")
     w("")
 
     a = res["accuracy"]
@@ -689,11 +705,11 @@ def markdown(res):
     fine = a["rows"][0]["fine_links"]
     w(f"Tip error in % of L against the inextensible elastica and against {fine} links of the same "
       f"(extensible, shearable) model.\n")
-    w("| PL²/EI | links | vs elastica | vs " + str(fine) + " links | iterations | load steps | time |")
+    w("| PL²/EI | links | vs elastica | vs " + str(fine) + " links | iterations | load steps | time (wall / CPU) |")
     w("|---|---|---|---|---|---|---|")
     for r in a["rows"]:
         w(f"| {r['load_parameter']:g} | {r['links']} | {pct(r['error_vs_elastica'])} | {pct(r['error_vs_fine'])} | "
-          f"{r['iterations']} | {r['load_steps']} | {fmt_time(r['time']['median_s'])} |")
+          f"{r['iterations']} | {r['load_steps']} | {fmt_time(r['time']['median_s'])} / {fmt_time(r['time']['cpu_median_s'])} |")
     w("\nFloor (" + str(fine) + " links vs elastica): " + ", ".join(
         f"PL²/EI = {k}: {pct(next(r['fine_vs_elastica'] for r in a['rows'] if str(r['load_parameter']) == k))}"
         for k in a["orders"]) + ".")
@@ -711,7 +727,7 @@ def markdown(res):
     co = res["coil"]
     w("## 4. Pure end moment: full coil (M = 2πEI/L) and 1.25 coils\n")
     w("| turns | links | converged | iterations | load steps | factorization | closure |tip−base|/L | "
-      "error vs arc / L | tip angle error (rad) | time |")
+      "error vs arc / L | tip angle error (rad) | time (wall / CPU) |")
     w("|---|---|---|---|---|---|---|---|---|---|")
     for r in co["rows"]:
         if "error" in r:
@@ -719,16 +735,16 @@ def markdown(res):
             continue
         w(f"| {r['turns']} | {r['links']} | {r['converged']} | {r['iterations']} | {r['load_steps']} | "
           f"{r['factorization']} | {r['closure']:.1e} | {r['arc_error']:.1e} | {r['tip_angle_error_rad']:.1e} | "
-          f"{fmt_time(r['time']['median_s'])} |")
+          f"{fmt_time(r['time']['median_s'])} / {fmt_time(r['time']['cpu_median_s'])} |")
     w("")
 
     t = res["tolerance"]
     w(f"## 5. Newton tolerance ({t['links']} links, PL²/EI = {t['load_parameter']:g})\n")
-    w("| tolerance | iterations | final residual | tip error vs tightest / L | tip error vs elastica | time |")
+    w("| tolerance | iterations | final residual | tip error vs tightest / L | tip error vs elastica | time (wall / CPU) |")
     w("|---|---|---|---|---|---|")
     for r in t["rows"]:
         w(f"| {r['tolerance']:.0e} | {r['iterations']} | {r['residual']:.1e}{' (r)' if r['rounding_limited'] else ''} | "
-          f"{r['error_vs_tightest']:.1e} | {pct(r['error_vs_elastica'])} | {fmt_time(r['time']['median_s'])} |")
+          f"{r['error_vs_tightest']:.1e} | {pct(r['error_vs_elastica'])} | {fmt_time(r['time']['median_s'])} / {fmt_time(r['time']['cpu_median_s'])} |")
     w("")
 
     o = res["one_step"]
@@ -736,7 +752,7 @@ def markdown(res):
     w("Step = paper eqs. 10–12: tangent and residual at the previous equilibrium's actuation λ0 plus "
       "B(λ − λ0). In brackets: a plain Newton step with the tangent at the new actuation.\n")
     w("| case | tip change / L | error after 1 step / L | 1 step / change | after 2 steps / L | "
-      "1 step time | converged warm re-solve | its iterations |")
+      "1 step time (wall / CPU) | converged warm re-solve (wall / CPU) | its iterations |")
     w("|---|---|---|---|---|---|---|---|")
     for r in o["rows"]:
         e1 = f"{r['one_step_error_previous']:.1e}"
@@ -746,7 +762,8 @@ def markdown(res):
             e2 += f" ({r['two_steps_error_new']:.1e})"
         rel = r["one_step_relative_previous"]
         w(f"| {r['case']} | {r['tip_change_per_L']:.1e} | {e1} | {rel if rel is not None else float('nan'):.1e} | "
-          f"{e2} | {fmt_time(r['one_step_s'])} | {fmt_time(r['warm_converged_s'])} | {r['warm_iterations']} |")
+          f"{e2} | {fmt_time(r['one_step_s'])} / {fmt_time(r['one_step_cpu_s'])} | {fmt_time(r['warm_converged_s'])} / "
+          f"{fmt_time(r['warm_converged_cpu_s'])} | {r['warm_iterations']} |")
     w("")
     for lp in o["tick_loops"]:
         w(f"* One step per tick, {lp['case']}, {lp['ticks']} ticks, never converging in between: "
@@ -789,7 +806,30 @@ def main(argv=None):
     ap.add_argument("--out", type=Path, default=None, help="output directory (default benchmarks/results)")
     ap.add_argument("--only", nargs="*", default=None,
                     help="sections to run (scaling gallery accuracy coil tolerance one_step)")
+    ap.add_argument("--commit", default=None,
+                    help="benchmark the solver of this commit (a `git archive` snapshot in a temporary "
+                         "directory), whatever the working tree holds")
     args = ap.parse_args(argv)
+    if args.commit and not os.environ.get("BENCH_SOLVER_SNAPSHOT"):
+        import shutil
+        import tempfile
+        sha = subprocess.run(["git", "rev-parse", args.commit], cwd=REPO, capture_output=True, text=True,
+                             check=True).stdout.strip()
+        tmp = Path(tempfile.mkdtemp(prefix=f"bench_solver_{sha[:10]}_"))
+        try:
+            archive = subprocess.run(["git", "archive", sha, "solver", "store"], cwd=REPO, capture_output=True,
+                                     check=True).stdout
+            subprocess.run(["tar", "-x", "-C", str(tmp)], input=archive, check=True)
+            env = dict(os.environ, BENCH_SOLVER_ROOT=str(tmp), BENCH_SOLVER_SNAPSHOT=sha)
+            rest = [a for a in (argv if argv is not None else sys.argv[1:])]
+            i = rest.index("--commit")
+            rest = rest[:i] + rest[i + 2:]
+            if args.out is None:
+                out = Path(tempfile.gettempdir()) / f"bench_solver_quick_{os.getuid()}" if args.quick else RESULTS
+                rest += ["--out", str(out)]
+            return subprocess.call([sys.executable, str(Path(__file__).resolve()), *rest], env=env)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
     if args.out:
         out_dir = args.out
     elif args.quick:
@@ -806,7 +846,7 @@ def main(argv=None):
                            "numpy": np.__version__, "scipy": scipy.__version__,
                            "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS"),
                            "OPENBLAS_NUM_THREADS": os.environ.get("OPENBLAS_NUM_THREADS"),
-                           "git": git_info()}}
+                           "git": git_info(), "solver_module": str(Path(solver.__file__).parent)}}
     sections = [("scaling", bench_scaling), ("gallery", bench_gallery), ("accuracy", bench_accuracy),
                 ("coil", bench_coil), ("tolerance", bench_tolerance), ("one_step", bench_one_step)]
     for name, fn in sections:
@@ -831,4 +871,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())
