@@ -114,6 +114,7 @@ class TrunkModel:
         self.rest_state = self._rest_state(scene)
         self.rest_cable_lengths = self.cable_lengths(self.rest_state)
         self._reference_cache = (None, None)
+        self._geometry_cache = (None, None)
 
     # ------------------------------------------------------------------ compile
     def _compile_links(self, scene, entries):
@@ -276,13 +277,14 @@ class TrunkModel:
         xi_rest = self._link_rest(scale * actuation[self.n_cables:])
         args = (q[:-1], x[:-1], q[1:], x[1:], self.link_stiffness, xi_rest)
         if tangent:
-            g, energy, H = pair_tangent(link_gradient, *args)
+            g, energy, H, geometry = pair_tangent(link_gradient, *args)
+            self._geometry_cache = (state, geometry)     # reused by step() from this state
             lower[:, 0] += H[:, 6:, 6:]
             lower[:-1, 0] += H[1:, :6, :6]
             lower[:-1, 1] += H[1:, 6:, :6]
             upper[:-1, 1] += H[1:, :6, 6:]
         else:
-            g, energy = link_gradient(*args)
+            g, energy, _ = link_gradient(*args)
         grad[:-1] += g[:, :6]
         grad[1:] += g[:, 6:]
         total = float(np.sum(energy))
@@ -345,7 +347,9 @@ class TrunkModel:
         d = np.zeros((self.n_frames, 6))
         d[1:] = np.asarray(dq).reshape(-1, 6)
         q, x = state.quaternions, state.positions
-        geometry = LinkGeometry.of(q[:-1], x[:-1], q[1:], x[1:])
+        cached_state, geometry = self._geometry_cache
+        if cached_state is not state:
+            geometry = LinkGeometry.of(q[:-1], x[:-1], q[1:], x[1:])
         Ra_T = np.swapaxes(geometry.Ra, -1, -2)
         local = matvec(Ra_T[:, None], np.stack([d[1:, :3] - d[:-1, :3], d[1:, 3:], d[:-1, 3:]], 1))
         zeta = np.concatenate([local[:, 0] + cross(geometry.p, local[:, 1]), local[:, 1] - local[:, 2]], -1)

@@ -75,8 +75,9 @@ def test_link_tangent_by_complex_step_matches_finite_differences(straight):
     K = RNG.normal(size=(n, 6, 6))
     K = K @ np.swapaxes(K, 1, 2) + np.eye(6)
     rest = 0.05 * RNG.normal(size=(n, 6))
-    g, energy, H = pair_tangent(link_gradient, qa, xa, qb, xb, K, rest)
-    g_real, e_real = link_gradient(qa, xa, qb, xb, K, rest)
+    g, energy, H, geometry = pair_tangent(link_gradient, qa, xa, qb, xb, K, rest)
+    g_real, e_real, geometry_real = link_gradient(qa, xa, qb, xb, K, rest)
+    assert np.allclose(geometry.twist(), geometry_real.twist(), rtol=0, atol=1e-15)
     assert np.allclose(g, g_real, atol=1e-14) and np.allclose(energy, e_real, atol=1e-14)
     H_fd = _finite_difference_tangent(link_gradient, qa, xa, qb, xb, K, rest)
     assert np.abs(H - H_fd).max() < 1e-6 * np.abs(H).max()
@@ -95,7 +96,7 @@ def test_link_gradient_is_objective():
     # a rigid motion of both frames produces no net force and no net moment about the origin
     qa, xa, qb, xb = _random_pair(3)
     K = np.broadcast_to(np.diag([3.0, 3, 5, 1, 1, 2]), (3, 6, 6))
-    g, _ = link_gradient(qa, xa, qb, xb, K, 0.1 * RNG.normal(size=(3, 6)))
+    g, _, _ = link_gradient(qa, xa, qb, xb, K, 0.1 * RNG.normal(size=(3, 6)))
     force = g[:, :3] + g[:, 6:9]
     moment = g[:, 3:6] + g[:, 9:] + np.cross(xa, g[:, :3]) + np.cross(xb, g[:, 6:9])
     assert np.abs(force).max() < 1e-12 * np.abs(g).max()
