@@ -626,7 +626,8 @@ def markdown(res):
     w(f"`benchmarks/bench_solver.py{' --quick' if res['quick'] else ''}` · {res['date']} · host "
       f"{env['host']} ({env['cpus']} CPUs, shared) · python {env['python']} · numpy {env['numpy']} · "
       f"scipy {env['scipy']} · OMP_NUM_THREADS={env['OMP_NUM_THREADS']} · commit `{env['git']['commit'][:10]}`"
-      f"{' + uncommitted solver/ changes (' + str(env['git']['solver_diff_sha1'])[:10] + ')' if env['git']['solver_dirty'] else ''}\n")
+      f"{' + uncommitted solver/ changes (' + str(env['git']['solver_diff_sha1'])[:10] + ')' if env['git']['solver_dirty'] else ''}"
+      f"{' (solver/ and store/ from a clean snapshot of that commit)' if env['git'].get('snapshot') else ''}\n")
     w(f"Load average (1/5/15 min) at start {res['loadavg_start']}, at end {res['loadavg_end']} "
       f"on {env['cpus']} cores: absolute times are inflated by other jobs; compare ratios within this run. "
       f"Times are medians (min in brackets where given). Total run {res['total_s']:.0f} s.\n")
@@ -691,7 +692,7 @@ def markdown(res):
       f"Target ≤ 1 ms: {'met' if c['met'] else '**not met**'}.\n")
     w("Warm-started re-solves along a trajectory of 1 % changes per tick (`initial=previous.state`):\n")
     w("| scene | change | ticks | cold median (CPU) | cold iterations | warm median (CPU) | warm iterations | speed-up (CPU) | "
-      "max |warm − cold| position | all converged |")
+      "max \\|warm − cold\\| position | all converged |")
     w("|---|---|---|---|---|---|---|---|---|---|")
     for r in g["warm"]:
         w(f"| {r['scene']} | {r['change']} | {r['ticks']} | {fmt_time(r['cold_median_s'])} "
@@ -726,7 +727,7 @@ def markdown(res):
 
     co = res["coil"]
     w("## 4. Pure end moment: full coil (M = 2πEI/L) and 1.25 coils\n")
-    w("| turns | links | converged | iterations | load steps | factorization | closure |tip−base|/L | "
+    w("| turns | links | converged | iterations | load steps | factorization | closure \\|tip − base\\|/L | "
       "error vs arc / L | tip angle error (rad) | time (wall / CPU) |")
     w("|---|---|---|---|---|---|---|---|---|---|")
     for r in co["rows"]:
