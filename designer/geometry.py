@@ -122,8 +122,12 @@ def mesh_segment(family, p: dict, mesh_size: float, order: int = 2) -> MeshData:
         gmsh.option.setNumber("Mesh.MeshSizeMax", float(mesh_size))
         gmsh.option.setNumber("Mesh.ElementOrder", int(order))
         gmsh.model.add(f"{family.name}")
-        volumes = family.build(gmsh.model.occ, p)
-        gmsh.model.occ.synchronize()
+        try:
+            volumes = family.build(gmsh.model.occ, p)
+            gmsh.model.occ.synchronize()
+        except Exception as error:
+            raise GeometryError(f"family {family.name!r}: gmsh/OpenCASCADE could not build the geometry "
+                                f"({error})") from None
         volumes = [dt for dt in volumes if dt[0] == 3]
         if len(volumes) != 1:
             raise GeometryError(f"family {family.name!r}: the geometry is not one connected solid "
@@ -137,9 +141,14 @@ def mesh_segment(family, p: dict, mesh_size: float, order: int = 2) -> MeshData:
         for name, tags in sorted(groups.items()):
             gmsh.model.addPhysicalGroup(2, tags, name=name)
         gmsh.model.addPhysicalGroup(3, [t for _, t in volumes], name="volume")
-        gmsh.model.mesh.generate(3)
-        if order == 2:
-            gmsh.model.mesh.setOrder(2)
+        try:
+            gmsh.model.mesh.generate(3)
+            if order == 2:
+                gmsh.model.mesh.setOrder(2)
+        except Exception as error:      # gmsh raises plain Exception with its last error message
+            raise GeometryError(f"family {family.name!r}: gmsh could not mesh the geometry with mesh_size = "
+                                f"{mesh_size:.4g} m ({error}); a mesh size that resolves the thinnest wall "
+                                "usually helps") from None
         data = _extract(gmsh, order, groups)
         data.mesh_size = float(mesh_size)
         data.gmsh_version = gmsh_version()

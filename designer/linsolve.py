@@ -7,7 +7,8 @@ of small solver objects with one method, ``solve(A, B, modes) -> (X, info)``.
   ``coarse_solver='splu'`` — the default ``'pinv'`` cost ~30 s at 34k DoFs,
   FIELD-NOTES — and Chebyshev smoothing) as preconditioner of conjugate
   gradients, one right-hand side at a time.
-* ``auto``: ``direct`` below ``AUTO_THRESHOLD`` unknowns, ``amg`` above.
+* ``auto``: ``direct`` below ``AUTO_THRESHOLD`` unknowns, ``amg`` above, and ``direct``
+  again when AMG-PCG stalls (more than 150 iterations: thin-walled geometry).
 """
 
 from __future__ import annotations
@@ -91,9 +92,30 @@ class AMG:
                    "iterations": iterations, "levels": len(ml.levels)}
 
 
+@dataclass
+class Auto:
+    """``direct`` below ``threshold`` unknowns; above it AMG, falling back to ``direct`` when
+    AMG-PCG stalls (thin walls — a bellows — made smoothed aggregation need 600–900
+    iterations where SuperLU took seconds)."""
+
+    threshold: int = AUTO_THRESHOLD
+    amg_maxiter: int = 150
+    name: str = "auto"
+
+    def solve(self, A, B, modes=None):
+        if A.shape[0] < self.threshold:
+            return LINEAR_SOLVERS["direct"].solve(A, B, modes)
+        try:
+            return AMG(maxiter=self.amg_maxiter).solve(A, B, modes)
+        except ConvergenceError as error:
+            X, info = LINEAR_SOLVERS["direct"].solve(A, B, modes)
+            return X, dict(info, amg_fallback=str(error))
+
+
 def get_solver(name: str, n_unknowns: int, threshold: int | None = None) -> LinearSolver:
+    """The solver registered as ``name``; ``"auto"`` picks by size (see :class:`Auto`)."""
     if name == "auto":
-        name = "direct" if n_unknowns < (AUTO_THRESHOLD if threshold is None else threshold) else "amg"
+        return Auto(threshold=AUTO_THRESHOLD if threshold is None else threshold)
     if name not in LINEAR_SOLVERS:
         raise VertebraError(f"unknown linear_solver {name!r} (known: auto, {', '.join(LINEAR_SOLVERS)})")
     return LINEAR_SOLVERS[name]
