@@ -124,7 +124,8 @@ def run(args) -> int:
     }
     if args.plot:
         _plot(args.plot, names, model.actuator_names, trajectory, np.array(equilibria),
-              np.array([[*s["cables"].values(), *s["chambers"].values()] for s in steps], dtype=object))
+              np.array([[*s["cables"].values(), *s["chambers"].values()] for s in steps], dtype=object),
+              model=model, final_state=state)
     if args.json:
         print(json.dumps(document))
     else:
@@ -166,23 +167,27 @@ def _step_json(model, t, actuation, displacements, names, targets, positions, er
     }
 
 
-def _plot(path, names, actuator_names, trajectory, achieved, actuation_rows) -> None:
+def _plot(path, names, actuator_names, trajectory, achieved, actuation_rows, *, model=None, final_state=None) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     import numpy as np
 
+    from solver.report import draw_trunk, equal_axes
+
     fig = plt.figure(figsize=(11, 4.8))
     ax = fig.add_subplot(1, 2, 1, projection="3d")
+    points = [trajectory.targets.reshape(-1, 3), achieved.reshape(-1, 3)]
+    if model is not None and final_state is not None:
+        draw_trunk(ax, model, final_state, targets=False, legend_prefix="final ")
+        points.append(final_state.positions)
     for k, name in enumerate(names):
         tgt = trajectory.targets[:, k]
         ach = achieved[:, k]
         ax.plot(tgt[:, 0], tgt[:, 1], tgt[:, 2], "--", label=f"{name} target")
         ax.plot(ach[:, 0], ach[:, 1], ach[:, 2], "o-", ms=2, label=f"{name} achieved")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    ax.set_zlabel("z (m)")
+    equal_axes(ax, np.vstack(points))
     ax.legend(fontsize=7)
     ax2 = fig.add_subplot(1, 2, 2)
     values = np.array([[list(v.values())[0] for v in row] for row in actuation_rows], dtype=float)

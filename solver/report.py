@@ -62,14 +62,15 @@ def _vertebra_radius(model: TrunkModel) -> float:
     return 1.3 * max(radii) if radii and max(radii) > 0 else 0.03 * model.length_scale
 
 
-def draw_trunk(ax, model: TrunkModel, state: State, *, rest: bool = True, targets: bool = True):
+def draw_trunk(ax, model: TrunkModel, state: State, *, rest: bool = True, targets: bool = True,
+               legend_prefix: str = ""):
     """Draw backbone, vertebrae (discs), cables and effectors on a 3D matplotlib axis."""
     from solver.rotations import qrotate
     if rest:
         r = model.rest_state.positions
         ax.plot(r[:, 0], r[:, 1], r[:, 2], color="0.75", lw=1, ls="--", label="rest")
     x = state.positions
-    ax.plot(x[:, 0], x[:, 1], x[:, 2], color="k", lw=2, label="backbone")
+    ax.plot(x[:, 0], x[:, 1], x[:, 2], color="k", lw=2, label=f"{legend_prefix}backbone")
     radius = _vertebra_radius(model)
     angle = np.linspace(0, 2 * np.pi, 33)
     circle = np.stack([radius * np.cos(angle), radius * np.sin(angle), 0 * angle], -1)
@@ -80,14 +81,15 @@ def draw_trunk(ax, model: TrunkModel, state: State, *, rest: bool = True, target
         ax.plot(path[:, 0], path[:, 1], path[:, 2], lw=1, color=f"C{(k % 8) + 1}")
     if model.effector_names:
         e = model.effector_positions(state)
-        ax.scatter(e[:, 0], e[:, 1], e[:, 2], color="tab:red", s=25, label="effectors")
+        ax.scatter(e[:, 0], e[:, 1], e[:, 2], color="tab:red", s=25, label=f"{legend_prefix}effectors")
         t = model.effector_targets
         if targets and np.all(np.isfinite(t)):
             ax.scatter(t[:, 0], t[:, 1], t[:, 2], marker="x", color="tab:green", s=40, label="targets")
-    _equal_axes(ax, np.vstack([x, model.rest_state.positions]))
+    equal_axes(ax, np.vstack([x, model.rest_state.positions]))
 
 
-def _equal_axes(ax, points):
+def equal_axes(ax, points):
+    """Equal scales on a 3D axis around ``points`` (matplotlib has no 'equal' for 3D data)."""
     centre = 0.5 * (points.max(0) + points.min(0))
     half = 0.55 * max(np.ptp(points, axis=0).max(), 1e-9)
     ax.set_xlim(centre[0] - half, centre[0] + half)
