@@ -90,11 +90,13 @@ def _classify_surfaces(gmsh, family, p, volumes) -> dict[str, list[int]]:
     boundary = gmsh.model.getBoundary(volumes, combined=True, oriented=False, recursive=False)
     groups: dict[str, list[int]] = {}
     for dim, tag in boundary:
-        # OCC pads bounding boxes by ~1e-7 m: flatness is judged relative to the length
-        _, _, zmin, _, _, zmax = gmsh.model.getBoundingBox(dim, tag)
+        # end faces: planar with normal ±z, at z = 0 or z = length (OCC pads bounding boxes by an
+        # absolute ~1e-7 m, so they are no good for tiny segments; the normal is scale-free)
         lo, hi = gmsh.model.getParametrizationBounds(dim, tag)
-        point = gmsh.model.getValue(dim, tag, [0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1])])
-        flat = abs(zmax - zmin) < 1e-3 * length
+        uv = [0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1])]
+        point = gmsh.model.getValue(dim, tag, uv)
+        normal = gmsh.model.getNormal(tag, uv)
+        flat = gmsh.model.getType(dim, tag) == "Plane" and abs(abs(normal[2]) - 1.0) < 1e-9
         if flat and abs(point[2]) < tol:
             name = "bottom"
         elif flat and abs(point[2] - length) < tol:
@@ -114,12 +116,17 @@ def mesh_segment(family, p: dict, mesh_size: float, order: int = 2) -> MeshData:
     if not (mesh_size > 0 and math.isfinite(mesh_size)):
         raise GeometryError(f"parameter 'mesh_size': must be a positive number, got {mesh_size}")
     start = time.perf_counter()
+    # mesh in units of the segment length: OCC and gmsh/tetgen work with absolute tolerances
+    # (~1e-7), so a 20 µm segment failed where the same shape at 20 mm meshed. Scaled, the mesh
+    # is the same for every unit scale; coordinates are scaled back after meshing.
+    scale = float(family.length(p))
+    p = {spec.name: (p[spec.name] / scale if spec.unit == "m" else p[spec.name]) for spec in family.parameters}
     gmsh.initialize(readConfigFiles=False, interruptible=False)
     try:
         for name, value in GMSH_OPTIONS.items():
             gmsh.option.setNumber(name, value)
         gmsh.option.setNumber("Mesh.MeshSizeMin", 0.0)
-        gmsh.option.setNumber("Mesh.MeshSizeMax", float(mesh_size))
+        gmsh.option.setNumber("Mesh.MeshSizeMax", float(mesh_size) / scale)
         gmsh.option.setNumber("Mesh.ElementOrder", int(order))
         gmsh.model.add(f"{family.name}")
         try:
@@ -150,6 +157,7 @@ def mesh_segment(family, p: dict, mesh_size: float, order: int = 2) -> MeshData:
                                 f"{mesh_size:.4g} m ({error}); a mesh size that resolves the thinnest wall "
                                 "usually helps") from None
         data = _extract(gmsh, order, groups)
+        data.nodes *= scale
         data.mesh_size = float(mesh_size)
         data.gmsh_version = gmsh_version()
         data.mesh_s = time.perf_counter() - start

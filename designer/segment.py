@@ -23,7 +23,7 @@ from store.entry import SegmentEntry, content_key
 from store.errors import GeometryError
 
 #: bump when a change in designer/ changes the numbers of an entry (part of the key)
-ALGORITHM_VERSION = "designer-1"
+ALGORITHM_VERSION = "designer-2"   # 2: meshing in units of the segment length
 #: layout of the key payload
 KEY_SCHEMA = 1
 #: mesh-size ratio of the refined mesh used for the accuracy estimate

@@ -254,3 +254,22 @@ def test_gmsh_failure_becomes_geometry_error():
     # GeometryError (CLI exit 2) naming the mesh size, not a bare gmsh exception
     with pytest.raises(GeometryError, match="mesh_size = 0.004"):
         design_segment("bellows", BELLOWS, mesh_size=0.004, order=2, estimate_accuracy=False)
+
+
+@pytest.mark.parametrize("s,e", [(1e-3, 1e3), (10.0, 1e-2)])
+def test_unit_scaling_invariance(pneumatic, s, e):
+    """Lengths × s and moduli × e: the compliance must follow the units exactly — translation
+    per force ∝ 1/(e s), rotation per moment ∝ 1/(e s³), volume per pressure ∝ s³/e … i.e.
+    C_s = D C D with D = (output unit)/(input unit) per row. gmsh meshes in units of the segment
+    length, so the mesh is the same at every scale: agreement to round-off (a 20 µm segment
+    failed to mesh before that)."""
+    fe, cond, C1 = pneumatic
+    lengths = ("outer_radius", "chamber_radius", "chamber_offset", "length")
+    scaled = {k: (v * s if k in lengths else v) for k, v in PNEUMATIC.items()}
+    scaled["youngs_modulus"] = PNEUMATIC["youngs_modulus"] * e
+    Cs, fes, *_ = solve_segment("pneumatic", scaled, mesh_size=0.006 * s, order=2, linear_solver="direct")
+    assert fes.n_dofs == fe.n_dofs
+    out_unit = np.array([s] * 3 + [1.0] * 3 + [s ** 3] * 3)
+    in_unit = np.array([e * s ** 2] * 3 + [e * s ** 3] * 3 + [e] * 3)
+    D = np.sqrt(out_unit / in_unit)
+    assert compliance_change(C1 * np.outer(D, D), Cs) < 1e-10
