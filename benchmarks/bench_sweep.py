@@ -106,6 +106,10 @@ def real_rows(entries: int, mesh_size: float, order: int, repeat: int) -> list[d
                     "efficiency": busy / (workers * report.elapsed_s),
                     "load_before": load_before, "keys": sorted(o.key for o in report.completed),
                 }
+                if report.failures:
+                    first = report.failures[0]
+                    print(f"  !! {len(report.failures)} failed, e.g. task {first.index} [{first.stage}] "
+                          f"{first.error_type}: {first.message}", file=sys.stderr)
                 runs[(executor, workers)].append(run)
                 print(f"  real  h={mesh_size} {executor:5s} x{workers} #{round_}: {run['entries']} entries in "
                       f"{report.elapsed_s:6.1f} s = {run['entries_per_minute'] or 0:6.2f}/min, mean task "
@@ -114,7 +118,10 @@ def real_rows(entries: int, mesh_size: float, order: int, repeat: int) -> list[d
     reference = runs[CONFIGURATIONS[0]][0]["keys"]
     rows = []
     for configuration in CONFIGURATIONS:
-        best = dict(min(runs[configuration], key=lambda run: run["wall_s"]))
+        # only complete runs count (a run with failed tasks is not a throughput measurement)
+        complete = [run for run in runs[configuration] if run["entries"] == entries] or runs[configuration]
+        best = dict(min(complete, key=lambda run: run["wall_s"]))
+        best["complete_runs"] = sum(run["entries"] == entries for run in runs[configuration])
         best["median_wall_s"] = statistics.median(run["wall_s"] for run in runs[configuration])
         best["runs"] = len(runs[configuration])
         best["same_keys_as_local_1"] = all(run["keys"] == reference for run in runs[configuration])
@@ -152,21 +159,21 @@ def overhead_rows(tasks: int) -> list[dict]:
 def markdown(result: dict) -> str:
     lines = [
         "# Sweep throughput (benchmarks/bench_sweep.py)", "",
-        f"{result['date']}, {result['host']}, {result['cpus']} CPUs shared with other work "
-        f"(load average at start {result['load_start']:.2f}); Python {result['python']}.", "",
+        f"{result['date']}, commit {result['commit']}, {result['host']}, {result['cpus']} CPUs shared with other "
+        f"work (load average at start {result['load_start']:.2f}); Python {result['python']}.", "",
         f"## Real coarse rod entries ({result['real']['entries']} rods of radius 4-7.5 mm, length 20 mm, "
         f"P{result['real']['order']}, no accuracy estimate, a fresh HDF5 catalogue for each run; "
         f"best of {result['real']['repeat']} interleaved runs per row)", "",
         "| mesh size m | DoFs (mean) | executor | workers | entries | best wall s | median wall s | entries/min (best) "
-        "| mean task s | mean task CPU s | efficiency | load before | same keys |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| mean task s | mean task CPU s | efficiency | load before | same keys | complete runs |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in result["real"]["rows"]:
         lines.append(f"| {r['mesh_size']} | {r['dofs_mean'] or 0:.0f} | {r['executor']} | {r['workers']} | "
                      f"{r['entries']} | {r['wall_s']:.1f} | {r['median_wall_s']:.1f} | "
                      f"{(r['entries_per_minute'] or 0):.2f} | {r['mean_task_s']:.2f} | {r['mean_task_cpu_s']:.2f} | "
                      f"{r['efficiency']:.2f} | "
-                     f"{r['load_before']:.1f} | {r['same_keys_as_local_1']} |")
+                     f"{r['load_before']:.1f} | {r['same_keys_as_local_1']} | {r['complete_runs']}/{r['runs']} |")
     lines += ["", "Wall time includes starting the pool or the dask LocalCluster. Efficiency = sum of worker "
               "task seconds / (workers x wall). Mean task s is the wall time a worker spent per entry, mean task "
               "CPU s the CPU time its process got meanwhile: when they differ, the worker waited for a core "
@@ -183,6 +190,16 @@ def markdown(result: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _commit() -> str | None:
+    import subprocess
+
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
+                              text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return None
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--entries", type=int, default=8)
@@ -193,7 +210,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     result = {"date": datetime.now(timezone.utc).isoformat(timespec="seconds"), "host": platform.node(),
               "cpus": os.cpu_count(), "python": platform.python_version(), "load_start": os.getloadavg()[0],
-              "omp_num_threads": os.environ.get("OMP_NUM_THREADS")}
+              "omp_num_threads": os.environ.get("OMP_NUM_THREADS"), "commit": _commit()}
     print("executor overhead (no-op job):", file=sys.stderr)
     result["overhead"] = overhead_rows(args.noop_tasks)
     print("real coarse rod entries:", file=sys.stderr)
