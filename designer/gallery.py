@@ -46,8 +46,8 @@ def cbha_slices(coarse: bool = True) -> list[dict]:
                 p[f"bottom_{name}"] = round(_lerp(section[name], t0), 9)
                 p[f"top_{name}"] = round(_lerp(section[name], t1), 9)
             r = min(p["bottom_chamber_radius"], p["top_chamber_radius"])
-            # coarse: ~1 element size of a chamber radius (P2 curved); fine: half of it
-            mesh_size = round((1.2 if coarse else 0.6) * r, 6)
+            # coarse: element size 1.2 chamber radii (P2 curved); fine: 0.8 (~3× the DoFs)
+            mesh_size = round((1.2 if coarse else 0.8) * r, 6)
             out.append({"name": f"cbha-s{s + 1}-{k + 1}", "section": s, "slice": k,
                         "parameters": p, "mesh_size": mesh_size})
     return out

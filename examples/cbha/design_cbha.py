@@ -22,7 +22,7 @@ from pathlib import Path
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="cbha-output", help="output directory (catalogue.h5, cbha.toml)")
-    parser.add_argument("--fine", action="store_true", help="half the mesh size (slower, more accurate)")
+    parser.add_argument("--fine", action="store_true", help="2/3 of the coarse mesh size (~3× the DoFs, slower)")
     parser.add_argument("--no-accuracy", action="store_true", help="skip the refined-mesh accuracy estimates")
     parser.add_argument("--pressure", type=float, default=1.0e5,
                         help="pressure of chamber s1c0 and s2c1 in the scene, Pa (0–1.5e5)")
