@@ -436,3 +436,22 @@ def test_multithreaded_dask_worker_runs_one_job_at_a_time(tmp_path):
                            backend=backend, progress=False)
     assert report.exit_code == 0, report.summary()
     assert len(report.completed) == 4 and len({o.worker["pid"] for o in report.completed}) == 1
+
+
+def drifting_job(task):
+    """An entry whose key is not the one planned (as when the designer's code changes mid-sweep)."""
+    entry = fake_job(task)
+    return SegmentEntry(**{**entry.__dict__, "key": content_key({"other": task.index})})
+
+
+def test_a_stored_key_other_than_the_planned_one_is_a_failure(tmp_path):
+    # The entry lands, but under a key that resume would never find: reported
+    # (stage "store", KeyMismatch, naming both keys) and exit code 1.
+    spec = parse_spec(spec_dict(grid={"radius": [0.01], "length": [0.04]}))
+    planned = plan_sweep(spec, tmp_path / "cat.jsonl", backend=FAKE).todo[0].key
+    report = run_sweep(spec, tmp_path / "cat.jsonl", executor="serial", progress=False,
+                       backend=SweepBackend(**{**FAKE.__dict__, "job": drifting_job}))
+    [failure] = report.failures
+    assert (failure.stage, failure.error_type) == ("store", "KeyMismatch") and report.exit_code == 1
+    stored = stored_keys(tmp_path / "cat.jsonl")
+    assert stored == [content_key({"other": 0})] and planned in failure.message and stored[0] in failure.message
