@@ -122,16 +122,17 @@ class TrunkModel:
         frame_mass, frame_moment = [0.0], [np.zeros(3)]
         vertebra_frames, segment_of_link = [0], []
         chambers = scene.chambers
+        rest_volumes = np.zeros(len(chambers))
         for seg_index, seg in enumerate(scene.segments):
             if seg.type == "beam":
                 l = seg.length / seg.elements
                 C = timoshenko_compliance(l, seg.youngs_modulus, seg.shear_modulus, seg.section)
                 q0, d0 = np.array([1.0, 0, 0, 0]), np.array([0.0, 0.0, l])
-                G, V = np.zeros((6, 0)), np.zeros((0, 0))
+                G, V, volumes = np.zeros((6, 0)), np.zeros((0, 0)), np.zeros(0)
                 link_mass, com = seg.density * seg.section.area * l, np.array([0.0, 0.0, 0.5 * l])
             else:
                 entry = entries[seg.entry]
-                C, G, V = entry.C, entry.G, entry.V
+                C, G, V, volumes = entry.C, entry.G, entry.V, entry.cavity_volumes
                 q0, d0 = entry.rest_quaternion, entry.rest_translation
                 link_mass, com = entry.mass, entry.center_of_mass
             xi_rest, A = _strain_map(q0, d0)
@@ -153,6 +154,7 @@ class TrunkModel:
                                     file=scene.source, field=f"chamber[{j}].cavity")
                             P[:, j] = A @ G[:, ch.cavity]
                             cover[j] = True
+                            rest_volumes[j] += volumes[ch.cavity]
                     S.append(P), covers.append(cover)
                     Vc = np.zeros((len(chambers), len(chambers)))
                     idx = [j for j in range(len(chambers)) if cover[j]]
@@ -183,13 +185,6 @@ class TrunkModel:
         self.frame_moment = np.array(frame_moment)
         self.vertebra_frames = np.array(vertebra_frames)
         self.length_scale = float(np.sum(np.linalg.norm(self.link_rest_translation, axis=1)))
-        rest_volumes = np.zeros(len(chambers))
-        for j, ch in enumerate(chambers):
-            for seg_index, seg in enumerate(scene.segments):
-                if seg.type == "entry":
-                    first_vertebra = 1 + sum(s.count for s in scene.segments[:seg_index])
-                    reps = [first_vertebra + r for r in range(seg.count) if ch.first <= first_vertebra + r <= ch.last]
-                    rest_volumes[j] += len(reps) * entries[seg.entry].cavity_volumes[ch.cavity]
         self.chamber_rest_volumes = rest_volumes
         for j, ch in enumerate(chambers):
             if not np.any(self.link_pressure_map[:, :, j]) and ch.first <= ch.last:

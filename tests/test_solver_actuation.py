@@ -7,6 +7,7 @@ import pytest
 
 import solver
 from store import SegmentEntry
+from store.errors import SceneError
 
 RNG = np.random.default_rng(7)
 
@@ -136,3 +137,22 @@ def test_cables_spanning_several_links_widen_the_band():
     beam_only = solver.build_model(solver.parse_scene({"segment": data["segment"]}))
     assert beam_only.span == 1
     assert model.solve().converged
+
+
+def test_chambers_next_to_entries_without_cavities():
+    # a rod-like entry (no cavities) below pneumatic slices: chambers cover only the slices;
+    # rest volumes add the covered cavities, and a chamber over the rod is an error naming it
+    rod = SegmentEntry(key="k-rod", name="rod", family="synthetic", parameters={},
+                       compliance=np.diag([2e-4, 2e-4, 2e-5, 0.3, 0.3, 0.5]), cavity_volumes=np.zeros(0),
+                       mass=0.01, center_of_mass=[0, 0, 0.015], rest_translation=[0, 0, 0.03])
+    slice_ = synthetic_entry()
+    data = {"catalogue": {"path": "never-opened.h5"},
+            "segment": [{"type": "entry", "entry": "rod", "count": 2},
+                        {"type": "entry", "entry": slice_.name, "count": 3}],
+            "chamber": [{"name": "c0", "cavity": 0, "from": 3, "to": 5, "pressure": 2e4}]}
+    model = solver.build_model(solver.parse_scene(data), entries={"rod": rod, slice_.name: slice_})
+    assert np.isclose(model.chamber_rest_volumes[0], 3 * slice_.cavity_volumes[0])
+    assert model.solve().converged
+    data["chamber"][0]["from"] = 1
+    with pytest.raises(SceneError, match="has 0 cavities"):
+        solver.build_model(solver.parse_scene(data), entries={"rod": rod, slice_.name: slice_})
