@@ -1,14 +1,12 @@
 """Pin BLAS/OpenMP threads to one (FIELD-NOTES: AMG ran 5–25× slower otherwise on 2 cores).
 
-Environment variables only act before numpy is imported, so for an already
-running interpreter we also call the ``*openblas_set_num_threads*`` entry point
-of every OpenBLAS that is loaded (what threadpoolctl does, which is not a
-dependency here). Best effort: never raises.
+Environment variables act only before numpy is imported, so for an interpreter that already
+runs, the limits are set through threadpoolctl, the maintained library that knows every BLAS
+and OpenMP runtime numpy/scipy may have loaded (OpenBLAS, MKL, BLIS, libgomp, …).
 """
 
 from __future__ import annotations
 
-import ctypes
 import os
 
 THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
@@ -21,25 +19,15 @@ def pin_environment(threads: int = 1) -> None:
 
 
 def pin_blas_threads(threads: int = 1) -> int:
-    """Limit every loaded OpenBLAS to ``threads``; returns how many libraries were pinned."""
+    """Limit every loaded BLAS/OpenMP runtime to ``threads``; returns how many were limited."""
+    from threadpoolctl import threadpool_info, threadpool_limits
     pin_environment(threads)
-    pinned = 0
-    try:
-        with open("/proc/self/maps") as maps:
-            fields = [line.split() for line in maps]
-        paths = {f[-1] for f in fields if len(f) >= 6 and "openblas" in f[-1].lower() and ".so" in f[-1]}
-    except OSError:
-        return 0
-    for path in sorted(paths):
-        try:
-            lib = ctypes.CDLL(path)
-        except OSError:
-            continue
-        for symbol in ("scipy_openblas_set_num_threads64_", "scipy_openblas_set_num_threads",
-                       "openblas_set_num_threads64_", "openblas_set_num_threads"):
-            function = getattr(lib, symbol, None)
-            if function is not None:
-                function(ctypes.c_int(threads))
-                pinned += 1
-                break
-    return pinned
+    threadpool_limits(limits=threads)
+    return len(threadpool_info())
+
+
+def blas_threads() -> int | None:
+    """Threads the loaded BLAS libraries will use (the largest), ``None`` when none is loaded."""
+    from threadpoolctl import threadpool_info
+    counts = [pool["num_threads"] for pool in threadpool_info() if pool.get("user_api") == "blas"]
+    return max(counts) if counts else None
