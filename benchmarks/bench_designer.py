@@ -26,7 +26,6 @@ from pathlib import Path
 for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_name, "1")
 
-import numpy as np  # noqa: E402
 
 from designer.linsolve import AUTO_THRESHOLD  # noqa: E402
 from designer.segment import compliance_change, design_segment, solve_segment  # noqa: E402

@@ -130,22 +130,9 @@ def run(args) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Stand-alone entry (``python -m cli.design``), same exit codes as ``vertebra design``."""
-    import argparse
-
-    from store.errors import CatalogueError, SceneError, VertebraError
-
-    parser = argparse.ArgumentParser(prog="vertebra design", description=__doc__.splitlines()[0])
-    add_arguments(parser)
-    args = parser.parse_args(argv)
-    try:
-        return int(run(args))
-    except (SceneError, CatalogueError, GeometryError) as error:
-        print(f"vertebra design: error: {error}", file=sys.stderr)
-        return 2
-    except VertebraError as error:
-        print(f"vertebra design: {type(error).__name__}: {error}", file=sys.stderr)
-        return 1
+    """Stand-alone entry (``python -m cli.design``): ``vertebra design`` with the same exit codes."""
+    from cli.main import main as vertebra
+    return vertebra(["design", *(sys.argv[1:] if argv is None else argv)])
 
 
 if __name__ == "__main__":

@@ -35,6 +35,7 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Iterator, Protocol, runtime_checkable
 
+from designer.threads import blas_threads
 from store.errors import SceneError
 
 # Thread pools of numerical libraries: one thread each in every worker. Several
@@ -60,34 +61,6 @@ def pin_threads() -> None:
     """
     for variable in THREAD_VARIABLES:
         os.environ[variable] = "1"
-
-
-def blas_threads() -> int | None:
-    """Threads the loaded OpenBLAS really uses (None if none is loaded or it cannot be asked).
-
-    Reads the shared objects mapped into this process (Linux) and calls
-    ``openblas_get_num_threads`` (numpy's and scipy's wheels ship prefixed copies).
-    """
-    import ctypes
-
-    try:
-        with open("/proc/self/maps") as maps:
-            paths = sorted({line.split()[-1] for line in maps
-                            if "openblas" in line.lower() and ".so" in line.split()[-1]})
-    except OSError:
-        return None
-    for path in paths:
-        try:
-            library = ctypes.CDLL(path)
-        except OSError:
-            continue
-        for symbol in ("scipy_openblas_get_num_threads64_", "scipy_openblas_get_num_threads",
-                       "openblas_get_num_threads64_", "openblas_get_num_threads"):
-            function = getattr(library, symbol, None)
-            if function is not None:
-                function.restype = ctypes.c_int
-                return int(function())
-    return None
 
 
 def worker_info() -> dict:

@@ -9,6 +9,7 @@ gmsh option is set explicitly with a fixed seed. It does not write anywhere;
 from __future__ import annotations
 
 import datetime
+import functools
 import math
 import platform
 import socket
@@ -71,10 +72,16 @@ def _version(distribution: str) -> str:
         return "unknown"
 
 
+@functools.lru_cache(maxsize=1)
+def _result_versions() -> tuple:
+    return (("gmsh", _version("gmsh")), ("scikit-fem", _version("scikit-fem")),
+            ("algorithm", ALGORITHM_VERSION), ("key_schema", KEY_SCHEMA))
+
+
 def result_versions() -> dict:
-    """Versions that change the numbers of an entry (part of the content key)."""
-    return {"gmsh": _version("gmsh"), "scikit-fem": _version("scikit-fem"),
-            "algorithm": ALGORITHM_VERSION, "key_schema": KEY_SCHEMA}
+    """Versions that change the numbers of an entry (part of the content key); package
+    metadata is read once per process (planning a 10k-task sweep asks 10k times)."""
+    return dict(_result_versions())
 
 
 def key_payload(family, parameters: dict, *, mesh_size=None, order: int = 2) -> dict:

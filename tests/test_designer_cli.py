@@ -15,23 +15,9 @@ ROD = ["--set", "radius=0.01", "--set", "length=0.04", "--set", "youngs_modulus=
 ENV = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 
-def _full_cli_available() -> bool:
-    try:
-        from cli.main import build_parser
-        build_parser()
-        return True
-    except (ImportError, ModuleNotFoundError):
-        return False
-
-
 def _command(*args) -> list[str]:
-    """``vertebra <args>`` through cli.main when every subcommand module exists, else the
-    design module's own ``main`` (same parser, same exit codes) for ``design``."""
-    if _full_cli_available():
-        return [sys.executable, "-m", "cli.main", *args]
-    if args[0] != "design":
-        pytest.skip(f"cli.main cannot build its parser yet (a subcommand module is missing): '{args[0]}'")
-    return [sys.executable, "-m", "cli.design", *args[1:]]
+    """``vertebra <args>`` as a separate process (the installed entry point's module)."""
+    return [sys.executable, "-m", "cli.main", *args]
 
 
 def _run(*args, timeout=300):
@@ -89,8 +75,6 @@ def test_design_vertebra_prints_scene_snippet():
 
 def test_four_simultaneous_design_processes_on_one_catalogue(tmp_path):
     pytest.importorskip("store.catalogue", reason="store/catalogue.py (catalogue engineer) not available yet")
-    if not _full_cli_available():
-        pytest.skip("cli.main cannot build its parser yet: 'vertebra catalogue ls/verify' unavailable")
     catalogue = str(tmp_path / "shared.h5")
     radii = ["0.008", "0.009", "0.010", "0.011"]
     processes = [subprocess.Popen(_command("design", "rod", "--set", f"radius={r}", "--set", "length=0.03",

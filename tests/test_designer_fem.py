@@ -12,7 +12,7 @@ import warnings
 import numpy as np
 import pytest
 
-from designer.fem import build_fe, condense, displacement_field, rigid_body_modes
+from designer.fem import build_fe, condense, displacement_field
 from designer.geometry import mesh_segment
 from designer.reference import transport
 from designer.segment import LockingWarning, canonical_parameters, compliance_change, design_segment, solve_segment

@@ -14,7 +14,6 @@ import pytest
 import solver
 from solver.gallery import load
 from solver.inverse.controller import InverseController, InverseSettings
-from solver.inverse.trajectory import circle
 from store.errors import ConvergenceError
 
 
