@@ -44,10 +44,14 @@ class BandLayout:
         self.up_src = block_flat[up]
         self.up_dst = np.ravel_multi_index((2 * kd + urow[up] - ucol[up], ucol[up]), (rows_gb, n))
 
+    @property
+    def block_shape(self) -> tuple:
+        """Shape of one block band: ``(n_blocks, span + 1, 6, 6)``."""
+        return (self.n_blocks, self.span + 1, 6, 6)
+
     def new_blocks(self):
         """Zeroed (lower, upper) block arrays ``(n_blocks, span + 1, 6, 6)``."""
-        shape = (self.n_blocks, self.span + 1, 6, 6)
-        return np.zeros(shape), np.zeros(shape)
+        return np.zeros(self.block_shape), np.zeros(self.block_shape)
 
     def symmetric_band(self, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
         """Lower band of the symmetric part ½(A + Aᵀ)."""

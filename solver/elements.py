@@ -143,6 +143,33 @@ def cable_gradient(qa, xa, qb, xb, hole_a, hole_b, tension):
     return grad, tension * length
 
 
+def cable_tangent(qa, xa, qb, xb, hole_a, hole_b, tension):
+    """Gradient, energy and exact tangent of cable pieces in closed form (cheaper than the
+    complex step; tests compare both). With ``d = P_b − P_a``, ``u = d/|d|``,
+    ``Π = (I − uuᵀ)/|d|``, ``s = R r`` and ``dd = M dq``, ``M = [−I, ŝ_a, I, −ŝ_b]``:
+    ``H = τ [−ΠM; −ŝ_aΠM − (û ŝ_a on dφ_a); ΠM; ŝ_bΠM + (û ŝ_b on dφ_b)]``."""
+    sa = qrotate(qa, hole_a)
+    sb = qrotate(qb, hole_b)
+    d = (xb + sb) - (xa + sa)
+    length = np.sqrt(dot(d, d))
+    u = d / length[..., None]
+    t = tension[..., None]
+    gradient = np.concatenate([-t * u, -t * cross(sa, u), t * u, t * cross(sb, u)], -1)
+    n = u.shape[0]
+    Sa, Sb, U = hat(sa), hat(sb), hat(u)
+    projector = (np.eye(3) - u[:, :, None] * u[:, None, :]) / length[:, None, None]
+    M = np.zeros((n, 3, 12))
+    M[:, :, :3] = -np.eye(3)
+    M[:, :, 3:6] = Sa
+    M[:, :, 6:9] = np.eye(3)
+    M[:, :, 9:] = -Sb
+    PM = projector @ M
+    tangent = np.concatenate([-PM, -Sa @ PM, PM, Sb @ PM], 1)
+    tangent[:, 3:6, 3:6] -= U @ Sa
+    tangent[:, 9:, 9:] += U @ Sb
+    return gradient, tension * length, tension[:, None, None] * tangent
+
+
 def pair_tangent(gradient, qa, xa, qb, xb, *args):
     """Gradient ``(n, 12)``, energy ``(n,)`` and exact tangent ``(n, 12, 12)`` of an objective
     pair element (its potential is invariant under rigid motions of both frames); when the

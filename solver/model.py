@@ -17,7 +17,7 @@ import numpy as np
 
 from solver.banded import BandLayout, factor_cholesky, factor_lu
 from solver.beam import timoshenko_compliance
-from solver.elements import LinkGeometry, cable_gradient, link_gradient, pair_tangent
+from solver.elements import LinkGeometry, cable_gradient, cable_tangent, link_gradient, pair_tangent
 from solver.rotations import cross, hat, matvec, qmul, qrotate, se3_exp, se3_log
 from store.errors import ConvergenceError, SceneError
 
@@ -206,6 +206,18 @@ class TrunkModel:
         # links couple neighbouring frames (block offset 1); a cable piece couples the frames of two
         # consecutive vertebrae, `elements` links apart: the band is as wide as the widest coupling
         self.span = int(max(1, np.max(self.cable_piece_b - self.cable_piece_a, initial=1)))
+        # where the tangent blocks of each piece go in the stacked [lower, upper] block bands
+        # (flat block index = band·(n_free·(span+1)) + column·(span+1) + offset)
+        a, b = self.cable_piece_a, self.cable_piece_b
+        self._cable_free = a > 0
+        n_offsets = self.span + 1
+        n_band = (self.n_frames - 1) * n_offsets
+        fa, offset = a[self._cable_free] - 1, (b - a)[self._cable_free]
+        self._cable_scatter = np.concatenate([
+            (b - 1) * n_offsets,                       # lower, diagonal block of b
+            fa * n_offsets,                            # lower, diagonal block of a
+            fa * n_offsets + offset,                   # lower, (b, a) block
+            n_band + fa * n_offsets + offset])         # upper, (a, b) block
         self.n_cables = len(scene.cables)
         self.n_chambers = len(scene.chambers)
         self.actuator_names = [c.name for c in scene.cables] + [c.name for c in scene.chambers]
@@ -268,7 +280,8 @@ class TrunkModel:
         grad = np.zeros((self.n_frames, 6))
         lower = upper = None
         if tangent:
-            lower, upper = self.layout.new_blocks()
+            band_blocks = np.zeros((2,) + self.layout.block_shape)       # [lower, upper] block bands
+            lower, upper = band_blocks[0], band_blocks[1]
         xi_rest = self._link_rest(scale * actuation[self.n_cables:])
         args = (q[:-1], x[:-1], q[1:], x[1:], self.link_stiffness, xi_rest)
         if tangent:
@@ -289,13 +302,11 @@ class TrunkModel:
             a, b = self.cable_piece_a, self.cable_piece_b
             args = (q[a], x[a], q[b], x[b], self.cable_hole_a, self.cable_hole_b, tensions[self.cable_piece_owner])
             if tangent:
-                g, energy, H = pair_tangent(cable_gradient, *args)
-                free = a > 0
-                s = b - a
-                np.add.at(lower, (b - 1, 0), H[:, 6:, 6:])
-                np.add.at(lower, (a[free] - 1, 0), H[free, :6, :6])
-                np.add.at(lower, (a[free] - 1, s[free]), H[free, 6:, :6])
-                np.add.at(upper, (a[free] - 1, s[free]), H[free, :6, 6:])
+                g, energy, H = cable_tangent(*args)
+                # one scatter for the four blocks of every piece (frames shared by cables add up)
+                free = self._cable_free
+                blocks = np.concatenate([H[:, 6:, 6:], H[free, :6, :6], H[free, 6:, :6], H[free, :6, 6:]])
+                np.add.at(band_blocks.reshape(-1, 6, 6), self._cable_scatter, blocks)
             else:
                 g, energy = cable_gradient(*args)
             np.add.at(grad, a, g[:, :6])

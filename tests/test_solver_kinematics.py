@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from solver.banded import BandLayout, factor_cholesky, factor_lu
-from solver.elements import cable_gradient, link_gradient, pair_tangent
+from solver.elements import cable_gradient, cable_tangent, link_gradient, pair_tangent
 from solver.rotations import qexp, qlog, qmatrix, qmul, qrotate, se3_exp, se3_log
 
 RNG = np.random.default_rng(20261122)
@@ -137,3 +137,13 @@ def test_cholesky_reports_indefinite_matrices():
     lower, upper = layout.new_blocks()
     lower[:, 0] = -np.eye(6)
     assert factor_cholesky(layout.symmetric_band(lower, upper)) is None
+
+
+def test_closed_form_cable_tangent_equals_the_complex_step():
+    n = 6
+    qa, xa, qb, xb = _random_pair(n)
+    holes_a, holes_b, tension = RNG.normal(size=(n, 3)), RNG.normal(size=(n, 3)), RNG.random(n)
+    closed = cable_tangent(qa, xa, qb, xb, holes_a, holes_b, tension)
+    stepped = pair_tangent(cable_gradient, qa, xa, qb, xb, holes_a, holes_b, tension)
+    for a, b in zip(closed, stepped):
+        assert np.abs(a - b).max() <= 1e-14 * max(1.0, np.abs(b).max())
