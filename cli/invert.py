@@ -185,18 +185,23 @@ def _plot(path, names, actuator_names, trajectory, achieved, actuation_rows, *, 
     for k, name in enumerate(names):
         tgt = trajectory.targets[:, k]
         ach = achieved[:, k]
-        ax.plot(tgt[:, 0], tgt[:, 1], tgt[:, 2], "--", label=f"{name} target")
+        ax.plot(tgt[:, 0], tgt[:, 1], tgt[:, 2], "x--", ms=5, label=f"{name} target")
         ax.plot(ach[:, 0], ach[:, 1], ach[:, 2], "o-", ms=2, label=f"{name} achieved")
     equal_axes(ax, np.vstack(points))
     ax.legend(fontsize=7)
     ax2 = fig.add_subplot(1, 2, 2)
     values = np.array([[list(v.values())[0] for v in row] for row in actuation_rows], dtype=float)
-    for j, name in enumerate(actuator_names):
-        ax2.plot(trajectory.times, values[:, j], label=name)
-    ax2.set_xlabel("t")
-    ax2.set_ylabel("actuation (N or Pa)")
-    if len(actuator_names) <= 16:
-        ax2.legend(fontsize=6, ncol=2)
+    if len(values) == 1:        # one target: the actuation as bars
+        ax2.bar(range(len(actuator_names)), values[0], color=[f"C{j % 10}" for j in range(len(actuator_names))])
+        ax2.set_xticks(range(len(actuator_names)), actuator_names, rotation=45, fontsize=7)
+        ax2.set_ylabel("actuation (N or Pa)")
+    else:
+        for j, name in enumerate(actuator_names):
+            ax2.plot(trajectory.times, values[:, j], label=name)
+        ax2.set_xlabel("t")
+        ax2.set_ylabel("actuation (N or Pa)")
+        if len(actuator_names) <= 16:
+            ax2.legend(fontsize=6, ncol=2)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
