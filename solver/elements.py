@@ -131,23 +131,8 @@ def link_gradient(qa, xa, qb, xb, stiffness, xi_rest):
     return geometry.generalised_force(geometry.transport(w)), 0.5 * dot(e, w), geometry
 
 
-def cable_gradient(qa, xa, qb, xb, hole_a, hole_b, tension):
-    """Gradient and energy ``τ |P_b − P_a|`` of one cable piece between two holes."""
-    sa = qrotate(qa, hole_a)
-    sb = qrotate(qb, hole_b)
-    d = (xb + sb) - (xa + sa)
-    length = np.sqrt(dot(d, d))
-    u = d / length[..., None]
-    t = tension[..., None]
-    grad = np.concatenate([-t * u, -t * cross(sa, u), t * u, t * cross(sb, u)], -1)
-    return grad, tension * length
-
-
-def cable_tangent(qa, xa, qb, xb, hole_a, hole_b, tension):
-    """Gradient, energy and exact tangent of cable pieces in closed form (cheaper than the
-    complex step; tests compare both). With ``d = P_b − P_a``, ``u = d/|d|``,
-    ``Π = (I − uuᵀ)/|d|``, ``s = R r`` and ``dd = M dq``, ``M = [−I, ŝ_a, I, −ŝ_b]``:
-    ``H = τ [−ΠM; −ŝ_aΠM − (û ŝ_a on dφ_a); ΠM; ŝ_bΠM + (û ŝ_b on dφ_b)]``."""
+def _cable_piece(qa, xa, qb, xb, hole_a, hole_b, tension):
+    """Hole offsets ``s = R r``, unit direction ``u``, length and gradient of ``τ |P_b − P_a|``."""
     sa = qrotate(qa, hole_a)
     sb = qrotate(qb, hole_b)
     d = (xb + sb) - (xa + sa)
@@ -155,6 +140,21 @@ def cable_tangent(qa, xa, qb, xb, hole_a, hole_b, tension):
     u = d / length[..., None]
     t = tension[..., None]
     gradient = np.concatenate([-t * u, -t * cross(sa, u), t * u, t * cross(sb, u)], -1)
+    return sa, sb, u, length, gradient
+
+
+def cable_gradient(qa, xa, qb, xb, hole_a, hole_b, tension):
+    """Gradient and energy ``τ |P_b − P_a|`` of one cable piece between two holes."""
+    *_, length, gradient = _cable_piece(qa, xa, qb, xb, hole_a, hole_b, tension)
+    return gradient, tension * length
+
+
+def cable_tangent(qa, xa, qb, xb, hole_a, hole_b, tension):
+    """Gradient, energy and exact tangent of cable pieces in closed form (cheaper than the
+    complex step; tests compare both). With ``d = P_b − P_a``, ``u = d/|d|``,
+    ``Π = (I − uuᵀ)/|d|``, ``s = R r`` and ``dd = M dq``, ``M = [−I, ŝ_a, I, −ŝ_b]``:
+    ``H = τ [−ΠM; −ŝ_aΠM − (û ŝ_a on dφ_a); ΠM; ŝ_bΠM + (û ŝ_b on dφ_b)]``."""
+    sa, sb, u, length, gradient = _cable_piece(qa, xa, qb, xb, hole_a, hole_b, tension)
     n = u.shape[0]
     Sa, Sb, U = hat(sa), hat(sb), hat(u)
     projector = (np.eye(3) - u[:, :, None] * u[:, None, :]) / length[:, None, None]

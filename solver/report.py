@@ -34,7 +34,8 @@ def static_report(model: TrunkModel, result: StaticResult) -> dict:
                                 "stroke": float(lengths[k] - model.rest_cable_lengths[k])}
                    for k, cable in enumerate(model.scene.cables)},
         "chambers": {chamber.name: {"pressure": float(actuation[model.n_cables + k]),
-                                    "volume_growth": float(volume[k])}
+                                    "volume_growth": float(volume[k]),
+                                    "rest_volume": float(model.chamber_rest_volumes[k])}
                      for k, chamber in enumerate(model.scene.chambers)},
         "timing": {key: float(value) for key, value in result.timings.items()},
         "diagnostics": {"load_stages": int(result.load_steps), "factorization": result.factorization,

@@ -140,13 +140,6 @@ def se3_coefficients(theta2):
     return np.where(small[..., None], powers @ _SE3_SERIES, exact)
 
 
-def so3_left_jacobian_inverse(phi: np.ndarray) -> np.ndarray:
-    """J_l⁻¹(φ) of SO(3), ``(..., 3) -> (..., 3, 3)``."""
-    P = hat(phi)
-    c2 = se3_coefficients(dot(phi, phi))[..., 0]
-    return np.eye(3) - 0.5 * P + c2[..., None, None] * (P @ P)
-
-
 def se3_log(q: np.ndarray, p: np.ndarray):
     """Twist ``ξ = [ρ; φ]`` of the transform (rotation ``q``, translation ``p``) and the
     inverse left Jacobian ``J_l⁻¹(ξ)`` (6×6): ``log(exp(ζ^) T) = ξ + J_l⁻¹ ζ + O(ζ²)``."""

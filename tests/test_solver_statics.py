@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import solver
-from solver.analytic import arc_tip, elastica_tip
+from solver.analytic import arc_tip, cantilever_deflection_uniform_load, elastica_tip
 from solver.beam import Section, timoshenko_compliance
 from solver.rotations import qlog
 from store.errors import ConvergenceError
@@ -180,7 +180,7 @@ def test_distributed_weight_converges_to_qL4_over_8EI():
     model = solver.build_model(solver.parse_scene(data))
     deflection = -model.solve().state.positions[-1, 0]
     q = rho * math.pi * 5e-3 ** 2 * 9.81
-    expected = q * LENGTH ** 4 / (8 * E * math.pi * 5e-3 ** 4 / 4)
+    expected = cantilever_deflection_uniform_load(q, LENGTH, E * math.pi * 5e-3 ** 4 / 4)
     assert abs(deflection - expected) / expected < 1e-2
 
 

@@ -114,8 +114,7 @@ def write_trajectory(path, trajectory: Trajectory, effector_names) -> None:
             w.writerow([repr(float(t))] + [repr(float(v)) for v in row.reshape(-1)])
 
 
-def circle(center, radius: float, n_steps: int, *, normal=(0.0, 0.0, 1.0), turns: float = 1.0,
-           period: float | None = None) -> np.ndarray:
+def circle(center, radius: float, n_steps: int, *, normal=(0.0, 0.0, 1.0), turns: float = 1.0) -> np.ndarray:
     """``n_steps`` points (n_steps, 3) on a circle around ``center`` in the plane ⟂ ``normal``,
     starting at angle 0 (along the first in-plane axis) and closing after ``turns``."""
     center = np.asarray(center, dtype=float)
