@@ -120,6 +120,20 @@ def run(args) -> int:
     pressures = ", ".join("%s %.3f bar" % (k, v["pressure"] / 1e5) for k, v in reach["chambers"].items())
     print(f"  chamber pressures {pressures}; "
           f"tip error {reach['effectors']['tip']['error']:.2e} m")
+    # and a tip trajectory: a horizontal circle of 3 cm radius 5 mm above the rest tip (the
+    # chambers only extend the trunk, pressures ≥ 0: below that height the circle is out of reach)
+    import solver
+    trunk = solver.build_model(solver.load_scene(target_scene))
+    rest_tip = trunk.effector_positions(trunk.rest_state)[0]
+    tip_circle = circle([0.0, 0.0, rest_tip[2] + 0.005], 0.03, 13)
+    write_trajectory(out / "cbha_circle.csv", Trajectory(tip_circle[:, None, :], np.arange(13, dtype=float)), ["tip"])
+    summary["cbha_trajectory"] = _command(["invert", str(target_scene), "--trajectory", str(out / "cbha_circle.csv"),
+                                           "--json", "--plot", str(out / "cbha_circle.png")],
+                                          stdout_path=out / "cbha_circle.json")
+    track = json.loads((out / "cbha_circle.json").read_text())
+    peak = max(v["pressure"] for step in track["steps"] for v in step["chambers"].values())
+    print(f"  circle of 13 targets: tip error max {max(s['effectors']['tip']['error'] for s in track['steps']):.2e} m, "
+          f"pressures within 0–{peak / 1e5:.2f} bar (bounds 0–1.5 bar)")
 
     summary["total_s"] = time.perf_counter() - started
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
