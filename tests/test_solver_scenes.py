@@ -134,3 +134,14 @@ def test_beam_only_scenes_never_touch_the_catalogue():
             "print('h5py' in sys.modules, 'store.catalogue' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
     assert out == "False False"
+
+
+def test_the_documented_scene_example_is_valid():
+    # docs/scenes.md shows every field; it must stay a valid scene (the entry name aside)
+    import tomllib
+    from pathlib import Path
+    text = (Path(__file__).parents[1] / "docs" / "scenes.md").read_text()
+    block = text.split("```toml")[1].split("```")[0]
+    data = tomllib.loads(block.replace('"<catalogue key, unique key prefix or name>"', '"x"'))
+    scene = solver.parse_scene(data, source="docs/scenes.md")
+    assert scene.n_vertebrae == 19 and len(scene.cables) == 1 and len(scene.chambers) == 1
