@@ -32,7 +32,10 @@ SUBCOMMANDS = {
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="vertebra", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog="vertebra",
+        description="Model and control continuum robots with rigid vertebrae: design segments (gmsh + "
+                    "scikit-fem) into an HDF5 catalogue, simulate trunks forward, invert them for actuation.")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, (module_name, help_text) in SUBCOMMANDS.items():
         module = importlib.import_module(module_name)

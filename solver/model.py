@@ -19,7 +19,7 @@ from solver.banded import BandLayout, factor_cholesky, factor_lu
 from solver.beam import timoshenko_compliance
 from solver.elements import LinkGeometry, cable_gradient, cable_tangent, link_gradient, pair_tangent
 from solver.rotations import cross, hat, matvec, qmul, qrotate, se3_exp, se3_log
-from store.errors import ConvergenceError, SceneError
+from store.errors import CatalogueError, ConvergenceError, SceneError
 
 
 @dataclass
@@ -98,7 +98,11 @@ def build_model(scene, entries: dict | None = None) -> "TrunkModel":
         from store import catalogue  # lazy: beam-only scenes never touch HDF5
         with catalogue.open_catalogue(scene.catalogue) as cat:
             for name in missing:
-                entries[name] = cat.load(name)
+                try:
+                    entries[name] = cat.load(name)
+                except CatalogueError as error:
+                    index = next(i for i, s in enumerate(scene.segments) if s.type == "entry" and s.entry == name)
+                    raise CatalogueError(f"{scene.source}: segment[{index}].entry: {error}") from error
     return TrunkModel(scene, entries)
 
 
