@@ -20,8 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 
-_HAT_INDEX = np.array([3, 2, 1, 2, 3, 0, 1, 0, 3])
-_HAT_SIGN = np.array([0.0, -1, 1, 1, 0, -1, -1, 1, 0])
+_HAT_TABLE = np.zeros((3, 9))        # hat(v).ravel() = v @ _HAT_TABLE
+_HAT_TABLE[[2, 1, 2, 0, 1, 0], [1, 2, 3, 5, 6, 7]] = [-1.0, 1.0, 1.0, -1.0, -1.0, 1.0]
 _C1, _C2 = np.array([1, 2, 0]), np.array([2, 0, 1])
 _QL_INDEX = np.array([0, 1, 2, 3, 1, 0, 3, 2, 2, 3, 0, 1, 3, 2, 1, 0])
 _QL_SIGN = np.array([1.0, -1, -1, -1, 1, 1, -1, 1, 1, 1, 1, -1, 1, -1, 1, 1])
@@ -62,9 +62,8 @@ _LOG_SERIES_THRESHOLD = 1e-4    # s² = sin²(θ/2) below which qlog uses its se
 
 
 def hat(v: np.ndarray) -> np.ndarray:
-    """Skew-symmetric matrices of vectors ``(..., 3) -> (..., 3, 3)``."""
-    vz = np.concatenate([v, np.zeros_like(v[..., :1])], -1)
-    return (vz[..., _HAT_INDEX] * _HAT_SIGN).reshape(v.shape[:-1] + (3, 3))
+    """Skew-symmetric matrices of vectors ``(..., 3) -> (..., 3, 3)`` (one small matrix product)."""
+    return (v.reshape(-1, 3) @ _HAT_TABLE).reshape(v.shape[:-1] + (3, 3))
 
 
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
