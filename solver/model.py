@@ -122,9 +122,9 @@ class TrunkModel:
 
     # ------------------------------------------------------------------ compile
     def _compile_links(self, scene, entries):
-        K, xi0, S, quats, trans, Vs, covers = [], [], [], [], [], [], []
+        K, xi0, S, quats, trans, Vs = [], [], [], [], [], []
         frame_mass, frame_moment = [0.0], [np.zeros(3)]
-        vertebra_frames, segment_of_link = [0], []
+        vertebra_frames = [0]
         chambers = scene.chambers
         rest_volumes = np.zeros(len(chambers))
         for seg_index, seg in enumerate(scene.segments):
@@ -159,7 +159,7 @@ class TrunkModel:
                             P[:, j] = A @ G[:, ch.cavity]
                             cover[j] = True
                             rest_volumes[j] += volumes[ch.cavity]
-                    S.append(P), covers.append(cover)
+                    S.append(P)
                     Vc = np.zeros((len(chambers), len(chambers)))
                     idx = [j for j in range(len(chambers)) if cover[j]]
                     for j in idx:
@@ -173,7 +173,6 @@ class TrunkModel:
                     frame_moment[-1] = frame_moment[-1] + (1 - t) * link_mass * lateral
                     frame_mass.append(t * link_mass)
                     frame_moment.append(t * link_mass * lateral)
-                    segment_of_link.append(seg_index)
                 vertebra_frames.append(len(frame_mass) - 1)
                 frame_mass[-1] += seg.vertebra.mass
                 frame_moment[-1] = frame_moment[-1] + seg.vertebra.mass * np.asarray(seg.vertebra.center_of_mass)
@@ -191,7 +190,7 @@ class TrunkModel:
         self.length_scale = float(np.sum(np.linalg.norm(self.link_rest_translation, axis=1)))
         self.chamber_rest_volumes = rest_volumes
         for j, ch in enumerate(chambers):
-            if not np.any(self.link_pressure_map[:, :, j]) and ch.first <= ch.last:
+            if not np.any(self.link_pressure_map[:, :, j]):
                 raise SceneError(f"chamber {ch.name!r} covers no segment with cavities (vertebrae {ch.first}..{ch.last})",
                                  file=scene.source, field=f"chamber[{j}]")
 
