@@ -2,7 +2,7 @@
 
 Rows:
 1. each gallery robot: median time of one real-time inverse step split into
-   ``linearise`` (lead's tangent + banded factor), ``W`` (one multi-RHS banded solve for
+   ``linearise`` (the model's tangent + banded factor), ``W`` (one multi-RHS banded solve for
    K⁻¹[r, B] and the products giving W_ea, W_aa, δe_free, δa_free), ``QP`` (DAQP through
    ``solve_constraint_problem``) and ``step`` (retraction), plus the whole tick;
    the paper reports ~5 ms (2 ms for W) on 3 vertebrae and ~13 ms (9 ms for W) on the

@@ -1,6 +1,6 @@
 """Inverse simulation of a trunk (paper §IV): linearise → constraint space → QP → step.
 
-At a state ``q`` with actuation ``λ0`` the lead's model gives the out-of-balance force
+At a state ``q`` with actuation ``λ0`` the runtime model gives the out-of-balance force
 ``r``, the banded factor of ``K``, the actuator forces ``B`` and the Jacobians ``Ja``,
 ``Je`` (docs/solver-api.md). One multi-right-hand-side banded solve
 ``[K⁻¹r, K⁻¹B]`` (cost linear in frames × actuators) gives everything::
