@@ -324,9 +324,18 @@ def design_job(task: Task):
 
 
 def _catalogue_add(path: str, entry) -> str:
+    """Commit the entry as a shard (durable and visible to readers at once); the parent
+    merges shards into the catalogue file in batches (one rewrite per batch, not per entry:
+    a merge rewrites the whole file, so per-entry merges cost O(N²) over a large sweep)."""
     from store import catalogue
 
-    return catalogue.add_entry(path, entry)
+    return catalogue.add_entry(path, entry, consolidate=False)
+
+
+def _catalogue_consolidate(path: str) -> None:
+    from store import catalogue
+
+    catalogue.consolidate(path)
 
 
 def _catalogue_has(path: str, key: str) -> bool:
@@ -386,9 +395,11 @@ class SweepBackend:
     key: Callable = _designer_key
     families: Callable | None = _designer_families
     catalogue_keys: Callable | None = _catalogue_keys
+    flush: Callable | None = None          # parent: merge committed shards (every FLUSH_EVERY and at the end)
 
 
-DEFAULT_BACKEND = SweepBackend()
+DEFAULT_BACKEND = SweepBackend(flush=_catalogue_consolidate)
+FLUSH_EVERY = 25
 
 
 # --------------------------------------------------------------------------- worker side
@@ -669,6 +680,18 @@ def _outcome_failure(task: Task, result) -> TaskFailure:
                     traceback=result.traceback, worker=result.worker)
 
 
+def _flush(backend: SweepBackend, catalogue) -> None:
+    """Merge the shards the workers committed; a failure leaves them committed (readers see
+    shards; ``vertebra catalogue consolidate`` merges them later) and is only logged."""
+    if backend.flush is None:
+        return
+    try:
+        backend.flush(os.path.abspath(catalogue))
+    except Exception as error:   # noqa: BLE001 — entries are safe as shards whatever happened
+        print(f"sweep: merging shards into {catalogue} failed ({type(error).__name__}: {error}); "
+              "entries stay committed as shards", file=sys.stderr)
+
+
 def run_sweep(spec: SweepSpec | str | os.PathLike, catalogue, *, executor: str = "local",
               workers: int | None = None, scheduler: str | None = None, start_method: str = "spawn",
               backend: SweepBackend = DEFAULT_BACKEND, progress: bool = True,
@@ -712,6 +735,8 @@ def run_sweep(spec: SweepSpec | str | os.PathLike, catalogue, *, executor: str =
                     task = by_index[task.index]
                     if isinstance(result, TaskOutcome) and result.ok:
                         completed.append(result)
+                        if len(completed) % FLUSH_EVERY == 0:
+                            _flush(backend, catalogue)
                     else:
                         failure = _outcome_failure(task, result)
                         failures.append(failure)
@@ -724,6 +749,8 @@ def run_sweep(spec: SweepSpec | str | os.PathLike, catalogue, *, executor: str =
             interrupted = True
         finally:
             bar.close()
+            if completed:
+                _flush(backend, catalogue)
     description = pool.describe()
     return SweepReport(spec, catalogue, description, plan.tasks, tuple(sorted(completed, key=lambda o: o.index)),
                        plan.skipped, plan.duplicates, tuple(sorted(failures, key=lambda f: f.index)),

@@ -80,6 +80,8 @@ def test_local_sweep_lands_every_entry(local_sweep):
     # worker processes did the work (and wrote the entries), not the parent
     assert all(o.worker["pid"] != os.getpid() for o in report.completed)
     assert catalogue.verify(path) == []
+    # workers commit shards; the parent merged them into the file in one batch at the end
+    assert not any(Path(str(path) + ".shards").glob("*.h5"))
     expected = {designer.entry_key("rod", {"radius": r, "length": LENGTH, "youngs_modulus": YOUNGS_MODULUS,
                                            "poisson_ratio": 0.3}, mesh_size=0.004, order=2) for r in RADII}
     assert {o.key for o in report.completed} == expected
