@@ -152,8 +152,10 @@ def _step_json(model, t, actuation, displacements, names, targets, positions, er
                    for j in range(nc)},
         "chambers": {act_names[j]: {"pressure": float(actuation[j]), "volume_growth": float(displacements[j])}
                      for j in range(nc, len(act_names))},
+        # an axis effector reports its world direction (unit vector) and a dimensionless error
         "effectors": {name: {"target": [float(v) for v in targets[k]],
-                             "position": [float(v) for v in positions[k]],
+                             ("direction" if model.effector_is_axis[k] else "position"):
+                                 [float(v) for v in positions[k]],
                              "error": float(errors[k])} for k, name in enumerate(names)},
         "reached": reached,
         "equilibrium": bool(equilibrium),
@@ -178,11 +180,14 @@ def _plot(path, names, actuator_names, trajectory, achieved, actuation_rows, *, 
 
     fig = plt.figure(figsize=(11, 4.8))
     ax = fig.add_subplot(1, 2, 1, projection="3d")
-    points = [trajectory.targets.reshape(-1, 3), achieved.reshape(-1, 3)]
+    keep = np.ones(len(names), bool) if model is None else ~model.effector_is_axis
+    points = [trajectory.targets[:, keep].reshape(-1, 3), achieved[:, keep].reshape(-1, 3)]
     if model is not None and final_state is not None:
         draw_trunk(ax, model, final_state, targets=False, legend_prefix="final ")
         points.append(final_state.positions)
     for k, name in enumerate(names):
+        if model is not None and model.effector_is_axis[k]:
+            continue                              # a direction target is not a place in space
         tgt = trajectory.targets[:, k]
         ach = achieved[:, k]
         ax.plot(tgt[:, 0], tgt[:, 1], tgt[:, 2], "x--", ms=5, label=f"{name} target")

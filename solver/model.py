@@ -245,7 +245,10 @@ class TrunkModel:
         self.has_gravity = self.gravity is not None and bool(np.any(self.frame_mass))
         self.effector_names = [e.name for e in scene.effectors]
         self.effector_frames = np.array([self.vertebra_frames[e.vertebra] for e in scene.effectors], int)
-        self.effector_offsets = np.array([e.offset for e in scene.effectors], float).reshape(-1, 3)
+        # point effectors: offset in the frame; axis effectors: the unit axis (no translation part)
+        self.effector_is_axis = np.array([e.axis is not None for e in scene.effectors], bool)
+        self.effector_offsets = np.array([e.axis if e.axis is not None else e.offset for e in scene.effectors],
+                                         float).reshape(-1, 3)
         self.effector_targets = np.array([e.target if e.target is not None else (np.nan,) * 3
                                           for e in scene.effectors], float).reshape(-1, 3)
         self.effector_weights = np.array([e.weight for e in scene.effectors], float)
@@ -540,8 +543,10 @@ class TrunkModel:
                                self.chamber_volume_growth(state, actuation[self.n_cables:])])
 
     def effector_positions(self, state: State) -> np.ndarray:
+        """World position of each point effector; world unit direction of each axis effector."""
         f = self.effector_frames
-        return state.positions[f] + qrotate(state.quaternions[f], self.effector_offsets)
+        turned = qrotate(state.quaternions[f], self.effector_offsets)
+        return np.where(self.effector_is_axis[:, None], turned, state.positions[f] + turned)
 
     def linearise(self, state: State, actuation=None) -> Linearisation:
         """Tangent stiffness factor, actuator and effector Jacobians at ``state``."""
@@ -577,7 +582,8 @@ class TrunkModel:
         Je = np.zeros((3 * n_eff, self.n_frames, 6))
         lever = qrotate(state.quaternions[self.effector_frames], self.effector_offsets)
         for k, frame in enumerate(self.effector_frames):
-            Je[3 * k:3 * k + 3, frame, :3] = np.eye(3)
+            if not self.effector_is_axis[k]:         # a direction does not move with translations
+                Je[3 * k:3 * k + 3, frame, :3] = np.eye(3)
             Je[3 * k:3 * k + 3, frame, 3:] = -hat(lever[k])
         return Linearisation(
             residual=-ev.gradient[1:].reshape(-1), factor=factor,

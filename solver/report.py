@@ -28,7 +28,8 @@ def static_report(model: TrunkModel, result: StaticResult) -> dict:
         "residual": float(result.residual),
         "vertebrae": [_pose(state.positions[f], state.quaternions[f]) for f in model.vertebra_frames],
         "frames": [_pose(p, q) for p, q in zip(state.positions, state.quaternions)],
-        "effectors": {name: {"position": [float(v) for v in effectors[k]]}
+        "effectors": {name: ({"direction": [float(v) for v in effectors[k]]} if model.effector_is_axis[k]
+                             else {"position": [float(v) for v in effectors[k]]})
                       for k, name in enumerate(model.effector_names)},
         "cables": {cable.name: {"tension": float(actuation[k]), "length": float(lengths[k]),
                                 "stroke": float(lengths[k] - model.rest_cable_lengths[k])}
@@ -80,10 +81,11 @@ def draw_trunk(ax, model: TrunkModel, state: State, *, rest: bool = True, target
         ax.plot(ring[:, 0], ring[:, 1], ring[:, 2], color="tab:blue", lw=1)
     for k, path in enumerate(cable_paths(model, state)):
         ax.plot(path[:, 0], path[:, 1], path[:, 2], lw=1, color=f"C{(k % 8) + 1}")
-    if model.effector_names:
-        e = model.effector_positions(state)
+    points = ~model.effector_is_axis            # directions are not drawn as points
+    if np.any(points):
+        e = model.effector_positions(state)[points]
         ax.scatter(e[:, 0], e[:, 1], e[:, 2], color="tab:red", s=25, label=f"{legend_prefix}effectors")
-        t = model.effector_targets
+        t = model.effector_targets[points]
         if targets and np.all(np.isfinite(t)):
             ax.scatter(t[:, 0], t[:, 1], t[:, 2], marker="x", color="tab:green", s=40, label="targets")
     equal_axes(ax, np.vstack([x, model.rest_state.positions]))

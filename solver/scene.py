@@ -86,11 +86,16 @@ class LoadSpec:
 
 @dataclass(frozen=True)
 class EffectorSpec:
+    """A point on a vertebra (``offset`` in its frame, ``target`` in the world), or — with
+    ``axis`` — a unit direction fixed in the vertebra whose world direction should match the
+    unit vector ``target`` (an orientation target; its error is dimensionless)."""
+
     name: str
     vertebra: int
     offset: tuple = (0.0, 0.0, 0.0)
     target: tuple | None = None
     weight: float = 1.0
+    axis: tuple | None = None
 
 
 @dataclass(frozen=True)
@@ -321,15 +326,29 @@ def parse_scene(data: dict, source: str = "<dict>", base_dir=".") -> Scene:
 
     effectors = []
     for t in top.tables("effector"):
+        axis = _unit(t, "axis", t.vector("axis", 3, None))
+        if axis is not None and t.has("offset"):
+            raise t.error("offset", "an effector has an offset (a point) or an axis (a direction), not both")
+        target = t.vector("target", 3, None)
         effectors.append(EffectorSpec(name=unique_name(t, "effector"), vertebra=vertebra_index(t, "vertebra", -1),
                                       offset=t.vector("offset", 3, (0.0, 0.0, 0.0)),
-                                      target=t.vector("target", 3, None),
-                                      weight=t.number("weight", 1.0, positive=True)))
+                                      target=_unit(t, "target", target) if axis is not None else target,
+                                      weight=t.number("weight", 1.0, positive=True), axis=axis))
         t.done()
     top.done()
     return Scene(segments=segments, name=name, solver=settings, gravity=gravity, base_position=base_position,
                  base_quaternion=base_quaternion, catalogue=catalogue, cables=tuple(cables),
                  chambers=tuple(chambers), loads=tuple(loads), effectors=tuple(effectors), source=source)
+
+
+def _unit(t: _Table, key: str, vector):
+    """Normalise a direction given in the scene; a zero vector is an error naming the field."""
+    if vector is None:
+        return None
+    norm = math.sqrt(sum(v * v for v in vector))
+    if not norm > 0.0:
+        raise t.error(key, "a direction must not be the zero vector")
+    return tuple(v / norm for v in vector)
 
 
 def _parse_vertebra(t: _Table) -> VertebraSpec:

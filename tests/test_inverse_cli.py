@@ -128,3 +128,33 @@ def test_trajectory_csv_round_trip(tmp_path):
     np.testing.assert_array_equal(back.targets[:, 0], [[7, 8, 9], [7, 8, 9]])
     with pytest.raises(SceneError, match="neither columns here nor a target"):
         read_trajectory(tmp_path / "u.csv", ["mid", "tip"])
+
+
+def test_orientation_target_for_a_vertebra_axis(tmp_path, vertebra):
+    # posture with a direction: tip position AND tip axis direction, both from a forward solution
+    # under known tensions, are reached by the converged inverse (errors: m and dimensionless)
+    import tomllib
+
+    from solver.inverse import invert
+    from solver.rotations import qrotate
+    from solver.scene import scene_toml
+
+    data = tomllib.loads(path("tendon_two_section").read_text())
+    model = solver.build_model(solver.parse_scene(data))
+    known = np.zeros(len(model.actuator_names))
+    known[1], known[3] = 4.0, 2.0
+    state = model.solve(known).state
+    direction = qrotate(state.quaternions[-1], np.array([0.0, 0.0, 1.0]))
+    tip = model.effector_positions(state)[model.effector_names.index("tip")]
+    data["effector"] = [{"name": "tip", "vertebra": -1, "target": [float(v) for v in tip]},
+                        {"name": "tip-axis", "vertebra": -1, "axis": [0.0, 0.0, 1.0],
+                         "target": [float(v) for v in direction], "weight": 0.1}]
+    model = solver.build_model(solver.parse_scene(data))
+    step = invert(model, model.effector_targets)
+    assert step.reached and np.all(step.errors <= 1e-6)
+    assert np.all(step.actuation >= 0.0)
+    scene_path = tmp_path / "axis.toml"
+    scene_path.write_text(scene_toml(data))
+    code, out, err = vertebra(scene_path, "--json")
+    assert code == 0, err
+    assert set(json.loads(out)["steps"][-1]["effectors"]["tip-axis"]) == {"target", "direction", "error"}

@@ -85,7 +85,8 @@ def test_linearisation_jacobians_match_finite_differences(kind):
                              "poisson_ratio": 0.3, "section": {"shape": "circle", "radius": 1e-3}}],
                 "cable": [{"name": "a", "radius": 0.01, "angle_deg": 0.0, "from": 1, "to": 4, "tension": 3.0},
                           {"name": "b", "radius": 0.01, "angle_deg": 100.0, "from": 2, "to": 3, "tension": 1.0}],
-                "effector": [{"name": "tip", "vertebra": -1, "offset": [0.0, 0.005, 0.0]}],
+                "effector": [{"name": "tip", "vertebra": -1, "offset": [0.0, 0.005, 0.0]},
+                             {"name": "axis", "vertebra": 2, "axis": [0.3, 0.0, 1.0]}],
                 "gravity": {"vector": [0.0, 0.0, -9.81]}}
         model = solver.build_model(solver.parse_scene(data))
         actuation = np.array([3.0, 1.0])

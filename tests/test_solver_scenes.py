@@ -46,6 +46,9 @@ def scene(**extra):
      "cable[1].name", "duplicate"),
     (scene(solver={"tolerance": -1.0}), "solver.tolerance", "must be > 0"),
     (scene(version=2), "version", "unsupported"),
+    (scene(effector=[{"name": "d", "axis": [0.0, 0.0, 0.0]}]), "effector[0].axis", "zero vector"),
+    (scene(effector=[{"name": "d", "axis": [0.0, 0.0, 1.0], "offset": [0.0, 0.0, 0.01]}]), "effector[0].offset",
+     "not both"),
 ])
 def test_invalid_scenes_name_the_field_and_the_reason(data, field, reason):
     with pytest.raises(SceneError) as info:
@@ -145,3 +148,4 @@ def test_the_documented_scene_example_is_valid():
     data = tomllib.loads(block.replace('"<catalogue key, unique key prefix or name>"', '"x"'))
     scene = solver.parse_scene(data, source="docs/scenes.md")
     assert scene.n_vertebrae == 19 and len(scene.cables) == 1 and len(scene.chambers) == 1
+    assert scene.effectors[1].axis == (0.0, 0.0, 1.0) and abs(sum(v * v for v in scene.effectors[1].target) - 1) < 1e-12
