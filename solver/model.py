@@ -130,7 +130,10 @@ class TrunkModel:
         for seg_index, seg in enumerate(scene.segments):
             if seg.type == "beam":
                 l = seg.length / seg.elements
-                C = timoshenko_compliance(l, seg.youngs_modulus, seg.shear_modulus, seg.section)
+                try:
+                    C = timoshenko_compliance(l, seg.youngs_modulus, seg.shear_modulus, seg.section)
+                except (OverflowError, ZeroDivisionError):
+                    C = np.full((6, 6), np.inf)          # reported below with the segment's name
                 q0, d0 = np.array([1.0, 0, 0, 0]), np.array([0.0, 0.0, l])
                 G, V, volumes = np.zeros((6, 0)), np.zeros((0, 0)), np.zeros(0)
                 link_mass, com = seg.density * seg.section.area * l, np.array([0.0, 0.0, 0.5 * l])
@@ -140,8 +143,12 @@ class TrunkModel:
                 q0, d0 = entry.rest_quaternion, entry.rest_translation
                 link_mass, com = entry.mass, entry.center_of_mass
             xi_rest, A = _strain_map(q0, d0)
-            K_xi = np.linalg.inv(A @ C @ A.T)
+            with np.errstate(all="ignore"):
+                K_xi = np.linalg.inv(A @ C @ A.T)
             K_xi = 0.5 * (K_xi + K_xi.T)
+            if not (np.all(np.isfinite(K_xi)) and np.all(np.isfinite(C)) and np.all(np.diag(K_xi) > 0)):
+                raise SceneError("length, section and moduli give a compliance that is not finite and positive "
+                                 "in double precision", file=scene.source, field=f"segment[{seg_index}]")
             for _ in range(seg.count):
                 vertebra_index = len(vertebra_frames)
                 for _ in range(seg.elements):
@@ -411,6 +418,11 @@ class TrunkModel:
         max_iter = settings.max_iterations if max_iterations is None else max_iterations
         steps = settings.load_steps if load_steps is None else load_steps
         actuation = self._actuation(actuation)
+        if initial is None and self._unloaded(actuation):
+            # no cable tension, pressure, load or weight: the rest pose is the equilibrium exactly
+            # (links are stress-free there by definition; se3 round-off would read ~1e-16 strain)
+            return StaticResult(True, 0, 0.0, self.rest_state.copy(), actuation, [0.0], 1, "none",
+                                {"solve_s": time.perf_counter() - start})
         reference = self._reference_force(actuation)
         history, kinds = [], set()
         if reference == 0.0:
@@ -460,6 +472,9 @@ class TrunkModel:
                 f"Newton did not converge: scaled residual {residual:.3g} > {tol:g} after {iterations} "
                 f"iterations and {stages} load stages (reached load factor {scale:.4g})", result)
         return result
+
+    def _unloaded(self, actuation: np.ndarray) -> bool:
+        return not (np.any(actuation) or self.has_dead_forces or self.has_dead_moments or self.has_gravity)
 
     def _below_resolution(self, state: State, dq: np.ndarray) -> bool:
         d = dq.reshape(-1, 6)

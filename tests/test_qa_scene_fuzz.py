@@ -2,8 +2,8 @@
 and the CLI. An invalid scene must raise ``SceneError`` naming the file and the field
 (never another exception type); the CLI must answer 0, 1 or 2 and never a traceback.
 
-Known bugs found by this fuzzing are pinned as strict xfails below (values the parser
-accepts but the compiler crashes on with a non-domain exception).
+Bugs this fuzzing found (values the parser accepted and the compiler then crashed on with a
+non-domain exception: infinite angles and radii, 1e300 lengths) are fixed; the tests below keep them fixed.
 """
 
 from __future__ import annotations
@@ -29,11 +29,9 @@ ROOT = Path(__file__).resolve().parents[1]
 GALLERY = sorted(glob.glob(str(ROOT / "solver" / "gallery" / "*.toml")))
 BASES = {f: tomllib.loads(Path(f).read_text()) for f in GALLERY}
 
-# Wrong types, empty/odd containers, out-of-range and non-finite numbers. Left out on
-# purpose: ±1e300 and ±inf in angle_deg (known bugs, xfails below) and huge counts
-# (a scene with count = 2**63-1 parses and then builds forever: reported, not tested).
+# Wrong types, empty/odd containers, out-of-range, huge and non-finite numbers.
 VALUES = ["x", "", True, False, [], [1, 2], [1.0, 2.0, 3.0], ["a", "b", "c"], {}, {"a": 1}, 0, -1, 1, 7,
-          -10**6, 0.0, -0.5, math.inf, -math.inf, math.nan, 1e-300, -2**63]
+          -10**6, 0.0, -0.5, math.inf, -math.inf, math.nan, 1e-300, 1e300, -1e300, -2**63, 2**63 - 1]
 
 
 def _paths(d, prefix=()):
@@ -60,10 +58,7 @@ def _mutate(rnd, data):
         key = path[-1]
         op = rnd.random()
         if op < 0.6:
-            value = copy.deepcopy(rnd.choice(VALUES))
-            if key == "angle_deg" and isinstance(value, float) and math.isinf(value):
-                value = 720.0       # ±inf here is a known bug (xfail below)
-            parent[key] = value
+            parent[key] = copy.deepcopy(rnd.choice(VALUES))
         elif op < 0.75:
             del parent[key]
         elif op < 0.9:
@@ -88,7 +83,7 @@ def _compile(data, source):
 def test_mutated_gallery_scenes_raise_scene_error_or_compile(seed):
     """100 random mutations per seed; each either compiles or raises SceneError with
     .file and .field set. (Over 6000 mutations while writing this: ~77 % SceneError,
-    ~23 % still valid, and only the non-domain crashes pinned as xfails below.)"""
+    ~23 % still valid; the non-domain crashes it found are fixed, see below.)"""
     rnd = random.Random(seed)
     outcomes = {"parsed": 0, "SceneError": 0}
     for _ in range(100):
@@ -169,7 +164,7 @@ def test_cli_executable_bad_scene_exit_2_without_traceback(tmp_path):
     assert "cable[1].from" in done.stderr
 
 
-# ---------------------------------------------------------------------------- known bugs
+# ---------------------------------------------------------------------------- fixed bugs
 
 def _tendon(mutation):
     data = copy.deepcopy(BASES[str(ROOT / "solver" / "gallery" / "tendon_two_section.toml")])
@@ -177,31 +172,27 @@ def _tendon(mutation):
     return data
 
 
-KNOWN_CRASHES = [
+FIXED_CRASHES = [
     ("angle_deg = inf", lambda d: d["cable"][0].update(angle_deg=math.inf)),
     ("section radius = 1e300", lambda d: d["segment"][0]["section"].update(radius=1e300)),
     ("length = 1e300", lambda d: d["segment"][0].update(length=1e300)),
+    ("length = 1e90 on a soft rod", lambda d: d["segment"][0].update(length=1e90, youngs_modulus=1e-90)),
+    ("count = 2**63-1", lambda d: d["segment"][0].update(count=2**63 - 1)),
+    ("vertebra mass = inf", lambda d: d["segment"][0]["vertebra"].update(mass=math.inf)),
 ]
 
 
-@pytest.mark.xfail(strict=True, reason="bug: parser accepts these values; build_model/parse_scene raise "
-                                       "ValueError (math.cos(inf)) or OverflowError (radius**2, l**3) "
-                                       "instead of SceneError")
-@pytest.mark.parametrize("label,mutation", KNOWN_CRASHES, ids=[m[0] for m in KNOWN_CRASHES])
-def test_known_non_domain_crash_is_a_scene_error(label, mutation):
+@pytest.mark.parametrize("label,mutation", FIXED_CRASHES, ids=[m[0] for m in FIXED_CRASHES])
+def test_former_non_domain_crash_is_a_scene_error(label, mutation):
     try:
         _compile(_tendon(mutation), "x.toml")
     except SceneError:
-        return
-    except VertebraError:
         return
     except Exception as error:      # noqa: BLE001 — the point of the test
         pytest.fail(f"{label}: {type(error).__name__}: {error}")
     pytest.fail(f"{label}: accepted")
 
 
-@pytest.mark.xfail(strict=True, reason="bug: `vertebra simulate` prints a ValueError traceback for "
-                                       "a cable with angle_deg = inf (exit 1 with traceback, not 2)")
 def test_cli_angle_inf_exits_2_without_traceback(tmp_path):
     path = tmp_path / "inf.toml"
     path.write_text(scene_toml(_tendon(lambda d: d["cable"][0].update(angle_deg=math.inf))))
@@ -210,10 +201,6 @@ def test_cli_angle_inf_exits_2_without_traceback(tmp_path):
     assert done.returncode == 2 and "Traceback" not in done.stderr
 
 
-@pytest.mark.xfail(strict=True, reason="bug: cable radius = inf is accepted (nonneg fields allow +inf); "
-                                       "`vertebra invert` then dies with ValueError 'W_ea contains "
-                                       "non-finite values' (a traceback), and `simulate --json` exits 0 "
-                                       "with NaN length/stroke")
 def test_cli_invert_cable_radius_inf_is_bad_input(tmp_path, capsys):
     data = copy.deepcopy(BASES[str(ROOT / "solver" / "gallery" / "paper_5v_16t.toml")])
     data["cable"][14]["radius"] = math.inf
