@@ -369,10 +369,10 @@ def _unit(t: _Table, key: str, vector):
 def _parse_vertebra(t: _Table) -> VertebraSpec:
     spec = VertebraSpec(mass=t.number("mass", 0.0, nonneg=True),
                         center_of_mass=t.vector("center_of_mass", 3, (0.0, 0.0, 0.0)))
-    t.raw("inertia")  # accepted for completeness (statics does not need it); validated below
-    inertia = t.data.get("inertia")
-    if inertia is not None and not (isinstance(inertia, list) and len(inertia) in (3, 9)):
-        raise t.error("inertia", "expected 3 principal moments or 9 matrix entries")
+    inertia = t.raw("inertia")  # accepted for completeness (statics does not need it)
+    if inertia is not None and not (isinstance(inertia, list) and len(inertia) in (3, 9) and all(
+            not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v) for v in inertia)):
+        raise t.error("inertia", f"expected 3 principal moments or 9 matrix entries (finite numbers), got {inertia!r}")
     t.done()
     return spec
 
@@ -420,6 +420,8 @@ def _parse_segment(t: _Table) -> SegmentSpec:
     if t.has("shear_modulus"):
         G = t.number("shear_modulus", positive=True)
         nu = E / (2 * G) - 1.0
+        if not -1.0 < nu < 0.5:
+            raise t.error("shear_modulus", f"implies a Poisson ratio E/(2G) − 1 = {nu:.4g} outside (-1, 0.5)")
     else:
         nu = t.number("poisson_ratio", 0.3)
         if not -1.0 < nu < 0.5:

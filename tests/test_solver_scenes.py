@@ -46,11 +46,20 @@ def scene(**extra):
      "cable[1].name", "duplicate"),
     (scene(solver={"tolerance": -1.0}), "solver.tolerance", "must be > 0"),
     (scene(version=2), "version", "unsupported"),
+    ({"segment": [{k: v for k, v in BEAM.items() if k != "poisson_ratio"} | {"shear_modulus": 1e3}]},
+     "segment[0].shear_modulus", "implies a Poisson ratio"),
+    ({"segment": [dict(BEAM, vertebra={"inertia": ["a", "b", "c"]})]}, "segment[0].vertebra.inertia", "finite numbers"),
+    ({"segment": [dict(BEAM, count=10**6, elements=1)]}, "segment", "at most 200000"),
+    (scene(cable=[{"name": "t", "radius": float("inf"), "to": 2}]), "cable[0].radius", "finite"),
+    (scene(cable=[{"name": "t", "radius": 0.01, "to": 2, "max_tension": float("inf")}]), None, None),
     (scene(effector=[{"name": "d", "axis": [0.0, 0.0, 0.0]}]), "effector[0].axis", "zero vector"),
     (scene(effector=[{"name": "d", "axis": [0.0, 0.0, 1.0], "offset": [0.0, 0.0, 0.01]}]), "effector[0].offset",
      "not both"),
 ])
 def test_invalid_scenes_name_the_field_and_the_reason(data, field, reason):
+    if field is None:       # a valid counterpart: infinity is accepted as an actuator bound
+        assert solver.parse_scene(data, source="robot.toml").cables[0].max_tension == float("inf")
+        return
     with pytest.raises(SceneError) as info:
         solver.parse_scene(data, source="robot.toml")
     assert info.value.file == "robot.toml" and info.value.field == field
