@@ -285,6 +285,14 @@ def parse_scene(data: dict, source: str = "<dict>", base_dir=".") -> Scene:
                                    + ("" if allow_base else " and 0 is the clamped base"))
         return resolved
 
+    def vertebra_range(table):
+        """``from``/``to`` of a cable or chamber: vertebrae first..last, never the base."""
+        first = vertebra_index(table, "from", 1, allow_base=False)
+        last = vertebra_index(table, "to", allow_base=False)
+        if last < first:
+            raise table.error("to", f"vertebra {last} comes before the first vertebra {first}")
+        return first, last
+
     names = set()
 
     def unique_name(table, kind):
@@ -296,10 +304,7 @@ def parse_scene(data: dict, source: str = "<dict>", base_dir=".") -> Scene:
 
     cables = []
     for t in top.tables("cable"):
-        first = vertebra_index(t, "from", 1, allow_base=False)
-        last = vertebra_index(t, "to", allow_base=False)
-        if last < first:
-            raise t.error("to", f"terminating vertebra {last} comes before the first vertebra {first}")
+        first, last = vertebra_range(t)
         cable = CableSpec(
             name=unique_name(t, "cable"), radius=t.number("radius", required=True, nonneg=True),
             angle=math.radians(t.number("angle_deg", 0.0)), first=first, last=last,
@@ -315,10 +320,7 @@ def parse_scene(data: dict, source: str = "<dict>", base_dir=".") -> Scene:
 
     chambers = []
     for t in top.tables("chamber"):
-        first = vertebra_index(t, "from", 1, allow_base=False)
-        last = vertebra_index(t, "to", allow_base=False)
-        if last < first:
-            raise t.error("to", f"last vertebra {last} comes before the first vertebra {first}")
+        first, last = vertebra_range(t)
         chamber = ChamberSpec(
             name=unique_name(t, "chamber"), cavity=t.number("cavity", 0, integer=True, nonneg=True),
             first=first, last=last, pressure=t.number("pressure", 0.0),
