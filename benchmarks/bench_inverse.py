@@ -33,6 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import solver  # noqa: E402
 from solver.gallery import load  # noqa: E402
 from solver.inverse.controller import InverseController, InverseSettings, constraint_problem  # noqa: E402
+from solver.inverse.problems import reachable_loop  # noqa: E402
 from solver.inverse.qp import solve_constraint_problem  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -99,16 +100,6 @@ def scaled_scene(name, elements=None, n_cables=None):
             cables.append(dataclasses.replace(c, name=f"c{k}", angle=c.angle + 0.1 * (k // len(base))))
         scene = dataclasses.replace(scene, cables=tuple(cables))
     return scene
-
-
-def reachable_loop(model, scene, n_points, base=0.1, amplitude=1.0):
-    angles = np.array([c.angle for c in scene.cables])
-    loop, state = [], None
-    for theta in np.linspace(0.0, 2 * np.pi, n_points):
-        lam = base + amplitude * np.maximum(0.0, np.cos(theta - angles))
-        state = model.solve(lam, initial=state).state
-        loop.append(model.effector_positions(state))
-    return np.array(loop)
 
 
 def modes_table(n_points):

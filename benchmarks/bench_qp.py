@@ -29,24 +29,14 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from solver.inverse.problems import synthetic_problem  # noqa: E402
 from solver.inverse.qp import ConstraintProblem, available_backends, solve_constraint_problem  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
-def synthetic(seed, n_act, n_rows, n_dof=60, reach=0.5):
-    rng = np.random.default_rng(seed)
-    A = rng.normal(size=(n_dof, n_dof))
-    K = A @ A.T + n_dof * np.eye(n_dof)
-    Ja = rng.normal(size=(n_act, n_dof)) * 1e-2
-    Je = rng.normal(size=(n_rows, n_dof))
-    X = np.linalg.solve(K, -Ja.T)
-    W_ea, W_aa = Je @ X, Ja @ X
-    return W_ea, -(W_ea @ rng.uniform(0.0, 10.0, n_act)) * reach, W_aa
-
-
 def problem_for(case, seed, eps=None):
-    W_ea, de, W_aa = synthetic(seed, case["n_act"], case["n_rows"], reach=case["reach"])
+    W_ea, de, W_aa, _ = synthetic_problem(seed, case["n_act"], case["n_rows"], reach=case["reach"])
     kw = {}
     if case["stroke"]:
         kw["displacement_lower"] = -0.6 * np.abs(W_aa).sum(axis=1)
@@ -108,7 +98,7 @@ def epsilon_table(quick):
             problem = problem_for(dict(n_act=16, n_rows=3, reach=0.5, stroke=False), seed, eps)
             sol = solve_constraint_problem(problem, "daqp")
             biases.append(sol.effector_error / np.linalg.norm(problem.delta_e_free) if sol.converged else np.nan)
-        W_ea, de0, W_aa = synthetic(2, 16, 3)
+        W_ea, de0, W_aa, _ = synthetic_problem(2, 16, 3)
         r = 0.3 * np.linalg.norm(de0)
         u, v = np.linalg.qr(np.random.default_rng(0).normal(size=(3, 2)))[0].T
         lam, path, ok = None, [], True

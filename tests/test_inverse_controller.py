@@ -14,6 +14,7 @@ import pytest
 import solver
 from solver.gallery import load
 from solver.inverse.controller import InverseController, InverseSettings
+from solver.inverse.problems import reachable_loop
 from store.errors import ConvergenceError
 
 
@@ -32,20 +33,6 @@ def _within_bounds(model, actuation):
 def _forward_targets(model, actuation):
     result = model.solve(actuation)
     return model.effector_positions(result.state)
-
-
-def _reachable_loop(model, scene, n_points, base, amplitude):
-    """A closed loop of targets that tendons can reach: the tips of forward solutions with
-    tensions ``base + amplitude·max(0, cos(θ − angle_j))`` for θ around the circle. (A
-    horizontal circle at constant height is *not* reachable by tendons around a stiff
-    backbone: bending lowers the tip and tendons can only shorten it.)"""
-    angles = np.array([c.angle for c in scene.cables])
-    loop, state = [], None
-    for theta in np.linspace(0.0, 2 * np.pi, n_points):
-        lam = base + amplitude * np.maximum(0.0, np.cos(theta - angles))
-        state = model.solve(lam, initial=state).state
-        loop.append(model.effector_positions(state))
-    return np.array(loop)
 
 
 @pytest.mark.parametrize("name, actuation", [
@@ -120,7 +107,7 @@ def test_redundant_16_tendon_actuation_is_smooth_along_a_loop():
     tip = [e for e in scene.effectors if e.name == "tip"]
     scene = dataclasses.replace(scene, effectors=tuple(tip))
     model = solver.build_model(scene)
-    loop = _reachable_loop(model, scene, 25, base=0.1, amplitude=1.0)
+    loop = reachable_loop(model, scene, 25, base=0.1, amplitude=1.0)
     controller = InverseController(model, InverseSettings(mode="converged"))
     efforts = []
     for target in loop:
@@ -141,7 +128,7 @@ def test_tick_mode_tracks_and_settles():
     # like Newton so the equilibrium under the final tensions reaches it to 1e-6 m.
     scene = load("paper_3v_4t")
     model = solver.build_model(scene)
-    loop = _reachable_loop(model, scene, 20, base=0.2, amplitude=1.0)
+    loop = reachable_loop(model, scene, 20, base=0.2, amplitude=1.0)
     controller = InverseController(model, InverseSettings(mode="tick"))
     for target in loop:
         step = controller.step(target[0])

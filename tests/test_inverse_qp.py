@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from solver.inverse.problems import synthetic_problem
 from solver.inverse.qp import (
     ConstraintProblem,
     available_backends,
@@ -23,21 +24,8 @@ EXACT = ["daqp"]
 INTERIOR = [b for b in ("qpsolvers:clarabel",) if b in available_backends()]
 
 
-def synthetic(seed, n_act=16, n_rows=3, n_dof=60, reach=0.5):
-    """A tendon-like constraint problem; ``reach`` < 1 makes the target reachable."""
-    rng = np.random.default_rng(seed)
-    A = rng.normal(size=(n_dof, n_dof))
-    K = A @ A.T + n_dof * np.eye(n_dof)
-    Ja = rng.normal(size=(n_act, n_dof)) * 1e-2
-    Je = rng.normal(size=(n_rows, n_dof))
-    Kinv_B = np.linalg.solve(K, -Ja.T)
-    W_ea, W_aa = Je @ Kinv_B, Ja @ Kinv_B
-    lam_target = rng.uniform(0.0, 10.0, n_act)
-    return W_ea, -(W_ea @ lam_target) * reach, W_aa, lam_target
-
-
 def test_validation_names_the_numbers():
-    W_ea, de, W_aa, _ = synthetic(0, n_act=4)
+    W_ea, de, W_aa, _ = synthetic_problem(0, n_act=4)
     with pytest.raises(ValueError, match="len\\(delta_e_free\\) = 2, but it must be 3"):
         ConstraintProblem(W_ea, de[:2])
     with pytest.raises(ValueError, match="lambda_lower\\[1\\] = 5.0 > lambda_upper\\[1\\] = 1.0"):
@@ -57,7 +45,7 @@ def test_gauss_seidel_and_exact_qp_agree_when_well_posed(seed, exact):
     # that moves the effectors by < 1e-10 × the free gap; the optimum is then known to
     # ~1e-10 × cond(H) relative in effort, so 1e-6 leaves margin for cond(H) ≲ 1e4 here,
     # and the predicted gaps agree to 1e-8 of the free gap.
-    W_ea, de, W_aa, _ = synthetic(seed, n_act=4, n_rows=6)
+    W_ea, de, W_aa, _ = synthetic_problem(seed, n_act=4, n_rows=6)
     problem = ConstraintProblem(W_ea, de, lambda_lower=0.0, lambda_upper=6.0,
                                 W_aa=W_aa, delta_a_free=np.zeros(4))
     gs = solve_constraint_problem(problem, "gauss-seidel")
@@ -75,7 +63,7 @@ def test_bounds_are_never_violated(backend):
     # feasibility tolerance) — or are reported as relaxed when they cannot hold.
     rng = np.random.default_rng(7)
     for seed in range(6):
-        W_ea, de, W_aa, _ = synthetic(seed, n_act=8, reach=3.0)
+        W_ea, de, W_aa, _ = synthetic_problem(seed, n_act=8, reach=3.0)
         lo = rng.uniform(0.0, 0.5, 8)
         hi = lo + rng.uniform(0.5, 2.0, 8)
         dlo = -np.abs(W_aa).sum(axis=1) * 0.7  # stroke limit inside the box's reach
@@ -96,7 +84,7 @@ def test_unreachable_target_gives_the_closest_reach(backend):
     # 1e-10 relative effector motion per sweep; the objective is quadratic in it).
     from scipy.optimize import lsq_linear
 
-    W_ea, de, W_aa, _ = synthetic(3, n_act=6, reach=10.0)
+    W_ea, de, W_aa, _ = synthetic_problem(3, n_act=6, reach=10.0)
     problem = ConstraintProblem(W_ea, de, lambda_lower=0.0, lambda_upper=5.0, W_aa=W_aa,
                                 delta_a_free=np.zeros(6))
     sol = solve_constraint_problem(problem, backend, max_iterations=20000)
@@ -113,7 +101,7 @@ def test_unreachable_target_gives_the_closest_reach(backend):
 def test_infeasible_stroke_limits_are_relaxed_minimally_and_reported():
     # A stroke limit above the free displacement at zero effort cannot hold with λ ≥ 0
     # (pulling only shortens the cable): the step relaxes it by exactly the deficit.
-    W_ea, de, W_aa, _ = synthetic(5, n_act=4)
+    W_ea, de, W_aa, _ = synthetic_problem(5, n_act=4)
     da_free = np.full(4, -1e-3)
     problem = ConstraintProblem(W_ea, de, lambda_lower=0.0, lambda_upper=10.0, W_aa=W_aa,
                                 delta_a_free=da_free, displacement_lower=-5e-4)
@@ -130,7 +118,7 @@ def test_redundant_actuation_has_a_unique_solution(exact):
     # 16 tendons, one 3-D target: W_eaᵀW_ea has rank 3. From any warm start the exact
     # QP returns the same efforts (the regulariser makes the QP strictly convex); 1e-6
     # relative is the solver's accuracy on a Hessian of condition ~1/ε = 1e8.
-    W_ea, de, W_aa, _ = synthetic(11)
+    W_ea, de, W_aa, _ = synthetic_problem(11)
     rng = np.random.default_rng(1)
     sols = []
     for _ in range(4):
@@ -149,7 +137,7 @@ def test_redundant_actuation_is_smooth_along_a_circle():
     # The solution map of a strictly convex QP is continuous, so uniformly spaced
     # targets give efforts without jumps: no step larger than 5× the median step
     # (an arbitrary choice among many solutions would jump by O(λ) instead).
-    W_ea, de0, W_aa, _ = synthetic(2)
+    W_ea, de0, W_aa, _ = synthetic_problem(2)
     r = 0.3 * np.linalg.norm(de0)
     u, v = np.linalg.qr(np.random.default_rng(0).normal(size=(3, 2)))[0].T
     lam = None
@@ -171,7 +159,7 @@ def test_regulariser_is_invariant_to_units_and_actuator_count():
     # Units: tension in mN instead of N for half the actuators, mm instead of m for the
     # effector: the same physical answer. The regularised Hessian has condition ~1/ε =
     # 1e8, so round-off alone moves efforts by ~1e-8 relative: 1e-6 is the tolerance.
-    W_ea, de, W_aa, _ = synthetic(4, n_act=6)
+    W_ea, de, W_aa, _ = synthetic_problem(4, n_act=6)
     base = solve_constraint_problem(ConstraintProblem(W_ea, de, lambda_lower=0.0, lambda_upper=20.0,
                                                       W_aa=W_aa, delta_a_free=np.zeros(6)))
     s = np.array([1e3, 1, 1e3, 1, 1e3, 1])  # λ' = s λ
@@ -194,7 +182,7 @@ def test_regulariser_is_invariant_to_units_and_actuator_count():
 def test_interior_point_backend_agrees_with_active_set(interior):
     # Clarabel stops at a duality gap of 1e-10 on the Jacobi-scaled problem: efforts
     # agree with DAQP's active-set answer to ~1e-7 relative; 1e-5 leaves margin.
-    W_ea, de, W_aa, _ = synthetic(8, n_act=5, n_rows=6, reach=2.0)
+    W_ea, de, W_aa, _ = synthetic_problem(8, n_act=5, n_rows=6, reach=2.0)
     problem = ConstraintProblem(W_ea, de, lambda_lower=0.0, lambda_upper=8.0, W_aa=W_aa,
                                 delta_a_free=np.zeros(5))
     a = solve_constraint_problem(problem, "daqp")
