@@ -17,8 +17,9 @@ import numpy as np
 
 from solver.banded import BandLayout, factor_cholesky, factor_lu
 from solver.beam import timoshenko_compliance
-from solver.elements import LinkGeometry, cable_gradient, cable_tangent, link_gradient, pair_tangent
-from solver.rotations import cross, hat, matvec, qmul, qrotate, se3_exp, se3_log
+from solver.elements import cable_gradient, cable_tangent
+from solver.links import Links, compose_chain, exp_twist, link_forces, link_tangent
+from solver.rotations import cross, hat, qmul, qrotate, se3_log
 from store.errors import CatalogueError, ConvergenceError, SceneError
 
 
@@ -296,16 +297,16 @@ class TrunkModel:
             band_blocks = np.zeros((2,) + self.layout.block_shape)       # [lower, upper] block bands
             lower, upper = band_blocks[0], band_blocks[1]
         xi_rest = self._link_rest(scale * actuation[self.n_cables:])
-        args = (q[:-1], x[:-1], q[1:], x[1:], self.link_stiffness, xi_rest)
+        links = Links.of(q[:-1], x[:-1], q[1:], x[1:])
+        self._geometry_cache = (state, links)            # reused by step() from this state
         if tangent:
-            g, energy, H, geometry = pair_tangent(link_gradient, *args)
-            self._geometry_cache = (state, geometry)     # reused by step() from this state
+            g, energy, H = link_tangent(links, self.link_stiffness, xi_rest)
             lower[:, 0] += H[:, 6:, 6:]
             lower[:-1, 0] += H[1:, :6, :6]
             lower[:-1, 1] += H[1:, 6:, :6]
             upper[:-1, 1] += H[1:, :6, 6:]
         else:
-            g, energy, _ = link_gradient(*args)
+            g, energy, _ = link_forces(links, self.link_stiffness, xi_rest)
         grad[:-1] += g[:, :6]
         grad[1:] += g[:, 6:]
         total = float(np.sum(energy))
@@ -366,28 +367,12 @@ class TrunkModel:
         d = np.zeros((self.n_frames, 6))
         d[1:] = np.asarray(dq).reshape(-1, 6)
         q, x = state.quaternions, state.positions
-        cached_state, geometry = self._geometry_cache
+        cached_state, links = self._geometry_cache
         if cached_state is not state:
-            geometry = LinkGeometry.of(q[:-1], x[:-1], q[1:], x[1:])
-        Ra_T = np.swapaxes(geometry.Ra, -1, -2)
-        local = matvec(Ra_T[:, None], np.stack([d[1:, :3] - d[:-1, :3], d[1:, 3:], d[:-1, 3:]], 1))
-        zeta = np.concatenate([local[:, 0] + cross(geometry.p, local[:, 1]), local[:, 1] - local[:, 2]], -1)
-        rel_q, rel_p = se3_exp(geometry.twist() + geometry.strain_change(zeta))
-        # inclusive prefix composition T_0..k = T_0 ∘ … ∘ T_k (Hillis–Steele scan)
-        shift = 1
-        while shift < self.n_links:
-            head_q, head_p = rel_q[:-shift], rel_p[:-shift]
-            tail_p = head_p + qrotate(head_q, rel_p[shift:])
-            tail_q = qmul(head_q, rel_q[shift:])
-            rel_q = np.concatenate([rel_q[:shift], tail_q])
-            rel_p = np.concatenate([rel_p[:shift], tail_p])
-            shift *= 2
-        quaternions = np.empty_like(q)
-        positions = np.empty_like(x)
+            links = Links.of(q[:-1], x[:-1], q[1:], x[1:])
+        rel_q, rel_p = exp_twist(links.xi + links.strain_change(links.zeta(d[:-1], d[1:])))
+        quaternions, positions = compose_chain(q[0], x[0], rel_q, rel_p)
         quaternions[0], positions[0] = q[0], x[0]
-        quaternions[1:] = qmul(q[0], rel_q)
-        quaternions[1:] /= np.linalg.norm(quaternions[1:], axis=1, keepdims=True)
-        positions[1:] = x[0] + qrotate(q[0], rel_p)
         return State(positions, quaternions)
 
     def _reference_force(self, actuation) -> float:
@@ -548,7 +533,7 @@ class TrunkModel:
         if not self.n_chambers:
             return np.zeros(0)
         x, q = state.positions, state.quaternions
-        e = LinkGeometry.of(q[:-1], x[:-1], q[1:], x[1:]).twist() - self._link_rest(pressures)
+        e = Links.of(q[:-1], x[:-1], q[1:], x[1:]).xi - self._link_rest(pressures)
         w = np.einsum("nij,nj->ni", self.link_stiffness, e)
         return np.einsum("nij,ni->j", self.link_pressure_map, w) + self.chamber_volume_compliance @ pressures
 
@@ -585,7 +570,7 @@ class TrunkModel:
             np.add.at(jac, (self.cable_piece_owner, b), g[:, 6:])
         forces = -jac.copy()                          # cable: −τ ∂L/∂q
         if self.n_chambers:
-            geometry = LinkGeometry.of(q[:-1], x[:-1], q[1:], x[1:])
+            geometry = Links.of(q[:-1], x[:-1], q[1:], x[1:])
             c = np.einsum("nij,njk->nki", self.link_stiffness, self.link_pressure_map)   # K A G, (n, chamber, 6)
             g = geometry.generalised_force(geometry.transport(c))                         # (n, chamber, 12)
             chamber_jac = np.zeros((self.n_chambers, self.n_frames, 6))
