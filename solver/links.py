@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import zeta
 
-from solver.rotations import _HAT_TABLE, _QL_INDEX, _QL_SIGN, qconj, qmatrix, qmul
+from solver.rotations import _HAT_TABLE, _QL_INDEX, _QL_SIGN, _R_TABLE
 
 _TERMS = 40
 _k = np.arange(1, _TERMS + 3, dtype=float)
@@ -46,20 +46,29 @@ _A = 2.0 * zeta(2.0 * _k) / (2.0 * np.pi) ** (2.0 * _k)        # a_1 … a_42
 
 
 def _series_table() -> np.ndarray:
-    """Rows: powers t⁰ … t^(N−1) of t = θ²; columns: c (SO(3) J⁻¹), c₂, c₄, c₂′, c₄′."""
-    table = np.zeros((_TERMS, 5))
+    """(N, 35) table: ``coefficients(θ²) = [θ^0 … θ^(2N−2)] @ table``. Columns: SO(3) ``c``
+    (J⁻¹ = I − ½Φ + cΦ²); the weights of [A, A², A³, A⁴] in J_l⁻¹ (−½, c₂, 0, c₄); and the 6×5
+    matrix (row-major) taking ``[w, u₁, u₂, u₃, u₄]`` to the vectors :func:`link_tangent` needs."""
     a = dict(zip(range(1, _TERMS + 3), _A))
-    for j in range(_TERMS):
-        table[j, 0] = a[j + 1]                                  # Σ a_k t^(k−1)
-        table[j, 1] = (2 - (j + 1)) * a[j + 1]                  # Σ (2−k) a_k t^(k−1)
-        table[j, 2] = (1 - (j + 2)) * a[j + 2]                  # Σ (1−k) a_k t^(k−2)
-        table[j, 3] = (2 - (j + 2)) * (j + 1) * a[j + 2]        # d/dt of c₂
-        table[j, 4] = (1 - (j + 3)) * (j + 1) * a[j + 3]        # d/dt of c₄
-    return table
+    j = np.arange(_TERMS)
+    const = lambda value: np.where(j == 0, value, 0.0)                  # noqa: E731
+    c_so3 = np.array([a[i + 1] for i in j])
+    c2 = np.array([(1 - i) * a[i + 1] for i in j])                         # Σ (2−k) a_k t^(k−1)
+    c4 = np.array([-(i + 1) * a[i + 2] for i in j])                        # Σ (1−k) a_k t^(k−2)
+    dc2 = np.array([-i * (i + 1) * a[i + 2] for i in j])                   # d/dt of c₂
+    dc4 = np.array([-(i + 2) * (i + 1) * a[i + 3] for i in j])             # d/dt of c₄
+    zero = np.zeros(_TERMS)
+    columns = [c_so3, const(-0.5), c2, zero, c4,
+               c4, zero, zero, zero, zero,                 # Λ argument c₄w
+               zero, c4, zero, zero, zero,                 # Λ argument c₄u₁
+               c2, zero, c4, zero, zero,                   # Λ argument c₄u₂ + c₂w
+               const(-0.5), c2, zero, c4, zero,            # Λ argument −½w + c₂u₁ + c₄u₃
+               const(1.0), const(-0.5), c2, zero, c4,      # y = J_l⁻ᵀw = w − ½u₁ + c₂u₂ + c₄u₄
+               zero, zero, 2.0 * dc2, zero, 2.0 * dc4]     # ∂(c₂, c₄)/∂φ direction: 2(c₂′u₂ + c₄′u₄)
+    return np.stack(columns, 1)
 
 
 _SERIES = _series_table()
-_POWERS = np.arange(_TERMS, dtype=float)
 
 
 def _block_table(blocks) -> np.ndarray:
@@ -71,57 +80,103 @@ def _block_table(blocks) -> np.ndarray:
     return table.reshape(6, 36)
 
 
+def _rotation_tables():
+    """(16, 144): diag(R, R, R, R).ravel() = (q ⊗ q).ravel() @ T; (4, 16): L(q).ravel() = q @ T."""
+    R = _R_TABLE.reshape(16, 3, 3)
+    big = np.zeros((16, 12, 12))
+    for k in range(4):
+        big[:, 3 * k:3 * k + 3, 3 * k:3 * k + 3] = R
+    left = np.zeros((4, 16))
+    left[_QL_INDEX, np.arange(16)] = _QL_SIGN
+    return big.reshape(16, 144), left
+
+
+def _zt_tables():
+    """``Zᵀ = [−I; Pᵀ]`` (12×6) with ``Pᵀ = [[I, 0], [−p̂, I]]``: constant part and p-table (3, 72)."""
+    const = np.zeros((12, 6))
+    const[:6] = -np.eye(6)
+    const[6:] = np.eye(6)
+    table = np.zeros((3, 12, 6))
+    table[:, 9:, :3] = -_HAT_TABLE.reshape(3, 3, 3)
+    return const, table.reshape(3, 72)
+
+
 _AD_TABLE = _block_table({(0, 0): 1, (0, 1): 0, (1, 1): 1})        # ad([ρ; φ]) = [[φ^, ρ^], [0, φ^]]
 _LAMBDA_TABLE = _block_table({(0, 1): 0, (1, 0): 0, (1, 1): 1})    # Λ(u) = [[0, u_f^], [u_f^, u_m^]]
+_R12_TABLE, _L_TABLE = _rotation_tables()
+_ZT_CONST, _ZT_TABLE = _zt_tables()
 _EYE6 = np.eye(6)
 
 
 def coefficients(theta2: np.ndarray) -> np.ndarray:
-    """``(…, 5)``: SO(3) ``c`` (J⁻¹ = I − ½Φ + cΦ²), SE(3) ``c₂``, ``c₄`` and ``dc₂/dθ²``, ``dc₄/dθ²``."""
-    return (theta2[..., None] ** _POWERS) @ _SERIES
+    """``(n, 35)`` polynomial coefficients of the links (see :func:`_series_table`). Terms
+    beyond the largest angle's need are skipped: the k-th term is below ``(θ²/4π²)^k`` relative."""
+    ratio = float(theta2.max(initial=0.0)) / (4.0 * np.pi * np.pi)
+    terms = _TERMS if ratio >= 0.25 else min(_TERMS, 4 + int(-41.5 / math.log(max(ratio, 1e-300))))
+    return _powers(theta2, terms) @ _SERIES[:terms]
+
+
+def _powers(t: np.ndarray, count: int) -> np.ndarray:
+    """``[t⁰, t¹, …]`` (n, count) by running products: unlike ``t ** k`` (libm ``pow``), tiny
+    and zero ``t`` cost nothing extra (``pow`` takes ~10× longer when results underflow)."""
+    table = np.empty((t.shape[0], count))
+    table[:, 0] = 1.0
+    table[:, 1:] = t[:, None]
+    return np.multiply.accumulate(table, axis=1, out=table)
 
 
 def rotation_log(q: np.ndarray) -> np.ndarray:
     """Rotation vector of unit quaternions ``(n, 4)``, angle in [0, π] (real input)."""
     w, v = q[:, 0], q[:, 1:]
-    s = np.sqrt(np.einsum("ij,ij->i", v, v))
+    s = np.sqrt((v * v).sum(1))
     angle = 2.0 * np.arctan2(s, np.abs(w))            # q and −q: the same rotation
     return (np.copysign(angle, w) / np.maximum(s, 1e-300))[:, None] * v
 
 
 @dataclass
 class Links:
-    """Kinematics of a batch of links at one state (everything in the axes of frame ``a``)."""
+    """Kinematics of a batch of links at one state (local quantities in the axes of frame ``a``)."""
 
-    B: np.ndarray          # (n, 6, 6) diag(R_a, R_a)
-    P: np.ndarray          # (n, 6, 6) [[I, p̂], [0, I]]
+    R12: np.ndarray        # (n, 12, 12) diag(R_a, R_a, R_a, R_a): local → world for [a; b] 6-vectors
+    Zt: np.ndarray         # (n, 12, 6) [−I; Pᵀ]: strain-space force → local force on [a; b]
     xi: np.ndarray         # (n, 6) strain [ρ; φ]
-    A: np.ndarray          # (n, 6, 6) ad(ξ)
+    Apow: np.ndarray       # (n, 4, 6, 6) A, A², A³, A⁴ with A = ad(ξ)
     Jl_inv: np.ndarray     # (n, 6, 6) inverse left Jacobian
-    coef: np.ndarray       # (n, 5) see coefficients()
+    coef: np.ndarray       # (n, 35) see coefficients()
     span: np.ndarray       # (n, 3) x_b − x_a (world)
+
+    @property
+    def B(self) -> np.ndarray:
+        """diag(R_a, R_a) (n, 6, 6)."""
+        return self.R12[:, :6, :6]
+
+    @property
+    def P(self) -> np.ndarray:
+        """[[I, p̂], [0, I]] (n, 6, 6), ``p = R_aᵀ(x_b − x_a)``."""
+        return self.Zt[:, 6:].mT
 
     @classmethod
     def of(cls, qa, xa, qb, xb) -> "Links":
         n = qa.shape[0]
-        Ra = qmatrix(qa)
-        B = np.zeros((n, 6, 6))
-        B[:, :3, :3] = Ra
-        B[:, 3:, 3:] = Ra
-        p = ((xb - xa)[:, None, :] @ Ra)[:, 0]                     # R_aᵀ (x_b − x_a)
-        phi = rotation_log(qmul(qconj(qa), qb))
-        coef = coefficients(np.einsum("ij,ij->i", phi, phi))
+        R12 = ((qa[:, :, None] * qa[:, None, :]).reshape(n, 16) @ _R12_TABLE).reshape(n, 12, 12)
+        span = xb - xa
+        p = (span[:, None, :] @ R12[:, :3, :3])[:, 0]                    # R_aᵀ (x_b − x_a)
+        relative = (qb[:, None, :] @ (qa @ _L_TABLE).reshape(n, 4, 4))[:, 0]   # q̄_a ⊗ q_b = L(q_a)ᵀ q_b
+        phi = rotation_log(relative)
+        coef = coefficients((phi * phi).sum(1))
+        Phi = (phi @ _HAT_TABLE).reshape(n, 3, 3)
         xi = np.empty((n, 6))
         xi[:, 3:] = phi
-        Phi = (phi @ _HAT_TABLE).reshape(n, 3, 3)
-        Phi_p = (Phi @ p[:, :, None])[:, :, 0]
-        xi[:, :3] = p - 0.5 * Phi_p + coef[:, :1] * (Phi @ Phi_p[:, :, None])[:, :, 0]   # ρ = J⁻¹(φ) p
-        A = (xi @ _AD_TABLE).reshape(n, 6, 6)
-        A2 = A @ A
-        Jl_inv = _EYE6 - 0.5 * A + coef[:, 1, None, None] * A2 + coef[:, 2, None, None] * (A2 @ A2)
-        P = np.broadcast_to(_EYE6, (n, 6, 6)).copy()
-        P[:, :3, 3:] = (p @ _HAT_TABLE).reshape(n, 3, 3)
-        return cls(B, P, xi, A, Jl_inv, coef, xb - xa)
+        xi[:, :3] = p + (Phi @ (coef[:, :1, None] * (Phi @ p[:, :, None]) - 0.5 * p[:, :, None]))[:, :, 0]
+        flat = np.empty((n, 4, 36))
+        np.matmul(xi, _AD_TABLE, out=flat[:, 0])
+        Apow = flat.reshape(n, 4, 6, 6)
+        Apow[:, 1] = Apow[:, 0] @ Apow[:, 0]
+        Apow[:, 2] = Apow[:, 1] @ Apow[:, 0]
+        Apow[:, 3] = Apow[:, 1] @ Apow[:, 1]
+        Jl_inv = (coef[:, None, 1:5] @ flat).reshape(n, 6, 6) + _EYE6
+        Zt = (p @ _ZT_TABLE).reshape(n, 12, 6) + _ZT_CONST
+        return cls(R12, Zt, xi, Apow, Jl_inv, coef, span)
 
     def transport(self, w: np.ndarray) -> np.ndarray:
         """``J_l⁻ᵀ w`` for ``w`` of shape (n, 6) or (n, m, 6)."""
@@ -135,115 +190,121 @@ class Links:
 
     def generalised_force(self, y: np.ndarray) -> np.ndarray:
         """Generalised force (…, 12) on ``[a, b]`` (world axes) of strain-space forces ``y``,
-        (n, 6) or (n, m, 6): ``[−B y; B Pᵀ y]``."""
-        single = y.ndim == 2
-        Y = y[:, :, None] if single else np.swapaxes(y, 1, 2)           # (n, 6, m)
-        world_a = self.B @ Y
-        world_b = self.B @ (np.swapaxes(self.P, 1, 2) @ Y)
-        g = np.concatenate([-world_a, world_b], 1)                       # (n, 12, m)
-        return g[:, :, 0] if single else np.swapaxes(g, 1, 2)
+        (n, 6) or (n, m, 6): ``diag(B, B) Zᵀ y = [−B y; B Pᵀ y]``."""
+        if y.ndim == 2:
+            return (self.R12 @ (self.Zt @ y[:, :, None]))[:, :, 0]
+        return (self.R12 @ (self.Zt @ y.mT)).mT
 
     def zeta(self, dq_a: np.ndarray, dq_b: np.ndarray) -> np.ndarray:
-        """Left twist in ``a``'s axes of frame increments ``dq = [dx; dφ]`` (world axes)."""
-        local = np.concatenate([dq_b[:, :, None], dq_a[:, :, None]], 2)
-        local = np.swapaxes(self.B, 1, 2) @ local
+        """Left twist in ``a``'s axes of frame increments ``dq = [dx; dφ]`` (world axes):
+        ``ζ = P Bᵀ dq_b − Bᵀ dq_a``."""
+        local = self.B.mT @ np.stack([dq_b, dq_a], 2)
         return (self.P @ local[:, :, :1])[:, :, 0] - local[:, :, 1]
 
 
 def link_forces(links: Links, stiffness: np.ndarray, xi_rest: np.ndarray):
-    """Gradient (n, 12) and energies (n,) of the links, with ``w = K e`` for the tangent."""
+    """Gradient (n, 12) and total energy of the links, ``½ Σ eᵀ K e``."""
     e = links.xi - xi_rest
-    w = (stiffness @ e[:, :, None])[:, :, 0]
-    energy = 0.5 * np.einsum("ij,ij->i", e, w)
-    return links.generalised_force(links.transport(w)), energy, w
+    w = stiffness @ e[:, :, None]
+    return (links.R12 @ (links.Zt @ (links.Jl_inv.mT @ w)))[:, :, 0], 0.5 * float(np.vdot(e, w))
 
 
 def link_tangent(links: Links, stiffness: np.ndarray, xi_rest: np.ndarray):
-    """Gradient (n, 12), energies (n,) and exact tangent (n, 12, 12) of the links; see the
+    """Gradient (n, 12), total energy and exact tangent (n, 12, 12) of the links; see the
     module docstring for the formula (tests check it against the complex-step reference)."""
     n = links.xi.shape[0]
-    A, coef = links.A, links.coef
-    c2, c4 = coef[:, 1, None], coef[:, 2, None]
+    A = links.Apow[:, 0]
     e = links.xi - xi_rest
-    AT = np.swapaxes(A, 1, 2)
-    w = (stiffness @ e[:, :, None])[:, :, 0]
-    energy = 0.5 * np.einsum("ij,ij->i", e, w)
-    u = np.empty((n, 4, 6))                     # u_k = (Aᵀ)^k w as rows: u @ A = (Aᵀ u)ᵀ
-    u[:, 0] = (w[:, None, :] @ A)[:, 0]
-    u[:, 1] = (u[:, 0, None, :] @ A)[:, 0]
-    u[:, 2] = (u[:, 1, None, :] @ A)[:, 0]
-    u[:, 3] = (u[:, 2, None, :] @ A)[:, 0]
-    y = w - 0.5 * u[:, 0] + c2 * u[:, 1] + c4 * u[:, 3]            # J_l⁻ᵀ w
-    # Λ of the four combinations the Horner-like grouping below needs, in one product
-    V = np.empty((n, 4, 6))
-    V[:, 0] = w
-    V[:, 1] = u[:, 0]
-    V[:, 2] = c4 * u[:, 1] + c2 * w
-    V[:, 3] = -0.5 * w + c2 * u[:, 0] + c4 * u[:, 2]
-    L = (V @ _LAMBDA_TABLE).reshape(n, 4, 6, 6)
-    T1 = L[:, 1] + AT @ L[:, 0]                                     # Λ(u₁) + AᵀΛ(w)
-    T2 = L[:, 2] + c4[:, :, None] * (AT @ T1)
-    D = np.swapaxes(links.Jl_inv, 1, 2) @ stiffness + L[:, 3] + AT @ T2
-    D[:, :, 3:] += (2.0 * (coef[:, 3, None] * u[:, 1] + coef[:, 4, None] * u[:, 3]))[:, :, None] * links.xi[:, None, 3:]
-    P, B = links.P, links.B
-    DJP = D @ (links.Jl_inv @ P)                                    # ∂y/∂(Bᵀ dq_b)
-    X = np.empty((n, 2, 6, 6))
-    X[:, 0] = -DJP                                                  # g_a = −B y
-    X[:, 1] = np.swapaxes(P, 1, 2) @ DJP                            # g_b = B Pᵀ y
-    X[:, 1, 3:, :3] += (y[:, :3] @ _HAT_TABLE).reshape(n, 3, 3)   # p = R_aᵀ(x_b − x_a) moves with x_b
-    H_b = (B[:, None] @ X @ np.swapaxes(B, 1, 2)[:, None]).reshape(n, 12, 6)
-    g = links.generalised_force(y)
-    # columns of frame a from objectivity (see solver.elements.pair_tangent)
-    tangent = np.empty((n, 12, 12))
-    tangent[:, :, 6:] = H_b
-    tangent[:, :, :3] = -H_b[:, :, :3]
-    d = (links.span @ _HAT_TABLE).reshape(n, 3, 3)                 # (x_b − x_a)^
-    tangent[:, :, 3:6] = (-(g.reshape(n, 4, 3) @ _HAT_TABLE).reshape(n, 12, 3)
-                          + H_b[:, :, :3] @ d - H_b[:, :, 3:])
-    return g, energy, tangent
+    W = np.empty((n, 5, 6))                     # [w, u₁ … u₄], u_k = (Aᵀ)^k w stored as rows
+    W[:, 0] = (stiffness @ e[:, :, None])[:, :, 0]
+    energy = 0.5 * float(np.vdot(e, W[:, 0]))
+    W[:, 1:] = (W[:, 0, None, None, :] @ links.Apow)[:, :, 0]
+    V = links.coef[:, 5:].reshape(n, 6, 5) @ W   # Λ arguments (4), y = J_l⁻ᵀw, coefficient term
+    L = (V[:, :4] @ _LAMBDA_TABLE).reshape(n, 4, 6, 6)
+    AT = A.mT
+    D = L[:, 3] + AT @ (L[:, 2] + AT @ (L[:, 1] + AT @ L[:, 0]))   # Horner form of ∂(J_l⁻ᵀ)/∂ξ [w]
+    D += links.Jl_inv.mT @ stiffness
+    D[:, :, 3:] += V[:, 5, :, None] * links.xi[:, None, 3:]
+    y = V[:, 4]
+    Zt = links.Zt
+    X = np.empty((n, 12, 12))                   # the tangent in a's axes, columns [a; b]
+    X[:, :, 6:] = Zt @ (D @ (links.Jl_inv @ links.P))
+    X[:, 9:, 6:9] += (y[:, :3] @ _HAT_TABLE).reshape(n, 3, 3)      # p = R_aᵀ(x_b − x_a) moves with x_b
+    g_local = Zt @ y[:, :, None]
+    # columns of frame a from objectivity (see solver.elements.pair_tangent), in a's axes
+    X[:, :, :3] = -X[:, :, 6:9]
+    X[:, :, 3:6] = (-(X[:, :, 6:9] @ Zt[:, 9:, :3]) - X[:, :, 9:]
+                    - (g_local.reshape(n, 4, 3) @ _HAT_TABLE).reshape(n, 12, 3))
+    R12 = links.R12
+    return (R12 @ g_local)[:, :, 0], energy, R12 @ X @ R12.mT
 
 
-_EXP_SERIES = np.array([(-1.0) ** k / math.factorial(2 * k + 3) for k in range(9)])   # (θ − sin θ)/θ³
+def _exp_table() -> np.ndarray:
+    """(16, 3) series in t = θ² of cos(θ/2), sin(θ/2)/θ and (θ − sin θ)/θ³: alternating, with
+    terms below 1e-18 for t ≤ 16 (θ ≤ 4 rad, more than any link turns in one Newton step)."""
+    k = np.arange(16)
+    fact = np.array([float(math.factorial(i)) for i in range(40)])
+    sign = (-1.0) ** k
+    return np.stack([sign / (4.0 ** k * fact[2 * k]), sign / (2.0 * 4.0 ** k * fact[2 * k + 1]),
+                     sign / fact[2 * k + 3]], 1)
 
 
-def exp_twist(xi: np.ndarray):
-    """Rotation quaternions (n, 4) and translations (n, 3) of ``exp(ξ^)``, ``ξ = [ρ; φ]``."""
-    rho, phi = xi[:, :3], xi[:, 3:]
-    theta2 = np.einsum("ij,ij->i", phi, phi)
-    theta = np.sqrt(theta2)
-    half = 0.5 * np.sinc(theta / (2.0 * np.pi))              # sin(θ/2)/θ, exact at 0
-    q = np.empty((xi.shape[0], 4))
-    q[:, 0] = np.cos(0.5 * theta)
-    q[:, 1:] = half[:, None] * phi
-    with np.errstate(invalid="ignore", divide="ignore"):
-        c = np.where(theta2 < 1.0, (theta2[:, None] ** np.arange(9.0)) @ _EXP_SERIES,
-                     (theta - np.sin(theta)) / (theta2 * theta))
-    Phi = (phi @ _HAT_TABLE).reshape(-1, 3, 3)
-    Phi_rho = (Phi @ rho[:, :, None])[:, :, 0]
-    V_rho = rho + 2.0 * (half * half)[:, None] * Phi_rho + c[:, None] * (Phi @ Phi_rho[:, :, None])[:, :, 0]
-    return q, V_rho
+def _pose_table() -> np.ndarray:
+    """(24, 64): ``diag(L(q), [[R(q), p], [0, 1]]).ravel() = [q, q⊗q, p, 1] @ T``."""
+    table = np.zeros((24, 8, 8))
+    table[:4, :4, :4] = _L_TABLE.reshape(4, 4, 4)
+    table[4:20, 4:7, 4:7] = _R_TABLE.reshape(16, 3, 3)
+    table[20 + np.arange(3), 4 + np.arange(3), 7] = 1.0
+    table[23, 7, 7] = 1.0
+    return table.reshape(24, 64)
 
 
-def compose_chain(q0: np.ndarray, x0: np.ndarray, rel_q: np.ndarray, rel_p: np.ndarray):
-    """World poses of a chain from its base pose and the relative transforms of its links:
-    ``T_k = T_0 ∘ rel_1 ∘ … ∘ rel_k``. Each transform is packed as ``diag(L(q), [[R, p], [0, 1]])``
-    (8×8; ``L(q)`` multiplies quaternions) and the prefix products are taken in √N blocks:
-    O(N) work in about 2√N batched products, whatever the length of the chain."""
-    N = rel_q.shape[0] + 1
-    c = max(1, math.isqrt(N - 1) + 1)
+_EXP_TABLE = _exp_table()
+_POSE_TABLE = _pose_table()
+_IDENTITY_FEATURES = np.zeros(24)
+_IDENTITY_FEATURES[[0, 4, 23]] = 1.0
+
+
+def exp_coefficients(theta2: np.ndarray) -> np.ndarray:
+    """(n, 3): cos(θ/2), sin(θ/2)/θ, (θ − sin θ)/θ³ — series up to θ = 4, closed form beyond."""
+    series = _powers(theta2, 16) @ _EXP_TABLE
+    if float(theta2.max(initial=0.0)) <= 16.0:
+        return series
+    theta = np.sqrt(np.maximum(theta2, 16.0))
+    closed = np.stack([np.cos(0.5 * theta), np.sin(0.5 * theta) / theta, (theta - np.sin(theta)) / theta ** 3], 1)
+    return np.where(theta2[:, None] <= 16.0, series, closed)
+
+
+def chain_poses(q0: np.ndarray, x0: np.ndarray, xi: np.ndarray):
+    """World quaternions (n+1, 4) and positions (n+1, 3) of a chain from its base pose and the
+    strains of its links: ``T_k = T_0 ∘ exp(ξ_1^) ∘ … ∘ exp(ξ_k^)``.
+
+    Each transform is packed as ``diag(L(q), [[R, p], [0, 1]])`` (8×8; ``L(q)`` multiplies
+    quaternions, so the product carries the quaternion along) and the prefix products are
+    taken in √N blocks: O(N) work in about 2√N batched products, whatever the length."""
+    n = xi.shape[0]
+    N = n + 1
+    c = math.isqrt(N - 1) + 1
     m = -(-N // c)
-    M = np.zeros((m * c, 8, 8))
-    quats = np.concatenate([q0[None], rel_q])
-    M[:N, :4, :4] = (quats[:, _QL_INDEX] * _QL_SIGN).reshape(N, 4, 4)
-    M[:N, 4:7, 4:7] = qmatrix(quats)
-    M[:N, 4:7, 7] = np.concatenate([x0[None], rel_p])
-    M[:, 7, 7] = 1.0
-    M[N:] = np.eye(8)
-    X = M.reshape(m, c, 8, 8)
+    F = np.empty((m * c, 24))                          # features [q, q⊗q, p, 1] of each factor
+    F[N:] = _IDENTITY_FEATURES
+    F[:, 23] = 1.0
+    F[0, :4], F[0, 20:23] = q0, x0
+    rho, phi = xi[:, :3], xi[:, 3:]
+    cos_half, half, c3 = exp_coefficients((phi * phi).sum(1)).T
+    F[1:N, 0] = cos_half
+    F[1:N, 1:4] = half[:, None] * phi
+    Phi = (phi @ _HAT_TABLE).reshape(n, 3, 3)
+    Phi_rho = Phi @ rho[:, :, None]                    # V ρ = ρ + (1−cos θ)/θ² Φρ + c₃ Φ²ρ
+    F[1:N, 20:23] = rho + (2.0 * half * half)[:, None] * Phi_rho[:, :, 0] + c3[:, None] * (Phi @ Phi_rho)[:, :, 0]
+    quats = F[:N, :4]
+    F[:N, 4:20] = (quats[:, :, None] * quats[:, None, :]).reshape(N, 16)
+    M = (F @ _POSE_TABLE).reshape(m, c, 8, 8)
     for j in range(1, c):
-        X[:, j] = X[:, j - 1] @ X[:, j]
+        M[:, j] = M[:, j - 1] @ M[:, j]
     for i in range(1, m):
-        X[i] = X[i - 1, -1] @ X[i]
-    quaternions = M[:N, :4, 0]
-    quaternions = quaternions / np.sqrt(np.einsum("ij,ij->i", quaternions, quaternions))[:, None]
-    return quaternions, M[:N, 4:7, 7].copy()
+        M[i] = M[i - 1, -1] @ M[i]
+    M = M.reshape(m * c, 8, 8)[:N]
+    quaternions = M[:, :4, 0]
+    quaternions = quaternions / np.sqrt((quaternions * quaternions).sum(1))[:, None]
+    return quaternions, M[:, 4:7, 7].copy()

@@ -18,7 +18,7 @@ import numpy as np
 from solver.banded import BandLayout, factor_cholesky, factor_lu
 from solver.beam import timoshenko_compliance
 from solver.elements import cable_gradient, cable_tangent
-from solver.links import Links, compose_chain, exp_twist, link_forces, link_tangent
+from solver.links import Links, chain_poses, link_forces, link_tangent
 from solver.rotations import cross, hat, qmul, qrotate, se3_log
 from store.errors import CatalogueError, ConvergenceError, SceneError
 
@@ -306,10 +306,10 @@ class TrunkModel:
             lower[:-1, 1] += H[1:, 6:, :6]
             upper[:-1, 1] += H[1:, :6, 6:]
         else:
-            g, energy, _ = link_forces(links, self.link_stiffness, xi_rest)
+            g, energy = link_forces(links, self.link_stiffness, xi_rest)
         grad[:-1] += g[:, :6]
         grad[1:] += g[:, 6:]
-        total = float(np.sum(energy))
+        total = energy
 
         tensions = scale * actuation[:self.n_cables]
         if self.n_cables and np.any(tensions):
@@ -370,8 +370,7 @@ class TrunkModel:
         cached_state, links = self._geometry_cache
         if cached_state is not state:
             links = Links.of(q[:-1], x[:-1], q[1:], x[1:])
-        rel_q, rel_p = exp_twist(links.xi + links.strain_change(links.zeta(d[:-1], d[1:])))
-        quaternions, positions = compose_chain(q[0], x[0], rel_q, rel_p)
+        quaternions, positions = chain_poses(q[0], x[0], links.xi + links.strain_change(links.zeta(d[:-1], d[1:])))
         quaternions[0], positions[0] = q[0], x[0]
         return State(positions, quaternions)
 
