@@ -46,8 +46,8 @@ _A = 2.0 * zeta(2.0 * _k) / (2.0 * np.pi) ** (2.0 * _k)        # a_1 … a_42
 
 
 def _series_table() -> np.ndarray:
-    """(N, 35) table: ``coefficients(θ²) = [θ^0 … θ^(2N−2)] @ table``. Columns: SO(3) ``c``
-    (J⁻¹ = I − ½Φ + cΦ²); the weights of [A, A², A³, A⁴] in J_l⁻¹ (−½, c₂, 0, c₄); and the 6×5
+    """(N, 30) table: ``coefficients(θ²) = [θ^0 … θ^(2N−2)] @ table``. Columns: SO(3) ``c``
+    (J⁻¹ = I − ½Φ + cΦ²); the weights of [A, A², A³, A⁴] in J_l⁻¹ (−½, c₂, 0, c₄); and the 5×5
     matrix (row-major) taking ``[w, u₁, u₂, u₃, u₄]`` to the vectors :func:`link_tangent` needs."""
     a = dict(zip(range(1, _TERMS + 3), _A))
     j = np.arange(_TERMS)
@@ -63,7 +63,6 @@ def _series_table() -> np.ndarray:
                zero, c4, zero, zero, zero,                 # Λ argument c₄u₁
                c2, zero, c4, zero, zero,                   # Λ argument c₄u₂ + c₂w
                const(-0.5), c2, zero, c4, zero,            # Λ argument −½w + c₂u₁ + c₄u₃
-               const(1.0), const(-0.5), c2, zero, c4,      # y = J_l⁻ᵀw = w − ½u₁ + c₂u₂ + c₄u₄
                zero, zero, 2.0 * dc2, zero, 2.0 * dc4]     # ∂(c₂, c₄)/∂φ direction: 2(c₂′u₂ + c₄′u₄)
     return np.stack(columns, 1)
 
@@ -109,7 +108,7 @@ _EYE6 = np.eye(6)
 
 
 def coefficients(theta2: np.ndarray) -> np.ndarray:
-    """``(n, 35)`` polynomial coefficients of the links (see :func:`_series_table`). Terms
+    """``(n, 30)`` polynomial coefficients of the links (see :func:`_series_table`). Terms
     beyond the largest angle's need are skipped: the k-th term is below ``(θ²/4π²)^k`` relative."""
     ratio = float(theta2.max(initial=0.0)) / (4.0 * np.pi * np.pi)
     terms = _TERMS if ratio >= 0.25 else min(_TERMS, 4 + int(-41.5 / math.log(max(ratio, 1e-300))))
@@ -142,7 +141,7 @@ class Links:
     xi: np.ndarray         # (n, 6) strain [ρ; φ]
     Apow: np.ndarray       # (n, 4, 6, 6) A, A², A³, A⁴ with A = ad(ξ)
     Jl_inv: np.ndarray     # (n, 6, 6) inverse left Jacobian
-    coef: np.ndarray       # (n, 35) see coefficients()
+    coef: np.ndarray       # (n, 30) see coefficients()
     span: np.ndarray       # (n, 3) x_b − x_a (world)
 
     @property
@@ -203,29 +202,29 @@ class Links:
 
 
 def link_forces(links: Links, stiffness: np.ndarray, xi_rest: np.ndarray):
-    """Gradient (n, 12) and total energy of the links, ``½ Σ eᵀ K e``."""
+    """Gradient (n, 12) and total energy ``½ Σ eᵀ K e`` of the links, with ``w = K e`` and
+    ``y = J_l⁻ᵀ w`` (n, 6), which :func:`link_tangent` reuses."""
     e = links.xi - xi_rest
-    w = stiffness @ e[:, :, None]
-    return (links.R12 @ (links.Zt @ (links.Jl_inv.mT @ w)))[:, :, 0], 0.5 * float(np.vdot(e, w))
+    w = (stiffness @ e[:, :, None])[:, :, 0]
+    y = (w[:, None, :] @ links.Jl_inv)[:, 0]
+    return (links.R12 @ (links.Zt @ y[:, :, None]))[:, :, 0], 0.5 * float(np.vdot(e, w)), w, y
 
 
-def link_tangent(links: Links, stiffness: np.ndarray, xi_rest: np.ndarray):
-    """Gradient (n, 12), total energy and exact tangent (n, 12, 12) of the links; see the
-    module docstring for the formula (tests check it against the complex-step reference)."""
+def link_tangent(links: Links, stiffness: np.ndarray, w: np.ndarray, y: np.ndarray):
+    """Exact tangent (n, 12, 12) of the links at the state of ``links``, from ``w = K e`` and
+    ``y = J_l⁻ᵀ w`` (see :func:`link_forces`). The formula is in the module docstring; tests
+    check it against the complex-step reference."""
     n = links.xi.shape[0]
     A = links.Apow[:, 0]
-    e = links.xi - xi_rest
     W = np.empty((n, 5, 6))                     # [w, u₁ … u₄], u_k = (Aᵀ)^k w stored as rows
-    W[:, 0] = (stiffness @ e[:, :, None])[:, :, 0]
-    energy = 0.5 * float(np.vdot(e, W[:, 0]))
-    W[:, 1:] = (W[:, 0, None, None, :] @ links.Apow)[:, :, 0]
-    V = links.coef[:, 5:].reshape(n, 6, 5) @ W   # Λ arguments (4), y = J_l⁻ᵀw, coefficient term
+    W[:, 0] = w
+    W[:, 1:] = (w[:, None, None, :] @ links.Apow)[:, :, 0]
+    V = links.coef[:, 5:].reshape(n, 5, 5) @ W   # the four Λ arguments and the coefficient term
     L = (V[:, :4] @ _LAMBDA_TABLE).reshape(n, 4, 6, 6)
     AT = A.mT
     D = L[:, 3] + AT @ (L[:, 2] + AT @ (L[:, 1] + AT @ L[:, 0]))   # Horner form of ∂(J_l⁻ᵀ)/∂ξ [w]
     D += links.Jl_inv.mT @ stiffness
-    D[:, :, 3:] += V[:, 5, :, None] * links.xi[:, None, 3:]
-    y = V[:, 4]
+    D[:, :, 3:] += V[:, 4, :, None] * links.xi[:, None, 3:]
     Zt = links.Zt
     X = np.empty((n, 12, 12))                   # the tangent in a's axes, columns [a; b]
     X[:, :, 6:] = Zt @ (D @ (links.Jl_inv @ links.P))
@@ -235,8 +234,7 @@ def link_tangent(links: Links, stiffness: np.ndarray, xi_rest: np.ndarray):
     X[:, :, :3] = -X[:, :, 6:9]
     X[:, :, 3:6] = (-(X[:, :, 6:9] @ Zt[:, 9:, :3]) - X[:, :, 9:]
                     - (g_local.reshape(n, 4, 3) @ _HAT_TABLE).reshape(n, 12, 3))
-    R12 = links.R12
-    return (R12 @ g_local)[:, :, 0], energy, R12 @ X @ R12.mT
+    return links.R12 @ X @ links.R12.mT
 
 
 def _exp_table() -> np.ndarray:

@@ -74,6 +74,7 @@ class _Evaluation:
     energy: float                 # potential (dead moments excluded: not conservative)
     lower: np.ndarray | None = None
     upper: np.ndarray | None = None
+    context: tuple = ()           # what the gradient computed that the tangent reuses
 
 
 def _rest_twist(quaternion, translation):
@@ -247,6 +248,7 @@ class TrunkModel:
             dead[frame, :3] += load.force
             dead[frame, 3:] += load.moment
         self.dead_loads = dead
+        self._dead_forces = np.ascontiguousarray(dead[:, :3])
         self.has_dead_forces = bool(np.any(dead[:, :3]))
         self.has_dead_moments = bool(np.any(dead[:, 3:]))
         self.gravity = None if scene.gravity is None or not any(scene.gravity) else np.array(scene.gravity)
@@ -290,60 +292,69 @@ class TrunkModel:
         return self.link_rest + self.link_pressure_map @ pressures   # pressure shifts the rest pose: G p
 
     def _evaluate(self, state: State, actuation: np.ndarray, scale: float, tangent: bool) -> _Evaluation:
+        """Gradient and energy at ``state``; the tangent too when asked, or later (only if Newton
+        needs it) by :meth:`_add_tangent`, which reuses what the gradient computed."""
         x, q = state.positions, state.quaternions
         grad = np.zeros((self.n_frames, 6))
-        lower = upper = None
-        if tangent:
-            band_blocks = np.zeros((2,) + self.layout.block_shape)       # [lower, upper] block bands
-            lower, upper = band_blocks[0], band_blocks[1]
         xi_rest = self._link_rest(scale * actuation[self.n_cables:])
         links = Links.of(q[:-1], x[:-1], q[1:], x[1:])
         self._geometry_cache = (state, links)            # reused by step() from this state
-        if tangent:
-            g, energy, H = link_tangent(links, self.link_stiffness, xi_rest)
-            lower[:, 0] += H[:, 6:, 6:]
-            lower[:-1, 0] += H[1:, :6, :6]
-            lower[:-1, 1] += H[1:, 6:, :6]
-            upper[:-1, 1] += H[1:, :6, 6:]
-        else:
-            g, energy = link_forces(links, self.link_stiffness, xi_rest)
-        grad[:-1] += g[:, :6]
+        g, total, w, y = link_forces(links, self.link_stiffness, xi_rest)
+        grad[:-1] = g[:, :6]
         grad[1:] += g[:, 6:]
-        total = energy
 
         tensions = scale * actuation[:self.n_cables]
+        cable_args = None
         if self.n_cables and np.any(tensions):
             a, b = self.cable_piece_a, self.cable_piece_b
-            args = (q[a], x[a], q[b], x[b], self.cable_hole_a, self.cable_hole_b, tensions[self.cable_piece_owner])
-            if tangent:
-                g, energy, H = cable_tangent(*args)
-                # one scatter for the four blocks of every piece (frames shared by cables add up)
-                free = self._cable_free
-                blocks = np.concatenate([H[:, 6:, 6:], H[free, :6, :6], H[free, 6:, :6], H[free, :6, 6:]])
-                np.add.at(band_blocks.reshape(-1, 6, 6), self._cable_scatter, blocks)
-            else:
-                g, energy = cable_gradient(*args)
+            cable_args = (q[a], x[a], q[b], x[b], self.cable_hole_a, self.cable_hole_b, tensions[self.cable_piece_owner])
+            g, energy = cable_gradient(*cable_args)
             np.add.at(grad, a, g[:, :6])
             np.add.at(grad, b, g[:, 6:])
             total += float(np.sum(energy))
 
+        weight = lever = None
         if self.has_gravity:
             weight = scale * self.gravity
             lever = qrotate(q, self.frame_moment)                 # R s: first moment in world axes
             grad[:, :3] -= self.frame_mass[:, None] * weight
             grad[:, 3:] -= cross(lever, weight)                   # moment (R s) × m g at the frame
             total -= float(np.sum(self.frame_mass * (x @ weight)) + np.sum(lever @ weight))
-            if tangent:
-                lower[:, 0, 3:, 3:] -= hat(weight) @ hat(lever[1:])
 
         if self.has_dead_forces or self.has_dead_moments:
             grad -= scale * self.dead_loads
-            total -= float(scale * np.sum(self.dead_loads[:, :3] * x))
-        return _Evaluation(grad, total, lower, upper)
+            total -= scale * float(np.vdot(self._dead_forces, x))
+        ev = _Evaluation(grad, total, context=(links, w, y, cable_args, weight, lever))
+        if tangent:
+            self._add_tangent(ev)
+        return ev
+
+    def _add_tangent(self, ev: _Evaluation) -> None:
+        """Assemble the tangent of an evaluation into block-band storage (once)."""
+        if ev.lower is not None:
+            return
+        links, w, y, cable_args, weight, lever = ev.context
+        band_blocks = np.zeros((2,) + self.layout.block_shape)       # [lower, upper] block bands
+        lower, upper = band_blocks[0], band_blocks[1]
+        H = link_tangent(links, self.link_stiffness, w, y)
+        lower[:, 0] = H[:, 6:, 6:]
+        lower[:-1, 0] += H[1:, :6, :6]
+        lower[:-1, 1] = H[1:, 6:, :6]
+        upper[:-1, 1] = H[1:, :6, 6:]
+        if cable_args is not None:
+            _, _, H = cable_tangent(*cable_args)
+            # one scatter for the four blocks of every piece (frames shared by cables add up)
+            free = self._cable_free
+            blocks = np.concatenate([H[:, 6:, 6:], H[free, :6, :6], H[free, 6:, :6], H[free, :6, 6:]])
+            np.add.at(band_blocks.reshape(-1, 6, 6), self._cable_scatter, blocks)
+        if weight is not None:
+            lower[:, 0, 3:, 3:] -= hat(weight) @ hat(lever[1:])
+        ev.lower, ev.upper = lower, upper
 
     def _factor(self, ev: _Evaluation, shift: float = 0.0):
         """Factor the tangent: banded Cholesky of its symmetric part when it is exact to use
         it (no dead moments), banded LU otherwise; ``shift`` adds μ·diag."""
+        self._add_tangent(ev)
         lower, upper = ev.lower, ev.upper
         if shift:
             lower = lower.copy()
@@ -447,14 +458,17 @@ class TrunkModel:
                 if increment < 1e-4 or iterations > 50 * max_iter:
                     break
         limited = "rounding-limited" in kinds
-        kinds.discard("rounding-limited")
+        saddles = "unstable" in kinds
+        kinds -= {"rounding-limited", "unstable"}
         result = StaticResult(converged, iterations, float(residual), last_good if converged else state_new,
                               actuation, history, stages, "+".join(sorted(kinds)) or "none",
                               {"solve_s": time.perf_counter() - start}, rounding_limited=limited and converged)
         if not converged and raise_on_failure:
             raise ConvergenceError(
                 f"Newton did not converge: scaled residual {residual:.3g} > {tol:g} after {iterations} "
-                f"iterations and {stages} load stages (reached load factor {scale:.4g})", result)
+                f"iterations and {stages} load stages (reached load factor {scale:.4g})"
+                + ("; equilibria found on the way were unstable (indefinite tangent) and refused" if saddles else ""),
+                result)
         return result
 
     def _unloaded(self, actuation: np.ndarray) -> bool:
@@ -466,17 +480,26 @@ class TrunkModel:
         return bool(np.max(np.abs(d[:, :3])) <= 1e-13 * extent and np.max(np.abs(d[:, 3:])) <= 1e-13)
 
     def _newton(self, state, actuation, scale, tol, max_iter, reference, history, kinds):
-        """Newton iterations at a fixed load factor. Returns (ok, state, iterations, residual)."""
-        ev = self._evaluate(state, actuation, scale, tangent=True)
+        """Newton iterations at a fixed load factor. Returns (ok, state, iterations, residual).
+
+        The tangent is assembled only where a Newton step is taken (not at the converged state).
+        An equilibrium reached through indefinite tangents is accepted only when its own tangent
+        is positive definite (conservative loads): a saddle is not a quasi-static answer, and the
+        caller then steps the load from the last stable state instead."""
+        ev = self._evaluate(state, actuation, scale, tangent=False)
         r = -ev.gradient[1:].reshape(-1)
         residual = self._residual_norm(r, reference * max(scale, 1e-300))
         moments = scale * self.dead_loads[1:, 3:].reshape(-1) if self.has_dead_moments else None
         best, best_at = residual, 0
+        last_kind = "cholesky"
         for iteration in range(max_iter + 1):
             history.append(residual)
             if not math.isfinite(residual):
                 return False, state, iteration, residual
             if residual <= tol:
+                if last_kind != "cholesky" and not self._stable(ev):
+                    kinds.add("unstable")
+                    return False, state, iteration, residual
                 return True, state, iteration, residual
             if residual < 0.5 * best:
                 best, best_at = residual, iteration
@@ -491,6 +514,9 @@ class TrunkModel:
                 if self._below_resolution(state, dq):
                     # the correction is below the floating-point resolution of the poses: the
                     # residual left is rounding, not error; stop here and report it as it is
+                    if kind != "cholesky" and not self._stable(ev):
+                        kinds.add("unstable")
+                        return False, state, iteration, residual
                     kinds.add(kind)
                     kinds.add("rounding-limited")
                     return True, state, iteration, residual
@@ -500,7 +526,7 @@ class TrunkModel:
                 alpha = 1.0
                 while alpha > 1e-3:
                     trial = self.step(state, alpha * dq)
-                    ev_trial = self._evaluate(trial, actuation, scale, tangent=True)
+                    ev_trial = self._evaluate(trial, actuation, scale, tangent=False)
                     r_trial = -ev_trial.gradient[1:].reshape(-1)
                     res_trial = self._residual_norm(r_trial, reference * max(scale, 1e-300))
                     work = 0.0 if moments is None else alpha * float(moments @ dq.reshape(-1, 6)[:, 3:].reshape(-1))
@@ -512,11 +538,19 @@ class TrunkModel:
                     alpha *= 0.5
                 if accepted:
                     kinds.add(kind)
+                    last_kind = kind
                     break
             if not accepted:
                 return False, state, iteration + 1, residual
             state, ev, r, residual = trial, ev_trial, r_trial, res_trial
         return False, state, iteration, residual
+
+    def _stable(self, ev: _Evaluation) -> bool:
+        """Is the equilibrium of ``ev`` stable: is its tangent positive definite? Only decidable
+        for conservative loads (dead moments make the tangent unsymmetric): then assumed so."""
+        if self.has_dead_moments:
+            return True
+        return self._factor(ev)[1] == "cholesky"
 
     # ------------------------------------------------------------------ outputs
     def cable_lengths(self, state: State) -> np.ndarray:
