@@ -14,7 +14,7 @@ from dataclasses import dataclass, fields, is_dataclass
 
 import numpy as np
 
-from solver.rotations import cross, dot, hat, matvec, qconj, qlog, qmatrix, qmul, qrotate, se3_coefficients
+from solver.rotations import _HAT_TABLE, cross, dot, hat, matvec, qconj, qlog, qmatrix, qmul, qrotate, se3_coefficients
 
 COMPLEX_STEP = 1e-30
 CHUNK = 1024          # elements per complex-step batch
@@ -149,25 +149,57 @@ def cable_gradient(qa, xa, qb, xb, hole_a, hole_b, tension):
     return gradient, tension * length
 
 
+_C_CONST = np.zeros((12, 3))
+_C_CONST[:3], _C_CONST[6:9] = -np.eye(3), np.eye(3)
+_C_TABLE = np.zeros((6, 12, 3))
+_C_TABLE[:3, 3:6] = -_HAT_TABLE.reshape(3, 3, 3)        # −ŝ_a
+_C_TABLE[3:, 9:] = _HAT_TABLE.reshape(3, 3, 3)          # ŝ_b
+_C_TABLE = _C_TABLE.reshape(6, 36)
+
+
+@dataclass
+class CablePieces:
+    """Kinematics of cable pieces between holes ``r_a``, ``r_b`` of two frames (real input).
+
+    With ``s = R r``, ``d = P_b − P_a``, ``u = d/|d|`` and ``C = [−I; −ŝ_a; I; ŝ_b]`` (12×3), the
+    change of ``d`` under frame increments is ``Cᵀ dq``, so the gradient of the length is
+    ``C u`` and the tangent of ``τ|d|`` is ``τ (C Π Cᵀ − (û ŝ_a on dφ_a) + (û ŝ_b on dφ_b))``,
+    ``Π = (I − uuᵀ)/|d|``: one evaluation serves the forces, the tangent, the actuator Jacobian
+    (unit tension) and the cable lengths."""
+
+    C: np.ndarray          # (m, 12, 3)
+    u: np.ndarray          # (m, 3)
+    length: np.ndarray     # (m,)
+    unit: np.ndarray       # (m, 12) gradient of the length
+
+    @classmethod
+    def of(cls, Ra, xa, Rb, xb, hole_a, hole_b) -> "CablePieces":
+        m = xa.shape[0]
+        offsets = np.empty((m, 6))
+        offsets[:, :3] = (Ra @ hole_a[:, :, None])[:, :, 0]
+        offsets[:, 3:] = (Rb @ hole_b[:, :, None])[:, :, 0]
+        d = xb - xa + offsets[:, 3:] - offsets[:, :3]
+        length = np.sqrt((d * d).sum(1))
+        u = d / length[:, None]
+        C = (offsets @ _C_TABLE).reshape(m, 12, 3) + _C_CONST
+        return cls(C, u, length, (C @ u[:, :, None])[:, :, 0])
+
+    def tangent(self, tension: np.ndarray) -> np.ndarray:
+        """Tangent (m, 12, 12) of ``τ |d|`` per piece."""
+        u, C = self.u, self.C
+        projector = (np.eye(3) - u[:, :, None] * u[:, None, :]) / self.length[:, None, None]
+        H = (C @ projector) @ C.mT
+        U = (u @ _HAT_TABLE).reshape(-1, 3, 3)
+        H[:, 3:6, 3:6] += U @ C[:, 3:6]                      # −û ŝ_a
+        H[:, 9:, 9:] += U @ C[:, 9:]                         # +û ŝ_b
+        return tension[:, None, None] * H
+
+
 def cable_tangent(qa, xa, qb, xb, hole_a, hole_b, tension):
-    """Gradient, energy and exact tangent of cable pieces in closed form (cheaper than the
-    complex step; tests compare both). With ``d = P_b − P_a``, ``u = d/|d|``,
-    ``Π = (I − uuᵀ)/|d|``, ``s = R r`` and ``dd = M dq``, ``M = [−I, ŝ_a, I, −ŝ_b]``:
-    ``H = τ [−ΠM; −ŝ_aΠM − (û ŝ_a on dφ_a); ΠM; ŝ_bΠM + (û ŝ_b on dφ_b)]``."""
-    sa, sb, u, length, gradient = _cable_piece(qa, xa, qb, xb, hole_a, hole_b, tension)
-    n = u.shape[0]
-    Sa, Sb, U = hat(sa), hat(sb), hat(u)
-    projector = (np.eye(3) - u[:, :, None] * u[:, None, :]) / length[:, None, None]
-    M = np.zeros((n, 3, 12))
-    M[:, :, :3] = -np.eye(3)
-    M[:, :, 3:6] = Sa
-    M[:, :, 6:9] = np.eye(3)
-    M[:, :, 9:] = -Sb
-    PM = projector @ M
-    tangent = np.concatenate([-PM, -Sa @ PM, PM, Sb @ PM], 1)
-    tangent[:, 3:6, 3:6] -= U @ Sa
-    tangent[:, 9:, 9:] += U @ Sb
-    return gradient, tension * length, tension[:, None, None] * tangent
+    """Gradient, energy and exact tangent of cable pieces in closed form (:class:`CablePieces`;
+    the tests compare it with the complex step of :func:`cable_gradient`)."""
+    pieces = CablePieces.of(qmatrix(qa), xa, qmatrix(qb), xb, hole_a, hole_b)
+    return tension[:, None] * pieces.unit, tension * pieces.length, pieces.tangent(tension)
 
 
 def pair_tangent(gradient, qa, xa, qb, xb, *args):

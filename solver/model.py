@@ -17,9 +17,9 @@ import numpy as np
 
 from solver.banded import BandLayout, factor_cholesky, factor_lu
 from solver.beam import timoshenko_compliance
-from solver.elements import cable_gradient, cable_tangent
+from solver.elements import CablePieces
 from solver.links import Links, chain_poses, link_forces, link_tangent
-from solver.rotations import cross, hat, qmul, qrotate, se3_log
+from solver.rotations import cross, hat, qmatrix, qmul, qrotate, se3_log
 from store.errors import CatalogueError, ConvergenceError, SceneError
 
 
@@ -88,6 +88,17 @@ def _strain_map(quaternion, translation):
     shift = np.eye(6)
     shift[:3, 3:] = hat(np.asarray(translation, float))   # ζ = [Δx − Δθ × d0; Δθ]
     return xi0, Jl_inv @ shift
+
+
+def _incidence(rows, n_rows):
+    """(n_rows, len(rows)) matrix with a 1 at (rows[k], k): ``E @ v`` sums the rows of ``v`` into
+    their targets. Dense while small (one BLAS call), sparse beyond."""
+    if n_rows * rows.size <= 200_000:
+        E = np.zeros((n_rows, rows.size))
+        E[rows, np.arange(rows.size)] = 1.0
+        return E
+    from scipy.sparse import csr_matrix
+    return csr_matrix((np.ones(rows.size), (rows, np.arange(rows.size))), shape=(n_rows, rows.size))
 
 
 def build_model(scene, entries: dict | None = None) -> "TrunkModel":
@@ -218,18 +229,12 @@ class TrunkModel:
         # links couple neighbouring frames (block offset 1); a cable piece couples the frames of two
         # consecutive vertebrae, `elements` links apart: the band is as wide as the widest coupling
         self.span = int(max(1, np.max(self.cable_piece_b - self.cable_piece_a, initial=1)))
-        # where the tangent blocks of each piece go in the stacked [lower, upper] block bands
-        # (flat block index = band·(n_free·(span+1)) + column·(span+1) + offset)
         a, b = self.cable_piece_a, self.cable_piece_b
-        self._cable_free = a > 0
-        n_offsets = self.span + 1
-        n_band = (self.n_frames - 1) * n_offsets
-        fa, offset = a[self._cable_free] - 1, (b - a)[self._cable_free]
-        self._cable_scatter = np.concatenate([
-            (b - 1) * n_offsets,                       # lower, diagonal block of b
-            fa * n_offsets,                            # lower, diagonal block of a
-            fa * n_offsets + offset,                   # lower, (b, a) block
-            n_band + fa * n_offsets + offset])         # upper, (a, b) block
+        self._cable_to_frames = _incidence(np.stack([a, b], 1).reshape(-1), self.n_frames)
+        owner2 = np.repeat(self.cable_piece_owner, 2)
+        self._cable_to_jacobian = _incidence(owner2 * self.n_frames + np.stack([a, b], 1).reshape(-1),
+                                             len(scene.cables) * self.n_frames)
+        self._cable_scatter = self._cable_band_map(a, b)
         self.n_cables = len(scene.cables)
         self.n_chambers = len(scene.chambers)
         self.actuator_names = [c.name for c in scene.cables] + [c.name for c in scene.chambers]
@@ -240,6 +245,30 @@ class TrunkModel:
         self.displacement_bounds = (
             np.array([c.min_stroke for c in scene.cables] + [c.min_volume_growth for c in scene.chambers]),
             np.array([c.max_stroke for c in scene.cables] + [c.max_volume_growth for c in scene.chambers]))
+
+    def _cable_band_map(self, a, b):
+        """Where the 144 tangent entries of each cable piece go in the stacked [lower, upper]
+        block bands, sorted by destination so that one ``add.reduceat`` sums the pieces that share
+        a block: (source indices, segment starts, unique destinations)."""
+        n_offsets = self.span + 1
+        n_band = (self.n_frames - 1) * n_offsets
+        piece = np.arange(a.size)
+        free = a > 0
+        # (pieces, row block, column block, destination block) for bb, aa, ba, ab
+        parts = [(piece, 1, 1, (b - 1) * n_offsets),
+                 (piece[free], 0, 0, (a[free] - 1) * n_offsets),
+                 (piece[free], 1, 0, (a[free] - 1) * n_offsets + (b - a)[free]),
+                 (piece[free], 0, 1, n_band + (a[free] - 1) * n_offsets + (b - a)[free])]
+        r, c = np.meshgrid(np.arange(6), np.arange(6), indexing="ij")
+        src, dst = [], []
+        for p, rb, cb, block in parts:
+            src.append((p[:, None] * 144 + (6 * rb + r.ravel()) * 12 + 6 * cb + c.ravel()).ravel())
+            dst.append((block[:, None] * 36 + r.ravel() * 6 + c.ravel()).ravel())
+        src, dst = np.concatenate(src), np.concatenate(dst)
+        order = np.argsort(dst, kind="stable")
+        src, dst = src[order], dst[order]
+        starts = np.flatnonzero(np.r_[dst.size > 0, dst[1:] != dst[:-1]])
+        return src, starts, dst[starts]
 
     def _compile_loads(self, scene):
         dead = np.zeros((self.n_frames, 6))
@@ -304,19 +333,18 @@ class TrunkModel:
         grad[1:] += g[:, 6:]
 
         tensions = scale * actuation[:self.n_cables]
-        cable_args = None
+        pieces = piece_tension = None
+        rotations = qmatrix(q) if self.n_cables or self.has_gravity else None
         if self.n_cables and np.any(tensions):
-            a, b = self.cable_piece_a, self.cable_piece_b
-            cable_args = (q[a], x[a], q[b], x[b], self.cable_hole_a, self.cable_hole_b, tensions[self.cable_piece_owner])
-            g, energy = cable_gradient(*cable_args)
-            np.add.at(grad, a, g[:, :6])
-            np.add.at(grad, b, g[:, 6:])
-            total += float(np.sum(energy))
+            pieces = self._cable_pieces(x, rotations)
+            piece_tension = tensions[self.cable_piece_owner]
+            grad += self._cable_to_frames @ (piece_tension[:, None] * pieces.unit).reshape(-1, 6)
+            total += float(piece_tension @ pieces.length)
 
         weight = lever = None
         if self.has_gravity:
             weight = scale * self.gravity
-            lever = qrotate(q, self.frame_moment)                 # R s: first moment in world axes
+            lever = (rotations @ self.frame_moment[:, :, None])[:, :, 0]   # R s: first moment in world axes
             grad[:, :3] -= self.frame_mass[:, None] * weight
             grad[:, 3:] -= cross(lever, weight)                   # moment (R s) × m g at the frame
             total -= float(np.sum(self.frame_mass * (x @ weight)) + np.sum(lever @ weight))
@@ -324,7 +352,7 @@ class TrunkModel:
         if self.has_dead_forces or self.has_dead_moments:
             grad -= scale * self.dead_loads
             total -= scale * float(np.vdot(self._dead_forces, x))
-        ev = _Evaluation(grad, total, context=(links, w, y, cable_args, weight, lever))
+        ev = _Evaluation(grad, total, context=(links, w, y, pieces, piece_tension, weight, lever))
         if tangent:
             self._add_tangent(ev)
         return ev
@@ -333,7 +361,7 @@ class TrunkModel:
         """Assemble the tangent of an evaluation into block-band storage (once)."""
         if ev.lower is not None:
             return
-        links, w, y, cable_args, weight, lever = ev.context
+        links, w, y, pieces, piece_tension, weight, lever = ev.context
         band_blocks = np.zeros((2,) + self.layout.block_shape)       # [lower, upper] block bands
         lower, upper = band_blocks[0], band_blocks[1]
         H = link_tangent(links, self.link_stiffness, w, y)
@@ -341,12 +369,11 @@ class TrunkModel:
         lower[:-1, 0] += H[1:, :6, :6]
         lower[:-1, 1] = H[1:, 6:, :6]
         upper[:-1, 1] = H[1:, :6, 6:]
-        if cable_args is not None:
-            _, _, H = cable_tangent(*cable_args)
-            # one scatter for the four blocks of every piece (frames shared by cables add up)
-            free = self._cable_free
-            blocks = np.concatenate([H[:, 6:, 6:], H[free, :6, :6], H[free, 6:, :6], H[free, :6, 6:]])
-            np.add.at(band_blocks.reshape(-1, 6, 6), self._cable_scatter, blocks)
+        if pieces is not None:
+            # one gather-sum-scatter for the four blocks of every piece (shared blocks add up)
+            source, starts, target = self._cable_scatter
+            band_blocks.reshape(-1)[target] += np.add.reduceat(
+                pieces.tangent(piece_tension).reshape(-1).take(source), starts)
         if weight is not None:
             lower[:, 0, 3:, 3:] -= hat(weight) @ hat(lever[1:])
         ev.lower, ev.upper = lower, upper
@@ -553,27 +580,34 @@ class TrunkModel:
         return self._factor(ev)[1] == "cholesky"
 
     # ------------------------------------------------------------------ outputs
-    def cable_lengths(self, state: State) -> np.ndarray:
-        x, q = state.positions, state.quaternions
+    def _cable_pieces(self, x: np.ndarray, rotations: np.ndarray) -> CablePieces:
         a, b = self.cable_piece_a, self.cable_piece_b
+        return CablePieces.of(rotations.take(a, 0), x.take(a, 0), rotations.take(b, 0), x.take(b, 0),
+                              self.cable_hole_a, self.cable_hole_b)
+
+    def cable_lengths(self, state: State, pieces: CablePieces | None = None) -> np.ndarray:
         if not self.n_cables:
             return np.zeros(0)
-        d = (x[b] + qrotate(q[b], self.cable_hole_b)) - (x[a] + qrotate(q[a], self.cable_hole_a))
-        return np.bincount(self.cable_piece_owner, np.linalg.norm(d, axis=1), minlength=self.n_cables)
+        if pieces is None:
+            pieces = self._cable_pieces(state.positions, qmatrix(state.quaternions))
+        return np.bincount(self.cable_piece_owner, pieces.length, minlength=self.n_cables)
 
-    def chamber_volume_growth(self, state: State, pressures: np.ndarray) -> np.ndarray:
+    def chamber_volume_growth(self, state: State, pressures: np.ndarray, links: Links | None = None) -> np.ndarray:
         """ΔV_j = Σ_links (A G_j)ᵀ K e + V p (DESIGN §2: reciprocity gives the Gᵀ row)."""
         if not self.n_chambers:
             return np.zeros(0)
-        x, q = state.positions, state.quaternions
-        e = Links.of(q[:-1], x[:-1], q[1:], x[1:]).xi - self._link_rest(pressures)
+        if links is None:
+            x, q = state.positions, state.quaternions
+            links = Links.of(q[:-1], x[:-1], q[1:], x[1:])
+        e = links.xi - self._link_rest(pressures)
         w = np.einsum("nij,nj->ni", self.link_stiffness, e)
         return np.einsum("nij,ni->j", self.link_pressure_map, w) + self.chamber_volume_compliance @ pressures
 
-    def actuator_displacements(self, state: State, actuation=None) -> np.ndarray:
+    def actuator_displacements(self, state: State, actuation=None, *, links: Links | None = None,
+                               pieces: CablePieces | None = None) -> np.ndarray:
         actuation = self._actuation(actuation)
-        return np.concatenate([self.cable_lengths(state) - self.rest_cable_lengths,
-                               self.chamber_volume_growth(state, actuation[self.n_cables:])])
+        return np.concatenate([self.cable_lengths(state, pieces) - self.rest_cable_lengths,
+                               self.chamber_volume_growth(state, actuation[self.n_cables:], links)])
 
     def effector_positions(self, state: State) -> np.ndarray:
         """World position of each point effector; world unit direction of each axis effector."""
@@ -593,35 +627,37 @@ class TrunkModel:
         if factor is None:
             raise ConvergenceError("tangent stiffness is singular at this state")
         x, q = state.positions, state.quaternions
+        links, pieces = ev.context[0], ev.context[3]      # what the evaluation computed, reused
         n_act = self.n_cables + self.n_chambers
         jac = np.zeros((n_act, self.n_frames, 6))
         if self.n_cables:
-            a, b = self.cable_piece_a, self.cable_piece_b
-            g, _ = cable_gradient(q[a], x[a], q[b], x[b], self.cable_hole_a, self.cable_hole_b,
-                                  np.ones(a.size))
-            np.add.at(jac, (self.cable_piece_owner, a), g[:, :6])
-            np.add.at(jac, (self.cable_piece_owner, b), g[:, 6:])
-        forces = -jac.copy()                          # cable: −τ ∂L/∂q
+            if pieces is None:                            # slack cables: not evaluated for the forces
+                pieces = self._cable_pieces(x, qmatrix(q))
+            jac[:self.n_cables] = (self._cable_to_jacobian @ pieces.unit.reshape(-1, 6)).reshape(
+                self.n_cables, self.n_frames, 6)
+        forces = -jac                                     # cable: −τ ∂L/∂q
         if self.n_chambers:
-            geometry = Links.of(q[:-1], x[:-1], q[1:], x[1:])
             c = np.einsum("nij,njk->nki", self.link_stiffness, self.link_pressure_map)   # K A G, (n, chamber, 6)
-            g = geometry.generalised_force(geometry.transport(c))                         # (n, chamber, 12)
+            g = links.generalised_force(links.transport(c))                               # (n, chamber, 12)
             chamber_jac = np.zeros((self.n_chambers, self.n_frames, 6))
             chamber_jac[:, :-1] += np.moveaxis(g[..., :6], 1, 0)
             chamber_jac[:, 1:] += np.moveaxis(g[..., 6:], 1, 0)
             jac[self.n_cables:] = chamber_jac
             forces[self.n_cables:] = chamber_jac       # ∂r/∂p = (∂e/∂q)ᵀ K A G = Jaᵀ
         n_eff = len(self.effector_names)
-        Je = np.zeros((3 * n_eff, self.n_frames, 6))
-        lever = qrotate(state.quaternions[self.effector_frames], self.effector_offsets)
+        Je = np.zeros((n_eff, 3, self.n_frames, 6))
+        turned = qrotate(q[self.effector_frames], self.effector_offsets)
+        levers = -hat(turned)
         for k, frame in enumerate(self.effector_frames):
             if not self.effector_is_axis[k]:         # a direction does not move with translations
-                Je[3 * k:3 * k + 3, frame, :3] = np.eye(3)
-            Je[3 * k:3 * k + 3, frame, 3:] = -hat(lever[k])
+                Je[k, :, frame, :3] = np.eye(3)
+            Je[k, :, frame, 3:] = levers[k]
+        Je = Je.reshape(3 * n_eff, self.n_frames, 6)
+        effector_positions = np.where(self.effector_is_axis[:, None], turned, x[self.effector_frames] + turned)
         return Linearisation(
             residual=-ev.gradient[1:].reshape(-1), factor=factor,
             actuator_forces=forces[:, 1:].reshape(n_act, self.n_dof).T.copy(),
             actuator_jacobian=jac[:, 1:].reshape(n_act, self.n_dof),
             effector_jacobian=Je[:, 1:].reshape(3 * n_eff, self.n_dof),
-            effector_positions=self.effector_positions(state),
-            actuator_displacements=self.actuator_displacements(state, actuation))
+            effector_positions=effector_positions,
+            actuator_displacements=self.actuator_displacements(state, actuation, links=links, pieces=pieces))
