@@ -90,6 +90,16 @@ def _rotation_tables():
     return big.reshape(16, 144), left
 
 
+def _r9_table():
+    """(9, 144): diag(R, R, R, R).ravel() = R.ravel() @ T."""
+    table = np.zeros((3, 3, 12, 12))
+    for k in range(4):
+        for r in range(3):
+            for c in range(3):
+                table[r, c, 3 * k + r, 3 * k + c] = 1.0
+    return table.reshape(9, 144)
+
+
 def _zt_tables():
     """``Zᵀ = [−I; Pᵀ]`` (12×6) with ``Pᵀ = [[I, 0], [−p̂, I]]``: constant part and p-table (3, 72)."""
     const = np.zeros((12, 6))
@@ -104,6 +114,7 @@ _AD_TABLE = _block_table({(0, 0): 1, (0, 1): 0, (1, 1): 1})        # ad([ρ; φ]
 _LAMBDA_TABLE = _block_table({(0, 1): 0, (1, 0): 0, (1, 1): 1})    # Λ(u) = [[0, u_f^], [u_f^, u_m^]]
 _R12_TABLE, _L_TABLE = _rotation_tables()
 _ZT_CONST, _ZT_TABLE = _zt_tables()
+_R9_TABLE = _r9_table()
 _EYE6 = np.eye(6)
 
 
@@ -142,7 +153,6 @@ class Links:
     Apow: np.ndarray       # (n, 4, 6, 6) A, A², A³, A⁴ with A = ad(ξ)
     Jl_inv: np.ndarray     # (n, 6, 6) inverse left Jacobian
     coef: np.ndarray       # (n, 30) see coefficients()
-    span: np.ndarray       # (n, 3) x_b − x_a (world)
 
     @property
     def B(self) -> np.ndarray:
@@ -156,10 +166,10 @@ class Links:
 
     @classmethod
     def of(cls, qa, xa, qb, xb) -> "Links":
+        """From the poses of the frames (quaternions, positions) at both ends of each link."""
         n = qa.shape[0]
         R12 = ((qa[:, :, None] * qa[:, None, :]).reshape(n, 16) @ _R12_TABLE).reshape(n, 12, 12)
-        span = xb - xa
-        p = (span[:, None, :] @ R12[:, :3, :3])[:, 0]                    # R_aᵀ (x_b − x_a)
+        p = ((xb - xa)[:, None, :] @ R12[:, :3, :3])[:, 0]              # R_aᵀ (x_b − x_a)
         relative = (qb[:, None, :] @ (qa @ _L_TABLE).reshape(n, 4, 4))[:, 0]   # q̄_a ⊗ q_b = L(q_a)ᵀ q_b
         phi = rotation_log(relative)
         coef = coefficients((phi * phi).sum(1))
@@ -167,6 +177,20 @@ class Links:
         xi = np.empty((n, 6))
         xi[:, 3:] = phi
         xi[:, :3] = p + (Phi @ (coef[:, :1, None] * (Phi @ p[:, :, None]) - 0.5 * p[:, :, None]))[:, :, 0]
+        return cls._complete(R12, p, xi, coef)
+
+    @classmethod
+    def of_strains(cls, Ra, p, xi) -> "Links":
+        """From the strains ``ξ`` themselves, with the rotations ``R_a`` of the first frames and
+        the relative translations ``p`` (what :func:`chain_poses` computed from ``ξ``): the
+        same kinematics as :meth:`of` on the composed poses, without taking logarithms."""
+        n = xi.shape[0]
+        R12 = (Ra.reshape(n, 9) @ _R9_TABLE).reshape(n, 12, 12)
+        return cls._complete(R12, p, xi, coefficients((xi[:, 3:] * xi[:, 3:]).sum(1)))
+
+    @classmethod
+    def _complete(cls, R12, p, xi, coef) -> "Links":
+        n = xi.shape[0]
         flat = np.empty((n, 4, 36))
         np.matmul(xi, _AD_TABLE, out=flat[:, 0])
         Apow = flat.reshape(n, 4, 6, 6)
@@ -175,7 +199,7 @@ class Links:
         Apow[:, 3] = Apow[:, 1] @ Apow[:, 1]
         Jl_inv = (coef[:, None, 1:5] @ flat).reshape(n, 6, 6) + _EYE6
         Zt = (p @ _ZT_TABLE).reshape(n, 12, 6) + _ZT_CONST
-        return cls(R12, Zt, xi, Apow, Jl_inv, coef, span)
+        return cls(R12, Zt, xi, Apow, Jl_inv, coef)
 
     def transport(self, w: np.ndarray) -> np.ndarray:
         """``J_l⁻ᵀ w`` for ``w`` of shape (n, 6) or (n, m, 6)."""
@@ -273,7 +297,7 @@ def exp_coefficients(theta2: np.ndarray) -> np.ndarray:
     return np.where(theta2[:, None] <= 16.0, series, closed)
 
 
-def chain_poses(q0: np.ndarray, x0: np.ndarray, xi: np.ndarray):
+def chain_poses(q0: np.ndarray, x0: np.ndarray, xi: np.ndarray) -> "Chain":
     """World quaternions (n+1, 4) and positions (n+1, 3) of a chain from its base pose and the
     strains of its links: ``T_k = T_0 ∘ exp(ξ_1^) ∘ … ∘ exp(ξ_k^)``.
 
@@ -305,4 +329,14 @@ def chain_poses(q0: np.ndarray, x0: np.ndarray, xi: np.ndarray):
     M = M.reshape(m * c, 8, 8)[:N]
     quaternions = M[:, :4, 0]
     quaternions = quaternions / np.sqrt((quaternions * quaternions).sum(1))[:, None]
-    return quaternions, M[:, 4:7, 7].copy()
+    return Chain(quaternions, M[:, 4:7, 7].copy(), M[:, 4:7, 4:7], F[1:N, 20:23])
+
+
+@dataclass
+class Chain:
+    """Poses composed by :func:`chain_poses`, with what :meth:`Links.of_strains` reuses."""
+
+    quaternions: np.ndarray    # (N, 4) world
+    positions: np.ndarray      # (N, 3) world
+    rotations: np.ndarray      # (N, 3, 3) world rotation matrices (the same products)
+    translations: np.ndarray   # (n, 3) relative translations p of the links, in a's axes

@@ -18,20 +18,44 @@ import numpy as np
 from solver.banded import BandLayout, factor_cholesky, factor_lu
 from solver.beam import timoshenko_compliance
 from solver.elements import CablePieces
-from solver.links import Links, chain_poses, link_forces, link_tangent
+from solver.links import Chain, Links, chain_poses, link_forces, link_tangent
 from solver.rotations import cross, hat, qmatrix, qmul, qrotate, se3_log
 from store.errors import CatalogueError, ConvergenceError, SceneError
 
 
 @dataclass
 class State:
-    """Pose of every frame; frame 0 is the clamped base."""
+    """Pose of every frame; frame 0 is the clamped base.
+
+    States made by the solver also carry the link strains they were composed from
+    (``strains``): evaluations then use the strains as they are instead of taking logarithms
+    of rounded poses (docs/solver.md, "Convergence measure"). The record is ignored as soon as
+    the poses no longer match it (a state edited in place is evaluated from its poses)."""
 
     positions: np.ndarray     # (n_frames, 3) world
     quaternions: np.ndarray   # (n_frames, 4) [w, x, y, z]
+    strains: "StrainRecord | None" = field(default=None, repr=False, compare=False)
 
     def copy(self) -> "State":
-        return State(self.positions.copy(), self.quaternions.copy())
+        return State(self.positions.copy(), self.quaternions.copy(), self.strains)
+
+    def carried_strains(self) -> "StrainRecord | None":
+        """The strain record when it still describes these poses, else None."""
+        record = self.strains
+        if record is None or not (np.array_equal(record.positions, self.positions)
+                                  and np.array_equal(record.quaternions, self.quaternions)):
+            return None
+        return record
+
+
+@dataclass
+class StrainRecord:
+    """Link strains ``ξ`` of a composed state, the chain products, and the poses they gave."""
+
+    xi: np.ndarray
+    chain: Chain
+    positions: np.ndarray
+    quaternions: np.ndarray
 
 
 @dataclass
@@ -88,6 +112,9 @@ def _strain_map(quaternion, translation):
     shift = np.eye(6)
     shift[:3, 3:] = hat(np.asarray(translation, float))   # ζ = [Δx − Δθ × d0; Δθ]
     return xi0, Jl_inv @ shift
+
+
+_CARRY_ANGLE = 0.99 * math.pi   # largest link rotation whose strain step() hands to the next evaluation
 
 
 def _incidence(rows, n_rows):
@@ -326,7 +353,13 @@ class TrunkModel:
         x, q = state.positions, state.quaternions
         grad = np.zeros((self.n_frames, 6))
         xi_rest = self._link_rest(scale * actuation[self.n_cables:])
-        links = Links.of(q[:-1], x[:-1], q[1:], x[1:])
+        record = state.carried_strains()
+        if record is not None:                           # a state made by step(): its strains are known
+            links = Links.of_strains(record.chain.rotations[:-1], record.chain.translations, record.xi)
+            rotations = record.chain.rotations
+        else:
+            links = Links.of(q[:-1], x[:-1], q[1:], x[1:])
+            rotations = qmatrix(q) if self.n_cables or self.has_gravity else None
         self._geometry_cache = (state, links)            # reused by step() from this state
         g, total, w, y = link_forces(links, self.link_stiffness, xi_rest)
         grad[:-1] = g[:, :6]
@@ -334,7 +367,6 @@ class TrunkModel:
 
         tensions = scale * actuation[:self.n_cables]
         pieces = piece_tension = None
-        rotations = qmatrix(q) if self.n_cables or self.has_gravity else None
         if self.n_cables and np.any(tensions):
             pieces = self._cable_pieces(x, rotations)
             piece_tension = tensions[self.cable_piece_owner]
@@ -408,9 +440,15 @@ class TrunkModel:
         cached_state, links = self._geometry_cache
         if cached_state is not state:
             links = Links.of(q[:-1], x[:-1], q[1:], x[1:])
-        quaternions, positions = chain_poses(q[0], x[0], links.xi + links.strain_change(links.zeta(d[:-1], d[1:])))
-        quaternions[0], positions[0] = q[0], x[0]
-        return State(positions, quaternions)
+        xi = links.xi + links.strain_change(links.zeta(d[:-1], d[1:]))
+        chain = chain_poses(q[0], x[0], xi)
+        chain.quaternions[0], chain.positions[0] = q[0], x[0]
+        record = None
+        if float((xi[:, 3:] * xi[:, 3:]).sum(1).max(initial=0.0)) < _CARRY_ANGLE ** 2:
+            # below π the logarithm of the composed poses returns ξ again (to rounding): the
+            # state carries ξ, and evaluations take it as it is instead of recomputing it
+            record = StrainRecord(xi, chain, chain.positions.copy(), chain.quaternions.copy())
+        return State(chain.positions, chain.quaternions, record)
 
     def _reference_force(self, actuation) -> float:
         """Force scale of the problem: the out-of-balance load at the rest pose (full load).
