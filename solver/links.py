@@ -59,10 +59,10 @@ def _series_table() -> np.ndarray:
     dc4 = np.array([-(i + 2) * (i + 1) * a[i + 3] for i in j])             # d/dt of c₄
     zero = np.zeros(_TERMS)
     columns = [c_so3, const(-0.5), c2, zero, c4,
-               c4, zero, zero, zero, zero,                 # Λ argument c₄w
-               zero, c4, zero, zero, zero,                 # Λ argument c₄u₁
-               c2, zero, c4, zero, zero,                   # Λ argument c₄u₂ + c₂w
-               const(-0.5), c2, zero, c4, zero,            # Λ argument −½w + c₂u₁ + c₄u₃
+               const(-0.5), c2, zero, c4, zero,            # v₃ = −½w + c₂u₁ + c₄u₃
+               c2, zero, c4, zero, zero,                   # v₂ = c₂w + c₄u₂
+               zero, c4, zero, zero, zero,                 # v₁ = c₄u₁
+               c4, zero, zero, zero, zero,                 # v₀ = c₄w
                zero, zero, 2.0 * dc2, zero, 2.0 * dc4]     # ∂(c₂, c₄)/∂φ direction: 2(c₂′u₂ + c₄′u₄)
     return np.stack(columns, 1)
 
@@ -110,10 +110,31 @@ def _zt_tables():
     return const, table.reshape(3, 72)
 
 
+def _geometric_table() -> np.ndarray:
+    """(21, 144): geometric stiffness of a link (world axes) from ``[g, span ⊗ f_b]``, where
+    ``g`` is the link's gradient (forces/moments on a, b) and ``f_b = g[6:9]``. Rotating the
+    frames turns the lever arms and the forces: the columns of ``dφ_a`` carry ``−ĝ`` (every
+    3-block of g turns with a common rotation; objectivity), and the moment at ``b`` depends on
+    the span ``x_b − x_a``: ``±f̂_b`` on ``dx_a``, ``dx_b`` and ``f̂_b ŝ = s f_bᵀ − (f_b·s) I`` on ``dφ_a``."""
+    hat = _HAT_TABLE.reshape(3, 3, 3)
+    table = np.zeros((21, 12, 12))
+    for block in range(4):                                   # −ĝ in the dφ_a columns
+        table[3 * block:3 * block + 3, 3 * block:3 * block + 3, 3:6] -= hat
+    table[6:9, 9:12, 6:9] += hat                             # f̂_b on dx_b
+    table[6:9, 9:12, 0:3] -= hat                             # −f̂_b on dx_a
+    for i in range(3):
+        for j in range(3):
+            table[12 + 3 * i + j, 9 + i, 3 + j] += 1.0       # s f_bᵀ
+            if i == j:
+                table[12 + 3 * i + j, 9:12, 3:6] -= np.eye(3)   # −(f_b·s) I
+    return table.reshape(21, 144)
+
+
 _AD_TABLE = _block_table({(0, 0): 1, (0, 1): 0, (1, 1): 1})        # ad([ρ; φ]) = [[φ^, ρ^], [0, φ^]]
 _LAMBDA_TABLE = _block_table({(0, 1): 0, (1, 0): 0, (1, 1): 1})    # Λ(u) = [[0, u_f^], [u_f^, u_m^]]
 _R12_TABLE, _L_TABLE = _rotation_tables()
 _ZT_CONST, _ZT_TABLE = _zt_tables()
+_GEOMETRIC_TABLE = _geometric_table()
 _R9_TABLE = _r9_table()
 _EYE6 = np.eye(6)
 
@@ -145,14 +166,16 @@ def rotation_log(q: np.ndarray) -> np.ndarray:
 
 @dataclass
 class Links:
-    """Kinematics of a batch of links at one state (local quantities in the axes of frame ``a``)."""
+    """Kinematics of a batch of links at one state (``n`` links)."""
 
-    R12: np.ndarray        # (n, 12, 12) diag(R_a, R_a, R_a, R_a): local → world for [a; b] 6-vectors
-    Zt: np.ndarray         # (n, 12, 6) [−I; Pᵀ]: strain-space force → local force on [a; b]
+    R12: np.ndarray        # (n, 12, 12) diag(R_a, R_a, R_a, R_a): a's axes → world for [a; b] 6-vectors
+    Zt: np.ndarray         # (n, 12, 6) [−I; Pᵀ]: strain-space force → force on [a; b] in a's axes
+    Zw: np.ndarray         # (n, 12, 6) R12 Zt: the same in world axes; ζ = Zwᵀ [dq_a; dq_b]
     xi: np.ndarray         # (n, 6) strain [ρ; φ]
     Apow: np.ndarray       # (n, 4, 6, 6) A, A², A³, A⁴ with A = ad(ξ)
     Jl_inv: np.ndarray     # (n, 6, 6) inverse left Jacobian
     coef: np.ndarray       # (n, 30) see coefficients()
+    span: np.ndarray       # (n, 3) x_b − x_a, world
 
     @property
     def B(self) -> np.ndarray:
@@ -169,7 +192,8 @@ class Links:
         """From the poses of the frames (quaternions, positions) at both ends of each link."""
         n = qa.shape[0]
         R12 = ((qa[:, :, None] * qa[:, None, :]).reshape(n, 16) @ _R12_TABLE).reshape(n, 12, 12)
-        p = ((xb - xa)[:, None, :] @ R12[:, :3, :3])[:, 0]              # R_aᵀ (x_b − x_a)
+        span = xb - xa
+        p = (span[:, None, :] @ R12[:, :3, :3])[:, 0]                   # R_aᵀ (x_b − x_a)
         relative = (qb[:, None, :] @ (qa @ _L_TABLE).reshape(n, 4, 4))[:, 0]   # q̄_a ⊗ q_b = L(q_a)ᵀ q_b
         phi = rotation_log(relative)
         coef = coefficients((phi * phi).sum(1))
@@ -177,19 +201,19 @@ class Links:
         xi = np.empty((n, 6))
         xi[:, 3:] = phi
         xi[:, :3] = p + (Phi @ (coef[:, :1, None] * (Phi @ p[:, :, None]) - 0.5 * p[:, :, None]))[:, :, 0]
-        return cls._complete(R12, p, xi, coef)
+        return cls._complete(R12, p, xi, coef, span)
 
     @classmethod
-    def of_strains(cls, Ra, p, xi) -> "Links":
-        """From the strains ``ξ`` themselves, with the rotations ``R_a`` of the first frames and
-        the relative translations ``p`` (what :func:`chain_poses` computed from ``ξ``): the
-        same kinematics as :meth:`of` on the composed poses, without taking logarithms."""
+    def of_strains(cls, Ra, p, xi, span) -> "Links":
+        """From the strains ``ξ`` themselves, with the rotations ``R_a`` of the first frames, the
+        relative translations ``p`` and the world spans (what :func:`chain_poses` computed from
+        ``ξ``): the same kinematics as :meth:`of` on the composed poses, without logarithms."""
         n = xi.shape[0]
         R12 = (Ra.reshape(n, 9) @ _R9_TABLE).reshape(n, 12, 12)
-        return cls._complete(R12, p, xi, coefficients((xi[:, 3:] * xi[:, 3:]).sum(1)))
+        return cls._complete(R12, p, xi, coefficients((xi[:, 3:] * xi[:, 3:]).sum(1)), span)
 
     @classmethod
-    def _complete(cls, R12, p, xi, coef) -> "Links":
+    def _complete(cls, R12, p, xi, coef, span) -> "Links":
         n = xi.shape[0]
         flat = np.empty((n, 4, 36))
         np.matmul(xi, _AD_TABLE, out=flat[:, 0])
@@ -199,7 +223,7 @@ class Links:
         Apow[:, 3] = Apow[:, 1] @ Apow[:, 1]
         Jl_inv = (coef[:, None, 1:5] @ flat).reshape(n, 6, 6) + _EYE6
         Zt = (p @ _ZT_TABLE).reshape(n, 12, 6) + _ZT_CONST
-        return cls(R12, Zt, xi, Apow, Jl_inv, coef)
+        return cls(R12, Zt, R12 @ Zt, xi, Apow, Jl_inv, coef, span)
 
     def transport(self, w: np.ndarray) -> np.ndarray:
         """``J_l⁻ᵀ w`` for ``w`` of shape (n, 6) or (n, m, 6)."""
@@ -213,16 +237,16 @@ class Links:
 
     def generalised_force(self, y: np.ndarray) -> np.ndarray:
         """Generalised force (…, 12) on ``[a, b]`` (world axes) of strain-space forces ``y``,
-        (n, 6) or (n, m, 6): ``diag(B, B) Zᵀ y = [−B y; B Pᵀ y]``."""
+        (n, 6) or (n, m, 6): ``Zw y = diag(B, B) [−y; Pᵀ y]``."""
         if y.ndim == 2:
-            return (self.R12 @ (self.Zt @ y[:, :, None]))[:, :, 0]
-        return (self.R12 @ (self.Zt @ y.mT)).mT
+            return (self.Zw @ y[:, :, None])[:, :, 0]
+        return (self.Zw @ y.mT).mT
 
-    def zeta(self, dq_a: np.ndarray, dq_b: np.ndarray) -> np.ndarray:
-        """Left twist in ``a``'s axes of frame increments ``dq = [dx; dφ]`` (world axes):
-        ``ζ = P Bᵀ dq_b − Bᵀ dq_a``."""
-        local = self.B.mT @ np.stack([dq_b, dq_a], 2)
-        return (self.P @ local[:, :, :1])[:, :, 0] - local[:, :, 1]
+    def zeta(self, dq: np.ndarray) -> np.ndarray:
+        """Left twists ζ (n, 6) in ``a``'s axes of frame increments ``dq = [dx; dφ]`` (world
+        axes, all n + 1 frames, (n + 1, 6) contiguous): ``ζ = Zwᵀ [dq_a; dq_b]``."""
+        pairs = np.lib.stride_tricks.as_strided(dq, (dq.shape[0] - 1, 12, 1), (dq.strides[0], dq.strides[1], 0))
+        return (self.Zw.mT @ pairs)[:, :, 0]
 
 
 def link_forces(links: Links, stiffness: np.ndarray, xi_rest: np.ndarray):
@@ -231,34 +255,32 @@ def link_forces(links: Links, stiffness: np.ndarray, xi_rest: np.ndarray):
     e = links.xi - xi_rest
     w = (stiffness @ e[:, :, None])[:, :, 0]
     y = (w[:, None, :] @ links.Jl_inv)[:, 0]
-    return (links.R12 @ (links.Zt @ y[:, :, None]))[:, :, 0], 0.5 * float(np.vdot(e, w)), w, y
+    return (links.Zw @ y[:, :, None])[:, :, 0], 0.5 * float(np.vdot(e, w)), w, y
 
 
-def link_tangent(links: Links, stiffness: np.ndarray, w: np.ndarray, y: np.ndarray):
-    """Exact tangent (n, 12, 12) of the links at the state of ``links``, from ``w = K e`` and
-    ``y = J_l⁻ᵀ w`` (see :func:`link_forces`). The formula is in the module docstring; tests
-    check it against the complex-step reference."""
+def link_tangent(links: Links, stiffness: np.ndarray, w: np.ndarray, gradient: np.ndarray):
+    """Exact tangent (n, 12, 12) of the links at the state of ``links``, from ``w = K e`` and the
+    links' gradient (see :func:`link_forces`): ``Zw (∂y/∂ξ) J_l⁻¹ Zwᵀ`` plus the geometric
+    stiffness of the lever arms (:func:`_geometric_table`). The formula is in the module
+    docstring; tests check it against the complex-step reference."""
     n = links.xi.shape[0]
-    A = links.Apow[:, 0]
     W = np.empty((n, 5, 6))                     # [w, u₁ … u₄], u_k = (Aᵀ)^k w stored as rows
     W[:, 0] = w
-    W[:, 1:] = (w[:, None, None, :] @ links.Apow)[:, :, 0]
+    np.matmul(w[:, None, None, :], links.Apow, out=W[:, 1:, None, :])
     V = links.coef[:, 5:].reshape(n, 5, 5) @ W   # the four Λ arguments and the coefficient term
-    L = (V[:, :4] @ _LAMBDA_TABLE).reshape(n, 4, 6, 6)
-    AT = A.mT
-    D = L[:, 3] + AT @ (L[:, 2] + AT @ (L[:, 1] + AT @ L[:, 0]))   # Horner form of ∂(J_l⁻ᵀ)/∂ξ [w]
+    powers = np.empty((n, 6, 4, 6))             # [I, Aᵀ, A²ᵀ, A³ᵀ] side by side
+    powers[:, :, 0] = _EYE6
+    powers[:, :, 1:] = links.Apow[:, :3].transpose(0, 3, 1, 2)
+    # ∂(J_l⁻ᵀ)/∂ξ [w] = Λ(v₃) + AᵀΛ(v₂) + A²ᵀΛ(v₁) + A³ᵀΛ(v₀): one product of the stacks
+    D = powers.reshape(n, 6, 24) @ (V[:, :4] @ _LAMBDA_TABLE).reshape(n, 24, 6)
     D += links.Jl_inv.mT @ stiffness
     D[:, :, 3:] += V[:, 4, :, None] * links.xi[:, None, 3:]
-    Zt = links.Zt
-    X = np.empty((n, 12, 12))                   # the tangent in a's axes, columns [a; b]
-    X[:, :, 6:] = Zt @ (D @ (links.Jl_inv @ links.P))
-    X[:, 9:, 6:9] += (y[:, :3] @ _HAT_TABLE).reshape(n, 3, 3)      # p = R_aᵀ(x_b − x_a) moves with x_b
-    g_local = Zt @ y[:, :, None]
-    # columns of frame a from objectivity (see solver.elements.pair_tangent), in a's axes
-    X[:, :, :3] = -X[:, :, 6:9]
-    X[:, :, 3:6] = (-(X[:, :, 6:9] @ Zt[:, 9:, :3]) - X[:, :, 9:]
-                    - (g_local.reshape(n, 4, 3) @ _HAT_TABLE).reshape(n, 12, 3))
-    return links.R12 @ X @ links.R12.mT
+    H = links.Zw @ (D @ links.Jl_inv) @ links.Zw.mT
+    features = np.empty((n, 21))                # [g (12), span ⊗ f_b (9)]
+    features[:, :12] = gradient
+    np.multiply(links.span[:, :, None], gradient[:, None, 6:9], out=features[:, 12:].reshape(n, 3, 3))
+    H += (features @ _GEOMETRIC_TABLE).reshape(n, 12, 12)
+    return H
 
 
 def _exp_table() -> np.ndarray:

@@ -355,15 +355,16 @@ class TrunkModel:
         xi_rest = self._link_rest(scale * actuation[self.n_cables:])
         record = state.carried_strains()
         if record is not None:                           # a state made by step(): its strains are known
-            links = Links.of_strains(record.chain.rotations[:-1], record.chain.translations, record.xi)
+            links = Links.of_strains(record.chain.rotations[:-1], record.chain.translations, record.xi,
+                                     x[1:] - x[:-1])
             rotations = record.chain.rotations
         else:
             links = Links.of(q[:-1], x[:-1], q[1:], x[1:])
             rotations = qmatrix(q) if self.n_cables or self.has_gravity else None
         self._geometry_cache = (state, links)            # reused by step() from this state
-        g, total, w, y = link_forces(links, self.link_stiffness, xi_rest)
-        grad[:-1] = g[:, :6]
-        grad[1:] += g[:, 6:]
+        g_links, total, w, _ = link_forces(links, self.link_stiffness, xi_rest)
+        grad[:-1] = g_links[:, :6]
+        grad[1:] += g_links[:, 6:]
 
         tensions = scale * actuation[:self.n_cables]
         pieces = piece_tension = None
@@ -384,7 +385,7 @@ class TrunkModel:
         if self.has_dead_forces or self.has_dead_moments:
             grad -= scale * self.dead_loads
             total -= scale * float(np.vdot(self._dead_forces, x))
-        ev = _Evaluation(grad, total, context=(links, w, y, pieces, piece_tension, weight, lever))
+        ev = _Evaluation(grad, total, context=(links, w, g_links, pieces, piece_tension, weight, lever))
         if tangent:
             self._add_tangent(ev)
         return ev
@@ -393,10 +394,10 @@ class TrunkModel:
         """Assemble the tangent of an evaluation into block-band storage (once)."""
         if ev.lower is not None:
             return
-        links, w, y, pieces, piece_tension, weight, lever = ev.context
+        links, w, g_links, pieces, piece_tension, weight, lever = ev.context
         band_blocks = np.zeros((2,) + self.layout.block_shape)       # [lower, upper] block bands
         lower, upper = band_blocks[0], band_blocks[1]
-        H = link_tangent(links, self.link_stiffness, w, y)
+        H = link_tangent(links, self.link_stiffness, w, g_links)
         lower[:, 0] = H[:, 6:, 6:]
         lower[:-1, 0] += H[1:, :6, :6]
         lower[:-1, 1] = H[1:, 6:, :6]
@@ -440,7 +441,7 @@ class TrunkModel:
         cached_state, links = self._geometry_cache
         if cached_state is not state:
             links = Links.of(q[:-1], x[:-1], q[1:], x[1:])
-        xi = links.xi + links.strain_change(links.zeta(d[:-1], d[1:]))
+        xi = links.xi + links.strain_change(links.zeta(d))
         chain = chain_poses(q[0], x[0], xi)
         chain.quaternions[0], chain.positions[0] = q[0], x[0]
         record = None
