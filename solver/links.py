@@ -46,7 +46,7 @@ _A = 2.0 * zeta(2.0 * _k) / (2.0 * np.pi) ** (2.0 * _k)        # a_1 … a_42
 
 
 def _series_table() -> np.ndarray:
-    """(N, 30) table: ``coefficients(θ²) = [θ^0 … θ^(2N−2)] @ table``. Columns: SO(3) ``c``
+    """(N, 30) table: ``coefficients(θ²) = [t^0 … t^(N−1)] @ table``, t = θ². Columns: SO(3) ``c``
     (J⁻¹ = I − ½Φ + cΦ²); the weights of [A, A², A³, A⁴] in J_l⁻¹ (−½, c₂, 0, c₄); and the 5×5
     matrix (row-major) taking ``[w, u₁, u₂, u₃, u₄]`` to the vectors :func:`link_tangent` needs."""
     a = dict(zip(range(1, _TERMS + 3), _A))
@@ -139,11 +139,15 @@ _R9_TABLE = _r9_table()
 _EYE6 = np.eye(6)
 
 
+def _terms(largest: float) -> int:
+    """Series terms needed for θ² ≤ ``largest``: the k-th is below ``(θ²/4π²)^k`` relative."""
+    ratio = largest / (4.0 * np.pi * np.pi)
+    return _TERMS if ratio >= 0.25 else min(_TERMS, 4 + int(-41.5 / math.log(max(ratio, 1e-300))))
+
+
 def coefficients(theta2: np.ndarray) -> np.ndarray:
-    """``(n, 30)`` polynomial coefficients of the links (see :func:`_series_table`). Terms
-    beyond the largest angle's need are skipped: the k-th term is below ``(θ²/4π²)^k`` relative."""
-    ratio = float(theta2.max(initial=0.0)) / (4.0 * np.pi * np.pi)
-    terms = _TERMS if ratio >= 0.25 else min(_TERMS, 4 + int(-41.5 / math.log(max(ratio, 1e-300))))
+    """``(n, 30)`` polynomial coefficients of the links (see :func:`_series_table`)."""
+    terms = _terms(float(theta2.max()) if theta2.size else 0.0)
     return _powers(theta2, terms) @ _SERIES[:terms]
 
 
@@ -204,13 +208,15 @@ class Links:
         return cls._complete(R12, p, xi, coef, span)
 
     @classmethod
-    def of_strains(cls, Ra, p, xi, span) -> "Links":
+    def of_strains(cls, Ra, p, xi, span, coef=None) -> "Links":
         """From the strains ``ξ`` themselves, with the rotations ``R_a`` of the first frames, the
         relative translations ``p`` and the world spans (what :func:`chain_poses` computed from
         ``ξ``): the same kinematics as :meth:`of` on the composed poses, without logarithms."""
         n = xi.shape[0]
         R12 = (Ra.reshape(n, 9) @ _R9_TABLE).reshape(n, 12, 12)
-        return cls._complete(R12, p, xi, coefficients((xi[:, 3:] * xi[:, 3:]).sum(1)), span)
+        if coef is None:
+            coef = coefficients((xi[:, 3:] * xi[:, 3:]).sum(1))
+        return cls._complete(R12, p, xi, coef, span)
 
     @classmethod
     def _complete(cls, R12, p, xi, coef, span) -> "Links":
@@ -284,13 +290,16 @@ def link_tangent(links: Links, stiffness: np.ndarray, w: np.ndarray, gradient: n
 
 
 def _exp_table() -> np.ndarray:
-    """(16, 3) series in t = θ² of cos(θ/2), sin(θ/2)/θ and (θ − sin θ)/θ³: alternating, with
-    terms below 1e-18 for t ≤ 16 (θ ≤ 4 rad, more than any link turns in one Newton step)."""
-    k = np.arange(16)
-    fact = np.array([float(math.factorial(i)) for i in range(40)])
+    """(40, 5) series in t = θ² of cos(θ/2), sin(θ/2)/θ, 1, (1 − cos θ)/θ² and (θ − sin θ)/θ³
+    (the last three weigh ρ, Φρ, Φ²ρ in ``V ρ``): alternating, used for t ≤ 16 (θ ≤ 4 rad,
+    more than any link turns in one Newton step), where 16 terms leave < 1e-18."""
+    k = np.arange(_TERMS)
+    fact = np.array([float(math.factorial(i)) for i in range(2 * _TERMS + 4)])
     sign = (-1.0) ** k
-    return np.stack([sign / (4.0 ** k * fact[2 * k]), sign / (2.0 * 4.0 ** k * fact[2 * k + 1]),
-                     sign / fact[2 * k + 3]], 1)
+    table = np.stack([sign / (4.0 ** k * fact[2 * k]), sign / (2.0 * 4.0 ** k * fact[2 * k + 1]),
+                      np.where(k == 0, 1.0, 0.0), sign / fact[2 * k + 2], sign / fact[2 * k + 3]], 1)
+    table[16:] = 0.0
+    return table
 
 
 def _pose_table() -> np.ndarray:
@@ -304,19 +313,18 @@ def _pose_table() -> np.ndarray:
 
 
 _EXP_TABLE = _exp_table()
+_CHAIN_TABLE = np.concatenate([_SERIES, _EXP_TABLE], 1)     # link coefficients and exp coefficients
 _POSE_TABLE = _pose_table()
 _IDENTITY_FEATURES = np.zeros(24)
 _IDENTITY_FEATURES[[0, 4, 23]] = 1.0
+CARRY_ANGLE = 0.99 * math.pi     # largest link rotation whose strain a composed state carries
 
 
-def exp_coefficients(theta2: np.ndarray) -> np.ndarray:
-    """(n, 3): cos(θ/2), sin(θ/2)/θ, (θ − sin θ)/θ³ — series up to θ = 4, closed form beyond."""
-    series = _powers(theta2, 16) @ _EXP_TABLE
-    if float(theta2.max(initial=0.0)) <= 16.0:
-        return series
-    theta = np.sqrt(np.maximum(theta2, 16.0))
-    closed = np.stack([np.cos(0.5 * theta), np.sin(0.5 * theta) / theta, (theta - np.sin(theta)) / theta ** 3], 1)
-    return np.where(theta2[:, None] <= 16.0, series, closed)
+def _exp_closed(theta2: np.ndarray) -> np.ndarray:
+    """The five exp coefficients of :func:`_exp_table` in closed form (any θ > 0)."""
+    theta = np.sqrt(theta2)
+    return np.stack([np.cos(0.5 * theta), np.sin(0.5 * theta) / theta, np.ones_like(theta),
+                     (1.0 - np.cos(theta)) / theta2, (theta - np.sin(theta)) / (theta2 * theta)], 1)
 
 
 def chain_poses(q0: np.ndarray, x0: np.ndarray, xi: np.ndarray) -> "Chain":
@@ -325,33 +333,58 @@ def chain_poses(q0: np.ndarray, x0: np.ndarray, xi: np.ndarray) -> "Chain":
 
     Each transform is packed as ``diag(L(q), [[R, p], [0, 1]])`` (8×8; ``L(q)`` multiplies
     quaternions, so the product carries the quaternion along) and the prefix products are
-    taken in √N blocks: O(N) work in about 2√N batched products, whatever the length."""
+    taken by doubling for short chains (log₂N batched products) and in √N blocks for long
+    ones (O(N) work in about 2√N products). When every link turns less than
+    :data:`CARRY_ANGLE`, the links' polynomial coefficients come from the same product."""
     n = xi.shape[0]
     N = n + 1
-    c = math.isqrt(N - 1) + 1
-    m = -(-N // c)
+    rho, phi = xi[:, :3], xi[:, 3:]
+    theta2 = (phi * phi).sum(1)
+    largest = float(theta2.max()) if n else 0.0
+    link_coef = None
+    if largest <= 16.0:
+        carry = largest < CARRY_ANGLE ** 2
+        terms = max(_terms(largest) if carry else 0, 16 if largest > 1e-2 else 8)
+        coef = _powers(theta2, terms) @ _CHAIN_TABLE[:terms]
+        expc = coef[:, 30:]
+        if carry:
+            link_coef = coef[:, :30]
+    else:
+        expc = np.where(theta2[:, None] <= 16.0, _powers(theta2, 16) @ _EXP_TABLE[:16],
+                        _exp_closed(np.maximum(theta2, 16.0)))
+    doubling = N <= 64
+    c = 1 if doubling else math.isqrt(N - 1) + 1
+    m = N if doubling else -(-N // c)
     F = np.empty((m * c, 24))                          # features [q, q⊗q, p, 1] of each factor
     F[N:] = _IDENTITY_FEATURES
     F[:, 23] = 1.0
     F[0, :4], F[0, 20:23] = q0, x0
-    rho, phi = xi[:, :3], xi[:, 3:]
-    cos_half, half, c3 = exp_coefficients((phi * phi).sum(1)).T
-    F[1:N, 0] = cos_half
-    F[1:N, 1:4] = half[:, None] * phi
+    F[1:N, 0] = expc[:, 0]
+    F[1:N, 1:4] = expc[:, 1:2] * phi
     Phi = (phi @ _HAT_TABLE).reshape(n, 3, 3)
-    Phi_rho = Phi @ rho[:, :, None]                    # V ρ = ρ + (1−cos θ)/θ² Φρ + c₃ Φ²ρ
-    F[1:N, 20:23] = rho + (2.0 * half * half)[:, None] * Phi_rho[:, :, 0] + c3[:, None] * (Phi @ Phi_rho)[:, :, 0]
+    T = np.empty((n, 3, 3))                            # rows ρ, Φρ, Φ²ρ: V ρ = [1, b, c] · T
+    T[:, 0] = rho
+    np.matmul(Phi, rho[:, :, None], out=T[:, 1, :, None])
+    np.matmul(Phi, T[:, 1, :, None], out=T[:, 2, :, None])
+    F[1:N, 20:23] = (expc[:, None, 2:] @ T)[:, 0]
     quats = F[:N, :4]
     F[:N, 4:20] = (quats[:, :, None] * quats[:, None, :]).reshape(N, 16)
-    M = (F @ _POSE_TABLE).reshape(m, c, 8, 8)
-    for j in range(1, c):
-        M[:, j] = M[:, j - 1] @ M[:, j]
-    for i in range(1, m):
-        M[i] = M[i - 1, -1] @ M[i]
-    M = M.reshape(m * c, 8, 8)[:N]
+    if doubling:
+        M = (F @ _POSE_TABLE).reshape(N, 8, 8)
+        shift = 1
+        while shift < N:
+            M[shift:] = M[:-shift] @ M[shift:]
+            shift *= 2
+    else:
+        M = (F @ _POSE_TABLE).reshape(m, c, 8, 8)
+        for j in range(1, c):
+            M[:, j] = M[:, j - 1] @ M[:, j]
+        for i in range(1, m):
+            M[i] = M[i - 1, -1] @ M[i]
+        M = M.reshape(m * c, 8, 8)[:N]
     quaternions = M[:, :4, 0]
     quaternions = quaternions / np.sqrt((quaternions * quaternions).sum(1))[:, None]
-    return Chain(quaternions, M[:, 4:7, 7].copy(), M[:, 4:7, 4:7], F[1:N, 20:23])
+    return Chain(quaternions, M[:, 4:7, 7].copy(), M[:, 4:7, 4:7], F[1:N, 20:23], link_coef)
 
 
 @dataclass
@@ -362,3 +395,4 @@ class Chain:
     positions: np.ndarray      # (N, 3) world
     rotations: np.ndarray      # (N, 3, 3) world rotation matrices (the same products)
     translations: np.ndarray   # (n, 3) relative translations p of the links, in a's axes
+    link_coefficients: np.ndarray | None   # (n, 30) coefficients() of the strains, when carried

@@ -114,9 +114,6 @@ def _strain_map(quaternion, translation):
     return xi0, Jl_inv @ shift
 
 
-_CARRY_ANGLE = 0.99 * math.pi   # largest link rotation whose strain step() hands to the next evaluation
-
-
 def _incidence(rows, n_rows):
     """(n_rows, len(rows)) matrix with a 1 at (rows[k], k): ``E @ v`` sums the rows of ``v`` into
     their targets. Dense while small (one BLAS call), sparse beyond."""
@@ -356,7 +353,7 @@ class TrunkModel:
         record = state.carried_strains()
         if record is not None:                           # a state made by step(): its strains are known
             links = Links.of_strains(record.chain.rotations[:-1], record.chain.translations, record.xi,
-                                     x[1:] - x[:-1])
+                                     x[1:] - x[:-1], record.chain.link_coefficients)
             rotations = record.chain.rotations
         else:
             links = Links.of(q[:-1], x[:-1], q[1:], x[1:])
@@ -445,9 +442,9 @@ class TrunkModel:
         chain = chain_poses(q[0], x[0], xi)
         chain.quaternions[0], chain.positions[0] = q[0], x[0]
         record = None
-        if float((xi[:, 3:] * xi[:, 3:]).sum(1).max(initial=0.0)) < _CARRY_ANGLE ** 2:
-            # below π the logarithm of the composed poses returns ξ again (to rounding): the
-            # state carries ξ, and evaluations take it as it is instead of recomputing it
+        if chain.link_coefficients is not None:
+            # every link turns less than π: the logarithm of the composed poses returns ξ again
+            # (to rounding), so the state carries ξ and evaluations take it as it is
             record = StrainRecord(xi, chain, chain.positions.copy(), chain.quaternions.copy())
         return State(chain.positions, chain.quaternions, record)
 
