@@ -30,10 +30,6 @@ class BandLayout:
         col = 6 * c + b
         inside = (c + s < n_blocks) & (row - col <= kd)
         block_flat = np.ravel_multi_index((c, s, a, b), (n_blocks, span + 1, 6, 6))
-        # symmetric lower storage ab[i - j, j] = A[i, j], i >= j  (dpbtrf, lower=1)
-        lower = inside & (row >= col)
-        self.sym_src = block_flat[lower]
-        self.sym_dst = np.ravel_multi_index((row[lower] - col[lower], col[lower]), (kd + 1, n))
         # general storage ab[kl + ku + i - j, j] = A[i, j]  (dgbtrf with kl = ku = kd)
         rows_gb = 3 * kd + 1
         self.lo_src = block_flat[inside]
@@ -43,6 +39,25 @@ class BandLayout:
         up = (c + s < n_blocks) & (s >= 1) & (ucol - urow <= kd)
         self.up_src = block_flat[up]
         self.up_dst = np.ravel_multi_index((2 * kd + urow[up] - ucol[up], ucol[up]), (rows_gb, n))
+        self._symmetric_gather()
+
+    def _symmetric_gather(self):
+        """Indices into the flat stacked ``[lower, upper]`` block storage (plus one trailing zero)
+        of ``A[i, j]`` and ``A[j, i]`` for every entry ``ab[d, j] = A[j + d, j]`` of the lower
+        symmetric band: the symmetric part is then two gathers and an average."""
+        nb, span, kd, n = self.n_blocks, self.span, self.kd, self.n
+        per_band = nb * (span + 1) * 36
+        self.storage_size = 2 * per_band + 1
+        d, j = np.meshgrid(np.arange(kd + 1), np.arange(n), indexing="ij")
+        i = j + d
+        I, J, a, b = i // 6, j // 6, i % 6, j % 6
+        s = I - J
+        inside = (i < n) & (s <= span)
+        flat = lambda band, c, off, r, col: band * per_band + ((c * (span + 1) + off) * 6 + r) * 6 + col  # noqa: E731
+        zero = self.storage_size - 1
+        ij = np.where(inside, flat(0, J, s, a, b), zero)                          # lower[J, s, a, b]
+        ji = np.where(inside, np.where(s == 0, flat(0, J, 0, b, a), flat(1, J, s, b, a)), zero)
+        self.sym_ij, self.sym_ji = ij.ravel(), ji.ravel()
 
     @property
     def block_shape(self) -> tuple:
@@ -53,15 +68,25 @@ class BandLayout:
         """Zeroed (lower, upper) block arrays ``(n_blocks, span + 1, 6, 6)``."""
         return np.zeros(self.block_shape), np.zeros(self.block_shape)
 
+    def new_storage(self):
+        """Zeroed flat storage for stacked [lower, upper] blocks plus a trailing zero, and the
+        (2, n_blocks, span + 1, 6, 6) view of its blocks."""
+        storage = np.zeros(self.storage_size)
+        return storage, storage[:-1].reshape((2,) + self.block_shape)
+
+    def symmetric_from_storage(self, storage: np.ndarray) -> np.ndarray:
+        """Lower band (LAPACK storage) of the symmetric part ½(A + Aᵀ) of the blocks held in
+        ``storage`` (see :meth:`new_storage`)."""
+        ab = storage.take(self.sym_ij)
+        ab += storage.take(self.sym_ji)
+        ab *= 0.5
+        return ab.reshape(self.kd + 1, self.n)
+
     def symmetric_band(self, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
         """Lower band of the symmetric part ½(A + Aᵀ)."""
-        sym = lower.copy()
-        sym[:, 1:] += np.swapaxes(upper[:, 1:], -1, -2)
-        sym[:, 1:] *= 0.5
-        sym[:, 0] = 0.5 * (lower[:, 0] + np.swapaxes(lower[:, 0], -1, -2))
-        ab = np.zeros((self.kd + 1, self.n))
-        ab.ravel()[self.sym_dst] = sym.ravel()[self.sym_src]
-        return ab
+        storage, blocks = self.new_storage()
+        blocks[0], blocks[1] = lower, upper
+        return self.symmetric_from_storage(storage)
 
     def general_band(self, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
         ab = np.zeros((3 * self.kd + 1, self.n))

@@ -250,9 +250,9 @@ class Links:
 
     def zeta(self, dq: np.ndarray) -> np.ndarray:
         """Left twists ζ (n, 6) in ``a``'s axes of frame increments ``dq = [dx; dφ]`` (world
-        axes, all n + 1 frames, (n + 1, 6) contiguous): ``ζ = Zwᵀ [dq_a; dq_b]``."""
-        pairs = np.lib.stride_tricks.as_strided(dq, (dq.shape[0] - 1, 12, 1), (dq.strides[0], dq.strides[1], 0))
-        return (self.Zw.mT @ pairs)[:, :, 0]
+        axes, all n + 1 frames, (n + 1, 6)): ``ζ = Zwᵀ [dq_a; dq_b]``."""
+        pairs = np.concatenate([dq[:-1], dq[1:]], 1)
+        return (self.Zw.mT @ pairs[:, :, None])[:, :, 0]
 
 
 def link_forces(links: Links, stiffness: np.ndarray, xi_rest: np.ndarray):

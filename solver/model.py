@@ -99,6 +99,7 @@ class _Evaluation:
     lower: np.ndarray | None = None
     upper: np.ndarray | None = None
     context: tuple = ()           # what the gradient computed that the tangent reuses
+    storage: np.ndarray | None = None   # flat storage behind lower/upper (BandLayout.new_storage)
 
 
 def _rest_twist(quaternion, translation):
@@ -232,6 +233,7 @@ class TrunkModel:
         self.frame_moment = np.array(frame_moment)
         self.vertebra_frames = np.array(vertebra_frames)
         self.length_scale = float(np.sum(np.linalg.norm(self.link_rest_translation, axis=1)))
+        self._residual_weights = np.array([1.0] * 3 + [1.0 / self.length_scale] * 3)
         self.chamber_rest_volumes = rest_volumes
         for j, ch in enumerate(chambers):
             if not np.any(self.link_pressure_map[:, :, j]):
@@ -392,7 +394,7 @@ class TrunkModel:
         if ev.lower is not None:
             return
         links, w, g_links, pieces, piece_tension, weight, lever = ev.context
-        band_blocks = np.zeros((2,) + self.layout.block_shape)       # [lower, upper] block bands
+        storage, band_blocks = self.layout.new_storage()            # [lower, upper] block bands
         lower, upper = band_blocks[0], band_blocks[1]
         H = link_tangent(links, self.link_stiffness, w, g_links)
         lower[:, 0] = H[:, 6:, 6:]
@@ -406,7 +408,7 @@ class TrunkModel:
                 pieces.tangent(piece_tension).reshape(-1).take(source), starts)
         if weight is not None:
             lower[:, 0, 3:, 3:] -= hat(weight) @ hat(lever[1:])
-        ev.lower, ev.upper = lower, upper
+        ev.lower, ev.upper, ev.storage = lower, upper, storage
 
     def _factor(self, ev: _Evaluation, shift: float = 0.0):
         """Factor the tangent: banded Cholesky of its symmetric part when it is exact to use
@@ -419,7 +421,9 @@ class TrunkModel:
             scale = np.abs(diag) + 1e-300
             lower[:, 0] += shift * np.einsum("ci,ij->cij", scale, np.eye(6))
         if not self.has_dead_moments:
-            factor = factor_cholesky(self.layout.symmetric_band(lower, upper))
+            band = (self.layout.symmetric_band(lower, upper) if shift
+                    else self.layout.symmetric_from_storage(ev.storage))
+            factor = factor_cholesky(band)
             if factor is not None:
                 return factor, "shifted" if shift else "cholesky"
         factor = factor_lu(self.layout.general_band(lower, upper), self.layout.kd)
@@ -460,10 +464,8 @@ class TrunkModel:
         return value
 
     def _residual_norm(self, r: np.ndarray, reference: float) -> float:
-        r = r.reshape(-1, 6)
-        force = np.max(np.abs(r[:, :3]))
-        moment = np.max(np.abs(r[:, 3:])) / self.length_scale
-        return float(max(force, moment) / reference)
+        """max(|force|, |moment| / length scale) / reference over the frames."""
+        return float(np.abs(r.reshape(-1, 6) * self._residual_weights).max()) / reference
 
     # ------------------------------------------------------------------ solve
     def solve(self, actuation=None, initial: State | None = None, *, tolerance=None,
@@ -538,9 +540,10 @@ class TrunkModel:
         return not (np.any(actuation) or self.has_dead_forces or self.has_dead_moments or self.has_gravity)
 
     def _below_resolution(self, state: State, dq: np.ndarray) -> bool:
-        d = dq.reshape(-1, 6)
-        extent = self.length_scale + np.max(np.abs(state.positions))
-        return bool(np.max(np.abs(d[:, :3])) <= 1e-13 * extent and np.max(np.abs(d[:, 3:])) <= 1e-13)
+        """Is every translation below 1e-13 of the extent and every rotation below 1e-13 rad?"""
+        extent = self.length_scale + float(np.abs(state.positions).max())
+        scale = np.array([1.0 / extent] * 3 + [1.0] * 3)
+        return float(np.abs(dq.reshape(-1, 6) * scale).max()) <= 1e-13
 
     def _newton(self, state, actuation, scale, tol, max_iter, reference, history, kinds):
         """Newton iterations at a fixed load factor. Returns (ok, state, iterations, residual).
