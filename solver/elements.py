@@ -155,6 +155,8 @@ _C_TABLE = np.zeros((6, 12, 3))
 _C_TABLE[:3, 3:6] = -_HAT_TABLE.reshape(3, 3, 3)        # −ŝ_a
 _C_TABLE[3:, 9:] = _HAT_TABLE.reshape(3, 3, 3)          # ŝ_b
 _C_TABLE = _C_TABLE.reshape(6, 36)
+_DIFFERENCE = np.concatenate([-np.eye(3), np.eye(3)])   # [P_a; P_b] → P_b − P_a
+_EYE3 = np.eye(3)
 
 
 @dataclass
@@ -175,11 +177,17 @@ class CablePieces:
     @classmethod
     def of(cls, Ra, xa, Rb, xb, hole_a, hole_b) -> "CablePieces":
         m = xa.shape[0]
-        offsets = np.empty((m, 6))
-        offsets[:, :3] = (Ra @ hole_a[:, :, None])[:, :, 0]
-        offsets[:, 3:] = (Rb @ hole_b[:, :, None])[:, :, 0]
-        d = xb - xa + offsets[:, 3:] - offsets[:, :3]
-        length = np.sqrt((d * d).sum(1))
+        return cls.of_pairs(np.stack([Ra, Rb], 1).reshape(2 * m, 3, 3), np.stack([xa, xb], 1).reshape(2 * m, 3),
+                            np.stack([hole_a, hole_b], 1).reshape(2 * m, 3, 1))
+
+    @classmethod
+    def of_pairs(cls, R, x, holes) -> "CablePieces":
+        """From the rotations (2m, 3, 3), positions (2m, 3) and hole offsets (2m, 3, 1) of the two
+        ends of every piece, interleaved (a₀, b₀, a₁, b₁, …)."""
+        m = x.shape[0] // 2
+        offsets = (R @ holes).reshape(m, 6)                   # [s_a, s_b]
+        d = (x.reshape(m, 6) + offsets) @ _DIFFERENCE         # P_b − P_a
+        length = np.sqrt((d[:, None, :] @ d[:, :, None])[:, 0, 0])
         u = d / length[:, None]
         C = (offsets @ _C_TABLE).reshape(m, 12, 3) + _C_CONST
         return cls(C, u, length, (C @ u[:, :, None])[:, :, 0])
@@ -187,12 +195,12 @@ class CablePieces:
     def tangent(self, tension: np.ndarray) -> np.ndarray:
         """Tangent (m, 12, 12) of ``τ |d|`` per piece."""
         u, C = self.u, self.C
-        projector = (np.eye(3) - u[:, :, None] * u[:, None, :]) / self.length[:, None, None]
-        H = (C @ projector) @ C.mT
-        U = (u @ _HAT_TABLE).reshape(-1, 3, 3)
-        H[:, 3:6, 3:6] += U @ C[:, 3:6]                      # −û ŝ_a
-        H[:, 9:, 9:] += U @ C[:, 9:]                         # +û ŝ_b
-        return tension[:, None, None] * H
+        t = (tension / self.length)[:, None, None]
+        H = (C @ (t * _EYE3 - t * (u[:, :, None] * u[:, None, :]))) @ C.mT
+        U = (u @ _HAT_TABLE).reshape(-1, 3, 3) * tension[:, None, None]
+        H[:, 3:6, 3:6] += U @ C[:, 3:6]                      # −τ û ŝ_a
+        H[:, 9:, 9:] += U @ C[:, 9:]                         # +τ û ŝ_b
+        return H
 
 
 def cable_tangent(qa, xa, qb, xb, hole_a, hole_b, tension):

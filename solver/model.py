@@ -29,8 +29,9 @@ class State:
 
     States made by the solver also carry the link strains they were composed from
     (``strains``): evaluations then use the strains as they are instead of taking logarithms
-    of rounded poses (docs/solver.md, "Convergence measure"). The record is ignored as soon as
-    the poses no longer match it (a state edited in place is evaluated from its poses)."""
+    of rounded poses (docs/solver.md, "Convergence measure"). Their arrays are read-only;
+    ``copy()`` gives writeable ones, and a copy whose poses no longer match the record is
+    evaluated from its poses."""
 
     positions: np.ndarray     # (n_frames, 3) world
     quaternions: np.ndarray   # (n_frames, 4) [w, x, y, z]
@@ -40,12 +41,16 @@ class State:
         return State(self.positions.copy(), self.quaternions.copy(), self.strains)
 
     def carried_strains(self) -> "StrainRecord | None":
-        """The strain record when it still describes these poses, else None."""
+        """The strain record when it still describes these poses, else None. The solver's own
+        states hold the record's (read-only) arrays themselves; copies are compared by value."""
         record = self.strains
-        if record is None or not (np.array_equal(record.positions, self.positions)
-                                  and np.array_equal(record.quaternions, self.quaternions)):
+        if record is None:
             return None
-        return record
+        if record.positions is self.positions and record.quaternions is self.quaternions:
+            return record
+        if np.array_equal(record.positions, self.positions) and np.array_equal(record.quaternions, self.quaternions):
+            return record
+        return None
 
 
 @dataclass
@@ -256,6 +261,8 @@ class TrunkModel:
         # consecutive vertebrae, `elements` links apart: the band is as wide as the widest coupling
         self.span = int(max(1, np.max(self.cable_piece_b - self.cable_piece_a, initial=1)))
         a, b = self.cable_piece_a, self.cable_piece_b
+        self._cable_ends = np.stack([a, b], 1).reshape(-1)                    # a₀ b₀ a₁ b₁ …
+        self._cable_holes = np.stack([self.cable_hole_a, self.cable_hole_b], 1).reshape(-1, 3, 1)
         self._cable_to_frames = _incidence(np.stack([a, b], 1).reshape(-1), self.n_frames)
         owner2 = np.repeat(self.cable_piece_owner, 2)
         self._cable_to_jacobian = _incidence(owner2 * self.n_frames + np.stack([a, b], 1).reshape(-1),
@@ -317,6 +324,8 @@ class TrunkModel:
         self.effector_targets = np.array([e.target if e.target is not None else (np.nan,) * 3
                                           for e in scene.effectors], float).reshape(-1, 3)
         self.effector_weights = np.array([e.weight for e in scene.effectors], float)
+        self._point_effectors = np.flatnonzero(~self.effector_is_axis)
+        self._all_effectors = np.arange(len(scene.effectors))
 
     def _rest_state(self, scene) -> State:
         positions = np.zeros((self.n_frames, 3))
@@ -378,8 +387,8 @@ class TrunkModel:
             weight = scale * self.gravity
             lever = (rotations @ self.frame_moment[:, :, None])[:, :, 0]   # R s: first moment in world axes
             grad[:, :3] -= self.frame_mass[:, None] * weight
-            grad[:, 3:] -= cross(lever, weight)                   # moment (R s) × m g at the frame
-            total -= float(np.sum(self.frame_mass * (x @ weight)) + np.sum(lever @ weight))
+            grad[:, 3:] -= lever @ hat(weight)                    # moment (R s) × m g at the frame
+            total -= float((self.frame_mass @ x + lever.sum(0)) @ weight)
 
         if self.has_dead_forces or self.has_dead_moments:
             grad -= scale * self.dead_loads
@@ -448,8 +457,11 @@ class TrunkModel:
         record = None
         if chain.link_coefficients is not None:
             # every link turns less than π: the logarithm of the composed poses returns ξ again
-            # (to rounding), so the state carries ξ and evaluations take it as it is
-            record = StrainRecord(xi, chain, chain.positions.copy(), chain.quaternions.copy())
+            # (to rounding), so the state carries ξ and evaluations take it as it is; the poses
+            # are frozen so that they cannot drift from the record (State.copy() thaws them)
+            chain.positions.flags.writeable = False
+            chain.quaternions.flags.writeable = False
+            record = StrainRecord(xi, chain, chain.positions, chain.quaternions)
         return State(chain.positions, chain.quaternions, record)
 
     def _reference_force(self, actuation) -> float:
@@ -620,9 +632,8 @@ class TrunkModel:
 
     # ------------------------------------------------------------------ outputs
     def _cable_pieces(self, x: np.ndarray, rotations: np.ndarray) -> CablePieces:
-        a, b = self.cable_piece_a, self.cable_piece_b
-        return CablePieces.of(rotations.take(a, 0), x.take(a, 0), rotations.take(b, 0), x.take(b, 0),
-                              self.cable_hole_a, self.cable_hole_b)
+        ends = self._cable_ends
+        return CablePieces.of_pairs(rotations.take(ends, 0), x.take(ends, 0), self._cable_holes)
 
     def cable_lengths(self, state: State, pieces: CablePieces | None = None) -> np.ndarray:
         if not self.n_cables:
@@ -686,11 +697,9 @@ class TrunkModel:
         n_eff = len(self.effector_names)
         Je = np.zeros((n_eff, 3, self.n_frames, 6))
         turned = qrotate(q[self.effector_frames], self.effector_offsets)
-        levers = -hat(turned)
-        for k, frame in enumerate(self.effector_frames):
-            if not self.effector_is_axis[k]:         # a direction does not move with translations
-                Je[k, :, frame, :3] = np.eye(3)
-            Je[k, :, frame, 3:] = levers[k]
+        points = self._point_effectors               # a direction does not move with translations
+        Je[points, :, self.effector_frames[points], :3] = np.eye(3)
+        Je[self._all_effectors, :, self.effector_frames, 3:] = -hat(turned)
         Je = Je.reshape(3 * n_eff, self.n_frames, 6)
         effector_positions = np.where(self.effector_is_axis[:, None], turned, x[self.effector_frames] + turned)
         return Linearisation(
