@@ -98,6 +98,17 @@ class Linearisation:
 
 
 @dataclass
+class _Loads:
+    xi_rest: np.ndarray
+    piece_tension: np.ndarray | None = None
+    weight: np.ndarray | None = None
+    weight_hat: np.ndarray | None = None
+    frame_weight: np.ndarray | None = None
+    dead: np.ndarray | None = None
+    dead_forces: np.ndarray | None = None
+
+
+@dataclass
 class _Evaluation:
     gradient: np.ndarray          # (n_frames, 6) of the potential, dead moments included (as −M)
     energy: float                 # potential (dead moments excluded: not conservative)
@@ -162,6 +173,7 @@ class TrunkModel:
         self.rest_cable_lengths = self.cable_lengths(self.rest_state)
         self._reference_cache = (None, None)
         self._geometry_cache = (None, None)
+        self._loads_cache = (None, None, None)
 
     # ------------------------------------------------------------------ compile
     def _compile_links(self, scene, entries):
@@ -310,7 +322,6 @@ class TrunkModel:
             dead[frame, :3] += load.force
             dead[frame, 3:] += load.moment
         self.dead_loads = dead
-        self._dead_forces = np.ascontiguousarray(dead[:, :3])
         self.has_dead_forces = bool(np.any(dead[:, :3]))
         self.has_dead_moments = bool(np.any(dead[:, 3:]))
         self.gravity = None if scene.gravity is None or not any(scene.gravity) else np.array(scene.gravity)
@@ -328,13 +339,25 @@ class TrunkModel:
         self._all_effectors = np.arange(len(scene.effectors))
 
     def _rest_state(self, scene) -> State:
-        positions = np.zeros((self.n_frames, 3))
-        quaternions = np.zeros((self.n_frames, 4))
-        positions[0], quaternions[0] = scene.base_position, scene.base_quaternion
-        for k in range(self.n_links):
-            positions[k + 1] = positions[k] + qrotate(quaternions[k], self.link_rest_translation[k])
-            quaternions[k + 1] = qmul(quaternions[k], self.link_rest_quaternion[k])
-        return State(positions, quaternions)
+        """The stress-free pose: the chain composed from the rest strains, which it carries."""
+        base_q = np.asarray(scene.base_quaternion, float)
+        base_x = np.asarray(scene.base_position, float)
+        return self._composed(base_q, base_x, self.link_rest)
+
+    def _composed(self, base_q, base_x, xi) -> State:
+        """The state composed from the base pose and link strains ``ξ`` (carrying them when
+        every link turns less than π)."""
+        chain = chain_poses(base_q, base_x, xi)
+        chain.quaternions[0], chain.positions[0] = base_q, base_x
+        record = None
+        if chain.link_coefficients is not None:
+            # every link turns less than π: the logarithm of the composed poses returns ξ again
+            # (to rounding), so the state carries ξ and evaluations take it as it is; the poses
+            # are frozen so that they cannot drift from the record (State.copy() thaws them)
+            chain.positions.flags.writeable = False
+            chain.quaternions.flags.writeable = False
+            record = StrainRecord(xi, chain, chain.positions, chain.quaternions)
+        return State(chain.positions, chain.quaternions, record)
 
     # ------------------------------------------------------------------ physics
     @property
@@ -355,12 +378,32 @@ class TrunkModel:
             return self.link_rest
         return self.link_rest + self.link_pressure_map @ pressures   # pressure shifts the rest pose: G p
 
+    def _loads(self, actuation: np.ndarray, scale: float) -> "_Loads":
+        """What the actuation and the load factor make of the loads, computed once per Newton
+        stage (the last one is kept: same actuation object and factor → same loads)."""
+        cached = self._loads_cache
+        if cached[0] is actuation and cached[1] == scale:
+            return cached[2]
+        tensions = scale * actuation[:self.n_cables]
+        loads = _Loads(
+            xi_rest=self._link_rest(scale * actuation[self.n_cables:]),
+            piece_tension=tensions[self.cable_piece_owner] if self.n_cables and np.any(tensions) else None)
+        if self.has_gravity:
+            loads.weight = scale * self.gravity
+            loads.weight_hat = hat(loads.weight)
+            loads.frame_weight = self.frame_mass[:, None] * loads.weight
+        if self.has_dead_forces or self.has_dead_moments:
+            loads.dead = scale * self.dead_loads
+            loads.dead_forces = np.ascontiguousarray(loads.dead[:, :3])
+        self._loads_cache = (actuation, scale, loads)
+        return loads
+
     def _evaluate(self, state: State, actuation: np.ndarray, scale: float, tangent: bool) -> _Evaluation:
         """Gradient and energy at ``state``; the tangent too when asked, or later (only if Newton
         needs it) by :meth:`_add_tangent`, which reuses what the gradient computed."""
         x, q = state.positions, state.quaternions
         grad = np.zeros((self.n_frames, 6))
-        xi_rest = self._link_rest(scale * actuation[self.n_cables:])
+        loads = self._loads(actuation, scale)
         record = state.carried_strains()
         if record is not None:                           # a state made by step(): its strains are known
             links = Links.of_strains(record.chain.rotations[:-1], record.chain.translations, record.xi,
@@ -370,29 +413,28 @@ class TrunkModel:
             links = Links.of(q[:-1], x[:-1], q[1:], x[1:])
             rotations = qmatrix(q) if self.n_cables or self.has_gravity else None
         self._geometry_cache = (state, links)            # reused by step() from this state
-        g_links, total, w, _ = link_forces(links, self.link_stiffness, xi_rest)
+        g_links, total, w, _ = link_forces(links, self.link_stiffness, loads.xi_rest)
         grad[:-1] = g_links[:, :6]
         grad[1:] += g_links[:, 6:]
 
-        tensions = scale * actuation[:self.n_cables]
         pieces = piece_tension = None
-        if self.n_cables and np.any(tensions):
+        if loads.piece_tension is not None:
             pieces = self._cable_pieces(x, rotations)
-            piece_tension = tensions[self.cable_piece_owner]
+            piece_tension = loads.piece_tension
             grad += self._cable_to_frames @ (piece_tension[:, None] * pieces.unit).reshape(-1, 6)
             total += float(piece_tension @ pieces.length)
 
         weight = lever = None
-        if self.has_gravity:
-            weight = scale * self.gravity
+        if loads.weight is not None:
+            weight = loads.weight
             lever = (rotations @ self.frame_moment[:, :, None])[:, :, 0]   # R s: first moment in world axes
-            grad[:, :3] -= self.frame_mass[:, None] * weight
-            grad[:, 3:] -= lever @ hat(weight)                    # moment (R s) × m g at the frame
+            grad[:, :3] -= loads.frame_weight
+            grad[:, 3:] -= lever @ loads.weight_hat               # moment (R s) × m g at the frame
             total -= float((self.frame_mass @ x + lever.sum(0)) @ weight)
 
-        if self.has_dead_forces or self.has_dead_moments:
-            grad -= scale * self.dead_loads
-            total -= scale * float(np.vdot(self._dead_forces, x))
+        if loads.dead is not None:
+            grad -= loads.dead
+            total -= float(np.vdot(loads.dead_forces, x))
         ev = _Evaluation(grad, total, context=(links, w, g_links, pieces, piece_tension, weight, lever))
         if tangent:
             self._add_tangent(ev)
@@ -451,18 +493,7 @@ class TrunkModel:
         cached_state, links = self._geometry_cache
         if cached_state is not state:
             links = Links.of(q[:-1], x[:-1], q[1:], x[1:])
-        xi = links.xi + links.strain_change(links.zeta(d))
-        chain = chain_poses(q[0], x[0], xi)
-        chain.quaternions[0], chain.positions[0] = q[0], x[0]
-        record = None
-        if chain.link_coefficients is not None:
-            # every link turns less than π: the logarithm of the composed poses returns ξ again
-            # (to rounding), so the state carries ξ and evaluations take it as it is; the poses
-            # are frozen so that they cannot drift from the record (State.copy() thaws them)
-            chain.positions.flags.writeable = False
-            chain.quaternions.flags.writeable = False
-            record = StrainRecord(xi, chain, chain.positions, chain.quaternions)
-        return State(chain.positions, chain.quaternions, record)
+        return self._composed(q[0], x[0], links.xi + links.strain_change(links.zeta(d)))
 
     def _reference_force(self, actuation) -> float:
         """Force scale of the problem: the out-of-balance load at the rest pose (full load).
