@@ -508,7 +508,7 @@ class TrunkModel:
 
     def _residual_norm(self, r: np.ndarray, reference: float) -> float:
         """max(|force|, |moment| / length scale) / reference over the frames."""
-        return float(np.abs(r.reshape(-1, 6) * self._residual_weights).max()) / reference
+        return float(np.abs(r.reshape(-1, 6) * self._residual_weights).max() / reference)
 
     # ------------------------------------------------------------------ solve
     def solve(self, actuation=None, initial: State | None = None, *, tolerance=None,
