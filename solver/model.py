@@ -174,6 +174,7 @@ class TrunkModel:
         self._reference_cache = (None, None)
         self._geometry_cache = (None, None)
         self._loads_cache = (None, None, None)
+        self._rest_cache = [None, None]       # rest-state Links and unstressed link tangent
 
     # ------------------------------------------------------------------ compile
     def _compile_links(self, scene, entries):
@@ -378,6 +379,22 @@ class TrunkModel:
             return self.link_rest
         return self.link_rest + self.link_pressure_map @ pressures   # pressure shifts the rest pose: G p
 
+    def _rest_links(self) -> Links:
+        """Link kinematics of the rest state (computed once)."""
+        if self._rest_cache[0] is None:
+            record, x = self.rest_state.strains, self.rest_state.positions
+            self._rest_cache[0] = Links.of_strains(record.chain.rotations[:-1], record.chain.translations, record.xi,
+                                                   x[1:] - x[:-1], record.chain.link_coefficients)
+        return self._rest_cache[0]
+
+    def _link_tangent(self, links: Links, w: np.ndarray, g_links: np.ndarray) -> np.ndarray:
+        """Tangent of the links; at the unstressed rest state (w = 0) a model constant."""
+        if links is self._rest_cache[0] and not w.any():
+            if self._rest_cache[1] is None:
+                self._rest_cache[1] = link_tangent(links, self.link_stiffness, w, g_links)
+            return self._rest_cache[1]
+        return link_tangent(links, self.link_stiffness, w, g_links)
+
     def _loads(self, actuation: np.ndarray, scale: float) -> "_Loads":
         """What the actuation and the load factor make of the loads, computed once per Newton
         stage (the last one is kept: same actuation object and factor → same loads)."""
@@ -405,7 +422,9 @@ class TrunkModel:
         grad = np.zeros((self.n_frames, 6))
         loads = self._loads(actuation, scale)
         record = state.carried_strains()
-        if record is not None:                           # a state made by step(): its strains are known
+        if record is not None and record is self.rest_state.strains:
+            links, rotations = self._rest_links(), record.chain.rotations   # a model constant
+        elif record is not None:                         # a state made by step(): its strains are known
             links = Links.of_strains(record.chain.rotations[:-1], record.chain.translations, record.xi,
                                      x[1:] - x[:-1], record.chain.link_coefficients)
             rotations = record.chain.rotations
@@ -447,7 +466,7 @@ class TrunkModel:
         links, w, g_links, pieces, piece_tension, weight, lever = ev.context
         storage, band_blocks = self.layout.new_storage()            # [lower, upper] block bands
         lower, upper = band_blocks[0], band_blocks[1]
-        H = link_tangent(links, self.link_stiffness, w, g_links)
+        H = self._link_tangent(links, w, g_links)
         lower[:, 0] = H[:, 6:, 6:]
         lower[:-1, 0] += H[1:, :6, :6]
         lower[:-1, 1] = H[1:, 6:, :6]

@@ -99,19 +99,7 @@ def constraint_problem(lin, targets: np.ndarray, actuation: np.ndarray, *, weigh
     Jacobian touches (the effectors' frames).
     """
     t0 = time.perf_counter()
-    B = lin.actuator_forces
-    rhs = np.empty((B.shape[0], 1 + B.shape[1]))
-    rhs[:, 0] = lin.residual
-    rhs[:, 1:] = B
-    X = lin.solve(rhs)
-    t1 = time.perf_counter()
-    Je = lin.effector_jacobian
-    cols = np.flatnonzero(np.any(Je != 0.0, axis=0))  # the effector frames' DoFs only
-    JeX = Je[:, cols] @ X[cols]
-    JaX = lin.actuator_jacobian @ X
-    W_ea, W_aa = JeX[:, 1:], JaX[:, 1:]
-    delta_e_free = (lin.effector_positions - targets).reshape(-1) + JeX[:, 0] - W_ea @ actuation
-    delta_a_free = lin.actuator_displacements + JaX[:, 0] - W_aa @ actuation
+    X, W_ea, delta_e_free, W_aa, delta_a_free, t1 = _project(lin, targets, actuation)
     problem = ConstraintProblem(
         W_ea=W_ea, delta_e_free=delta_e_free,
         lambda_lower=lambda_bounds[0], lambda_upper=lambda_bounds[1],
@@ -121,6 +109,34 @@ def constraint_problem(lin, targets: np.ndarray, actuation: np.ndarray, *, weigh
     )
     t2 = time.perf_counter()
     return problem, X[:, 0], X[:, 1:], {"solve_KB_s": t1 - t0, "W_s": t2 - t0}
+
+
+def _project(lin, targets, actuation, columns=None):
+    """The arrays of :func:`constraint_problem`: ``X = K⁻¹[r, B]``, ``W_ea``, ``δe_free``,
+    ``W_aa``, ``δa_free`` and the time the banded solve ended. ``columns``: DoFs holding
+    every nonzero column of ``Je`` (the effector frames'; a superset only adds exact zeros,
+    checked by a nonzero count), which saves searching ``Je`` every time."""
+    B = lin.actuator_forces
+    rhs = np.empty((B.shape[0], 1 + B.shape[1]))
+    rhs[:, 0] = lin.residual
+    rhs[:, 1:] = B
+    X = lin.solve(rhs)
+    t1 = time.perf_counter()
+    Je = lin.effector_jacobian
+    Je_cols = None
+    if columns is not None:
+        Je_cols = Je.take(columns, axis=1)
+        if np.count_nonzero(Je_cols) != np.count_nonzero(Je):
+            Je_cols = None  # a nonzero outside the effector frames' DoFs: search
+    if Je_cols is None:
+        columns = np.flatnonzero(np.any(Je != 0.0, axis=0))  # the effector frames' DoFs only
+        Je_cols = Je[:, columns]
+    JeX = Je_cols @ X.take(columns, axis=0)
+    JaX = lin.actuator_jacobian @ X
+    W_ea, W_aa = JeX[:, 1:], JaX[:, 1:]
+    delta_e_free = (lin.effector_positions - targets).reshape(-1) + JeX[:, 0] - W_ea @ actuation
+    delta_a_free = lin.actuator_displacements + JaX[:, 0] - W_aa @ actuation
+    return X, W_ea, delta_e_free, W_aa, delta_a_free, t1
 
 
 class InverseController:

@@ -33,11 +33,17 @@ solver ``qpsolvers`` knows (clarabel, osqp, proxqp, daqp, …).
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Callable, Protocol
 
 import numpy as np
+
+try:  # the clip ufunc itself (what np.clip calls, same results): its Python wrapper costs ~1 µs
+    from numpy._core.umath import clip as _clip  # a call on the tiny vectors of the inverse step
+except ImportError:  # pragma: no cover
+    _clip = np.clip
 
 __all__ = [
     "ConstraintProblem",
@@ -95,6 +101,10 @@ class ConstraintProblem:
     lambda0: np.ndarray | None = None
     regularisation: float = DEFAULT_REGULARISATION
     _has_rows: bool = field(default=False, init=False, repr=False, compare=False)
+    # derived from the bounds (here so that the controller's per-tick problems share them):
+    # actuators with a finite displacement bound, and |λ_lower| where finite (else 0)
+    _rows: np.ndarray = field(default=None, init=False, repr=False, compare=False)
+    _lower_magnitude: np.ndarray = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self):
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 (frozen dataclass)
@@ -144,6 +154,8 @@ class ConstraintProblem:
         set_("displacement_lower", dlo)
         set_("displacement_upper", dhi)
         set_("_has_rows", has_rows)
+        set_("_rows", np.flatnonzero(np.isfinite(dlo) | np.isfinite(dhi)))
+        set_("_lower_magnitude", np.where(np.isfinite(lo), np.abs(lo), 0.0))
         if self.lambda0 is not None:
             l0 = _vector("lambda0", self.lambda0, n)
             set_("lambda0", np.where(np.isfinite(l0), l0, 0.0))
@@ -160,10 +172,35 @@ class ConstraintProblem:
     def n_rows(self) -> int:
         return self.W_ea.shape[0]
 
+    def _relinearised(self, W_ea, delta_e_free, W_aa, delta_a_free, lambda0) -> "ConstraintProblem | None":
+        """This problem's bounds, weights and regulariser with a new linearisation, without
+        re-validating what this (validated) problem already holds; ``None`` when the new
+        arrays would need the validation (then build a :class:`ConstraintProblem`, which
+        raises the usual error or accepts them). For callers holding float arrays they
+        built themselves (the controller, every tick): the checks left are one sum per
+        array (finite iff its sum is; an overflowing sum only sends it to the full path).
+        """
+        if (self.W_aa is None or W_aa is None or W_ea.shape != self.W_ea.shape
+                or W_aa.shape != self.W_aa.shape or delta_e_free.shape != self.delta_e_free.shape
+                or delta_a_free.shape != self.delta_a_free.shape or lambda0 is None
+                or lambda0.shape != self.delta_a_free.shape
+                or not (W_ea.dtype == W_aa.dtype == delta_e_free.dtype == delta_a_free.dtype
+                        == lambda0.dtype == np.float64)):
+            return None
+        total = W_ea.sum() + delta_e_free.sum() + W_aa.sum() + delta_a_free.sum() + lambda0.sum()
+        if not (total - total == 0.0):  # a NaN or ±inf somewhere (or an overflow)
+            return None
+        new = object.__new__(ConstraintProblem)
+        d = new.__dict__
+        d.update(self.__dict__)
+        d["W_ea"], d["delta_e_free"], d["W_aa"], d["delta_a_free"] = W_ea, delta_e_free, W_aa, delta_a_free
+        d["lambda0"] = lambda0.copy()  # what the validated path stores (np.where of finite values)
+        return new
+
     def start(self) -> np.ndarray:
         """Warm start clipped into the λ box (zeros clipped when none is given)."""
         l0 = np.zeros(self.n_actuators) if self.lambda0 is None else self.lambda0
-        return np.clip(l0, self.lambda_lower, self.lambda_upper)
+        return _clip(l0, self.lambda_lower, self.lambda_upper)
 
     def predict(self, lam: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """Linearised effector gaps and actuator displacements for efforts ``lam``."""
@@ -194,29 +231,40 @@ class QuadraticForm:
 
 def quadratic_form(problem: ConstraintProblem, displacement_lower=None, displacement_upper=None) -> QuadraticForm:
     """Build the QP of paper eq. 13 with the scale-free energy regulariser (module docstring)."""
-    Wsq = problem.W_ea * problem.effector_weights[:, None]
+    return _quadratic_form(problem, displacement_lower, displacement_upper)[0]
+
+
+def _quadratic_form(problem: ConstraintProblem, displacement_lower, displacement_upper):
+    """:func:`quadratic_form` and the weighted squared free gap ``δe_freeᵀ Wₑ δe_free`` (= 2c)."""
+    w, de = problem.effector_weights, problem.delta_e_free
+    Wsq = problem.W_ea * w[:, None]
     H = problem.W_ea.T @ Wsq
-    q = Wsq.T @ problem.delta_e_free
-    c = 0.5 * float(problem.delta_e_free @ (problem.effector_weights * problem.delta_e_free))
+    q = Wsq.T @ de
+    gap2 = float(de @ (w * de))
+    c = 0.5 * gap2
     n = H.shape[0]
-    h = H.flat[:: n + 1].copy()
+    diagonal = H.reshape(-1)[:: n + 1]  # a view (H is a new C-contiguous array)
+    h = diagonal.copy()
     if problem.W_aa is not None:
-        d = np.abs(problem.W_aa.flat[:: n + 1])
+        d = np.abs(problem.W_aa.diagonal())
     else:
         d = h.copy()
     # An actuator with no own displacement (d = 0) would be left unregularised:
     # floor d relative to the others so the Hessian stays definite.
     dmax = d.max() if d.size else 0.0
     d = np.maximum(d, 1e-12 * dmax if dmax > 0 else 1.0)
-    s = float((h / d).mean())
+    s = float(np.add.reduce(h / d)) / n  # the mean (what ndarray.mean computes, without its wrapper)
     s = s if s > 0 else 1.0
     rho = problem.regularisation * s
     P = H  # symmetric by construction (Wᵀ diag(w) W)
-    P.flat[:: n + 1] += rho * d
+    diagonal += rho * d
     dlo = problem.displacement_lower if displacement_lower is None else displacement_lower
     dhi = problem.displacement_upper if displacement_upper is None else displacement_upper
-    rows = (np.flatnonzero(np.isfinite(dlo) | np.isfinite(dhi))
-            if (problem._has_rows or displacement_lower is not None) else np.zeros(0, dtype=int))
+    if dlo is problem.displacement_lower and dhi is problem.displacement_upper:
+        rows = problem._rows  # the problem's own bounds: rows known (empty without finite bounds)
+    else:
+        rows = (np.flatnonzero(np.isfinite(dlo) | np.isfinite(dhi))
+                if (problem._has_rows or displacement_lower is not None) else np.zeros(0, dtype=int))
     if rows.size:
         G = problem.W_aa[rows]
         row_lower = dlo[rows] - problem.delta_a_free[rows]
@@ -228,7 +276,7 @@ def quadratic_form(problem: ConstraintProblem, displacement_lower=None, displace
         P=P, q=q, c=c, lower=problem.lambda_lower, upper=problem.lambda_upper,
         G=G, row_lower=row_lower, row_upper=row_upper, rows=rows,
         regularisation_weight=rho, energy_diagonal=d,
-    )
+    ), gap2
 
 
 @dataclass(frozen=True)
@@ -431,19 +479,26 @@ class DaqpBackend:
         import daqp  # lazy: optional at import time
 
         n = qp.P.shape[0]
-        A = np.ascontiguousarray(qp.G) if qp.G.shape[0] else np.zeros((0, n))
-        bupper = np.concatenate([qp.upper, qp.row_upper])
-        blower = np.concatenate([qp.lower, qp.row_lower])
+        if qp.G.shape[0]:
+            A = np.ascontiguousarray(qp.G)
+            bupper = np.concatenate([qp.upper, qp.row_upper])
+            blower = np.concatenate([qp.lower, qp.row_lower])
+        else:  # box only (copies, as the concatenation makes with rows)
+            A = np.zeros((0, n))
+            bupper, blower = np.array(qp.upper, dtype=float), np.array(qp.lower, dtype=float)
         sense = np.zeros(bupper.size, dtype=np.int32)
         x, _f, flag, info = daqp.solve(
             np.ascontiguousarray(qp.P), qp.q.copy(), A, bupper, blower, sense,
             iter_limit=max_iterations, primal_start=start.copy(), eps_prox=0.0,
         )
         ok = flag in (1, 2)
-        status = {1: "optimal", 2: "optimal", -1: "infeasible", -2: "cycling", -3: "unbounded",
-                  -4: "max_iterations", -5: "nonconvex"}.get(flag, f"daqp exitflag {flag}")
-        lam = np.clip(np.asarray(x, dtype=float), qp.lower, qp.upper) if ok else start.copy()
+        status = _DAQP_STATUS.get(flag) or f"daqp exitflag {flag}"
+        lam = _clip(np.asarray(x, dtype=float), qp.lower, qp.upper) if ok else start.copy()
         return BackendOutput(lam, int(info.get("iterations", 0)), ok, status)
+
+
+_DAQP_STATUS = {1: "optimal", 2: "optimal", -1: "infeasible", -2: "cycling", -3: "unbounded",
+                -4: "max_iterations", -5: "nonconvex"}
 
 
 register_backend("daqp", DaqpBackend)
@@ -561,27 +616,30 @@ def solve_constraint_problem(
                 dlo = np.where(below, da_best, dlo)
                 dhi = np.where(above, da_best, dhi)
                 relaxed = True
-    qp = quadratic_form(problem, dlo, dhi)
+    qp, gap2 = _quadratic_form(problem, dlo, dhi)
     # iterative backends stop on an effector-unit step relative to the free gap
-    scale_m = float(np.sqrt(problem.delta_e_free @ (problem.effector_weights * problem.delta_e_free)))
+    scale_m = math.sqrt(gap2)
     tol = max(tolerance * scale_m, absolute_tolerance, 1e-300)
+    diag = qp.P.diagonal()
+    root = None  # √Pᵢᵢ
     if getattr(be, "wants_scaling", False):
         # Jacobi scaling λ = S y, S = diag(1/√Pᵢᵢ): unit diagonal whatever the units of
         # the actuators, so absolute pivot/singularity tolerances inside the library
         # see a well-scaled problem (the raw P of a stiff robot is ~1e-8 in SI units).
-        S = 1.0 / np.sqrt(qp.P.flat[:: n + 1])
+        root = np.sqrt(diag)
+        S = 1.0 / root
         G, row_lower, row_upper = qp.G, qp.row_lower, qp.row_upper
         if G.shape[0]:  # and unit rows for the displacement constraints
             G = G * S[None, :]
             rs = 1.0 / np.maximum(np.abs(G).max(axis=1), 1e-300)
             G, row_lower, row_upper = G * rs[:, None], row_lower * rs, row_upper * rs
         scaled = QuadraticForm(
-            P=qp.P * np.outer(S, S), q=qp.q * S, c=qp.c, lower=qp.lower / S, upper=qp.upper / S,
+            P=qp.P * (S[:, None] * S), q=qp.q * S, c=qp.c, lower=qp.lower / S, upper=qp.upper / S,
             G=G, row_lower=row_lower, row_upper=row_upper, rows=qp.rows,
             regularisation_weight=qp.regularisation_weight, energy_diagonal=qp.energy_diagonal,
         )
         out = be.solve(scaled, start / S, tolerance=tol, max_iterations=max_iterations)
-        lam = np.clip(out.actuation * S, problem.lambda_lower, problem.lambda_upper)
+        lam = _clip(out.actuation * S, problem.lambda_lower, problem.lambda_upper)
     else:
         out = be.solve(qp, start, tolerance=tol, max_iterations=max_iterations)
         lam = out.actuation
@@ -590,7 +648,7 @@ def solve_constraint_problem(
     objective = 0.5 * float(lam @ (g + qp.q)) + qp.c
     lo, hi = problem.lambda_lower, problem.lambda_upper
     # "active" = within 1e-9 of the bound, relative to the bound or the effort itself
-    atol_l = 1e-9 * np.maximum(np.abs(lam), np.where(np.isfinite(lo), np.abs(lo), 0.0)) + 1e-300
+    atol_l = 1e-9 * np.maximum(np.abs(lam), problem._lower_magnitude) + 1e-300
     act_lo = lam <= lo + atol_l
     act_hi = lam >= hi - atol_l
     if da is not None and problem._has_rows:
@@ -602,12 +660,11 @@ def solve_constraint_problem(
     if qp.G.shape[0]:
         stationarity = float("nan")
     else:
-        diag = qp.P.flat[:: n + 1]
-        proj = np.clip(lam - g / diag, lo, hi)
-        stationarity = float(np.max(np.abs(proj - lam) * np.sqrt(diag)))
+        proj = _clip(lam - g / diag, lo, hi)
+        stationarity = float((np.abs(proj - lam) * (np.sqrt(diag) if root is None else root)).max())
     status = "relaxed" if (relaxed and out.converged) else out.status
     return ConstraintSolution(
-        actuation=lam, delta_e=de, delta_a=da, effector_error=float(np.linalg.norm(de)),
+        actuation=lam, delta_e=de, delta_a=da, effector_error=math.sqrt(de.dot(de)),
         objective=objective, stationarity=stationarity, iterations=out.iterations,
         converged=out.converged, status=status, backend=be.name, time_s=time.perf_counter() - t0,
         active_lower=act_lo, active_upper=act_hi, active_displacement_lower=act_dlo,
