@@ -79,35 +79,25 @@ def _block_table(blocks) -> np.ndarray:
     return table.reshape(6, 36)
 
 
-def _rotation_tables():
-    """(16, 144): diag(R, R, R, R).ravel() = (q ⊗ q).ravel() @ T; (4, 16): L(q).ravel() = q @ T."""
-    R = _R_TABLE.reshape(16, 3, 3)
-    big = np.zeros((16, 12, 12))
-    for k in range(4):
-        big[:, 3 * k:3 * k + 3, 3 * k:3 * k + 3] = R
+def _left_table() -> np.ndarray:
+    """(4, 16): L(q).ravel() = q @ T, with p ⊗ q = L(p) q."""
     left = np.zeros((4, 16))
     left[_QL_INDEX, np.arange(16)] = _QL_SIGN
-    return big.reshape(16, 144), left
+    return left
 
 
-def _r9_table():
-    """(9, 144): diag(R, R, R, R).ravel() = R.ravel() @ T."""
-    table = np.zeros((3, 3, 12, 12))
-    for k in range(4):
-        for r in range(3):
-            for c in range(3):
-                table[r, c, 3 * k + r, 3 * k + c] = 1.0
-    return table.reshape(9, 144)
-
-
-def _zt_tables():
-    """``Zᵀ = [−I; Pᵀ]`` (12×6) with ``Pᵀ = [[I, 0], [−p̂, I]]``: constant part and p-table (3, 72)."""
-    const = np.zeros((12, 6))
-    const[:6] = -np.eye(6)
-    const[6:] = np.eye(6)
-    table = np.zeros((3, 12, 6))
-    table[:, 9:, :3] = -_HAT_TABLE.reshape(3, 3, 3)
-    return const, table.reshape(3, 72)
+def _zw_table():
+    """(18, 72): ``Zw = [[−R, 0], [0, −R], [R, 0], [−ŝR, R]] = ([R, ŝR] flattened) @ T``:
+    ``diag(R, R)[−I; Pᵀ]`` with ``Pᵀ = [[I, 0], [−p̂, I]]`` and ``R p̂ = ŝ R`` (s = R p)."""
+    table = np.zeros((2, 3, 3, 12, 6))
+    for r in range(3):
+        for c in range(3):
+            table[0, r, c, r, c] = -1.0           # −R (force at a)
+            table[0, r, c, 3 + r, 3 + c] = -1.0   # −R (moment at a)
+            table[0, r, c, 6 + r, c] = 1.0        # R (force at b)
+            table[0, r, c, 9 + r, 3 + c] = 1.0    # R (moment at b)
+            table[1, r, c, 9 + r, c] = -1.0       # −ŝR (moment at b of the force)
+    return table.reshape(18, 72)
 
 
 def _geometric_table() -> np.ndarray:
@@ -132,10 +122,9 @@ def _geometric_table() -> np.ndarray:
 
 _AD_TABLE = _block_table({(0, 0): 1, (0, 1): 0, (1, 1): 1})        # ad([ρ; φ]) = [[φ^, ρ^], [0, φ^]]
 _LAMBDA_TABLE = _block_table({(0, 1): 0, (1, 0): 0, (1, 1): 1})    # Λ(u) = [[0, u_f^], [u_f^, u_m^]]
-_R12_TABLE, _L_TABLE = _rotation_tables()
-_ZT_CONST, _ZT_TABLE = _zt_tables()
+_L_TABLE = _left_table()
+_ZW_TABLE = _zw_table()
 _GEOMETRIC_TABLE = _geometric_table()
-_R9_TABLE = _r9_table()
 _EYE6 = np.eye(6)
 
 
@@ -172,32 +161,21 @@ def rotation_log(q: np.ndarray) -> np.ndarray:
 class Links:
     """Kinematics of a batch of links at one state (``n`` links)."""
 
-    R12: np.ndarray        # (n, 12, 12) diag(R_a, R_a, R_a, R_a): a's axes → world for [a; b] 6-vectors
-    Zt: np.ndarray         # (n, 12, 6) [−I; Pᵀ]: strain-space force → force on [a; b] in a's axes
-    Zw: np.ndarray         # (n, 12, 6) R12 Zt: the same in world axes; ζ = Zwᵀ [dq_a; dq_b]
+    Zw: np.ndarray         # (n, 12, 6) strain-space force → forces/moments on [a; b] (world);
+                           # also ζ = Zwᵀ [dq_a; dq_b]. Zw = diag(R_a, R_a) [−I; Pᵀ] (see module doc)
     xi: np.ndarray         # (n, 6) strain [ρ; φ]
     Apow: np.ndarray       # (n, 4, 6, 6) A, A², A³, A⁴ with A = ad(ξ)
     Jl_inv: np.ndarray     # (n, 6, 6) inverse left Jacobian
     coef: np.ndarray       # (n, 30) see coefficients()
     span: np.ndarray       # (n, 3) x_b − x_a, world
 
-    @property
-    def B(self) -> np.ndarray:
-        """diag(R_a, R_a) (n, 6, 6)."""
-        return self.R12[:, :6, :6]
-
-    @property
-    def P(self) -> np.ndarray:
-        """[[I, p̂], [0, I]] (n, 6, 6), ``p = R_aᵀ(x_b − x_a)``."""
-        return self.Zt[:, 6:].mT
-
     @classmethod
     def of(cls, qa, xa, qb, xb) -> "Links":
         """From the poses of the frames (quaternions, positions) at both ends of each link."""
         n = qa.shape[0]
-        R12 = ((qa[:, :, None] * qa[:, None, :]).reshape(n, 16) @ _R12_TABLE).reshape(n, 12, 12)
+        Ra = ((qa[:, :, None] * qa[:, None, :]).reshape(n, 16) @ _R_TABLE).reshape(n, 3, 3)
         span = xb - xa
-        p = (span[:, None, :] @ R12[:, :3, :3])[:, 0]                   # R_aᵀ (x_b − x_a)
+        p = (span[:, None, :] @ Ra)[:, 0]                              # R_aᵀ (x_b − x_a)
         relative = (qb[:, None, :] @ (qa @ _L_TABLE).reshape(n, 4, 4))[:, 0]   # q̄_a ⊗ q_b = L(q_a)ᵀ q_b
         phi = rotation_log(relative)
         coef = coefficients((phi * phi).sum(1))
@@ -205,31 +183,31 @@ class Links:
         xi = np.empty((n, 6))
         xi[:, 3:] = phi
         xi[:, :3] = p + (Phi @ (coef[:, :1, None] * (Phi @ p[:, :, None]) - 0.5 * p[:, :, None]))[:, :, 0]
-        return cls._complete(R12, p, xi, coef, span)
+        return cls._complete(Ra, xi, coef, span)
 
     @classmethod
-    def of_strains(cls, Ra, p, xi, span, coef=None) -> "Links":
-        """From the strains ``ξ`` themselves, with the rotations ``R_a`` of the first frames, the
-        relative translations ``p`` and the world spans (what :func:`chain_poses` computed from
-        ``ξ``): the same kinematics as :meth:`of` on the composed poses, without logarithms."""
-        n = xi.shape[0]
-        R12 = (Ra.reshape(n, 9) @ _R9_TABLE).reshape(n, 12, 12)
+    def of_strains(cls, Ra, xi, span, coef=None) -> "Links":
+        """From the strains ``ξ`` themselves, with the rotations ``R_a`` of the first frames and
+        the world spans (what :func:`chain_poses` computed from ``ξ``): the same kinematics as
+        :meth:`of` on the composed poses, without taking logarithms."""
         if coef is None:
             coef = coefficients((xi[:, 3:] * xi[:, 3:]).sum(1))
-        return cls._complete(R12, p, xi, coef, span)
+        return cls._complete(Ra, xi, coef, span)
 
     @classmethod
-    def _complete(cls, R12, p, xi, coef, span) -> "Links":
+    def _complete(cls, Ra, xi, coef, span) -> "Links":
         n = xi.shape[0]
         flat = np.empty((n, 4, 36))
         np.matmul(xi, _AD_TABLE, out=flat[:, 0])
         Apow = flat.reshape(n, 4, 6, 6)
-        Apow[:, 1] = Apow[:, 0] @ Apow[:, 0]
-        Apow[:, 2] = Apow[:, 1] @ Apow[:, 0]
-        Apow[:, 3] = Apow[:, 1] @ Apow[:, 1]
+        np.matmul(Apow[:, 0], Apow[:, 0], out=Apow[:, 1])
+        np.matmul(Apow[:, 1], Apow[:, 0], out=Apow[:, 2])
+        np.matmul(Apow[:, 1], Apow[:, 1], out=Apow[:, 3])
         Jl_inv = (coef[:, None, 1:5] @ flat).reshape(n, 6, 6) + _EYE6
-        Zt = (p @ _ZT_TABLE).reshape(n, 12, 6) + _ZT_CONST
-        return cls(R12, Zt, R12 @ Zt, xi, Apow, Jl_inv, coef, span)
+        features = np.empty((n, 18))                   # [R_a, ŝ R_a] with s = x_b − x_a
+        features[:, :9] = Ra.reshape(n, 9)
+        np.matmul((span @ _HAT_TABLE).reshape(n, 3, 3), Ra, out=features[:, 9:].reshape(n, 3, 3))
+        return cls((features @ _ZW_TABLE).reshape(n, 12, 6), xi, Apow, Jl_inv, coef, span)
 
     def transport(self, w: np.ndarray) -> np.ndarray:
         """``J_l⁻ᵀ w`` for ``w`` of shape (n, 6) or (n, m, 6)."""

@@ -383,8 +383,8 @@ class TrunkModel:
         """Link kinematics of the rest state (computed once)."""
         if self._rest_cache[0] is None:
             record, x = self.rest_state.strains, self.rest_state.positions
-            self._rest_cache[0] = Links.of_strains(record.chain.rotations[:-1], record.chain.translations, record.xi,
-                                                   x[1:] - x[:-1], record.chain.link_coefficients)
+            self._rest_cache[0] = Links.of_strains(record.chain.rotations[:-1], record.xi, x[1:] - x[:-1],
+                                                   record.chain.link_coefficients)
         return self._rest_cache[0]
 
     def _link_tangent(self, links: Links, w: np.ndarray, g_links: np.ndarray) -> np.ndarray:
@@ -425,8 +425,8 @@ class TrunkModel:
         if record is not None and record is self.rest_state.strains:
             links, rotations = self._rest_links(), record.chain.rotations   # a model constant
         elif record is not None:                         # a state made by step(): its strains are known
-            links = Links.of_strains(record.chain.rotations[:-1], record.chain.translations, record.xi,
-                                     x[1:] - x[:-1], record.chain.link_coefficients)
+            links = Links.of_strains(record.chain.rotations[:-1], record.xi, x[1:] - x[:-1],
+                                     record.chain.link_coefficients)
             rotations = record.chain.rotations
         else:
             links = Links.of(q[:-1], x[:-1], q[1:], x[1:])

@@ -141,7 +141,11 @@ def _project(lin, targets, actuation, columns=None):
 
 class InverseController:
     """Runs the inverse on one compiled model; keeps state and actuation between targets
-    (warm start along a trajectory). Build once, call :meth:`step` many times."""
+    (warm start along a trajectory). Build once, call :meth:`step` many times.
+
+    ``lambda_bounds``, ``displacement_bounds`` and ``weights`` are read-only copies of the
+    model's: they are validated once and reused every step while they stay the same
+    objects (assign new arrays to change them)."""
 
     def __init__(self, model, settings: InverseSettings | None = None, *, actuation=None, state=None):
         self.model = model
@@ -151,27 +155,52 @@ class InverseController:
             raise ValueError("the scene has no actuators (cables or chambers) to invert for")
         if len(model.effector_names) == 0:
             raise ValueError("the scene has no effectors to bring to targets")
-        lo, hi = (np.asarray(b, dtype=float) for b in model.actuator_bounds)
+        lo, hi = (_frozen(b) for b in model.actuator_bounds)
         self.lambda_bounds = (lo, hi)
-        self.displacement_bounds = tuple(np.asarray(b, dtype=float) for b in model.displacement_bounds)
+        self.displacement_bounds = tuple(_frozen(b) for b in model.displacement_bounds)
         start = np.zeros(n_act) if actuation is None else np.asarray(actuation, dtype=float)
         self.actuation = np.clip(start, lo, hi)
         self.state = (state or model.rest_state).copy()
         self.equilibrium = False
-        self.weights = np.asarray(model.effector_weights, dtype=float)
+        self.weights = _frozen(model.effector_weights)
+        self._hot = None  # what every step reuses (see _constraint_problem)
 
     # ------------------------------------------------------------------ pieces
     def _errors(self, positions, targets):
-        return np.linalg.norm(positions - targets, axis=1)
+        d = positions - targets
+        return np.sqrt(np.add.reduce(d * d, axis=1))  # np.linalg.norm(d, axis=1) without its wrapper
+
+    def _constraint_problem(self, lin, targets):
+        """:func:`constraint_problem` for this controller (same arrays, same errors). The
+        bounds, weights and regulariser are validated with the first linearisation and
+        reused while they stay the same objects; later problems only check that their new
+        arrays are finite (:meth:`ConstraintProblem._relinearised`)."""
+        t0 = time.perf_counter()
+        hot = self._hot
+        if (hot is None or hot.model is not self.model or hot.lambda_bounds is not self.lambda_bounds
+                or hot.displacement_bounds is not self.displacement_bounds or hot.weights is not self.weights
+                or hot.regularisation != self.settings.regularisation):
+            hot = self._hot = _HotPath(self)
+        X, W_ea, delta_e_free, W_aa, delta_a_free, t1 = _project(lin, targets, self.actuation, hot.columns)
+        problem = (None if hot.template is None else
+                   hot.template._relinearised(W_ea, delta_e_free, W_aa, delta_a_free, self.actuation))
+        if problem is None:  # first step, or arrays needing the validation (which raises as usual)
+            lo, hi = self.lambda_bounds
+            dlo, dhi = self.displacement_bounds
+            problem = hot.template = ConstraintProblem(
+                W_ea=W_ea, delta_e_free=delta_e_free, lambda_lower=lo, lambda_upper=hi,
+                effector_weights=np.repeat(self.weights, 3), W_aa=W_aa, delta_a_free=delta_a_free,
+                displacement_lower=dlo, displacement_upper=dhi, lambda0=self.actuation,
+                regularisation=self.settings.regularisation)
+        t2 = time.perf_counter()
+        return problem, X[:, 0], X[:, 1:], {"solve_KB_s": t1 - t0, "W_s": t2 - t0}
 
     def _linearised_step(self, targets, timings):
         """linearise → W → QP at the current state/actuation. Returns (qp solution, dq)."""
         t0 = time.perf_counter()
         lin = self.model.linearise(self.state, self.actuation)
         t1 = time.perf_counter()
-        problem, Kr, KB, t_w = constraint_problem(
-            lin, targets, self.actuation, weights=self.weights, lambda_bounds=self.lambda_bounds,
-            displacement_bounds=self.displacement_bounds, regularisation=self.settings.regularisation)
+        problem, Kr, KB, t_w = self._constraint_problem(lin, targets)
         sol = solve_constraint_problem(problem, self.settings.backend, tolerance=self.settings.qp_tolerance)
         t2 = time.perf_counter()
         dq = Kr + KB @ (sol.actuation - self.actuation)
@@ -192,7 +221,7 @@ class InverseController:
             # evaluation cost 0.1 ms of a ~2 ms tick); converged: the model's value
             displacements=(sol.delta_a.copy() if not equilibrium and sol is not None and sol.delta_a is not None
                            else self.model.actuator_displacements(self.state, self.actuation)),
-            reached=bool(np.all(errors <= self.settings.tolerance)), equilibrium=equilibrium,
+            reached=bool((errors <= self.settings.tolerance).all()), equilibrium=equilibrium,
             iterations=iterations, qp=sol, timings=timings, status=status)
 
     # ------------------------------------------------------------------ modes
@@ -300,6 +329,11 @@ class InverseController:
 
     def _targets(self, targets) -> np.ndarray:
         n_eff = len(self.model.effector_names)
+        if type(targets) is np.ndarray and targets.dtype == np.float64 and targets.size == 3 * n_eff:
+            t = targets.reshape(n_eff, 3)
+            total = t.sum()
+            if total - total == 0.0:  # all finite (a NaN or ±inf makes the sum non-finite)
+                return t
         t = np.asarray(targets, dtype=float).reshape(n_eff, 3) if np.size(targets) == 3 * n_eff else None
         if t is None:
             raise ValueError(f"targets must hold {n_eff}×3 values (effectors "
@@ -311,6 +345,35 @@ class InverseController:
 
 
 MODES = {"converged": InverseController.converge, "tick": InverseController.tick}
+
+
+def _frozen(values) -> np.ndarray:
+    """A read-only float copy."""
+    a = np.array(values, dtype=float)
+    a.flags.writeable = False
+    return a
+
+
+class _HotPath:
+    """What every step of one controller reuses while its model, bounds, weights and
+    regulariser stay the same: the DoFs of the effector frames (a superset of the nonzero
+    columns of ``Je``; ``None`` when the model does not say) and the last validated problem."""
+
+    def __init__(self, controller):
+        self.model = model = controller.model
+        self.lambda_bounds = controller.lambda_bounds
+        self.displacement_bounds = controller.displacement_bounds
+        self.weights = controller.weights
+        self.regularisation = controller.settings.regularisation
+        self.template = None
+        self.columns = None
+        frames, n_dof = getattr(model, "effector_frames", None), getattr(model, "n_dof", None)
+        if frames is not None and n_dof is not None:
+            f = np.unique(np.asarray(frames, dtype=int))
+            f = f[f >= 1]  # frame 0 is the clamped base, not in Je
+            columns = ((f - 1)[:, None] * 6 + np.arange(6)).reshape(-1)
+            if columns.size == 0 or columns.max() < n_dof:
+                self.columns = columns
 
 
 def invert(model, targets=None, *, actuation=None, state=None, **settings) -> InverseStep:
