@@ -252,6 +252,7 @@ class TrunkModel:
         self.vertebra_frames = np.array(vertebra_frames)
         self.length_scale = float(np.sum(np.linalg.norm(self.link_rest_translation, axis=1)))
         self._residual_weights = np.array([1.0] * 3 + [1.0 / self.length_scale] * 3)
+        self._resolution_weights = np.ones(6)
         self.chamber_rest_volumes = rest_volumes
         for j, ch in enumerate(chambers):
             if not np.any(self.link_pressure_map[:, :, j]):
@@ -599,13 +600,13 @@ class TrunkModel:
         return result
 
     def _unloaded(self, actuation: np.ndarray) -> bool:
-        return not (np.any(actuation) or self.has_dead_forces or self.has_dead_moments or self.has_gravity)
+        return not (actuation.any() or self.has_dead_forces or self.has_dead_moments or self.has_gravity)
 
     def _below_resolution(self, state: State, dq: np.ndarray) -> bool:
         """Is every translation below 1e-13 of the extent and every rotation below 1e-13 rad?"""
-        extent = self.length_scale + float(np.abs(state.positions).max())
-        scale = np.array([1.0 / extent] * 3 + [1.0] * 3)
-        return float(np.abs(dq.reshape(-1, 6) * scale).max()) <= 1e-13
+        weights = self._resolution_weights
+        weights[:3] = 1.0 / (self.length_scale + float(np.abs(state.positions).max()))
+        return float(np.abs(dq.reshape(-1, 6) * weights).max()) <= 1e-13
 
     def _newton(self, state, actuation, scale, tol, max_iter, reference, history, kinds):
         """Newton iterations at a fixed load factor. Returns (ok, state, iterations, residual).
@@ -653,7 +654,7 @@ class TrunkModel:
                     continue      # indefinite tangent: the pure Newton step is no descent direction
                 alpha = 1.0
                 while alpha > 1e-3:
-                    trial = self.step(state, alpha * dq)
+                    trial = self.step(state, dq if alpha == 1.0 else alpha * dq)
                     ev_trial = self._evaluate(trial, actuation, scale, tangent=False)
                     r_trial = -ev_trial.gradient[1:].reshape(-1)
                     res_trial = self._residual_norm(r_trial, reference * max(scale, 1e-300))
