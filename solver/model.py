@@ -266,11 +266,13 @@ class TrunkModel:
             route = [self.vertebra_frames[v] for v in range(cable.first - 1, cable.last + 1)]
             for f_a, f_b in zip(route[:-1], route[1:]):
                 pa.append(f_a), pb.append(f_b), ha.append(hole), hb.append(hole), owner.append(c)
-        self.cable_piece_a = np.array(pa, int)
-        self.cable_piece_b = np.array(pb, int)
-        self.cable_hole_a = np.array(ha).reshape(-1, 3)
-        self.cable_hole_b = np.array(hb).reshape(-1, 3)
-        self.cable_piece_owner = np.array(owner, int)
+        # pieces grouped by the pair of frames they join (the tangent is summed per pair)
+        order = np.lexsort((np.array(pb, int), np.array(pa, int)))
+        self.cable_piece_a = np.array(pa, int)[order]
+        self.cable_piece_b = np.array(pb, int)[order]
+        self.cable_hole_a = np.array(ha).reshape(-1, 3)[order]
+        self.cable_hole_b = np.array(hb).reshape(-1, 3)[order]
+        self.cable_piece_owner = np.array(owner, int)[order]
         # links couple neighbouring frames (block offset 1); a cable piece couples the frames of two
         # consecutive vertebrae, `elements` links apart: the band is as wide as the widest coupling
         self.span = int(max(1, np.max(self.cable_piece_b - self.cable_piece_a, initial=1)))
@@ -281,7 +283,12 @@ class TrunkModel:
         owner2 = np.repeat(self.cable_piece_owner, 2)
         self._cable_to_jacobian = _incidence(owner2 * self.n_frames + np.stack([a, b], 1).reshape(-1),
                                              len(scene.cables) * self.n_frames)
-        self._cable_scatter = self._cable_band_map(a, b)
+        first = np.flatnonzero(np.r_[a.size > 0, (a[1:] != a[:-1]) | (b[1:] != b[:-1])])
+        self._pair_starts, self._pair_a, self._pair_b = first, a[first], b[first]
+        self._pair_free = self._pair_a > 0
+        self._pair_offset = (self._pair_b - self._pair_a)[self._pair_free]
+        pairs_are_chains = (np.unique(self._pair_a).size == first.size and np.unique(self._pair_b).size == first.size)
+        self._cable_scatter = None if pairs_are_chains else self._cable_band_map(a, b)
         self.n_cables = len(scene.cables)
         self.n_chambers = len(scene.chambers)
         self.actuator_names = [c.name for c in scene.cables] + [c.name for c in scene.chambers]
@@ -337,8 +344,12 @@ class TrunkModel:
         self.effector_targets = np.array([e.target if e.target is not None else (np.nan,) * 3
                                           for e in scene.effectors], float).reshape(-1, 3)
         self.effector_weights = np.array([e.weight for e in scene.effectors], float)
-        self._point_effectors = np.flatnonzero(~self.effector_is_axis)
         self._all_effectors = np.arange(len(scene.effectors))
+        self._point_mask = (~self.effector_is_axis).astype(float)[:, None]
+        # the effector Jacobian's translation part (a direction does not move with translations)
+        self._effector_template = np.zeros((len(scene.effectors), 3, self.n_frames, 6))
+        points = np.flatnonzero(~self.effector_is_axis)
+        self._effector_template[points, :, self.effector_frames[points], :3] = np.eye(3)
 
     def _rest_state(self, scene) -> State:
         """The stress-free pose: the chain composed from the rest strains, which it carries."""
@@ -398,9 +409,10 @@ class TrunkModel:
 
     def _loads(self, actuation: np.ndarray, scale: float) -> "_Loads":
         """What the actuation and the load factor make of the loads, computed once per Newton
-        stage (the last one is kept: same actuation object and factor → same loads)."""
+        stage (the last one is kept: same actuation values and factor → same loads)."""
+        key = actuation.tobytes()
         cached = self._loads_cache
-        if cached[0] is actuation and cached[1] == scale:
+        if cached[0] == key and cached[1] == scale:
             return cached[2]
         tensions = scale * actuation[:self.n_cables]
         loads = _Loads(
@@ -413,7 +425,7 @@ class TrunkModel:
         if self.has_dead_forces or self.has_dead_moments:
             loads.dead = scale * self.dead_loads
             loads.dead_forces = np.ascontiguousarray(loads.dead[:, :3])
-        self._loads_cache = (actuation, scale, loads)
+        self._loads_cache = (key, scale, loads)
         return loads
 
     def _evaluate(self, state: State, actuation: np.ndarray, scale: float, tangent: bool) -> _Evaluation:
@@ -455,7 +467,8 @@ class TrunkModel:
         if loads.dead is not None:
             grad -= loads.dead
             total -= float(np.vdot(loads.dead_forces, x))
-        ev = _Evaluation(grad, total, context=(links, w, g_links, pieces, piece_tension, weight, lever))
+        ev = _Evaluation(grad, total, context=(links, w, g_links, pieces, piece_tension,
+                                               None if weight is None else loads.weight_hat, lever))
         if tangent:
             self._add_tangent(ev)
         return ev
@@ -464,7 +477,7 @@ class TrunkModel:
         """Assemble the tangent of an evaluation into block-band storage (once)."""
         if ev.lower is not None:
             return
-        links, w, g_links, pieces, piece_tension, weight, lever = ev.context
+        links, w, g_links, pieces, piece_tension, weight_hat, lever = ev.context
         storage, band_blocks = self.layout.new_storage()            # [lower, upper] block bands
         lower, upper = band_blocks[0], band_blocks[1]
         H = self._link_tangent(links, w, g_links)
@@ -473,12 +486,21 @@ class TrunkModel:
         lower[:-1, 1] = H[1:, 6:, :6]
         upper[:-1, 1] = H[1:, :6, 6:]
         if pieces is not None:
-            # one gather-sum-scatter for the four blocks of every piece (shared blocks add up)
-            source, starts, target = self._cable_scatter
-            band_blocks.reshape(-1)[target] += np.add.reduceat(
-                pieces.tangent(piece_tension).reshape(-1).take(source), starts)
-        if weight is not None:
-            lower[:, 0, 3:, 3:] -= hat(weight) @ hat(lever[1:])
+            H = pieces.tangent(piece_tension)
+            if self._cable_scatter is None:
+                # pieces between the same two frames summed first; every pair has its own frames
+                # a and b (consecutive vertebrae), so each block below is written once per pair
+                H = np.add.reduceat(H, self._pair_starts, axis=0)
+                free, fa = self._pair_free, self._pair_a[self._pair_free] - 1
+                lower[self._pair_b - 1, 0] += H[:, 6:, 6:]
+                lower[fa, 0] += H[free, :6, :6]
+                lower[fa, self._pair_offset] += H[free, 6:, :6]
+                upper[fa, self._pair_offset] += H[free, :6, 6:]
+            else:   # a general routing: one gather-sum-scatter (shared blocks add up)
+                source, starts, target = self._cable_scatter
+                band_blocks.reshape(-1)[target] += np.add.reduceat(H.reshape(-1).take(source), starts)
+        if weight_hat is not None:
+            lower[:, 0, 3:, 3:] -= weight_hat @ hat(lever[1:])       # −ĝ l̂: the moment arm turns
         ev.lower, ev.upper, ev.storage = lower, upper, storage
 
     def _factor(self, ev: _Evaluation, shift: float = 0.0):
@@ -746,13 +768,11 @@ class TrunkModel:
             jac[self.n_cables:] = chamber_jac
             forces[self.n_cables:] = chamber_jac       # ∂r/∂p = (∂e/∂q)ᵀ K A G = Jaᵀ
         n_eff = len(self.effector_names)
-        Je = np.zeros((n_eff, 3, self.n_frames, 6))
+        Je = self._effector_template.copy()          # translation part: a model constant
         turned = qrotate(q[self.effector_frames], self.effector_offsets)
-        points = self._point_effectors               # a direction does not move with translations
-        Je[points, :, self.effector_frames[points], :3] = np.eye(3)
         Je[self._all_effectors, :, self.effector_frames, 3:] = -hat(turned)
         Je = Je.reshape(3 * n_eff, self.n_frames, 6)
-        effector_positions = np.where(self.effector_is_axis[:, None], turned, x[self.effector_frames] + turned)
+        effector_positions = x[self.effector_frames] * self._point_mask + turned
         return Linearisation(
             residual=-ev.gradient[1:].reshape(-1), factor=factor,
             actuator_forces=forces[:, 1:].reshape(n_act, self.n_dof).T.copy(),
