@@ -32,6 +32,7 @@ of ``a``: ``ζ_a = −Bᵀ dq_a`` and ``ζ_b = P Bᵀ dq_b`` with ``B = diag(R_a
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -305,6 +306,12 @@ def _exp_closed(theta2: np.ndarray) -> np.ndarray:
                      (1.0 - np.cos(theta)) / theta2, (theta - np.sin(theta)) / (theta2 * theta)], 1)
 
 
+@functools.lru_cache(maxsize=64)
+def _feature_template(rows: int) -> np.ndarray:
+    """Pose features of identity transforms (what the unused padding rows keep)."""
+    return np.tile(_IDENTITY_FEATURES, (rows, 1))
+
+
 def chain_poses(q0: np.ndarray, x0: np.ndarray, xi: np.ndarray) -> "Chain":
     """World quaternions (n+1, 4) and positions (n+1, 3) of a chain from its base pose and the
     strains of its links: ``T_k = T_0 ∘ exp(ξ_1^) ∘ … ∘ exp(ξ_k^)``.
@@ -317,7 +324,7 @@ def chain_poses(q0: np.ndarray, x0: np.ndarray, xi: np.ndarray) -> "Chain":
     n = xi.shape[0]
     N = n + 1
     rho, phi = xi[:, :3], xi[:, 3:]
-    theta2 = (phi * phi).sum(1)
+    theta2 = (phi[:, None, :] @ phi[:, :, None])[:, 0, 0]
     largest = float(theta2.max()) if n else 0.0
     link_coef = None
     if largest <= 16.0:
@@ -333,9 +340,7 @@ def chain_poses(q0: np.ndarray, x0: np.ndarray, xi: np.ndarray) -> "Chain":
     doubling = N <= 64
     c = 1 if doubling else math.isqrt(N - 1) + 1
     m = N if doubling else -(-N // c)
-    F = np.empty((m * c, 24))                          # features [q, q⊗q, p, 1] of each factor
-    F[N:] = _IDENTITY_FEATURES
-    F[:, 23] = 1.0
+    F = _feature_template(m * c).copy()                # features [q, q⊗q, p, 1] of each factor
     F[0, :4], F[0, 20:23] = q0, x0
     F[1:N, 0] = expc[:, 0]
     F[1:N, 1:4] = expc[:, 1:2] * phi
@@ -361,7 +366,7 @@ def chain_poses(q0: np.ndarray, x0: np.ndarray, xi: np.ndarray) -> "Chain":
             M[i] = M[i - 1, -1] @ M[i]
         M = M.reshape(m * c, 8, 8)[:N]
     quaternions = M[:, :4, 0]
-    quaternions = quaternions / np.sqrt((quaternions * quaternions).sum(1))[:, None]
+    quaternions = quaternions / np.sqrt(quaternions[:, None, :] @ quaternions[:, :, None])[:, 0]
     return Chain(quaternions, M[:, 4:7, 7].copy(), M[:, 4:7, 4:7], F[1:N, 20:23], link_coef)
 
 
