@@ -47,8 +47,8 @@ _A = 2.0 * zeta(2.0 * _k) / (2.0 * np.pi) ** (2.0 * _k)        # a_1 … a_42
 
 
 def _series_table() -> np.ndarray:
-    """(N, 30) table: ``coefficients(θ²) = [t^0 … t^(N−1)] @ table``, t = θ². Columns: SO(3) ``c``
-    (J⁻¹ = I − ½Φ + cΦ²); the weights of [A, A², A³, A⁴] in J_l⁻¹ (−½, c₂, 0, c₄); and the 5×5
+    """(N, 31) table: ``coefficients(θ²) = [t^0 … t^(N−1)] @ table``, t = θ². Columns: SO(3) ``c``
+    (J⁻¹ = I − ½Φ + cΦ²); the weights of [I, A, A², A³, A⁴] in J_l⁻¹ (1, −½, c₂, 0, c₄); and the 5×5
     matrix (row-major) taking ``[w, u₁, u₂, u₃, u₄]`` to the vectors :func:`link_tangent` needs."""
     a = dict(zip(range(1, _TERMS + 3), _A))
     j = np.arange(_TERMS)
@@ -59,7 +59,7 @@ def _series_table() -> np.ndarray:
     dc2 = np.array([-i * (i + 1) * a[i + 2] for i in j])                   # d/dt of c₂
     dc4 = np.array([-(i + 2) * (i + 1) * a[i + 3] for i in j])             # d/dt of c₄
     zero = np.zeros(_TERMS)
-    columns = [c_so3, const(-0.5), c2, zero, c4,
+    columns = [c_so3, const(1.0), const(-0.5), c2, zero, c4,
                const(-0.5), c2, zero, c4, zero,            # v₃ = −½w + c₂u₁ + c₄u₃
                c2, zero, c4, zero, zero,                   # v₂ = c₂w + c₄u₂
                zero, c4, zero, zero, zero,                 # v₁ = c₄u₁
@@ -136,7 +136,7 @@ def _terms(largest: float) -> int:
 
 
 def coefficients(theta2: np.ndarray) -> np.ndarray:
-    """``(n, 30)`` polynomial coefficients of the links (see :func:`_series_table`)."""
+    """``(n, 31)`` polynomial coefficients of the links (see :func:`_series_table`)."""
     terms = _terms(float(theta2.max()) if theta2.size else 0.0)
     return _powers(theta2, terms) @ _SERIES[:terms]
 
@@ -165,9 +165,9 @@ class Links:
     Zw: np.ndarray         # (n, 12, 6) strain-space force → forces/moments on [a; b] (world);
                            # also ζ = Zwᵀ [dq_a; dq_b]. Zw = diag(R_a, R_a) [−I; Pᵀ] (see module doc)
     xi: np.ndarray         # (n, 6) strain [ρ; φ]
-    Apow: np.ndarray       # (n, 4, 6, 6) A, A², A³, A⁴ with A = ad(ξ)
+    Apow: np.ndarray       # (n, 5, 6, 6) I, A, A², A³, A⁴ with A = ad(ξ)
     Jl_inv: np.ndarray     # (n, 6, 6) inverse left Jacobian
-    coef: np.ndarray       # (n, 30) see coefficients()
+    coef: np.ndarray       # (n, 31) see coefficients()
     span: np.ndarray       # (n, 3) x_b − x_a, world
 
     @classmethod
@@ -198,13 +198,14 @@ class Links:
     @classmethod
     def _complete(cls, Ra, xi, coef, span) -> "Links":
         n = xi.shape[0]
-        flat = np.empty((n, 4, 36))
-        np.matmul(xi, _AD_TABLE, out=flat[:, 0])
-        Apow = flat.reshape(n, 4, 6, 6)
-        np.matmul(Apow[:, 0], Apow[:, 0], out=Apow[:, 1])
-        np.matmul(Apow[:, 1], Apow[:, 0], out=Apow[:, 2])
-        np.matmul(Apow[:, 1], Apow[:, 1], out=Apow[:, 3])
-        Jl_inv = (coef[:, None, 1:5] @ flat).reshape(n, 6, 6) + _EYE6
+        flat = np.empty((n, 5, 36))
+        flat[:, 0] = _EYE6.ravel()
+        np.matmul(xi, _AD_TABLE, out=flat[:, 1])
+        Apow = flat.reshape(n, 5, 6, 6)
+        np.matmul(Apow[:, 1], Apow[:, 1], out=Apow[:, 2])
+        np.matmul(Apow[:, 2], Apow[:, 1], out=Apow[:, 3])
+        np.matmul(Apow[:, 2], Apow[:, 2], out=Apow[:, 4])
+        Jl_inv = (coef[:, None, 1:6] @ flat).reshape(n, 6, 6)
         features = np.empty((n, 18))                   # [R_a, ŝ R_a] with s = x_b − x_a
         features[:, :9] = Ra.reshape(n, 9)
         np.matmul((span @ _HAT_TABLE).reshape(n, 3, 3), Ra, out=features[:, 9:].reshape(n, 3, 3))
@@ -249,15 +250,11 @@ def link_tangent(links: Links, stiffness: np.ndarray, w: np.ndarray, gradient: n
     stiffness of the lever arms (:func:`_geometric_table`). The formula is in the module
     docstring; tests check it against the complex-step reference."""
     n = links.xi.shape[0]
-    W = np.empty((n, 5, 6))                     # [w, u₁ … u₄], u_k = (Aᵀ)^k w stored as rows
-    W[:, 0] = w
-    np.matmul(w[:, None, None, :], links.Apow, out=W[:, 1:, None, :])
-    V = links.coef[:, 5:].reshape(n, 5, 5) @ W   # the four Λ arguments and the coefficient term
-    powers = np.empty((n, 6, 4, 6))             # [I, Aᵀ, A²ᵀ, A³ᵀ] side by side
-    powers[:, :, 0] = _EYE6
-    powers[:, :, 1:] = links.Apow[:, :3].transpose(0, 3, 1, 2)
+    W = (w[:, None, None, :] @ links.Apow)[:, :, 0]   # [w, u₁ … u₄], u_k = (Aᵀ)^k w as rows
+    V = links.coef[:, 6:].reshape(n, 5, 5) @ W   # the four Λ arguments and the coefficient term
     # ∂(J_l⁻ᵀ)/∂ξ [w] = Λ(v₃) + AᵀΛ(v₂) + A²ᵀΛ(v₁) + A³ᵀΛ(v₀): one product of the stacks
-    D = powers.reshape(n, 6, 24) @ (V[:, :4] @ _LAMBDA_TABLE).reshape(n, 24, 6)
+    # [I, Aᵀ, A²ᵀ, A³ᵀ] (the transposed vertical stack of powers) and [Λ(v₃); …; Λ(v₀)]
+    D = links.Apow[:, :4].reshape(n, 24, 6).mT @ (V[:, :4] @ _LAMBDA_TABLE).reshape(n, 24, 6)
     D += links.Jl_inv.mT @ stiffness
     D[:, :, 3:] += V[:, 4, :, None] * links.xi[:, None, 3:]
     H = links.Zw @ (D @ links.Jl_inv) @ links.Zw.mT
@@ -331,9 +328,9 @@ def chain_poses(q0: np.ndarray, x0: np.ndarray, xi: np.ndarray) -> "Chain":
         carry = largest < CARRY_ANGLE ** 2
         terms = max(_terms(largest) if carry else 0, 16 if largest > 1e-2 else 8)
         coef = _powers(theta2, terms) @ _CHAIN_TABLE[:terms]
-        expc = coef[:, 30:]
+        expc = coef[:, 31:]
         if carry:
-            link_coef = coef[:, :30]
+            link_coef = coef[:, :31]
     else:
         expc = np.where(theta2[:, None] <= 16.0, _powers(theta2, 16) @ _EXP_TABLE[:16],
                         _exp_closed(np.maximum(theta2, 16.0)))
@@ -378,4 +375,4 @@ class Chain:
     positions: np.ndarray      # (N, 3) world
     rotations: np.ndarray      # (N, 3, 3) world rotation matrices (the same products)
     translations: np.ndarray   # (n, 3) relative translations p of the links, in a's axes
-    link_coefficients: np.ndarray | None   # (n, 30) coefficients() of the strains, when carried
+    link_coefficients: np.ndarray | None   # (n, 31) coefficients() of the strains, when carried

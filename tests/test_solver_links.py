@@ -217,17 +217,17 @@ def test_so3_column_equals_one_minus_half_theta_cot_half_theta(theta):
         # θ = 0.5 up; measured ≤ 2e-15), so it is a reference only away from zero
         closed = (1.0 - 0.5 * theta / math.tan(0.5 * theta)) / theta ** 2
         assert abs(c[0] - closed) <= 1e-14 * closed
-    # the weights of A, A², A³, A⁴ in J_l⁻¹: −½, c₂ = Σ(2−k)a_k t^(k−1), 0, c₄ = Σ(1−k)a_k t^(k−2)
+    # the weights of I, A, A², A³, A⁴ in J_l⁻¹: 1, −½, c₂ = Σ(2−k)a_k t^(k−1), 0, c₄ = Σ(1−k)a_k t^(k−2)
     c2 = _series([(2 - k) * a for k, a in enumerate(_A_K, 1)], t)[0]
     c4 = _series([(1 - k) * a for k, a in enumerate(_A_K[1:], 2)], t)[0]
-    assert c[1] == -0.5 and c[3] == 0.0
+    assert c[1] == 1.0 and c[2] == -0.5 and c[4] == 0.0
     # both sides are rounded sums of the same series (c₂'s mixes signs near π): measured ≤ 4.4e-16
-    assert abs(c[2] - c2) <= 2e-15 * abs(c2) and abs(c[4] - c4) <= 2e-15 * abs(c4)
+    assert abs(c[3] - c2) <= 2e-15 * abs(c2) and abs(c[5] - c4) <= 2e-15 * abs(c4)
 
 
 @pytest.mark.parametrize("theta", [0.0, 1e-6, 0.3, 1.0, 2.5, 3.1, 3.14, 3.1415])
 def test_inverse_left_jacobian_from_coefficients_equals_se3_log(theta):
-    # J_l⁻¹ = I + Σ_k coef[k] ad(ξ)^k (k = 1..4) against se3_log's block formula (Barfoot 7.95),
+    # J_l⁻¹ = Σ_k coef[1 + k] ad(ξ)^k (k = 0..4) against se3_log's block formula (Barfoot 7.95),
     # near π too where the series in θ² converges slowest (ratio ¼): measured ≤ 1.5e-15
     rng = _rng("jacobian", theta)
     n = 5
@@ -235,11 +235,11 @@ def test_inverse_left_jacobian_from_coefficients_equals_se3_log(theta):
     xi, Jl_inv = se3_log(qexp(phi), p)
     coef = coefficients((xi[:, 3:] ** 2).sum(1))
     A = _ad(xi)
-    J = np.broadcast_to(np.eye(6), A.shape).copy()
-    power = J.copy()
+    J = coef[:, 1, None, None] * np.broadcast_to(np.eye(6), A.shape)
+    power = np.broadcast_to(np.eye(6), A.shape).copy()
     for k in range(1, 5):
         power = power @ A
-        J += coef[:, k, None, None] * power
+        J = J + coef[:, k + 1, None, None] * power
     assert np.abs(J - Jl_inv).max() <= 1e-13 * np.abs(Jl_inv).max()
 
 
@@ -265,16 +265,16 @@ def test_coefficients_at_zero_and_tiny_angles_are_finite_and_exact():
     from solver.links import _SERIES
     t = np.array([0.0, 1e-30, 1e-200, 5e-324])
     c = coefficients(t)
-    assert c.shape == (4, 30) and np.isfinite(c).all()
+    assert c.shape == (4, 31) and np.isfinite(c).all()
     assert np.array_equal(c[0], _SERIES[0])          # at θ = 0 exactly the constant terms
     # the constants: 1/12 (SO(3)), and J_l⁻¹ = I − ½A + (1/12)A² − (1/720)A⁴ + …; the zeta-based
     # table may be 1 ulp off a fraction (measured 1/12 + 1.4e-17): 1e-15 relative
-    for value, exact in zip(c[0, :5], [1 / 12, -0.5, 1 / 12, 0.0, -1 / 720]):
+    for value, exact in zip(c[0, :6], [1 / 12, 1.0, -0.5, 1 / 12, 0.0, -1 / 720]):
         assert abs(value - exact) <= 1e-15 * abs(exact)
     # tiny θ² moves each value by its first-order term (≈ θ² × the t¹ row, ≤ 1e-30 here): equal to
     # the zero row to rounding where that is nonzero, and to first order where it is exactly zero
     assert np.all(np.abs(c[1:] - c[0]) <= 1e-15 * np.abs(c[0]) + 2.0 * t[1:, None] * np.abs(_SERIES[1]))
-    assert coefficients(np.zeros(0)).shape == (0, 30)
+    assert coefficients(np.zeros(0)).shape == (0, 31)
 
 
 @pytest.mark.parametrize("count", [1, 2, 8, 40])
@@ -338,7 +338,7 @@ def test_chain_poses_equal_sequential_composition(n, largest):
         # the same series as coefficients(), evaluated with at least as many terms: measured
         # ≤ 3.6e-16 relative per entry (summation order); 1e-15 allows a few ulps
         expected = coefficients((xi[:, 3:] ** 2).sum(1))
-        assert chain.link_coefficients is not None and chain.link_coefficients.shape == (n, 30)
+        assert chain.link_coefficients is not None and chain.link_coefficients.shape == (n, 31)
         assert np.all(np.abs(chain.link_coefficients - expected) <= 1e-15 * np.abs(expected) + 1e-300)
 
 
