@@ -1,11 +1,16 @@
-"""Force elements of the trunk: compliance links, cable pieces, gravity.
+"""Force elements of the trunk: cable pieces (used by the model) and the complex-step
+reference of the link and cable potentials (used by the tests).
 
 Each pair element returns the gradient of its potential with respect to the 12
 DoFs of its two frames ``[dx_a, dφ_a, dx_b, dφ_b]`` (world translation and world
-rotation vector of each frame, rotation about the frame's own origin). The functions
-use complex-analytic operations only, so :func:`pair_tangent` obtains the exact
+rotation vector of each frame, rotation about the frame's own origin).
+
+:class:`CablePieces` is the model's closed-form cable kernel. :func:`link_gradient`,
+:func:`cable_gradient` and :func:`pair_tangent` are an independent implementation written
+with complex-analytic operations only, so that :func:`pair_tangent` obtains the exact
 tangent by the complex-step derivative of the gradient (Squire & Trapp 1998; Martins
-et al. 2003): no subtractive cancellation, machine-precision consistent tangent.
+et al. 2003): no subtractive cancellation, machine-precision consistent tangent. The
+model's closed-form link kernel (:mod:`solver.links`) is tested against it.
 """
 
 from __future__ import annotations

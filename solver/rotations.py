@@ -1,15 +1,15 @@
 """Quaternions and SE(3) logarithms, accurate near zero and usable with complex numbers.
 
 Every function here is written with complex-analytic operations only (no ``abs``,
-``conj`` or ``arctan2`` on the data), so that the tangent stiffness can be obtained
-by the complex-step derivative of the analytic forces, exact to machine precision.
-Branches are chosen on real parts; near-zero angles use Taylor series in θ² (even
-functions), which keeps the derivative correct at θ = 0.
+``conj`` or ``arctan2`` on the data), so that the complex-step reference of the link
+potential (:mod:`solver.elements`, which the tests compare the model's closed-form kernel
+in :mod:`solver.links` with) is exact to machine precision. Branches are chosen on real
+parts; near-zero angles use Taylor series in θ² (even functions), which keeps the
+derivative correct at θ = 0.
 
-This is the hot path of every Newton iteration: functions are written to issue as
-few numpy calls as possible (index tables and small constant matrices instead of
-element-by-element formulas), because for trunks of tens of frames the cost is the
-number of numpy calls, not the arithmetic.
+Functions are written to issue as few numpy calls as possible (index tables and small
+constant matrices instead of element-by-element formulas), because for trunks of tens of
+frames the cost is the number of numpy calls, not the arithmetic.
 
 Conventions: quaternions ``[w, x, y, z]``, unit norm; rotation vectors in radians;
 twists ``ξ = [ρ; φ]`` (translation first) with ``T = exp(ξ^)``, as in Barfoot,
