@@ -221,7 +221,8 @@ class InverseController:
             # evaluation cost 0.1 ms of a ~2 ms tick); converged: the model's value
             displacements=(sol.delta_a.copy() if not equilibrium and sol is not None and sol.delta_a is not None
                            else self.model.actuator_displacements(self.state, self.actuation)),
-            reached=bool((errors <= self.settings.tolerance).all()), equilibrium=equilibrium,
+            reached=bool(np.count_nonzero(errors <= self.settings.tolerance) == errors.size),
+            equilibrium=equilibrium,
             iterations=iterations, qp=sol, timings=timings, status=status)
 
     # ------------------------------------------------------------------ modes
@@ -331,8 +332,9 @@ class InverseController:
         n_eff = len(self.model.effector_names)
         if type(targets) is np.ndarray and targets.dtype == np.float64 and targets.size == 3 * n_eff:
             t = targets.reshape(n_eff, 3)
-            total = t.sum()
-            if total - total == 0.0:  # all finite (a NaN or ±inf makes the sum non-finite)
+            flat = t.reshape(-1)
+            total = flat.dot(flat)
+            if math.isfinite(total):  # all finite (a NaN or ±inf makes the sum of squares non-finite)
                 return t
         t = np.asarray(targets, dtype=float).reshape(n_eff, 3) if np.size(targets) == 3 * n_eff else None
         if t is None:
