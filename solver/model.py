@@ -729,14 +729,24 @@ class TrunkModel:
     def actuator_displacements(self, state: State, actuation=None, *, links: Links | None = None,
                                pieces: CablePieces | None = None) -> np.ndarray:
         actuation = self._actuation(actuation)
-        return np.concatenate([self.cable_lengths(state, pieces) - self.rest_cable_lengths,
-                               self.chamber_volume_growth(state, actuation[self.n_cables:], links)])
+        strokes = self.cable_lengths(state, pieces) - self.rest_cable_lengths
+        if not self.n_chambers:
+            return strokes
+        return np.concatenate([strokes, self.chamber_volume_growth(state, actuation[self.n_cables:], links)])
 
     def effector_positions(self, state: State) -> np.ndarray:
         """World position of each point effector; world unit direction of each axis effector."""
+        return self._effector_points(state)[1]
+
+    def _effector_points(self, state: State):
+        """World offsets (``R r``: lever arms, or the axes) and positions of the effectors."""
         f = self.effector_frames
-        turned = qrotate(state.quaternions[f], self.effector_offsets)
-        return np.where(self.effector_is_axis[:, None], turned, state.positions[f] + turned)
+        record = state.carried_strains()
+        if record is not None:                # the chain's rotation matrices, no quaternion algebra
+            turned = (record.chain.rotations[f] @ self.effector_offsets[:, :, None])[:, :, 0]
+        else:
+            turned = qrotate(state.quaternions[f], self.effector_offsets)
+        return turned, state.positions[f] * self._point_mask + turned
 
     def linearise(self, state: State, actuation=None) -> Linearisation:
         """Tangent stiffness factor, actuator and effector Jacobians at ``state``."""
@@ -769,10 +779,9 @@ class TrunkModel:
             forces[self.n_cables:] = chamber_jac       # ∂r/∂p = (∂e/∂q)ᵀ K A G = Jaᵀ
         n_eff = len(self.effector_names)
         Je = self._effector_template.copy()          # translation part: a model constant
-        turned = qrotate(q[self.effector_frames], self.effector_offsets)
+        turned, effector_positions = self._effector_points(state)
         Je[self._all_effectors, :, self.effector_frames, 3:] = -hat(turned)
         Je = Je.reshape(3 * n_eff, self.n_frames, 6)
-        effector_positions = x[self.effector_frames] * self._point_mask + turned
         return Linearisation(
             residual=-ev.gradient[1:].reshape(-1), factor=factor,
             actuator_forces=forces[:, 1:].reshape(n_act, self.n_dof).T.copy(),
