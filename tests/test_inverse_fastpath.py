@@ -1,11 +1,13 @@
 """The inverse tick's fast path gives what the validated path gives, bit for bit.
 
 Per step the controller skips re-validating its bounds, weights and regulariser (validated
-with the first linearisation), looks for the effector Jacobian's columns among the
-effector frames' DoFs instead of searching ``Je``, and ``solve_constraint_problem``
-computes the objective, stationarity and active sets only when they are read. Each
-shortcut is compared here with the path it replaces; bad input must still fail with the
-validated path's messages.
+with the first linearisation), calls LAPACK's banded solve itself, multiplies ``K⁻¹[r, B]``
+by all of ``Je`` instead of searching its nonzero columns, and ``solve_constraint_problem``
+computes the objective, stationarity and active sets only when they are read (and, for the
+controller's own problems, the prediction ``δe``); with the default DAQP backend and no
+displacement rows it calls DAQP without the intermediate objects and copies. Each shortcut
+is compared here with the path it replaces; bad input must still fail with the validated
+path's messages.
 """
 
 from __future__ import annotations
@@ -17,9 +19,11 @@ import pytest
 
 import solver
 from solver.gallery import load
-from solver.inverse.controller import InverseController, InverseSettings, _project, constraint_problem
+import solver.inverse.qp as qp_module
+from solver.banded import BandedFactor, factor_lu
+from solver.inverse.controller import InverseController, InverseSettings, _project, _solve_rhs, constraint_problem
 from solver.inverse.problems import synthetic_problem
-from solver.inverse.qp import ConstraintProblem, solve_constraint_problem
+from solver.inverse.qp import ConstraintProblem, DaqpBackend, quadratic_form, solve_constraint_problem
 
 SCENES = ["paper_3v_4t", "paper_5v_16t", "tendon_two_section"]
 
@@ -74,7 +78,6 @@ def test_controller_problem_is_the_validated_constraint_problem(name):
             assert set(fast[3]) == set(slow[3])
             if k == 0:
                 template = ctl._hot.template
-                assert ctl._hot.columns is not None  # the effector frames' DoFs are known
             else:  # validated once, then reused: the fast path was taken
                 assert ctl._hot.template is template and fast[0] is not template
             ctl.step(targets)
@@ -97,21 +100,19 @@ def test_steps_equal_those_of_a_controller_validating_every_step(mode):
         assert set(a.timings) == set(b.timings)
 
 
-def test_a_nonzero_outside_the_effector_frames_falls_back_to_the_search():
+def test_a_nonzero_outside_the_effector_frames_is_used_by_the_full_product():
     model, lam, state, base = _setup("paper_5v_16t")
-    ctl = InverseController(model, InverseSettings(mode="tick"), actuation=lam, state=state)
-    ctl.step(base)
-    columns = ctl._hot.columns
     lin = model.linearise(state, lam)
-    outside = np.setdiff1d(np.arange(lin.effector_jacobian.shape[1]), columns)
     Je = lin.effector_jacobian.copy()
+    outside = np.flatnonzero(~np.any(Je != 0.0, axis=0))
+    assert outside.size > 0
     Je[1, outside[0]] = 0.5  # a Jacobian the model does not make: must still be used as is
     odd = dataclasses.replace(lin, effector_jacobian=Je)
-    with_columns = _project(odd, base, lam, columns)
+    full = _project(odd, base, lam, full=True)
     searched = _project(odd, base, lam)
-    for x, y in zip(with_columns[:5], searched[:5]):
+    for x, y in zip(full[:5], searched[:5]):
         _same(x, y)
-    assert not np.array_equal(with_columns[1], _project(lin, base, lam)[1])
+    assert not np.array_equal(full[1], _project(lin, base, lam, full=True)[1])
 
 
 def test_relinearised_refuses_what_the_validation_would_reject():
@@ -252,3 +253,182 @@ def test_diagnostics_read_later_are_those_of_the_solve(backend, rows):
     assert f"stationarity={again.stationarity!r}" in repr(solve_constraint_problem(problem, backend))
     with pytest.raises(AttributeError):
         again.no_such_field  # noqa: B018
+
+
+def _stacked(lin):
+    return np.column_stack([lin.residual, lin.actuator_forces])
+
+
+def _lu(lin):
+    """The same tangent, factorised by banded LU (what the model does when K is not SPD)."""
+    f = lin.factor
+    n, kd = f.data.shape[1], f.kd
+    L = np.zeros((n, n))
+    for d in range(kd + 1):
+        L[np.arange(d, n), np.arange(n - d)] = f.data[d, : n - d]
+    K = L @ L.T
+    ab = np.zeros((3 * kd + 1, n))
+    i, j = np.nonzero(np.abs(np.subtract.outer(np.arange(n), np.arange(n))) <= kd)
+    ab[2 * kd + i - j, j] = K[i, j]
+    return factor_lu(ab, kd)
+
+
+class _Wrapped:
+    """A factor that is not a BandedFactor: the solve must go through ``lin.solve``."""
+
+    def __init__(self, factor):
+        self.factor, self.calls = factor, 0
+
+    def solve(self, rhs):
+        self.calls += 1
+        return self.factor.solve(rhs)
+
+
+@pytest.mark.parametrize("name", SCENES)
+def test_the_direct_banded_solve_is_lin_solve(name):
+    model, lam, state, _ = _setup(name)
+    for s in (state, model.rest_state):
+        lin = model.linearise(s, lam)
+        assert type(lin.factor) is BandedFactor and lin.factor.kind == "cholesky"
+        X, reference = _solve_rhs(lin), lin.solve(_stacked(lin))
+        _same(X, reference)
+        assert X.flags.f_contiguous == reference.flags.f_contiguous  # the same layout downstream
+    lu = dataclasses.replace(lin, factor=_lu(lin))
+    assert lu.factor.kind == "lu"
+    _same(_solve_rhs(lu), lu.solve(_stacked(lu)))
+    wrapped = dataclasses.replace(lin, factor=_Wrapped(lin.factor))
+    _same(_solve_rhs(wrapped), reference)
+    assert wrapped.factor.calls == 1
+
+
+def test_the_controller_solves_an_lu_factor_with_lin_solve():
+    model, lam, state, base = _setup("paper_5v_16t")
+    real = model.linearise
+    model.linearise = lambda st, act=None: dataclasses.replace(real(st, act), factor=_lu(real(st, act)))
+    try:
+        ctl = InverseController(model, InverseSettings(mode="tick"), actuation=lam, state=state)
+        for k in range(3):
+            targets = base + 1e-3 * k
+            lin = model.linearise(ctl.state, ctl.actuation)
+            fast = ctl._constraint_problem(lin, targets)
+            slow = constraint_problem(lin, targets, ctl.actuation, **_kw(ctl))
+            _same(fast[0], slow[0], "problem")
+            _same(fast[2], lin.solve(lin.actuator_forces), "K⁻¹B")
+            ctl.step(targets)
+    finally:
+        del model.linearise
+
+
+class _GenericDaqp(DaqpBackend):
+    """DAQP through the generic driver (a subclass: not the fast path)."""
+
+
+def _box_problems():
+    for seed in range(4):
+        W_ea, de, W_aa, _ = synthetic_problem(seed)
+        n = W_ea.shape[1]
+        lo, hi = np.zeros(n), np.full(n, 5.0 if seed % 2 else np.inf)
+        weights = 1.0 if seed < 2 else np.linspace(0.5, 2.0, W_ea.shape[0])
+        yield ConstraintProblem(W_ea, de, lambda_lower=lo, lambda_upper=hi, W_aa=W_aa,
+                                delta_a_free=np.full(n, 1e-5), lambda0=np.full(n, 1.0), effector_weights=weights)
+        yield ConstraintProblem(W_ea, de, lambda_lower=lo, lambda_upper=hi)  # no W_aa, no warm start
+        W_aa = W_aa.copy()
+        W_aa[np.arange(0, n, 3), np.arange(0, n, 3)] = 0.0  # actuators without own displacement: floored d
+        yield ConstraintProblem(W_ea, de, lambda_lower=-1.0, lambda_upper=hi, W_aa=W_aa,
+                                delta_a_free=np.zeros(n), regularisation=1e-6)
+
+
+def test_the_box_daqp_path_is_the_generic_driver(monkeypatch):
+    taken = []
+    real = qp_module._solve_box_daqp
+    monkeypatch.setattr(qp_module, "_solve_box_daqp", lambda *a: taken.append(1) or real(*a))
+    statuses = set()
+    for problem in _box_problems():
+        for kw in ({}, {"max_iterations": 1}):  # 1 iteration: DAQP stops early, the start is kept
+            n_taken = len(taken)
+            fast = solve_constraint_problem(problem, "daqp", **kw)
+            assert len(taken) == n_taken + 1
+            assert "_diagnostics" in vars(fast)
+            _same(fast, solve_constraint_problem(problem, _GenericDaqp(), **kw))
+            _same(solve_constraint_problem(problem, DaqpBackend(), **kw), fast)
+            assert len(taken) == n_taken + 2
+            statuses.add(fast.status)
+    assert statuses == {"optimal", "max_iterations"}
+    # with displacement rows, or another backend: the generic driver
+    W_ea, de, W_aa, _ = synthetic_problem(0)
+    rows = ConstraintProblem(W_ea, de, lambda_lower=0.0, lambda_upper=5.0, W_aa=W_aa,
+                             delta_a_free=np.zeros(W_ea.shape[1]), displacement_upper=1e-4)
+    n_taken = len(taken)
+    solve_constraint_problem(rows, "daqp")
+    solve_constraint_problem(next(_box_problems()), "gauss-seidel")
+    assert len(taken) == n_taken
+
+
+def _reference_quadratic_form(problem):
+    """The quadratic form as quadratic_form computed it before the shared _hessian (P, q, c, ρ, d)."""
+    w, de = problem.effector_weights, problem.delta_e_free
+    Wsq = problem.W_ea * w[:, None]
+    H = problem.W_ea.T @ Wsq
+    q = Wsq.T @ de
+    c = 0.5 * float(de @ (w * de))
+    n = H.shape[0]
+    h = H.diagonal().copy()
+    d = np.abs(problem.W_aa.diagonal()) if problem.W_aa is not None else h.copy()
+    dmax = d.max()
+    d = np.maximum(d, 1e-12 * dmax if dmax > 0 else 1.0)
+    s = float(np.mean(h / d))
+    rho = problem.regularisation * (s if s > 0 else 1.0)
+    H.flat[:: n + 1] += rho * d
+    return H, q, c, rho, d
+
+
+def test_the_quadratic_form_and_its_floored_energy_diagonal_are_unchanged():
+    floored = 0
+    for problem in _box_problems():
+        qp = quadratic_form(problem)
+        P, q, c, rho, d = _reference_quadratic_form(problem)
+        for name, value in {"P": P, "q": q, "c": c, "regularisation_weight": rho, "energy_diagonal": d}.items():
+            _same(getattr(qp, name), value, name)
+        if problem.W_aa is not None:
+            floored += int(np.count_nonzero(d != np.abs(problem.W_aa.diagonal())))
+    assert floored > 0  # the floor was applied somewhere
+
+
+def test_the_controllers_problems_predict_when_read():
+    model, lam, state, base = _setup("paper_5v_16t")
+    ctl = InverseController(model, InverseSettings(mode="tick"), actuation=lam, state=state)
+    ctl.step(base)  # validated once: later problems are the controller's own
+    for k in range(3):
+        targets = base + 1e-3 * k
+        step = ctl.step(targets)
+        assert "_prediction" in vars(step.qp) and "_diagnostics" in vars(step.qp)
+        lin = model.linearise(ctl.state, ctl.actuation)
+        owned = ctl._constraint_problem(lin, targets)[0]
+        assert vars(owned).get("_owned") is True
+        copy = ConstraintProblem(**{f.name: getattr(owned, f.name) for f in dataclasses.fields(owned) if f.init})
+        lazy, eager = solve_constraint_problem(owned), solve_constraint_problem(copy)
+        assert "_prediction" in vars(lazy) and "_prediction" not in vars(eager)
+        lazy.actuation[:] = 0.0  # the caller's array: the prediction uses the solution's own copy
+        eager.actuation[:] = 0.0
+        _same(lazy, eager)
+        assert "_prediction" not in vars(lazy)
+        _same(dataclasses.replace(solve_constraint_problem(owned)), solve_constraint_problem(copy))
+
+
+def test_step_errors_and_reached_are_those_of_numpy():
+    model, lam, state, base = _setup("tendon_two_section")
+    ctl = InverseController(model, InverseSettings(mode="tick", tolerance=1e-4), actuation=lam, state=state)
+    seen = set()
+    for k in range(6):
+        targets = base + (2e-5 if k < 3 else 2e-3) * np.arange(base.size).reshape(base.shape)
+        step = ctl.step(targets)
+        _same(step.errors, np.linalg.norm(step.positions - targets, axis=1))
+        assert step.reached is bool(np.all(step.errors <= 1e-4))
+        seen.add(step.reached)
+        assert set(vars(step)) == {f.name for f in dataclasses.fields(step)}
+        assert step.actuation_change != step.actuation_change  # NaN in tick mode
+        _same(dataclasses.replace(step, state=None), dataclasses.replace(step, state=None))
+    assert seen == {True, False}
+    bad = base.copy()
+    bad[0, 0] = np.nan  # not a target the controller accepts; _result must still say "not reached"
+    assert ctl._result(bad, step.qp, 1, {}, 0.0, False).reached is False

@@ -27,7 +27,9 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.linalg.lapack import dpbtrs as _dpbtrs
 
+from solver.banded import BandedFactor
 from solver.inverse.qp import (
     DEFAULT_BACKEND,
     DEFAULT_REGULARISATION,
@@ -99,7 +101,7 @@ def constraint_problem(lin, targets: np.ndarray, actuation: np.ndarray, *, weigh
     Jacobian touches (the effectors' frames).
     """
     t0 = time.perf_counter()
-    X, W_ea, delta_e_free, W_aa, delta_a_free, t1 = _project(lin, targets, actuation)
+    X, W_ea, delta_e_free, W_aa, delta_a_free, t1, _, _ = _project(lin, targets, actuation)
     problem = ConstraintProblem(
         W_ea=W_ea, delta_e_free=delta_e_free,
         lambda_lower=lambda_bounds[0], lambda_upper=lambda_bounds[1],
@@ -111,32 +113,47 @@ def constraint_problem(lin, targets: np.ndarray, actuation: np.ndarray, *, weigh
     return problem, X[:, 0], X[:, 1:], {"solve_KB_s": t1 - t0, "W_s": t2 - t0}
 
 
-def _project(lin, targets, actuation, columns=None):
+def _project(lin, targets, actuation, full=False):
     """The arrays of :func:`constraint_problem`: ``X = K⁻¹[r, B]``, ``W_ea``, ``δe_free``,
-    ``W_aa``, ``δa_free`` and the time the banded solve ended. ``columns``: DoFs holding
-    every nonzero column of ``Je`` (the effector frames'; a superset only adds exact zeros,
-    checked by a nonzero count), which saves searching ``Je`` every time."""
-    B = lin.actuator_forces
-    rhs = np.empty((B.shape[0], 1 + B.shape[1]))
-    rhs[:, 0] = lin.residual
-    rhs[:, 1:] = B
-    X = lin.solve(rhs)
+    ``W_aa``, ``δa_free``, the time the banded solve ended and ``Je X``, ``Ja X``.
+    ``Je X`` takes the nonzero columns of ``Je`` (the effector frames' DoFs) and the rows of
+    ``X`` they meet, or with ``full`` (the controller) every column: the other products are
+    exact zeros, which leave the sums as they are, and the search is saved."""
+    X = _solve_rhs(lin)
     t1 = time.perf_counter()
     Je = lin.effector_jacobian
-    Je_cols = None
-    if columns is not None:
-        Je_cols = Je.take(columns, axis=1)
-        if np.count_nonzero(Je_cols) != np.count_nonzero(Je):
-            Je_cols = None  # a nonzero outside the effector frames' DoFs: search
-    if Je_cols is None:
+    if full:
+        JeX = Je @ X
+    else:
         columns = np.flatnonzero(np.any(Je != 0.0, axis=0))  # the effector frames' DoFs only
-        Je_cols = Je[:, columns]
-    JeX = Je_cols @ X.take(columns, axis=0)
+        JeX = Je[:, columns] @ X.take(columns, axis=0)
     JaX = lin.actuator_jacobian @ X
     W_ea, W_aa = JeX[:, 1:], JaX[:, 1:]
-    delta_e_free = (lin.effector_positions - targets).reshape(-1) + JeX[:, 0] - W_ea @ actuation
-    delta_a_free = lin.actuator_displacements + JaX[:, 0] - W_aa @ actuation
-    return X, W_ea, delta_e_free, W_aa, delta_a_free, t1
+    # e − target + Je K⁻¹r − W_ea λ0 (and a + Ja K⁻¹r − W_aa λ0), left to right in new arrays
+    delta_e_free = (lin.effector_positions - targets).reshape(-1)
+    delta_e_free += JeX[:, 0]
+    delta_e_free -= W_ea @ actuation
+    delta_a_free = lin.actuator_displacements + JaX[:, 0]
+    delta_a_free -= W_aa @ actuation
+    return X, W_ea, delta_e_free, W_aa, delta_a_free, t1, JeX, JaX
+
+
+def _solve_rhs(lin):
+    """``X = K⁻¹[r, B]``: ``lin.solve`` of the stacked right-hand sides, or for a banded
+    Cholesky factor the same LAPACK call (``dpbtrs``, what ``BandedFactor.solve`` makes) on a
+    Fortran-ordered stack it may overwrite: no copies or wrappers (same numbers, same layout)."""
+    B = lin.actuator_forces
+    factor = lin.factor
+    direct = type(factor) is BandedFactor and factor.kind == "cholesky"
+    rhs = np.empty((B.shape[0], 1 + B.shape[1]), order="F" if direct else "C")
+    rhs[:, 0] = lin.residual
+    rhs[:, 1:] = B
+    if not direct:
+        return lin.solve(rhs)
+    X, info = _dpbtrs(factor.data, rhs, lower=1, overwrite_b=1)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"banded solve failed (LAPACK info {info})")
+    return X
 
 
 class InverseController:
@@ -168,7 +185,9 @@ class InverseController:
     # ------------------------------------------------------------------ pieces
     def _errors(self, positions, targets):
         d = positions - targets
-        return np.sqrt(np.add.reduce(d * d, axis=1))  # np.linalg.norm(d, axis=1) without its wrapper
+        d *= d
+        s = np.add.reduce(d, axis=1)
+        return np.sqrt(s, out=s)  # np.linalg.norm(d, axis=1) without its wrapper (nor new arrays)
 
     def _constraint_problem(self, lin, targets):
         """:func:`constraint_problem` for this controller (same arrays, same errors). The
@@ -181,9 +200,10 @@ class InverseController:
                 or hot.displacement_bounds is not self.displacement_bounds or hot.weights is not self.weights
                 or hot.regularisation != self.settings.regularisation):
             hot = self._hot = _HotPath(self)
-        X, W_ea, delta_e_free, W_aa, delta_a_free, t1 = _project(lin, targets, self.actuation, hot.columns)
+        X, W_ea, delta_e_free, W_aa, delta_a_free, t1, JeX, JaX = _project(lin, targets, self.actuation, full=True)
         problem = (None if hot.template is None else
-                   hot.template._relinearised(W_ea, delta_e_free, W_aa, delta_a_free, self.actuation))
+                   hot.template._relinearised(W_ea, delta_e_free, W_aa, delta_a_free, self.actuation,
+                                              (JeX, JaX), owned=True))
         if problem is None:  # first step, or arrays needing the validation (which raises as usual)
             lo, hi = self.lambda_bounds
             dlo, dhi = self.displacement_bounds
@@ -204,26 +224,36 @@ class InverseController:
         sol = solve_constraint_problem(problem, self.settings.backend, tolerance=self.settings.qp_tolerance)
         t2 = time.perf_counter()
         dq = Kr + KB @ (sol.actuation - self.actuation)
-        timings["linearise_s"] = timings.get("linearise_s", 0.0) + (t1 - t0)
-        timings["W_s"] = timings.get("W_s", 0.0) + t_w["W_s"]
-        timings["qp_s"] = timings.get("qp_s", 0.0) + sol.time_s
-        timings["inverse_s"] = timings.get("inverse_s", 0.0) + (t2 - t0)
+        if timings:  # converged mode: summed over the iterations
+            timings["linearise_s"] = timings.get("linearise_s", 0.0) + (t1 - t0)
+            timings["W_s"] = timings.get("W_s", 0.0) + t_w["W_s"]
+            timings["qp_s"] = timings.get("qp_s", 0.0) + sol.time_s
+            timings["inverse_s"] = timings.get("inverse_s", 0.0) + (t2 - t0)
+        else:
+            timings.update(linearise_s=t1 - t0, W_s=t_w["W_s"], qp_s=sol.time_s, inverse_s=t2 - t0)
         return sol, dq
 
     def _result(self, targets, sol, iterations, timings, t_start, equilibrium, status=""):
         positions = self.model.effector_positions(self.state)
         errors = self._errors(positions, targets)
+        tolerance = self.settings.tolerance
+        reached = True
+        for e in errors.tolist():  # a few effectors: Python floats beat two numpy calls
+            if not e <= tolerance:  # (NaN: not reached)
+                reached = False
+                break
+        # tick: the QP's linearised prediction at the stepped state (the model's own
+        # evaluation cost 0.1 ms of a ~2 ms tick); converged: the model's value
+        displacements = (sol.delta_a.copy() if not equilibrium and sol is not None and sol.delta_a is not None
+                         else self.model.actuator_displacements(self.state, self.actuation))
         timings["total_s"] = time.perf_counter() - t_start
-        return InverseStep(
+        step = object.__new__(InverseStep)  # every field given: the generated __init__ only assigns them
+        step.__dict__.update(
             actuation=self.actuation.copy(), state=self.state, targets=targets.copy(),
-            positions=positions, errors=errors,
-            # tick: the QP's linearised prediction at the stepped state (the model's own
-            # evaluation cost 0.1 ms of a ~2 ms tick); converged: the model's value
-            displacements=(sol.delta_a.copy() if not equilibrium and sol is not None and sol.delta_a is not None
-                           else self.model.actuator_displacements(self.state, self.actuation)),
-            reached=bool(np.count_nonzero(errors <= self.settings.tolerance) == errors.size),
-            equilibrium=equilibrium,
-            iterations=iterations, qp=sol, timings=timings, status=status)
+            positions=positions, errors=errors, displacements=displacements, reached=reached,
+            equilibrium=equilibrium, iterations=iterations, qp=sol, timings=timings, status=status,
+            actuation_change=math.nan)
+        return step
 
     # ------------------------------------------------------------------ modes
     def tick(self, targets) -> InverseStep:
@@ -358,24 +388,15 @@ def _frozen(values) -> np.ndarray:
 
 class _HotPath:
     """What every step of one controller reuses while its model, bounds, weights and
-    regulariser stay the same: the DoFs of the effector frames (a superset of the nonzero
-    columns of ``Je``; ``None`` when the model does not say) and the last validated problem."""
+    regulariser stay the same: the last validated problem."""
 
     def __init__(self, controller):
-        self.model = model = controller.model
+        self.model = controller.model
         self.lambda_bounds = controller.lambda_bounds
         self.displacement_bounds = controller.displacement_bounds
         self.weights = controller.weights
         self.regularisation = controller.settings.regularisation
         self.template = None
-        self.columns = None
-        frames, n_dof = getattr(model, "effector_frames", None), getattr(model, "n_dof", None)
-        if frames is not None and n_dof is not None:
-            f = np.unique(np.asarray(frames, dtype=int))
-            f = f[f >= 1]  # frame 0 is the clamped base, not in Je
-            columns = ((f - 1)[:, None] * 6 + np.arange(6)).reshape(-1)
-            if columns.size == 0 or columns.max() < n_dof:
-                self.columns = columns
 
 
 def invert(model, targets=None, *, actuation=None, state=None, **settings) -> InverseStep:

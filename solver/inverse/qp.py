@@ -79,6 +79,7 @@ def _vector(name: str, value, n: int) -> np.ndarray:
 
 
 _ONES: dict = {}  # n -> read-only ones(n)
+_vdot = np.vdot  # of a contiguous array: its flat view with itself
 
 
 def _read_only(a: np.ndarray) -> np.ndarray:
@@ -180,7 +181,8 @@ class ConstraintProblem:
     def n_rows(self) -> int:
         return self.W_ea.shape[0]
 
-    def _relinearised(self, W_ea, delta_e_free, W_aa, delta_a_free, lambda0) -> "ConstraintProblem | None":
+    def _relinearised(self, W_ea, delta_e_free, W_aa, delta_a_free, lambda0,
+                      holders=None, owned=False) -> "ConstraintProblem | None":
         """This problem's bounds, weights and regulariser with a new linearisation, without
         re-validating what this (validated) problem already holds; ``None`` when the new
         arrays need the validation (then build a :class:`ConstraintProblem`, which raises
@@ -189,7 +191,12 @@ class ConstraintProblem:
         are finite: one sum of squares per vector and of the row sums of each matrix, which
         is NaN or inf when any value is (a finite sum that overflows only sends the arrays
         to the full validation). Dot products, because a numpy reduction to a scalar costs
-        ~2 µs on these small arrays and a dot ~0.4 µs.
+        ~2 µs on these small arrays and a dot ~0.4 µs. ``holders``: contiguous arrays holding
+        every value of ``W_ea`` and ``W_aa`` (the controller's ``Je K⁻¹[r, B]`` and
+        ``Ja K⁻¹[r, B]``), whose other values enter ``delta_e_free`` or ``delta_a_free`` (so a
+        non-finite one makes a vector non-finite, which the validation rejects too): one sum
+        of squares each replaces the row sums. ``owned``: nobody changes these arrays
+        afterwards (then a solution's prediction ``δe`` may be computed when first read).
         """
         f64 = np.float64
         if (self.W_aa is None or W_aa is None or lambda0 is None
@@ -199,12 +206,17 @@ class ConstraintProblem:
                 or not (W_ea.dtype == W_aa.dtype == delta_e_free.dtype == delta_a_free.dtype
                         == lambda0.dtype == f64)):
             return None
-        ones = _ONES.get(W_ea.shape[1])
-        if ones is None:
-            ones = _ONES[W_ea.shape[1]] = _read_only(np.ones(W_ea.shape[1]))
-        e, a = W_ea.dot(ones), W_aa.dot(ones)  # row sums
-        total = (e.dot(e) + a.dot(a) + delta_e_free.dot(delta_e_free) + delta_a_free.dot(delta_a_free)
-                 + lambda0.dot(lambda0))
+        if holders is None:
+            ones = _ONES.get(W_ea.shape[1])
+            if ones is None:
+                ones = _ONES[W_ea.shape[1]] = _read_only(np.ones(W_ea.shape[1]))
+            e, a = W_ea.dot(ones), W_aa.dot(ones)  # row sums
+            total = e.dot(e) + a.dot(a)
+        else:
+            total = 0.0
+            for h in holders:
+                total += _vdot(h, h)
+        total += (delta_e_free.dot(delta_e_free) + delta_a_free.dot(delta_a_free) + lambda0.dot(lambda0))
         if not math.isfinite(total):  # a NaN or ±inf somewhere (or an overflow)
             return None
         new = object.__new__(ConstraintProblem)
@@ -212,6 +224,8 @@ class ConstraintProblem:
         d.update(self.__dict__)
         d["W_ea"], d["delta_e_free"], d["W_aa"], d["delta_a_free"] = W_ea, delta_e_free, W_aa, delta_a_free
         d["lambda0"] = lambda0.copy()  # what the validated path stores (np.where of finite values)
+        if owned:
+            d["_owned"] = True
         return new
 
     def start(self) -> np.ndarray:
@@ -253,28 +267,7 @@ def quadratic_form(problem: ConstraintProblem, displacement_lower=None, displace
 
 def _quadratic_form(problem: ConstraintProblem, displacement_lower, displacement_upper):
     """:func:`quadratic_form` and the weighted squared free gap ``δe_freeᵀ Wₑ δe_free`` (= 2c)."""
-    w, de = problem.effector_weights, problem.delta_e_free
-    Wsq = problem.W_ea * w[:, None]
-    H = problem.W_ea.T @ Wsq
-    q = Wsq.T @ de
-    gap2 = float(de @ (w * de))
-    c = 0.5 * gap2
-    n = H.shape[0]
-    diagonal = H.reshape(-1)[:: n + 1]  # a view (H is a new C-contiguous array)
-    h = diagonal.copy()  # H's diagonal before the regulariser is added
-    if problem.W_aa is not None:
-        d = np.abs(problem.W_aa.diagonal())
-    else:
-        d = h.copy()
-    # An actuator with no own displacement (d = 0) would be left unregularised:
-    # floor d relative to the others so the Hessian stays definite.
-    dmax = max(d.tolist()) if d.size else 0.0  # d is finite: as d.max() (and only dmax > 0 matters)
-    d = np.maximum(d, 1e-12 * dmax if dmax > 0 else 1.0)
-    s = float(np.add.reduce(h / d)) / n  # the mean (what ndarray.mean computes, without its wrapper)
-    s = s if s > 0 else 1.0
-    rho = problem.regularisation * s
-    P = H  # symmetric by construction (Wᵀ diag(w) W)
-    diagonal += rho * d
+    P, q, gap2, rho, d, _ = _hessian(problem)
     dlo = problem.displacement_lower if displacement_lower is None else displacement_lower
     dhi = problem.displacement_upper if displacement_upper is None else displacement_upper
     if dlo is problem.displacement_lower and dhi is problem.displacement_upper:
@@ -290,10 +283,40 @@ def _quadratic_form(problem: ConstraintProblem, displacement_lower, displacement
         G = np.zeros((0, problem.n_actuators))
         row_lower = row_upper = np.zeros(0)
     return _new(QuadraticForm,
-        P=P, q=q, c=c, lower=problem.lambda_lower, upper=problem.lambda_upper,
+        P=P, q=q, c=0.5 * gap2, lower=problem.lambda_lower, upper=problem.lambda_upper,
         G=G, row_lower=row_lower, row_upper=row_upper, rows=rows,
         regularisation_weight=rho, energy_diagonal=d,
     ), gap2
+
+
+def _hessian(problem: ConstraintProblem):
+    """``P`` (with the regulariser), ``q``, ``δe_freeᵀ Wₑ δe_free``, ``ρ``, ``d`` and the view of
+    ``P``'s diagonal (module docstring)."""
+    w, de = problem.effector_weights, problem.delta_e_free
+    Wsq = problem.W_ea * w[:, None]
+    H = problem.W_ea.T @ Wsq
+    q = Wsq.T @ de
+    gap2 = float(de @ (w * de))
+    n = H.shape[0]
+    diagonal = H.reshape(-1)[:: n + 1]  # a view (H is a new C-contiguous array)
+    if problem.W_aa is not None:
+        d = np.abs(problem.W_aa.diagonal())
+        h = diagonal  # read below before the regulariser is added: no copy needed
+    else:
+        h = diagonal.copy()  # H's diagonal before the regulariser is added
+        d = h.copy()
+    # An actuator with no own displacement (d = 0) would be left unregularised:
+    # floor d relative to the others so the Hessian stays definite.
+    values = d.tolist()  # no NaN in d: Python's max and min are what numpy's would be
+    dmax = max(values) if values else 0.0
+    floor = 1e-12 * dmax if dmax > 0 else 1.0
+    if values and min(values) < floor:  # else np.maximum(d, floor) would return d's values (d is a new array)
+        d = np.maximum(d, floor)
+    s = float(np.add.reduce(h / d)) / n  # the mean (what ndarray.mean computes, without its wrapper)
+    s = s if s > 0 else 1.0
+    rho = problem.regularisation * s
+    diagonal += rho * d  # P = H + ρ diag(d), symmetric by construction (Wᵀ diag(w) W)
+    return H, q, gap2, rho, d, diagonal
 
 
 def _new(cls, **fields):
@@ -347,13 +370,15 @@ class ConstraintSolution:
 
     def __getattr__(self, name):
         # Only reached for attributes not set: the diagnostics (objective, stationarity,
-        # active sets) that solve_constraint_problem leaves to _Diagnostics until first read.
+        # active sets) that solve_constraint_problem leaves to _Diagnostics until first read,
+        # and for the controller's problems the prediction δe (_Prediction).
         d = self.__dict__
-        if name in _DIAGNOSTICS:
-            pending = d.get("_diagnostics")
+        key = "_diagnostics" if name in _DIAGNOSTICS else "_prediction" if name in _PREDICTION else None
+        if key is not None:
+            pending = d.get(key)
             if pending is not None:
                 d.update(pending.values())
-                d.pop("_diagnostics", None)
+                d.pop(key, None)
             if name in d:
                 return d[name]
         raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
@@ -361,6 +386,24 @@ class ConstraintSolution:
 
 _DIAGNOSTICS = frozenset({"objective", "stationarity", "active_lower", "active_upper",
                           "active_displacement_lower", "active_displacement_upper"})
+_PREDICTION = frozenset({"delta_e", "effector_error", "displacement_relaxation"})
+
+
+class _Prediction:
+    """``δe``, ``‖δe‖`` and the (zero) displacement relaxation of a box-only solve, computed
+    when first read (the controller's real-time step reads none). Only for problems whose
+    arrays nobody changes afterwards (:meth:`ConstraintProblem._relinearised` with ``owned``);
+    ``lam`` is a copy of the answer."""
+
+    __slots__ = ("lam", "problem")
+
+    def __init__(self, problem, lam):
+        self.problem, self.lam = problem, lam
+
+    def values(self) -> dict:
+        p, lam = self.problem, self.lam
+        de = p.delta_e_free + p.W_ea @ lam
+        return {"delta_e": de, "effector_error": math.sqrt(de.dot(de)), "displacement_relaxation": np.zeros(lam.size)}
 
 
 class _Diagnostics:
@@ -368,10 +411,12 @@ class _Diagnostics:
     first read (the controller's real-time step reads none; ~10 numpy calls saved a tick).
     Holds copies of what the caller could change in place afterwards."""
 
-    __slots__ = ("lam", "lower", "upper", "lower_magnitude", "da", "dlo", "dhi", "qp", "root")
+    __slots__ = ("lam", "lower", "upper", "lower_magnitude", "da", "dlo", "dhi", "P", "q", "c", "n_rows", "root")
 
-    def __init__(self, problem, qp, lam, da, dlo, dhi, root):
-        self.lam, self.qp, self.root = lam.copy(), qp, root
+    def __init__(self, problem, P, q, c, n_rows, lam, da, dlo, dhi, root):
+        """``P``, ``q``, ``c``: the (unscaled) quadratic form, ``n_rows`` its displacement rows."""
+        self.lam, self.root = lam.copy(), root
+        self.P, self.q, self.c, self.n_rows = P, q, c, n_rows
         self.lower, self.upper = _kept(problem.lambda_lower), _kept(problem.lambda_upper)
         self.lower_magnitude = problem._lower_magnitude
         if da is not None and problem._has_rows:
@@ -380,10 +425,10 @@ class _Diagnostics:
             self.da = self.dlo = self.dhi = None
 
     def values(self) -> dict:
-        qp, lam, lo, hi = self.qp, self.lam, self.lower, self.upper
+        P, q, lam, lo, hi = self.P, self.q, self.lam, self.lower, self.upper
         n = lam.size
-        g = qp.P @ lam + qp.q
-        objective = 0.5 * float(lam @ (g + qp.q)) + qp.c
+        g = P @ lam + q
+        objective = 0.5 * float(lam @ (g + q)) + self.c
         # "active" = within 1e-9 of the bound, relative to the bound or the effort itself
         atol_l = 1e-9 * np.maximum(np.abs(lam), self.lower_magnitude) + 1e-300
         act_lo = lam <= lo + atol_l
@@ -395,10 +440,10 @@ class _Diagnostics:
             act_dhi = da >= self.dhi - atol_d
         else:
             act_dlo = act_dhi = np.zeros(n, dtype=bool)
-        if qp.G.shape[0]:
+        if self.n_rows:
             stationarity = float("nan")
         else:
-            diag = qp.P.diagonal()
+            diag = P.diagonal()
             proj = _clip(lam - g / diag, lo, hi)
             stationarity = float((np.abs(proj - lam) * (np.sqrt(diag) if self.root is None else self.root)).max())
         return dict(objective=objective, stationarity=stationarity, active_lower=act_lo, active_upper=act_hi,
@@ -685,6 +730,9 @@ def solve_constraint_problem(
     reach and ``effector_error`` says how far it is.
     """
     t0 = time.perf_counter()
+    if not problem._has_rows and (backend == "daqp" if type(backend) is str else type(backend) is DaqpBackend) \
+            and BACKENDS.get("daqp") is DaqpBackend:
+        return _solve_box_daqp(problem, 1000 if max_iterations is None else max_iterations, t0)
     be = get_backend(backend) if isinstance(backend, str) else backend
     if max_iterations is None:
         max_iterations = 5000 if be.name == "gauss-seidel" else 1000
@@ -740,6 +788,62 @@ def solve_constraint_problem(
         iterations=out.iterations, converged=out.converged,
         status="relaxed" if (relaxed and out.converged) else out.status, backend=be.name,
         displacement_relaxation=relaxation, regularisation_weight=qp.regularisation_weight, extras={},
-        _diagnostics=_Diagnostics(problem, qp, lam, da, dlo, dhi, root),
+        _diagnostics=_Diagnostics(problem, qp.P, qp.q, qp.c, qp.G.shape[0], lam, da, dlo, dhi, root),
         time_s=time.perf_counter() - t0,
     )
+
+
+_daqp = None  # the daqp module, once imported
+
+
+def _solve_box_daqp(problem: ConstraintProblem, max_iterations: int, t0: float) -> ConstraintSolution:
+    """:func:`solve_constraint_problem` with the default ``"daqp"`` backend and no displacement
+    rows (the controller's tick): the same arithmetic on the same arrays, the same call to
+    DAQP (:class:`DaqpBackend` after the Jacobi scaling), without the intermediate objects
+    (``QuadraticForm``, scaled copy, ``BackendOutput``) and copies of arrays made here."""
+    global _daqp
+    if _daqp is None:
+        import daqp as _daqp_module  # lazy: optional at import time
+
+        _daqp = _daqp_module
+    lo, hi, l0 = problem.lambda_lower, problem.lambda_upper, problem.lambda0
+    n = lo.size
+    start = _clip(np.zeros(n) if l0 is None else l0, lo, hi)  # problem.start()
+    P, q, gap2, rho, _, diagonal = _hessian(problem)
+    root = np.sqrt(diagonal)  # √Pᵢᵢ: Jacobi scaling λ = S y, as in solve_constraint_problem
+    S = 1.0 / root
+    lower, upper = lo / S, hi / S
+    # what DaqpBackend passes, without its copies: DAQP reads its arguments (given a linear
+    # term it works on copies of the bounds and of the constraint states: daqp's setup_daqp_ldp)
+    x, _f, flag, info = _daqp.solve(
+        P * (S[:, None] * S), q * S, _no_rows(n), upper, lower,
+        np.zeros(n, dtype=np.int32), iter_limit=max_iterations, primal_start=start / S, eps_prox=0.0,
+    )
+    ok = flag in (1, 2)
+    y = _clip(np.asarray(x, dtype=float), lower, upper) if ok else start / S
+    lam = _clip(y * S, lo, hi)
+    da = None if problem.W_aa is None else problem.delta_a_free + problem.W_aa @ lam  # problem.predict(lam)
+    diagnostics = _Diagnostics(problem, P, q, 0.5 * gap2, 0, lam, da, problem.displacement_lower,
+                               problem.displacement_upper, root)
+    solution = _new(
+        ConstraintSolution, actuation=lam, delta_a=da, iterations=int(info.get("iterations", 0)), converged=ok,
+        status=_DAQP_STATUS.get(flag) or f"daqp exitflag {flag}", backend=DaqpBackend.name,
+        regularisation_weight=rho, extras={}, _diagnostics=diagnostics)
+    d = solution.__dict__
+    if problem.__dict__.get("_owned", False):
+        d["_prediction"] = _Prediction(problem, diagnostics.lam)
+    else:
+        de = problem.delta_e_free + problem.W_ea @ lam
+        d["delta_e"], d["effector_error"], d["displacement_relaxation"] = de, math.sqrt(de.dot(de)), np.zeros(n)
+    d["time_s"] = time.perf_counter() - t0
+    return solution
+
+
+_NO_ROWS: dict = {}  # n -> the (0, n) constraint matrix passed to DAQP (empty: nothing in it to change)
+
+
+def _no_rows(n: int) -> np.ndarray:
+    a = _NO_ROWS.get(n)
+    if a is None:
+        a = _NO_ROWS[n] = np.zeros((0, n))  # writeable: DAQP's wrapper takes a writeable buffer
+    return a
