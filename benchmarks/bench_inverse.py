@@ -90,8 +90,12 @@ def breakdown(model, repeats, actuation=None):
                 in_tick=inside, qp_iterations=int(sol.iterations))
 
 
-def scaled_scene(name, elements=None, n_cables=None):
+def scaled_scene(name, elements=None, n_cables=None, vertebrae=None):
     scene = load(name)
+    if vertebrae is not None:       # k× the vertebrae, every tendon running k× as far (same band)
+        scene = dataclasses.replace(
+            scene, segments=tuple(dataclasses.replace(s, count=s.count * vertebrae) for s in scene.segments),
+            cables=tuple(dataclasses.replace(c, last=c.last * vertebrae) for c in scene.cables))
     if elements is not None:
         scene = dataclasses.replace(scene, segments=tuple(dataclasses.replace(s, elements=elements)
                                                           for s in scene.segments))
@@ -146,6 +150,15 @@ def main(argv=None):
     for elements in ([2, 8, 32] if args.quick else [2, 4, 8, 16, 32, 64]):
         model = solver.build_model(scaled_scene("paper_5v_16t", elements=elements))
         frames.append(dict(elements_per_segment=elements, **breakdown(model, max(5, repeats // max(1, elements // 4)))))
+    vertebrae = []
+    for k in ([1, 4, 16] if args.quick else [1, 2, 4, 8, 16, 32]):
+        model = solver.build_model(scaled_scene("paper_5v_16t", vertebrae=k))
+        vertebrae.append(dict(factor=k, **breakdown(model, max(5, repeats // k))))
+    fit = lambda rows, key: float(np.polyfit(np.log([r["frames"] for r in rows]),  # noqa: E731
+                                             np.log([r[key] for r in rows]), 1)[0])
+    exponents = {key: fit(vertebrae, key) for key in ("W_s", "linearise_s", "tick_s")}
+    exponents["W_in_tick"] = float(np.polyfit(np.log([r["frames"] for r in vertebrae]),
+                                              np.log([r["in_tick"]["W_s"] for r in vertebrae]), 1)[0])
     actuators = []
     for n_cables in ([4, 16, 64] if args.quick else [4, 8, 16, 32, 64]):
         model = solver.build_model(scaled_scene("paper_5v_16t", n_cables=n_cables))
@@ -176,6 +189,14 @@ def main(argv=None):
               "|---" + sep]
     for r in frames:
         lines.append(f"| {r['elements_per_segment']} " + fmt(r))
+    lines += ["", "## Growing vertebrae (paper_5v_16t with k× the vertebrae, tendons running k× as far: "
+              "same band width)", "", "| k " + head, "|---" + sep]
+    for r in vertebrae:
+        lines.append(f"| {r['factor']} " + fmt(r))
+    lines += ["", "Growth exponents against frames (log–log fit over k = "
+              f"{vertebrae[0]['factor']}…{vertebrae[-1]['factor']}): W alone {exponents['W_s']:.2f}, "
+              f"W inside the tick {exponents['W_in_tick']:.2f}, linearise {exponents['linearise_s']:.2f}, "
+              f"whole tick {exponents['tick_s']:.2f}."]
     lines += ["", "## Growing actuators (paper_5v_16t, tendons)", "", head, sep]
     for r in actuators:
         lines.append(fmt(r))
@@ -189,7 +210,8 @@ def main(argv=None):
     print(text)
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / "inverse.json").write_text(json.dumps(
-        {"scenes": scenes, "frames": frames, "actuators": actuators, "modes": modes,
+        {"scenes": scenes, "frames": frames, "vertebrae": vertebrae, "vertebrae_exponents": exponents,
+         "actuators": actuators, "modes": modes,
          "quick": args.quick, "host": host}, indent=1))
     (RESULTS / "inverse.md").write_text(text + "\n")
 
