@@ -19,7 +19,7 @@ from solver.banded import BandLayout, factor_cholesky, factor_lu
 from solver.beam import timoshenko_compliance
 from solver.elements import CablePieces
 from solver.links import Chain, Links, chain_poses, link_forces, link_tangent
-from solver.rotations import cross, hat, qmatrix, qmul, qrotate, se3_log
+from solver.rotations import hat, qmatrix, qrotate, se3_log
 from store.errors import CatalogueError, ConvergenceError, SceneError
 
 
@@ -246,6 +246,8 @@ class TrunkModel:
         self.link_rest_quaternion = np.array(quats)
         self.link_rest_translation = np.array(trans)
         self.link_pressure_map = np.array(S).reshape(self.n_links, 6, len(chambers))
+        # K A G per link and chamber (n, chamber, 6): the strain-space force of a unit pressure
+        self._pressure_stiffness = np.einsum("nij,njk->nki", self.link_stiffness, self.link_pressure_map)
         self.chamber_volume_compliance = np.sum(Vs, axis=0) if Vs else np.zeros((0, 0))
         self.frame_mass = np.array(frame_mass)
         self.frame_moment = np.array(frame_moment)
@@ -770,8 +772,7 @@ class TrunkModel:
                 self.n_cables, self.n_frames, 6)
         forces = -jac                                     # cable: −τ ∂L/∂q
         if self.n_chambers:
-            c = np.einsum("nij,njk->nki", self.link_stiffness, self.link_pressure_map)   # K A G, (n, chamber, 6)
-            g = links.generalised_force(links.transport(c))                               # (n, chamber, 12)
+            g = links.generalised_force(links.transport(self._pressure_stiffness))        # (n, chamber, 12)
             chamber_jac = np.zeros((self.n_chambers, self.n_frames, 6))
             chamber_jac[:, :-1] += np.moveaxis(g[..., :6], 1, 0)
             chamber_jac[:, 1:] += np.moveaxis(g[..., 6:], 1, 0)
