@@ -237,7 +237,7 @@ class Links:
 
 def link_forces(links: Links, stiffness: np.ndarray, xi_rest: np.ndarray):
     """Gradient (n, 12) and total energy ``½ Σ eᵀ K e`` of the links, with ``w = K e`` and
-    ``y = J_l⁻ᵀ w`` (n, 6), which :func:`link_tangent` reuses."""
+    ``y = J_l⁻ᵀ w`` (n, 6); :func:`link_tangent` reuses ``w`` and the gradient."""
     e = links.xi - xi_rest
     w = (stiffness @ e[:, :, None])[:, :, 0]
     y = (w[:, None, :] @ links.Jl_inv)[:, 0]

@@ -131,6 +131,12 @@ def _strain_map(quaternion, translation):
     return xi0, Jl_inv @ shift
 
 
+def _carried_links(record: StrainRecord, positions: np.ndarray) -> Links:
+    """Link kinematics of a composed state from the strains it carries (no logarithms)."""
+    return Links.of_strains(record.chain.rotations[:-1], record.xi, positions[1:] - positions[:-1],
+                            record.chain.link_coefficients)
+
+
 def _incidence(rows, n_rows):
     """(n_rows, len(rows)) matrix with a 1 at (rows[k], k): ``E @ v`` sums the rows of ``v`` into
     their targets. Dense while small (one BLAS call), sparse beyond."""
@@ -396,9 +402,7 @@ class TrunkModel:
     def _rest_links(self) -> Links:
         """Link kinematics of the rest state (computed once)."""
         if self._rest_cache[0] is None:
-            record, x = self.rest_state.strains, self.rest_state.positions
-            self._rest_cache[0] = Links.of_strains(record.chain.rotations[:-1], record.xi, x[1:] - x[:-1],
-                                                   record.chain.link_coefficients)
+            self._rest_cache[0] = _carried_links(self.rest_state.strains, self.rest_state.positions)
         return self._rest_cache[0]
 
     def _link_tangent(self, links: Links, w: np.ndarray, g_links: np.ndarray) -> np.ndarray:
@@ -440,9 +444,7 @@ class TrunkModel:
         if record is not None and record is self.rest_state.strains:
             links, rotations = self._rest_links(), record.chain.rotations   # a model constant
         elif record is not None:                         # a state made by step(): its strains are known
-            links = Links.of_strains(record.chain.rotations[:-1], record.xi, x[1:] - x[:-1],
-                                     record.chain.link_coefficients)
-            rotations = record.chain.rotations
+            links, rotations = _carried_links(record, x), record.chain.rotations
         else:
             links = Links.of(q[:-1], x[:-1], q[1:], x[1:])
             rotations = qmatrix(q) if self.n_cables or self.has_gravity else None
