@@ -68,6 +68,39 @@ class BandLayout:
         """Zeroed (lower, upper) block arrays ``(n_blocks, span + 1, 6, 6)``."""
         return np.zeros(self.block_shape), np.zeros(self.block_shape)
 
+    def _link_gather(self):
+        """Indices into a flat stack of link tangents (n_blocks, 12, 12) plus one trailing zero
+        of the four terms of every entry of the lower symmetric band: on the diagonal block of
+        free frame J the end-b block of link J and the end-a block of link J + 1, below it the
+        (b, a) block of link J + 1, and the transposed partners."""
+        nb, kd, n = self.n_blocks, self.kd, self.n
+        d, j = np.meshgrid(np.arange(kd + 1), np.arange(n), indexing="ij")
+        i = j + d
+        I, J, a, b = i // 6, j // 6, i % 6, j % 6
+        zero = nb * 144
+        entry = lambda link, r, c: link * 144 + r * 12 + c    # noqa: E731
+        diagonal = (i < n) & (I == J)
+        below = (i < n) & (I == J + 1)
+        nxt = diagonal & (J + 1 < nb)
+        self.link_terms = tuple(x.ravel() for x in (
+            np.where(diagonal, entry(J, 6 + a, 6 + b), np.where(below, entry(J + 1, 6 + a, b), zero)),
+            np.where(diagonal, entry(J, 6 + b, 6 + a), np.where(below, entry(J + 1, b, 6 + a), zero)),
+            np.where(nxt, entry(J + 1, a, b), zero),
+            np.where(nxt, entry(J + 1, b, a), zero)))
+
+    def symmetric_from_links(self, flat: np.ndarray) -> np.ndarray:
+        """Lower band (LAPACK storage) of the symmetric part of the chain's link tangents,
+        ``flat`` = the (n_blocks, 12, 12) tangents raveled, plus one trailing zero."""
+        if not hasattr(self, "link_terms"):
+            self._link_gather()
+        t1, t2, t3, t4 = self.link_terms
+        ab = flat.take(t1)
+        ab += flat.take(t2)
+        ab += flat.take(t3)
+        ab += flat.take(t4)
+        ab *= 0.5
+        return ab.reshape(self.kd + 1, self.n)
+
     def new_storage(self):
         """Zeroed flat storage for stacked [lower, upper] blocks plus a trailing zero, and the
         (2, n_blocks, span + 1, 6, 6) view of its blocks."""

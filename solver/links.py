@@ -244,11 +244,12 @@ def link_forces(links: Links, stiffness: np.ndarray, xi_rest: np.ndarray):
     return (links.Zw @ y[:, :, None])[:, :, 0], 0.5 * float(np.vdot(e, w)), w, y
 
 
-def link_tangent(links: Links, stiffness: np.ndarray, w: np.ndarray, gradient: np.ndarray):
+def link_tangent(links: Links, stiffness: np.ndarray, w: np.ndarray, gradient: np.ndarray, out=None):
     """Exact tangent (n, 12, 12) of the links at the state of ``links``, from ``w = K e`` and the
     links' gradient (see :func:`link_forces`): ``Zw (∂y/∂ξ) J_l⁻¹ Zwᵀ`` plus the geometric
     stiffness of the lever arms (:func:`_geometric_table`). The formula is in the module
-    docstring; tests check it against the complex-step reference."""
+    docstring; tests check it against the complex-step reference. ``out``: an (n, 12, 12)
+    array to write into."""
     n = links.xi.shape[0]
     W = (w[:, None, None, :] @ links.Apow)[:, :, 0]   # [w, u₁ … u₄], u_k = (Aᵀ)^k w as rows
     V = links.coef[:, 6:].reshape(n, 5, 5) @ W   # the four Λ arguments and the coefficient term
@@ -257,7 +258,7 @@ def link_tangent(links: Links, stiffness: np.ndarray, w: np.ndarray, gradient: n
     D = links.Apow[:, :4].reshape(n, 24, 6).mT @ (V[:, :4] @ _LAMBDA_TABLE).reshape(n, 24, 6)
     D += links.Jl_inv.mT @ stiffness
     D[:, :, 3:] += V[:, 4, :, None] * links.xi[:, None, 3:]
-    H = links.Zw @ (D @ links.Jl_inv) @ links.Zw.mT
+    H = np.matmul(links.Zw @ (D @ links.Jl_inv), links.Zw.mT, out=out)
     features = np.empty((n, 21))                # [g (12), span ⊗ f_b (9)]
     features[:, :12] = gradient
     np.multiply(links.span[:, :, None], gradient[:, None, 6:9], out=features[:, 12:].reshape(n, 3, 3))

@@ -115,7 +115,8 @@ class _Evaluation:
     lower: np.ndarray | None = None
     upper: np.ndarray | None = None
     context: tuple = ()           # what the gradient computed that the tangent reuses
-    storage: np.ndarray | None = None   # flat storage behind lower/upper (BandLayout.new_storage)
+    link_tangents: np.ndarray | None = None   # (n_links·144 + 1,) the links' tangents and a zero
+    extra: np.ndarray | None = None   # cable and gravity blocks (BandLayout.new_storage) or None
 
 
 def _rest_twist(quaternion, translation):
@@ -405,14 +406,6 @@ class TrunkModel:
             self._rest_cache[0] = _carried_links(self.rest_state.strains, self.rest_state.positions)
         return self._rest_cache[0]
 
-    def _link_tangent(self, links: Links, w: np.ndarray, g_links: np.ndarray) -> np.ndarray:
-        """Tangent of the links; at the unstressed rest state (w = 0) a model constant."""
-        if links is self._rest_cache[0] and not w.any():
-            if self._rest_cache[1] is None:
-                self._rest_cache[1] = link_tangent(links, self.link_stiffness, w, g_links)
-            return self._rest_cache[1]
-        return link_tangent(links, self.link_stiffness, w, g_links)
-
     def _loads(self, actuation: np.ndarray, scale: float) -> "_Loads":
         """What the actuation and the load factor make of the loads, computed once per Newton
         stage (the last one is kept: same actuation values and factor → same loads)."""
@@ -478,17 +471,20 @@ class TrunkModel:
         return ev
 
     def _add_tangent(self, ev: _Evaluation) -> None:
-        """Assemble the tangent of an evaluation into block-band storage (once)."""
-        if ev.lower is not None:
+        """Compute the tangent of an evaluation (once): the links' tangents side by side (their
+        symmetric band is gathered straight from them) and, when cables or gravity act, their
+        blocks in block-band storage."""
+        if ev.link_tangents is not None:
             return
         links, w, g_links, pieces, piece_tension, weight_hat, lever = ev.context
+        flat = np.empty(self.n_links * 144 + 1)
+        flat[-1] = 0.0                                               # the gathers' zero
+        self._link_tangent(links, w, g_links, flat[:-1].reshape(self.n_links, 12, 12))
+        ev.link_tangents = flat
+        if pieces is None and weight_hat is None:
+            return
         storage, band_blocks = self.layout.new_storage()            # [lower, upper] block bands
         lower, upper = band_blocks[0], band_blocks[1]
-        H = self._link_tangent(links, w, g_links)
-        lower[:, 0] = H[:, 6:, 6:]
-        lower[:-1, 0] += H[1:, :6, :6]
-        lower[:-1, 1] = H[1:, 6:, :6]
-        upper[:-1, 1] = H[1:, :6, 6:]
         if pieces is not None:
             H = pieces.tangent(piece_tension)
             if self._cable_scatter is None:
@@ -505,24 +501,58 @@ class TrunkModel:
                 band_blocks.reshape(-1)[target] += np.add.reduceat(H.reshape(-1).take(source), starts)
         if weight_hat is not None:
             lower[:, 0, 3:, 3:] -= weight_hat @ hat(lever[1:])       # −ĝ l̂: the moment arm turns
-        ev.lower, ev.upper, ev.storage = lower, upper, storage
+        ev.extra = storage
+
+    def _blocks(self, ev: _Evaluation):
+        """The whole tangent as [lower, upper] block bands (for LU and shifted factors)."""
+        self._add_tangent(ev)
+        if ev.lower is None:
+            storage, band_blocks = self.layout.new_storage()
+            if ev.extra is not None:
+                storage[:] = ev.extra
+            lower, upper = band_blocks[0], band_blocks[1]
+            H = ev.link_tangents[:-1].reshape(self.n_links, 12, 12)
+            lower[:, 0] += H[:, 6:, 6:]
+            lower[:-1, 0] += H[1:, :6, :6]
+            lower[:-1, 1] += H[1:, 6:, :6]
+            upper[:-1, 1] += H[1:, :6, 6:]
+            ev.lower, ev.upper = lower, upper
+        return ev.lower, ev.upper
+
+    def _symmetric_band(self, ev: _Evaluation) -> np.ndarray:
+        """LAPACK lower band of the tangent's symmetric part."""
+        self._add_tangent(ev)
+        band = self.layout.symmetric_from_links(ev.link_tangents)
+        if ev.extra is not None:
+            band += self.layout.symmetric_from_storage(ev.extra)
+        return band
+
+    def _link_tangent(self, links: Links, w: np.ndarray, g_links: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """Tangent of the links into ``out``; at the unstressed rest state (w = 0) a model constant."""
+        if links is self._rest_cache[0] and not w.any():
+            if self._rest_cache[1] is None:
+                self._rest_cache[1] = link_tangent(links, self.link_stiffness, w, g_links)
+            out[:] = self._rest_cache[1]
+            return out
+        return link_tangent(links, self.link_stiffness, w, g_links, out=out)
 
     def _factor(self, ev: _Evaluation, shift: float = 0.0):
         """Factor the tangent: banded Cholesky of its symmetric part when it is exact to use
         it (no dead moments), banded LU otherwise; ``shift`` adds μ·diag."""
-        self._add_tangent(ev)
-        lower, upper = ev.lower, ev.upper
+        if not shift and not self.has_dead_moments:
+            factor = factor_cholesky(self._symmetric_band(ev))
+            if factor is not None:
+                return factor, "cholesky"
+        lower, upper = self._blocks(ev)
         if shift:
             lower = lower.copy()
             diag = np.einsum("cii->ci", lower[:, 0])
             scale = np.abs(diag) + 1e-300
             lower[:, 0] += shift * np.einsum("ci,ij->cij", scale, np.eye(6))
-        if not self.has_dead_moments:
-            band = (self.layout.symmetric_band(lower, upper) if shift
-                    else self.layout.symmetric_from_storage(ev.storage))
-            factor = factor_cholesky(band)
-            if factor is not None:
-                return factor, "shifted" if shift else "cholesky"
+            if not self.has_dead_moments:
+                factor = factor_cholesky(self.layout.symmetric_band(lower, upper))
+                if factor is not None:
+                    return factor, "shifted"
         factor = factor_lu(self.layout.general_band(lower, upper), self.layout.kd)
         return factor, ("shifted-lu" if shift else "lu") if factor is not None else None
 

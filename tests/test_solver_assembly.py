@@ -21,10 +21,10 @@ def _tensioned(name, seed):
 def test_cable_tangent_summed_per_pair_equals_the_general_scatter(name):
     model, actuation, state = _tensioned(name, 3)
     assert model._cable_scatter is None            # consecutive vertebrae: the per-pair path is used
-    grouped = model._evaluate(state, actuation, 1.0, tangent=True).storage.copy()
+    grouped = model._evaluate(state, actuation, 1.0, tangent=True).extra.copy()      # cables, gravity
     a, b = model.cable_piece_a, model.cable_piece_b
     model._cable_scatter = model._cable_band_map(a, b)    # force the general routing path
-    general = model._evaluate(state, actuation, 1.0, tangent=True).storage
+    general = model._evaluate(state, actuation, 1.0, tangent=True).extra
     # the same sums in another order: rounding only (measured ≤ 1.7e-16 of the largest entry)
     assert np.abs(grouped - general).max() <= 1e-14 * np.abs(general).max()
     assert np.abs(general).max() > 0
@@ -53,3 +53,17 @@ def test_stability_check_sees_the_buckling_load(ratio, stable):
     assert result.converged and np.abs(positions[:, :2]).max() == 0.0      # still straight
     ev = model._evaluate(result.state, model.default_actuation, 1.0, tangent=True)
     assert model._stable(ev) is stable
+
+
+@pytest.mark.parametrize("name", ["cantilever", "paper_5v_16t", "tendon_two_section"])
+def test_symmetric_band_from_the_link_tangents_equals_the_block_assembly(name):
+    # the Cholesky path gathers the links' part of the band straight from their tangents; the
+    # LU and shifted paths assemble every block: both must give the same symmetric part
+    model = solver.build_model(load(name))
+    actuation = np.random.default_rng(5).uniform(0.5, 3.0, len(model.actuator_names))
+    state = model.solve(actuation).state
+    ev = model._evaluate(state, actuation, 1.0, tangent=True)
+    direct = model._symmetric_band(ev)
+    assembled = model.layout.symmetric_band(*model._blocks(ev))
+    # the same terms summed in another order: rounding only (measured ≤ 1.7e-16 of the largest)
+    assert np.abs(direct - assembled).max() <= 1e-14 * np.abs(assembled).max()
