@@ -74,7 +74,7 @@ class BandLayout:
         free frame J the end-b block of link J and the end-a block of link J + 1, below it the
         (b, a) block of link J + 1, and the transposed partners."""
         nb, kd, n = self.n_blocks, self.kd, self.n
-        d, j = np.meshgrid(np.arange(kd + 1), np.arange(n), indexing="ij")
+        d, j = np.meshgrid(np.arange(min(kd, 11) + 1), np.arange(n), indexing="ij")   # links: 2 blocks
         i = j + d
         I, J, a, b = i // 6, j // 6, i % 6, j % 6
         zero = nb * 144
@@ -89,8 +89,10 @@ class BandLayout:
             np.where(nxt, entry(J + 1, b, a), zero)))
 
     def symmetric_from_links(self, flat: np.ndarray) -> np.ndarray:
-        """Lower band (LAPACK storage) of the symmetric part of the chain's link tangents,
-        ``flat`` = the (n_blocks, 12, 12) tangents raveled, plus one trailing zero."""
+        """The first min(kd, 11) + 1 rows of the lower band (LAPACK storage) of the symmetric
+        part of the chain's link tangents (links couple neighbouring frames only; wider bands
+        come from cables), ``flat`` = the (n_blocks, 12, 12) tangents raveled, plus one
+        trailing zero."""
         if not hasattr(self, "link_terms"):
             self._link_gather()
         t1, t2, t3, t4 = self.link_terms
@@ -99,7 +101,7 @@ class BandLayout:
         ab += flat.take(t3)
         ab += flat.take(t4)
         ab *= 0.5
-        return ab.reshape(self.kd + 1, self.n)
+        return ab.reshape(-1, self.n)
 
     def new_storage(self):
         """Zeroed flat storage for stacked [lower, upper] blocks plus a trailing zero, and the

@@ -522,9 +522,12 @@ class TrunkModel:
     def _symmetric_band(self, ev: _Evaluation) -> np.ndarray:
         """LAPACK lower band of the tangent's symmetric part."""
         self._add_tangent(ev)
-        band = self.layout.symmetric_from_links(ev.link_tangents)
-        if ev.extra is not None:
-            band += self.layout.symmetric_from_storage(ev.extra)
+        links = self.layout.symmetric_from_links(ev.link_tangents)
+        if links.shape[0] == self.layout.kd + 1 and ev.extra is None:
+            return links
+        band = (self.layout.symmetric_from_storage(ev.extra) if ev.extra is not None
+                else np.zeros((self.layout.kd + 1, self.layout.n)))
+        band[:links.shape[0]] += links
         return band
 
     def _link_tangent(self, links: Links, w: np.ndarray, g_links: np.ndarray, out: np.ndarray) -> np.ndarray:
