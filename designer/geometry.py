@@ -15,6 +15,7 @@ builds its facet sets from these triangles instead of re-reading a file.
 from __future__ import annotations
 
 import math
+import signal
 import time
 from dataclasses import dataclass, field
 
@@ -107,6 +108,18 @@ def _classify_surfaces(gmsh, family, p, volumes) -> dict[str, list[int]]:
     return groups
 
 
+def _initialize_gmsh(gmsh) -> None:
+    """``gmsh.initialize`` resets SIGPIPE to its default action (terminate) behind Python's
+    back; Python ignores it and reports ``BrokenPipeError`` instead. Restore that, or any later
+    write to a closed pipe — e.g. to a sweep worker that died — kills this whole process."""
+    previous = signal.getsignal(signal.SIGPIPE)
+    gmsh.initialize(readConfigFiles=False, interruptible=False)
+    try:
+        signal.signal(signal.SIGPIPE, previous if previous is not None else signal.SIG_IGN)
+    except ValueError:      # not the main thread: signal dispositions can only be set there
+        pass
+
+
 def mesh_segment(family, p: dict, mesh_size: float, order: int = 2) -> MeshData:
     """Build and mesh ``family`` with canonical parameters ``p``. Runs gmsh in-process."""
     import gmsh
@@ -121,7 +134,7 @@ def mesh_segment(family, p: dict, mesh_size: float, order: int = 2) -> MeshData:
     # is the same for every unit scale; coordinates are scaled back after meshing.
     scale = float(family.length(p))
     p = {spec.name: (p[spec.name] / scale if spec.unit == "m" else p[spec.name]) for spec in family.parameters}
-    gmsh.initialize(readConfigFiles=False, interruptible=False)
+    _initialize_gmsh(gmsh)
     try:
         for name, value in GMSH_OPTIONS.items():
             gmsh.option.setNumber(name, value)

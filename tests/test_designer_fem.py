@@ -273,3 +273,27 @@ def test_unit_scaling_invariance(pneumatic, s, e):
     in_unit = np.array([e * s ** 2] * 3 + [e * s ** 3] * 3 + [e] * 3)
     D = np.sqrt(out_unit / in_unit)
     assert compliance_change(C1 * np.outer(D, D), Cs) < 1e-10
+
+
+def test_meshing_leaves_a_closed_pipe_an_error_not_a_kill():
+    # gmsh.initialize resets SIGPIPE to "terminate" behind Python's back. Left so, a later write
+    # to a closed pipe (a sweep worker that died) killed the whole process: pytest died with
+    # exit 141 in a sweep test after the designer tests had meshed. The designer restores it.
+    import subprocess
+    import sys
+    code = (
+        "import os\n"
+        "from designer import FAMILIES\n"
+        "from designer.geometry import mesh_segment\n"
+        "from designer.segment import canonical_parameters\n"
+        "fam = FAMILIES['rod']\n"
+        "p = canonical_parameters(fam, dict(radius=0.005, length=0.02, youngs_modulus=1e6, poisson_ratio=0.3))\n"
+        "mesh_segment(fam, p, 0.01, 1)\n"
+        "r, w = os.pipe()\n"
+        "os.close(r)\n"
+        "try:\n"
+        "    os.write(w, b'x')\n"
+        "except BrokenPipeError:\n"
+        "    print('broken pipe reported')\n")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0 and "broken pipe reported" in run.stdout, (run.returncode, run.stderr[-500:])
