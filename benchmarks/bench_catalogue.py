@@ -32,12 +32,11 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 import numpy as np  # noqa: E402
 
-from store import catalogue  # noqa: E402
-from store.entry import SegmentEntry, content_key  # noqa: E402
+from vertebra.store import catalogue  # noqa: E402
+from vertebra.store.entry import SegmentEntry, content_key  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 
@@ -82,8 +81,7 @@ def build(path: Path, entries, batch: int = 1000) -> float:
 
 COLD = """
 import sys, time
-sys.path.insert(0, {root!r})
-from store import catalogue
+from vertebra.store import catalogue
 t0 = time.perf_counter()
 with catalogue.open_catalogue({path!r}) as cat:
     t1 = time.perf_counter()

@@ -27,9 +27,9 @@ for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_name, "1")
 
 
-from designer.linsolve import AUTO_THRESHOLD  # noqa: E402
-from designer.segment import compliance_change, design_segment, solve_segment  # noqa: E402
-from designer.threads import pin_blas_threads  # noqa: E402
+from vertebra.designer.linsolve import AUTO_THRESHOLD  # noqa: E402
+from vertebra.designer.segment import compliance_change, design_segment, solve_segment  # noqa: E402
+from vertebra.designer.threads import pin_blas_threads  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 E, NU = 1.0e6, 0.3

@@ -28,13 +28,12 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import solver  # noqa: E402
-from solver.gallery import load  # noqa: E402
-from solver.inverse.controller import InverseController, InverseSettings, constraint_problem  # noqa: E402
-from solver.inverse.problems import reachable_loop  # noqa: E402
-from solver.inverse.qp import solve_constraint_problem  # noqa: E402
+from vertebra import solver  # noqa: E402
+from vertebra.solver.gallery import load  # noqa: E402
+from vertebra.solver.inverse.controller import InverseController, InverseSettings, constraint_problem  # noqa: E402
+from vertebra.solver.inverse.problems import reachable_loop  # noqa: E402
+from vertebra.solver.inverse.qp import solve_constraint_problem  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 PAPER = {"paper_3v_4t": "~5 ms (W ~2 ms)", "paper_3v_8t": "~5 ms (W ~2 ms)",

@@ -27,10 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from solver.inverse.problems import synthetic_problem  # noqa: E402
-from solver.inverse.qp import ConstraintProblem, available_backends, solve_constraint_problem  # noqa: E402
+from vertebra.solver.inverse.problems import synthetic_problem  # noqa: E402
+from vertebra.solver.inverse.qp import ConstraintProblem, available_backends, solve_constraint_problem  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 

@@ -50,16 +50,19 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 import scipy  # noqa: E402
 
-# BENCH_SOLVER_ROOT (set by --commit) points at a snapshot of the repository to benchmark
+# BENCH_SOLVER_ROOT (set by --commit) points at a snapshot of the repository to benchmark: its
+# `vertebra/` folder holds that commit's package root, solver/ and store/, imported before the
+# installed package
 ROOT = Path(os.environ.get("BENCH_SOLVER_ROOT") or Path(__file__).resolve().parents[1])
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+if os.environ.get("BENCH_SOLVER_ROOT"):
+    sys.path.insert(0, str(ROOT))
 
-import solver  # noqa: E402
-from solver import analytic, gallery  # noqa: E402
-from solver.banded import factor_cholesky, factor_lu  # noqa: E402
-from solver.elements import link_gradient, pair_tangent  # noqa: E402
-from solver.links import Links, link_forces, link_tangent  # noqa: E402
+from vertebra import solver  # noqa: E402
+from vertebra.solver import analytic, gallery  # noqa: E402
+from vertebra.solver.banded import factor_cholesky, factor_lu  # noqa: E402
+from vertebra.solver.elements import link_gradient, pair_tangent  # noqa: E402
+from vertebra.solver.links import Links, link_forces, link_tangent  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -842,9 +845,10 @@ def main(argv=None):
                              check=True).stdout.strip()
         tmp = Path(tempfile.mkdtemp(prefix=f"bench_solver_{sha[:10]}_"))
         try:
-            archive = subprocess.run(["git", "archive", sha, "solver", "store"], cwd=REPO, capture_output=True,
-                                     check=True).stdout
-            subprocess.run(["tar", "-x", "-C", str(tmp)], input=archive, check=True)
+            archive = subprocess.run(["git", "archive", sha, "__init__.py", "solver", "store"], cwd=REPO,
+                                     capture_output=True, check=True).stdout
+            (tmp / "vertebra").mkdir()
+            subprocess.run(["tar", "-x", "-C", str(tmp / "vertebra")], input=archive, check=True)
             env = dict(os.environ, BENCH_SOLVER_ROOT=str(tmp), BENCH_SOLVER_SNAPSHOT=sha)
             rest = [a for a in (argv if argv is not None else sys.argv[1:])]
             i = rest.index("--commit")

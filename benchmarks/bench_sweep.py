@@ -30,10 +30,9 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
-from designer.sweep import SweepBackend, parse_spec, run_sweep  # noqa: E402
-from store.entry import SegmentEntry, content_key  # noqa: E402
+from vertebra.designer.sweep import SweepBackend, parse_spec, run_sweep  # noqa: E402
+from vertebra.store.entry import SegmentEntry, content_key  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 
@@ -83,7 +82,7 @@ def real_rows(entries: int, mesh_size: float, order: int, repeat: int) -> list[d
     on a shared machine the minimum is the least disturbed measurement) and the median wall."""
     import statistics
 
-    from store import catalogue as catalogue_module
+    from vertebra.store import catalogue as catalogue_module
 
     spec = rod_spec(entries, mesh_size, order)
     runs: dict = {configuration: [] for configuration in CONFIGURATIONS}
@@ -134,8 +133,8 @@ def overhead_rows(tasks: int) -> list[dict]:
     """Executor cost alone: the sweep's worker function with a no-op job, timed at each result."""
     from functools import partial
 
-    from designer.executors import make_executor
-    from designer.sweep import execute_task, expand
+    from vertebra.designer.executors import make_executor
+    from vertebra.designer.sweep import execute_task, expand
 
     items = expand(parse_spec({"family": "noop", "list": [{"i": i} for i in range(tasks)]}, source="<noop>"))
     function = partial(execute_task, noop_job, noop_store, "unused")

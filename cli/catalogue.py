@@ -22,7 +22,7 @@ def _short(params: dict, width: int = 60) -> str:
 
 
 def _ls(args) -> int:
-    from store import catalogue
+    from vertebra.store import catalogue
 
     with catalogue.open_catalogue(args.file) as cat:
         rows = cat.list()
@@ -42,7 +42,7 @@ def _ls(args) -> int:
 def _show(args) -> int:
     import numpy as np
 
-    from store import catalogue
+    from vertebra.store import catalogue
 
     with catalogue.open_catalogue(args.file) as cat:
         entry = cat.load(args.key)
@@ -64,9 +64,9 @@ def _show(args) -> int:
 
 
 def _verify(args) -> int:
-    from store import catalogue
+    from vertebra.store import catalogue
 
-    from store.errors import CatalogueError
+    from vertebra.store.errors import CatalogueError
 
     problems = catalogue.verify(args.file)
     try:
@@ -85,7 +85,7 @@ def _verify(args) -> int:
 
 
 def _merge(args) -> int:
-    from store import catalogue
+    from vertebra.store import catalogue
 
     report = catalogue.merge(args.out, args.inputs)
     if args.json:
@@ -101,7 +101,7 @@ def _merge(args) -> int:
 
 
 def _query(args) -> int:
-    from store import catalogue
+    from vertebra.store import catalogue
 
     rows = catalogue.query(args.file, args.where or [])
     if args.json:
@@ -114,7 +114,7 @@ def _query(args) -> int:
 
 
 def _export(args) -> int:
-    from store import catalogue
+    from vertebra.store import catalogue
 
     if args.format == "json" and args.out is None:
         with catalogue.open_catalogue(args.file) as cat:
@@ -127,7 +127,7 @@ def _export(args) -> int:
 
 
 def _rm(args) -> int:
-    from store import catalogue
+    from vertebra.store import catalogue
 
     key = catalogue.remove(args.file, args.key)
     print(f"{args.file}: removed {key}", file=sys.stderr)
@@ -135,7 +135,7 @@ def _rm(args) -> int:
 
 
 def _consolidate(args) -> int:
-    from store import catalogue
+    from vertebra.store import catalogue
 
     report = catalogue.consolidate(args.file)
     if args.json:

@@ -29,7 +29,7 @@ def _banner(text: str):
 
 def _command(argv, stdout_path: Path | None = None) -> int:
     """Run one ``vertebra`` subcommand; its stdout goes to ``stdout_path`` when given."""
-    from cli.main import main
+    from vertebra.cli.main import main
     print("$ vertebra " + " ".join(argv), flush=True)
     if stdout_path is None:
         return main(argv)
@@ -47,7 +47,7 @@ def _reachable_circle(scene_name: str, tension: float):
     pulled tendon gives the circle's radius and height."""
     import numpy as np
 
-    import solver
+    from vertebra import solver
     model = solver.build_model(solver.load_scene(f"gallery:{scene_name}"))
     actuation = np.zeros(len(model.actuator_names))
     actuation[-1] = tension          # a tendon terminated at the tip
@@ -58,7 +58,7 @@ def _reachable_circle(scene_name: str, tension: float):
 def run(args) -> int:
     import numpy as np
 
-    from solver.inverse.trajectory import Trajectory, circle, write_trajectory
+    from vertebra.solver.inverse.trajectory import Trajectory, circle, write_trajectory
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
@@ -70,8 +70,8 @@ def run(args) -> int:
     summary["tendon_forward"] = code
 
     _banner("2/3 design → catalogue → forward: CBHA-like pneumatic trunk")
-    from designer.gallery import cbha_catalogue
-    from solver.scene import scene_toml
+    from vertebra.designer.gallery import cbha_catalogue
+    from vertebra.solver.scene import scene_toml
     catalogue_path = out / "cbha.h5"
     t0 = time.perf_counter()
     cbha = cbha_catalogue(catalogue_path, coarse=True)
@@ -96,7 +96,7 @@ def run(args) -> int:
     write_trajectory(trajectory_path, Trajectory(targets[:, None, :], np.arange(args.points, dtype=float)), ["tip"])
     tip_only = out / "paper_5v_16t_tip.toml"
     import tomllib
-    data = tomllib.loads(Path(__import__("solver.gallery", fromlist=["path"]).path("paper_5v_16t")).read_text())
+    data = tomllib.loads(Path(__import__("vertebra.solver.gallery", fromlist=["path"]).path("paper_5v_16t")).read_text())
     data["effector"] = [e for e in data["effector"] if e["name"] == "tip"]
     tip_only.write_text(scene_toml(data))
     summary["tendon_inverse"] = _command(["invert", str(tip_only), "--trajectory", str(trajectory_path),
@@ -122,7 +122,7 @@ def run(args) -> int:
           f"tip error {reach['effectors']['tip']['error']:.2e} m")
     # and a tip trajectory: a horizontal circle of 3 cm radius 5 mm above the rest tip (the
     # chambers only extend the trunk, pressures ≥ 0: below that height the circle is out of reach)
-    import solver
+    from vertebra import solver
     trunk = solver.build_model(solver.load_scene(target_scene))
     rest_tip = trunk.effector_positions(trunk.rest_state)[0]
     tip_circle = circle([0.0, 0.0, rest_tip[2] + 0.005], 0.03, 13)

@@ -13,7 +13,7 @@ import json
 import sys
 import time
 
-from store.errors import GeometryError
+from vertebra.store.errors import GeometryError
 
 
 def add_arguments(parser) -> None:
@@ -61,7 +61,7 @@ def _print_json(document) -> None:
 
 
 def _run_vertebra(args, values) -> int:
-    from designer.vertebra import vertebra_properties, vertebra_snippet
+    from vertebra.designer.vertebra import vertebra_properties, vertebra_snippet
 
     props = vertebra_properties(values)
     if args.json:
@@ -72,11 +72,11 @@ def _run_vertebra(args, values) -> int:
 
 
 def run(args) -> int:
-    from designer.threads import pin_blas_threads
+    from vertebra.designer.threads import pin_blas_threads
 
     pin_blas_threads(1)
-    import designer
-    from designer.segment import entry_document, export_mesh
+    from vertebra import designer
+    from vertebra.designer.segment import entry_document, export_mesh
 
     values = parse_values(args.values)
     if args.family == "vertebra":
@@ -89,7 +89,7 @@ def run(args) -> int:
     parameters = designer.canonical_parameters(family, values)          # GeometryError before meshing
     key = designer.entry_key(family, parameters, mesh_size=args.mesh_size, order=args.order)
 
-    from store import catalogue
+    from vertebra.store import catalogue
 
     start = time.perf_counter()
     if catalogue.has_entry(args.catalogue, key):
@@ -131,7 +131,7 @@ def run(args) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Stand-alone entry (``python -m cli.design``): ``vertebra design`` with the same exit codes."""
-    from cli.main import main as vertebra
+    from vertebra.cli.main import main as vertebra
     return vertebra(["design", *(sys.argv[1:] if argv is None else argv)])
 
 

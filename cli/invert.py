@@ -40,11 +40,11 @@ def _log(message: str) -> None:
 def run(args) -> int:
     import numpy as np
 
-    import solver
-    from solver.inverse import DEFAULT_BACKEND, DEFAULT_REGULARISATION
-    from solver.inverse.controller import InverseController, InverseSettings
-    from solver.inverse.trajectory import Trajectory, read_trajectory
-    from store.errors import ConvergenceError, SceneError
+    from vertebra import solver
+    from vertebra.solver.inverse import DEFAULT_BACKEND, DEFAULT_REGULARISATION
+    from vertebra.solver.inverse.controller import InverseController, InverseSettings
+    from vertebra.solver.inverse.trajectory import Trajectory, read_trajectory
+    from vertebra.store.errors import ConvergenceError, SceneError
 
     scene = solver.load_scene(args.scene)
     model = solver.build_model(scene)
@@ -69,7 +69,7 @@ def run(args) -> int:
         settings = InverseSettings(
             mode=args.mode, backend=args.backend or DEFAULT_BACKEND, tolerance=tolerance,
             regularisation=DEFAULT_REGULARISATION if args.regularisation is None else args.regularisation)
-        from solver.inverse.qp import get_backend
+        from vertebra.solver.inverse.qp import get_backend
 
         get_backend(settings.backend)
     except ValueError as error:
@@ -176,7 +176,7 @@ def _plot(path, names, actuator_names, trajectory, achieved, actuation_rows, *, 
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from solver.report import draw_trunk, equal_axes
+    from vertebra.solver.report import draw_trunk, equal_axes
 
     fig = plt.figure(figsize=(11, 4.8))
     ax = fig.add_subplot(1, 2, 1, projection="3d")

@@ -18,16 +18,17 @@ import argparse  # noqa: E402
 import importlib  # noqa: E402
 import sys  # noqa: E402
 
-from store.errors import CatalogueError, GeometryError, SceneError, VertebraError  # noqa: E402
+from vertebra import __version__  # noqa: E402
+from vertebra.store.errors import CatalogueError, GeometryError, SceneError, VertebraError  # noqa: E402
 
 # name -> (module, one-line help). Adding a subcommand touches this table and its module.
 SUBCOMMANDS = {
-    "simulate": ("cli.simulate", "forward quasi-static equilibrium of a scene"),
-    "invert": ("cli.invert", "actuation that brings effectors to targets"),
-    "design": ("cli.design", "mesh, solve and condense one segment into the catalogue"),
-    "sweep": ("cli.sweep", "design-space sweep into the catalogue"),
-    "catalogue": ("cli.catalogue", "list, show, verify, merge, export catalogue entries"),
-    "demo": ("cli.demo", "the main job on an embedded default, end to end"),
+    "simulate": ("vertebra.cli.simulate", "forward quasi-static equilibrium of a scene"),
+    "invert": ("vertebra.cli.invert", "actuation that brings effectors to targets"),
+    "design": ("vertebra.cli.design", "mesh, solve and condense one segment into the catalogue"),
+    "sweep": ("vertebra.cli.sweep", "design-space sweep into the catalogue"),
+    "catalogue": ("vertebra.cli.catalogue", "list, show, verify, merge, export catalogue entries"),
+    "demo": ("vertebra.cli.demo", "the main job on an embedded default, end to end"),
 }
 
 
@@ -36,6 +37,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="vertebra",
         description="Model and control continuum robots with rigid vertebrae: design segments (gmsh + "
                     "scikit-fem) into an HDF5 catalogue, simulate trunks forward, invert them for actuation.")
+    parser.add_argument("--version", action="version", version=f"vertebra {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, (module_name, help_text) in SUBCOMMANDS.items():
         module = importlib.import_module(module_name)

@@ -14,9 +14,9 @@ def add_arguments(parser):
 
 
 def run(args) -> int:
-    import solver
-    from solver.report import plot_static, static_report, write_vtk
-    from store.errors import ConvergenceError
+    from vertebra import solver
+    from vertebra.solver.report import plot_static, static_report, write_vtk
+    from vertebra.store.errors import ConvergenceError
 
     scene = solver.load_scene(args.scene)
     model = solver.build_model(scene)

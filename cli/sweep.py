@@ -28,7 +28,7 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    from designer.sweep import run_sweep
+    from vertebra.designer.sweep import run_sweep
 
     executor = "dask" if args.scheduler else args.executor
     report = run_sweep(args.spec, args.catalogue, executor=executor, workers=args.workers,

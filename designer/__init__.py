@@ -11,9 +11,9 @@ Public API (DESIGN.md §1, §2)::
 Heavy imports (gmsh, scikit-fem, pyamg, meshio) happen inside the functions.
 """
 
-from designer.families import FAMILIES, Family, Parameter, register_family
-from designer.segment import canonical_parameters, design_segment, entry_key, resolve_mesh_size
-from designer.vertebra import VERTEBRA_PARAMETERS, vertebra_properties, vertebra_snippet
+from vertebra.designer.families import FAMILIES, Family, Parameter, register_family
+from vertebra.designer.segment import canonical_parameters, design_segment, entry_key, resolve_mesh_size
+from vertebra.designer.vertebra import VERTEBRA_PARAMETERS, vertebra_properties, vertebra_snippet
 
 __all__ = [
     "FAMILIES", "Family", "Parameter", "register_family",

@@ -35,8 +35,8 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Iterator, Protocol, runtime_checkable
 
-from designer.threads import blas_threads
-from store.errors import SceneError
+from vertebra.designer.threads import blas_threads
+from vertebra.store.errors import SceneError
 
 # Thread pools of numerical libraries: one thread each in every worker. Several
 # worker processes on a few cores with threaded BLAS oversubscribe the machine

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from store.errors import GeometryError
+from vertebra.store.errors import GeometryError
 
 
 def skew(v) -> np.ndarray:
@@ -156,7 +156,7 @@ def build_fe(mesh_data, youngs_modulus: float, poisson_ratio: float, density: fl
     from skfem import Basis, ElementTetP1, ElementTetP2, Functional, MeshTet1, MeshTet2, asm
     from skfem.models.elasticity import lame_parameters
 
-    from designer.surface import Surface
+    from vertebra.designer.surface import Surface
 
     start = time.perf_counter()
     order = mesh_data.order
@@ -276,7 +276,7 @@ def condense(fe: SegmentFE, frames=("top",), linear_solver: str = "auto", amg_th
     ``frames=("top",)`` gives the clamped-a compliance; ``("bottom", "top")`` the
     free-free 12×12 frame stiffness (with its six rigid-body modes).
     """
-    from designer.linsolve import get_solver
+    from vertebra.designer.linsolve import get_solver
 
     start = time.perf_counter()
     interior = fe.interior()

@@ -13,8 +13,8 @@ from __future__ import annotations
 import math
 import time
 
-from designer.segment import design_segment, entry_key
-from designer.vertebra import vertebra_properties
+from vertebra.designer.segment import design_segment, entry_key
+from vertebra.designer.vertebra import vertebra_properties
 
 #: geometry of the two sections (bottom -> top), SI units
 CBHA_SECTIONS = (
@@ -92,7 +92,7 @@ def cbha_catalogue(path, *, coarse: bool = True, estimate_accuracy: bool = True,
     content key, are reused) and return ``{"entries": [{name, key, section, slice, reused,
     total_s}], "scene": scene dict}``. ``scene_catalogue`` is the catalogue path written in the
     scene (default: ``path`` as given); ``pressures`` maps chamber names (``s1c0`` …) to Pa."""
-    from store import catalogue
+    from vertebra.store import catalogue
 
     rows, new = [], []
     for item in cbha_slices(coarse):

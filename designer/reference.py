@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from designer.fem import SegmentFE, face_load, skew
+from vertebra.designer.fem import SegmentFE, face_load, skew
 
 
 def transport(d) -> np.ndarray:

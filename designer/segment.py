@@ -19,9 +19,9 @@ from importlib import metadata
 
 import numpy as np
 
-from designer.families import FAMILIES, Family
-from store.entry import SegmentEntry, content_key
-from store.errors import GeometryError
+from vertebra.designer.families import FAMILIES, Family
+from vertebra.store.entry import SegmentEntry, content_key
+from vertebra.store.errors import GeometryError
 
 #: bump when a change in designer/ changes the numbers of an entry (part of the key)
 ALGORITHM_VERSION = "designer-2"   # 2: meshing in units of the segment length
@@ -114,8 +114,8 @@ def _say(progress, message: str) -> None:
 def solve_segment(family, parameters: dict, *, mesh_size=None, order: int = 2, linear_solver: str = "auto",
                   amg_threshold: int | None = None, progress=None):
     """Mesh, assemble and condense. Returns ``(compliance, fe, mesh_data, condensation, timings)``."""
-    from designer.fem import build_fe, condense
-    from designer.geometry import mesh_segment
+    from vertebra.designer.fem import build_fe, condense
+    from vertebra.designer.geometry import mesh_segment
 
     fam = family_of(family)
     p = canonical_parameters(fam, parameters)
@@ -144,7 +144,7 @@ def design_segment(family, parameters: dict, *, mesh_size=None, order: int = 2, 
     ``estimate_accuracy``: also solve on a mesh refined by ``REFINEMENT`` and store the
     relative compliance change in ``entry.accuracy``.
     """
-    from designer.threads import pin_blas_threads
+    from vertebra.designer.threads import pin_blas_threads
 
     pin_blas_threads(1)
     start = time.perf_counter()
@@ -214,7 +214,7 @@ def export_mesh(family, parameters: dict, path: str, *, mesh_size=None, order: i
     options), so this is the mesh ``design_segment`` used for the same settings."""
     import meshio
 
-    from designer.geometry import mesh_segment
+    from vertebra.designer.geometry import mesh_segment
 
     fam = family_of(family)
     p = canonical_parameters(fam, parameters)

@@ -35,8 +35,8 @@ from functools import partial
 from pathlib import Path
 from typing import Any, Callable
 
-from designer.executors import Crash, make_executor, pin_threads, worker_info
-from store.errors import SceneError, VertebraError
+from vertebra.designer.executors import Crash, make_executor, pin_threads, worker_info
+from vertebra.store.errors import SceneError, VertebraError
 
 FAILURE_LOG_VERSION = 1
 FAILURE_LOG_SUFFIX = ".failures.jsonl"
@@ -316,7 +316,7 @@ def format_name(spec: SweepSpec, task: Task) -> str | None:
 
 def design_job(task: Task):
     """The real job: mesh, solve and condense one segment (``designer.design_segment``)."""
-    import designer
+    from vertebra import designer
 
     return designer.design_segment(task.family, dict(task.parameters), mesh_size=task.mesh_size,
                                    order=task.order, name=task.name, linear_solver=task.linear_solver,
@@ -327,27 +327,27 @@ def _catalogue_add(path: str, entry) -> str:
     """Commit the entry as a shard (durable and visible to readers at once); the parent
     merges shards into the catalogue file in batches (one rewrite per batch, not per entry:
     a merge rewrites the whole file, so per-entry merges cost O(N²) over a large sweep)."""
-    from store import catalogue
+    from vertebra.store import catalogue
 
     return catalogue.add_entry(path, entry, consolidate=False)
 
 
 def _catalogue_consolidate(path: str) -> None:
-    from store import catalogue
+    from vertebra.store import catalogue
 
     catalogue.consolidate(path)
 
 
 def _catalogue_has(path: str, key: str) -> bool:
-    from store import catalogue
+    from vertebra.store import catalogue
 
     return catalogue.has_entry(path, key)
 
 
 def _catalogue_keys(path: str) -> set | None:
     """Every key of an existing catalogue (file and committed shards) in one read; None: ask per key."""
-    from store import catalogue
-    from store.errors import CatalogueError
+    from vertebra.store import catalogue
+    from vertebra.store.errors import CatalogueError
 
     if not os.path.exists(path):
         return None                   # only shards, or nothing: has_entry knows how to look
@@ -359,19 +359,19 @@ def _catalogue_keys(path: str) -> set | None:
 
 
 def _designer_canonical(family: str, parameters: dict) -> dict:
-    import designer
+    from vertebra import designer
 
     return designer.canonical_parameters(family, parameters)
 
 
 def _designer_key(task: Task) -> str:
-    import designer
+    from vertebra import designer
 
     return designer.entry_key(task.family, task.parameters, mesh_size=task.mesh_size, order=task.order)
 
 
 def _designer_families():
-    import designer
+    from vertebra import designer
 
     return list(designer.FAMILIES)
 
@@ -701,7 +701,7 @@ def run_sweep(spec: SweepSpec | str | os.PathLike, catalogue, *, executor: str =
     Raises SceneError for a bad spec or executor settings (before any work) and
     CatalogueError when the catalogue's directory does not exist.
     """
-    from store.errors import CatalogueError
+    from vertebra.store.errors import CatalogueError
 
     start = time.perf_counter()
     if not isinstance(spec, SweepSpec):

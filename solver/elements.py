@@ -19,7 +19,7 @@ from dataclasses import dataclass, fields, is_dataclass
 
 import numpy as np
 
-from solver.rotations import _HAT_TABLE, cross, dot, hat, matvec, qconj, qlog, qmatrix, qmul, qrotate, se3_coefficients
+from vertebra.solver.rotations import _HAT_TABLE, cross, dot, hat, matvec, qconj, qlog, qmatrix, qmul, qrotate, se3_coefficients
 
 COMPLEX_STEP = 1e-30
 CHUNK = 1024          # elements per complex-step batch

@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import zeta
 
-from solver.rotations import _HAT_TABLE, _QL_INDEX, _QL_SIGN, _R_TABLE
+from vertebra.solver.rotations import _HAT_TABLE, _QL_INDEX, _QL_SIGN, _R_TABLE
 
 _TERMS = 40
 _k = np.arange(1, _TERMS + 3, dtype=float)

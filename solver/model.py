@@ -15,12 +15,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from solver.banded import BandLayout, factor_cholesky, factor_lu
-from solver.beam import timoshenko_compliance
-from solver.elements import CablePieces
-from solver.links import Chain, Links, chain_poses, link_forces, link_tangent
-from solver.rotations import hat, qmatrix, qrotate, se3_log
-from store.errors import CatalogueError, ConvergenceError, SceneError
+from vertebra.solver.banded import BandLayout, factor_cholesky, factor_lu
+from vertebra.solver.beam import timoshenko_compliance
+from vertebra.solver.elements import CablePieces
+from vertebra.solver.links import Chain, Links, chain_poses, link_forces, link_tangent
+from vertebra.solver.rotations import hat, qmatrix, qrotate, se3_log
+from vertebra.store.errors import CatalogueError, ConvergenceError, SceneError
 
 
 @dataclass
@@ -156,7 +156,7 @@ def build_model(scene, entries: dict | None = None) -> "TrunkModel":
     entries = dict(entries or {})
     missing = [name for name in needed if name not in entries]
     if missing:
-        from store import catalogue  # lazy: beam-only scenes never touch HDF5
+        from vertebra.store import catalogue  # lazy: beam-only scenes never touch HDF5
         with catalogue.open_catalogue(scene.catalogue) as cat:
             for name in missing:
                 try:

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from solver.model import State, StaticResult, TrunkModel
+from vertebra.solver.model import State, StaticResult, TrunkModel
 
 
 def _pose(position, quaternion) -> dict:
@@ -48,7 +48,7 @@ def static_report(model: TrunkModel, result: StaticResult) -> dict:
 def cable_paths(model: TrunkModel, state: State) -> list[np.ndarray]:
     """World polyline of each cable through its holes."""
     x, q = state.positions, state.quaternions
-    from solver.rotations import qrotate
+    from vertebra.solver.rotations import qrotate
     paths = []
     for k in range(model.n_cables):
         pieces = np.flatnonzero(model.cable_piece_owner == k)
@@ -67,7 +67,7 @@ def _vertebra_radius(model: TrunkModel) -> float:
 def draw_trunk(ax, model: TrunkModel, state: State, *, rest: bool = True, targets: bool = True,
                legend_prefix: str = ""):
     """Draw backbone, vertebrae (discs), cables and effectors on a 3D matplotlib axis."""
-    from solver.rotations import qrotate
+    from vertebra.solver.rotations import qrotate
     if rest:
         r = model.rest_state.positions
         ax.plot(r[:, 0], r[:, 1], r[:, 2], color="0.75", lw=1, ls="--", label="rest")

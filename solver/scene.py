@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from solver.beam import Section
-from store.errors import SceneError
+from vertebra.solver.beam import Section
+from vertebra.store.errors import SceneError
 
 SEGMENT_TYPES = ("beam", "entry")
 MAX_MAGNITUDE = 1e100        # larger inputs are mistakes (and overflow in l³, r⁴)
@@ -211,7 +211,7 @@ class _Table:
 def load_scene(path) -> Scene:
     """Read and validate a TOML scene file; ``gallery:NAME`` names a gallery scene."""
     if str(path).startswith("gallery:"):
-        from solver.gallery import path as gallery_path   # lazy: the gallery imports this module
+        from vertebra.solver.gallery import path as gallery_path   # lazy: the gallery imports this module
         path = gallery_path(str(path).split(":", 1)[1])
     path = Path(path)
     try:

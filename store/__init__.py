@@ -1,7 +1,7 @@
 """The HDF5 catalogue of condensed segments: entry types, schema, safe writing."""
 
-from store.entry import SegmentEntry, canonical_json, content_key
-from store.errors import CatalogueError, ConvergenceError, GeometryError, SceneError, VertebraError
+from vertebra.store.entry import SegmentEntry, canonical_json, content_key
+from vertebra.store.errors import CatalogueError, ConvergenceError, GeometryError, SceneError, VertebraError
 
 __all__ = [
     "SegmentEntry", "canonical_json", "content_key",

@@ -16,11 +16,11 @@ from pathlib import Path
 
 import numpy as np
 
-from store.entry import SegmentEntry, canonical_json
-from store.errors import CatalogueError
-from store.schema import (ARRAY_FIELDS, DICT_FIELDS, SCHEMA_VERSION, EncodedEntry, check_key,
+from vertebra.store.entry import SegmentEntry, canonical_json
+from vertebra.store.errors import CatalogueError
+from vertebra.store.schema import (ARRAY_FIELDS, DICT_FIELDS, SCHEMA_VERSION, EncodedEntry, check_key,
                           differing_fields, read_entry, read_index)
-from store.shards import (CONFLICT_SUFFIX, LOCK_TIMEOUT_S, Conflict, MergeReport, _temp_path,
+from vertebra.store.shards import (CONFLICT_SUFFIX, LOCK_TIMEOUT_S, Conflict, MergeReport, _temp_path,
                           list_shards, open_checked, problem_files, rebuild, shards_dir,
                           write_shard, _publish, _unlink_quietly)
 
@@ -184,7 +184,7 @@ def _lookup(path: Path, keys: list[str]) -> dict:
     """key -> (content digest or its 16-hex-digit prefix, file holding it) for the keys
     already in the catalogue file or in a committed shard. Reads no entry data and opens
     no single-entry shard (their names carry key and content digest)."""
-    from store.schema import read_stored_digests
+    from vertebra.store.schema import read_stored_digests
 
     found = {}
     if path.exists():
@@ -552,7 +552,7 @@ def export(path, key: str, fmt: str, out=None) -> Path:
 
 def entry_from_npz(file) -> SegmentEntry:
     """Read an entry exported with ``export(..., "npz")`` (allow_pickle=False)."""
-    from store.schema import parse_json
+    from vertebra.store.schema import parse_json
 
     with np.load(file, allow_pickle=False) as z:
         kwargs = {f: z[f] for f in ARRAY_FIELDS}

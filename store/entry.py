@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from store.errors import CatalogueError
+from vertebra.store.errors import CatalogueError
 
 SYMMETRY_TOLERANCE = 1e-8
 

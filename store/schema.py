@@ -32,8 +32,8 @@ from typing import Any
 
 import numpy as np
 
-from store.entry import SegmentEntry, canonical_json
-from store.errors import CatalogueError
+from vertebra.store.entry import SegmentEntry, canonical_json
+from vertebra.store.errors import CatalogueError
 
 FORMAT = "vertebra-catalogue"
 SCHEMA_VERSION = 1

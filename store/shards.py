@@ -22,8 +22,8 @@ import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from store.errors import CatalogueError
-from store.schema import (EncodedEntry, append_index, check_file, differing_fields, init_file,
+from vertebra.store.errors import CatalogueError
+from vertebra.store.schema import (EncodedEntry, append_index, check_file, differing_fields, init_file,
                           read_entry, read_index, write_entry)
 
 log = logging.getLogger("vertebra.store")

@@ -15,9 +15,9 @@ import h5py
 import numpy as np
 import pytest
 
-from store import catalogue, schema, shards
-from store.entry import SegmentEntry
-from store.errors import CatalogueError
+from vertebra.store import catalogue, schema, shards
+from vertebra.store.entry import SegmentEntry
+from vertebra.store.errors import CatalogueError
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -97,7 +97,7 @@ def test_lazy_open_lists_without_reading_entries(cat3, monkeypatch):
     _flip_byte_in_dataset(path, entries[0].key, "compliance")
     calls = []
     real = schema.read_entry
-    monkeypatch.setattr("store.catalogue.read_entry", lambda *a: calls.append(a[1]) or real(*a))
+    monkeypatch.setattr("vertebra.store.catalogue.read_entry", lambda *a: calls.append(a[1]) or real(*a))
     with catalogue.open_catalogue(path) as cat:
         rows = cat.list()
         assert calls == []
@@ -384,10 +384,10 @@ def test_export_json_and_npz_round_trip(cat3, tmp_path):
 
 def vertebra(argv, monkeypatch, capsys):
     """``vertebra catalogue ...`` through cli.main (only our subcommand registered)."""
-    import cli.main
+    from vertebra.cli import main as cli_main
 
-    monkeypatch.setattr(cli.main, "SUBCOMMANDS", {"catalogue": cli.main.SUBCOMMANDS["catalogue"]})
-    code = cli.main.main(["catalogue", *map(str, argv)])
+    monkeypatch.setattr(cli_main, "SUBCOMMANDS", {"catalogue": cli_main.SUBCOMMANDS["catalogue"]})
+    code = cli_main.main(["catalogue", *map(str, argv)])
     out, err = capsys.readouterr()
     return code, out, err
 

@@ -14,8 +14,8 @@ import time
 
 import pytest
 
-from store import catalogue, shards
-from store.errors import CatalogueError
+from vertebra.store import catalogue, shards
+from vertebra.store.errors import CatalogueError
 from test_catalogue import assert_same_entry, make_entry
 
 CTX = multiprocessing.get_context("fork")

@@ -14,11 +14,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from designer import FAMILIES, canonical_parameters
-from designer.fem import build_fe, condense
-from designer.geometry import mesh_segment
-from designer.reference import chain_condensed_solve, chain_fe_solve
-from store.entry import SegmentEntry
+from vertebra.designer import FAMILIES, canonical_parameters
+from vertebra.designer.fem import build_fe, condense
+from vertebra.designer.geometry import mesh_segment
+from vertebra.designer.reference import chain_condensed_solve, chain_fe_solve
+from vertebra.store.entry import SegmentEntry
 
 E = 1.0e6
 SEGMENTS = [  # bottom to top: three different segments with cavities

@@ -3,7 +3,7 @@
 
 import json
 
-from cli.main import main
+from vertebra.cli.main import main
 
 
 def test_demo_runs_the_whole_pipeline(tmp_path, capsys):

@@ -12,8 +12,8 @@ import sys
 import numpy as np
 import pytest
 
-import designer
-from store.errors import GeometryError
+from vertebra import designer
+from vertebra.store.errors import GeometryError
 
 MATERIAL = dict(youngs_modulus=1e6, poisson_ratio=0.45)
 VALID = {

@@ -12,10 +12,10 @@ import warnings
 import numpy as np
 import pytest
 
-from designer.fem import build_fe, condense, displacement_field
-from designer.geometry import mesh_segment
-from designer.reference import transport
-from designer.segment import LockingWarning, canonical_parameters, compliance_change, design_segment, solve_segment
+from vertebra.designer.fem import build_fe, condense, displacement_field
+from vertebra.designer.geometry import mesh_segment
+from vertebra.designer.reference import transport
+from vertebra.designer.segment import LockingWarning, canonical_parameters, compliance_change, design_segment, solve_segment
 
 E, NU = 1.0e6, 0.3
 PNEUMATIC = dict(outer_radius=0.02, chamber_radius=0.005, chamber_offset=0.011, length=0.02,
@@ -23,7 +23,7 @@ PNEUMATIC = dict(outer_radius=0.02, chamber_radius=0.005, chamber_offset=0.011, 
 
 
 def _fe(family, parameters, h, order=2):
-    from designer import FAMILIES
+    from vertebra.designer import FAMILIES
     fam = FAMILIES[family]
     p = canonical_parameters(fam, parameters)
     mesh = mesh_segment(fam, p, h, order)
@@ -41,7 +41,7 @@ def test_fast_assembly_equals_scikit_fem_form():
     from skfem import Basis, ElementTetP2, ElementVector, MeshTet, MeshTet2, asm
     from skfem.models.elasticity import lame_parameters, linear_elasticity
 
-    from designer.fem import assemble_elasticity, vector_element_dofs
+    from vertebra.designer.fem import assemble_elasticity, vector_element_dofs
     mesh = MeshTet2.from_mesh(MeshTet().refined(1))
     vector = Basis(mesh, ElementVector(ElementTetP2()), intorder=4)
     scalar = Basis(mesh, ElementTetP2(), intorder=4)
@@ -249,7 +249,7 @@ def test_bellows_and_tube_entries():
 
 
 def test_gmsh_failure_becomes_geometry_error():
-    from store.errors import GeometryError
+    from vertebra.store.errors import GeometryError
     # mesh size far above the 1.5 mm wall: gmsh's tetrahedralisation fails; the user gets a
     # GeometryError (CLI exit 2) naming the mesh size, not a bare gmsh exception
     with pytest.raises(GeometryError, match="mesh_size = 0.004"):
@@ -283,9 +283,9 @@ def test_meshing_leaves_a_closed_pipe_an_error_not_a_kill():
     import sys
     code = (
         "import os\n"
-        "from designer import FAMILIES\n"
-        "from designer.geometry import mesh_segment\n"
-        "from designer.segment import canonical_parameters\n"
+        "from vertebra.designer import FAMILIES\n"
+        "from vertebra.designer.geometry import mesh_segment\n"
+        "from vertebra.designer.segment import canonical_parameters\n"
         "fam = FAMILIES['rod']\n"
         "p = canonical_parameters(fam, dict(radius=0.005, length=0.02, youngs_modulus=1e6, poisson_ratio=0.3))\n"
         "mesh_segment(fam, p, 0.01, 1)\n"

@@ -8,13 +8,13 @@ import tomllib
 import numpy as np
 import pytest
 
-from designer.gallery import CBHA_MAX_PRESSURE, cbha_catalogue, cbha_slices, scene_to_toml
+from vertebra.designer.gallery import CBHA_MAX_PRESSURE, cbha_catalogue, cbha_slices, scene_to_toml
 
 
 def test_cbha_slices_taper_and_are_valid():
     slices = cbha_slices(coarse=True)
     assert len(slices) == 16 and len({s["name"] for s in slices}) == 16
-    import designer
+    from vertebra import designer
     for s in slices:
         designer.canonical_parameters("tapered_pneumatic", s["parameters"])     # no GeometryError
     # continuous taper: each slice starts where the previous one ended (within a section)
@@ -36,7 +36,7 @@ def test_cbha_catalogue_entries_and_reuse(cbha):
     assert len(set(keys)) == 16 and not any(row["reused"] for row in result["entries"])
     again = cbha_catalogue(path, coarse=True, estimate_accuracy=False)
     assert [row["key"] for row in again["entries"]] == keys and all(row["reused"] for row in again["entries"])
-    from store import catalogue
+    from vertebra.store import catalogue
     with catalogue.open_catalogue(path) as cat:
         entries = [cat.load(k) for k in keys]
     # thinner slices higher up: the bending compliance grows along each section

@@ -9,10 +9,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import solver
-from solver.inverse import invert
+from vertebra import solver
+from vertebra.solver.inverse import invert
 
-cbha_catalogue = pytest.importorskip("designer.gallery").cbha_catalogue
+cbha_catalogue = pytest.importorskip("vertebra.designer.gallery").cbha_catalogue
 
 
 @pytest.fixture(scope="module")

@@ -1,6 +1,6 @@
 """``vertebra invert`` (DESIGN.md §5): JSON contract, trajectories, plot and exit codes.
 
-Runs the real dispatcher ``cli.main.main`` in-process (its table is narrowed to the
+Runs the real dispatcher ``cli_main.main`` in-process (its table is narrowed to the
 ``invert`` subcommand so these tests do not depend on the other subcommands' modules).
 """
 
@@ -12,19 +12,19 @@ import re
 import numpy as np
 import pytest
 
-import cli.main
-import solver
-from solver.gallery import load, path
-from solver.inverse.trajectory import Trajectory, read_trajectory, write_trajectory
-from store.errors import SceneError
+from vertebra.cli import main as cli_main
+from vertebra import solver
+from vertebra.solver.gallery import load, path
+from vertebra.solver.inverse.trajectory import Trajectory, read_trajectory, write_trajectory
+from vertebra.store.errors import SceneError
 
 
 @pytest.fixture
 def vertebra(monkeypatch, capsys):
-    monkeypatch.setattr(cli.main, "SUBCOMMANDS", {"invert": cli.main.SUBCOMMANDS["invert"]})
+    monkeypatch.setattr(cli_main, "SUBCOMMANDS", {"invert": cli_main.SUBCOMMANDS["invert"]})
 
     def run(*argv):
-        code = cli.main.main(["invert", *map(str, argv)])
+        code = cli_main.main(["invert", *map(str, argv)])
         out, err = capsys.readouterr()
         return code, out, err
 
@@ -135,9 +135,9 @@ def test_orientation_target_for_a_vertebra_axis(tmp_path, vertebra):
     # under known tensions, are reached by the converged inverse (errors: m and dimensionless)
     import tomllib
 
-    from solver.inverse import invert
-    from solver.rotations import qrotate
-    from solver.scene import scene_toml
+    from vertebra.solver.inverse import invert
+    from vertebra.solver.rotations import qrotate
+    from vertebra.solver.scene import scene_toml
 
     data = tomllib.loads(path("tendon_two_section").read_text())
     model = solver.build_model(solver.parse_scene(data))

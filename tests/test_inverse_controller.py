@@ -11,11 +11,11 @@ import dataclasses
 import numpy as np
 import pytest
 
-import solver
-from solver.gallery import load
-from solver.inverse.controller import InverseController, InverseSettings
-from solver.inverse.problems import reachable_loop
-from store.errors import ConvergenceError
+from vertebra import solver
+from vertebra.solver.gallery import load
+from vertebra.solver.inverse.controller import InverseController, InverseSettings
+from vertebra.solver.inverse.problems import reachable_loop
+from vertebra.store.errors import ConvergenceError
 
 
 def _model(name, **replace):
@@ -163,8 +163,8 @@ def pneumatic_entry(length=0.03, youngs_modulus=1e6, poisson_ratio=0.45, outer=0
     """A synthetic three-cavity elastomer segment (no CBHA catalogue entry exists yet):
     tube compliance C, pressure acting as a push ``F`` on the top face at each cavity,
     G = C F, V = Fᵀ C F + v₀ I — symmetric positive definite by construction."""
-    from solver.beam import Section, timoshenko_compliance
-    from store.entry import SegmentEntry
+    from vertebra.solver.beam import Section, timoshenko_compliance
+    from vertebra.store.entry import SegmentEntry
 
     C = timoshenko_compliance(length, youngs_modulus, youngs_modulus / (2 * (1 + poisson_ratio)),
                               Section.tube(outer, inner, poisson_ratio))

@@ -17,13 +17,13 @@ import dataclasses
 import numpy as np
 import pytest
 
-import solver
-from solver.gallery import load
-import solver.inverse.qp as qp_module
-from solver.banded import BandedFactor, factor_lu
-from solver.inverse.controller import InverseController, InverseSettings, _project, _solve_rhs, constraint_problem
-from solver.inverse.problems import synthetic_problem
-from solver.inverse.qp import ConstraintProblem, DaqpBackend, quadratic_form, solve_constraint_problem
+from vertebra import solver
+from vertebra.solver.gallery import load
+import vertebra.solver.inverse.qp as qp_module
+from vertebra.solver.banded import BandedFactor, factor_lu
+from vertebra.solver.inverse.controller import InverseController, InverseSettings, _project, _solve_rhs, constraint_problem
+from vertebra.solver.inverse.problems import synthetic_problem
+from vertebra.solver.inverse.qp import ConstraintProblem, DaqpBackend, quadratic_form, solve_constraint_problem
 
 SCENES = ["paper_3v_4t", "paper_5v_16t", "tendon_two_section"]
 
@@ -207,7 +207,7 @@ def test_bad_targets_are_named():
 
 def _eager_diagnostics(problem, sol):
     """The diagnostics as solve_constraint_problem computed them before they became lazy."""
-    from solver.inverse.qp import quadratic_form
+    from vertebra.solver.inverse.qp import quadratic_form
     qp = quadratic_form(problem)
     lam, n = sol.actuation, problem.n_actuators
     g = qp.P @ lam + qp.q

@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from solver.inverse.problems import synthetic_problem
-from solver.inverse.qp import (
+from vertebra.solver.inverse.problems import synthetic_problem
+from vertebra.solver.inverse.qp import (
     ConstraintProblem,
     available_backends,
     quadratic_form,

@@ -20,9 +20,9 @@ import math
 import numpy as np
 import pytest
 
-import solver
-from solver.inverse import invert
-from solver.rotations import qrotate
+from vertebra import solver
+from vertebra.solver.inverse import invert
+from vertebra.solver.rotations import qrotate
 
 CABLE_MOMENT = 0.15   # largest cable moment, in units of EI/L of the softest segment
 

@@ -20,10 +20,10 @@ from pathlib import Path
 
 import pytest
 
-import solver
-from cli.main import main as cli_main
-from solver.scene import scene_toml
-from store.errors import SceneError, VertebraError
+from vertebra import solver
+from vertebra.cli.main import main as cli_main
+from vertebra.solver.scene import scene_toml
+from vertebra.store.errors import SceneError, VertebraError
 
 ROOT = Path(__file__).resolve().parents[1]
 GALLERY = sorted(glob.glob(str(ROOT / "solver" / "gallery" / "*.toml")))
@@ -157,7 +157,7 @@ def test_cli_executable_bad_scene_exit_2_without_traceback(tmp_path):
     data["cable"][1]["from"] = 99
     path = tmp_path / "bad.toml"
     path.write_text(scene_toml(data))
-    done = subprocess.run([sys.executable, "-m", "cli.main", "simulate", str(path)], cwd=ROOT,
+    done = subprocess.run([sys.executable, "-m", "vertebra.cli.main", "simulate", str(path)], cwd=ROOT,
                           capture_output=True, text=True, timeout=60)
     assert done.returncode == 2
     assert "Traceback" not in done.stderr
@@ -196,7 +196,7 @@ def test_former_non_domain_crash_is_a_scene_error(label, mutation):
 def test_cli_angle_inf_exits_2_without_traceback(tmp_path):
     path = tmp_path / "inf.toml"
     path.write_text(scene_toml(_tendon(lambda d: d["cable"][0].update(angle_deg=math.inf))))
-    done = subprocess.run([sys.executable, "-m", "cli.main", "simulate", str(path)], cwd=ROOT,
+    done = subprocess.run([sys.executable, "-m", "vertebra.cli.main", "simulate", str(path)], cwd=ROOT,
                           capture_output=True, text=True, timeout=60)
     assert done.returncode == 2 and "Traceback" not in done.stderr
 

@@ -5,9 +5,9 @@ segment's own compliance (DESIGN §2)."""
 import numpy as np
 import pytest
 
-import solver
-from store import SegmentEntry
-from store.errors import SceneError
+from vertebra import solver
+from vertebra.store import SegmentEntry
+from vertebra.store.errors import SceneError
 
 RNG = np.random.default_rng(7)
 

@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-import solver
-from solver.gallery import load
+from vertebra import solver
+from vertebra.solver.gallery import load
 
 
 def _tensioned(name, seed):

@@ -6,9 +6,9 @@ import math
 import numpy as np
 import pytest
 
-import solver
-from solver.analytic import elastica_tip
-from store.errors import ConvergenceError
+from vertebra import solver
+from vertebra.solver.analytic import elastica_tip
+from vertebra.store.errors import ConvergenceError
 
 
 def cantilever(elements, length, youngs, radius, force=(0, 0, 0), moment=(0, 0, 0), nu=0.3):

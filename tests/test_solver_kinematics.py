@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from solver.banded import BandLayout, factor_cholesky, factor_lu
-from solver.elements import cable_gradient, cable_tangent, link_gradient, pair_tangent
-from solver.rotations import qexp, qlog, qmatrix, qmul, qrotate, se3_exp, se3_log
+from vertebra.solver.banded import BandLayout, factor_cholesky, factor_lu
+from vertebra.solver.elements import cable_gradient, cable_tangent, link_gradient, pair_tangent
+from vertebra.solver.rotations import qexp, qlog, qmatrix, qmul, qrotate, se3_exp, se3_log
 
 RNG = np.random.default_rng(20261122)
 

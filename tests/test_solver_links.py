@@ -12,9 +12,9 @@ from fractions import Fraction
 import numpy as np
 import pytest
 
-import solver
-from solver.elements import link_gradient, pair_tangent
-from solver.links import (
+from vertebra import solver
+from vertebra.solver.elements import link_gradient, pair_tangent
+from vertebra.solver.links import (
     CARRY_ANGLE,
     Links,
     _powers,
@@ -23,8 +23,8 @@ from solver.links import (
     link_forces,
     link_tangent,
 )
-from solver.model import State
-from solver.rotations import hat, qconj, qexp, qmatrix, qmul, qrotate, se3_exp, se3_log
+from vertebra.solver.model import State
+from vertebra.solver.rotations import hat, qconj, qexp, qmatrix, qmul, qrotate, se3_exp, se3_log
 
 EPS = np.finfo(float).eps
 ANGLES = [0.0, 1e-12, 1e-6, 1e-3, 0.3, 1.0, 2.5, 3.1]
@@ -247,7 +247,7 @@ def test_adaptive_term_count_does_not_change_small_angle_results():
     # the number of series terms follows the batch's largest angle; a small-angle row must come out
     # the same with few terms, with many (a large angle in the batch) and with all 40. Left-out
     # terms are below (θ²/4π²)^k·ulp: measured bitwise equal; 1e-15 allows ~4 ulp of summation order
-    from solver.links import _SERIES
+    from vertebra.solver.links import _SERIES
     small = np.array([0.0, 1e-30, 1e-12, 1e-6, 1e-3, 0.01, 0.09, 0.3, 1.0])
     alone = coefficients(small)
     full = _powers(small, 40) @ _SERIES
@@ -262,7 +262,7 @@ def test_adaptive_term_count_does_not_change_small_angle_results():
 
 
 def test_coefficients_at_zero_and_tiny_angles_are_finite_and_exact():
-    from solver.links import _SERIES
+    from vertebra.solver.links import _SERIES
     t = np.array([0.0, 1e-30, 1e-200, 5e-324])
     c = coefficients(t)
     assert c.shape == (4, 31) and np.isfinite(c).all()

@@ -7,10 +7,10 @@ import sys
 import numpy as np
 import pytest
 
-import solver
-from cli.main import main
-from solver import gallery
-from store.errors import SceneError
+from vertebra import solver
+from vertebra.cli.main import main
+from vertebra.solver import gallery
+from vertebra.store.errors import SceneError
 
 BEAM = {"type": "beam", "count": 2, "length": 0.02, "youngs_modulus": 54e9, "poisson_ratio": 0.3,
         "section": {"shape": "circle", "radius": 7e-4}}
@@ -133,7 +133,7 @@ def test_simulate_bad_input_exits_2_and_non_convergence_exits_1(tmp_path, capsys
 
 
 def test_importing_the_runtime_pulls_in_no_heavy_stack():
-    code = ("import sys, solver, solver.gallery, solver.report; "
+    code = ("import sys, vertebra.solver, vertebra.solver.gallery, vertebra.solver.report; "
             "heavy = [m for m in ('gmsh','skfem','meshio','pyamg','matplotlib','dask','h5py') if m in sys.modules]; "
             "print(','.join(heavy))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
@@ -141,9 +141,9 @@ def test_importing_the_runtime_pulls_in_no_heavy_stack():
 
 
 def test_beam_only_scenes_never_touch_the_catalogue():
-    code = ("import sys, solver; from solver import gallery; "
+    code = ("import sys; from vertebra import solver; from vertebra.solver import gallery; "
             "solver.build_model(gallery.load('cantilever')).solve(); "
-            "print('h5py' in sys.modules, 'store.catalogue' in sys.modules)")
+            "print('h5py' in sys.modules, 'vertebra.store.catalogue' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
     assert out == "False False"
 

@@ -13,11 +13,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from designer.executors import EXECUTORS, Crash, make_executor
-from designer.sweep import (SweepBackend, expand, failure_log_path, latin_hypercube_unit, load_spec,
+from vertebra.designer.executors import EXECUTORS, Crash, make_executor
+from vertebra.designer.sweep import (SweepBackend, expand, failure_log_path, latin_hypercube_unit, load_spec,
                             parse_spec, plan_sweep, run_sweep)
-from store.entry import SegmentEntry, content_key
-from store.errors import CatalogueError, GeometryError, SceneError
+from vertebra.store.entry import SegmentEntry, content_key
+from vertebra.store.errors import CatalogueError, GeometryError, SceneError
 
 # --------------------------------------------------------------------------- fake backend
 
@@ -337,18 +337,18 @@ def test_dask_executor_connects_to_a_running_scheduler(tmp_path):
 
 def _real_store():
     try:
-        from store import catalogue
+        from vertebra.store import catalogue
     except ImportError:
         return None
     return catalogue if hasattr(catalogue, "add_entry") and hasattr(catalogue, "has_entry") else None
 
 
-@pytest.mark.skipif(_real_store() is None, reason="store.catalogue.add_entry not available yet")
+@pytest.mark.skipif(_real_store() is None, reason="vertebra.store.catalogue.add_entry not available yet")
 def test_workers_fill_the_real_hdf5_catalogue_and_resume_skips(tmp_path):
     # Fake (cheap) job, real store: two spawned workers write their own entries
     # concurrently with catalogue.add_entry; the catalogue verifies, every entry
     # round-trips, and a re-run finds everything via catalogue.has_entry.
-    from designer.sweep import DEFAULT_BACKEND
+    from vertebra.designer.sweep import DEFAULT_BACKEND
     catalogue = _real_store()
     backend = SweepBackend(job=fake_job, store=DEFAULT_BACKEND.store, contains=DEFAULT_BACKEND.contains,
                            canonical=fake_canonical, key=fake_key, families=None)

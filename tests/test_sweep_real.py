@@ -14,19 +14,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import designer
-import cli.main
-from designer.sweep import failure_log_path, load_spec, plan_sweep, run_sweep
+from vertebra import designer
+from vertebra.cli import main as cli_main
+from vertebra.designer.sweep import failure_log_path, load_spec, plan_sweep, run_sweep
 
 try:
-    from store import catalogue
+    from vertebra.store import catalogue
 except ImportError:  # pragma: no cover - the store lands separately
     catalogue = None
 
 pytestmark = pytest.mark.skipif(
     not (hasattr(designer, "design_segment") and hasattr(designer, "entry_key")
          and catalogue is not None and hasattr(catalogue, "add_entry")),
-    reason="designer.design_segment / store.catalogue.add_entry not available yet")
+    reason="vertebra.designer.design_segment / store.catalogue.add_entry not available yet")
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples" / "sweeps"
 
@@ -54,12 +54,12 @@ radius = {RADII}
 def main(argv):
     """``vertebra ARGV`` in process (cli.main imports every subcommand module)."""
     try:
-        cli.main.build_parser()
+        cli_main.build_parser()
     except ModuleNotFoundError as error:
-        if error.name != "cli.sweep" and (error.name or "").startswith("cli."):
-            pytest.skip(f"cli.main cannot build its parser yet: {error.name} missing")
+        if error.name != "vertebra.cli.sweep" and (error.name or "").startswith("vertebra.cli."):
+            pytest.skip(f"vertebra.cli.main cannot build its parser yet: {error.name} missing")
         raise
-    return cli.main.main(argv)
+    return cli_main.main(argv)
 
 
 @pytest.fixture(scope="module")

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from store.errors import GeometryError
+from vertebra.store.errors import GeometryError
 
 FAMILIES: dict[str, "Family"] = {}
 
@@ -136,7 +136,7 @@ def nearest(distances: dict[str, float]) -> str:
 
 def _load_modules() -> None:
     # importing registers; one module per family
-    from designer.families import rod, tube, bellows, pneumatic, tapered_pneumatic  # noqa: F401
+    from vertebra.designer.families import rod, tube, bellows, pneumatic, tapered_pneumatic  # noqa: F401
 
 
 _load_modules()

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 
-from designer.families import MATERIAL, Family, Parameter, check_material, register_family, require
+from vertebra.designer.families import MATERIAL, Family, Parameter, check_material, register_family, require
 
 
 @register_family

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 
-from designer.families import MATERIAL, Family, Parameter, check_material, nearest, register_family, require
+from vertebra.designer.families import MATERIAL, Family, Parameter, check_material, nearest, register_family, require
 
 CHAMBER_PARAMETERS = (
     Parameter("chambers", "number of sealed chambers", default=3, integer=True),

@@ -3,8 +3,8 @@ chamber offset change linearly from the bottom (z = 0) to the top (z = length)."
 
 from __future__ import annotations
 
-from designer.families import MATERIAL, Family, Parameter, register_family
-from designer.families.pneumatic import CHAMBER_PARAMETERS, build_chambered, check_chambers, classify_chambered
+from vertebra.designer.families import MATERIAL, Family, Parameter, register_family
+from vertebra.designer.families.pneumatic import CHAMBER_PARAMETERS, build_chambered, check_chambers, classify_chambered
 
 
 @register_family

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from designer.families import MATERIAL, Family, Parameter, check_material, register_family, require
+from vertebra.designer.families import MATERIAL, Family, Parameter, check_material, register_family, require
 
 
 @register_family

@@ -29,8 +29,8 @@ def main(argv=None) -> int:
     parser.add_argument("--simulate", action="store_true", help="solve the scene and print the tip position")
     args = parser.parse_args(argv)
 
-    from designer.gallery import cbha_catalogue, scene_to_toml
-    from designer.threads import pin_blas_threads
+    from vertebra.designer.gallery import cbha_catalogue, scene_to_toml
+    from vertebra.designer.threads import pin_blas_threads
 
     pin_blas_threads(1)
     out = Path(args.out)
@@ -52,7 +52,7 @@ def main(argv=None) -> int:
                                         "examples/cbha/design_cbha.py (designer.gallery.cbha_catalogue)"))
     print(f"catalogue {out / 'catalogue.h5'}, scene {scene_path}; designed in {elapsed:.1f} s")
     if args.simulate:
-        import solver
+        from vertebra import solver
         model = solver.build_model(solver.load_scene(scene_path))
         res = model.solve()
         print(f"converged {res.converged} in {res.iterations} iterations; tip at "

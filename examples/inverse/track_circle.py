@@ -25,12 +25,11 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-import solver  # noqa: E402
-from solver.gallery import load  # noqa: E402
-from solver.inverse.controller import InverseController, InverseSettings  # noqa: E402
-from solver.inverse.trajectory import Trajectory, write_trajectory  # noqa: E402
+from vertebra import solver  # noqa: E402
+from vertebra.solver.gallery import load  # noqa: E402
+from vertebra.solver.inverse.controller import InverseController, InverseSettings  # noqa: E402
+from vertebra.solver.inverse.trajectory import Trajectory, write_trajectory  # noqa: E402
 
 
 def scene_for(name: str, posture: bool):

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from solver.scene import Scene, load_scene
-from store.errors import SceneError
+from vertebra.solver.scene import Scene, load_scene
+from vertebra.store.errors import SceneError
 
 _HERE = Path(__file__).parent
 

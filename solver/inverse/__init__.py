@@ -4,8 +4,8 @@
 ``controller`` drives a ``solver.TrunkModel`` (linearise → W → QP → step).
 """
 
-from solver.inverse.controller import InverseController, InverseSettings, InverseStep, invert
-from solver.inverse.qp import (
+from vertebra.solver.inverse.controller import InverseController, InverseSettings, InverseStep, invert
+from vertebra.solver.inverse.qp import (
     BACKENDS,
     DEFAULT_BACKEND,
     DEFAULT_REGULARISATION,

@@ -29,15 +29,15 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.linalg.lapack import dpbtrs as _dpbtrs
 
-from solver.banded import BandedFactor
-from solver.inverse.qp import (
+from vertebra.solver.banded import BandedFactor
+from vertebra.solver.inverse.qp import (
     DEFAULT_BACKEND,
     DEFAULT_REGULARISATION,
     ConstraintProblem,
     ConstraintSolution,
     solve_constraint_problem,
 )
-from store.errors import ConvergenceError
+from vertebra.store.errors import ConvergenceError
 
 __all__ = ["InverseSettings", "InverseStep", "InverseController", "constraint_problem", "invert", "MODES"]
 

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from store.errors import SceneError
+from vertebra.store.errors import SceneError
 
 __all__ = ["Trajectory", "read_trajectory", "write_trajectory", "circle"]
 
