@@ -19,7 +19,7 @@ import importlib  # noqa: E402
 import sys  # noqa: E402
 
 from vertebra import __version__  # noqa: E402
-from vertebra.store.errors import CatalogueError, GeometryError, SceneError, VertebraError  # noqa: E402
+from vertebra.store.errors import CatalogueError, GeometryError, InputError, VertebraError  # noqa: E402
 
 # name -> (module, one-line help). Adding a subcommand touches this table and its module.
 SUBCOMMANDS = {
@@ -52,7 +52,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return int(args._run(args))
-    except (SceneError, CatalogueError, GeometryError) as error:
+    except (InputError, CatalogueError, GeometryError) as error:
         print(f"vertebra {args.command}: error: {error}", file=sys.stderr)
         return 2
     except VertebraError as error:
