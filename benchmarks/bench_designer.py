@@ -7,7 +7,7 @@ rod rows also give the axial and lateral compliance over the closed forms. Then 
 AMG solve time (the ``auto`` threshold) and the time to condense a ~50,000-DoF segment
 (acceptance: ≤ 10 s). Prints a table, writes benchmarks/results/designer.json and .md.
 
-    OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 python benchmarks/bench_designer.py [--quick]
+    python benchmarks/bench_designer.py [--quick]          (BLAS pinned to one thread inside)
 """
 
 from __future__ import annotations
@@ -23,13 +23,9 @@ import time
 from datetime import datetime, timezone
 from pathlib import Path
 
-for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_name, "1")
-
-
-from vertebra.designer.linsolve import AUTO_THRESHOLD  # noqa: E402
-from vertebra.designer.segment import compliance_change, design_segment, solve_segment  # noqa: E402
-from vertebra.designer.threads import pin_blas_threads  # noqa: E402
+from vertebra.designer.linsolve import AUTO_THRESHOLD
+from vertebra.designer.segment import compliance_change, design_segment, solve_segment
+from vertebra.designer.threads import pin_blas_threads
 
 RESULTS = Path(__file__).resolve().parent / "results"
 E, NU = 1.0e6, 0.3

@@ -31,38 +31,50 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 
-from vertebra.designer.sweep import SweepBackend, parse_spec, run_sweep  # noqa: E402
+from vertebra.designer.sweep import parse_spec, run_sweep  # noqa: E402
 from vertebra.store.entry import SegmentEntry, content_key  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 
 
-# ---- no-op backend for the overhead measurement (module level: picklable) ----
+# ---- no-op designer and store for the overhead measurement (module level: picklable) ----
 
-def noop_canonical(family, parameters):
-    return dict(parameters)
+class NoopDesigner:
+    """A tiny entry built in memory: what is left is the executor's cost."""
 
+    def families(self):
+        return None
 
-def noop_key(task):
-    return content_key({"i": task.parameters["i"]})
+    def canonical(self, family, parameters):
+        return dict(parameters)
 
+    def key(self, task):
+        return content_key({"i": task.parameters["i"]})
 
-def noop_job(task):
-    return SegmentEntry(key=noop_key(task), name=f"noop-{task.index}", family="noop", parameters=task.parameters,
-                        compliance=[[1.0 if i == j else 0.0 for j in range(6)] for i in range(6)],
-                        cavity_volumes=[], mass=0.0, center_of_mass=[0, 0, 0])
-
-
-def noop_store(path, entry):
-    return entry.key
-
-
-def noop_contains(path, key):
-    return False
+    def design(self, task):
+        return SegmentEntry(key=self.key(task), name=f"noop-{task.index}", family="noop", parameters=task.parameters,
+                            compliance=[[1.0 if i == j else 0.0 for j in range(6)] for i in range(6)],
+                            cavity_volumes=[], mass=0.0, center_of_mass=[0, 0, 0])
 
 
-NOOP = SweepBackend(job=noop_job, store=noop_store, contains=noop_contains, canonical=noop_canonical,
-                    key=noop_key, families=None, catalogue_keys=None)
+class NoopStore:
+    """Holds nothing, stores nothing."""
+
+    def __init__(self, path):
+        self.path = path
+
+    def keys(self):
+        return set()
+
+    def has(self, key):
+        return False
+
+    def add(self, entry):
+        return entry.key
+
+    def consolidate(self):
+        pass
+
 
 CONFIGURATIONS = [("local", 1), ("local", 2), ("dask", 1), ("dask", 2)]
 
@@ -137,7 +149,7 @@ def overhead_rows(tasks: int) -> list[dict]:
     from vertebra.designer.sweep import execute_task, expand
 
     items = expand(parse_spec({"family": "noop", "list": [{"i": i} for i in range(tasks)]}, source="<noop>"))
-    function = partial(execute_task, noop_job, noop_store, "unused")
+    function = partial(execute_task, NoopDesigner(), NoopStore("unused"))
     rows = []
     for executor, workers in [("serial", 1)] + CONFIGURATIONS:
         start = time.perf_counter()

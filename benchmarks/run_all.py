@@ -10,6 +10,8 @@ import sys
 import time
 from pathlib import Path
 
+from vertebra.designer.threads import pin_blas_threads
+
 HERE = Path(__file__).parent
 
 
@@ -17,7 +19,8 @@ def main(argv: list[str]) -> int:
     scripts = sorted(HERE.glob("bench_*.py"))
     if argv:
         scripts = [s for s in scripts if s.stem.removeprefix("bench_") in argv]
-    env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1", MPLBACKEND="Agg")
+    pin_blas_threads()                      # one BLAS/OpenMP thread: every benchmark inherits it
+    env = dict(os.environ, MPLBACKEND="Agg")
     failed = []
     for script in scripts:
         print(f"\n### {script.name}", flush=True)

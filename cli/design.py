@@ -13,7 +13,7 @@ import json
 import sys
 import time
 
-from vertebra.store.errors import GeometryError
+from vertebra.store.errors import OptionError
 
 
 def add_arguments(parser) -> None:
@@ -32,13 +32,13 @@ def add_arguments(parser) -> None:
 
 
 def parse_values(values: list[str]) -> dict:
-    """``NAME=VALUE`` strings to a dict of numbers (GeometryError names the bad one)."""
+    """``NAME=VALUE`` strings to a dict of numbers (OptionError names the bad one)."""
     out = {}
     for item in values:
         name, sep, text = item.partition("=")
         name = name.strip()
         if not sep or not name:
-            raise GeometryError(f"--set {item!r}: expected NAME=VALUE")
+            raise OptionError(f"expected NAME=VALUE, got {item!r}", field="--set")
         text = text.strip()
         try:
             value = int(text)
@@ -46,7 +46,7 @@ def parse_values(values: list[str]) -> dict:
             try:
                 value = float(text)
             except ValueError:
-                raise GeometryError(f"parameter {name!r}: not a number: {text!r}") from None
+                raise OptionError(f"parameter {name!r}: not a number: {text!r}", field="--set") from None
         out[name] = value
     return out
 
@@ -72,9 +72,6 @@ def _run_vertebra(args, values) -> int:
 
 
 def run(args) -> int:
-    from vertebra.designer.threads import pin_blas_threads
-
-    pin_blas_threads(1)
     from vertebra import designer
     from vertebra.designer.segment import entry_document, export_mesh
 
@@ -82,10 +79,11 @@ def run(args) -> int:
     if args.family == "vertebra":
         return _run_vertebra(args, values)
     if args.catalogue is None:
-        raise GeometryError("--catalogue FILE is required to design a segment")
+        raise OptionError("required to design a segment", field="--catalogue")
     family = designer.FAMILIES.get(args.family)
     if family is None:
-        raise GeometryError(f"unknown family {args.family!r} (known: {', '.join(sorted(designer.FAMILIES))}, vertebra)")
+        raise OptionError(f"unknown family {args.family!r} (known: {', '.join(sorted(designer.FAMILIES))}, vertebra)",
+                          field="FAMILY")
     parameters = designer.canonical_parameters(family, values)          # GeometryError before meshing
     key = designer.entry_key(family, parameters, mesh_size=args.mesh_size, order=args.order)
 

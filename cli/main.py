@@ -7,19 +7,12 @@ reached; 2 bad input (the message names the file, the field and the reason).
 
 from __future__ import annotations
 
-import os
+import argparse
+import importlib
+import sys
 
-# One BLAS thread per process: on small banded systems threads only add overhead (and on a
-# 2-core machine they made AMG 5–25× slower, FIELD-NOTES). Set before numpy is imported.
-for _variable in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_variable, "1")
-
-import argparse  # noqa: E402
-import importlib  # noqa: E402
-import sys  # noqa: E402
-
-from vertebra import __version__  # noqa: E402
-from vertebra.store.errors import CatalogueError, GeometryError, InputError, VertebraError  # noqa: E402
+from vertebra import __version__
+from vertebra.store.errors import CatalogueError, GeometryError, InputError, VertebraError
 
 # name -> (module, one-line help). Adding a subcommand touches this table and its module.
 SUBCOMMANDS = {
@@ -50,6 +43,9 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    from vertebra.designer.threads import pin_blas_threads
+
+    pin_blas_threads()      # one BLAS/OpenMP thread per process (designer/threads.py says why)
     try:
         return int(args._run(args))
     except (InputError, CatalogueError, GeometryError) as error:

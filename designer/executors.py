@@ -17,7 +17,8 @@ Registered executors (``EXECUTORS``):
     ``concurrent.futures.ProcessPoolExecutor`` with ``workers`` processes started
     with ``spawn`` (default) or ``forkserver`` — never ``fork``: gmsh keeps global
     state and is not thread-safe, so every worker is a fresh interpreter with one
-    gmsh of its own. BLAS/OpenMP threads are pinned to one per worker.
+    gmsh of its own. BLAS/OpenMP threads are pinned to one per worker
+    (``designer.threads``).
 ``dask``
     ``dask.distributed``: ``Client(scheduler)`` when a scheduler address is given
     (a cluster of any size, workers on other machines), otherwise a
@@ -35,32 +36,10 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Iterator, Protocol, runtime_checkable
 
-from vertebra.designer.threads import blas_threads
-from vertebra.store.errors import SceneError
-
-# Thread pools of numerical libraries: one thread each in every worker. Several
-# worker processes on a few cores with threaded BLAS oversubscribe the machine
-# (FIELD-NOTES: AMG ran 5-25x slower without this).
-THREAD_VARIABLES = (
-    "OMP_NUM_THREADS",
-    "OPENBLAS_NUM_THREADS",
-    "MKL_NUM_THREADS",
-    "NUMEXPR_NUM_THREADS",
-    "VECLIB_MAXIMUM_THREADS",
-)
+from vertebra.designer.threads import THREAD_VARIABLES, blas_threads, pin_blas_threads, thread_environment
+from vertebra.store.errors import OptionError
 
 START_METHODS = ("spawn", "forkserver")
-
-
-def pin_threads() -> None:
-    """Worker initializer: one BLAS/OpenMP thread per process.
-
-    Environment variables only take effect for libraries loaded afterwards, so
-    the local executor also sets them in the parent while it starts workers
-    (spawned children inherit the environment before they import anything).
-    """
-    for variable in THREAD_VARIABLES:
-        os.environ[variable] = "1"
 
 
 def worker_info() -> dict:
@@ -120,19 +99,24 @@ def register_executor(name: str):
 
 def make_executor(name: str, *, workers: int | None = None, scheduler: str | None = None,
                   start_method: str = "spawn") -> Executor:
-    """Build a registered executor; bad settings raise SceneError naming the option."""
+    """Build a registered executor; bad settings raise OptionError naming the option."""
     try:
         cls = EXECUTORS[name]
     except KeyError:
-        raise SceneError(f"unknown executor {name!r}; known: {', '.join(sorted(EXECUTORS))}",
-                         field="executor") from None
+        raise OptionError(f"unknown executor {name!r} (known: {', '.join(sorted(EXECUTORS))})",
+                          field="executor") from None
     if workers is not None and (not isinstance(workers, int) or isinstance(workers, bool) or workers < 1):
-        raise SceneError(f"workers must be a positive integer, got {workers!r}", field="workers")
+        raise OptionError(f"expected a positive integer, got {workers!r}", field="workers")
     return cls(workers=workers, scheduler=scheduler, start_method=start_method)
 
 
 def _default_workers() -> int:
     return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
+
+
+def _refuse_scheduler(scheduler: str | None) -> None:
+    if scheduler:
+        raise OptionError("a scheduler address needs the dask executor", field="scheduler")
 
 
 @register_executor("serial")
@@ -142,8 +126,7 @@ class SerialExecutor:
     name = "serial"
 
     def __init__(self, *, workers: int | None = None, scheduler: str | None = None, start_method: str = "spawn"):
-        if scheduler:
-            raise SceneError("a scheduler address needs the dask executor", field="scheduler")
+        _refuse_scheduler(scheduler)
         self.workers = 1
 
     def __enter__(self):
@@ -178,21 +161,21 @@ class LocalExecutor:
     name = "local"
 
     def __init__(self, *, workers: int | None = None, scheduler: str | None = None, start_method: str = "spawn"):
-        if scheduler:
-            raise SceneError("a scheduler address needs the dask executor", field="scheduler")
+        _refuse_scheduler(scheduler)
         if start_method not in START_METHODS:
-            raise SceneError(f"start method must be one of {START_METHODS}, got {start_method!r} "
-                             "(fork is unsafe with gmsh's global state)", field="start_method")
+            raise OptionError(f"expected one of {START_METHODS}, got {start_method!r} "
+                              "(fork is unsafe with gmsh's global state)", field="start_method")
         self.workers = workers or _default_workers()
         self.start_method = start_method
         self._saved_environment: dict[str, str | None] = {}
         self._pool = None
 
     def __enter__(self):
-        # Spawned workers inherit the parent's environment at start: pin it for
-        # the executor's lifetime so BLAS is single-threaded before numpy loads.
+        # Spawned workers inherit the parent's environment at start and import numpy
+        # while they unpickle their initializer: set it for the executor's lifetime so
+        # BLAS loads single-threaded in them. The parent's own BLAS is left alone.
         self._saved_environment = {v: os.environ.get(v) for v in THREAD_VARIABLES}
-        pin_threads()
+        os.environ.update(thread_environment())
         return self
 
     def __exit__(self, exc_type, *exc_info):
@@ -212,7 +195,7 @@ class LocalExecutor:
 
         self._pool = ProcessPoolExecutor(max_workers=self.workers,
                                          mp_context=multiprocessing.get_context(self.start_method),
-                                         initializer=pin_threads)
+                                         initializer=pin_blas_threads)
         return self._pool
 
     def _shutdown(self, terminate: bool = False):
@@ -309,16 +292,15 @@ class DaskExecutor:
             try:
                 self._client = Client(self.scheduler, timeout="20s")
             except (OSError, TimeoutError) as error:
-                raise SceneError(f"cannot reach dask scheduler {self.scheduler!r}: {error}",
-                                 field="scheduler") from None
+                raise OptionError(f"cannot reach dask scheduler {self.scheduler!r}: {error}",
+                                  field="scheduler") from None
             # one task at a time per worker *process* (designer.sweep serialises the
             # job inside a process): processes, not threads, are the parallelism
             self.workers = len(self._client.nthreads()) or self.workers
         else:
-            environment = {variable: "1" for variable in THREAD_VARIABLES}
             self._cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
                                          dashboard_address=None, silence_logs=logging.ERROR,
-                                         env=environment)
+                                         env=thread_environment())
             self._client = Client(self._cluster)
         return self
 

@@ -1,7 +1,9 @@
-"""Shared test set-up: one BLAS thread (before numpy is imported), non-interactive plots."""
+"""Shared test set-up: one BLAS/OpenMP thread per process (inherited by the processes tests
+start), non-interactive plots."""
 
 import os
 
-for _variable in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_variable, "1")
+from vertebra.designer.threads import pin_blas_threads
+
+pin_blas_threads()
 os.environ.setdefault("MPLBACKEND", "Agg")

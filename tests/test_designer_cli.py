@@ -64,6 +64,26 @@ def test_design_bad_input_exits_2_naming_the_parameter(tmp_path):
     assert result.stdout == "" and not (tmp_path / "c.h5").exists()     # rejected before any work
 
 
+@pytest.mark.parametrize("argv, field", [
+    (["design", "rod", *ROD], "--catalogue"),                          # nowhere to put the entry
+    (["design", "rod", "--set", "radius", "--catalogue", "c.h5"], "--set"),
+    (["design", "rod", "--set", "radius=ten", "--catalogue", "c.h5"], "--set"),
+    (["design", "spring", *ROD, "--catalogue", "c.h5"], "FAMILY"),
+])
+def test_design_bad_options_are_option_errors_and_exit_2(argv, field, capsys):
+    # Command-line mistakes are OptionErrors naming the option (before any meshing);
+    # cli.main alone turns them into exit code 2 and a one-line message.
+    from vertebra.cli.main import build_parser, main
+    from vertebra.store.errors import OptionError
+
+    args = build_parser().parse_args(argv)
+    with pytest.raises(OptionError) as info:
+        args._run(args)
+    assert info.value.field == field
+    assert main(argv) == 2
+    assert capsys.readouterr().err.startswith(f"vertebra design: error: {field}: ")
+
+
 def test_design_vertebra_prints_scene_snippet():
     result = _run("design", "vertebra", "--set", "radius=0.02", "--set", "thickness=0.003", "--set", "density=1200",
                   "--set", "holes=3", "--set", "hole_radius=0.001", "--set", "hole_offset=0.015")

@@ -1,25 +1,27 @@
 """Sweep machinery with a cheap fake job: spec parsing, expansion, resume, failure isolation.
 
 The real designer/catalogue end-to-end sweeps are in tests/test_sweep_real.py.
-The fake backend below is module-level so spawned worker processes can import it.
+The fake designer and store below are module-level so spawned worker processes can import it.
 """
 
 from __future__ import annotations
 
 import json
 import os
+from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import pytest
 
 from vertebra.designer.executors import EXECUTORS, Crash, make_executor
-from vertebra.designer.sweep import (SweepBackend, expand, failure_log_path, latin_hypercube_unit, load_spec,
-                            parse_spec, plan_sweep, run_sweep)
+from vertebra.designer.sweep import (CatalogueStore, expand, failure_log_path, latin_hypercube_unit, load_spec,
+                                     parse_spec, plan_sweep, run_sweep)
 from vertebra.store.entry import SegmentEntry, content_key
-from vertebra.store.errors import CatalogueError, GeometryError, SceneError
+from vertebra.store.errors import CatalogueError, GeometryError, OptionError, SpecError
 
-# --------------------------------------------------------------------------- fake backend
+# --------------------------------------------------------------------------- fake designer and store
 
 CALLS = []          # tasks the fake job saw (serial executor only: same process)
 
@@ -35,8 +37,7 @@ def fake_canonical(family, parameters):
 
 
 def fake_key(task):
-    return content_key({"family": task.family, "parameters": task.parameters,
-                        "mesh_size": task.mesh_size, "order": task.order})
+    return content_key({"family": task.family, "parameters": task.parameters, **task.key_options})
 
 
 def fake_job(task):
@@ -61,18 +62,52 @@ def fake_store(path, entry):
     return entry.key
 
 
-def fake_contains(path, key):
-    return key in stored_keys(path)
-
-
 def stored_keys(path):
     if not os.path.exists(path):
         return []
     return [json.loads(line)["key"] for line in Path(path).read_text().splitlines()]
 
 
-FAKE = SweepBackend(job=fake_job, store=fake_store, contains=fake_contains, canonical=fake_canonical,
-                    key=fake_key, families=lambda: ["rod", "tube"], catalogue_keys=None)
+@dataclass(frozen=True)
+class JsonLinesStore:
+    """The sweep's store Protocol over the stand-in catalogue; asked per key, nothing to merge."""
+
+    path: str
+
+    def keys(self):
+        return None
+
+    def has(self, key):
+        return key in stored_keys(self.path)
+
+    def add(self, entry):
+        return fake_store(self.path, entry)
+
+    def consolidate(self):
+        pass
+
+
+@dataclass(frozen=True)
+class FakeDesigner:
+    """The sweep's designer Protocol with the cheap fake job (module level: spawned workers import it)."""
+
+    job: Callable = fake_job
+    known: tuple | None = ("rod", "tube")
+
+    def families(self):
+        return self.known
+
+    def canonical(self, family, parameters):
+        return fake_canonical(family, parameters)
+
+    def key(self, task):
+        return fake_key(task)
+
+    def design(self, task):
+        return self.job(task)
+
+
+FAKE = FakeDesigner()
 
 
 def spec_dict(**sampler):
@@ -82,7 +117,7 @@ def spec_dict(**sampler):
 
 def run_fake(spec, catalogue, **kwargs):
     kwargs.setdefault("executor", "serial")
-    return run_sweep(spec, catalogue, backend=FAKE, progress=False, **kwargs)
+    return run_sweep(spec, catalogue, store=JsonLinesStore, designer=FAKE, progress=False, **kwargs)
 
 
 # --------------------------------------------------------------------------- expansion
@@ -92,7 +127,8 @@ def test_grid_is_the_cartesian_product_in_spec_order():
     tasks = expand(spec)
     assert [(t.parameters["radius"], t.parameters["length"]) for t in tasks] == [
         (0.01, 0.04), (0.01, 0.05), (0.02, 0.04), (0.02, 0.05), (0.03, 0.04), (0.03, 0.05)]
-    assert all(t.parameters["youngs_modulus"] == 2.0e6 and t.mesh_size == 0.004 and t.order == 1 for t in tasks)
+    assert all(t.parameters["youngs_modulus"] == 2.0e6 and t.options["mesh_size"] == 0.004 and t.options["order"] == 1
+               for t in tasks)
     assert [t.index for t in tasks] == list(range(6))
 
 
@@ -157,9 +193,10 @@ def test_lhs_integer_parameters_are_rounded():
     ({"family": "rod", "lhs": {"ranges": {"radius": [0.01, 0.02]}, "samples": 4, "seed": 0, "sead": 1}}, "lhs.sead"),
     ({"family": "rod", "list": [{"radius": 0.01}], "order": 3}, "order"),
     ({"family": "rod", "list": {"set": []}}, "list.set"),
+    ({"family": "rod", "list": [{"radius": 0.01}], "estimate_accuracy": "yes"}, "estimate_accuracy"),
 ])
 def test_bad_spec_names_the_field(data, field):
-    with pytest.raises(SceneError) as info:
+    with pytest.raises(SpecError) as info:
         parse_spec(data, source="bad.toml")
     assert info.value.field == field
     assert "bad.toml" in str(info.value) and field in str(info.value)
@@ -168,20 +205,20 @@ def test_bad_spec_names_the_field(data, field):
 def test_load_spec_names_the_file_and_field(tmp_path):
     path = tmp_path / "sweep.toml"
     path.write_text('family = "rod"\nmesh_size = 0.004\ncolour = "red"\n[grid]\nradius = [0.01]\n')
-    with pytest.raises(SceneError) as info:
+    with pytest.raises(SpecError) as info:
         load_spec(path)
     assert info.value.file == str(path) and info.value.field == "colour"
     path.write_text('family = "rod"\n[grid\n')
-    with pytest.raises(SceneError, match="not valid TOML"):
+    with pytest.raises(SpecError, match="not valid TOML"):
         load_spec(path)
 
 
 def test_unknown_family_and_bad_name_template_are_spec_errors(tmp_path):
-    with pytest.raises(SceneError) as info:
+    with pytest.raises(SpecError) as info:
         run_fake(parse_spec({"family": "rodd", "grid": {"radius": [0.01], "length": [0.04]}}), tmp_path / "c")
     assert info.value.field == "family"
     spec = parse_spec({"family": "rod", "name": "rod-{diameter}", "grid": {"radius": [0.01], "length": [0.04]}})
-    with pytest.raises(SceneError) as info:
+    with pytest.raises(SpecError) as info:
         run_fake(spec, tmp_path / "c")
     assert info.value.field == "name" and "diameter" in str(info.value)
 
@@ -192,13 +229,62 @@ def test_missing_catalogue_directory_is_a_catalogue_error(tmp_path):
         run_fake(spec, tmp_path / "no" / "such" / "cat.h5")
 
 
+def test_design_options_are_design_segment_keywords_and_keyed_ones_entry_key_keywords():
+    # The spec's design options are passed on by name: each must be a keyword of
+    # design_segment, and those that change the numbers a keyword of entry_key too
+    # (otherwise two different entries would share a key and resuming would skip one).
+    import inspect
+
+    from vertebra.designer import design_segment, entry_key
+    from vertebra.designer.sweep import DESIGN_OPTIONS, FiniteElementDesigner
+
+    design_keywords = inspect.signature(design_segment).parameters
+    key_keywords = inspect.signature(entry_key).parameters
+    for option in DESIGN_OPTIONS:
+        assert design_keywords[option.name].default == option.default, option.name
+        assert (option.name in key_keywords) == option.keyed, option.name
+    [task] = expand(parse_spec(spec_dict(list=[{"radius": 0.01, "length": 0.04, "poisson_ratio": 0.3}])))
+    designer = FiniteElementDesigner()
+    task = replace(task, parameters=designer.canonical("rod", task.parameters))
+    assert designer.key(task) == entry_key("rod", task.parameters, mesh_size=0.004, order=1)
+    assert designer.key(replace(task, options={**task.options, "order": 2})) != designer.key(task)
+
+
+CHECK_PINNING = """
+import json, os, subprocess, sys
+import numpy
+from vertebra.designer.threads import THREAD_VARIABLES, blas_threads, pin_blas_threads
+before = blas_threads()
+pin_blas_threads()
+child = subprocess.run([sys.executable, "-c", "import os; print(os.environ['OPENBLAS_NUM_THREADS'])"],
+                       capture_output=True, text=True).stdout.strip()
+print(json.dumps({"before": before, "after": blas_threads(), "child": child,
+                  "variables": [os.environ[v] for v in THREAD_VARIABLES]}))
+"""
+
+
+def test_pin_blas_threads_overrides_the_environment_and_limits_loaded_blas():
+    # A fresh interpreter whose parent asked for 2 threads: numpy's OpenBLAS loads with
+    # 2; pin_blas_threads brings it to 1 and sets the variables its children inherit.
+    import subprocess
+    import sys
+
+    environment = {**os.environ, "OMP_NUM_THREADS": "2", "OPENBLAS_NUM_THREADS": "2", "MKL_NUM_THREADS": "2"}
+    result = subprocess.run([sys.executable, "-c", CHECK_PINNING], capture_output=True, text=True,
+                            env=environment, timeout=120)
+    assert result.returncode == 0, result.stderr
+    seen = json.loads(result.stdout)
+    assert (seen["before"], seen["after"]) == (2, 1), seen
+    assert seen["variables"] == ["1", "1", "1"] and seen["child"] == "1"
+
+
 def test_unknown_executor_and_scheduler_misuse_are_rejected():
     assert {"serial", "local", "dask"} <= set(EXECUTORS)
-    with pytest.raises(SceneError):
+    with pytest.raises(OptionError):
         make_executor("slurm")
-    with pytest.raises(SceneError):
+    with pytest.raises(OptionError):
         make_executor("local", scheduler="tcp://127.0.0.1:8786")
-    with pytest.raises(SceneError):
+    with pytest.raises(OptionError):
         make_executor("local", workers=0)
 
 
@@ -209,7 +295,7 @@ def test_resume_skips_done_work_and_rerun_does_nothing(tmp_path):
     spec = parse_spec(spec_dict(grid={"radius": [0.01, 0.02, 0.03], "length": [0.04, 0.05]},
                                 name="rod-r{radius}-L{length}"))
     # a previous, interrupted run had done two of the six tasks
-    plan = plan_sweep(spec, catalogue, backend=FAKE)
+    plan = plan_sweep(spec, catalogue, store=JsonLinesStore, designer=FAKE)
     for task in plan.todo[:2]:
         fake_store(catalogue, fake_job(task))
     CALLS.clear()
@@ -348,13 +434,11 @@ def test_workers_fill_the_real_hdf5_catalogue_and_resume_skips(tmp_path):
     # Fake (cheap) job, real store: two spawned workers write their own entries
     # concurrently with catalogue.add_entry; the catalogue verifies, every entry
     # round-trips, and a re-run finds everything via catalogue.has_entry.
-    from vertebra.designer.sweep import DEFAULT_BACKEND
     catalogue = _real_store()
-    backend = SweepBackend(job=fake_job, store=DEFAULT_BACKEND.store, contains=DEFAULT_BACKEND.contains,
-                           canonical=fake_canonical, key=fake_key, families=None)
+    designer = FakeDesigner(known=None)
     path = tmp_path / "cat.h5"
     spec = parse_spec(spec_dict(grid={"radius": [0.01, 0.02, 0.03], "length": [0.04, 0.05]}, name="f-{index}"))
-    report = run_sweep(spec, path, executor="local", workers=2, backend=backend, progress=False)
+    report = run_sweep(spec, path, executor="local", workers=2, designer=designer, progress=False)
     assert report.exit_code == 0 and len(report.completed) == 6
     assert catalogue.verify(path) == []
     with catalogue.open_catalogue(path) as cat:
@@ -362,10 +446,17 @@ def test_workers_fill_the_real_hdf5_catalogue_and_resume_skips(tmp_path):
         for outcome in report.completed:
             assert np.array_equal(cat.load(outcome.key).compliance, np.array(outcome.compliance))
     # both ways of asking the store agree: all keys in one read, and has_entry per key
-    for lookup in (backend, SweepBackend(**{**backend.__dict__, "catalogue_keys": None})):
+    for store in (CatalogueStore, CatalogueAskedPerKey):
         CALLS.clear()
-        again = run_sweep(spec, path, executor="serial", backend=lookup, progress=False)
+        again = run_sweep(spec, path, executor="serial", store=store, designer=designer, progress=False)
         assert CALLS == [] and len(again.skipped) == 6 and again.exit_code == 0
+
+
+class CatalogueAskedPerKey(CatalogueStore):
+    """The HDF5 store without its one-read key listing: planning asks ``has_entry`` per key."""
+
+    def keys(self):
+        return None
 
 
 def interrupting_job(task):
@@ -377,8 +468,8 @@ def interrupting_job(task):
 def test_ctrl_c_keeps_what_landed_and_a_rerun_resumes(tmp_path):
     catalogue = tmp_path / "cat.jsonl"
     spec = parse_spec(spec_dict(grid={"radius": [0.01, 0.02, 0.03, 0.04], "length": [0.04]}))
-    interrupted = run_sweep(spec, catalogue, executor="serial", progress=False,
-                            backend=SweepBackend(**{**FAKE.__dict__, "job": interrupting_job}))
+    interrupted = run_sweep(spec, catalogue, executor="serial", progress=False, store=JsonLinesStore,
+                            designer=FakeDesigner(job=interrupting_job))
     assert interrupted.interrupted and interrupted.exit_code == 130
     assert [o.index for o in interrupted.completed] == [0, 1]
     assert [row["status"] for row in interrupted.status()] == ["done", "done", "not run", "not run"]
@@ -393,14 +484,14 @@ def test_forkserver_start_method_runs_tasks_and_fork_is_refused(tmp_path):
     assert report.exit_code == 0 and len(report.completed) == 3
     assert {o.worker["omp_num_threads"] for o in report.completed} == {"1"}
     assert report.executor == {"name": "local", "workers": 2, "start_method": "forkserver"}
-    with pytest.raises(SceneError) as info:
+    with pytest.raises(OptionError) as info:
         make_executor("local", start_method="fork")     # gmsh's global state must not be forked
     assert info.value.field == "start_method"
 
 
 def test_progress_bar_goes_to_stderr_only(tmp_path, capsys):
     spec = parse_spec(spec_dict(grid={"radius": [0.01, 0.02], "length": [0.04]}))
-    run_sweep(spec, tmp_path / "cat.jsonl", executor="serial", backend=FAKE, progress=True)
+    run_sweep(spec, tmp_path / "cat.jsonl", executor="serial", store=JsonLinesStore, designer=FAKE, progress=True)
     captured = capsys.readouterr()
     assert captured.out == ""                       # stdout stays clean for --json
     assert "sweep rod" in captured.err and "2/2" in captured.err
@@ -430,10 +521,9 @@ def test_multithreaded_dask_worker_runs_one_job_at_a_time(tmp_path):
     from dask.distributed import LocalCluster
 
     spec = parse_spec(spec_dict(grid={"radius": [0.01, 0.02, 0.03, 0.04], "length": [0.04]}))
-    backend = SweepBackend(**{**FAKE.__dict__, "job": overlap_detecting_job})
     with LocalCluster(n_workers=1, threads_per_worker=2, processes=True, dashboard_address=None) as cluster:
         report = run_sweep(spec, tmp_path / "cat.jsonl", executor="dask", scheduler=cluster.scheduler_address,
-                           backend=backend, progress=False)
+                           store=JsonLinesStore, designer=FakeDesigner(job=overlap_detecting_job), progress=False)
     assert report.exit_code == 0, report.summary()
     assert len(report.completed) == 4 and len({o.worker["pid"] for o in report.completed}) == 1
 
@@ -448,9 +538,9 @@ def test_a_stored_key_other_than_the_planned_one_is_a_failure(tmp_path):
     # The entry lands, but under a key that resume would never find: reported
     # (stage "store", KeyMismatch, naming both keys) and exit code 1.
     spec = parse_spec(spec_dict(grid={"radius": [0.01], "length": [0.04]}))
-    planned = plan_sweep(spec, tmp_path / "cat.jsonl", backend=FAKE).todo[0].key
-    report = run_sweep(spec, tmp_path / "cat.jsonl", executor="serial", progress=False,
-                       backend=SweepBackend(**{**FAKE.__dict__, "job": drifting_job}))
+    planned = plan_sweep(spec, tmp_path / "cat.jsonl", store=JsonLinesStore, designer=FAKE).todo[0].key
+    report = run_sweep(spec, tmp_path / "cat.jsonl", executor="serial", progress=False, store=JsonLinesStore,
+                       designer=FakeDesigner(job=drifting_job))
     [failure] = report.failures
     assert (failure.stage, failure.error_type) == ("store", "KeyMismatch") and report.exit_code == 1
     stored = stored_keys(tmp_path / "cat.jsonl")

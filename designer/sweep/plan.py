@@ -1,0 +1,92 @@
+"""Planning a sweep: every task validated and keyed before any meshing.
+
+Each task's parameters go through the designer's ``canonical`` (invalid ones become
+failures at stage ``validate``), get their entry name and their content key (stage
+``key``). Tasks whose key the store already holds are skipped (this is what makes a
+sweep resumable); a key repeated within the sweep runs once.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, replace
+from typing import Callable
+
+from vertebra.designer.sweep.report import TaskFailure
+from vertebra.designer.sweep.spec import SweepSpec
+from vertebra.designer.sweep.store import CatalogueStore, SweepStore
+from vertebra.designer.sweep.tasks import FiniteElementDesigner, SegmentDesigner, Task, expand, format_name
+from vertebra.store.errors import SpecError, VertebraError
+
+#: what a designer may raise for one task's parameters; the task fails, the sweep goes on
+TASK_ERRORS = (VertebraError, ValueError, TypeError, KeyError)
+
+
+@dataclass(frozen=True)
+class SweepPlan:
+    """The spec's tasks sorted out before any meshing."""
+
+    spec: SweepSpec
+    catalogue: str                    # as given (logs and reports)
+    store: SweepStore                 # the catalogue at its absolute path (workers)
+    tasks: tuple                      # every task, planned (canonical parameters, key, name)
+    todo: tuple                       # tasks to run
+    skipped: tuple                    # tasks whose key is already in the catalogue
+    duplicates: tuple                 # (task, index of the task with the same key that runs)
+    invalid: tuple                    # TaskFailure at stage "validate" or "key"
+
+
+def _json_ready(parameters: dict) -> dict:
+    """Parameters as they will appear in logs: must be JSON (they come from TOML, so they are)."""
+    return json.loads(json.dumps(parameters, default=str))
+
+
+def _check_family(spec: SweepSpec, designer: SegmentDesigner) -> None:
+    families = designer.families()
+    if families is not None and spec.family not in families:
+        raise SpecError(f"unknown family {spec.family!r}; known: {', '.join(sorted(families))}",
+                        file=spec.source, field="family")
+
+
+def _prepare(spec: SweepSpec, designer: SegmentDesigner, raw: Task) -> Task | TaskFailure:
+    """The task with canonical parameters, name and key, or the failure that stopped it."""
+    task = replace(raw, parameters=_json_ready(raw.parameters))
+    try:
+        task = replace(task, parameters=dict(designer.canonical(task.family, task.parameters)))
+    except TASK_ERRORS as error:
+        return TaskFailure.of(task, "validate", error)
+    task = replace(task, name=format_name(spec, task))
+    try:
+        return replace(task, key=designer.key(task))
+    except TASK_ERRORS as error:
+        return TaskFailure.of(task, "key", error)
+
+
+def plan_sweep(spec: SweepSpec, catalogue, *, store: Callable[[str], SweepStore] = CatalogueStore,
+               designer: SegmentDesigner = FiniteElementDesigner()) -> SweepPlan:
+    """Validate every task, compute its key, and sort tasks into todo/skipped/duplicate/invalid.
+
+    ``store`` builds the catalogue's :class:`SweepStore` from its absolute path.
+    """
+    _check_family(spec, designer)
+    catalogue = str(catalogue)
+    held = store(os.path.abspath(catalogue))
+    known = held.keys()
+    tasks, todo, skipped, duplicates, invalid = [], [], [], [], []
+    first_with_key: dict[str, int] = {}
+    for raw in expand(spec):
+        task = _prepare(spec, designer, raw)
+        if isinstance(task, TaskFailure):
+            tasks.append(task.task)
+            invalid.append(task)
+            continue
+        tasks.append(task)
+        if task.key in first_with_key:
+            duplicates.append((task, first_with_key[task.key]))
+            continue
+        first_with_key[task.key] = task.index
+        in_catalogue = task.key in known if known is not None else held.has(task.key)
+        (skipped if in_catalogue else todo).append(task)
+    return SweepPlan(spec, catalogue, held, tuple(tasks), tuple(todo), tuple(skipped), tuple(duplicates),
+                     tuple(invalid))
