@@ -1,6 +1,6 @@
 """Sweep throughput: entries per minute with 1 and 2 local workers and with dask.
 
-Two measurements, in one run:
+Three measurements, in one run:
 
 1. **Real entries.** The same grid of coarse rod entries (real gmsh + scikit-fem
    + HDF5 catalogue) swept into a fresh catalogue by each executor
@@ -10,6 +10,8 @@ Two measurements, in one run:
 2. **Executor overhead.** A no-op job (a tiny entry built in memory, not stored)
    over many tasks: start-up time of the pool/cluster (first task) and the
    per-task round-trip cost, local vs dask.
+3. **Planning.** ``plan_sweep`` per task (real canonical parameters and content
+   keys, no meshing) against a missing and an existing catalogue file.
 
 The machine is shared (2 cores, other work running): the load average is
 recorded next to the numbers. Results: benchmarks/results/sweep.json and .md.
@@ -31,7 +33,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 
-from vertebra.designer.sweep import parse_spec, run_sweep  # noqa: E402
+from vertebra.designer.sweep import expand, parse_spec, plan_sweep, run_sweep  # noqa: E402
 from vertebra.store.entry import SegmentEntry, content_key  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
@@ -146,7 +148,7 @@ def overhead_rows(tasks: int) -> list[dict]:
     from functools import partial
 
     from vertebra.designer.executors import make_executor
-    from vertebra.designer.sweep import execute_task, expand
+    from vertebra.designer.sweep import execute_task
 
     items = expand(parse_spec({"family": "noop", "list": [{"i": i} for i in range(tasks)]}, source="<noop>"))
     function = partial(execute_task, NoopDesigner(), NoopStore("unused"))
@@ -164,6 +166,31 @@ def overhead_rows(tasks: int) -> list[dict]:
         r = rows[-1]
         print(f"  noop  {executor:6s} x{workers}: start {r['start_s']:.2f} s, first result {r['first_result_s']:.2f} s, "
               f"{r['per_task_ms']:.2f} ms/task, shutdown {r['shutdown_s']:.2f} s", file=sys.stderr)
+    return rows
+
+
+def planning_rows(tasks: int) -> list[dict]:
+    """Cost of plan_sweep per task (real designer: canonical parameters and entry_key), against a
+    catalogue that does not exist yet (the store is asked per key) and one that does (keys read once)."""
+    from vertebra.store import catalogue as catalogue_module
+
+    spec = parse_spec({"family": "rod", "parameters": {"length": 0.02, "youngs_modulus": 1.0e6, "poisson_ratio": 0.3},
+                       "lhs": {"ranges": {"radius": [0.004, 0.01]}, "samples": tasks, "seed": 1}},
+                      source="<bench_sweep planning>")
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "plan.h5"
+        plan_sweep(spec, path)                       # warm-up: imports, package metadata
+        noop = parse_spec({"family": "noop", "list": [{"i": i} for i in range(50)]}, source="<noop>")
+        for label in ("no catalogue file", "catalogue file with 50 entries"):
+            if label != "no catalogue file":
+                catalogue_module.add_entries(path, [NoopDesigner().design(task) for task in expand(noop)])
+            start = time.perf_counter()
+            plan = plan_sweep(spec, path)
+            seconds = time.perf_counter() - start
+            rows.append({"catalogue": label, "tasks": len(plan.tasks), "per_task_ms": 1e3 * seconds / tasks,
+                         "total_s": seconds})
+            print(f"  plan  {label}: {rows[-1]['per_task_ms']:.3f} ms/task", file=sys.stderr)
     return rows
 
 
@@ -197,7 +224,14 @@ def markdown(result: dict) -> str:
                      f"{r['per_task_ms']:.2f} | {r['shutdown_s']:.2f} |")
     lines += ["", "start: entering the executor (dask: LocalCluster and Client); first result: until the first "
               "task came back (local: spawning workers and importing vertebra in them); per task: "
-              "(last - first result) / (tasks - 1), i.e. throughput cost per task once running."]
+              "(last - first result) / (tasks - 1), i.e. throughput cost per task once running.", "",
+              f"## Planning ({result['planning'][0]['tasks']} rod tasks, real canonical parameters and keys, "
+              "no meshing)", "",
+              "| catalogue | per task ms | total s |", "|---|---|---|"]
+    for r in result["planning"]:
+        lines.append(f"| {r['catalogue']} | {r['per_task_ms']:.3f} | {r['total_s']:.2f} |")
+    lines += ["", "Without a catalogue file the store is asked per key (committed shards only); with one, "
+              "every key is read once."]
     return "\n".join(lines) + "\n"
 
 
@@ -217,11 +251,14 @@ def main(argv=None) -> int:
     parser.add_argument("--mesh-size", type=float, nargs="+", default=[0.004, 0.0015])
     parser.add_argument("--order", type=int, default=2)
     parser.add_argument("--noop-tasks", type=int, default=200)
+    parser.add_argument("--plan-tasks", type=int, default=2000)
     parser.add_argument("--repeat", type=int, default=2, help="runs per configuration (best of N reported)")
     args = parser.parse_args(argv)
     result = {"date": datetime.now(timezone.utc).isoformat(timespec="seconds"), "host": platform.node(),
               "cpus": os.cpu_count(), "python": platform.python_version(), "load_start": os.getloadavg()[0],
               "omp_num_threads": os.environ.get("OMP_NUM_THREADS"), "commit": _commit()}
+    print("planning:", file=sys.stderr)
+    result["planning"] = planning_rows(args.plan_tasks)
     print("executor overhead (no-op job):", file=sys.stderr)
     result["overhead"] = overhead_rows(args.noop_tasks)
     print("real coarse rod entries:", file=sys.stderr)

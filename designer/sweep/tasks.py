@@ -13,8 +13,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Collection, Protocol, runtime_checkable
 
-from vertebra.designer.segment import canonical_parameters, design_segment, entry_key
 from vertebra.designer.families import FAMILIES
+from vertebra.designer.segment import canonical_parameters, design_segment, entry_key
 from vertebra.designer.sweep.samplers import SAMPLERS
 from vertebra.designer.sweep.spec import SweepSpec, keyed_options
 from vertebra.store.entry import SegmentEntry
