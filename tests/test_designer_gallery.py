@@ -70,15 +70,13 @@ def test_cbha_scene_solves_and_bends_away_from_the_pressurised_chamber(cbha, tmp
 def test_cbha_example_script_runs(cbha):
     """The example end to end (STYLE.md §9: examples run as tests). Its catalogue already holds
     the 16 coarse entries (same content keys), so the script reuses them instead of meshing."""
-    import os
     import subprocess
     import sys
     from pathlib import Path
     path, _ = cbha
     script = Path(__file__).resolve().parents[1] / "examples" / "cbha" / "design_cbha.py"
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
     run = subprocess.run([sys.executable, str(script), "--out", str(path.parent), "--no-accuracy", "--simulate"],
-                         capture_output=True, text=True, env=env, timeout=300)
+                         capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr
     assert run.stdout.count("reused") == 16 and "converged True" in run.stdout
     assert (path.parent / "cbha.toml").exists()
