@@ -1,10 +1,10 @@
-"""Benchmark of the inverse step (paper §IV): linearise → W → QP → step.
+"""Benchmark of the inverse step (paper §IV): linearise → project (W) → QP → step.
 
 Rows:
 1. each gallery robot: median time of one real-time inverse step split into
-   ``linearise`` (the model's tangent + banded factor), ``W`` (one multi-RHS banded solve for
-   K⁻¹[r, B] and the products giving W_ea, W_aa, δe_free, δa_free), ``QP`` (DAQP through
-   ``solve_constraint_problem``) and ``step`` (retraction), plus the whole tick;
+   ``linearise`` (the model's tangent + banded factor), ``W`` (``ConstraintSpace.project``: one
+   multi-RHS banded solve for K⁻¹[r, B] and the products giving W_ea, W_aa, δe_free, δa_free),
+   ``QP`` (DAQP through ``solve_constraint_problem``) and ``step`` (retraction), plus the whole tick;
    the paper reports ~5 ms (2 ms for W) on 3 vertebrae and ~13 ms (9 ms for W) on the
    5-vertebra 16-tendon robot (SOFA, 2.66 GHz i7);
 2. growth with frames (links per segment) and with actuators (tendons) on the 16-tendon robot;
@@ -31,8 +31,8 @@ import numpy as np
 
 from vertebra import solver  # noqa: E402
 from vertebra.solver.gallery import load  # noqa: E402
-from vertebra.solver.inverse.controller import InverseController, InverseSettings, constraint_problem  # noqa: E402
-from vertebra.solver.inverse.problems import reachable_loop  # noqa: E402
+from vertebra.solver.gallery.targets import reachable_loop  # noqa: E402
+from vertebra.solver.inverse import ConstraintSpace, InverseController, InverseSettings  # noqa: E402
 from vertebra.solver.inverse.qp import solve_constraint_problem  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -63,15 +63,14 @@ def breakdown(model, repeats, actuation=None):
     lam = np.full(n_act, 0.3) if actuation is None else actuation
     state = model.solve(lam).state
     targets = model.effector_positions(state) + 1e-3
-    kw = dict(weights=model.effector_weights, lambda_bounds=model.actuator_bounds,
-              displacement_bounds=model.displacement_bounds, regularisation=1e-8)
+    space = ConstraintSpace.of_model(model)
     lin = model.linearise(state, lam)
-    problem, Kr, KB, _ = constraint_problem(lin, targets, lam, **kw)
-    sol = solve_constraint_problem(problem)
-    dq = Kr + KB @ (sol.actuation - lam)
+    projection = space.project(lin, targets, lam)
+    sol = solve_constraint_problem(projection.problem)
+    dq = projection.state_change(sol.actuation)
     t_lin = median_time(lambda: model.linearise(state, lam), repeats)
-    t_w = median_time(lambda: constraint_problem(lin, targets, lam, **kw), repeats)
-    t_qp = median_time(lambda: solve_constraint_problem(problem), repeats)
+    t_w = median_time(lambda: space.project(lin, targets, lam), repeats)
+    t_qp = median_time(lambda: solve_constraint_problem(projection.problem), repeats)
     t_step = median_time(lambda: model.step(state, dq), repeats)
     controller = InverseController(model, InverseSettings(mode="tick"), actuation=lam, state=state)
     parts = []
@@ -126,8 +125,7 @@ def modes_table(n_points):
                 t0 = time.thread_time()
                 step = controller.step(target)
                 times.append(time.thread_time() - t0)
-                state = step.state if step.equilibrium else model.solve(step.actuation, initial=step.state).state
-                errors.append(float(np.max(np.linalg.norm(model.effector_positions(state) - target, axis=1))))
+                errors.append(float(np.max(controller.settled(step).errors)))
             rows.append(dict(effectors=label, mode=mode, median_step_s=float(np.median(times)),
                              max_step_s=float(np.max(times)), median_error_m=float(np.median(errors)),
                              max_error_m=float(np.max(errors)),
@@ -187,10 +185,9 @@ def main(argv=None):
                      f"{ms(r['wall_tick_s'])} | " + " / ".join(ms(r['in_tick'][k]) for k in
                                                              ("linearise_s", "W_s", "qp_s", "step_s", "total_s")) + " |")
     lines = ["# Inverse step timings (median CPU time of the thread; see median_time)", "", host, "",
-             "Columns linearise … step time each piece alone through its public function (W: the fully "
-             "validated `constraint_problem`); 'tick' is `InverseController.step` in tick mode, and "
-             "'inside the tick' the medians of its own `timings` (wall clock; W there is the "
-             "controller's re-linearised problem, validated once).", "",
+             "Columns linearise … step time each piece alone through its public function (W: "
+             "`ConstraintSpace.project`); 'tick' is `InverseController.step` in tick mode, and "
+             "'inside the tick' the medians of its own `timings` (wall clock).", "",
              "## Gallery robots (3 interleaved rounds, median of the rounds)", "",
              "| scene " + head + " paper |", "|---" + sep + "---|"]
     for r in scenes:

@@ -28,8 +28,10 @@ from pathlib import Path
 import numpy as np
 
 
+from vertebra.solver.gallery.targets import circle  # noqa: E402
+from vertebra.solver.inverse import (ConstraintProblem, ConstraintSpace, available_backends,  # noqa: E402
+                                     solve_constraint_problem)
 from vertebra.solver.inverse.problems import synthetic_problem  # noqa: E402
-from vertebra.solver.inverse.qp import ConstraintProblem, available_backends, solve_constraint_problem  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -41,8 +43,8 @@ def problem_for(case, seed, eps=None):
         kw["displacement_lower"] = -0.6 * np.abs(W_aa).sum(axis=1)
     if eps is not None:
         kw["regularisation"] = eps
-    return ConstraintProblem(W_ea, de, lambda_lower=0.0, lambda_upper=20.0, W_aa=W_aa,
-                             delta_a_free=np.zeros(case["n_act"]), **kw)
+    space = ConstraintSpace(case["n_act"], case["n_rows"], lambda_lower=0.0, lambda_upper=20.0, **kw)
+    return ConstraintProblem(space, W_ea, de, W_aa, np.zeros(case["n_act"]))
 
 
 def time_backend(problem, backend, repeats):
@@ -78,11 +80,12 @@ def backend_table(quick):
                     backend=backend, seed=seed, **case, time_s=t, status=sol.status, converged=sol.converged,
                     effort_error=float(np.abs(sol.actuation - ref.actuation).max() / scale),
                     # excess over DAQP's optimum relative to the objective at λ = 0 (½‖δe_free‖²)
-                    objective_rel=float((sol.objective - ref.objective) / free_objective),
+                    objective_rel=float((sol.diagnostics().objective - ref.diagnostics().objective)
+                                        / free_objective),
                     effector_error=sol.effector_error,
                     bound_violation=float(max(np.max(problem.lambda_lower - sol.actuation),
                                               np.max(sol.actuation - problem.lambda_upper),
-                                              np.max(problem.displacement_lower - sol.delta_a)
+                                              np.max(problem.space.displacement_lower - sol.delta_a)
                                               - np.max(sol.displacement_relaxation, initial=0.0), 0.0)),
                 ))
     return rows
@@ -98,14 +101,11 @@ def epsilon_table(quick):
             sol = solve_constraint_problem(problem, "daqp")
             biases.append(sol.effector_error / np.linalg.norm(problem.delta_e_free) if sol.converged else np.nan)
         W_ea, de0, W_aa, _ = synthetic_problem(2, 16, 3)
-        r = 0.3 * np.linalg.norm(de0)
-        u, v = np.linalg.qr(np.random.default_rng(0).normal(size=(3, 2)))[0].T
+        space = ConstraintSpace(16, 3, lambda_lower=0.0, lambda_upper=20.0, regularisation=eps)
+        gaps = circle(de0, 0.3 * np.linalg.norm(de0), n_steps, normal=np.random.default_rng(0).normal(size=3))
         lam, path, ok = None, [], True
-        for th in np.linspace(0, 2 * np.pi, n_steps):
-            p = ConstraintProblem(W_ea, de0 + r * (np.cos(th) * u + np.sin(th) * v), lambda_lower=0.0,
-                                  lambda_upper=20.0, W_aa=W_aa, delta_a_free=np.zeros(16), lambda0=lam,
-                                  regularisation=eps)
-            sol = solve_constraint_problem(p, "daqp")
+        for de in gaps:
+            sol = solve_constraint_problem(ConstraintProblem(space, W_ea, de, W_aa, np.zeros(16), lam), "daqp")
             ok &= sol.converged
             lam = sol.actuation
             path.append(lam)

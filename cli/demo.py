@@ -42,23 +42,11 @@ def _command(argv, stdout_path: Path | None = None) -> int:
             sys.stdout = saved
 
 
-def _reachable_circle(scene_name: str, tension: float):
-    """A tip circle the axisymmetric tendon robot can reach: the tip position under one
-    pulled tendon gives the circle's radius and height."""
-    import numpy as np
-
-    from vertebra import solver
-    model = solver.build_model(solver.load_scene(f"gallery:{scene_name}"))
-    actuation = np.zeros(len(model.actuator_names))
-    actuation[-1] = tension          # a tendon terminated at the tip
-    tip = model.effector_positions(model.solve(actuation).state)[model.effector_names.index("tip")]
-    return np.array([0.0, 0.0, tip[2]]), float(np.hypot(tip[0], tip[1]))
-
-
 def run(args) -> int:
     import numpy as np
 
-    from vertebra.solver.inverse.trajectory import Trajectory, circle, write_trajectory
+    from vertebra.solver.gallery.targets import circle, pose_circle
+    from vertebra.solver.inverse.trajectory import Trajectory, write_trajectory
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
@@ -90,10 +78,16 @@ def run(args) -> int:
           f"{forward['iterations']} Newton iterations ({1e3 * forward['timing']['solve_s']:.2f} ms)")
 
     _banner("3/3 inverse: 16-tendon robot tracks a circle; pneumatic trunk reaches a target")
-    centre, radius = _reachable_circle("paper_5v_16t", 4.0)
-    targets = circle(centre, radius, args.points)
+    # a tip circle the axisymmetric robot can reach: the tip under one pulled tendon (4 N on the
+    # last one, terminated at the tip) rotated about the axis
+    from vertebra import solver
+    tendon_robot = solver.build_model(solver.load_scene("gallery:paper_5v_16t"))
+    pulled = np.zeros(len(tendon_robot.actuator_names))
+    pulled[-1] = 4.0
+    tip = tendon_robot.effector_names.index("tip")
+    targets = pose_circle(tendon_robot, pulled, args.points)[:, [tip]]
     trajectory_path = out / "circle.csv"
-    write_trajectory(trajectory_path, Trajectory(targets[:, None, :], np.arange(args.points, dtype=float)), ["tip"])
+    write_trajectory(trajectory_path, Trajectory(targets, np.arange(args.points, dtype=float)), ["tip"])
     tip_only = out / "paper_5v_16t_tip.toml"
     import tomllib
     data = tomllib.loads(Path(__import__("vertebra.solver.gallery", fromlist=["path"]).path("paper_5v_16t")).read_text())
@@ -122,7 +116,6 @@ def run(args) -> int:
           f"tip error {reach['effectors']['tip']['error']:.2e} m")
     # and a tip trajectory: a horizontal circle of 3 cm radius 5 mm above the rest tip (the
     # chambers only extend the trunk, pressures ≥ 0: below that height the circle is out of reach)
-    from vertebra import solver
     trunk = solver.build_model(solver.load_scene(target_scene))
     rest_tip = trunk.effector_positions(trunk.rest_state)[0]
     tip_circle = circle([0.0, 0.0, rest_tip[2] + 0.005], 0.03, 13)

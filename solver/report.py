@@ -1,4 +1,5 @@
-"""Results as plain data (the JSON contract of DESIGN.md §5) and as pictures or VTK files.
+"""Results as plain data (the JSON documents of ``vertebra simulate`` and ``vertebra invert``)
+and as pictures or VTK files. Every document carries ``"vertebra_version"``.
 
 Matplotlib and meshio are imported lazily inside the functions that draw or write, so
 ``import solver`` stays light.
@@ -8,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from vertebra import __version__
 from vertebra.solver.model import State, StaticResult, TrunkModel
 
 
@@ -23,6 +25,7 @@ def static_report(model: TrunkModel, result: StaticResult) -> dict:
     volume = model.chamber_volume_growth(state, actuation[model.n_cables:])
     effectors = model.effector_positions(state)
     return {
+        "vertebra_version": __version__,
         "converged": bool(result.converged),
         "iterations": int(result.iterations),
         "residual": float(result.residual),
@@ -42,6 +45,57 @@ def static_report(model: TrunkModel, result: StaticResult) -> dict:
         "diagnostics": {"load_stages": int(result.load_steps), "factorization": result.factorization,
                         "rounding_limited": bool(result.rounding_limited),
                         "frames": int(model.n_frames), "residual_history": [float(r) for r in result.residual_history]},
+    }
+
+
+def inverse_report(model: TrunkModel, steps: list, times, *, scene: str, mode: str, backend: str,
+                   tolerance: float) -> dict:
+    """The ``vertebra invert --json`` document of inverse ``steps`` (``solver.inverse.InverseStep``,
+    reported at equilibrium where one was found) at ``times``: per step the actuator values and,
+    per effector, target, position (or direction, for an axis effector) and error; the unreached
+    effectors; the median and total step time."""
+    unreached = [{"step": i, "effector": name, "error": float(step.errors[k])}
+                 for i, step in enumerate(steps) for k, name in enumerate(model.effector_names)
+                 if not step.errors[k] <= tolerance]
+    converged = all(step.equilibrium for step in steps)
+    step_times = [step.timings["total_s"] for step in steps]
+    return {
+        "vertebra_version": __version__,
+        "scene": scene,
+        "mode": mode,
+        "backend": backend,
+        "tolerance": tolerance,
+        "steps": [_inverse_step(model, t, step) for t, step in zip(times, steps)],
+        "timing": {"median_step_s": float(np.median(step_times)), "total_s": float(np.sum(step_times))},
+        "converged": bool(converged),
+        "reached": bool(converged and not unreached),
+        "unreached": unreached,
+    }
+
+
+def _inverse_step(model: TrunkModel, t, step) -> dict:
+    nc, names = model.n_cables, model.actuator_names
+    actuation, displacements = step.actuation, step.displacements
+    active = step.qp.diagnostics() if step.qp is not None else None
+    return {
+        "t": float(t),
+        "cables": {names[j]: {"tension": float(actuation[j]), "stroke": float(displacements[j])} for j in range(nc)},
+        "chambers": {names[j]: {"pressure": float(actuation[j]), "volume_growth": float(displacements[j])}
+                     for j in range(nc, len(names))},
+        # an axis effector reports its world direction (unit vector) and a dimensionless error
+        "effectors": {name: {"target": [float(v) for v in step.targets[k]],
+                             ("direction" if model.effector_is_axis[k] else "position"):
+                                 [float(v) for v in step.positions[k]],
+                             "error": float(step.errors[k])} for k, name in enumerate(model.effector_names)},
+        "reached": bool(step.reached and step.equilibrium),
+        "equilibrium": bool(step.equilibrium),
+        "status": step.status,
+        "iterations": int(step.iterations),
+        "qp": {"status": step.qp.status if step.qp else None,
+               "iterations": int(step.qp.iterations) if step.qp else 0,
+               "active_bounds": [] if active is None else
+               [names[j] for j in range(len(names)) if active.active_lower[j] or active.active_upper[j]]},
+        "timing": {key: float(value) for key, value in step.timings.items()},
     }
 
 
@@ -122,6 +176,44 @@ def plot_static(model: TrunkModel, result: StaticResult, path: str, title: str |
     status = "converged" if result.converged else "NOT converged"
     fig.suptitle(title or f"{model.scene.name or 'scene'}: {status} in {result.iterations} iterations, "
                           f"residual {result.residual:.2g}")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_inverse(model: TrunkModel, steps: list, times, path: str):
+    """Write a PNG of inverse ``steps``: targets vs achieved effector paths with the last shape
+    (3D), and the actuation per step (bars for a single step)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    targets = np.array([step.targets for step in steps])
+    achieved = np.array([step.positions for step in steps])
+    actuation = np.array([step.actuation for step in steps])
+    final_state = steps[-1].state
+    fig = plt.figure(figsize=(11, 4.8))
+    ax = fig.add_subplot(1, 2, 1, projection="3d")
+    points = ~model.effector_is_axis                # a direction target is not a place in space
+    draw_trunk(ax, model, final_state, targets=False, legend_prefix="final ")
+    for k, name in enumerate(model.effector_names):
+        if points[k]:
+            ax.plot(*targets[:, k].T, "x--", ms=5, label=f"{name} target")
+            ax.plot(*achieved[:, k].T, "o-", ms=2, label=f"{name} achieved")
+    equal_axes(ax, np.vstack([targets[:, points].reshape(-1, 3), achieved[:, points].reshape(-1, 3),
+                              final_state.positions]))
+    ax.legend(fontsize=7)
+    ax2 = fig.add_subplot(1, 2, 2)
+    names = model.actuator_names
+    if len(steps) == 1:        # one target: the actuation as bars
+        ax2.bar(range(len(names)), actuation[0], color=[f"C{j % 10}" for j in range(len(names))])
+        ax2.set_xticks(range(len(names)), names, rotation=45, fontsize=7)
+    else:
+        for j, name in enumerate(names):
+            ax2.plot(times, actuation[:, j], label=name)
+        ax2.set_xlabel("t")
+        if len(names) <= 16:
+            ax2.legend(fontsize=6, ncol=2)
+    ax2.set_ylabel("actuation (N or Pa)")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -51,4 +51,5 @@ def test_cbha_unreachable_target_saturates_within_bounds(cbha_model):
     assert not step.reached and step.status == "closest_reach"
     lo, hi = model.actuator_bounds
     assert np.all(step.actuation >= lo) and np.all(step.actuation <= hi)
-    assert step.qp.active_lower.any() or step.qp.active_upper.any()
+    active = step.qp.diagnostics()
+    assert active.active_lower.any() or active.active_upper.any()

@@ -1,4 +1,4 @@
-"""``vertebra invert`` (DESIGN.md §5): JSON contract, trajectories, plot and exit codes.
+"""``vertebra invert``: JSON contract, trajectories, plot and exit codes.
 
 Runs the real dispatcher ``cli_main.main`` in-process (its table is narrowed to the
 ``invert`` subcommand so these tests do not depend on the other subcommands' modules).
@@ -12,11 +12,12 @@ import re
 import numpy as np
 import pytest
 
+import vertebra as vertebra_package
 from vertebra.cli import main as cli_main
 from vertebra import solver
 from vertebra.solver.gallery import load, path
 from vertebra.solver.inverse.trajectory import Trajectory, read_trajectory, write_trajectory
-from vertebra.store.errors import SceneError
+from vertebra.store.errors import TrajectoryError
 
 
 @pytest.fixture
@@ -55,6 +56,7 @@ def test_reachable_target_exit_0_and_json_contract(tmp_path, vertebra):
     assert code == 0, err
     doc = json.loads(out)  # stdout is one JSON document and nothing else
     assert doc["reached"] is True and doc["converged"] is True and doc["unreached"] == []
+    assert doc["vertebra_version"] == vertebra_package.__version__
     step = doc["steps"][0]
     assert set(step["cables"]) == set(model.actuator_names) and step["chambers"] == {}
     tip = step["effectors"]["tip"]
@@ -103,7 +105,8 @@ def test_trajectory_in_tick_mode_with_plot(tmp_path, vertebra):
 @pytest.mark.parametrize("header, row, field", [
     ("t,elbow.x,elbow.y,elbow.z", "0,0,0,0.1", "elbow.x"),  # unknown effector
     ("t,tip.x,tip.y", "0,0,0", "tip.z"),  # incomplete
-    ("t,tip.x,tip.y,tip.z", "0,0,zero,0.1", "row 2"),  # not a number
+    ("t,tip.x,tip.y,tip.z", "0,0,zero,0.1", "row 2, column tip.y"),  # not a number
+    ("t,tip.x,tip.y,tip.z", "0,0,0,inf", "row 2, column tip.z"),  # not finite
 ])
 def test_bad_trajectory_exit_2_names_file_and_field(tmp_path, vertebra, header, row, field):
     csv_path = tmp_path / "bad.csv"
@@ -111,6 +114,15 @@ def test_bad_trajectory_exit_2_names_file_and_field(tmp_path, vertebra, header, 
     code, out, err = vertebra(path("paper_3v_4t"), "--trajectory", csv_path)
     assert code == 2 and out == ""
     assert str(csv_path) in err and field in err
+
+
+def test_missing_trajectory_file_and_bad_options_exit_2(tmp_path, vertebra):
+    for argv, where in (((path("paper_3v_4t"), "--trajectory", tmp_path / "none.csv"), "none.csv: file not found"),
+                        ((path("paper_3v_4t"), "--backend", "simplex"), "backend: unknown QP backend 'simplex'"),
+                        ((path("paper_3v_4t"), "--tolerance", "-1"), "tolerance: must be a positive length"),
+                        ((path("paper_3v_4t"), "--regularisation", "nan"), "regularisation: must be finite")):
+        code, out, err = vertebra(*argv)
+        assert code == 2 and out == "" and where in err, err
 
 
 def test_trajectory_csv_round_trip(tmp_path):
@@ -126,7 +138,7 @@ def test_trajectory_csv_round_trip(tmp_path):
     back = read_trajectory(tmp_path / "u.csv", names, [[7, 8, 9], [np.nan] * 3])
     np.testing.assert_array_equal(back.times, [0, 1])
     np.testing.assert_array_equal(back.targets[:, 0], [[7, 8, 9], [7, 8, 9]])
-    with pytest.raises(SceneError, match="neither columns here nor a target"):
+    with pytest.raises(TrajectoryError, match="neither columns here nor a target"):
         read_trajectory(tmp_path / "u.csv", ["mid", "tip"])
 
 

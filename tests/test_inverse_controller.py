@@ -1,4 +1,4 @@
-"""Inverse simulation on the lead's runtime model (paper §IV): linearise → W → QP → step.
+"""Inverse simulation on the runtime model (paper §IV): linearise → project → QP → step.
 
 Targets come from forward solutions at known actuations (so they are reachable), or are
 pushed out of reach on purpose. Gallery scenes are reused, never copied (STYLE §8).
@@ -13,9 +13,10 @@ import pytest
 
 from vertebra import solver
 from vertebra.solver.gallery import load
+from vertebra.solver.gallery.targets import reachable_loop
+from vertebra.solver.inverse import ConstraintSpace
 from vertebra.solver.inverse.controller import InverseController, InverseSettings
-from vertebra.solver.inverse.problems import reachable_loop
-from vertebra.store.errors import ConvergenceError
+from vertebra.store.errors import ConvergenceError, OptionError, SceneError
 
 
 def _model(name, **replace):
@@ -64,7 +65,8 @@ def test_unreachable_target_gives_the_closest_reach_within_bounds():
     step = InverseController(model, InverseSettings(mode="converged")).step(targets)
     assert not step.reached and step.status == "closest_reach"
     assert _within_bounds(model, step.actuation)
-    assert step.qp.active_upper.any() or step.qp.active_lower.any()
+    active = step.qp.diagnostics()
+    assert active.active_upper.any() or active.active_lower.any()
     lo, hi = model.actuator_bounds
     for j in range(len(step.actuation)):
         for sign in (-1.0, 1.0):
@@ -221,3 +223,108 @@ def test_hybrid_cables_and_chambers_in_one_qp():
     step = InverseController(model, InverseSettings()).step(targets)
     assert step.reached and np.all(step.errors <= 1e-6)
     assert _within_bounds(model, step.actuation)
+
+
+# ---------------------------------------------------------------------------- inputs and results
+
+
+def _at_a_forward_solution(name):
+    model = _model(name)
+    lo, hi = model.actuator_bounds
+    lam = np.clip(np.full(len(model.actuator_names), 0.3), lo, hi)
+    state = model.solve(lam).state
+    return model, lam, state, model.effector_positions(state)
+
+
+def test_settings_and_scenes_are_checked_by_meaning():
+    for bad, field in ((dict(mode="fast"), "mode"), (dict(tolerance=0.0), "tolerance"),
+                       (dict(tolerance=np.nan), "tolerance"), (dict(regularisation=-1.0), "regularisation"),
+                       (dict(backend="simplex"), "backend"), (dict(max_iterations=0), "max_iterations"),
+                       (dict(progress=1.0), "progress")):
+        with pytest.raises(OptionError) as error:
+            InverseSettings(**bad)
+        assert error.value.field == field
+    assert InverseSettings(mode="tick").tolerance == 1e-3 and InverseSettings().tolerance == 1e-6
+    scene = load("paper_3v_4t")
+    for replace, field in ((dict(effectors=()), "effector"), (dict(cables=()), "cable")):
+        with pytest.raises(SceneError) as error:
+            InverseController(solver.build_model(dataclasses.replace(scene, **replace)))
+        assert error.value.field == field and error.value.file == scene.source
+
+
+def test_bad_targets_are_named_and_any_layout_of_good_ones_is_the_same():
+    model, lam, state, base = _at_a_forward_solution("paper_5v_16t")
+    controller = InverseController(model, InverseSettings(mode="tick"), actuation=lam, state=state)
+    with pytest.raises(OptionError, match="targets: must hold 2×3 values"):
+        controller.step(base[:1])
+    for bad in (np.nan, np.inf):
+        t = base.copy()
+        t[1, 2] = bad
+        with pytest.raises(OptionError, match=f"effector\\(s\\) {model.effector_names[1]} have no finite target"):
+            controller.step(t)
+    a = controller.step(base.tolist())
+    controller.state, controller.actuation = state, lam
+    b = controller.step(base.reshape(-1))
+    np.testing.assert_array_equal(a.actuation, b.actuation)
+    np.testing.assert_array_equal(a.state.positions, b.state.positions)
+
+
+def test_a_diverged_linearisation_is_a_convergence_failure_naming_the_array(monkeypatch):
+    # NaN in what the model linearises (a state that blew up) must not reach the QP: the
+    # projection fails with ConvergenceError (exit 1 on the command line), not a ValueError.
+    model, lam, state, base = _at_a_forward_solution("paper_3v_4t")
+    controller = InverseController(model, InverseSettings(mode="tick"), actuation=lam, state=state)
+    controller.step(base)
+    real = model.linearise
+    for field, array in (("effector_jacobian", "W_ea"), ("effector_positions", "delta_e_free"),
+                         ("actuator_displacements", "delta_a_free"), ("actuator_jacobian", "W_aa")):
+        def broken(state, actuation=None, field=field):
+            lin = real(state, actuation)
+            bad = getattr(lin, field).copy()
+            bad.reshape(-1)[0] = np.nan
+            return dataclasses.replace(lin, **{field: bad})
+
+        monkeypatch.setattr(model, "linearise", broken)
+        with pytest.raises(ConvergenceError, match=f"constraint projection: {array} contains NaN"):
+            controller.step(base)
+
+
+def test_the_constraint_space_is_validated_once_and_read_only():
+    model, lam, state, base = _at_a_forward_solution("paper_3v_4t")
+    controller = InverseController(model, InverseSettings(mode="tick"), actuation=lam, state=state)
+    space = controller.space
+    for a in (space.lambda_lower, space.lambda_upper, space.displacement_lower, space.effector_weights):
+        with pytest.raises(ValueError, match="read-only"):
+            a[0] = 1.0
+    with pytest.raises(OptionError, match=r"lambda_lower\[0\] = .* > lambda_upper\[0\]"):
+        dataclasses.replace(space, lambda_lower=space.lambda_upper, lambda_upper=space.lambda_lower)
+    # a tighter box assigned to the controller holds in the next ticks
+    controller.space = dataclasses.replace(space, lambda_upper=np.full(space.n_actuators, 0.5))
+    for _ in range(3):
+        step = controller.step(base + 0.02)
+        assert np.all(step.actuation <= 0.5) and np.all(step.actuation >= space.lambda_lower)
+    assert isinstance(controller.space, ConstraintSpace)
+
+
+def test_step_errors_reached_and_settled_equilibria():
+    # A tick's errors are |position − target| of its predicted state; settled, the step is an
+    # equilibrium under the same actuation (an independent solve lands on the same state to the
+    # solver tolerance) with its errors and reached flag recomputed there.
+    model, lam, state, base = _at_a_forward_solution("tendon_two_section")
+    controller = InverseController(model, InverseSettings(mode="tick", tolerance=1e-4), actuation=lam, state=state)
+    seen = set()
+    for k in range(6):
+        targets = base + (2e-5 if k < 3 else 2e-3) * np.arange(base.size).reshape(base.shape)
+        step = controller.step(targets)
+        np.testing.assert_allclose(step.errors, np.linalg.norm(step.positions - targets, axis=1), rtol=1e-14)
+        assert step.reached is bool(np.all(step.errors <= 1e-4)) and not step.equilibrium
+        seen.add(step.reached)
+        settled = controller.settled(step)
+        assert settled.equilibrium and settled.equilibrium_failure == ""
+        np.testing.assert_array_equal(settled.actuation, step.actuation)
+        check = model.solve(step.actuation, initial=step.state).state
+        np.testing.assert_allclose(settled.positions, model.effector_positions(check), rtol=0, atol=1e-12)
+        np.testing.assert_allclose(settled.errors, np.linalg.norm(settled.positions - targets, axis=1), rtol=1e-14)
+        assert settled.reached is bool(np.all(settled.errors <= 1e-4))
+        assert controller.state is step.state  # the controller continues from its own prediction
+    assert seen == {True, False}

@@ -6,8 +6,9 @@
   two circles at once — posture control, not only the tip.
 
 Tendons around a stiff backbone can bend it but barely shorten it (~1 µm per N), so
-the targets must lie on the reachable surface: the circles are placed at the height
-a forward solution reaches for the chosen bending radius (the robot is axisymmetric).
+the targets must lie on the reachable surface: the circles are the effector positions of
+one forward solution with the chosen bending radius, rotated about the axis
+(``solver.gallery.targets.bent_circle``; the robot is axisymmetric).
 
     .venv/bin/python examples/inverse/track_circle.py --scene paper_5v_16t --posture \
         --points 60 --mode converged --csv circle.csv --plot circle.png
@@ -19,15 +20,14 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
 
 from vertebra import solver  # noqa: E402
 from vertebra.solver.gallery import load  # noqa: E402
+from vertebra.solver.gallery.targets import bent_circle  # noqa: E402
 from vertebra.solver.inverse.controller import InverseController, InverseSettings  # noqa: E402
 from vertebra.solver.inverse.trajectory import Trajectory, write_trajectory  # noqa: E402
 
@@ -41,49 +41,22 @@ def scene_for(name: str, posture: bool):
     return dataclasses.replace(scene, effectors=effectors)
 
 
-def bent_pose(model, scene, tension: float):
-    """Effector positions when the tendons at angle 0 pull with ``tension`` (and, for the
-    16-tendon robot, the shorter ones at angle 0 half as much)."""
-    lam = np.zeros(len(model.actuator_names))
-    for j, cable in enumerate(scene.cables):
-        if abs(np.cos(cable.angle) - 1.0) < 1e-9:
-            lam[j] = tension if cable.last == max(c.last for c in scene.cables) else 0.5 * tension
-    return model.effector_positions(model.solve(lam).state)
-
-
-def circle_targets(model, scene, radius: float, n_points: int) -> np.ndarray:
-    """(n_points, n_eff, 3): the bent pose whose tip is ``radius`` off the axis, rotated
-    about the axis (z) through one turn."""
-    lo, hi = 0.0, float(np.max(model.actuator_bounds[1][np.isfinite(model.actuator_bounds[1])]))
-    for _ in range(30):  # bisection on the tension for the tip offset (20 N / 2^30)
-        mid = 0.5 * (lo + hi)
-        tip = bent_pose(model, scene, mid)[-1]
-        lo, hi = (mid, hi) if np.hypot(tip[0], tip[1]) < radius else (lo, mid)
-    pose = bent_pose(model, scene, 0.5 * (lo + hi))
-    theta = np.linspace(0.0, 2 * np.pi, n_points)
-    c, s = np.cos(theta), np.sin(theta)
-    rot = np.stack([np.stack([c, -s, 0 * c], -1), np.stack([s, c, 0 * c], -1),
-                    np.stack([0 * c, 0 * c, 1 + 0 * c], -1)], 1)  # (n, 3, 3)
-    return np.einsum("nij,ej->nei", rot, pose)
-
-
 def run(scene_name="paper_5v_16t", posture=False, radius=0.01, points=36, mode="converged",
         csv=None, plot=None, quiet=False):
     scene = scene_for(scene_name, posture)
     model = solver.build_model(scene)
-    targets = circle_targets(model, scene, radius, points)
+    targets = bent_circle(model, scene, radius, points)
     if csv:
         write_trajectory(csv, Trajectory(targets, np.arange(points, dtype=float)), model.effector_names)
     controller = InverseController(model, InverseSettings(mode=mode))
     efforts, errors, times, achieved = [], [], [], []
-    for k, target in enumerate(targets):
+    for target in targets:
         t0 = time.thread_time()
         step = controller.step(target)
         times.append(time.thread_time() - t0)
-        state = step.state if step.equilibrium else model.solve(step.actuation, initial=step.state).state
-        positions = model.effector_positions(state)
-        achieved.append(positions)
-        errors.append(np.linalg.norm(positions - target, axis=1))
+        step = controller.settled(step)  # a tick: where the robot settles under its actuation
+        achieved.append(step.positions)
+        errors.append(step.errors)
         efforts.append(step.actuation)
     efforts, errors, achieved = np.array(efforts), np.array(errors), np.array(achieved)
     moves = np.linalg.norm(np.diff(efforts, axis=0), axis=1)

@@ -1,4 +1,5 @@
-"""Canonical inverse problems shared by tests, benchmarks and examples (one copy of each)."""
+"""A canonical constraint-space problem shared by the QP tests and benchmarks (target paths on
+robots: ``solver.gallery.targets``)."""
 
 from __future__ import annotations
 
@@ -17,17 +18,3 @@ def synthetic_problem(seed, n_act=16, n_rows=3, n_dof=60, reach=0.5):
     W_ea, W_aa = Je @ Kinv_B, Ja @ Kinv_B
     lam_target = rng.uniform(0.0, 10.0, n_act)
     return W_ea, -(W_ea @ lam_target) * reach, W_aa, lam_target
-
-
-def reachable_loop(model, scene, n_points, base=0.1, amplitude=1.0):
-    """A closed loop of targets tendons can reach: the effector positions of forward solutions
-    with tensions ``base + amplitude·max(0, cos(θ − angle_j))`` for θ around the circle. (A
-    horizontal circle at constant height is *not* reachable by tendons around a stiff
-    backbone: bending lowers the tip and tendons can only shorten it.)"""
-    angles = np.array([c.angle for c in scene.cables])
-    loop, state = [], None
-    for theta in np.linspace(0.0, 2 * np.pi, n_points):
-        tensions = base + amplitude * np.maximum(0.0, np.cos(theta - angles))
-        state = model.solve(tensions, initial=state).state
-        loop.append(model.effector_positions(state))
-    return np.array(loop)

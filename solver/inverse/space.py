@@ -1,0 +1,238 @@
+"""Constraint space of the inverse model (paper §IV, eqs. 10–12): where every QP is posed.
+
+A :class:`ConstraintSpace` holds what stays fixed for one robot — the actuator box, the
+actuator-displacement limits, the effector weights and the regulariser — validated once in
+its constructor. Each linearisation of the model at a state ``q`` with actuation ``λ0``
+(out-of-balance force ``r``, banded factor of ``K``, actuator forces ``B``, Jacobians
+``Ja``, ``Je``; docs/solver-api.md) is projected into it by one banded solve with
+``1 + n_act`` right-hand sides, ``X = K⁻¹[r, B]``::
+
+    dq(λ)  = K⁻¹r + K⁻¹B (λ − λ0)                                    (paper eq. 10)
+    δe(λ)  = e − target + Je K⁻¹r − W_ea λ0 + W_ea λ,  W_ea = Je K⁻¹B  (paper eq. 11)
+    δa(λ)  = a + Ja K⁻¹r − W_aa λ0 + W_aa λ,           W_aa = Ja K⁻¹B  (paper eq. 12)
+
+giving a :class:`ConstraintProblem` (the space plus ``W_ea``, ``δe_free``, ``W_aa``,
+``δa_free`` and ``λ0``), whose constructor checks shapes and that the values are finite.
+A non-finite linearisation is a numerical failure (:class:`ConvergenceError`); bad
+arguments are :class:`OptionError`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from vertebra.store.errors import ConvergenceError, OptionError
+
+__all__ = ["ConstraintSpace", "ConstraintProblem", "Projection", "DEFAULT_REGULARISATION"]
+
+DEFAULT_REGULARISATION = 1e-8
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False
+    return a
+
+
+def _bound(name: str, value, n: int) -> np.ndarray:
+    """A read-only float vector of ``n`` bounds from a scalar or a sequence (±inf allowed)."""
+    a = np.array(np.broadcast_to(value, (n,)) if np.ndim(value) == 0 else value, dtype=float).reshape(-1)
+    if a.shape != (n,):
+        raise OptionError(f"len({name}) = {a.size}, but it must be {n}", field=name)
+    if np.isnan(a).any():
+        raise OptionError(f"{name} contains NaN", field=name)
+    return _read_only(a)
+
+
+def _ordered(lower_name, lower, upper_name, upper):
+    if (lower > upper).any():
+        i = int(np.flatnonzero(lower > upper)[0])
+        raise OptionError(f"{lower_name}[{i}] = {lower[i]} > {upper_name}[{i}] = {upper[i]}", field=lower_name)
+
+
+@dataclass(frozen=True)
+class ConstraintSpace:
+    """Bounds, effector weights and regulariser of the inverse QPs of one robot.
+
+    ``n_actuators`` efforts ``λ`` (cables then chambers) in ``[lambda_lower, lambda_upper]``;
+    ``n_rows`` effector rows (three per effector) weighted by ``effector_weights`` (> 0);
+    actuator displacements in ``[displacement_lower, displacement_upper]`` (±inf: none);
+    ``regularisation`` the dimensionless actuation-energy weight ``ε`` (``solver.inverse.qp``).
+    Scalars apply to every entry. Arrays are stored as read-only copies.
+    """
+
+    n_actuators: int
+    n_rows: int
+    lambda_lower: np.ndarray | float = -np.inf
+    lambda_upper: np.ndarray | float = np.inf
+    effector_weights: np.ndarray | float = 1.0
+    displacement_lower: np.ndarray | float = -np.inf
+    displacement_upper: np.ndarray | float = np.inf
+    regularisation: float = DEFAULT_REGULARISATION
+    rows: np.ndarray = field(init=False, repr=False, compare=False)  # actuators with a finite displacement bound
+
+    def __post_init__(self):
+        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 (frozen dataclass)
+        n, m = self.n_actuators, self.n_rows
+        if not (isinstance(n, (int, np.integer)) and n >= 1):
+            raise OptionError(f"must be an integer ≥ 1, got {n!r}", field="n_actuators")
+        if not (isinstance(m, (int, np.integer)) and m >= 1):
+            raise OptionError(f"must be an integer ≥ 1, got {m!r}", field="n_rows")
+        lo, hi = _bound("lambda_lower", self.lambda_lower, n), _bound("lambda_upper", self.lambda_upper, n)
+        _ordered("lambda_lower", lo, "lambda_upper", hi)
+        dlo = _bound("displacement_lower", self.displacement_lower, n)
+        dhi = _bound("displacement_upper", self.displacement_upper, n)
+        _ordered("displacement_lower", dlo, "displacement_upper", dhi)
+        w = _bound("effector_weights", self.effector_weights, m)
+        if not (np.isfinite(w).all() and (w > 0).all()):
+            raise OptionError(f"must be finite and > 0, got min {w.min()}", field="effector_weights")
+        eps = float(self.regularisation)
+        if not (math.isfinite(eps) and eps >= 0):
+            raise OptionError(f"must be finite and ≥ 0, got {eps}", field="regularisation")
+        for key, value in (("n_actuators", int(n)), ("n_rows", int(m)), ("lambda_lower", lo), ("lambda_upper", hi),
+                           ("displacement_lower", dlo), ("displacement_upper", dhi), ("effector_weights", w),
+                           ("regularisation", eps)):
+            set_(key, value)
+        set_("rows", _read_only(np.flatnonzero(np.isfinite(dlo) | np.isfinite(dhi))))
+
+    @classmethod
+    def of_model(cls, model, regularisation: float = DEFAULT_REGULARISATION) -> "ConstraintSpace":
+        """The space of a compiled ``solver.TrunkModel``: its actuator and displacement bounds and
+        its effector weights (one per effector, applied to its three rows)."""
+        lo, hi = model.actuator_bounds
+        dlo, dhi = model.displacement_bounds
+        return cls(len(model.actuator_names), 3 * len(model.effector_names), lambda_lower=lo, lambda_upper=hi,
+                   effector_weights=np.repeat(model.effector_weights, 3), displacement_lower=dlo,
+                   displacement_upper=dhi, regularisation=regularisation)
+
+    def project(self, lin, targets: np.ndarray, actuation: np.ndarray) -> "Projection":
+        """Project a ``solver.Linearisation`` at ``actuation`` (``λ0``) with effector ``targets``
+        (n_effectors, 3) into this space (module docstring). One banded solve for ``K⁻¹[r, B]``."""
+        B = lin.actuator_forces
+        rhs = np.empty((B.shape[0], 1 + B.shape[1]), order="F")  # LAPACK's layout: no copy in the solve
+        rhs[:, 0] = lin.residual
+        rhs[:, 1:] = B
+        X = lin.solve(rhs)
+        JeX = lin.effector_jacobian @ X
+        JaX = lin.actuator_jacobian @ X
+        W_ea, W_aa = JeX[:, 1:], JaX[:, 1:]
+        # e − target + Je K⁻¹r − W_ea λ0 and a + Ja K⁻¹r − W_aa λ0
+        delta_e_free = (lin.effector_positions - targets).reshape(-1)
+        delta_e_free += JeX[:, 0]
+        delta_e_free -= W_ea @ actuation
+        delta_a_free = lin.actuator_displacements + JaX[:, 0]
+        delta_a_free -= W_aa @ actuation
+        problem = ConstraintProblem(self, W_ea, delta_e_free, W_aa, delta_a_free, actuation)
+        return Projection(problem, X[:, 0], X[:, 1:])
+
+
+_ONES: dict = {}  # n -> read-only ones(n), for row sums
+
+
+def _ones(n: int) -> np.ndarray:
+    a = _ONES.get(n)
+    if a is None:
+        a = _ONES[n] = _read_only(np.ones(n))
+    return a
+
+
+def _array(name: str, value, shape: tuple) -> np.ndarray:
+    a = np.asarray(value, dtype=float)
+    if a.shape != shape:
+        raise OptionError(f"{name}.shape = {a.shape}, but it must be {shape}", field=name)
+    return a
+
+
+@dataclass(frozen=True)
+class ConstraintProblem:
+    """One linearised inverse step in a :class:`ConstraintSpace` (paper eqs. 11–12)::
+
+        δe(λ) = δe_free + W_ea λ        δa(λ) = δa_free + W_aa λ
+
+    ``W_ea`` (m×n) and ``delta_e_free`` (m) are required; ``W_aa`` (n×n) and ``delta_a_free``
+    (n) come together and are needed when the space has displacement limits. ``lambda0`` (n)
+    is the current actuation (the QP's warm start). The arrays are used as given (not copied).
+    """
+
+    space: ConstraintSpace
+    W_ea: np.ndarray
+    delta_e_free: np.ndarray
+    W_aa: np.ndarray | None = None
+    delta_a_free: np.ndarray | None = None
+    lambda0: np.ndarray | None = None
+
+    def __post_init__(self):
+        space = self.space
+        n, m = space.n_actuators, space.n_rows
+        arrays = [("W_ea", _array("W_ea", self.W_ea, (m, n))),
+                  ("delta_e_free", _array("delta_e_free", self.delta_e_free, (m,)))]
+        if (self.W_aa is None) != (self.delta_a_free is None):
+            raise OptionError("W_aa and delta_a_free must be given together", field="W_aa")
+        if self.W_aa is not None:
+            arrays += [("W_aa", _array("W_aa", self.W_aa, (n, n))),
+                       ("delta_a_free", _array("delta_a_free", self.delta_a_free, (n,)))]
+        elif space.rows.size:
+            raise OptionError("displacement limits need W_aa and delta_a_free", field="W_aa")
+        if self.lambda0 is not None:
+            arrays.append(("lambda0", _array("lambda0", self.lambda0, (n,))))
+        # Finite values: one sum of squares of the row sums, NaN or inf when any value is (a finite
+        # value whose square overflows only sends the arrays to the element-wise check).
+        total = 0.0
+        for _, a in arrays:
+            v = a if a.ndim == 1 else a.dot(_ones(a.shape[1]))
+            total += v.dot(v)
+        if not math.isfinite(total):
+            for name, a in arrays:
+                if not np.isfinite(a).all():
+                    if name == "lambda0":
+                        raise OptionError("contains NaN or ±inf", field=name)
+                    raise ConvergenceError(f"constraint projection: {name} contains NaN or ±inf "
+                                           "(the linearisation is not finite)")
+        for name, a in arrays:
+            if a is not getattr(self, name):
+                object.__setattr__(self, name, a)
+
+    @property
+    def n_actuators(self) -> int:
+        return self.space.n_actuators
+
+    @property
+    def n_rows(self) -> int:
+        return self.space.n_rows
+
+    @property
+    def lambda_lower(self) -> np.ndarray:
+        """Lower bounds of the efforts in this step."""
+        return self.space.lambda_lower
+
+    @property
+    def lambda_upper(self) -> np.ndarray:
+        """Upper bounds of the efforts in this step."""
+        return self.space.lambda_upper
+
+    def start(self) -> np.ndarray:
+        """The warm start ``λ0`` (zeros when none) inside the λ box."""
+        l0 = np.zeros(self.n_actuators) if self.lambda0 is None else self.lambda0
+        return np.minimum(np.maximum(l0, self.lambda_lower), self.lambda_upper)
+
+    def predict(self, lam: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """Linearised effector gaps ``δe(λ)`` and actuator displacements ``δa(λ)`` (None without ``W_aa``)."""
+        de = self.delta_e_free + self.W_ea @ lam
+        da = None if self.W_aa is None else self.delta_a_free + self.W_aa @ lam
+        return de, da
+
+
+@dataclass
+class Projection:
+    """A linearisation projected into constraint space: the problem and ``K⁻¹r``, ``K⁻¹B``."""
+
+    problem: ConstraintProblem
+    K_inv_r: np.ndarray  # (n_dof,)
+    K_inv_B: np.ndarray  # (n_dof, n_actuators)
+
+    def state_change(self, actuation: np.ndarray) -> np.ndarray:
+        """``dq(λ) = K⁻¹r + K⁻¹B (λ − λ0)`` (paper eq. 10): the linearised motion to the
+        equilibrium under ``actuation``."""
+        return self.K_inv_r + self.K_inv_B @ (actuation - self.problem.lambda0)
