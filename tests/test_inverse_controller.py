@@ -185,9 +185,9 @@ def pneumatic_entry(length=0.03, youngs_modulus=1e6, poisson_ratio=0.45, outer=0
                         rest_translation=np.array([0.0, 0.0, length]))
 
 
-def test_chambers_inverse_reaches_the_target():
-    # Pressure actuation (one chamber per cavity over the whole trunk), same 1e-6 m
-    # requirement as for cables; pressures stay in [0, 1.5 bar].
+def _pneumatic_model(**extra):
+    """Four synthetic pneumatic segments, one chamber per cavity over the whole trunk (0–1.5 bar),
+    a tip effector; ``extra`` scene tables (e.g. cables)."""
     entry = pneumatic_entry()
     scene = solver.parse_scene({
         "catalogue": {"path": "unused.h5"},
@@ -195,8 +195,15 @@ def test_chambers_inverse_reaches_the_target():
         "chamber": [{"name": f"c{k}", "cavity": k, "from": 1, "to": 4, "min_pressure": 0.0,
                      "max_pressure": 1.5e5} for k in range(3)],
         "effector": [{"name": "tip", "vertebra": -1}],
+        **extra,
     })
-    model = solver.build_model(scene, entries={entry.name: entry})
+    return solver.build_model(scene, entries={entry.name: entry})
+
+
+def test_chambers_inverse_reaches_the_target():
+    # Pressure actuation (one chamber per cavity over the whole trunk), same 1e-6 m
+    # requirement as for cables; pressures stay in [0, 1.5 bar].
+    model = _pneumatic_model()
     targets = _forward_targets(model, np.array([5e4, 1e4, 0.0]))
     step = InverseController(model, InverseSettings()).step(targets)
     assert step.reached and np.all(step.errors <= 1e-6)
@@ -207,17 +214,8 @@ def test_hybrid_cables_and_chambers_in_one_qp():
     # Tensions (N) and pressures (Pa) side by side: the energy regulariser is in joules
     # for both, so one QP serves them (paper §VI: hybrid actuation). The inverse of a
     # forward solution under a mixed actuation reaches the target to 1e-6 m within bounds.
-    entry = pneumatic_entry()
-    scene = solver.parse_scene({
-        "catalogue": {"path": "unused.h5"},
-        "segment": [{"type": "entry", "entry": entry.name, "count": 4}],
-        "chamber": [{"name": f"c{k}", "cavity": k, "from": 1, "to": 4, "min_pressure": 0.0,
-                     "max_pressure": 1.5e5} for k in range(3)],
-        "cable": [{"name": f"t{k}", "radius": 0.011, "angle_deg": 60.0 + 120.0 * k, "from": 1, "to": 4,
-                   "min_tension": 0.0, "max_tension": 5.0} for k in range(3)],
-        "effector": [{"name": "tip", "vertebra": -1}],
-    })
-    model = solver.build_model(scene, entries={entry.name: entry})
+    model = _pneumatic_model(cable=[{"name": f"t{k}", "radius": 0.011, "angle_deg": 60.0 + 120.0 * k, "from": 1,
+                                     "to": 4, "min_tension": 0.0, "max_tension": 5.0} for k in range(3)])
     assert model.actuator_names == ["t0", "t1", "t2", "c0", "c1", "c2"]
     targets = _forward_targets(model, np.array([0.5, 0.0, 0.0, 3e4, 0.0, 1e4]))
     step = InverseController(model, InverseSettings()).step(targets)
