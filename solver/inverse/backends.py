@@ -221,9 +221,6 @@ def _writeable(a: np.ndarray) -> np.ndarray:
     return a if a.flags.writeable else a.copy()
 
 
-_NO_ROWS: dict = {}  # n -> the (0, n) constraint matrix of a box-only problem
-
-
 class DaqpBackend:
     """DAQP dual active-set solver, called directly with numpy arrays, warm-started through
     ``primal_start``. DAQP reads its arguments and writes none of them (checked on 0.11), so
@@ -240,16 +237,12 @@ class DaqpBackend:
             import daqp
 
             DaqpBackend._daqp = daqp
-        n = form.P.shape[0]
         if form.G.shape[0]:
             A = np.ascontiguousarray(form.G)
             upper = np.concatenate([form.upper, form.row_upper])
             lower = np.concatenate([form.lower, form.row_lower])
         else:
-            A = _NO_ROWS.get(n)
-            if A is None:
-                A = _NO_ROWS[n] = np.zeros((0, n))
-            upper, lower = _writeable(form.upper), _writeable(form.lower)
+            A, upper, lower = _writeable(form.G), _writeable(form.upper), _writeable(form.lower)
         x, _f, flag, info = daqp.solve(
             _writeable(form.P), _writeable(form.q), A, upper, lower, np.zeros(upper.size, dtype=np.int32),
             iter_limit=max_iterations, primal_start=_writeable(start), eps_prox=0.0)

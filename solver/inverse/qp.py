@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vertebra.solver.inverse.backends import DEFAULT_BACKEND, QPBackend, get_backend
-from vertebra.solver.inverse.space import ConstraintProblem
+from vertebra.solver.inverse.space import ConstraintProblem, _read_only
 
 __all__ = ["QuadraticForm", "quadratic_form", "ConstraintSolution", "QPDiagnostics", "solve_constraint_problem"]
 
@@ -62,6 +62,16 @@ class QuadraticForm:
     regularisation_weight: float
     energy_diagonal: np.ndarray
     scale: np.ndarray
+
+
+_NO_ROWS: dict = {}  # n -> the (0, n) matrix and (0,) bounds of a box-only problem (no entries to change)
+
+
+def _no_rows(n: int) -> tuple:
+    rows = _NO_ROWS.get(n)
+    if rows is None:
+        rows = _NO_ROWS[n] = (np.zeros((0, n)), np.zeros(0), np.zeros(0))
+    return rows
 
 
 def quadratic_form(problem: ConstraintProblem, displacement_bounds=None, *, scaled: bool = False) -> QuadraticForm:
@@ -97,8 +107,7 @@ def quadratic_form(problem: ConstraintProblem, displacement_bounds=None, *, scal
         row_lower = dlo[rows] - problem.delta_a_free[rows]
         row_upper = dhi[rows] - problem.delta_a_free[rows]
     else:
-        G = np.zeros((0, n))
-        row_lower = row_upper = np.zeros(0)
+        G, row_lower, row_upper = _no_rows(n)
     if scaled:
         scale = 1.0 / np.sqrt(diagonal)
         P *= scale[:, None] * scale  # P is this function's own array
@@ -209,6 +218,16 @@ def _feasible_start(problem: ConstraintProblem, start: np.ndarray):
     return start, (np.where(below, da, dlo), np.where(above, da, dhi)), relaxation
 
 
+_ZEROS: dict = {}  # n -> read-only zeros(n)
+
+
+def _no_relaxation(n: int) -> np.ndarray:
+    zeros = _ZEROS.get(n)
+    if zeros is None:
+        zeros = _ZEROS[n] = _read_only(np.zeros(n))
+    return zeros
+
+
 def solve_constraint_problem(problem: ConstraintProblem, backend: str | QPBackend = DEFAULT_BACKEND, *,
                              tolerance: float = 1e-10, absolute_tolerance: float = 0.0,
                              max_iterations: int | None = None) -> ConstraintSolution:
@@ -240,7 +259,7 @@ def solve_constraint_problem(problem: ConstraintProblem, backend: str | QPBacken
         actuation=lam, delta_e=de, delta_a=da, effector_error=math.sqrt(de.dot(de)), iterations=out.iterations,
         converged=out.converged, status="relaxed" if (relaxed and out.converged) else out.status,
         backend=solver.name, time_s=time.perf_counter() - t0,
-        displacement_relaxation=relaxation if relaxed else np.zeros(lam.size),
+        displacement_relaxation=relaxation if relaxed else _no_relaxation(lam.size),
         regularisation_weight=form.regularisation_weight, problem=problem,
         displacement_bounds=(problem.space.displacement_lower, problem.space.displacement_upper) if bounds is None
         else bounds)

@@ -166,32 +166,36 @@ class ConstraintProblem:
     def __post_init__(self):
         space = self.space
         n, m = space.n_actuators, space.n_rows
-        arrays = [("W_ea", _array("W_ea", self.W_ea, (m, n))),
-                  ("delta_e_free", _array("delta_e_free", self.delta_e_free, (m,)))]
+        W_ea = _array("W_ea", self.W_ea, (m, n))
+        delta_e_free = _array("delta_e_free", self.delta_e_free, (m,))
+        # Finite values: one sum of squares of the row sums and vectors, NaN or inf when any value
+        # is (a finite value whose square overflows only sends the arrays to the element-wise check).
+        rows = W_ea.dot(_ones(n))
+        total = rows.dot(rows) + delta_e_free.dot(delta_e_free)
+        W_aa = delta_a_free = lambda0 = None
         if (self.W_aa is None) != (self.delta_a_free is None):
             raise OptionError("W_aa and delta_a_free must be given together", field="W_aa")
         if self.W_aa is not None:
-            arrays += [("W_aa", _array("W_aa", self.W_aa, (n, n))),
-                       ("delta_a_free", _array("delta_a_free", self.delta_a_free, (n,)))]
+            W_aa = _array("W_aa", self.W_aa, (n, n))
+            delta_a_free = _array("delta_a_free", self.delta_a_free, (n,))
+            rows = W_aa.dot(_ones(n))
+            total += rows.dot(rows) + delta_a_free.dot(delta_a_free)
         elif space.rows.size:
             raise OptionError("displacement limits need W_aa and delta_a_free", field="W_aa")
         if self.lambda0 is not None:
-            arrays.append(("lambda0", _array("lambda0", self.lambda0, (n,))))
-        # Finite values: one sum of squares of the row sums, NaN or inf when any value is (a finite
-        # value whose square overflows only sends the arrays to the element-wise check).
-        total = 0.0
-        for _, a in arrays:
-            v = a if a.ndim == 1 else a.dot(_ones(a.shape[1]))
-            total += v.dot(v)
+            lambda0 = _array("lambda0", self.lambda0, (n,))
+            total += lambda0.dot(lambda0)
+        arrays = (("W_ea", W_ea), ("delta_e_free", delta_e_free), ("W_aa", W_aa), ("delta_a_free", delta_a_free),
+                  ("lambda0", lambda0))
         if not math.isfinite(total):
             for name, a in arrays:
-                if not np.isfinite(a).all():
+                if a is not None and not np.isfinite(a).all():
                     if name == "lambda0":
                         raise OptionError("contains NaN or ±inf", field=name)
                     raise ConvergenceError(f"constraint projection: {name} contains NaN or ±inf "
                                            "(the linearisation is not finite)")
         for name, a in arrays:
-            if a is not getattr(self, name):
+            if a is not getattr(self, name):  # converted from another type
                 object.__setattr__(self, name, a)
 
     @property
