@@ -148,7 +148,7 @@ class ConstraintSolution:
     status: str  # "optimal" | "max_iterations" | "relaxed" | backend status
     backend: str
     time_s: float
-    displacement_relaxation: np.ndarray  # how far infeasible displacement limits were widened (n,)
+    displacement_relaxation: np.ndarray  # how far infeasible displacement limits were widened (n,; read-only zeros if not)
     regularisation_weight: float
     problem: ConstraintProblem = field(repr=False, compare=False)
     displacement_bounds: tuple = field(repr=False, compare=False)  # the (possibly widened) limits solved with
