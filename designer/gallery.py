@@ -117,34 +117,3 @@ def cbha_catalogue(path, *, coarse: bool = True, estimate_accuracy: bool = True,
     scene = cbha_scene([r["key"] for r in rows], str(path) if scene_catalogue is None else scene_catalogue,
                        pressures)
     return {"entries": rows, "scene": scene}
-
-
-# --------------------------------------------------------------------------- TOML
-def _toml_value(value) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, (int, float)):
-        return repr(float(value)) if isinstance(value, float) else str(value)
-    if isinstance(value, str):
-        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    if isinstance(value, (list, tuple)):
-        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
-    if isinstance(value, dict):
-        return "{ " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in value.items()) + " }"
-    raise TypeError(f"cannot write {type(value).__name__} to TOML")
-
-
-def scene_to_toml(scene: dict, header: str = "") -> str:
-    """A scene dictionary as TOML: scalars first, then tables, then arrays of tables
-    (nested dicts inside an array-of-tables element become inline tables)."""
-    lines = [f"# {line}" for line in header.splitlines()]
-    scalars = {k: v for k, v in scene.items() if not isinstance(v, (dict, list))}
-    lines += [f"{k} = {_toml_value(v)}" for k, v in scalars.items()]
-    for k, v in scene.items():
-        if isinstance(v, dict):
-            lines += ["", f"[{k}]"] + [f"{kk} = {_toml_value(vv)}" for kk, vv in v.items()]
-    for k, v in scene.items():
-        if isinstance(v, list) and v and isinstance(v[0], dict):
-            for item in v:
-                lines += ["", f"[[{k}]]"] + [f"{kk} = {_toml_value(vv)}" for kk, vv in item.items()]
-    return "\n".join(lines) + "\n"

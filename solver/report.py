@@ -2,7 +2,7 @@
 and as pictures or VTK files. Every document carries ``"vertebra_version"``.
 
 Matplotlib and meshio are imported lazily inside the functions that draw or write, so
-``import solver`` stays light.
+``import vertebra.solver`` stays light.
 """
 
 from __future__ import annotations
@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from vertebra import __version__
+from vertebra.solver.lie import qrotate
 from vertebra.solver.model import State, StaticResult, TrunkModel
 
 
@@ -101,16 +102,7 @@ def _inverse_step(model: TrunkModel, t, step) -> dict:
 
 def cable_paths(model: TrunkModel, state: State) -> list[np.ndarray]:
     """World polyline of each cable through its holes."""
-    x, q = state.positions, state.quaternions
-    from vertebra.solver.rotations import qrotate
-    paths = []
-    for k in range(model.n_cables):
-        pieces = np.flatnonzero(model.cable_piece_owner == k)
-        a, b = model.cable_piece_a[pieces], model.cable_piece_b[pieces]
-        start = x[a[:1]] + qrotate(q[a[:1]], model.cable_hole_a[pieces[:1]])
-        rest = x[b] + qrotate(q[b], model.cable_hole_b[pieces])
-        paths.append(np.vstack([start, rest]))
-    return paths
+    return model.trunk.cables.paths(state.positions, state.quaternions)
 
 
 def _vertebra_radius(model: TrunkModel) -> float:
@@ -121,7 +113,6 @@ def _vertebra_radius(model: TrunkModel) -> float:
 def draw_trunk(ax, model: TrunkModel, state: State, *, rest: bool = True, targets: bool = True,
                legend_prefix: str = ""):
     """Draw backbone, vertebrae (discs), cables and effectors on a 3D matplotlib axis."""
-    from vertebra.solver.rotations import qrotate
     if rest:
         r = model.rest_state.positions
         ax.plot(r[:, 0], r[:, 1], r[:, 2], color="0.75", lw=1, ls="--", label="rest")

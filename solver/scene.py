@@ -1,6 +1,6 @@
 """Scene files (DESIGN.md §4, TOML version 1): loading and validation.
 
-Every table is read through :class:`_Table`, which consumes the fields it knows and
+Every table is read through :class:`Table`, which consumes the fields it knows and
 raises :class:`SceneError` naming the file, the dotted field and the reason for unknown
 fields, wrong types and impossible values. A valid :class:`Scene` is immutable and holds
 SI values only (degrees are converted where a field name says ``_deg``).
@@ -16,10 +16,10 @@ from pathlib import Path
 import numpy as np
 
 from vertebra.solver.beam import Section
+from vertebra.solver.tables import Table
 from vertebra.store.errors import SceneError
 
 SEGMENT_TYPES = ("beam", "entry")
-MAX_MAGNITUDE = 1e100        # larger inputs are mistakes (and overflow in l³, r⁴)
 MAX_LINKS = 200_000          # links in one scene (tested up to 10,000; compile time ~ 10 µs per link)
 
 
@@ -122,96 +122,25 @@ class Scene:
         return 1 + sum(s.count for s in self.segments)
 
 
-class _Table:
-    """Reads typed fields from one TOML table and rejects the ones it never read."""
+GALLERY = Path(__file__).with_name("gallery")     # the gallery's scenes: <name>.toml
 
-    def __init__(self, data, path: str, source: str):
-        if not isinstance(data, dict):
-            raise SceneError(f"expected a table, got {type(data).__name__}", file=source, field=path or None)
-        self.data, self.path, self.source, self.used = data, path, source, set()
 
-    def _name(self, key):
-        return f"{self.path}.{key}" if self.path else key
+def gallery_names() -> list[str]:
+    """Names of the gallery's scenes."""
+    return sorted(p.stem for p in GALLERY.glob("*.toml"))
 
-    def error(self, key, reason):
-        return SceneError(reason, file=self.source, field=self._name(key))
 
-    def has(self, key):
-        return key in self.data
-
-    def raw(self, key, default=None):
-        self.used.add(key)
-        return self.data.get(key, default)
-
-    def number(self, key, default=None, *, positive=False, nonneg=False, required=False, integer=False,
-               unbounded=False):
-        """A number. Infinite values are accepted only where ``unbounded`` (actuator bounds:
-        ``max_tension = inf``); magnitudes beyond 1e100 are refused as input mistakes."""
-        if key not in self.data:
-            if required:
-                raise self.error(key, "required field is missing")
-            return default
-        value = self.raw(key)
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise self.error(key, f"expected a number, got {type(value).__name__} {value!r}")
-        if integer and not isinstance(value, int):
-            raise self.error(key, f"expected an integer, got {value!r}")
-        if math.isnan(value) or (math.isinf(value) and not unbounded):
-            raise self.error(key, f"expected a finite number, got {value!r}")
-        if math.isfinite(value) and abs(value) > MAX_MAGNITUDE:
-            raise self.error(key, f"magnitude {value!r} is beyond {MAX_MAGNITUDE:g}: not a physical input")
-        if positive and not value > 0:
-            raise self.error(key, f"must be > 0, got {value!r}")
-        if nonneg and not value >= 0:
-            raise self.error(key, f"must be >= 0, got {value!r}")
-        return int(value) if integer else float(value)
-
-    def vector(self, key, n, default=None, *, required=False):
-        if key not in self.data:
-            if required:
-                raise self.error(key, "required field is missing")
-            return default
-        value = self.raw(key)
-        if (not isinstance(value, list) or len(value) != n
-                or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in value)):
-            raise self.error(key, f"expected a list of {n} numbers, got {value!r}")
-        if not all(math.isfinite(v) for v in value):
-            raise self.error(key, f"expected finite numbers, got {value!r}")
-        if any(abs(v) > MAX_MAGNITUDE for v in value):
-            raise self.error(key, f"a magnitude beyond {MAX_MAGNITUDE:g} is not a physical input")
-        return tuple(float(v) for v in value)
-
-    def string(self, key, default=None, *, required=False, choices=None):
-        if key not in self.data:
-            if required:
-                raise self.error(key, "required field is missing")
-            return default
-        value = self.raw(key)
-        if not isinstance(value, str) or not value:
-            raise self.error(key, f"expected a non-empty string, got {value!r}")
-        if choices and value not in choices:
-            raise self.error(key, f"must be one of {', '.join(choices)}, got {value!r}")
-        return value
-
-    def table(self, key):
-        return _Table(self.raw(key, {}), self._name(key), self.source)
-
-    def tables(self, key):
-        value = self.raw(key, [])
-        if not isinstance(value, list):
-            raise self.error(key, f"expected an array of tables ([[{key}]]), got {type(value).__name__}")
-        return [_Table(item, f"{self._name(key)}[{i}]", self.source) for i, item in enumerate(value)]
-
-    def done(self):
-        unknown = sorted(set(self.data) - self.used)
-        if unknown:
-            raise self.error(unknown[0], "unknown field")
+def gallery_path(name: str) -> Path:
+    """The TOML file of the gallery scene ``name``."""
+    candidate = GALLERY / f"{name}.toml"
+    if not candidate.is_file():
+        raise SceneError(f"no gallery scene {name!r}; available: {', '.join(gallery_names())}", file="gallery")
+    return candidate
 
 
 def load_scene(path) -> Scene:
     """Read and validate a TOML scene file; ``gallery:NAME`` names a gallery scene."""
     if str(path).startswith("gallery:"):
-        from vertebra.solver.gallery import path as gallery_path   # lazy: the gallery imports this module
         path = gallery_path(str(path).split(":", 1)[1])
     path = Path(path)
     try:
@@ -229,7 +158,7 @@ def load_scene(path) -> Scene:
 
 def parse_scene(data: dict, source: str = "<dict>", base_dir=".") -> Scene:
     """Validate a scene given as a dictionary (the parsed TOML)."""
-    top = _Table(data, "", source)
+    top = Table(data, "", source)
     name = top.string("name", "")
     version = top.number("version", 1, integer=True)
     if version != 1:
@@ -305,34 +234,22 @@ def parse_scene(data: dict, source: str = "<dict>", base_dir=".") -> Scene:
     cables = []
     for t in top.tables("cable"):
         first, last = vertebra_range(t)
-        cable = CableSpec(
-            name=unique_name(t, "cable"), radius=t.number("radius", required=True, nonneg=True),
-            angle=math.radians(t.number("angle_deg", 0.0)), first=first, last=last,
-            tension=t.number("tension", 0.0), min_tension=t.number("min_tension", 0.0),
-            max_tension=t.number("max_tension", math.inf, unbounded=True),
-            min_stroke=t.number("min_stroke", -math.inf, unbounded=True),
-            max_stroke=t.number("max_stroke", math.inf, unbounded=True),
-        )
-        if cable.min_tension > cable.max_tension:
-            raise t.error("min_tension", f"{cable.min_tension} exceeds max_tension {cable.max_tension}")
+        name = unique_name(t, "cable")
+        radius = t.number("radius", required=True, nonneg=True)
+        angle, tension = math.radians(t.number("angle_deg", 0.0)), t.number("tension", 0.0)
+        cables.append(CableSpec(name, radius, angle, first, last, tension, *_bounds(t, "tension"),
+                                *_bounds(t, "stroke", -math.inf)))
         t.done()
-        cables.append(cable)
 
     chambers = []
     for t in top.tables("chamber"):
         first, last = vertebra_range(t)
-        chamber = ChamberSpec(
-            name=unique_name(t, "chamber"), cavity=t.number("cavity", 0, integer=True, nonneg=True),
-            first=first, last=last, pressure=t.number("pressure", 0.0),
-            min_pressure=t.number("min_pressure", 0.0),
-            max_pressure=t.number("max_pressure", math.inf, unbounded=True),
-            min_volume_growth=t.number("min_volume_growth", -math.inf, unbounded=True),
-            max_volume_growth=t.number("max_volume_growth", math.inf, unbounded=True),
-        )
-        if chamber.min_pressure > chamber.max_pressure:
-            raise t.error("min_pressure", f"{chamber.min_pressure} exceeds max_pressure {chamber.max_pressure}")
+        name = unique_name(t, "chamber")
+        cavity = t.number("cavity", 0, integer=True, nonneg=True)
+        pressure = t.number("pressure", 0.0)
+        chambers.append(ChamberSpec(name, cavity, first, last, pressure, *_bounds(t, "pressure"),
+                                    *_bounds(t, "volume_growth", -math.inf)))
         t.done()
-        chambers.append(chamber)
 
     loads = []
     for t in top.tables("load"):
@@ -358,7 +275,16 @@ def parse_scene(data: dict, source: str = "<dict>", base_dir=".") -> Scene:
                  chambers=tuple(chambers), loads=tuple(loads), effectors=tuple(effectors), source=source)
 
 
-def _unit(t: _Table, key: str, vector):
+def _bounds(t: Table, quantity: str, lowest: float = 0.0) -> tuple[float, float]:
+    """``min_<quantity>`` (default ``lowest``) and ``max_<quantity>`` (default +inf), ordered."""
+    low = t.number(f"min_{quantity}", lowest, unbounded=math.isinf(lowest))
+    high = t.number(f"max_{quantity}", math.inf, unbounded=True)
+    if low > high:
+        raise t.error(f"min_{quantity}", f"{low} exceeds max_{quantity} {high}")
+    return low, high
+
+
+def _unit(t: Table, key: str, vector):
     """Normalise a direction given in the scene; a zero vector is an error naming the field."""
     if vector is None:
         return None
@@ -368,7 +294,7 @@ def _unit(t: _Table, key: str, vector):
     return tuple(v / norm for v in vector)
 
 
-def _parse_vertebra(t: _Table) -> VertebraSpec:
+def _parse_vertebra(t: Table) -> VertebraSpec:
     spec = VertebraSpec(mass=t.number("mass", 0.0, nonneg=True),
                         center_of_mass=t.vector("center_of_mass", 3, (0.0, 0.0, 0.0)))
     inertia = t.raw("inertia")  # accepted for completeness (statics does not need it)
@@ -379,7 +305,7 @@ def _parse_vertebra(t: _Table) -> VertebraSpec:
     return spec
 
 
-def _parse_section(t: _Table, poisson_ratio: float) -> Section:
+def _parse_section(t: Table, poisson_ratio: float) -> Section:
     shape = t.string("shape", None, choices=("circle", "tube"))
     try:
         if shape == "circle":
@@ -404,7 +330,7 @@ def _parse_section(t: _Table, poisson_ratio: float) -> Section:
     return section
 
 
-def _parse_segment(t: _Table) -> SegmentSpec:
+def _parse_segment(t: Table) -> SegmentSpec:
     kind = t.string("type", required=True, choices=SEGMENT_TYPES)
     count = t.number("count", 1, integer=True, positive=True)
     elements = t.number("elements", 1, integer=True, positive=True)
@@ -454,9 +380,12 @@ def _toml_value(value) -> str:
     raise TypeError(f"cannot write {type(value).__name__} to TOML")
 
 
-def scene_toml(data: dict) -> str:
-    """Write a scene dictionary (as :func:`parse_scene` takes it) as TOML text."""
-    lines, tables = [], []
+def scene_toml(data: dict, header: str = "") -> str:
+    """Write a scene dictionary (as :func:`parse_scene` takes it) as TOML text: scalars first,
+    then tables and arrays of tables in the dictionary's order (dictionaries inside them become
+    inline tables); ``header`` becomes leading comment lines."""
+    lines = [f"# {line}" for line in header.splitlines()]
+    tables = []
     for key, value in data.items():
         if isinstance(value, dict):
             tables.append((f"[{key}]", value))
@@ -464,6 +393,6 @@ def scene_toml(data: dict) -> str:
             tables.extend((f"[[{key}]]", item) for item in value)
         else:
             lines.append(f"{key} = {_toml_value(value)}")
-    for header, table in tables:
-        lines += ["", header] + [f"{k} = {_toml_value(v)}" for k, v in table.items()]
+    for title, table in tables:
+        lines += ["", title] + [f"{k} = {_toml_value(v)}" for k, v in table.items()]
     return "\n".join(lines) + "\n"

@@ -8,7 +8,8 @@ import tomllib
 import numpy as np
 import pytest
 
-from vertebra.designer.gallery import CBHA_MAX_PRESSURE, cbha_catalogue, cbha_slices, scene_to_toml
+from vertebra.designer.gallery import CBHA_MAX_PRESSURE, cbha_catalogue, cbha_slices
+from vertebra.solver.scene import scene_toml
 
 
 def test_cbha_slices_taper_and_are_valid():
@@ -46,10 +47,10 @@ def test_cbha_catalogue_entries_and_reuse(cbha):
 
 
 def test_cbha_scene_solves_and_bends_away_from_the_pressurised_chamber(cbha, tmp_path):
-    solver = pytest.importorskip("solver")
+    from vertebra import solver
     path, result = cbha
     scene = dict(result["scene"])
-    text = scene_to_toml(scene)
+    text = scene_toml(scene)
     assert tomllib.loads(text)["chamber"][0]["max_pressure"] == CBHA_MAX_PRESSURE       # TOML round trip
     (tmp_path / "cbha.toml").write_text(text)
     model = solver.build_model(solver.load_scene(tmp_path / "cbha.toml"))

@@ -148,7 +148,7 @@ def test_orientation_target_for_a_vertebra_axis(tmp_path, vertebra):
     import tomllib
 
     from vertebra.solver.inverse import invert
-    from vertebra.solver.rotations import qrotate
+    from vertebra.solver.lie import qrotate
     from vertebra.solver.scene import scene_toml
 
     data = tomllib.loads(path("tendon_two_section").read_text())

@@ -134,9 +134,9 @@ def test_cables_spanning_several_links_widen_the_band():
                          "poisson_ratio": 0.3, "section": {"shape": "circle", "radius": 1e-3}}],
             "cable": [{"name": "a", "radius": 0.01, "from": 1, "to": 3, "tension": 2.0}]}
     model = solver.build_model(solver.parse_scene(data))
-    assert model.span == 4
+    assert model.trunk.assembler.span == 4
     beam_only = solver.build_model(solver.parse_scene({"segment": data["segment"]}))
-    assert beam_only.span == 1
+    assert beam_only.trunk.assembler.span == 1
     assert model.solve().converged
 
 

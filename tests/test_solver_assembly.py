@@ -1,5 +1,6 @@
-"""Tangent assembly paths of the model: the per-pair cable sum against the general
-gather-sum-scatter it replaces, and the stability check on the assembled tangent."""
+"""Tangent assembly paths (vertebra.solver.assembly): the per-pair cable sum against the general
+gather-sum-scatter, the symmetric band gathered from the link tangents against the block
+assembly, and the stability check on the assembled tangent."""
 
 import math
 
@@ -7,7 +8,9 @@ import numpy as np
 import pytest
 
 from vertebra import solver
+from vertebra.solver.energy import tangent
 from vertebra.solver.gallery import load
+from vertebra.solver.newton import is_stable
 
 
 def _tensioned(name, seed):
@@ -20,11 +23,11 @@ def _tensioned(name, seed):
 @pytest.mark.parametrize("name", ["paper_3v_4t", "paper_5v_16t", "tendon_two_section"])
 def test_cable_tangent_summed_per_pair_equals_the_general_scatter(name):
     model, actuation, state = _tensioned(name, 3)
-    assert model._cable_scatter is None            # consecutive vertebrae: the per-pair path is used
-    grouped = model._evaluate(state, actuation, 1.0, tangent=True).extra.copy()      # cables, gravity
-    a, b = model.cable_piece_a, model.cable_piece_b
-    model._cable_scatter = model._cable_band_map(a, b)    # force the general routing path
-    general = model._evaluate(state, actuation, 1.0, tangent=True).extra
+    assembler, cables = model.trunk.assembler, model.trunk.cables
+    assert assembler.cable_scatter is None        # consecutive vertebrae: the per-pair path is used
+    grouped = tangent(model.trunk, model.evaluate(state, actuation), model.memo).extra.copy()  # cables, gravity
+    assembler.cable_scatter = assembler.cable_scatter_map(cables.piece_a, cables.piece_b)   # the general path
+    general = tangent(model.trunk, model.evaluate(state, actuation), model.memo).extra
     # the same sums in another order: rounding only (measured ≤ 1.7e-16 of the largest entry)
     assert np.abs(grouped - general).max() <= 1e-14 * np.abs(general).max()
     assert np.abs(general).max() > 0
@@ -51,8 +54,8 @@ def test_stability_check_sees_the_buckling_load(ratio, stable):
     result = model.solve()
     positions = result.state.positions
     assert result.converged and np.abs(positions[:, :2]).max() == 0.0      # still straight
-    ev = model._evaluate(result.state, model.default_actuation, 1.0, tangent=True)
-    assert model._stable(ev) is stable
+    ev = model.evaluate(result.state)
+    assert is_stable(model.trunk, ev, model.memo) is stable
 
 
 @pytest.mark.parametrize("name", ["cantilever", "paper_5v_16t", "tendon_two_section"])
@@ -62,8 +65,8 @@ def test_symmetric_band_from_the_link_tangents_equals_the_block_assembly(name):
     model = solver.build_model(load(name))
     actuation = np.random.default_rng(5).uniform(0.5, 3.0, len(model.actuator_names))
     state = model.solve(actuation).state
-    ev = model._evaluate(state, actuation, 1.0, tangent=True)
-    direct = model._symmetric_band(ev)
-    assembled = model.layout.symmetric_band(*model._blocks(ev))
+    matrix = tangent(model.trunk, model.evaluate(state, actuation), model.memo)
+    direct = matrix.symmetric_band()
+    assembled = model.trunk.assembler.symmetric_from_storage(matrix.storage())
     # the same terms summed in another order: rounding only (measured ≤ 1.7e-16 of the largest)
     assert np.abs(direct - assembled).max() <= 1e-14 * np.abs(assembled).max()

@@ -1,11 +1,16 @@
-"""Rotations, SE(3) logarithm, complex-step tangents and banded solves."""
+"""Rotations and the SE(3) logarithm of the runtime (vertebra.solver.lie) against finite
+differences and Barfoot's formulas, the complex-step reference against finite differences, the
+closed-form cable kernel against it, and banded solves against dense ones."""
 
 import numpy as np
 import pytest
 
-from vertebra.solver.banded import BandLayout, factor_cholesky, factor_lu
-from vertebra.solver.elements import cable_gradient, cable_tangent, link_gradient, pair_tangent
-from vertebra.solver.rotations import qexp, qlog, qmatrix, qmul, qrotate, se3_exp, se3_log
+import reference.complex_step as reference
+from reference.complex_step import cable_gradient, link_gradient, pair_tangent
+from vertebra.solver.assembly import BandAssembler
+from vertebra.solver.banded import factor_cholesky, factor_lu
+from vertebra.solver.cables import CablePieces
+from vertebra.solver.lie import qexp, qlog, qmatrix, qmul, qrotate, se3_exp, se3_log
 
 RNG = np.random.default_rng(20261122)
 
@@ -18,6 +23,28 @@ def test_quaternion_exp_log_round_trip(angle):
     assert np.allclose(qlog(qexp(phi)), phi, rtol=0, atol=1e-14)
     R = qmatrix(qexp(phi))
     assert np.allclose(R @ R.T, np.eye(3), atol=1e-15)
+
+
+@pytest.mark.parametrize("angle", [0.0, 1e-12, 1e-6, 1e-3, 0.05, 0.3, 1.0, 2.5, 3.1, 3.14159])
+def test_se3_log_and_exp_equal_barfoots_closed_forms(angle):
+    # the runtime's series kernel against the term-by-term closed forms (Barfoot eqs. 7.86, 7.95)
+    # of the reference: the same functions rounded differently, measured ≤ 2e-15 relative
+    rng = np.random.default_rng([20261122, int(angle * 1e6)])
+    axes = rng.normal(size=(6, 3))
+    phi = angle * axes / np.linalg.norm(axes, axis=1, keepdims=True)
+    p = rng.normal(size=(6, 3))
+    xi, Jl_inv = se3_log(qexp(phi), p)
+    xi_ref, Jl_inv_ref = reference.se3_log(reference.qexp(phi), p)
+    assert np.abs(xi - xi_ref).max() <= 1e-14 * np.abs(xi_ref).max()
+    assert np.abs(Jl_inv - Jl_inv_ref).max() <= 1e-14 * np.abs(Jl_inv_ref).max()
+    q, t = se3_exp(xi_ref)
+    q_ref, t_ref = reference.se3_exp(xi_ref)
+    assert np.abs(q - q_ref).max() <= 1e-14 and np.abs(t - t_ref).max() <= 1e-14 * np.abs(t_ref).max()
+    # one pose alone gives the batch's numbers (the series may sum fewer terms: ≤ a few ulps)
+    xi0, Jl_inv0 = se3_log(qexp(phi[0]), p[0])
+    assert xi0.shape == (6,) and Jl_inv0.shape == (6, 6)
+    assert np.abs(xi0 - xi[0]).max() <= 1e-15 * np.abs(xi[0]).max()
+    assert np.abs(Jl_inv0 - Jl_inv[0]).max() <= 1e-15 * np.abs(Jl_inv[0]).max()
 
 
 @pytest.mark.parametrize("angle", [0.0, 1e-6, 0.05, 0.2, 1.5, 3.0])
@@ -106,8 +133,9 @@ def test_link_gradient_is_objective():
 @pytest.mark.parametrize("n_blocks,span", [(1, 1), (5, 1), (40, 1), (9, 2), (6, 4)])
 def test_banded_solve_equals_dense_solve(n_blocks, span):
     # random SPD block-banded matrices: Cholesky and LU band solves equal numpy's dense solve
-    layout = BandLayout(n_blocks, span)
-    lower, upper = layout.new_blocks()
+    layout = BandAssembler(n_blocks, span)
+    storage, blocks = layout.new_storage()
+    lower, upper = blocks
     n = 6 * n_blocks
     dense = np.zeros((n, n))
     for c in range(n_blocks):
@@ -126,24 +154,25 @@ def test_banded_solve_equals_dense_solve(n_blocks, span):
     dense += shift * np.eye(n)
     rhs = RNG.normal(size=(n, 3))
     expected = np.linalg.solve(dense, rhs)
-    chol = factor_cholesky(layout.symmetric_band(lower, upper))
-    lu = factor_lu(layout.general_band(lower, upper), layout.kd)
+    chol = factor_cholesky(layout.symmetric_from_storage(storage))
+    lu = factor_lu(layout.general_band(blocks), layout.kd)
     assert np.abs(chol.solve(rhs) - expected).max() < 1e-12 * np.abs(expected).max()
     assert np.abs(lu.solve(rhs) - expected).max() < 1e-12 * np.abs(expected).max()
 
 
 def test_cholesky_reports_indefinite_matrices():
-    layout = BandLayout(3, 1)
-    lower, upper = layout.new_blocks()
-    lower[:, 0] = -np.eye(6)
-    assert factor_cholesky(layout.symmetric_band(lower, upper)) is None
+    layout = BandAssembler(3, 1)
+    storage, blocks = layout.new_storage()
+    layout.diagonal(blocks)[:] = -np.eye(6)
+    assert factor_cholesky(layout.symmetric_from_storage(storage)) is None
 
 
 def test_closed_form_cable_tangent_equals_the_complex_step():
     n = 6
     qa, xa, qb, xb = _random_pair(n)
     holes_a, holes_b, tension = RNG.normal(size=(n, 3)), RNG.normal(size=(n, 3)), RNG.random(n)
-    closed = cable_tangent(qa, xa, qb, xb, holes_a, holes_b, tension)
+    pieces = CablePieces.of(qmatrix(qa), xa, qmatrix(qb), xb, holes_a, holes_b)
+    closed = tension[:, None] * pieces.unit, tension * pieces.length, pieces.tangent(tension)
     stepped = pair_tangent(cable_gradient, qa, xa, qb, xb, holes_a, holes_b, tension)
     for a, b in zip(closed, stepped):
         assert np.abs(a - b).max() <= 1e-14 * max(1.0, np.abs(b).max())

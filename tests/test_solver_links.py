@@ -1,6 +1,7 @@
-"""Closed-form compliance links (solver/links.py) against independent references: se3_log /
-se3_exp of solver.rotations, the complex-step link tangent of solver.elements, finite
-differences along the solver's chart, a Bernoulli-number series, and the model's strain carrying.
+"""The runtime's link kernel (vertebra.solver.lie, .links, .chain) against independent references:
+Barfoot's SE(3) log/exp and the complex-step link tangent (tests/reference/complex_step.py),
+finite differences along the solver's chart, a Bernoulli-number series, and the model's strain
+carrying.
 
 Tolerances are relative to the quantity's scale and each says why; measured agreement is noted
 where it is far below the bound (bounds leave margin for other BLAS builds, not for errors)."""
@@ -12,19 +13,13 @@ from fractions import Fraction
 import numpy as np
 import pytest
 
+from reference.complex_step import link_gradient, pair_tangent, qrotate, se3_exp, se3_log
 from vertebra import solver
-from vertebra.solver.elements import link_gradient, pair_tangent
-from vertebra.solver.links import (
-    CARRY_ANGLE,
-    Links,
-    _powers,
-    chain_poses,
-    coefficients,
-    link_forces,
-    link_tangent,
-)
+from vertebra.solver.chain import CARRY_ANGLE, chain_poses
+from vertebra.solver.lie import SERIES, coefficients, hat, qconj, qexp, qmatrix, qmul
+from vertebra.solver.lie import powers as _powers
+from vertebra.solver.links import Links, link_tangent
 from vertebra.solver.model import State
-from vertebra.solver.rotations import hat, qconj, qexp, qmatrix, qmul, qrotate, se3_exp, se3_log
 
 EPS = np.finfo(float).eps
 ANGLES = [0.0, 1e-12, 1e-6, 1e-3, 0.3, 1.0, 2.5, 3.1]
@@ -84,6 +79,14 @@ def _series(weights, t):
     for w in reversed(weights):
         total = total * t + w
     return total
+
+
+def link_forces(links, stiffness, xi_rest):
+    """Gradient, energy ½ eᵀKe, w = K e and y = J_l⁻ᵀ w of quadratic links (what the quadratic
+    link kind gives the kernel)."""
+    e = links.xi - xi_rest
+    w = np.einsum("nij,nj->ni", stiffness, e)
+    return links.gradient(w), 0.5 * float(np.vdot(e, w)), w, links.transport(w)
 
 
 # --------------------------------------------------------------------------- Links.of
@@ -149,7 +152,7 @@ def test_link_forces_and_tangent_equal_the_complex_step_reference(angle):
     K, rest = _spd(rng, n), 0.3 * rng.normal(size=(n, 6))
     links = Links.of(qa, xa, qb, xb)
     g, energy, w, y = link_forces(links, K, rest)
-    H = link_tangent(links, K, w, g)
+    H = link_tangent(links, w, K, g)
     g_ref, energies_ref, _ = link_gradient(qa, xa, qb, xb, K, rest)
     _, _, H_ref, _ = pair_tangent(link_gradient, qa, xa, qb, xb, K, rest)
     assert g.shape == (n, 12) and H.shape == (n, 12, 12)
@@ -247,33 +250,31 @@ def test_adaptive_term_count_does_not_change_small_angle_results():
     # the number of series terms follows the batch's largest angle; a small-angle row must come out
     # the same with few terms, with many (a large angle in the batch) and with all 40. Left-out
     # terms are below (θ²/4π²)^k·ulp: measured bitwise equal; 1e-15 allows ~4 ulp of summation order
-    from vertebra.solver.links import _SERIES
     small = np.array([0.0, 1e-30, 1e-12, 1e-6, 1e-3, 0.01, 0.09, 0.3, 1.0])
     alone = coefficients(small)
-    full = _powers(small, 40) @ _SERIES
+    full = _powers(small, 40) @ SERIES
     assert np.all(np.abs(alone - full) <= 1e-15 * np.abs(full))
     for large in (2.0, 4.0, 9.0, 9.8, 9.86):
         mixed = coefficients(np.r_[small, large])[:-1]
         assert np.all(np.abs(alone - mixed) <= 1e-15 * np.abs(mixed)), large
     for tiny in ([0.0], [1e-200], [1e-6], [1e-3]):                 # the fewest-term batches
         alone = coefficients(np.array(tiny))
-        full = _powers(np.array(tiny), 40) @ _SERIES
+        full = _powers(np.array(tiny), 40) @ SERIES
         assert np.all(np.abs(alone - full) <= 1e-15 * np.abs(full)), tiny
 
 
 def test_coefficients_at_zero_and_tiny_angles_are_finite_and_exact():
-    from vertebra.solver.links import _SERIES
     t = np.array([0.0, 1e-30, 1e-200, 5e-324])
     c = coefficients(t)
     assert c.shape == (4, 31) and np.isfinite(c).all()
-    assert np.array_equal(c[0], _SERIES[0])          # at θ = 0 exactly the constant terms
+    assert np.array_equal(c[0], SERIES[0])          # at θ = 0 exactly the constant terms
     # the constants: 1/12 (SO(3)), and J_l⁻¹ = I − ½A + (1/12)A² − (1/720)A⁴ + …; the zeta-based
     # table may be 1 ulp off a fraction (measured 1/12 + 1.4e-17): 1e-15 relative
     for value, exact in zip(c[0, :6], [1 / 12, 1.0, -0.5, 1 / 12, 0.0, -1 / 720]):
         assert abs(value - exact) <= 1e-15 * abs(exact)
     # tiny θ² moves each value by its first-order term (≈ θ² × the t¹ row, ≤ 1e-30 here): equal to
     # the zero row to rounding where that is nonzero, and to first order where it is exactly zero
-    assert np.all(np.abs(c[1:] - c[0]) <= 1e-15 * np.abs(c[0]) + 2.0 * t[1:, None] * np.abs(_SERIES[1]))
+    assert np.all(np.abs(c[1:] - c[0]) <= 1e-15 * np.abs(c[0]) + 2.0 * t[1:, None] * np.abs(SERIES[1]))
     assert coefficients(np.zeros(0)).shape == (0, 31)
 
 
@@ -294,7 +295,7 @@ def test_powers_equal_pow_and_stay_finite_for_zero_and_tiny_t(count):
 
 
 def _sequential_chain(q0, x0, xi):
-    """T_k = T_{k−1} ∘ exp(ξ_k), one link at a time with se3_exp, qmul and qrotate."""
+    """T_k = T_{k−1} ∘ exp(ξ_k), one link at a time with the reference se3_exp, qmul and qrotate."""
     n = xi.shape[0]
     q, x = np.empty((n + 1, 4)), np.empty((n + 1, 3))
     q[0], x[0] = q0, x0
@@ -385,7 +386,7 @@ def _rounding_floor(model):
     times the length dominates). Measured differences on the cantilever: 0.7-3.4 of
     eps·stiffness scale for steps of 1e-6…1e-1; the bound allows 32."""
     s = np.r_[np.full(3, model.length_scale), np.ones(3)]
-    stiffness_scale = float(np.max(np.abs(model.link_stiffness) @ s))
+    stiffness_scale = float(np.max(np.abs(model.trunk.links.energies[0].stiffness) @ s))
     return 32.0 * EPS * stiffness_scale
 
 
@@ -395,15 +396,15 @@ def _pose_only(state):
 
 def test_stepped_state_carries_its_strains_and_evaluates_like_its_poses(cantilever):
     model = cantilever
-    act = model._actuation(None)
+    act = model.actuation(None)
     dq = 1e-3 * _rng("step").normal(size=model.n_dof)
     state = model.step(model.rest_state, dq)
     record = state.carried_strains()
     assert record is not None
-    ev = model._evaluate(state, act, 1.0, False)
-    assert np.array_equal(ev.context[0].xi, record.xi)          # the carried strains were used
+    ev = model.evaluate(state, act)
+    assert np.array_equal(ev.links.xi, record.xi)               # the carried strains were used
     g = ev.gradient
-    g_pose = model._evaluate(_pose_only(state), act, 1.0, False).gradient
+    g_pose = model.evaluate(_pose_only(state), act).gradient
     floor = _rounding_floor(model)
     # the gradient is ~1e5 N here (a 1e-3 step strains the links), the bound 8.9e-8 N: measured
     # difference 3.8e-9 N (3.7e-14 of the largest gradient entry)
@@ -414,7 +415,7 @@ def test_stepped_state_carries_its_strains_and_evaluates_like_its_poses(cantilev
     copy = state.copy()
     assert copy.carried_strains() is not None
     assert copy.positions is not state.positions and copy.quaternions is not state.quaternions
-    assert np.array_equal(model._evaluate(copy, act, 1.0, False).gradient, g)
+    assert np.array_equal(model.evaluate(copy, act).gradient, g)
 
     # the solver's own states are read-only, so they cannot drift from their record; a (writeable)
     # copy edited in place loses its record and is then evaluated from its poses
@@ -425,8 +426,8 @@ def test_stepped_state_carries_its_strains_and_evaluates_like_its_poses(cantilev
     copy.positions[3, 0] += 1e-3
     assert copy.carried_strains() is None
     assert state.carried_strains() is not None                  # the original is untouched
-    assert np.array_equal(model._evaluate(copy, act, 1.0, False).gradient,
-                          model._evaluate(_pose_only(copy), act, 1.0, False).gradient)
+    assert np.array_equal(model.evaluate(copy, act).gradient,
+                          model.evaluate(_pose_only(copy), act).gradient)
     turned = state.copy()
     turned.quaternions[5] = qmul(qexp(np.array([0.0, 1e-3, 0.0])), turned.quaternions[5])
     assert turned.carried_strains() is None

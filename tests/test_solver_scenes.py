@@ -90,7 +90,7 @@ def test_every_gallery_scene_solves(name):
 
 def test_model_solves_many_times_with_new_inputs_without_recompiling():
     model = solver.build_model(gallery.load("paper_5v_16t"))
-    layout = model.layout
+    trunk = model.trunk
     previous = None
     for k in range(3):
         actuation = np.zeros(16)
@@ -98,7 +98,7 @@ def test_model_solves_many_times_with_new_inputs_without_recompiling():
         result = model.solve(actuation, initial=previous)
         previous = result.state
         assert result.converged
-    assert model.layout is layout
+    assert model.trunk is trunk
 
 
 def test_simulate_json_contract(tmp_path, capsys):

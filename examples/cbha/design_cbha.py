@@ -29,7 +29,8 @@ def main(argv=None) -> int:
     parser.add_argument("--simulate", action="store_true", help="solve the scene and print the tip position")
     args = parser.parse_args(argv)
 
-    from vertebra.designer.gallery import cbha_catalogue, scene_to_toml
+    from vertebra.designer.gallery import cbha_catalogue
+    from vertebra.solver.scene import scene_toml
     from vertebra.designer.threads import pin_blas_threads
 
     pin_blas_threads(1)
@@ -48,7 +49,7 @@ def main(argv=None) -> int:
               f"{'reused' if row['reused'] else (f'{accuracy:.3g}' if accuracy is not None else '-'):>9} "
               f"{row['total_s']:7.2f}")
     scene_path = out / "cbha.toml"
-    scene_path.write_text(scene_to_toml(result["scene"], "CBHA-like pneumatic trunk, written by "
+    scene_path.write_text(scene_toml(result["scene"], "CBHA-like pneumatic trunk, written by "
                                         "examples/cbha/design_cbha.py (designer.gallery.cbha_catalogue)"))
     print(f"catalogue {out / 'catalogue.h5'}, scene {scene_path}; designed in {elapsed:.1f} s")
     if args.simulate:

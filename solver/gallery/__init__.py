@@ -1,28 +1,18 @@
 """Named canonical scenes reused by tests, docs, benchmarks, examples and the demo.
 
-``load(name)`` returns a validated :class:`~solver.scene.Scene`; ``path(name)`` the TOML
-file (copy it to start a scene of your own). Scenes live next to this file as ``<name>.toml``.
+``load(name)`` returns a validated :class:`~vertebra.solver.scene.Scene`; ``path(name)`` the TOML
+file (copy it to start a scene of your own); ``names()`` lists them. Scenes live next to this
+file as ``<name>.toml``; ``gallery:NAME`` in place of a file name loads one
+(:func:`~vertebra.solver.scene.load_scene`).
 """
 
 from __future__ import annotations
 
-from pathlib import Path
-
 from vertebra.solver.scene import Scene, load_scene
-from vertebra.store.errors import SceneError
+from vertebra.solver.scene import gallery_names as names
+from vertebra.solver.scene import gallery_path as path
 
-_HERE = Path(__file__).parent
-
-
-def names() -> list[str]:
-    return sorted(p.stem for p in _HERE.glob("*.toml"))
-
-
-def path(name: str) -> Path:
-    candidate = _HERE / f"{name}.toml"
-    if not candidate.is_file():
-        raise SceneError(f"no gallery scene {name!r}; available: {', '.join(names())}", file="gallery")
-    return candidate
+__all__ = ["load", "names", "path"]
 
 
 def load(name: str) -> Scene:

@@ -1,0 +1,147 @@
+"""Cables: their routing through the vertebrae's holes, and the closed-form kinematics of their pieces.
+
+A cable runs from the hole of vertebra ``from − 1`` through the holes of vertebrae
+``from … to`` and is terminated at ``to``; each stretch between two consecutive vertebrae is a
+*piece* between two frames. Frictionless: the potential is ``τ L(q)`` with
+``L = Σ |P_b − P_a|`` over the cable's pieces.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from vertebra.solver.lie import HAT_TABLE, qrotate
+
+_C_CONST = np.zeros((12, 3))
+_C_CONST[:3], _C_CONST[6:9] = -np.eye(3), np.eye(3)
+_C_TABLE = np.zeros((6, 12, 3))
+_C_TABLE[:3, 3:6] = -HAT_TABLE.reshape(3, 3, 3)        # −ŝ_a
+_C_TABLE[3:, 9:] = HAT_TABLE.reshape(3, 3, 3)          # ŝ_b
+_C_TABLE = _C_TABLE.reshape(6, 36)
+_DIFFERENCE = np.concatenate([-np.eye(3), np.eye(3)])   # [P_a; P_b] → P_b − P_a
+_EYE3 = np.eye(3)
+
+
+@dataclass
+class CablePieces:
+    """Kinematics of cable pieces between holes ``r_a``, ``r_b`` of two frames.
+
+    With ``s = R r``, ``d = P_b − P_a``, ``u = d/|d|`` and ``C = [−I; −ŝ_a; I; ŝ_b]`` (12×3), the
+    change of ``d`` under frame increments is ``Cᵀ dq``, so the gradient of the length is
+    ``C u`` and the tangent of ``τ|d|`` is ``τ (C Π Cᵀ − (û ŝ_a on dφ_a) + (û ŝ_b on dφ_b))``,
+    ``Π = (I − uuᵀ)/|d|``: one evaluation serves the forces, the tangent, the actuator Jacobian
+    (unit tension) and the cable lengths."""
+
+    C: np.ndarray          # (m, 12, 3)
+    u: np.ndarray          # (m, 3)
+    length: np.ndarray     # (m,)
+    unit: np.ndarray       # (m, 12) gradient of the length
+
+    @classmethod
+    def of(cls, Ra, xa, Rb, xb, hole_a, hole_b) -> "CablePieces":
+        m = xa.shape[0]
+        return cls.of_pairs(np.stack([Ra, Rb], 1).reshape(2 * m, 3, 3), np.stack([xa, xb], 1).reshape(2 * m, 3),
+                            np.stack([hole_a, hole_b], 1).reshape(2 * m, 3, 1))
+
+    @classmethod
+    def of_pairs(cls, R, x, holes) -> "CablePieces":
+        """From the rotations (2m, 3, 3), positions (2m, 3) and hole offsets (2m, 3, 1) of the two
+        ends of every piece, interleaved (a₀, b₀, a₁, b₁, …)."""
+        m = x.shape[0] // 2
+        offsets = (R @ holes).reshape(m, 6)                   # [s_a, s_b]
+        d = (x.reshape(m, 6) + offsets) @ _DIFFERENCE         # P_b − P_a
+        length = np.sqrt((d[:, None, :] @ d[:, :, None])[:, 0, 0])
+        u = d / length[:, None]
+        C = (offsets @ _C_TABLE).reshape(m, 12, 3) + _C_CONST
+        return cls(C, u, length, (C @ u[:, :, None])[:, :, 0])
+
+    def tangent(self, tension: np.ndarray) -> np.ndarray:
+        """Tangent (m, 12, 12) of ``τ |d|`` per piece."""
+        u, C = self.u, self.C
+        t = (tension / self.length)[:, None, None]
+        H = (C @ (t * _EYE3 - t * (u[:, :, None] * u[:, None, :]))) @ C.mT
+        U = (u @ HAT_TABLE).reshape(-1, 3, 3) * tension[:, None, None]
+        H[:, 3:6, 3:6] += U @ C[:, 3:6]                      # −τ û ŝ_a
+        H[:, 9:, 9:] += U @ C[:, 9:]                         # +τ û ŝ_b
+        return H
+
+
+def incidence(rows: np.ndarray, n_rows: int):
+    """(n_rows, len(rows)) matrix with a 1 at (rows[k], k): ``E @ v`` sums the rows of ``v`` into
+    their targets. Dense while small (one BLAS call), sparse beyond."""
+    if n_rows * rows.size <= 200_000:
+        E = np.zeros((n_rows, rows.size))
+        E[rows, np.arange(rows.size)] = 1.0
+        return E
+    from scipy.sparse import csr_matrix
+    return csr_matrix((np.ones(rows.size), (rows, np.arange(rows.size))), shape=(n_rows, rows.size))
+
+
+@dataclass(frozen=True)
+class CableRouting:
+    """The pieces of every cable, sorted by the pair of frames they join (a, then b)."""
+
+    n_cables: int
+    n_frames: int
+    piece_a: np.ndarray        # (m,) frame of each piece's first hole
+    piece_b: np.ndarray        # (m,) frame of its second hole
+    hole_a: np.ndarray         # (m, 3) hole offset in frame a
+    hole_b: np.ndarray         # (m, 3) hole offset in frame b
+    owner: np.ndarray          # (m,) cable of each piece
+    ends: np.ndarray           # (2m,) frames a₀ b₀ a₁ b₁ …
+    holes: np.ndarray          # (2m, 3, 1) hole offsets in the same order
+    to_frames: object          # incidence (n_frames, 2m): piece-end rows → frame rows
+    to_jacobian: object        # incidence (n_cables·n_frames, 2m): piece-end rows → (cable, frame) rows
+
+    @classmethod
+    def of(cls, cables, vertebra_frames: np.ndarray, n_frames: int) -> "CableRouting":
+        """From the scene's cables and the frame index of each vertebra."""
+        pa, pb, ha, owner = [], [], [], []
+        for c, cable in enumerate(cables):
+            hole = cable.radius * np.array([math.cos(cable.angle), math.sin(cable.angle), 0.0])
+            route = [vertebra_frames[v] for v in range(cable.first - 1, cable.last + 1)]
+            for f_a, f_b in zip(route[:-1], route[1:]):
+                pa.append(f_a), pb.append(f_b), ha.append(hole), owner.append(c)
+        order = np.lexsort((np.array(pb, int), np.array(pa, int)))
+        a, b = np.array(pa, int)[order], np.array(pb, int)[order]
+        hole = np.array(ha).reshape(-1, 3)[order]
+        owner = np.array(owner, int)[order]
+        ends = np.stack([a, b], 1).reshape(-1)
+        return cls(len(cables), n_frames, a, b, hole, hole.copy(), owner, ends,
+                   np.stack([hole, hole], 1).reshape(-1, 3, 1), incidence(ends, n_frames),
+                   incidence(np.repeat(owner, 2) * n_frames + ends, len(cables) * n_frames))
+
+    @property
+    def span(self) -> int:
+        """Largest block offset a piece couples (links couple neighbours: at least 1)."""
+        return int(max(1, np.max(self.piece_b - self.piece_a, initial=1)))
+
+    def pieces(self, positions: np.ndarray, rotations: np.ndarray) -> CablePieces:
+        """Kinematics of every piece at frame ``positions`` (N, 3) and ``rotations`` (N, 3, 3)."""
+        return CablePieces.of_pairs(rotations.take(self.ends, 0), positions.take(self.ends, 0), self.holes)
+
+    def lengths(self, pieces: CablePieces) -> np.ndarray:
+        """Length of each cable (sum of its pieces)."""
+        return np.bincount(self.owner, pieces.length, minlength=self.n_cables)
+
+    def frame_forces(self, pieces: CablePieces, piece_tension: np.ndarray) -> np.ndarray:
+        """Gradient (n_frames, 6) of ``Σ τ L`` with the tension of each piece."""
+        return self.to_frames @ (piece_tension[:, None] * pieces.unit).reshape(-1, 6)
+
+    def jacobian(self, pieces: CablePieces) -> np.ndarray:
+        """``∂L/∂q`` (n_cables, n_frames, 6) of every cable."""
+        return (self.to_jacobian @ pieces.unit.reshape(-1, 6)).reshape(self.n_cables, self.n_frames, 6)
+
+    def paths(self, positions: np.ndarray, quaternions: np.ndarray) -> list[np.ndarray]:
+        """World polyline of each cable through its holes."""
+        paths = []
+        for k in range(self.n_cables):
+            pieces = np.flatnonzero(self.owner == k)
+            a, b = self.piece_a[pieces], self.piece_b[pieces]
+            start = positions[a[:1]] + qrotate(quaternions[a[:1]], self.hole_a[pieces[:1]])
+            rest = positions[b] + qrotate(quaternions[b], self.hole_b[pieces])
+            paths.append(np.vstack([start, rest]))
+        return paths

@@ -1,0 +1,176 @@
+"""The trunk's total potential, its gradient and its tangent at a state (paper eq. 9).
+
+The potential is the sum of the links' energies ``Σ ψ(ξ, p)`` (:mod:`vertebra.solver.kinds`),
+the cables' ``Σ τ L``, the weight ``−Σ m g · (x + R s)`` and the dead forces ``−F · x``; dead
+moments are not conservative in 3D and enter the gradient only (as ``−M``). The gradient is
+taken along the solver's chart (``x + dx``, ``exp(dφ) R``, world axes), so the residual of
+equilibrium is ``−gradient`` on the free frames.
+
+:func:`evaluate` computes only what the scene uses (no cables → no cable terms, and so on) and
+keeps, in its :class:`Evaluation`, what :func:`tangent` reuses.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from vertebra.solver.assembly import Tangent
+from vertebra.solver.cables import CablePieces
+from vertebra.solver.lie import hat, qmatrix
+from vertebra.solver.links import Links, link_tangent
+
+
+@dataclass(frozen=True)
+class LoadCase:
+    """What an actuation and a load factor make of the loads (computed once per Newton stage)."""
+
+    actuation: np.ndarray
+    scale: float
+    pressures: np.ndarray                 # scaled chamber pressures
+    link_loads: tuple                     # what each link energy prepared of the pressures
+    piece_tension: np.ndarray | None      # tension of every cable piece (None: all slack)
+    weight: np.ndarray | None             # scaled gravity vector
+    weight_hat: np.ndarray | None
+    frame_weight: np.ndarray | None       # (n_frames, 3) m g
+    dead: np.ndarray | None               # (n_frames, 6) scaled dead loads
+    dead_forces: np.ndarray | None        # (n_frames, 3), contiguous
+
+    @classmethod
+    def of(cls, trunk, actuation: np.ndarray, scale: float) -> "LoadCase":
+        n_cables = trunk.actuators.n_cables
+        tensions = scale * actuation[:n_cables]
+        pressures = scale * actuation[n_cables:]
+        loads = trunk.loads
+        weight = weight_hat = frame_weight = dead = dead_forces = None
+        if loads.has_gravity:
+            weight = scale * loads.gravity
+            weight_hat = hat(weight)
+            frame_weight = trunk.frames.mass[:, None] * weight
+        if loads.has_dead_forces or loads.has_dead_moments:
+            dead = scale * loads.dead
+            dead_forces = np.ascontiguousarray(dead[:, :3])
+        return cls(actuation, scale, pressures, tuple(e.prepare(pressures) for e in trunk.links.energies),
+                   tensions[trunk.cables.owner] if n_cables and np.any(tensions) else None,
+                   weight, weight_hat, frame_weight, dead, dead_forces)
+
+
+@dataclass(slots=True)
+class Evaluation:
+    """Potential and gradient at a state, with what the tangent reuses."""
+
+    energy: float                 # total potential (dead moments excluded: not conservative)
+    gradient: np.ndarray          # (n_frames, 6), dead moments included (as −M)
+    links: Links                  # kinematics of the links
+    w: np.ndarray                 # (n_links, 6) ∂ψ/∂ξ of every link
+    link_gradient: np.ndarray     # (n_links, 12) the links' gradient on their two frames
+    pieces: CablePieces | None    # cable kinematics (None when every cable is slack)
+    lever: np.ndarray | None      # (n_frames, 3) R s, the first mass moments in world axes (gravity)
+    load: LoadCase
+    at_rest: bool                 # evaluated at the trunk's rest state
+
+
+def evaluate(trunk, state, load: LoadCase, memo) -> Evaluation:
+    """Potential and gradient at ``state`` under ``load``; ``memo``
+    (:class:`~vertebra.solver.memo.Memo`) supplies the link kinematics it already knows."""
+    x = state.positions
+    record = state.carried_strains()
+    links = memo.links(state, record)
+    if record is not None:
+        rotations = record.chain.rotations
+    elif load.piece_tension is not None or load.weight is not None:
+        rotations = qmatrix(state.quaternions)
+    else:
+        rotations = None
+    total, w = link_response(trunk, links.xi, load.link_loads)
+    g_links = links.gradient(w)
+    grad = np.zeros((x.shape[0], 6))
+    grad[:-1] = g_links[:, :6]
+    grad[1:] += g_links[:, 6:]
+
+    pieces = None
+    if load.piece_tension is not None:
+        pieces = trunk.cables.pieces(x, rotations)
+        grad += trunk.cables.frame_forces(pieces, load.piece_tension)
+        total += float(load.piece_tension @ pieces.length)
+
+    lever = None
+    if load.weight is not None:
+        lever = (rotations @ trunk.frames.moment[:, :, None])[:, :, 0]   # R s: first moment in world axes
+        grad[:, :3] -= load.frame_weight
+        grad[:, 3:] -= lever @ load.weight_hat                 # moment (R s) × m g at the frame
+        total -= float((trunk.frames.mass @ x + lever.sum(0)) @ load.weight)
+
+    if load.dead is not None:
+        grad -= load.dead
+        total -= float(np.vdot(load.dead_forces, x))
+    return Evaluation(total, grad, links, w, g_links, pieces, lever, load,
+                      record is not None and record is trunk.rest_state.strains)
+
+
+def link_response(trunk, xi: np.ndarray, link_loads: tuple) -> tuple[float, np.ndarray]:
+    """``(Σ ψ, w = ∂ψ/∂ξ (n, 6))`` over every link energy."""
+    energies = trunk.links.energies
+    if len(energies) == 1:
+        return energies[0].response(xi, link_loads[0])
+    w = np.empty_like(xi)
+    total = 0.0
+    for energy, prepared in zip(energies, link_loads):
+        part, w[energy.links] = energy.response(xi[energy.links], prepared)
+        total += part
+    return total, w
+
+
+def _per_link(trunk, ev: Evaluation, method: str, shape: tuple) -> np.ndarray:
+    """A per-link quantity of every link energy (``method``: ``material_tangent`` or
+    ``chamber_forces``), side by side in link order."""
+    energies, xi = trunk.links.energies, ev.links.xi
+    if len(energies) == 1:
+        return getattr(energies[0], method)(xi, ev.load.link_loads[0], ev.w)
+    out = np.empty((xi.shape[0],) + shape)
+    for energy, prepared in zip(energies, ev.load.link_loads):
+        out[energy.links] = getattr(energy, method)(xi[energy.links], prepared, ev.w[energy.links])
+    return out
+
+
+def chamber_forces(trunk, ev: Evaluation) -> np.ndarray:
+    """``−∂²ψ/∂ξ∂p`` (n_links, n_chambers, 6): the strain-space force per unit pressure."""
+    return _per_link(trunk, ev, "chamber_forces", (trunk.actuators.n_chambers, 6))
+
+
+def volume_growth(trunk, links: Links, pressures: np.ndarray) -> np.ndarray:
+    """``−∂ψ/∂p`` (n_chambers,): the chambers' volume growth."""
+    total = np.zeros(trunk.actuators.n_chambers)
+    for energy in trunk.links.energies:
+        total += energy.volume_growth(links.xi[energy.links], energy.prepare(pressures), pressures)
+    return total
+
+
+def link_tangents(trunk, ev: Evaluation, out: np.ndarray) -> np.ndarray:
+    """The links' tangents (n_links, 12, 12) into ``out``."""
+    return link_tangent(ev.links, ev.w, _per_link(trunk, ev, "material_tangent", (6, 6)), ev.link_gradient, out=out)
+
+
+def tangent(trunk, ev: Evaluation, memo) -> Tangent:
+    """Tangent of the potential at the state of ``ev``: the links' tangents side by side (their
+    symmetric band is gathered straight from them) and, when cables or gravity act, their
+    blocks in block storage. At the unstressed rest state the links' part is a model constant
+    (``memo``)."""
+    n = ev.links.xi.shape[0]
+    flat = np.empty(n * 144 + 1)
+    flat[-1] = 0.0                                           # what the band gathers read as zero
+    out = flat[:-1].reshape(n, 12, 12)
+    if ev.at_rest and not ev.w.any() and not ev.load.pressures.any():
+        out[:] = memo.unstressed_tangent(lambda: link_tangents(trunk, ev, np.empty((n, 12, 12))))
+    else:
+        link_tangents(trunk, ev, out)
+    if ev.pieces is None and ev.lever is None:
+        return Tangent(trunk.assembler, flat, None)
+    assembler = trunk.assembler
+    storage, blocks = assembler.new_storage()
+    if ev.pieces is not None:
+        assembler.add_cables(blocks, ev.pieces.tangent(ev.load.piece_tension))
+    if ev.lever is not None:
+        assembler.diagonal(blocks)[:, 3:, 3:] -= ev.load.weight_hat @ hat(ev.lever[1:])   # −ĝ l̂: the arm turns
+    return Tangent(assembler, flat, storage)

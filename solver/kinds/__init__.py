@@ -1,0 +1,137 @@
+"""Link kinds: which segments make which links, and the energy those links store.
+
+Every link joins two frames and stores an energy ``ψ(ξ, p)`` of its strain
+``ξ = log_SE3(T_a⁻¹ T_b)`` (:mod:`vertebra.solver.links`) and of the pressures ``p`` of the
+chambers that act on its cavities. A *kind* says how a scene segment becomes links
+(:class:`LinkKind`) and, through its :attr:`LinkKind.energy` class, how the energy of all its
+links is evaluated batched (:class:`LinkEnergy`). The runtime never looks inside ψ: the link
+kinematics and the assembly consume only
+
+* ``ψ`` summed over the links (the total potential),
+* ``w = ∂ψ/∂ξ`` (n, 6), the strain-space force,
+* the material tangent ``∂²ψ/∂ξ²`` (n, 6, 6),
+* the chamber forces ``−∂²ψ/∂ξ∂p`` (n, n_chambers, 6) — the strain-space force per unit
+  pressure, giving the chambers' actuator Jacobian columns — and the volume growth
+  ``−∂ψ/∂p`` (n_chambers,).
+
+Kinds register themselves: each module of this package calls :func:`register` when it is
+imported, and every module here is imported the first time a kind is looked up, so adding a
+kind is adding one module. :func:`kind_for` picks, among the kinds that claim a segment, the
+one with the highest ``priority``. Links of kinds that share an energy class are evaluated as
+one batch.
+"""
+
+from __future__ import annotations
+
+import importlib
+import pkgutil
+from dataclasses import dataclass
+from typing import Any, ClassVar, Protocol, Sequence
+
+import numpy as np
+
+from vertebra.store.errors import SceneError
+
+
+@dataclass(frozen=True)
+class LinkSource:
+    """One link of a segment repetition as its kind describes it, before it is repeated along
+    the trunk: rest pose of ``b`` in ``a`` (DESIGN §2), mass properties, cavity rest volumes and
+    the kind's own ``parameters`` (for a quadratic link its compliance blocks)."""
+
+    rest_quaternion: np.ndarray     # (4,)
+    rest_translation: np.ndarray    # (3,) d0
+    mass: float
+    center_of_mass: np.ndarray      # (3,) in a's axes
+    cavity_volumes: np.ndarray      # (k,) one per cavity of the link
+    parameters: Any
+
+
+@dataclass(frozen=True)
+class CompiledLinks:
+    """What compile hands an energy class: its links' sources and where they stand.
+
+    ``sources[s]`` made the links with ``source_of_link == s``; ``rest[s]``/``strain_map[s]``
+    are the source's rest strain ``ξ₀`` and ``A = ∂ξ/∂δ`` at rest (δ = [Δx; Δθ] of b in a's axes);
+    ``cavity[l, j]`` is the cavity of link l that chamber j pressurises (−1: none);
+    ``fields[s]`` names the scene field of the source (for errors), ``file`` the scene."""
+
+    sources: Sequence[LinkSource]
+    rest: np.ndarray            # (n_sources, 6)
+    strain_map: np.ndarray      # (n_sources, 6, 6)
+    source_of_link: np.ndarray  # (n,)
+    cavity: np.ndarray          # (n, n_chambers) int
+    fields: Sequence[str]
+    file: str
+
+    def error(self, source: int, reason: str) -> SceneError:
+        return SceneError(reason, file=self.file, field=self.fields[source])
+
+
+class LinkEnergy(Protocol):
+    """The energy of a batch of links of one kind, evaluated batched (no per-link Python).
+
+    ``prepared`` is what :meth:`prepare` made of the chamber pressures (once per load stage);
+    ``xi`` are the strains of the batch's links (n, 6)."""
+
+    links: np.ndarray           # (n,) which links of the trunk, in order
+    rest: np.ndarray            # (n, 6) rest strains ξ₀
+
+    @classmethod
+    def compile(cls, links: np.ndarray, compiled: CompiledLinks) -> "LinkEnergy": ...
+
+    def prepare(self, pressures: np.ndarray) -> Any: ...
+
+    def response(self, xi: np.ndarray, prepared: Any) -> tuple[float, np.ndarray]:
+        """``(Σ ψ, w = ∂ψ/∂ξ (n, 6))``."""
+
+    def material_tangent(self, xi: np.ndarray, prepared: Any, w: np.ndarray) -> np.ndarray:
+        """``∂²ψ/∂ξ²`` (n, 6, 6) (may be a constant array shared between calls)."""
+
+    def chamber_forces(self, xi: np.ndarray, prepared: Any, w: np.ndarray) -> np.ndarray:
+        """``−∂²ψ/∂ξ∂p`` (n, n_chambers, 6)."""
+
+    def volume_growth(self, xi: np.ndarray, prepared: Any, pressures: np.ndarray) -> np.ndarray:
+        """``−∂ψ/∂p`` summed over the links (n_chambers,)."""
+
+
+class LinkKind(Protocol):
+    """How segments of a scene become links of one energy class."""
+
+    name: ClassVar[str]
+    priority: ClassVar[int]             # the highest-priority kind that claims a segment makes it
+    energy: ClassVar[type]              # a LinkEnergy class
+
+    def claims(self, segment, entry) -> bool:
+        """Does this kind make the links of ``segment`` (``entry``: its catalogue entry or None)?"""
+
+    def source(self, segment, entry) -> LinkSource:
+        """One link of a repetition of ``segment`` (all its links are alike)."""
+
+
+_KINDS: dict[str, LinkKind] = {}
+_DISCOVERED = False
+
+
+def register(kind: LinkKind) -> LinkKind:
+    """Register a link kind under its name (a module of this package does it at import)."""
+    _KINDS[kind.name] = kind
+    return kind
+
+
+def kinds() -> dict[str, LinkKind]:
+    """Every registered kind, by name (importing this package's modules first)."""
+    global _DISCOVERED
+    if not _DISCOVERED:
+        for info in pkgutil.iter_modules(__path__):
+            importlib.import_module(f"{__name__}.{info.name}")
+        _DISCOVERED = True
+    return _KINDS
+
+
+def kind_for(segment, entry) -> LinkKind:
+    """The kind that makes the links of ``segment``."""
+    claiming = [kind for kind in kinds().values() if kind.claims(segment, entry)]
+    if not claiming:
+        raise SceneError(f"no link kind makes segments of type {segment.type!r} (kinds: {', '.join(sorted(_KINDS))})")
+    return max(claiming, key=lambda kind: kind.priority)

@@ -1,0 +1,92 @@
+"""Quadratic links: the linear condensation of a segment (DESIGN §2) as an energy of the strain.
+
+A link with compliance blocks ``[[C, G], [Gᵀ, V]]`` (displacement of ``b`` and volume growths
+per unit wrench and pressure) stores
+
+    ψ(ξ, p) = ½ eᵀ K e − ½ pᵀ V p,   e = ξ − ξ₀ − A G p,   K = (A C Aᵀ)⁻¹
+
+where ``A = ∂ξ/∂δ`` at rest maps the displacement ``δ = [Δx; Δθ]`` of ``b`` in ``a``'s axes to
+the strain (so the linearisation at rest reproduces ``C`` exactly), and a pressure shifts the
+rest strain by ``A G p`` (the rest-pose shift ``G p`` of DESIGN §2). Hence ``w = K e``, the
+material tangent is ``K``, the chamber forces are ``K A G`` and the volume growth is
+``−∂ψ/∂p = (A G)ᵀ K e + V p`` (Maxwell–Betti reciprocity gives the ``Gᵀ`` row).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from vertebra.solver.kinds import CompiledLinks
+
+
+@dataclass(frozen=True)
+class Compliance:
+    """The compliance blocks of one link: ``C`` (6, 6), ``G`` (6, k), ``V`` (k, k)."""
+
+    C: np.ndarray
+    G: np.ndarray
+    V: np.ndarray
+
+
+@dataclass(frozen=True)
+class QuadraticEnergy:
+    """Quadratic links, batched (see the module docstring)."""
+
+    links: np.ndarray             # (n,) which links of the trunk
+    rest: np.ndarray              # (n, 6) ξ₀
+    stiffness: np.ndarray         # (n, 6, 6) K
+    pressure_strain: np.ndarray   # (n, 6, m) A G per chamber
+    pressure_force: np.ndarray    # (n, m, 6) K A G: the chamber forces
+    volume_compliance: np.ndarray  # (m, m) Σ_links V over the chambers each link's cavities serve
+
+    @classmethod
+    def compile(cls, links: np.ndarray, compiled: CompiledLinks) -> "QuadraticEnergy":
+        n_sources = len(compiled.sources)
+        K = np.empty((n_sources, 6, 6))
+        for s, source in enumerate(compiled.sources):
+            C, A = source.parameters.C, compiled.strain_map[s]
+            with np.errstate(all="ignore"):
+                K_s = np.linalg.inv(A @ C @ A.T)
+            K[s] = 0.5 * (K_s + K_s.T)
+            if not (np.all(np.isfinite(K[s])) and np.all(np.isfinite(C)) and np.all(np.diag(K[s]) > 0)):
+                raise compiled.error(s, "length, section and moduli give a compliance that is not finite and "
+                                        "positive in double precision")
+        of = compiled.source_of_link[links]
+        cavity = compiled.cavity[links]
+        n, m = cavity.shape
+        P = np.zeros((n, 6, m))
+        V = np.zeros((m, m))
+        if m:
+            AG = [compiled.strain_map[s] @ source.parameters.G for s, source in enumerate(compiled.sources)]
+            for k in np.flatnonzero((cavity >= 0).any(1)):
+                source = compiled.sources[of[k]].parameters
+                served = np.flatnonzero(cavity[k] >= 0)
+                P[k][:, served] = AG[of[k]][:, cavity[k, served]]
+                V[np.ix_(served, served)] += source.V[np.ix_(cavity[k, served], cavity[k, served])]
+        stiffness = K[of]
+        return cls(links, compiled.rest[of], stiffness, P, np.einsum("nij,njk->nki", stiffness, P), V)
+
+    def prepare(self, pressures: np.ndarray) -> tuple[np.ndarray, float]:
+        """The rest strains under ``pressures`` (``ξ₀ + A G p``) and the pressure-only energy
+        ``−½ pᵀ V p`` (constant at given pressures)."""
+        if not pressures.size or not np.any(pressures):
+            return self.rest, 0.0
+        return self.rest + self.pressure_strain @ pressures, -0.5 * float(pressures @ self.volume_compliance @ pressures)
+
+    def response(self, xi: np.ndarray, prepared: tuple[np.ndarray, float]) -> tuple[float, np.ndarray]:
+        rest, constant = prepared
+        e = xi - rest
+        w = (self.stiffness @ e[:, :, None])[:, :, 0]
+        return 0.5 * float(np.vdot(e, w)) + constant, w
+
+    def material_tangent(self, xi: np.ndarray, prepared: tuple, w: np.ndarray) -> np.ndarray:
+        return self.stiffness
+
+    def chamber_forces(self, xi: np.ndarray, prepared: tuple, w: np.ndarray) -> np.ndarray:
+        return self.pressure_force
+
+    def volume_growth(self, xi: np.ndarray, prepared: tuple, pressures: np.ndarray) -> np.ndarray:
+        w = (self.stiffness @ (xi - prepared[0])[:, :, None])[:, :, 0]
+        return np.einsum("nij,ni->j", self.pressure_strain, w) + self.volume_compliance @ pressures

@@ -1,0 +1,65 @@
+"""What a model remembers between calls. Every entry is keyed so that it cannot go stale.
+
+* The link kinematics of the rest state (a model constant) and of the last composed state
+  evaluated, keyed by its strain record, whose arrays are read-only: a Newton step, or a step
+  of the inverse from the state just linearised, reuses them. States given by their poses only
+  are not remembered.
+* The links' tangent at the unstressed rest state (a model constant).
+* The load case of the last (actuation, load factor) and the reference force of the last
+  actuation: repeated solves and linearisations at one actuation compute them once.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from vertebra.solver.links import Links
+
+
+class Memo:
+    """The remembered values of one compiled trunk (see the module docstring)."""
+
+    def __init__(self, trunk):
+        self._rest_record = trunk.rest_state.strains
+        self._rest_links = None
+        self._last = (None, None)
+        self._unstressed = None
+        self._load = (None, None, None)
+        self._reference = (None, None)
+
+    def links(self, state, record) -> Links:
+        """Link kinematics of ``state`` (``record``: its carried strains or None)."""
+        if record is None:
+            q, x = state.quaternions, state.positions
+            return Links.of(q[:-1], x[:-1], q[1:], x[1:])
+        if record is self._rest_record:
+            if self._rest_links is None:
+                self._rest_links = record.kinematics()
+            return self._rest_links
+        last, links = self._last
+        if record is not last:
+            links = record.kinematics()
+            self._last = (record, links)
+        return links
+
+    def unstressed_tangent(self, compute) -> np.ndarray:
+        """The links' tangent at the unstressed rest state (``compute()`` the first time)."""
+        if self._unstressed is None:
+            self._unstressed = compute()
+        return self._unstressed
+
+    def load_case(self, actuation: np.ndarray, scale: float, compute):
+        """The load case of ``(actuation, scale)`` (``compute()`` when it is not the last one)."""
+        key = actuation.tobytes()
+        last_key, last_scale, load = self._load
+        if last_key != key or last_scale != scale:
+            load = compute()
+            self._load = (key, scale, load)
+        return load
+
+    def reference_force(self, actuation: np.ndarray, compute) -> float:
+        """The reference force of ``actuation`` (``compute()`` when it is not the last one)."""
+        key = actuation.tobytes()
+        if self._reference[0] != key:
+            self._reference = (key, compute())
+        return self._reference[1]

@@ -1,0 +1,114 @@
+"""What a state gives out: effector positions, cable lengths, chamber volume growth, and the
+linearisation the inverse uses (paper eqs. 10–12)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from vertebra.solver.energy import LoadCase, chamber_forces, evaluate, tangent, volume_growth
+from vertebra.solver.lie import hat, qmatrix, qrotate
+from vertebra.store.errors import ConvergenceError
+
+LINEARISATION_SHIFTS = (0.0, 1e-8, 1e-6, 1e-4)   # μ tried when the tangent at a state is singular
+
+
+@dataclass
+class Linearisation:
+    """Tangent of the equilibrium at a state (paper eqs. 10–12); see docs/solver-api.md."""
+
+    residual: np.ndarray
+    factor: object
+    actuator_forces: np.ndarray
+    actuator_jacobian: np.ndarray
+    effector_jacobian: np.ndarray
+    effector_positions: np.ndarray
+    actuator_displacements: np.ndarray
+
+    def solve(self, rhs: np.ndarray, *, overwrite: bool = False) -> np.ndarray:
+        """``K⁻¹ rhs`` with the banded factor, for ``rhs`` of shape (n_dof,) or (n_dof, k): the
+        LAPACK solve itself. With ``overwrite`` a Fortran-ordered float ``rhs`` is overwritten by
+        the solution (no copy)."""
+        return self.factor.solve(rhs, overwrite=True) if overwrite else self.factor.solve(rhs)
+
+
+def effector_points(trunk, state) -> tuple[np.ndarray, np.ndarray]:
+    """World offsets (``R r``: lever arms, or the axes) and positions of the effectors."""
+    effectors = trunk.effectors
+    f = effectors.frames
+    record = state.carried_strains()
+    if record is not None:                # the chain's rotation matrices, no quaternion algebra
+        turned = (record.chain.rotations[f] @ effectors.offsets[:, :, None])[:, :, 0]
+    else:
+        turned = qrotate(state.quaternions[f], effectors.offsets)
+    return turned, state.positions[f] * effectors.point_mask + turned
+
+
+def cable_lengths(trunk, state, pieces=None) -> np.ndarray:
+    """Length of every cable (``pieces``: their kinematics at ``state`` when known)."""
+    if not trunk.actuators.n_cables:
+        return np.zeros(0)
+    if pieces is None:
+        pieces = trunk.cables.pieces(state.positions, qmatrix(state.quaternions))
+    return trunk.cables.lengths(pieces)
+
+
+def chamber_volume_growth(trunk, state, pressures: np.ndarray, memo, links=None) -> np.ndarray:
+    """Volume growth of every chamber, ``−∂ψ/∂p`` summed over the links it covers."""
+    if not trunk.actuators.n_chambers:
+        return np.zeros(0)
+    if links is None:
+        links = memo.links(state, state.carried_strains())
+    return volume_growth(trunk, links, np.asarray(pressures, float))
+
+
+def actuator_displacements(trunk, state, actuation: np.ndarray, memo, *, links=None, pieces=None) -> np.ndarray:
+    """Cable strokes ``L − L0``, then chamber volume growths."""
+    strokes = cable_lengths(trunk, state, pieces) - trunk.rest_cable_lengths
+    if not trunk.actuators.n_chambers:
+        return strokes
+    growth = chamber_volume_growth(trunk, state, actuation[trunk.actuators.n_cables:], memo, links)
+    return np.concatenate([strokes, growth])
+
+
+def linearise(trunk, state, actuation: np.ndarray, memo) -> Linearisation:
+    """Tangent stiffness factor, actuator and effector Jacobians at ``state`` under ``actuation``."""
+    load = memo.load_case(actuation, 1.0, lambda: LoadCase.of(trunk, actuation, 1.0))
+    ev = evaluate(trunk, state, load, memo)
+    matrix = tangent(trunk, ev, memo)
+    for shift in LINEARISATION_SHIFTS:
+        factor, _ = matrix.factor(shift, symmetric=not trunk.loads.has_dead_moments)
+        if factor is not None:
+            break
+    if factor is None:
+        raise ConvergenceError("tangent stiffness is singular at this state")
+    n_frames, n_dof = trunk.frames.count, trunk.n_dof
+    n_cables, n_chambers = trunk.actuators.n_cables, trunk.actuators.n_chambers
+    n_act = n_cables + n_chambers
+    links, pieces = ev.links, ev.pieces
+    jac = np.zeros((n_act, n_frames, 6))
+    if n_cables:
+        if pieces is None:                            # slack cables: not evaluated for the forces
+            pieces = trunk.cables.pieces(state.positions, qmatrix(state.quaternions))
+        jac[:n_cables] = trunk.cables.jacobian(pieces)
+    forces = -jac                                     # cable: −τ ∂L/∂q
+    if n_chambers:
+        g = links.gradient(chamber_forces(trunk, ev))  # (n_links, chamber, 12)
+        chamber_jac = np.zeros((n_chambers, n_frames, 6))
+        chamber_jac[:, :-1] += np.moveaxis(g[..., :6], 1, 0)
+        chamber_jac[:, 1:] += np.moveaxis(g[..., 6:], 1, 0)
+        jac[n_cables:] = chamber_jac
+        forces[n_cables:] = chamber_jac               # ∂r/∂p = (∂ξ/∂q)ᵀ (−∂²ψ/∂ξ∂p) = Jaᵀ
+    effectors = trunk.effectors
+    Je = effectors.translation_jacobian.copy()
+    turned, positions = effector_points(trunk, state)
+    Je[np.arange(len(effectors.names)), :, effectors.frames, 3:] = -hat(turned)
+    Je = Je.reshape(3 * len(effectors.names), n_frames, 6)
+    return Linearisation(
+        residual=-ev.gradient[1:].reshape(-1), factor=factor,
+        actuator_forces=forces[:, 1:].reshape(n_act, n_dof).T.copy(),
+        actuator_jacobian=jac[:, 1:].reshape(n_act, n_dof),
+        effector_jacobian=Je[:, 1:].reshape(3 * len(effectors.names), n_dof),
+        effector_positions=positions,
+        actuator_displacements=actuator_displacements(trunk, state, actuation, memo, links=links, pieces=pieces))

@@ -1,0 +1,91 @@
+"""States of a trunk: the pose of every frame, and the link strains a composed state carries.
+
+A state the solver composes from link strains (:func:`compose`: the rest state, a Newton step,
+a solve's result) keeps those strains: evaluations then use them as they are instead of
+taking logarithms of rounded poses (docs/solver.md, "States carry their strains"). Its arrays
+are read-only so that they cannot drift from the record; ``copy()`` gives writeable ones, and a
+copy whose poses no longer match the record is evaluated from its poses.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from vertebra.solver.chain import Chain, chain_poses
+from vertebra.solver.links import Links
+
+
+@dataclass
+class StrainRecord:
+    """Link strains ``ξ`` of a composed state, the chain products, and the poses they gave."""
+
+    xi: np.ndarray
+    chain: Chain
+    positions: np.ndarray
+    quaternions: np.ndarray
+
+    def kinematics(self) -> Links:
+        """Link kinematics from the strains and the chain's products (no logarithms)."""
+        return Links.of_strains(self.chain.rotations[:-1], self.xi, self.positions[1:] - self.positions[:-1],
+                                self.chain.link_coefficients)
+
+
+@dataclass
+class State:
+    """Pose of every frame; frame 0 is the clamped base."""
+
+    positions: np.ndarray     # (n_frames, 3) world
+    quaternions: np.ndarray   # (n_frames, 4) [w, x, y, z]
+    strains: StrainRecord | None = field(default=None, repr=False, compare=False)
+
+    def copy(self) -> "State":
+        return State(self.positions.copy(), self.quaternions.copy(), self.strains)
+
+    def carried_strains(self) -> StrainRecord | None:
+        """The strain record when it still describes these poses, else None. The solver's own
+        states hold the record's (read-only) arrays themselves; copies are compared by value."""
+        record = self.strains
+        if record is None:
+            return None
+        if record.positions is self.positions and record.quaternions is self.quaternions:
+            return record
+        if np.array_equal(record.positions, self.positions) and np.array_equal(record.quaternions, self.quaternions):
+            return record
+        return None
+
+
+def compose(base_quaternion: np.ndarray, base_position: np.ndarray, xi: np.ndarray) -> State:
+    """The state composed from the base pose and link strains ``ξ`` (carrying them when every
+    link turns less than :data:`~vertebra.solver.chain.CARRY_ANGLE`, where the logarithm of the
+    composed poses returns ξ again to rounding)."""
+    chain = chain_poses(base_quaternion, base_position, xi)
+    chain.quaternions[0], chain.positions[0] = base_quaternion, base_position
+    record = None
+    if chain.link_coefficients is not None:
+        chain.positions.flags.writeable = False
+        chain.quaternions.flags.writeable = False
+        record = StrainRecord(xi, chain, chain.positions, chain.quaternions)
+    return State(chain.positions, chain.quaternions, record)
+
+
+def kinematics(state: State) -> Links:
+    """Link kinematics of a state: from the strains it carries, else from its poses."""
+    record = state.carried_strains()
+    if record is not None:
+        return record.kinematics()
+    q, x = state.quaternions, state.positions
+    return Links.of(q[:-1], x[:-1], q[1:], x[1:])
+
+
+def retract(state: State, dq: np.ndarray, links: Links) -> State:
+    """Retraction in strain space: each link's strain ``ξ = log(T_a⁻¹ T_b)`` moves by its
+    linearised change ``J_l⁻¹ ζ(dq)`` and the chain is rebuilt from the base by composing
+    ``exp(ξ)``. To first order this is the update ``x + dx``, ``exp(dφ) R`` (so Newton keeps its
+    quadratic convergence), but a step that predicts no stretch of a link creates none: stiff
+    axial and shear links absorb no spurious strain when frames rotate. ``dq`` holds
+    ``[dx; dφ]`` (world axes) of every free frame; ``links``: the state's kinematics."""
+    d = np.zeros((state.positions.shape[0], 6))
+    d[1:] = np.asarray(dq).reshape(-1, 6)
+    return compose(state.quaternions[0], state.positions[0], links.xi + links.strain_change(links.zeta(d)))

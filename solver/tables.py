@@ -1,0 +1,99 @@
+"""TOML tables read field by field: every error names the file, the dotted field and the reason.
+
+:class:`Table` consumes the fields it is asked for and rejects, when done, the ones it never
+read (unknown fields are errors, not silently ignored).
+"""
+
+from __future__ import annotations
+
+import math
+
+from vertebra.store.errors import SceneError
+
+MAX_MAGNITUDE = 1e100        # larger inputs are mistakes (and overflow in l³, r⁴)
+
+
+class Table:
+    """Reads typed fields from one TOML table and rejects the ones it never read."""
+
+    def __init__(self, data, path: str, source: str):
+        if not isinstance(data, dict):
+            raise SceneError(f"expected a table, got {type(data).__name__}", file=source, field=path or None)
+        self.data, self.path, self.source, self.used = data, path, source, set()
+
+    def _name(self, key):
+        return f"{self.path}.{key}" if self.path else key
+
+    def error(self, key, reason):
+        return SceneError(reason, file=self.source, field=self._name(key))
+
+    def has(self, key):
+        return key in self.data
+
+    def raw(self, key, default=None):
+        self.used.add(key)
+        return self.data.get(key, default)
+
+    def number(self, key, default=None, *, positive=False, nonneg=False, required=False, integer=False,
+               unbounded=False):
+        """A number. Infinite values are accepted only where ``unbounded`` (actuator bounds:
+        ``max_tension = inf``); magnitudes beyond 1e100 are refused as input mistakes."""
+        if key not in self.data:
+            if required:
+                raise self.error(key, "required field is missing")
+            return default
+        value = self.raw(key)
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise self.error(key, f"expected a number, got {type(value).__name__} {value!r}")
+        if integer and not isinstance(value, int):
+            raise self.error(key, f"expected an integer, got {value!r}")
+        if math.isnan(value) or (math.isinf(value) and not unbounded):
+            raise self.error(key, f"expected a finite number, got {value!r}")
+        if math.isfinite(value) and abs(value) > MAX_MAGNITUDE:
+            raise self.error(key, f"magnitude {value!r} is beyond {MAX_MAGNITUDE:g}: not a physical input")
+        if positive and not value > 0:
+            raise self.error(key, f"must be > 0, got {value!r}")
+        if nonneg and not value >= 0:
+            raise self.error(key, f"must be >= 0, got {value!r}")
+        return int(value) if integer else float(value)
+
+    def vector(self, key, n, default=None, *, required=False):
+        if key not in self.data:
+            if required:
+                raise self.error(key, "required field is missing")
+            return default
+        value = self.raw(key)
+        if (not isinstance(value, list) or len(value) != n
+                or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in value)):
+            raise self.error(key, f"expected a list of {n} numbers, got {value!r}")
+        if not all(math.isfinite(v) for v in value):
+            raise self.error(key, f"expected finite numbers, got {value!r}")
+        if any(abs(v) > MAX_MAGNITUDE for v in value):
+            raise self.error(key, f"a magnitude beyond {MAX_MAGNITUDE:g} is not a physical input")
+        return tuple(float(v) for v in value)
+
+    def string(self, key, default=None, *, required=False, choices=None):
+        if key not in self.data:
+            if required:
+                raise self.error(key, "required field is missing")
+            return default
+        value = self.raw(key)
+        if not isinstance(value, str) or not value:
+            raise self.error(key, f"expected a non-empty string, got {value!r}")
+        if choices and value not in choices:
+            raise self.error(key, f"must be one of {', '.join(choices)}, got {value!r}")
+        return value
+
+    def table(self, key):
+        return Table(self.raw(key, {}), self._name(key), self.source)
+
+    def tables(self, key):
+        value = self.raw(key, [])
+        if not isinstance(value, list):
+            raise self.error(key, f"expected an array of tables ([[{key}]]), got {type(value).__name__}")
+        return [Table(item, f"{self._name(key)}[{i}]", self.source) for i, item in enumerate(value)]
+
+    def done(self):
+        unknown = sorted(set(self.data) - self.used)
+        if unknown:
+            raise self.error(unknown[0], "unknown field")

@@ -1,0 +1,261 @@
+"""The compiled trunk: a scene turned once into arrays (frames, links, cables, chambers, loads,
+effectors) and the band index maps, validated and read-only.
+
+Vertebra 0 is the clamped base frame. Each repetition of a segment adds ``elements`` links and
+ends at a vertebra frame. Each segment's links are made by its link kind
+(:mod:`vertebra.solver.kinds`); links whose kinds share an energy class are compiled into one
+batch. A link's mass is lumped on its two frames by the lever rule along its axis (lateral
+offsets kept, so gravity also makes moments).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from vertebra.solver.assembly import BandAssembler
+from vertebra.solver.cables import CableRouting
+from vertebra.solver.kinds import CompiledLinks, kind_for
+from vertebra.solver.lie import hat, qmatrix, se3_log
+from vertebra.solver.state import State, compose
+from vertebra.store.errors import SceneError
+
+
+def _read_only(value):
+    if isinstance(value, np.ndarray):
+        value.flags.writeable = False
+    return value
+
+
+class _Frozen:
+    """Frozen dataclasses whose arrays are made read-only once validated."""
+
+    def __post_init__(self):
+        self.validate()
+        for f in fields(self):
+            _read_only(getattr(self, f.name))
+
+    def validate(self) -> None:
+        pass
+
+
+@dataclass(frozen=True)
+class Frames(_Frozen):
+    """The frames: vertebrae and the internal frames of multi-link repetitions."""
+
+    count: int
+    vertebra: np.ndarray          # (n_vertebrae,) frame of each vertebra
+    mass: np.ndarray              # (count,) lumped mass
+    moment: np.ndarray            # (count, 3) first moment of the lumped mass, frame axes
+    base_quaternion: np.ndarray
+    base_position: np.ndarray
+    length_scale: float           # Σ |d0| over the links: the trunk's length
+
+    def validate(self):
+        if self.mass.shape != (self.count,) or self.moment.shape != (self.count, 3):
+            raise ValueError(f"frames: {self.count} frames but masses {self.mass.shape}, moments {self.moment.shape}")
+
+
+@dataclass(frozen=True)
+class LinkSet(_Frozen):
+    """Every link (link k joins frames k and k + 1) and the energy batches that evaluate them."""
+
+    rest: np.ndarray              # (n, 6) rest strains ξ₀
+    rest_quaternion: np.ndarray   # (n, 4) rest rotation of b in a
+    rest_translation: np.ndarray  # (n, 3) rest translation d0 of b in a
+    energies: tuple               # LinkEnergy batches covering the links once
+
+    def validate(self):
+        covered = np.sort(np.concatenate([e.links for e in self.energies])) if self.energies else np.zeros(0, int)
+        if not np.array_equal(covered, np.arange(self.rest.shape[0])):
+            raise ValueError("link energies must cover every link exactly once")
+
+    @property
+    def count(self) -> int:
+        return self.rest.shape[0]
+
+
+@dataclass(frozen=True)
+class Actuators(_Frozen):
+    """Cables (first, in scene order) then chambers: names, forward values and bounds."""
+
+    names: tuple
+    n_cables: int
+    n_chambers: int
+    default: np.ndarray           # the scene's tensions and pressures
+    bounds: tuple                 # (lower, upper) on λ
+    displacement_bounds: tuple    # (lower, upper) on strokes and volume growths
+    chamber_rest_volumes: np.ndarray
+
+    def validate(self):
+        if self.default.shape != (self.n_cables + self.n_chambers,):
+            raise ValueError(f"actuators: {len(self.names)} names but {self.default.shape} values")
+        for array in (*self.bounds, *self.displacement_bounds):
+            _read_only(array)
+
+
+@dataclass(frozen=True)
+class Loads(_Frozen):
+    """Dead loads and gravity."""
+
+    dead: np.ndarray              # (n_frames, 6) world forces and moments
+    gravity: np.ndarray | None    # (3,) or None
+    has_dead_forces: bool
+    has_dead_moments: bool        # not conservative in 3D: the tangent is unsymmetric
+    has_gravity: bool
+
+
+@dataclass(frozen=True)
+class Effectors(_Frozen):
+    """Points on vertebrae (offset in the frame) and axes (a unit direction fixed in the frame)."""
+
+    names: tuple
+    frames: np.ndarray            # (n,) frame of each effector
+    is_axis: np.ndarray           # (n,) bool
+    offsets: np.ndarray           # (n, 3) offset or axis in the frame
+    targets: np.ndarray           # (n, 3) world (nan where none)
+    weights: np.ndarray           # (n,)
+    point_mask: np.ndarray        # (n, 1) 1 for points (which move with their frame's translation)
+    translation_jacobian: np.ndarray   # (n, 3, n_frames, 6): the Jacobian's constant translation part
+
+
+@dataclass(frozen=True)
+class Trunk:
+    """A compiled scene (build with :func:`compile_trunk`)."""
+
+    scene: object
+    frames: Frames
+    links: LinkSet
+    cables: CableRouting
+    actuators: Actuators
+    loads: Loads
+    effectors: Effectors
+    assembler: BandAssembler
+    rest_state: State
+    rest_cable_lengths: np.ndarray
+
+    def __post_init__(self):
+        if self.links.count != self.frames.count - 1:
+            raise ValueError(f"{self.frames.count} frames need {self.frames.count - 1} links, got {self.links.count}")
+        if self.assembler.n_blocks != self.links.count:
+            raise ValueError("band layout does not match the frames")
+        _read_only(self.rest_cable_lengths)
+
+    @property
+    def n_dof(self) -> int:
+        return 6 * (self.frames.count - 1)
+
+
+def compile_trunk(scene, entries: dict) -> Trunk:
+    """Compile a scene whose catalogue entries (by name) are in ``entries``."""
+    frames, links, rest_volumes = _compile_links(scene, entries)
+    cables = CableRouting.of(scene.cables, frames.vertebra, frames.count)
+    rest_state = compose(frames.base_quaternion, frames.base_position, links.rest)
+    rest_pieces = cables.pieces(rest_state.positions, qmatrix(rest_state.quaternions))
+    return Trunk(scene, frames, links, cables, _actuators(scene, rest_volumes), _loads(scene, frames),
+                 _effectors(scene, frames), BandAssembler(frames.count - 1, cables.span, cables.piece_a, cables.piece_b),
+                 rest_state, cables.lengths(rest_pieces))
+
+
+def _compile_links(scene, entries):
+    chambers = scene.chambers
+    sources, kinds, source_of_link, vertebra_of_link = [], [], [], []
+    vertebra = 1
+    for index, segment in enumerate(scene.segments):
+        entry = entries[segment.entry] if segment.type == "entry" else None
+        kind = kind_for(segment, entry)
+        sources.append(kind.source(segment, entry))
+        kinds.append(kind)
+        source_of_link.append(np.full(segment.count * segment.elements, index))
+        vertebra_of_link.append(vertebra + np.repeat(np.arange(segment.count), segment.elements))
+        vertebra += segment.count
+    source_of_link = np.concatenate(source_of_link)
+    vertebra_of_link = np.concatenate(vertebra_of_link)
+    n = source_of_link.size
+    # the stress-free strain of each source and A = ∂ξ/∂δ: δ = [Δx; Δθ] of b in a's axes, ζ = [Δx − Δθ × d0; Δθ]
+    q0 = np.array([s.rest_quaternion for s in sources])
+    d0 = np.array([s.rest_translation for s in sources])
+    rest, Jl_inv = se3_log(q0, d0)
+    shift = np.broadcast_to(np.eye(6), (len(sources), 6, 6)).copy()
+    shift[:, :3, 3:] = hat(d0)
+    strain_map = Jl_inv @ shift
+
+    cavity = np.full((n, len(chambers)), -1)
+    rest_volumes = np.zeros(len(chambers))
+    n_cavities = np.array([s.cavity_volumes.size for s in sources])
+    for j, chamber in enumerate(chambers):
+        covered = np.flatnonzero((vertebra_of_link >= chamber.first) & (vertebra_of_link <= chamber.last))
+        short = covered[n_cavities[source_of_link[covered]] <= chamber.cavity]
+        if short.size:
+            k = short[0]
+            raise SceneError(f"segment {source_of_link[k]} ending at vertebra {vertebra_of_link[k]} has "
+                             f"{n_cavities[source_of_link[k]]} cavities; chamber {chamber.name!r} uses cavity "
+                             f"{chamber.cavity}", file=scene.source, field=f"chamber[{j}].cavity")
+        cavity[covered, j] = chamber.cavity
+        volumes = np.array([sources[s].cavity_volumes[chamber.cavity] for s in source_of_link[covered]])
+        rest_volumes[j] = np.cumsum(volumes)[-1]
+    compiled = CompiledLinks(sources, rest, strain_map, source_of_link, cavity,
+                             [f"segment[{i}]" for i in range(len(sources))], scene.source)
+    energies = []
+    for energy in dict.fromkeys(kind.energy for kind in kinds):
+        of_energy = np.array([kinds[s].energy is energy for s in source_of_link], bool)
+        energies.append(energy.compile(np.flatnonzero(of_energy), compiled))
+    links = LinkSet(rest[source_of_link], q0[source_of_link], d0[source_of_link], tuple(energies))
+
+    # masses: each link's on its end frames by the lever rule along its axis, then the vertebrae's
+    mass = np.array([s.mass for s in sources])
+    com = np.array([s.center_of_mass for s in sources])
+    with np.errstate(all="ignore"):
+        t = np.where(d0[:, 2] != 0, np.clip(com[:, 2] / d0[:, 2], 0.0, 1.0), 0.5)
+    lateral = com * np.array([1.0, 1.0, 0.0])
+    m_link, t_link, lateral_link = mass[source_of_link], t[source_of_link], lateral[source_of_link]
+    vertebra_frames = np.r_[0, np.flatnonzero(np.diff(np.r_[vertebra_of_link, -1])) + 1]
+    vertebrae = [segment.vertebra for segment in scene.segments for _ in range(segment.count)]
+    frame_mass, frame_moment = np.zeros(n + 1), np.zeros((n + 1, 3))
+    frame_mass[1:] += t_link * m_link
+    frame_moment[1:] += (t_link * m_link)[:, None] * lateral_link
+    frame_mass[vertebra_frames[1:]] += [v.mass for v in vertebrae]
+    frame_moment[vertebra_frames[1:]] += np.array([v.mass * np.asarray(v.center_of_mass) for v in vertebrae]).reshape(-1, 3)
+    frame_mass[:-1] += (1 - t_link) * m_link
+    frame_moment[:-1] += ((1 - t_link) * m_link)[:, None] * lateral_link
+    frames = Frames(n + 1, vertebra_frames, frame_mass, frame_moment, np.asarray(scene.base_quaternion, float),
+                    np.asarray(scene.base_position, float), float(np.sum(np.linalg.norm(links.rest_translation, axis=1))))
+    return frames, links, rest_volumes
+
+
+def _actuators(scene, rest_volumes) -> Actuators:
+    cables, chambers = scene.cables, scene.chambers
+    return Actuators(
+        tuple(c.name for c in cables) + tuple(c.name for c in chambers), len(cables), len(chambers),
+        np.array([c.tension for c in cables] + [c.pressure for c in chambers], float),
+        (np.array([c.min_tension for c in cables] + [c.min_pressure for c in chambers], float),
+         np.array([c.max_tension for c in cables] + [c.max_pressure for c in chambers], float)),
+        (np.array([c.min_stroke for c in cables] + [c.min_volume_growth for c in chambers], float),
+         np.array([c.max_stroke for c in cables] + [c.max_volume_growth for c in chambers], float)),
+        rest_volumes)
+
+
+def _loads(scene, frames: Frames) -> Loads:
+    dead = np.zeros((frames.count, 6))
+    for load in scene.loads:
+        frame = frames.vertebra[load.vertebra]
+        dead[frame, :3] += load.force
+        dead[frame, 3:] += load.moment
+    gravity = None if scene.gravity is None or not any(scene.gravity) else np.array(scene.gravity, float)
+    return Loads(dead, gravity, bool(np.any(dead[:, :3])), bool(np.any(dead[:, 3:])),
+                 gravity is not None and bool(np.any(frames.mass)))
+
+
+def _effectors(scene, frames: Frames) -> Effectors:
+    effectors = scene.effectors
+    frame = np.array([frames.vertebra[e.vertebra] for e in effectors], int)
+    is_axis = np.array([e.axis is not None for e in effectors], bool)
+    template = np.zeros((len(effectors), 3, frames.count, 6))
+    points = np.flatnonzero(~is_axis)
+    template[points, :, frame[points], :3] = np.eye(3)     # a direction does not move with translations
+    return Effectors(
+        tuple(e.name for e in effectors), frame, is_axis,
+        np.array([e.axis if e.axis is not None else e.offset for e in effectors], float).reshape(-1, 3),
+        np.array([e.target if e.target is not None else (np.nan,) * 3 for e in effectors], float).reshape(-1, 3),
+        np.array([e.weight for e in effectors], float), (~is_axis).astype(float)[:, None], template)
