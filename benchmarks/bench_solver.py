@@ -23,7 +23,10 @@ is recorded before and after each section, and only ratios measured in the same 
 compared.
 
 Run: ``OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_solver.py [--quick] [--commit REV]``
-(``--commit`` benchmarks that commit's ``solver/`` from a snapshot, whatever the working tree holds);
+(``--commit`` benchmarks that commit's ``solver/`` from a snapshot, whatever the working tree holds;
+``--ab REV`` compares the working tree with REV on the two speed-acceptance paths only — the 20-link
+cantilever solve and the model's part of a control tick on paper_5v_16t — through the public API,
+in processes alternating between the two, and prints the ratios);
 writes ``benchmarks/results/solver.json`` and ``benchmarks/results/solver.md``
 (``--quick`` writes ``solver-quick.*`` into ``--out`` or, by default, a temporary directory: a smoke
 run never touches the committed results).
@@ -58,11 +61,13 @@ REPO = Path(__file__).resolve().parents[1]
 if os.environ.get("BENCH_SOLVER_ROOT"):
     sys.path.insert(0, str(ROOT))
 
+sys.path.insert(1, str(REPO / "tests"))        # the complex-step reference lives with the tests
+
 from vertebra import solver  # noqa: E402
 from vertebra.solver import analytic, gallery  # noqa: E402
 from vertebra.solver.banded import factor_cholesky, factor_lu  # noqa: E402
-from vertebra.solver.elements import link_gradient, pair_tangent  # noqa: E402
-from vertebra.solver.links import Links, link_forces, link_tangent  # noqa: E402
+# the solver's internals (newton, energy, links) are imported where a section times them: the
+# A/B mode runs on snapshots of other commits through the public API only
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -143,26 +148,37 @@ def timed(fn, repeats, warmup=1, budget_s=None):
 
 
 def count_evaluations(model, fn):
-    """Run ``fn()`` once with the model's residual/tangent evaluations counted (not timed)."""
-    original = model._evaluate
-    original_tangent = model._add_tangent
-    counts = {"tangent": 0, "gradient": 0}      # gradient evaluations, tangent assemblies
+    """Run ``fn()`` once with the Newton solver's gradient evaluations and tangent assemblies
+    counted (not timed)."""
+    from vertebra.solver import newton
+    original, original_tangent = newton.evaluate, newton.tangent
+    counts = {"tangent": 0, "gradient": 0}
 
-    def counted(state, actuation, scale, tangent):
+    def counted(*args):
         counts["gradient"] += 1
-        return original(state, actuation, scale, tangent)
+        return original(*args)
 
-    def counted_tangent(ev):
-        if ev.link_tangents is None:
-            counts["tangent"] += 1
-        return original_tangent(ev)
+    def counted_tangent(*args):
+        counts["tangent"] += 1
+        return original_tangent(*args)
 
-    model._evaluate, model._add_tangent = counted, counted_tangent
+    newton.evaluate, newton.tangent = counted, counted_tangent
     try:
         out = fn()
     finally:
-        del model._evaluate, model._add_tangent
+        newton.evaluate, newton.tangent = original, original_tangent
     return out, counts
+
+
+def evaluation_pieces(model, state, act, reps, budget_s=None):
+    """Timings of one Newton iteration's pieces at ``state``: gradient (``evaluate``), gradient and
+    tangent, the tangent's symmetric band; returns (tangent, rhs, timings)."""
+    from vertebra.solver.energy import tangent
+    trunk, memo = model.trunk, model.memo
+    matrix, t_tan = timed(lambda: tangent(trunk, model.evaluate(state, act), memo), reps, budget_s=budget_s)
+    ev, t_grad = timed(lambda: model.evaluate(state, act), reps, budget_s=budget_s)
+    _, t_band = timed(lambda: matrix.symmetric_band(), reps, budget_s=budget_s)
+    return matrix, -ev.gradient[1:].reshape(-1), {"tangent": t_tan, "gradient": t_grad, "band": t_band}
 
 
 def fit_exponent(x, y):
@@ -218,8 +234,8 @@ def bench_scaling(quick):
     models, results, walls, cpus = {}, {}, {}, {}
     for links in sizes:
         model = solver.build_model(cantilever(links))
-        if model.layout.kd > 11 and links > 300:
-            rows.append({"links": links, "frames": model.n_frames, "kd": model.layout.kd, "skipped":
+        if model.trunk.assembler.kd > 11 and links > 300:
+            rows.append({"links": links, "frames": model.n_frames, "kd": model.trunk.assembler.kd, "skipped":
                          "band not narrow (half bandwidth > 11) — dense-like cost, skipped"})
             continue
         models[links] = model
@@ -235,7 +251,7 @@ def bench_scaling(quick):
             walls[links].append(t["median_s"]), cpus[links].append(t["cpu_median_s"])
     for links, model in models.items():
         la = loadavg()
-        kd = model.layout.kd
+        kd = model.trunk.assembler.kd
         result = results[links]
         budget = 4.0 if quick else 12.0
         t = {"median_s": float(np.median(walls[links])), "min_s": float(np.min(walls[links])),
@@ -245,15 +261,14 @@ def bench_scaling(quick):
         state, act = result.state, model.default_actuation
         reps = 7 if links >= 3000 else 21
         _, evals = count_evaluations(model, lambda: model.solve())
-        ev, t_tan = timed(lambda: model._evaluate(state, act, 1.0, True), reps, budget_s=budget / 4)
-        _, t_grad = timed(lambda: model._evaluate(state, act, 1.0, False), reps, budget_s=budget / 4)
-        ab, t_band = timed(lambda: model._symmetric_band(ev), reps, budget_s=budget / 4)
-        rhs = -ev.gradient[1:].reshape(-1)
+        matrix, rhs, pieces = evaluation_pieces(model, state, act, reps, budget / 4)
+        t_tan, t_grad, t_band = pieces["tangent"], pieces["gradient"], pieces["band"]
+        ab = matrix.symmetric_band()
         fac, t_fac = timed(lambda: factor_cholesky(ab), reps, budget_s=budget / 4)
         _, t_sol = timed(lambda: fac.solve(rhs), reps, budget_s=budget / 4)
         _, t_fs = timed(lambda: factor_cholesky(ab).solve(rhs), reps, budget_s=budget / 4)
-        gab = model.layout.general_band(*model._blocks(ev))
-        _, t_lu = timed(lambda: factor_lu(gab, model.layout.kd).solve(rhs), reps, budget_s=budget / 4)
+        gab = model.trunk.assembler.general_band(matrix.blocks())
+        _, t_lu = timed(lambda: factor_lu(gab, kd).solve(rhs), reps, budget_s=budget / 4)
         _, t_step = timed(lambda: model.step(state, rhs * 0.0), reps, budget_s=budget / 4)
         ref = analytic.elastica_tip(1.0, LENGTH)
         err = float(np.linalg.norm(tip_xz(result) - ref) / LENGTH)
@@ -278,19 +293,22 @@ def bench_scaling(quick):
               f"res {result.residual:.1e}{' (rounding)' if result.rounding_limited else ''}  load {la}",
               flush=True)
     # diagnostic: the model's closed-form link tangent (solver/links.py) against the complex-step
-    # tangent of the same potential (solver/elements.py, the tests' reference): cost and agreement
+    # tangent of the same potential (tests/reference/complex_step.py): cost and agreement
+    from reference.complex_step import link_gradient, pair_tangent
+    from vertebra.solver.links import Links, link_tangent
     chunk_rows = []
     for links, model in models.items():
         if links not in (10, 100, 1000, 10000):
             continue
         st = results[links].state
         x, q = st.positions, st.quaternions
-        args = (q[:-1], x[:-1], q[1:], x[1:], model.link_stiffness, model.link_rest)
+        stiffness = model.trunk.links.energies[0].stiffness
+        args = (q[:-1], x[:-1], q[1:], x[1:], stiffness, model.link_rest)
 
         def closed():
             links_ = Links.of(*args[:4])
-            g, _, w, _ = link_forces(links_, model.link_stiffness, model.link_rest)
-            return link_tangent(links_, model.link_stiffness, w, g)
+            w = (stiffness @ (links_.xi - model.link_rest)[:, :, None])[:, :, 0]
+            return link_tangent(links_, w, stiffness, links_.gradient(w))
 
         reps = 3 if links >= 10000 else 11
         H_closed, t_closed = timed(closed, reps)
@@ -393,7 +411,7 @@ def bench_gallery(quick):
         result, t = timed(run, repeats)
         own = own[1:]   # drop the warm-up
         _, evals = count_evaluations(model, lambda: model.solve(act))
-        rows.append({"scene": label, "frames": model.n_frames, "dof": model.n_dof, "kd": model.layout.kd,
+        rows.append({"scene": label, "frames": model.n_frames, "dof": model.n_dof, "kd": model.trunk.assembler.kd,
                      "cables": model.n_cables, "chambers": model.n_chambers,
                      "converged": bool(result.converged), "iterations": int(result.iterations),
                      "load_steps": int(result.load_steps), "factorization": result.factorization,
@@ -421,10 +439,9 @@ def bench_gallery(quick):
     t["solver_solve_s_median"] = float(np.median(own))
     t["solver_solve_s_q10_q90"] = [float(np.percentile(own, 10)), float(np.percentile(own, 90))]
     state, act = result.state, model.default_actuation
-    ev, t_tan = timed(lambda: model._evaluate(state, act, 1.0, True), 61)
-    _, t_grad = timed(lambda: model._evaluate(state, act, 1.0, False), 61)
-    ab = model._symmetric_band(ev)
-    rhs = -ev.gradient[1:].reshape(-1)
+    matrix, rhs, pieces = evaluation_pieces(model, state, act, 61)
+    t_tan, t_grad = pieces["tangent"], pieces["gradient"]
+    ab = matrix.symmetric_band()
     _, t_fs = timed(lambda: factor_cholesky(ab).solve(rhs), 201)
     _, t_step = timed(lambda: model.step(state, rhs * 0.0), 201)
     _, evals = count_evaluations(model, lambda: model.solve())
@@ -828,6 +845,105 @@ def acceptance(res):
     return acc
 
 
+
+# --------------------------------------------------------------------------- A/B against a commit
+def snapshot(commit: str) -> tuple[str, Path]:
+    """A `git archive` of ``commit``'s package root, solver/ and store/ as ``<tmp>/vertebra``."""
+    import tempfile
+    sha = subprocess.run(["git", "rev-parse", commit], cwd=REPO, capture_output=True, text=True,
+                         check=True).stdout.strip()
+    tmp = Path(tempfile.mkdtemp(prefix=f"bench_solver_{sha[:10]}_"))
+    archive = subprocess.run(["git", "archive", sha, "__init__.py", "solver", "store"], cwd=REPO,
+                             capture_output=True, check=True).stdout
+    (tmp / "vertebra").mkdir()
+    subprocess.run(["tar", "-x", "-C", str(tmp / "vertebra")], input=archive, check=True)
+    return sha, tmp
+
+
+def ab_child(repeats: int) -> dict:
+    """One process of an A/B run: public-API timings of the speed-acceptance paths (median CPU
+    time of this thread, and wall time)."""
+    def measure(fn):
+        for _ in range(max(10, repeats // 10)):
+            fn()
+        cpu, wall = [], []
+        gc.disable()
+        for _ in range(repeats):
+            c0, w0 = time.thread_time(), time.perf_counter()
+            fn()
+            cpu.append(time.thread_time() - c0)
+            wall.append(time.perf_counter() - w0)
+        gc.enable()
+        return {"cpu_s": float(np.median(cpu)), "wall_s": float(np.median(wall))}
+
+    out = {}
+    cantilever_model = solver.build_model(gallery.load("cantilever"))
+    out["cantilever_20_solve"] = measure(lambda: cantilever_model.solve())
+    # the model's part of an inverse tick (linearise, K⁻¹[r, B], retraction, effector positions),
+    # ticking on from state to state as a control loop does, with the actuation moving ±1 %
+    model = solver.build_model(gallery.load("paper_5v_16t"))
+    lam0 = active_actuation(model)
+    start = model.solve(lam0).state
+    n_act = lam0.size
+    change = 0.01 * lam0
+    loop = {"state": start, "lam": lam0, "k": 0}
+    parts = {"linearise": [], "solve_rhs": [], "step": [], "effectors": []}
+
+    def tick():
+        state, lam = loop["state"], loop["lam"]
+        t0 = time.thread_time()
+        lin = model.linearise(state, lam)
+        t1 = time.thread_time()
+        rhs = np.empty((model.n_dof, 1 + n_act), order="F")
+        rhs[:, 0] = lin.residual
+        rhs[:, 1:] = lin.actuator_forces
+        X = lin.solve(rhs)
+        t2 = time.thread_time()
+        d_lam = change if loop["k"] % 2 == 0 else -change
+        new_state = model.step(state, X[:, 0] + X[:, 1:] @ d_lam)
+        t3 = time.thread_time()
+        model.effector_positions(new_state)
+        t4 = time.thread_time()
+        for key, value in zip(parts, (t1 - t0, t2 - t1, t3 - t2, t4 - t3)):
+            parts[key].append(value)
+        loop.update(state=new_state, lam=lam + d_lam, k=loop["k"] + 1)
+
+    out["paper_5v_16t_tick_model"] = measure(tick)
+    for key, values in parts.items():
+        out[f"tick_{key}"] = {"cpu_s": float(np.median(values[-repeats:]))}
+    return out
+
+
+def ab(commit: str, rounds: int, repeats: int, out_dir: Path | None) -> int:
+    """Alternate processes on the working tree and on ``commit`` (B A B A …) and print, per path,
+    the median over rounds of each side's median and their ratio (tree / commit)."""
+    import shutil
+    sha, tmp = snapshot(commit)
+    sides = {"tree": dict(os.environ), "commit": dict(os.environ, BENCH_SOLVER_ROOT=str(tmp), BENCH_SOLVER_SNAPSHOT=sha)}
+    runs = {"tree": [], "commit": []}
+    try:
+        for r in range(rounds):
+            for side in (("commit", "tree") if r % 2 == 0 else ("tree", "commit")):
+                text = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--ab-child", str(repeats)],
+                                      env=sides[side], capture_output=True, text=True, check=True).stdout
+                runs[side].append(json.loads(text.strip().splitlines()[-1]))
+            print(f"  round {r + 1}/{rounds} done (load {loadavg()})", flush=True)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    result = {"commit": sha, "rounds": rounds, "repeats": repeats, "date": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime()),
+              "loadavg_end": loadavg(), "paths": {}}
+    print(f"A/B: working tree vs {sha[:10]}, {rounds} rounds of {repeats} repeats, median CPU time per call")
+    for path in runs["tree"][0]:
+        tree = float(np.median([run[path]["cpu_s"] for run in runs["tree"]]))
+        base = float(np.median([run[path]["cpu_s"] for run in runs["commit"]]))
+        result["paths"][path] = {"tree_cpu_s": tree, "commit_cpu_s": base, "ratio": tree / base}
+        print(f"  {path:<28} tree {fmt_time(tree):>9}  {sha[:10]} {fmt_time(base):>9}  ratio {tree / base:.3f}")
+    if out_dir is not None:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        (out_dir / "solver-ab.json").write_text(json.dumps(result, indent=1) + "\n")
+    return 0
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="fast smoke run (small sizes, few repeats)")
@@ -837,18 +953,23 @@ def main(argv=None):
     ap.add_argument("--commit", default=None,
                     help="benchmark the solver of this commit (a `git archive` snapshot in a temporary "
                          "directory), whatever the working tree holds")
+    ap.add_argument("--ab", metavar="REV", default=None,
+                    help="compare the working tree with REV on the acceptance paths (public API only), "
+                         "in alternating processes; prints ratios (with --out: also solver-ab.json)")
+    ap.add_argument("--rounds", type=int, default=10, help="--ab: processes per side")
+    ap.add_argument("--repeats", type=int, default=400, help="--ab: timed calls per process and path")
+    ap.add_argument("--ab-child", type=int, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.ab_child is not None:
+        print(json.dumps(ab_child(args.ab_child)))
+        return 0
+    if args.ab:
+        return ab(args.ab, args.rounds, args.repeats, args.out)
     if args.commit and not os.environ.get("BENCH_SOLVER_SNAPSHOT"):
         import shutil
         import tempfile
-        sha = subprocess.run(["git", "rev-parse", args.commit], cwd=REPO, capture_output=True, text=True,
-                             check=True).stdout.strip()
-        tmp = Path(tempfile.mkdtemp(prefix=f"bench_solver_{sha[:10]}_"))
+        sha, tmp = snapshot(args.commit)
         try:
-            archive = subprocess.run(["git", "archive", sha, "__init__.py", "solver", "store"], cwd=REPO,
-                                     capture_output=True, check=True).stdout
-            (tmp / "vertebra").mkdir()
-            subprocess.run(["tar", "-x", "-C", str(tmp / "vertebra")], input=archive, check=True)
             env = dict(os.environ, BENCH_SOLVER_ROOT=str(tmp), BENCH_SOLVER_SNAPSHOT=sha)
             rest = [a for a in (argv if argv is not None else sys.argv[1:])]
             i = rest.index("--commit")

@@ -18,8 +18,6 @@ tangent in these forms and factorises it (:mod:`vertebra.solver.banded`).
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass, field
-
 import numpy as np
 
 from vertebra.solver.banded import BandedFactor, factor_cholesky, factor_lu
@@ -185,16 +183,16 @@ class BandAssembler:
         return ab
 
 
-@dataclass
 class Tangent:
     """The tangent stiffness at one state: the links' tangents side by side (with the trailing
     zero) and, when cables or gravity act, their blocks in flat block storage. Its full block
     storage is assembled on first need (LU and shifted factors) and kept."""
 
-    assembler: BandAssembler
-    links: np.ndarray
-    extra: np.ndarray | None
-    _storage: np.ndarray | None = field(default=None, repr=False)
+    __slots__ = ("assembler", "links", "extra", "_storage")
+
+    def __init__(self, assembler: BandAssembler, links: np.ndarray, extra: np.ndarray | None):
+        self.assembler, self.links, self.extra = assembler, links, extra
+        self._storage = None
 
     def storage(self) -> np.ndarray:
         """Flat block storage of the whole tangent (read it through ``new_storage``'s view shape)."""

@@ -12,7 +12,7 @@ import numpy as np
 from scipy.linalg.lapack import dgbtrf, dgbtrs, dpbtrf, dpbtrs
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class BandedFactor:
     """A factorised band matrix of order ``n``: ``kind`` "cholesky" (``data`` = the lower band
     factor, ``kd`` subdiagonals) or "lu" (``data`` = LAPACK's general band LU, ``kd`` sub- and

@@ -83,7 +83,11 @@ def evaluate(trunk, state, load: LoadCase, memo) -> Evaluation:
         rotations = qmatrix(state.quaternions)
     else:
         rotations = None
-    total, w = link_response(trunk, links.xi, load.link_loads)
+    energies = trunk.links.energies
+    if len(energies) == 1:
+        total, w = energies[0].response(links.xi, load.link_loads[0])
+    else:
+        total, w = link_response(trunk, links.xi, load.link_loads)
     g_links = links.gradient(w)
     grad = np.zeros((x.shape[0], 6))
     grad[:-1] = g_links[:, :6]
@@ -110,10 +114,8 @@ def evaluate(trunk, state, load: LoadCase, memo) -> Evaluation:
 
 
 def link_response(trunk, xi: np.ndarray, link_loads: tuple) -> tuple[float, np.ndarray]:
-    """``(Σ ψ, w = ∂ψ/∂ξ (n, 6))`` over every link energy."""
+    """``(Σ ψ, w = ∂ψ/∂ξ (n, 6))`` over several link energies."""
     energies = trunk.links.energies
-    if len(energies) == 1:
-        return energies[0].response(xi, link_loads[0])
     w = np.empty_like(xi)
     total = 0.0
     for energy, prepared in zip(energies, link_loads):
@@ -149,7 +151,10 @@ def volume_growth(trunk, links: Links, pressures: np.ndarray) -> np.ndarray:
 
 def link_tangents(trunk, ev: Evaluation, out: np.ndarray) -> np.ndarray:
     """The links' tangents (n_links, 12, 12) into ``out``."""
-    return link_tangent(ev.links, ev.w, _per_link(trunk, ev, "material_tangent", (6, 6)), ev.link_gradient, out=out)
+    energies = trunk.links.energies
+    material = (energies[0].material_tangent(ev.links.xi, ev.load.link_loads[0], ev.w) if len(energies) == 1
+                else _per_link(trunk, ev, "material_tangent", (6, 6)))
+    return link_tangent(ev.links, ev.w, material, ev.link_gradient, out=out)
 
 
 def tangent(trunk, ev: Evaluation, memo) -> Tangent:

@@ -146,7 +146,10 @@ class Links:
         return (self.Zw @ y.mT).mT
 
     def gradient(self, w: np.ndarray) -> np.ndarray:
-        """Gradient (n, 12) on ``[a, b]`` of link energies with ``∂ψ/∂ξ = w``: ``Zw J_l⁻ᵀ w``."""
+        """Gradient on ``[a, b]`` of link energies with ``∂ψ/∂ξ = w``: ``Zw J_l⁻ᵀ w``, (n, 12) for
+        ``w`` (n, 6) or (n, m, 12) for (n, m, 6)."""
+        if w.ndim == 2:
+            return (self.Zw @ (w[:, None, :] @ self.Jl_inv).mT)[:, :, 0]
         return self.generalised_force(self.transport(w))
 
     def zeta(self, dq: np.ndarray) -> np.ndarray:

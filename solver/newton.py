@@ -83,29 +83,29 @@ def reference_force(trunk, actuation: np.ndarray, memo) -> float:
     return memo.reference_force(actuation, compute)
 
 
-@dataclass
 class _Stage:
     """One Newton run at a fixed load factor: its inputs and what it found."""
 
-    trunk: object
-    memo: object
-    load: LoadCase
-    tolerance: float
-    max_iterations: int
-    reference: float              # force scale at this load factor
-    history: list
-    kinds: set                    # factor kinds used, and "rounding-limited" / "unstable" flags
+    def __init__(self, trunk, memo, load: LoadCase, tolerance: float, max_iterations: int, reference: float,
+                 history: list, kinds: set):
+        self.trunk, self.memo, self.load = trunk, memo, load
+        self.tolerance, self.max_iterations = tolerance, max_iterations
+        self.reference = reference            # force scale at this load factor
+        self.history = history
+        self.kinds = kinds                    # factor kinds used, and "rounding-limited" / "unstable" flags
+        self.weights = residual_weights(trunk)
+        self._resolution = np.ones(6)         # per-DoF scale of a correction (translations: 1/extent)
 
     def norm(self, ev) -> float:
-        return residual_norm(self.trunk, ev.gradient[1:], self.reference)
+        return float(np.abs(ev.gradient[1:] * self.weights).max() / self.reference)
 
     def stable(self, ev, matrix=None) -> bool:
         return is_stable(self.trunk, ev, self.memo, matrix)
 
     def below_resolution(self, state: State, dq: np.ndarray) -> bool:
         """Is every translation below 1e-13 of the extent and every rotation below 1e-13 rad?"""
-        extent = self.trunk.frames.length_scale + float(np.abs(state.positions).max())
-        weights = np.array([1.0 / extent] * 3 + [1.0] * 3)
+        weights = self._resolution
+        weights[:3] = 1.0 / (self.trunk.frames.length_scale + float(np.abs(state.positions).max()))
         return float(np.abs(dq.reshape(-1, 6) * weights).max()) <= RESOLUTION
 
 
