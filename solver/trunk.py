@@ -193,14 +193,15 @@ def _compile_links(scene, entries):
                              f"{n_cavities[source_of_link[k]]} cavities; chamber {chamber.name!r} uses cavity "
                              f"{chamber.cavity}", file=scene.source, field=f"chamber[{j}].cavity")
         cavity[covered, j] = chamber.cavity
-        volumes = np.array([sources[s].cavity_volumes[chamber.cavity] for s in source_of_link[covered]])
-        rest_volumes[j] = np.cumsum(volumes)[-1]
+        volume = np.array([v.cavity_volumes[chamber.cavity] if v.cavity_volumes.size > chamber.cavity else 0.0
+                           for v in sources])
+        rest_volumes[j] = np.cumsum(volume[source_of_link[covered]])[-1]
     compiled = CompiledLinks(sources, rest, strain_map, source_of_link, cavity,
                              [f"segment[{i}]" for i in range(len(sources))], scene.source)
     energies = []
     for energy in dict.fromkeys(kind.energy for kind in kinds):
-        of_energy = np.array([kinds[s].energy is energy for s in source_of_link], bool)
-        energies.append(energy.compile(np.flatnonzero(of_energy), compiled))
+        made = [s for s, kind in enumerate(kinds) if kind.energy is energy]
+        energies.append(energy.compile(np.flatnonzero(np.isin(source_of_link, made)), compiled))
     links = LinkSet(rest[source_of_link], q0[source_of_link], d0[source_of_link], tuple(energies))
 
     # masses: each link's on its end frames by the lever rule along its axis, then the vertebrae's
