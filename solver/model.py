@@ -118,7 +118,8 @@ class TrunkModel:
         max(|force|, |moment| / length) over the frames relative to the rest pose's
         out-of-balance load under ``actuation``."""
         actuation = self.actuation(actuation)
-        return newton.residual_norm(self.trunk, residual, newton.reference_force(self.trunk, actuation, self.memo))
+        reference = newton.reference_force(self.trunk, actuation, self.memo)
+        return newton.residual_norm(residual, reference, newton.residual_weights(self.trunk))
 
     def step(self, state: State, dq: np.ndarray) -> State:
         """The state moved by ``dq`` (``[dx; dφ]`` per free frame, world axes; n_dof values) with

@@ -55,9 +55,10 @@ def residual_weights(trunk) -> np.ndarray:
     return np.array([1.0] * 3 + [1.0 / trunk.frames.length_scale] * 3)
 
 
-def residual_norm(trunk, residual: np.ndarray, reference: float) -> float:
-    """max(|force|, |moment| / length scale) / reference over the frames."""
-    return float(np.abs(residual.reshape(-1, 6) * residual_weights(trunk)).max() / reference)
+def residual_norm(residual: np.ndarray, reference: float, weights: np.ndarray) -> float:
+    """max(|force|, |moment| / length scale) / reference over the frames (``weights``:
+    :func:`residual_weights`)."""
+    return float(np.abs(residual.reshape(-1, 6) * weights).max() / reference)
 
 
 def _force_scale(trunk, gradient: np.ndarray) -> float:
@@ -97,7 +98,7 @@ class _Stage:
         self._resolution = np.ones(6)         # per-DoF scale of a correction (translations: 1/extent)
 
     def norm(self, ev) -> float:
-        return float(np.abs(ev.gradient[1:] * self.weights).max() / self.reference)
+        return residual_norm(ev.gradient[1:], self.reference, self.weights)
 
     def stable(self, ev, matrix=None) -> bool:
         return is_stable(self.trunk, ev, self.memo, matrix)

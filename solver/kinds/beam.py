@@ -11,26 +11,18 @@ import numpy as np
 
 from vertebra.solver.beam import timoshenko_compliance
 from vertebra.solver.kinds import LinkSource, register
-from vertebra.solver.kinds.quadratic import Compliance, QuadraticEnergy
+from vertebra.solver.kinds.quadratic import Compliance, QuadraticKind
 
 
-class BeamKind:
-    name = "beam"
-    priority = 0
-    energy = QuadraticEnergy
-
-    def claims(self, segment, entry) -> bool:
-        return segment.type == "beam"
-
-    def source(self, segment, entry) -> LinkSource:
-        length = segment.length / segment.elements
-        try:
-            C = timoshenko_compliance(length, segment.youngs_modulus, segment.shear_modulus, segment.section)
-        except (OverflowError, ZeroDivisionError):
-            C = np.full((6, 6), np.inf)          # refused by the energy's compile, naming the segment
-        return LinkSource(np.array([1.0, 0.0, 0.0, 0.0]), np.array([0.0, 0.0, length]),
-                          segment.density * segment.section.area * length, np.array([0.0, 0.0, 0.5 * length]),
-                          np.zeros(0), Compliance(C, np.zeros((6, 0)), np.zeros((0, 0))))
+def beam_link(segment, entry) -> LinkSource:
+    length = segment.length / segment.elements
+    try:
+        C = timoshenko_compliance(length, segment.youngs_modulus, segment.shear_modulus, segment.section)
+    except (OverflowError, ZeroDivisionError):
+        C = np.full((6, 6), np.inf)          # refused by the energy's compile, naming the segment
+    return LinkSource(np.array([1.0, 0.0, 0.0, 0.0]), np.array([0.0, 0.0, length]),
+                      segment.density * segment.section.area * length, np.array([0.0, 0.0, 0.5 * length]),
+                      np.zeros(0), Compliance(C, np.zeros((6, 0)), np.zeros((0, 0))))
 
 
-register(BeamKind())
+register(QuadraticKind("beam", "beam", beam_link))

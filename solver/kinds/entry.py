@@ -9,21 +9,13 @@ from __future__ import annotations
 import numpy as np
 
 from vertebra.solver.kinds import LinkSource, register
-from vertebra.solver.kinds.quadratic import Compliance, QuadraticEnergy
+from vertebra.solver.kinds.quadratic import Compliance, QuadraticKind
 
 
-class LinearEntryKind:
-    name = "linear-entry"
-    priority = 0
-    energy = QuadraticEnergy
-
-    def claims(self, segment, entry) -> bool:
-        return segment.type == "entry"
-
-    def source(self, segment, entry) -> LinkSource:
-        return LinkSource(np.asarray(entry.rest_quaternion, float), np.asarray(entry.rest_translation, float),
-                          float(entry.mass), np.asarray(entry.center_of_mass, float),
-                          np.asarray(entry.cavity_volumes, float), Compliance(entry.C, entry.G, entry.V))
+def entry_link(segment, entry) -> LinkSource:
+    return LinkSource(np.asarray(entry.rest_quaternion, float), np.asarray(entry.rest_translation, float),
+                      float(entry.mass), np.asarray(entry.center_of_mass, float),
+                      np.asarray(entry.cavity_volumes, float), Compliance(entry.C, entry.G, entry.V))
 
 
-register(LinearEntryKind())
+register(QuadraticKind("linear-entry", "entry", entry_link))

@@ -15,10 +15,11 @@ material tangent is ``K``, the chamber forces are ``K A G`` and the volume growt
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable, ClassVar
 
 import numpy as np
 
-from vertebra.solver.kinds import CompiledLinks
+from vertebra.solver.kinds import CompiledLinks, LinkSource
 
 
 @dataclass(frozen=True)
@@ -90,3 +91,21 @@ class QuadraticEnergy:
     def volume_growth(self, xi: np.ndarray, prepared: tuple, pressures: np.ndarray) -> np.ndarray:
         w = (self.stiffness @ (xi - prepared[0])[:, :, None])[:, :, 0]
         return np.einsum("nij,ni->j", self.pressure_strain, w) + self.volume_compliance @ pressures
+
+
+@dataclass(frozen=True)
+class QuadraticKind:
+    """A link kind whose links are quadratic: the segments of one scene ``type``, each link's
+    compliance and rest pose given by ``link(segment, entry)``."""
+
+    name: str
+    segment_type: str
+    link: Callable[..., LinkSource]
+    priority: int = 0
+    energy: ClassVar[type] = QuadraticEnergy
+
+    def claims(self, segment, entry) -> bool:
+        return segment.type == self.segment_type
+
+    def source(self, segment, entry) -> LinkSource:
+        return self.link(segment, entry)
