@@ -84,12 +84,13 @@ class TrunkModel:
 
     def actuation(self, actuation=None) -> np.ndarray:
         """``actuation`` as a float array of one value per actuator (None: the scene's values)."""
+        default = self.trunk.actuators.default
         if actuation is None:
-            return self.default_actuation.copy()
+            return default.copy()
         actuation = np.asarray(actuation, dtype=float).reshape(-1)
-        if actuation.shape != self.default_actuation.shape:
+        if actuation.shape != default.shape:
             raise ValueError(f"actuation has {actuation.size} values, the model has "
-                             f"{self.default_actuation.size} actuators ({', '.join(self.actuator_names)})")
+                             f"{default.size} actuators ({', '.join(self.actuator_names)})")
         return actuation
 
     # ------------------------------------------------------------------ solve
