@@ -22,9 +22,10 @@ from vertebra.solver.lie import hat, qmatrix
 from vertebra.solver.links import Links, link_tangent
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class LoadCase:
-    """What an actuation and a load factor make of the loads (computed once per Newton stage)."""
+    """What an actuation and a load factor make of the loads (computed once per Newton stage;
+    not modified once made)."""
 
     actuation: np.ndarray
     scale: float
@@ -38,10 +39,17 @@ class LoadCase:
     dead_forces: np.ndarray | None        # (n_frames, 3), contiguous
 
     @classmethod
-    def of(cls, trunk, actuation: np.ndarray, scale: float) -> "LoadCase":
+    def of(cls, trunk, actuation: np.ndarray, scale: float, previous: "LoadCase | None" = None) -> "LoadCase":
+        """The load case of ``actuation`` at load factor ``scale``; the weight and dead loads of a
+        ``previous`` case at the same factor are taken as they are."""
         n_cables = trunk.actuators.n_cables
         tensions = scale * actuation[:n_cables]
         pressures = scale * actuation[n_cables:]
+        link_loads = tuple(e.prepare(pressures) for e in trunk.links.energies)
+        piece_tension = tensions[trunk.cables.owner] if n_cables and np.any(tensions) else None
+        if previous is not None and previous.scale == scale:
+            return cls(actuation, scale, pressures, link_loads, piece_tension, previous.weight, previous.weight_hat,
+                       previous.frame_weight, previous.dead, previous.dead_forces)
         loads = trunk.loads
         weight = weight_hat = frame_weight = dead = dead_forces = None
         if loads.has_gravity:
@@ -51,9 +59,8 @@ class LoadCase:
         if loads.has_dead_forces or loads.has_dead_moments:
             dead = scale * loads.dead
             dead_forces = np.ascontiguousarray(dead[:, :3])
-        return cls(actuation, scale, pressures, tuple(e.prepare(pressures) for e in trunk.links.energies),
-                   tensions[trunk.cables.owner] if n_cables and np.any(tensions) else None,
-                   weight, weight_hat, frame_weight, dead, dead_forces)
+        return cls(actuation, scale, pressures, link_loads, piece_tension, weight, weight_hat, frame_weight,
+                   dead, dead_forces)
 
 
 @dataclass(slots=True)

@@ -6,13 +6,15 @@
   are not remembered.
 * The links' tangent at the unstressed rest state (a model constant).
 * The load case of the last (actuation, load factor) and the reference force of the last
-  actuation: repeated solves and linearisations at one actuation compute them once.
+  actuation: repeated solves and linearisations at one actuation compute them once, and a new
+  actuation at the same load factor (a control loop's) keeps the weight and dead loads.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from vertebra.solver.energy import LoadCase
 from vertebra.solver.links import Links
 
 
@@ -20,6 +22,7 @@ class Memo:
     """The remembered values of one compiled trunk (see the module docstring)."""
 
     def __init__(self, trunk):
+        self._trunk = trunk
         self._rest_record = trunk.rest_state.strains
         self._rest_links = None
         self._last = (None, None)
@@ -48,12 +51,12 @@ class Memo:
             self._unstressed = compute()
         return self._unstressed
 
-    def load_case(self, actuation: np.ndarray, scale: float, compute):
-        """The load case of ``(actuation, scale)`` (``compute()`` when it is not the last one)."""
+    def load_case(self, actuation: np.ndarray, scale: float) -> LoadCase:
+        """The load case of ``actuation`` at load factor ``scale``."""
         key = actuation.tobytes()
         last_key, last_scale, load = self._load
         if last_key != key or last_scale != scale:
-            load = compute()
+            load = LoadCase.of(self._trunk, actuation, scale, load)
             self._load = (key, scale, load)
         return load
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from vertebra.solver import newton, outputs
-from vertebra.solver.energy import Evaluation, LoadCase, evaluate
+from vertebra.solver.energy import Evaluation, evaluate
 from vertebra.solver.memo import Memo
 from vertebra.solver.newton import StaticResult
 from vertebra.solver.outputs import Linearisation
@@ -111,7 +111,7 @@ class TrunkModel:
         """Total potential and gradient at ``state`` under ``scale`` × the actuation and loads
         (:func:`vertebra.solver.energy.evaluate`)."""
         actuation = self.actuation(actuation)
-        load = self.memo.load_case(actuation, scale, lambda: LoadCase.of(self.trunk, actuation, scale))
+        load = self.memo.load_case(actuation, scale)
         return evaluate(self.trunk, state, load, self.memo)
 
     def residual_norm(self, residual: np.ndarray, actuation=None) -> float:

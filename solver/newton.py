@@ -79,7 +79,7 @@ def is_stable(trunk, ev, memo, matrix=None) -> bool:
 def reference_force(trunk, actuation: np.ndarray, memo) -> float:
     """Force scale of the problem: the out-of-balance load at the rest pose under the full load."""
     def compute():
-        load = memo.load_case(actuation, 1.0, lambda: LoadCase.of(trunk, actuation, 1.0))
+        load = memo.load_case(actuation, 1.0)
         return _force_scale(trunk, evaluate(trunk, trunk.rest_state, load, memo).gradient)
     return memo.reference_force(actuation, compute)
 
@@ -191,7 +191,7 @@ def solve(trunk, memo, actuation: np.ndarray, initial: State | None, *, toleranc
     if reference == 0.0:
         # nothing loads the rest pose: the start is the answer when it is in balance, else its
         # own out-of-balance force sets the scale
-        load = memo.load_case(actuation, 1.0, lambda: LoadCase.of(trunk, actuation, 1.0))
+        load = memo.load_case(actuation, 1.0)
         gradient = evaluate(trunk, state, load, memo).gradient
         if not np.any(gradient[1:]):
             return StaticResult(True, 0, 0.0, state, actuation, [0.0], 1, "none",
@@ -207,7 +207,7 @@ def solve(trunk, memo, actuation: np.ndarray, initial: State | None, *, toleranc
     residual = math.inf
     while True:
         target = min(1.0, scale + increment)
-        load = memo.load_case(actuation, target, lambda: LoadCase.of(trunk, actuation, target))
+        load = memo.load_case(actuation, target)
         stage = _Stage(trunk, memo, load, tolerance if target >= 1.0 else max(tolerance, 1e-6), max_iterations,
                        reference * max(target, 1e-300), history, kinds)
         ok, state_new, its, residual = _newton(stage, last_good)

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vertebra.solver.energy import LoadCase, chamber_forces, evaluate, tangent, volume_growth
+from vertebra.solver.energy import chamber_forces, evaluate, tangent, volume_growth
 from vertebra.solver.lie import hat, qmatrix, qrotate
 from vertebra.store.errors import ConvergenceError
 
@@ -74,7 +74,7 @@ def actuator_displacements(trunk, state, actuation: np.ndarray, memo, *, links=N
 
 def linearise(trunk, state, actuation: np.ndarray, memo) -> Linearisation:
     """Tangent stiffness factor, actuator and effector Jacobians at ``state`` under ``actuation``."""
-    load = memo.load_case(actuation, 1.0, lambda: LoadCase.of(trunk, actuation, 1.0))
+    load = memo.load_case(actuation, 1.0)
     ev = evaluate(trunk, state, load, memo)
     matrix = tangent(trunk, ev, memo)
     for shift in LINEARISATION_SHIFTS:
