@@ -1,4 +1,4 @@
-"""``vertebra invert SCENE [--trajectory FILE.csv] [--json] [--plot FILE.png] [--mode converged|tick]``
+"""``vertebra invert SCENE [--trajectory FILE.csv] [--json] [--plot FILE.png] [--mode converged|tick] [--prepare]``
 
 Actuation that brings the scene's effectors to their targets (or along a trajectory). Each
 step is reported at the equilibrium its actuation reaches (``InverseController.settled``).
@@ -11,6 +11,8 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+
+from vertebra.cli.prepare import add_preparation, prepared_scene
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -27,6 +29,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="effector error counted as reached, m (default 1e-6 converged, 1e-3 tick)")
     parser.add_argument("--regularisation", type=float, default=None,
                         help="dimensionless actuation-energy weight ε (default 1e-8)")
+    add_preparation(parser)
 
 
 def _log(message: str) -> None:
@@ -42,7 +45,9 @@ def run(args) -> int:
     options = {key: value for key, value in (("backend", args.backend), ("tolerance", args.tolerance),
                                              ("regularisation", args.regularisation)) if value is not None}
     settings = InverseSettings(mode=args.mode, **options)
-    scene = solver.load_scene(args.scene)
+    scene, code = prepared_scene(args)
+    if code:
+        return code
     model = solver.build_model(scene)
     controller = InverseController(model, settings, actuation=model.default_actuation)
     trajectory = (read_trajectory(args.trajectory, model.effector_names, model.effector_targets)

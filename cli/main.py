@@ -20,6 +20,7 @@ SUBCOMMANDS = {
     "invert": ("vertebra.cli.invert", "actuation that brings effectors to targets"),
     "design": ("vertebra.cli.design", "mesh, solve and condense one segment into the catalogue"),
     "sweep": ("vertebra.cli.sweep", "design-space sweep into the catalogue"),
+    "prepare": ("vertebra.cli.prepare", "design only the entries a scene's design segments miss"),
     "catalogue": ("vertebra.cli.catalogue", "list, show, verify, merge, export catalogue entries"),
     "demo": ("vertebra.cli.demo", "the main job on an embedded default, end to end"),
 }

@@ -1,9 +1,11 @@
-"""``vertebra simulate SCENE [--json] [--plot FILE.png] [--vtk FILE]``: forward statics."""
+"""``vertebra simulate SCENE [--json] [--plot FILE.png] [--vtk FILE] [--prepare]``: forward statics."""
 
 from __future__ import annotations
 
 import json
 import sys
+
+from vertebra.cli.prepare import add_preparation, prepared_scene
 
 
 def add_arguments(parser):
@@ -11,6 +13,7 @@ def add_arguments(parser):
     parser.add_argument("--json", action="store_true", help="print one JSON document on stdout")
     parser.add_argument("--plot", metavar="FILE.png", help="write a picture of the equilibrium")
     parser.add_argument("--vtk", metavar="FILE", help="write backbone and cables for ParaView (.vtu)")
+    add_preparation(parser)
 
 
 def run(args) -> int:
@@ -18,7 +21,9 @@ def run(args) -> int:
     from vertebra.solver.report import plot_static, static_report, write_vtk
     from vertebra.store.errors import ConvergenceError
 
-    scene = solver.load_scene(args.scene)
+    scene, code = prepared_scene(args)
+    if code:
+        return code
     model = solver.build_model(scene)
     try:
         result = model.solve()

@@ -7,6 +7,8 @@ Public API (DESIGN.md §1, §2)::
     designer.entry_key(family, parameters, mesh_size=None, order=2)   # content key without meshing
     designer.design_segment(family, parameters, ...)   # -> store.entry.SegmentEntry
     designer.vertebra_properties(parameters)           # rigid vertebra disc: mass, centre of mass, inertia
+    designer.prepare(scene, catalogue=None, ...)       # -> (resolved scene, PrepareReport): design what a
+                                                       #    scene's design segments miss (docs/prepare.md)
 
 Heavy imports (gmsh, scikit-fem, pyamg, meshio) happen inside the functions.
 """
@@ -14,9 +16,11 @@ Heavy imports (gmsh, scikit-fem, pyamg, meshio) happen inside the functions.
 from vertebra.designer.families import FAMILIES, Family, Parameter, register_family
 from vertebra.designer.segment import canonical_parameters, design_segment, entry_key, resolve_mesh_size
 from vertebra.designer.vertebra import VERTEBRA_PARAMETERS, vertebra_properties, vertebra_snippet
+from vertebra.designer.prepare import PrepareReport, prepare
 
 __all__ = [
     "FAMILIES", "Family", "Parameter", "register_family",
     "canonical_parameters", "entry_key", "design_segment", "resolve_mesh_size",
     "VERTEBRA_PARAMETERS", "vertebra_properties", "vertebra_snippet",
+    "PrepareReport", "prepare",
 ]

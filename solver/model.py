@@ -30,7 +30,9 @@ __all__ = ["Linearisation", "State", "StaticResult", "StrainRecord", "TrunkModel
 
 def build_model(scene, entries: dict | None = None) -> "TrunkModel":
     """Compile a scene. ``entries`` maps entry names to ``SegmentEntry`` objects; when
-    omitted, the entries the scene names (and only those) are read from its catalogue."""
+    omitted, the entries the scene names (and only those) are read from its catalogue. A scene
+    whose design segments are not resolved to entries yet is a SceneError (``vertebra prepare``)."""
+    scene.check_resolved()
     needed = sorted({s.entry for s in scene.segments if s.type == "entry"})
     entries = dict(entries or {})
     missing = [name for name in needed if name not in entries]

@@ -3,7 +3,8 @@
 Every table is read through :class:`Table`, which consumes the fields it knows and
 raises :class:`SceneError` naming the file, the dotted field and the reason for unknown
 fields, wrong types and impossible values. A valid :class:`Scene` is immutable and holds
-SI values only (degrees are converted where a field name says ``_deg``).
+SI values only (degrees are converted where a field name says ``_deg``). The ``[[segment]]``
+tables are read by :mod:`vertebra.solver.segments` (beams, catalogue entries, designs).
 """
 
 from __future__ import annotations
@@ -15,11 +16,14 @@ from pathlib import Path
 
 import numpy as np
 
-from vertebra.solver.beam import Section
+from vertebra.solver.segments import (DESIGN_MATERIALS, SEGMENT_TYPES, DesignSpec, SegmentSpec, VertebraSpec,
+                                      parse_segment)
 from vertebra.solver.tables import Table
 from vertebra.store.errors import SceneError
 
-SEGMENT_TYPES = ("beam", "entry")
+__all__ = ["CableSpec", "ChamberSpec", "DESIGN_MATERIALS", "DesignSpec", "EffectorSpec", "LoadSpec", "SEGMENT_TYPES",
+           "Scene", "SegmentSpec", "SolverSettings", "VertebraSpec", "gallery_names", "gallery_path", "load_scene",
+           "parse_scene", "scene_toml"]
 MAX_LINKS = 200_000          # links in one scene (tested up to 10,000; compile time ~ 10 µs per link)
 
 
@@ -28,28 +32,6 @@ class SolverSettings:
     tolerance: float = 1e-9
     max_iterations: int = 100
     load_steps: int = 1
-
-
-@dataclass(frozen=True)
-class VertebraSpec:
-    mass: float = 0.0
-    center_of_mass: tuple = (0.0, 0.0, 0.0)   # in the vertebra's frame
-
-
-@dataclass(frozen=True)
-class SegmentSpec:
-    type: str
-    count: int
-    vertebra: VertebraSpec
-    elements: int = 1
-    # beam
-    length: float = 0.0
-    youngs_modulus: float = 0.0
-    shear_modulus: float = 0.0
-    section: Section | None = None
-    density: float = 0.0
-    # entry
-    entry: str = ""
 
 
 @dataclass(frozen=True)
@@ -120,6 +102,20 @@ class Scene:
     @property
     def n_vertebrae(self) -> int:
         return 1 + sum(s.count for s in self.segments)
+
+    @property
+    def design_segments(self) -> tuple[int, ...]:
+        """Indices of the segments given by their design (resolved or not)."""
+        return tuple(i for i, s in enumerate(self.segments) if s.design is not None)
+
+    def check_resolved(self) -> None:
+        """Raise :class:`SceneError` naming the first design segment that has no entry yet."""
+        for i, segment in enumerate(self.segments):
+            if not segment.resolved:
+                raise SceneError(f"a design segment (family {segment.design.family!r}) has no catalogue entry yet: "
+                                 f"run `vertebra prepare {self.source}` (or pass --prepare; from Python: "
+                                 "vertebra.designer.prepare) to design the missing entries", file=self.source,
+                                 field=f"segment[{i}]")
 
 
 GALLERY = Path(__file__).with_name("gallery")     # the gallery's scenes: <name>.toml
@@ -196,7 +192,7 @@ def parse_scene(data: dict, source: str = "<dict>", base_dir=".") -> Scene:
     segment_tables = top.tables("segment")
     if not segment_tables:
         raise SceneError("a scene needs at least one [[segment]]", file=source, field="segment")
-    segments = tuple(_parse_segment(t) for t in segment_tables)
+    segments = tuple(parse_segment(t) for t in segment_tables)
     n_links = sum(s.count * s.elements for s in segments)
     if n_links > MAX_LINKS:
         raise SceneError(f"the scene would have {n_links} links (count × elements over all segments); "
@@ -292,76 +288,6 @@ def _unit(t: Table, key: str, vector):
     if not norm > 0.0:
         raise t.error(key, "a direction must not be the zero vector")
     return tuple(v / norm for v in vector)
-
-
-def _parse_vertebra(t: Table) -> VertebraSpec:
-    spec = VertebraSpec(mass=t.number("mass", 0.0, nonneg=True),
-                        center_of_mass=t.vector("center_of_mass", 3, (0.0, 0.0, 0.0)))
-    inertia = t.raw("inertia")  # accepted for completeness (statics does not need it)
-    if inertia is not None and not (isinstance(inertia, list) and len(inertia) in (3, 9) and all(
-            not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v) for v in inertia)):
-        raise t.error("inertia", f"expected 3 principal moments or 9 matrix entries (finite numbers), got {inertia!r}")
-    t.done()
-    return spec
-
-
-def _parse_section(t: Table, poisson_ratio: float) -> Section:
-    shape = t.string("shape", None, choices=("circle", "tube"))
-    try:
-        if shape == "circle":
-            section = Section.circle(t.number("radius", required=True, positive=True), poisson_ratio)
-        elif shape == "tube":
-            outer = t.number("outer_radius", required=True, positive=True)
-            inner = t.number("inner_radius", required=True, nonneg=True)
-            if inner >= outer:
-                raise t.error("inner_radius", f"{inner} must be smaller than outer_radius {outer}")
-            section = Section.tube(outer, inner, poisson_ratio)
-        else:
-            area = t.number("area", required=True, positive=True)
-            shear = t.number("shear_area", math.inf, positive=True)
-            section = Section(area=area, Ixx=t.number("Ixx", required=True, positive=True),
-                              Iyy=t.number("Iyy", required=True, positive=True),
-                              J=t.number("J", required=True, positive=True),
-                              shear_area_x=t.number("shear_area_x", shear, positive=True),
-                              shear_area_y=t.number("shear_area_y", shear, positive=True))
-    except (ValueError, OverflowError) as error:
-        raise SceneError(str(error), file=t.source, field=t.path)
-    t.done()
-    return section
-
-
-def _parse_segment(t: Table) -> SegmentSpec:
-    kind = t.string("type", required=True, choices=SEGMENT_TYPES)
-    count = t.number("count", 1, integer=True, positive=True)
-    elements = t.number("elements", 1, integer=True, positive=True)
-    vertebra = _parse_vertebra(t.table("vertebra"))
-    if kind == "entry":
-        entry = t.string("entry", required=True)
-        if elements != 1:
-            raise t.error("elements", "a catalogue entry is condensed onto two frames: elements must be 1")
-        t.done()
-        return SegmentSpec(type=kind, count=count, vertebra=vertebra, entry=entry)
-    length = t.number("length", required=True, positive=True)
-    E = t.number("youngs_modulus", required=True, positive=True)
-    if t.has("poisson_ratio") and t.has("shear_modulus"):
-        raise t.error("shear_modulus", "give poisson_ratio or shear_modulus, not both")
-    if t.has("shear_modulus"):
-        G = t.number("shear_modulus", positive=True)
-        nu = E / (2 * G) - 1.0
-        if not -1.0 < nu < 0.5:
-            raise t.error("shear_modulus", f"implies a Poisson ratio E/(2G) − 1 = {nu:.4g} outside (-1, 0.5)")
-    else:
-        nu = t.number("poisson_ratio", 0.3)
-        if not -1.0 < nu < 0.5:
-            raise t.error("poisson_ratio", f"must lie in (-1, 0.5), got {nu}")
-        G = E / (2 * (1 + nu))
-    section = _parse_section(t.table("section"), nu)
-    if not t.has("section"):
-        raise t.error("section", "required field is missing")
-    density = t.number("density", 0.0, nonneg=True)
-    t.done()
-    return SegmentSpec(type=kind, count=count, vertebra=vertebra, elements=elements, length=length,
-                       youngs_modulus=E, shear_modulus=G, section=section, density=density)
 
 
 def _toml_value(value) -> str:

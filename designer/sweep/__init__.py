@@ -15,27 +15,33 @@ sampler — ``[grid]``, ``[[list]]`` or ``[lhs]`` — that expands into tasks. R
    batches and appends failures to a JSON-lines log next to the catalogue (``report``)
    (:func:`run_sweep` returns a :class:`SweepReport`).
 
+The plan and the run work on a :class:`Batch` of tasks: a sweep's (:func:`sweep_batch`) or a
+scene's design segments (``designer.prepare``), through the same :func:`plan_batch` and
+:func:`run_plan`.
+
 The designer and the store are Protocols: real sweeps use :class:`FiniteElementDesigner`
 and :class:`CatalogueStore` (HDF5); tests and benchmarks plug in cheap ones.
 """
 
-from vertebra.designer.sweep.plan import SweepPlan, plan_sweep
+from vertebra.designer.sweep.plan import SweepPlan, plan_batch, plan_sweep
 from vertebra.designer.sweep.report import (FAILURE_LOG_SUFFIX, FAILURE_LOG_VERSION, SweepReport, TaskFailure,
                                             append_failures, failure_log_path)
-from vertebra.designer.sweep.run import MERGE_EVERY, run_sweep
+from vertebra.designer.sweep.run import MERGE_EVERY, run_plan, run_sweep
 from vertebra.designer.sweep.samplers import SAMPLERS, LatinHypercube, Sampler, latin_hypercube_unit
-from vertebra.designer.sweep.spec import DESIGN_OPTIONS, DesignOption, SweepSpec, load_spec, parse_spec
+from vertebra.designer.sweep.spec import (DESIGN_OPTIONS, DesignOption, SweepSpec, design_options, keyed_options,
+                                          load_spec, parse_spec)
 from vertebra.designer.sweep.store import CatalogueStore, SweepStore
-from vertebra.designer.sweep.tasks import FiniteElementDesigner, SegmentDesigner, Task, expand, format_name
+from vertebra.designer.sweep.tasks import (Batch, FiniteElementDesigner, SegmentDesigner, Task, expand, format_name,
+                                           sweep_batch)
 from vertebra.designer.sweep.worker import TaskOutcome, execute_task
 
 __all__ = [
-    "SweepSpec", "DesignOption", "DESIGN_OPTIONS", "load_spec", "parse_spec",
+    "SweepSpec", "DesignOption", "DESIGN_OPTIONS", "design_options", "keyed_options", "load_spec", "parse_spec",
     "Sampler", "SAMPLERS", "LatinHypercube", "latin_hypercube_unit",
-    "Task", "expand", "format_name", "SegmentDesigner", "FiniteElementDesigner",
+    "Task", "Batch", "expand", "sweep_batch", "format_name", "SegmentDesigner", "FiniteElementDesigner",
     "SweepStore", "CatalogueStore",
-    "SweepPlan", "plan_sweep",
+    "SweepPlan", "plan_batch", "plan_sweep",
     "TaskOutcome", "execute_task",
     "TaskFailure", "SweepReport", "failure_log_path", "append_failures", "FAILURE_LOG_SUFFIX", "FAILURE_LOG_VERSION",
-    "MERGE_EVERY", "run_sweep",
+    "MERGE_EVERY", "run_plan", "run_sweep",
 ]

@@ -1,4 +1,4 @@
-"""Planning a sweep: every task validated and keyed before any meshing.
+"""Planning a batch of tasks (a sweep's, a scene's): every task validated and keyed before any meshing.
 
 Each task's parameters go through the designer's ``canonical`` (invalid ones become
 failures at stage ``validate``), get their entry name and their content key (stage
@@ -16,8 +16,8 @@ from typing import Callable
 from vertebra.designer.sweep.report import TaskFailure
 from vertebra.designer.sweep.spec import SweepSpec
 from vertebra.designer.sweep.store import CatalogueStore, SweepStore
-from vertebra.designer.sweep.tasks import FiniteElementDesigner, SegmentDesigner, Task, expand, format_name
-from vertebra.store.errors import SpecError, VertebraError
+from vertebra.designer.sweep.tasks import Batch, FiniteElementDesigner, SegmentDesigner, Task, sweep_batch
+from vertebra.store.errors import CatalogueError, SpecError, VertebraError
 
 #: what a designer may raise for one task's parameters; the task fails, the sweep goes on
 TASK_ERRORS = (VertebraError, ValueError, TypeError, KeyError)
@@ -25,11 +25,12 @@ TASK_ERRORS = (VertebraError, ValueError, TypeError, KeyError)
 
 @dataclass(frozen=True)
 class SweepPlan:
-    """The spec's tasks sorted out before any meshing."""
+    """A batch's tasks sorted out before any meshing."""
 
-    spec: SweepSpec
+    batch: Batch
     catalogue: str                    # as given (logs and reports)
     store: SweepStore                 # the catalogue at its absolute path (workers)
+    designer: SegmentDesigner         # designs the tasks to run (workers)
     tasks: tuple                      # every task, planned (canonical parameters, key, name)
     todo: tuple                       # tasks to run
     skipped: tuple                    # tasks whose key is already in the catalogue
@@ -42,41 +43,45 @@ def _json_ready(parameters: dict) -> dict:
     return json.loads(json.dumps(parameters, default=str))
 
 
-def _check_family(spec: SweepSpec, designer: SegmentDesigner) -> None:
+def check_family(spec: SweepSpec, designer: SegmentDesigner) -> None:
     families = designer.families()
     if families is not None and spec.family not in families:
         raise SpecError(f"unknown family {spec.family!r}; known: {', '.join(sorted(families))}",
                         file=spec.source, field="family")
 
 
-def _prepare(spec: SweepSpec, designer: SegmentDesigner, raw: Task) -> Task | TaskFailure:
+def _plan_task(batch: Batch, designer: SegmentDesigner, raw: Task) -> Task | TaskFailure:
     """The task with canonical parameters, name and key, or the failure that stopped it."""
     task = replace(raw, parameters=_json_ready(raw.parameters))
     try:
         task = replace(task, parameters=dict(designer.canonical(task.family, task.parameters)))
     except TASK_ERRORS as error:
         return TaskFailure.of(task, "validate", error)
-    task = replace(task, name=format_name(spec, task))
+    if batch.names is not None:
+        task = replace(task, name=batch.names(task))
     try:
         return replace(task, key=designer.key(task))
     except TASK_ERRORS as error:
         return TaskFailure.of(task, "key", error)
 
 
-def plan_sweep(spec: SweepSpec, catalogue, *, store: Callable[[str], SweepStore] = CatalogueStore,
+def plan_batch(batch: Batch, catalogue, *, store: Callable[[str], SweepStore] = CatalogueStore,
                designer: SegmentDesigner = FiniteElementDesigner()) -> SweepPlan:
     """Validate every task, compute its key, and sort tasks into todo/skipped/duplicate/invalid.
 
-    ``store`` builds the catalogue's :class:`SweepStore` from its absolute path.
+    ``store`` builds the catalogue's :class:`SweepStore` from its absolute path. Raises
+    CatalogueError when the catalogue's directory does not exist.
     """
-    _check_family(spec, designer)
     catalogue = str(catalogue)
+    directory = os.path.dirname(os.path.abspath(catalogue))
+    if not os.path.isdir(directory):
+        raise CatalogueError(f"{catalogue}: directory {directory} does not exist")
     held = store(os.path.abspath(catalogue))
     known = held.keys()
     tasks, todo, skipped, duplicates, invalid = [], [], [], [], []
     first_with_key: dict[str, int] = {}
-    for raw in expand(spec):
-        task = _prepare(spec, designer, raw)
+    for raw in batch.tasks:
+        task = _plan_task(batch, designer, raw)
         if isinstance(task, TaskFailure):
             tasks.append(task.task)
             invalid.append(task)
@@ -88,5 +93,12 @@ def plan_sweep(spec: SweepSpec, catalogue, *, store: Callable[[str], SweepStore]
         first_with_key[task.key] = task.index
         in_catalogue = task.key in known if known is not None else held.has(task.key)
         (skipped if in_catalogue else todo).append(task)
-    return SweepPlan(spec, catalogue, held, tuple(tasks), tuple(todo), tuple(skipped), tuple(duplicates),
+    return SweepPlan(batch, catalogue, held, designer, tuple(tasks), tuple(todo), tuple(skipped), tuple(duplicates),
                      tuple(invalid))
+
+
+def plan_sweep(spec: SweepSpec, catalogue, *, store: Callable[[str], SweepStore] = CatalogueStore,
+               designer: SegmentDesigner = FiniteElementDesigner()) -> SweepPlan:
+    """Plan a sweep spec's tasks (:func:`plan_batch`); an unknown family is a SpecError."""
+    check_family(spec, designer)
+    return plan_batch(sweep_batch(spec), catalogue, store=store, designer=designer)

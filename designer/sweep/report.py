@@ -1,4 +1,4 @@
-"""What a sweep reports: failed tasks, the failure log and the summary of a run.
+"""What a run reports: failed tasks, the failure log and the summary of a run.
 
 Failures are appended, as they happen, to a JSON-lines log next to the catalogue
 (``<catalogue>.failures.jsonl``, one object per failed task, under a file lock so several
@@ -14,8 +14,7 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
-from vertebra.designer.sweep.spec import SweepSpec
-from vertebra.designer.sweep.tasks import Task
+from vertebra.designer.sweep.tasks import Batch, Task
 
 FAILURE_LOG_VERSION = 1
 FAILURE_LOG_SUFFIX = ".failures.jsonl"
@@ -40,11 +39,12 @@ class TaskFailure:
     def index(self) -> int:
         return self.task.index
 
-    def record(self, spec: SweepSpec, catalogue: str) -> dict:
+    def record(self, batch: Batch, catalogue: str) -> dict:
+        """The failure log's line; ``batch.origin`` names its source field (``sweep``, ``scene``)."""
         task = self.task
         return {"version": FAILURE_LOG_VERSION,
                 "time": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-                "sweep": spec.source, "catalogue": str(catalogue),
+                batch.origin: batch.source, "catalogue": str(catalogue),
                 "index": task.index, "key": task.key, "family": task.family, "name": task.name,
                 "parameters": task.parameters, **task.key_options,
                 "stage": self.stage, "error_type": self.error_type, "message": self.message,
@@ -73,9 +73,10 @@ def append_failures(path: Path, records: list[dict]) -> None:
 
 @dataclass(frozen=True)
 class SweepReport:
-    """What a sweep did. ``exit_code`` is 1 when any task failed, 0 otherwise."""
+    """What a run of a batch (a sweep, a scene's designs) did. ``exit_code`` is 1 when any task
+    failed, 0 otherwise."""
 
-    spec: SweepSpec
+    batch: Batch
     catalogue: str
     executor: dict
     tasks: tuple
@@ -128,7 +129,7 @@ class SweepReport:
 
     def to_json(self) -> dict:
         return {
-            "spec": self.spec.source, "family": self.spec.family, "sampler": self.spec.sampler,
+            **self.batch.describe,
             "catalogue": self.catalogue, "executor": self.executor, "dry_run": self.dry_run,
             "tasks": len(self.tasks), "completed": len(self.completed), "skipped": len(self.skipped),
             "duplicates": len(self.duplicates), "failed": len(self.failures),
@@ -141,8 +142,8 @@ class SweepReport:
         }
 
     def summary(self) -> str:
-        head = "dry run" if self.dry_run else "sweep"
-        lines = [f"{head} {self.spec.source}: {len(self.tasks)} tasks, "
+        head = "dry run" if self.dry_run else self.batch.origin
+        lines = [f"{head} {self.batch.source}: {len(self.tasks)} tasks, "
                  + (f"{len(self.todo)} to run, " if self.dry_run else f"{len(self.completed)} done, ")
                  + f"{len(self.skipped)} already in {self.catalogue}, {len(self.duplicates)} duplicates, "
                  f"{len(self.failures)} failed"]

@@ -1,4 +1,7 @@
-"""The run loop: plan, hand the tasks to an executor, collect outcomes, merge, report.
+"""The run loop: hand a plan's tasks to an executor, collect outcomes, merge, report.
+
+One loop for every batch of tasks: a sweep (:func:`run_sweep`) and the design segments of a
+scene (``designer.prepare``) both come here through :func:`run_plan`.
 
 Workers commit their own entries; the parent tracks outcomes, shows a progress bar
 (tqdm, on stderr), appends each failure to the failure log as it happens, and merges the
@@ -16,13 +19,12 @@ from functools import partial
 from typing import Callable
 
 from vertebra.designer.executors import Crash, make_executor
-from vertebra.designer.sweep.plan import plan_sweep
+from vertebra.designer.sweep.plan import SweepPlan, plan_sweep
 from vertebra.designer.sweep.report import SweepReport, TaskFailure, append_failures, failure_log_path
 from vertebra.designer.sweep.spec import SweepSpec, load_spec
 from vertebra.designer.sweep.store import CatalogueStore, SweepStore
 from vertebra.designer.sweep.tasks import FiniteElementDesigner, SegmentDesigner, Task
 from vertebra.designer.sweep.worker import TaskOutcome, execute_task
-from vertebra.store.errors import CatalogueError
 
 MERGE_EVERY = 25                      # entries between two merges of the committed entries
 
@@ -41,7 +43,7 @@ def _merge(store: SweepStore, catalogue: str) -> None:
     try:
         store.consolidate()
     except Exception as error:   # noqa: BLE001 - entries are safe as committed whatever happened
-        print(f"sweep: merging shards into {catalogue} failed ({type(error).__name__}: {error}); "
+        print(f"merging shards into {catalogue} failed ({type(error).__name__}: {error}); "
               "entries stay committed as shards", file=sys.stderr)
 
 
@@ -60,27 +62,35 @@ def run_sweep(spec: SweepSpec | str | os.PathLike, catalogue, *, executor: str =
     start = time.perf_counter()
     if not isinstance(spec, SweepSpec):
         spec = load_spec(spec)
-    catalogue = str(catalogue)
-    directory = os.path.dirname(os.path.abspath(catalogue))
-    if not os.path.isdir(directory):
-        raise CatalogueError(f"{catalogue}: directory {directory} does not exist")
     plan = plan_sweep(spec, catalogue, store=store, designer=designer)
+    return run_plan(plan, executor=executor, workers=workers, scheduler=scheduler, start_method=start_method,
+                    progress=progress, dry_run=dry_run, started=start)
+
+
+def run_plan(plan: SweepPlan, *, executor: str = "local", workers: int | None = None, scheduler: str | None = None,
+             start_method: str = "spawn", progress: bool = True, dry_run: bool = False,
+             started: float | None = None) -> SweepReport:
+    """Design a plan's tasks to run on an executor; failures are isolated, logged and counted,
+    never raised. OptionError for bad executor settings (before any work). ``started``: the
+    ``time.perf_counter()`` the report's elapsed time counts from (default: now)."""
+    start = time.perf_counter() if started is None else started
+    batch, catalogue = plan.batch, plan.catalogue
     pool = make_executor(executor, workers=workers, scheduler=scheduler, start_method=start_method)
     failures, completed, interrupted = list(plan.invalid), [], False
     if dry_run:
-        return SweepReport(spec, catalogue, pool.describe(), plan.tasks, (), plan.skipped, plan.duplicates,
+        return SweepReport(batch, catalogue, pool.describe(), plan.tasks, (), plan.skipped, plan.duplicates,
                            tuple(failures), time.perf_counter() - start, dry_run=True, todo=plan.todo)
     log_path = failure_log_path(catalogue)
-    append_failures(log_path, [f.record(spec, catalogue) for f in plan.invalid])
+    append_failures(log_path, [f.record(batch, catalogue) for f in plan.invalid])
     if plan.todo:
         from tqdm import tqdm
 
         by_index = {task.index: task for task in plan.todo}
-        bar = tqdm(total=len(plan.todo), file=sys.stderr, unit="entry", desc=f"sweep {spec.family}",
+        bar = tqdm(total=len(plan.todo), file=sys.stderr, unit="entry", desc=batch.label,
                    disable=not progress, dynamic_ncols=True)
         try:
             with pool:
-                for task, result in pool.map_unordered(partial(execute_task, designer, plan.store), plan.todo):
+                for task, result in pool.map_unordered(partial(execute_task, plan.designer, plan.store), plan.todo):
                     task = by_index[task.index]
                     if isinstance(result, TaskOutcome) and result.ok:
                         completed.append(result)
@@ -88,7 +98,7 @@ def run_sweep(spec: SweepSpec | str | os.PathLike, catalogue, *, executor: str =
                             _merge(plan.store, catalogue)
                     else:
                         failures.append(_outcome_failure(task, result))
-                        append_failures(log_path, [failures[-1].record(spec, catalogue)])
+                        append_failures(log_path, [failures[-1].record(batch, catalogue)])
                         bar.set_postfix(failed=len(failures) - len(plan.invalid), refresh=False)
                     bar.update(1)
         except KeyboardInterrupt:
@@ -99,7 +109,7 @@ def run_sweep(spec: SweepSpec | str | os.PathLike, catalogue, *, executor: str =
             bar.close()
             if completed:
                 _merge(plan.store, catalogue)
-    return SweepReport(spec, catalogue, pool.describe(), plan.tasks, tuple(sorted(completed, key=lambda o: o.index)),
+    return SweepReport(batch, catalogue, pool.describe(), plan.tasks, tuple(sorted(completed, key=lambda o: o.index)),
                        plan.skipped, plan.duplicates, tuple(sorted(failures, key=lambda f: f.index)),
                        time.perf_counter() - start, failure_log=str(log_path) if failures else None,
                        todo=plan.todo, interrupted=interrupted)

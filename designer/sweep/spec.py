@@ -109,14 +109,26 @@ def _parse_sampler(data: dict, parameters: dict, source: str) -> tuple[str, Any]
     return sampler, design
 
 
-def _parse_options(data: dict, source: str) -> dict:
+def design_options(given: dict, error: Callable[[str, str], Exception]) -> dict:
+    """Every design option: the values ``given`` checked and normalised, the defaults for the
+    rest. ``error(option name, reason)`` makes the exception raised for a value that fails its
+    check or a name that is not a design option."""
+    known = {option.name for option in DESIGN_OPTIONS}
+    for name in given:
+        if name not in known:
+            raise error(name, f"not a design option (known: {', '.join(sorted(known))})")
     options = {}
     for option in DESIGN_OPTIONS:
         try:
-            options[option.name] = option.check(data.get(option.name, option.default))
-        except Invalid as error:
-            raise SpecError(str(error), file=source, field=option.name) from None
+            options[option.name] = option.check(given.get(option.name, option.default))
+        except Invalid as reason:
+            raise error(option.name, str(reason)) from None
     return options
+
+
+def _parse_options(data: dict, source: str) -> dict:
+    given = {option.name: data[option.name] for option in DESIGN_OPTIONS if option.name in data}
+    return design_options(given, lambda name, reason: SpecError(reason, file=source, field=name))
 
 
 def _parse_name(name, source: str) -> str | None:

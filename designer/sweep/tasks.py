@@ -1,6 +1,8 @@
-"""Tasks (one segment to design each) and the designer that plans and runs them.
+"""Tasks (one segment to design each), batches of them, and the designer that plans and runs them.
 
-A sweep asks a :class:`SegmentDesigner` four things: the families it knows, a task's
+A :class:`Batch` is what the plan/run machinery works on: the tasks and the file that asked for
+them — a sweep spec (:func:`sweep_batch`) or a scene whose design segments are being prepared
+(``designer.prepare``). A sweep asks a :class:`SegmentDesigner` four things: the families it knows, a task's
 canonical parameters, its content key (both in the parent, before any meshing) and the
 entry itself (in a worker). :class:`FiniteElementDesigner` is the real one (gmsh +
 scikit-fem through ``designer.design_segment``); tests and benchmarks plug in cheap ones.
@@ -10,8 +12,9 @@ class with plain-data fields).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Collection, Protocol, runtime_checkable
+from dataclasses import dataclass, field
+from functools import partial
+from typing import Callable, Collection, Protocol, runtime_checkable
 
 from vertebra.designer.families import FAMILIES
 from vertebra.designer.segment import canonical_parameters, design_segment, entry_key
@@ -57,6 +60,30 @@ def format_name(spec: SweepSpec, task: Task) -> str | None:
     except (KeyError, IndexError, ValueError, AttributeError, TypeError) as error:
         raise SpecError(f"template {spec.name!r} cannot be filled for task {task.index}: "
                         f"{type(error).__name__}: {error}", file=spec.source, field="name") from None
+
+
+@dataclass(frozen=True)
+class Batch:
+    """Tasks to design into one catalogue, and the file that asked for them.
+
+    ``origin`` names that file's kind in the failure log and the reports (``sweep``: a sweep
+    spec; ``scene``: a scene being prepared); ``label`` titles the progress bar; ``names`` gives
+    a task with canonical parameters its entry name (``None``: the designer's default name);
+    ``describe`` opens the JSON report."""
+
+    tasks: tuple
+    source: str
+    origin: str = "sweep"
+    label: str = "sweep"
+    names: Callable[[Task], str | None] | None = None
+    describe: dict = field(default_factory=dict)
+
+
+def sweep_batch(spec: SweepSpec) -> Batch:
+    """The tasks of a sweep spec, named by its template."""
+    return Batch(tuple(expand(spec)), spec.source, origin="sweep", label=f"sweep {spec.family}",
+                 names=partial(format_name, spec),
+                 describe={"spec": spec.source, "family": spec.family, "sampler": spec.sampler})
 
 
 @runtime_checkable

@@ -1,0 +1,80 @@
+"""``vertebra prepare SCENE [--catalogue FILE] [--workers N] [--executor local|dask|serial] [--dry-run]``
+
+Design the entries a scene's ``type = "design"`` segments need and its catalogue lacks (by
+content key), reuse the rest, and report which were reused and which designed. ``simulate``,
+``invert`` (and every command that reads a scene with :func:`add_preparation`) take
+``--prepare`` to do this first. Exit codes: 0 every design segment has its entry; 1 a design
+failed (see the failure log next to the catalogue); 2 bad scene or options; 130 interrupted.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+
+
+def add_preparation(parser, *, command: bool = False) -> None:
+    """The options that design a scene's missing entries: ``vertebra prepare``'s own
+    (``command``), or ``--prepare`` and the same options on a command that reads a scene."""
+    group = parser if command else parser.add_argument_group(
+        "design segments", "designing the entries of the scene's type = \"design\" segments (vertebra prepare)")
+    if not command:
+        group.add_argument("--prepare", action="store_true",
+                           help="first design the entries the scene's design segments miss (as vertebra prepare)")
+    group.add_argument("--catalogue", metavar="FILE", default=None,
+                       help="catalogue of the scene's entries (default: the scene's [catalogue] path)")
+    group.add_argument("--workers", type=int, default=None, metavar="N",
+                       help="worker processes designing entries (default: the CPUs available)")
+    group.add_argument("--executor", default="local", choices=("local", "dask", "serial"),
+                       help="local process pool (default), dask.distributed, or serial in this process")
+    group.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                       help="dask scheduler address, e.g. tcp://10.0.0.5:8786 (implies --executor dask)")
+    group.add_argument("--no-accuracy", action="store_true",
+                       help="designed entries skip the refined-mesh accuracy estimate")
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("scene", help="scene file (TOML) or gallery:NAME")
+    add_preparation(parser, command=True)
+    parser.add_argument("--start-method", default="spawn", choices=("spawn", "forkserver"),
+                        help="how the local executor starts workers (default: spawn)")
+    parser.add_argument("--dry-run", action="store_true",
+                        help="list the entries that would be reused and designed; design nothing")
+    parser.add_argument("--json", action="store_true", help="print one JSON report on stdout")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+
+
+def _prepare(args, *, dry_run: bool = False, progress: bool = True):
+    from vertebra.designer import prepare
+
+    return prepare(args.scene, args.catalogue, executor="dask" if args.scheduler else args.executor,
+                   workers=args.workers, scheduler=args.scheduler,
+                   start_method=getattr(args, "start_method", "spawn"), estimate_accuracy=not args.no_accuracy,
+                   progress=progress, dry_run=dry_run)
+
+
+def prepared_scene(args):
+    """The scene a command reads: with ``--prepare``, its missing entries designed first (the
+    summary on stderr); with ``--catalogue``, reading its entries from that file. Returns
+    ``(scene, exit code)``: a non-zero code means a design failed and the command must stop."""
+    import dataclasses
+
+    from vertebra import solver
+
+    if args.prepare:
+        scene, report = _prepare(args)
+        print(report.summary(), file=sys.stderr)
+        return scene, report.exit_code
+    scene = solver.load_scene(args.scene)
+    if args.catalogue is not None:
+        scene = dataclasses.replace(scene, catalogue=args.catalogue)
+    return scene, 0
+
+
+def run(args) -> int:
+    _, report = _prepare(args, dry_run=args.dry_run, progress=not args.no_progress)
+    if args.json:
+        print(json.dumps(report.to_json(), indent=1))
+    else:
+        print(report.summary())
+    return report.exit_code
