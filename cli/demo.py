@@ -1,9 +1,11 @@
 """``vertebra demo [--out DIR]``: the whole pipeline on embedded defaults, end to end.
 
 1. forward statics of the gallery's two-section tendon robot (picture, VTK);
-2. design: a CBHA-like pneumatic trunk (two tapered three-chamber sections) meshed with
-   gmsh, condensed with scikit-fem into an HDF5 catalogue, verified, then simulated forward
-   under chamber pressures (picture);
+2. prepare: a CBHA-like pneumatic trunk (two tapered three-chamber sections) written as a
+   scene of design segments (``gallery:cbha_design``); ``vertebra prepare`` meshes its 16
+   slices with gmsh and condenses them with scikit-fem into an HDF5 catalogue, which is
+   verified; ``simulate --prepare`` then reuses every entry and solves the trunk forward under
+   chamber pressures (picture);
 3. inverse: the paper's 16-tendon robot tracking a circle with its tip, and the pneumatic
    trunk reaching a target with its chamber pressures (pictures, JSON).
 
@@ -57,22 +59,28 @@ def run(args) -> int:
                      "--vtk", str(out / "tendon_forward.vtu")])
     summary["tendon_forward"] = code
 
-    _banner("2/3 design → catalogue → forward: CBHA-like pneumatic trunk")
-    from vertebra.designer.gallery import cbha_catalogue
+    _banner("2/3 prepare → catalogue → forward: CBHA-like pneumatic trunk of design segments (gallery:cbha_design)")
+    # the gallery scene names its 16 slices by design; prepare designs the missing entries into
+    # the scene's catalogue (gmsh + scikit-fem, condensed), simulate --prepare then reuses them all
+    import tomllib
+
+    from vertebra.solver import gallery
     from vertebra.solver.scene import scene_toml
     catalogue_path = out / "cbha.h5"
-    t0 = time.perf_counter()
-    cbha = cbha_catalogue(catalogue_path, coarse=True)
-    print(f"catalogue {catalogue_path}: {len(cbha['entries'])} entries in {time.perf_counter() - t0:.1f} s")
-    scene = dict(cbha["scene"])
+    scene = tomllib.loads(gallery.path("cbha_design").read_text())
     scene["catalogue"] = {"path": catalogue_path.name}
     pressures = {0: 1.2e5, 4: 0.6e5}   # section 1 chamber 0 and section 2 chamber 1, Pa
     scene["chamber"] = [dict(chamber, pressure=pressures.get(k, 0.0)) for k, chamber in enumerate(scene["chamber"])]
     scene_path = out / "cbha.toml"
-    scene_path.write_text(scene_toml(scene))
+    scene_path.write_text(scene_toml(scene, "CBHA-like trunk of design segments (gallery:cbha_design) with pressures"))
+    t0 = time.perf_counter()
+    summary["cbha_prepare"] = _command(["prepare", str(scene_path), "--json"], stdout_path=out / "cbha_prepare.json")
+    prepared = json.loads((out / "cbha_prepare.json").read_text())
+    print(f"catalogue {catalogue_path}: {len(prepared['designed'])} entries designed, {len(prepared['reused'])} "
+          f"reused in {time.perf_counter() - t0:.1f} s")
     summary["catalogue_verify"] = _command(["catalogue", "verify", str(catalogue_path)])
-    summary["cbha_forward"] = _command(["simulate", str(scene_path), "--json", "--plot", str(out / "cbha_forward.png")],
-                                       stdout_path=out / "cbha_forward.json")
+    summary["cbha_forward"] = _command(["simulate", str(scene_path), "--prepare", "--json", "--plot",
+                                        str(out / "cbha_forward.png")], stdout_path=out / "cbha_forward.json")
     forward = json.loads((out / "cbha_forward.json").read_text())
     print(f"  tip at {np.round(forward['effectors']['tip']['position'], 4).tolist()} m after "
           f"{forward['iterations']} Newton iterations ({1e3 * forward['timing']['solve_s']:.2f} ms)")
@@ -89,8 +97,7 @@ def run(args) -> int:
     trajectory_path = out / "circle.csv"
     write_trajectory(trajectory_path, Trajectory(targets, np.arange(args.points, dtype=float)), ["tip"])
     tip_only = out / "paper_5v_16t_tip.toml"
-    import tomllib
-    data = tomllib.loads(Path(__import__("vertebra.solver.gallery", fromlist=["path"]).path("paper_5v_16t")).read_text())
+    data = tomllib.loads(gallery.path("paper_5v_16t").read_text())
     data["effector"] = [e for e in data["effector"] if e["name"] == "tip"]
     tip_only.write_text(scene_toml(data))
     summary["tendon_inverse"] = _command(["invert", str(tip_only), "--trajectory", str(trajectory_path),
@@ -108,20 +115,21 @@ def run(args) -> int:
     target_scene = out / "cbha_target.toml"
     target_scene.write_text(scene_toml(scene))
     print(f"  target {np.round(target, 4).tolist()} m (the forward result above)")
-    summary["cbha_inverse"] = _command(["invert", str(target_scene), "--json", "--plot", str(out / "cbha_inverse.png")],
-                                       stdout_path=out / "cbha_inverse.json")
+    summary["cbha_inverse"] = _command(["invert", str(target_scene), "--prepare", "--json", "--plot",
+                                        str(out / "cbha_inverse.png")], stdout_path=out / "cbha_inverse.json")
     reach = json.loads((out / "cbha_inverse.json").read_text())["steps"][-1]
     pressures = ", ".join("%s %.3f bar" % (k, v["pressure"] / 1e5) for k, v in reach["chambers"].items())
     print(f"  chamber pressures {pressures}; "
           f"tip error {reach['effectors']['tip']['error']:.2e} m")
     # and a tip trajectory: a horizontal circle of 3 cm radius 5 mm above the rest tip (the
     # chambers only extend the trunk, pressures ≥ 0: below that height the circle is out of reach)
-    trunk = solver.build_model(solver.load_scene(target_scene))
+    from vertebra.designer import prepare
+    trunk = solver.build_model(prepare(target_scene, progress=False)[0])     # every entry is there: reused
     rest_tip = trunk.effector_positions(trunk.rest_state)[0]
     tip_circle = circle([0.0, 0.0, rest_tip[2] + 0.005], 0.03, 13)
     write_trajectory(out / "cbha_circle.csv", Trajectory(tip_circle[:, None, :], np.arange(13, dtype=float)), ["tip"])
-    summary["cbha_trajectory"] = _command(["invert", str(target_scene), "--trajectory", str(out / "cbha_circle.csv"),
-                                           "--json", "--plot", str(out / "cbha_circle.png")],
+    summary["cbha_trajectory"] = _command(["invert", str(target_scene), "--prepare", "--trajectory",
+                                           str(out / "cbha_circle.csv"), "--json", "--plot", str(out / "cbha_circle.png")],
                                           stdout_path=out / "cbha_circle.json")
     track = json.loads((out / "cbha_circle.json").read_text())
     peak = max(v["pressure"] for step in track["steps"] for v in step["chambers"].values())

@@ -63,7 +63,7 @@ def prepared_scene(args):
 
     if args.prepare:
         scene, report = _prepare(args)
-        print(report.summary(), file=sys.stderr)
+        print(report.summary(rows=False), file=sys.stderr)
         return scene, report.exit_code
     scene = solver.load_scene(args.scene)
     if args.catalogue is not None:

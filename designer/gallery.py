@@ -6,15 +6,16 @@ section. Each section tapers linearly; each of its eight intervertebral slices i
 ``tapered_pneumatic`` entry with the radii of that slice (16 distinct entries). The
 chambers of a section run through its vertebrae, so one scene ``[[chamber]]`` per
 chamber spans the eight segments of its section (pressure 0–1.5 bar).
+``cbha_design_scene()`` writes the trunk as a scene of design segments (the gallery scene
+``gallery:cbha_design``); ``cbha_catalogue(path)`` prepares it into a catalogue.
 """
 
 from __future__ import annotations
 
 import math
-import time
 
-from vertebra.designer.segment import design_segment, entry_key
 from vertebra.designer.vertebra import vertebra_properties
+from vertebra.store.errors import VertebraError
 
 #: geometry of the two sections (bottom -> top), SI units
 CBHA_SECTIONS = (
@@ -62,15 +63,10 @@ def cbha_vertebra(section: int, slice_index: int) -> dict:
                                 "hole_offset": _lerp(sec["chamber_offset"], t), "hole_angle": math.pi / 2})
 
 
-def cbha_scene(names: list[str], catalogue: str, pressures=None) -> dict:
-    """Scene dictionary (DESIGN.md §4) for the 16 entries ``names`` (bottom to top)."""
+def _cbha_trunk(segments: list[dict], catalogue: str | None, pressures) -> dict:
+    """The trunk around its 16 segment tables: chambers, gravity, tip effector."""
     n = CBHA_VERTEBRAE_PER_SECTION
     pressures = pressures or {}
-    segments = []
-    for i, name in enumerate(names):
-        v = cbha_vertebra(i // n, i % n)
-        segments.append({"type": "entry", "entry": name, "count": 1,
-                         "vertebra": {"mass": v["mass"], "center_of_mass": v["center_of_mass"]}})
     chambers = []
     for s in range(len(CBHA_SECTIONS)):
         for c in range(3):
@@ -79,41 +75,64 @@ def cbha_scene(names: list[str], catalogue: str, pressures=None) -> dict:
                              "pressure": float(pressures.get(label, 0.0)), "min_pressure": 0.0,
                              "max_pressure": CBHA_MAX_PRESSURE})
     length = sum(sec["length"] for sec in CBHA_SECTIONS)
-    return {"name": "CBHA-like pneumatic trunk", "solver": {"tolerance": 1e-9, "max_iterations": 100},
-            "gravity": {"vector": [0.0, 0.0, -9.81]}, "catalogue": {"path": catalogue},
-            "segment": segments, "chamber": chambers,
-            "effector": [{"name": "tip", "vertebra": -1, "offset": [0.0, 0.0, 0.0],
-                          "target": [0.05, 0.0, 0.9 * length], "weight": 1.0}]}
+    scene = {"name": "CBHA-like pneumatic trunk", "solver": {"tolerance": 1e-9, "max_iterations": 100},
+             "gravity": {"vector": [0.0, 0.0, -9.81]}}
+    if catalogue is not None:
+        scene["catalogue"] = {"path": catalogue}
+    return scene | {"segment": segments, "chamber": chambers,
+                    "effector": [{"name": "tip", "vertebra": -1, "offset": [0.0, 0.0, 0.0],
+                                  "target": [0.05, 0.0, 0.9 * length], "weight": 1.0}]}
 
 
-def cbha_catalogue(path, *, coarse: bool = True, estimate_accuracy: bool = True, progress=None,
-                   scene_catalogue: str | None = None, pressures=None) -> dict:
-    """Design the 16 CBHA slices into the catalogue at ``path`` (entries already there, by
-    content key, are reused) and return ``{"entries": [{name, key, section, slice, reused,
-    total_s}], "scene": scene dict}``. ``scene_catalogue`` is the catalogue path written in the
-    scene (default: ``path`` as given); ``pressures`` maps chamber names (``s1c0`` …) to Pa."""
+def _vertebra_table(index: int) -> dict:
+    v = cbha_vertebra(index // CBHA_VERTEBRAE_PER_SECTION, index % CBHA_VERTEBRAE_PER_SECTION)
+    return {"mass": v["mass"], "center_of_mass": v["center_of_mass"]}
+
+
+def cbha_scene(names: list[str], catalogue: str, pressures=None) -> dict:
+    """Scene dictionary (DESIGN.md §4) for the 16 entries ``names`` (bottom to top)."""
+    segments = [{"type": "entry", "entry": name, "count": 1, "vertebra": _vertebra_table(i)}
+                for i, name in enumerate(names)]
+    return _cbha_trunk(segments, catalogue, pressures)
+
+
+def cbha_design_scene(coarse: bool = True, catalogue: str | None = None, pressures=None) -> dict:
+    """Scene dictionary of the trunk with its 16 slices as ``type = "design"`` segments (the
+    gallery scene ``gallery:cbha_design`` is this, coarse, without a catalogue);
+    ``vertebra prepare`` designs them."""
+    segments = [{"type": "design", "family": "tapered_pneumatic", "parameters": item["parameters"],
+                 "mesh_size": item["mesh_size"], "order": 2, "count": 1, "vertebra": _vertebra_table(i)}
+                for i, item in enumerate(cbha_slices(coarse))]
+    return _cbha_trunk(segments, catalogue, pressures)
+
+
+def cbha_catalogue(path, *, coarse: bool = True, estimate_accuracy: bool = True, progress: bool = False,
+                   scene_catalogue: str | None = None, pressures=None, executor: str = "serial",
+                   workers: int | None = None) -> dict:
+    """Design the 16 CBHA slices into the catalogue at ``path`` (``designer.prepare`` of
+    :func:`cbha_design_scene`: entries already there, by content key, are reused) and return
+    ``{"entries": [{name, key, section, slice, reused, total_s, dofs, accuracy}], "scene": scene
+    dict naming the entries by key}``. ``scene_catalogue`` is the catalogue path written in the
+    scene (default: ``path`` as given); ``pressures`` maps chamber names (``s1c0`` …) to Pa;
+    ``progress`` shows the progress bar on stderr."""
+    from vertebra.designer.prepare import prepare
+    from vertebra.solver.scene import parse_scene
     from vertebra.store import catalogue
 
-    rows, new = [], []
-    for item in cbha_slices(coarse):
-        key = entry_key("tapered_pneumatic", item["parameters"], mesh_size=item["mesh_size"], order=2)
-        row = {k: item[k] for k in ("name", "section", "slice")} | {"key": key}
-        start = time.perf_counter()
-        if catalogue.has_entry(path, key):
-            row["reused"] = True
-        else:
-            if progress:
-                progress(f"designing {item['name']} (h = {item['mesh_size']} m)")
-            entry = design_segment("tapered_pneumatic", item["parameters"], mesh_size=item["mesh_size"], order=2,
-                                   name=item["name"], estimate_accuracy=estimate_accuracy)
-            new.append(entry)
-            row["reused"] = False
-            row["dofs"] = entry.mesh["dofs"]
-            row["accuracy"] = entry.accuracy.get("relative_change")
-        row["total_s"] = time.perf_counter() - start
-        rows.append(row)
-    if new:
-        catalogue.add_entries(path, new)
+    scene = parse_scene(cbha_design_scene(coarse), source="designer.gallery.cbha_design_scene")
+    _, report = prepare(scene, path, executor=executor, workers=workers, estimate_accuracy=estimate_accuracy,
+                        progress=progress)
+    if report.exit_code:
+        raise VertebraError("designing the CBHA slices failed:\n" + report.summary())
+    seconds = {outcome.key: outcome.seconds for outcome in report.run.completed}
+    rows = []
+    with catalogue.open_catalogue(path) as cat:
+        for item, prepared in zip(cbha_slices(coarse), report.segments):
+            entry = cat.load(prepared.key)
+            rows.append({k: item[k] for k in ("name", "section", "slice")}
+                        | {"key": prepared.key, "reused": prepared.status == "reused",
+                           "total_s": seconds.get(prepared.key, 0.0), "dofs": entry.mesh["dofs"],
+                           "accuracy": entry.accuracy.get("relative_change")})
     scene = cbha_scene([r["key"] for r in rows], str(path) if scene_catalogue is None else scene_catalogue,
                        pressures)
     return {"entries": rows, "scene": scene}

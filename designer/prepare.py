@@ -107,7 +107,8 @@ class PrepareReport:
                 "timing": {"total_s": self.elapsed_s,
                            "entries_per_minute": None if run is None else run.entries_per_minute}}
 
-    def summary(self) -> str:
+    def summary(self, rows: bool = True) -> str:
+        """A one-line count, then (``rows``) one line per design segment, then any failures."""
         if not self.segments:
             return f"prepare {self.scene}: no design segments, nothing to do"
         head = "dry run" if self.dry_run else "prepare"
@@ -116,8 +117,8 @@ class PrepareReport:
                  f"{len(dict.fromkeys(s.key for s in self.segments))} entries: {len(self.reused)} reused, {counts}"
                  + (f", {len(self._keys('failed'))} failed" if self._keys("failed") else "")
                  + f" (catalogue {self.catalogue})"]
-        for s in self.segments:
-            lines.append(f"  segment[{s.segment}] {s.family:18s} {s.key}  {s.status}")
+        for s in self.segments if rows else ():
+            lines.append(f"  {f'segment[{s.segment}]':12s} {s.family:18s} {s.key}  {s.status}")
         if self.run is not None:
             for f in self.run.failures:
                 lines.append(f"  segment[{f.index}] failed [{f.stage}] {f.error_type}: {f.message}")

@@ -155,7 +155,7 @@ def load_scene(path) -> Scene:
 def parse_scene(data: dict, source: str = "<dict>", base_dir=".") -> Scene:
     """Validate a scene given as a dictionary (the parsed TOML)."""
     top = Table(data, "", source)
-    name = top.string("name", "")
+    scene_name = top.string("name", "")
     version = top.number("version", 1, integer=True)
     if version != 1:
         raise top.error("version", f"unsupported scene version {version} (this vertebra reads version 1)")
@@ -266,7 +266,7 @@ def parse_scene(data: dict, source: str = "<dict>", base_dir=".") -> Scene:
                                       weight=t.number("weight", 1.0, positive=True), axis=axis))
         t.done()
     top.done()
-    return Scene(segments=segments, name=name, solver=settings, gravity=gravity, base_position=base_position,
+    return Scene(segments=segments, name=scene_name, solver=settings, gravity=gravity, base_position=base_position,
                  base_quaternion=base_quaternion, catalogue=catalogue, cables=tuple(cables),
                  chambers=tuple(chambers), loads=tuple(loads), effectors=tuple(effectors), source=source)
 

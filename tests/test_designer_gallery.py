@@ -81,3 +81,54 @@ def test_cbha_example_script_runs(cbha):
     assert run.returncode == 0, run.stderr
     assert run.stdout.count("reused") == 16 and "converged True" in run.stdout
     assert (path.parent / "cbha.toml").exists()
+
+
+def test_the_gallery_design_scene_is_the_generated_one():
+    """``gallery:cbha_design`` is ``cbha_design_scene()`` written out (regenerate the file with
+    ``scene_toml(cbha_design_scene(), header)`` when the slices change)."""
+    import dataclasses
+
+    from vertebra import solver
+    from vertebra.designer.gallery import cbha_design_scene
+    from vertebra.solver import gallery
+    stored = gallery.load("cbha_design")
+    generated = solver.parse_scene(cbha_design_scene(coarse=True))
+    assert dataclasses.replace(stored, source="") == dataclasses.replace(generated, source="")
+    assert stored.design_segments == tuple(range(16)) and stored.catalogue is None
+
+
+def test_the_gallery_design_scene_prepares_from_the_catalogue_without_designing(cbha):
+    """The gallery scene names the same designs as ``cbha_catalogue``: the same 16 keys, all reused."""
+    from vertebra import solver
+    from vertebra.designer import prepare
+    path, result = cbha
+    resolved, report = prepare("gallery:cbha_design", path, executor="serial", estimate_accuracy=False,
+                               progress=False)
+    assert report.designed == [] and report.reused == [row["key"] for row in result["entries"]]
+    model = solver.build_model(resolved)
+    assert model.n_chambers == 6 and model.solve().converged
+
+
+def test_cbha_ranges_cover_its_pressures_and_the_equilibria_between_corners(cbha, tmp_path):
+    """Pressure bounds per cavity come from the chambers over each section; the strain and load
+    ranges (64 pressure corners of the six chambers, linear entries) cover seeded random
+    pressures inside the box."""
+    from vertebra import solver
+    from vertebra.designer.scene_range import estimate_ranges, group_coordinates
+    path, result = cbha
+    (tmp_path / "cbha.toml").write_text(scene_toml(result["scene"]))
+    model = solver.build_model(solver.load_scene(tmp_path / "cbha.toml"))
+    estimate = estimate_ranges(model)
+    assert len(estimate.actuations) == 65 and estimate.failed == ()
+    for segment in estimate.segments:
+        assert segment.pressures == {c: (0.0, CBHA_MAX_PRESSURE) for c in range(3)}
+    bending = [s.strain_upper[2] for s in estimate.segments]
+    assert min(bending) > 0.0
+    rng = np.random.default_rng(11)
+    for pressures in CBHA_MAX_PRESSURE * rng.random((4, 6)):
+        evaluation = model.evaluate(model.solve(pressures).state, pressures)
+        strain = group_coordinates(evaluation.links.xi - model.link_rest)
+        load = group_coordinates(evaluation.w)
+        for link, s in enumerate(estimate.segments):            # one link per slice
+            assert np.all(strain[link] >= s.strain_lower) and np.all(strain[link] <= s.strain_upper)
+            assert np.all(load[link] >= s.load_lower) and np.all(load[link] <= s.load_upper)

@@ -38,7 +38,7 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
     result = cbha_catalogue(out / "catalogue.h5", coarse=not args.fine, estimate_accuracy=not args.no_accuracy,
-                            progress=lambda m: print(m, file=sys.stderr, flush=True),
+                            progress=True,
                             scene_catalogue="catalogue.h5",
                             pressures={"s1c0": args.pressure, "s2c1": args.pressure})
     elapsed = time.perf_counter() - start
