@@ -10,13 +10,14 @@ Public API (DESIGN.md §1, §2)::
     designer.prepare(scene, catalogue=None, ...)       # -> (resolved scene, PrepareReport): design what a
                                                        #    scene's design segments miss (docs/prepare.md)
 
-Heavy imports (gmsh, scikit-fem, pyamg, meshio) happen inside the functions.
+Heavy imports (gmsh, scikit-fem, pyamg, meshio) happen inside the functions; ``prepare``
+(which uses the runtime's scenes) is imported on first use, so sweep workers do not load the
+runtime.
 """
 
 from vertebra.designer.families import FAMILIES, Family, Parameter, register_family
 from vertebra.designer.segment import canonical_parameters, design_segment, entry_key, resolve_mesh_size
 from vertebra.designer.vertebra import VERTEBRA_PARAMETERS, vertebra_properties, vertebra_snippet
-from vertebra.designer.prepare import PrepareReport, prepare
 
 __all__ = [
     "FAMILIES", "Family", "Parameter", "register_family",
@@ -24,3 +25,11 @@ __all__ = [
     "VERTEBRA_PARAMETERS", "vertebra_properties", "vertebra_snippet",
     "PrepareReport", "prepare",
 ]
+
+
+def __getattr__(name):
+    """``prepare`` and ``PrepareReport`` from :mod:`vertebra.designer.preparation`, imported on first use."""
+    if name in ("prepare", "PrepareReport"):
+        from vertebra.designer import preparation
+        return getattr(preparation, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -115,7 +115,7 @@ def cbha_catalogue(path, *, coarse: bool = True, estimate_accuracy: bool = True,
     dict naming the entries by key}``. ``scene_catalogue`` is the catalogue path written in the
     scene (default: ``path`` as given); ``pressures`` maps chamber names (``s1c0`` …) to Pa;
     ``progress`` shows the progress bar on stderr."""
-    from vertebra.designer.prepare import prepare
+    from vertebra.designer.preparation import prepare
     from vertebra.solver.scene import parse_scene
     from vertebra.store import catalogue
 

@@ -17,7 +17,7 @@ import pytest
 from vertebra import designer, solver
 from vertebra.cli.main import main
 from vertebra.designer import prepare
-from vertebra.designer.prepare import design_tasks
+from vertebra.designer.preparation import design_tasks
 from vertebra.designer.sweep import DESIGN_OPTIONS, FiniteElementDesigner, parse_spec, plan_sweep
 from vertebra.solver.scene import scene_toml
 from vertebra.store import catalogue
