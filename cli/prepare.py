@@ -12,6 +12,8 @@ from __future__ import annotations
 import json
 import sys
 
+from vertebra.cli.sweep import add_executor_arguments
+
 
 def add_preparation(parser, *, command: bool = False) -> None:
     """The options that design a scene's missing entries: ``vertebra prepare``'s own
@@ -23,12 +25,7 @@ def add_preparation(parser, *, command: bool = False) -> None:
                            help="first design the entries the scene's design segments miss (as vertebra prepare)")
     group.add_argument("--catalogue", metavar="FILE", default=None,
                        help="catalogue of the scene's entries (default: the scene's [catalogue] path)")
-    group.add_argument("--workers", type=int, default=None, metavar="N",
-                       help="worker processes designing entries (default: the CPUs available)")
-    group.add_argument("--executor", default="local", choices=("local", "dask", "serial"),
-                       help="local process pool (default), dask.distributed, or serial in this process")
-    group.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                       help="dask scheduler address, e.g. tcp://10.0.0.5:8786 (implies --executor dask)")
+    add_executor_arguments(group)
     group.add_argument("--no-accuracy", action="store_true",
                        help="designed entries skip the refined-mesh accuracy estimate")
 
@@ -36,8 +33,6 @@ def add_preparation(parser, *, command: bool = False) -> None:
 def add_arguments(parser) -> None:
     parser.add_argument("scene", help="scene file (TOML) or gallery:NAME")
     add_preparation(parser, command=True)
-    parser.add_argument("--start-method", default="spawn", choices=("spawn", "forkserver"),
-                        help="how the local executor starts workers (default: spawn)")
     parser.add_argument("--dry-run", action="store_true",
                         help="list the entries that would be reused and designed; design nothing")
     parser.add_argument("--json", action="store_true", help="print one JSON report on stdout")
@@ -49,7 +44,7 @@ def _prepare(args, *, dry_run: bool = False, progress: bool = True):
 
     return prepare(args.scene, args.catalogue, executor="dask" if args.scheduler else args.executor,
                    workers=args.workers, scheduler=args.scheduler,
-                   start_method=getattr(args, "start_method", "spawn"), estimate_accuracy=not args.no_accuracy,
+                   start_method=args.start_method, estimate_accuracy=not args.no_accuracy,
                    progress=progress, dry_run=dry_run)
 
 

@@ -10,9 +10,8 @@ import json
 import sys
 
 
-def add_arguments(parser) -> None:
-    parser.add_argument("spec", metavar="SWEEP.toml", help="sweep specification (docs/sweeps.md)")
-    parser.add_argument("--catalogue", required=True, metavar="FILE", help="HDF5 catalogue to fill")
+def add_executor_arguments(parser) -> None:
+    """Where entries are designed: the options of every command that designs (sweep, prepare)."""
     parser.add_argument("--workers", type=int, default=None, metavar="N",
                         help="worker processes (default: the CPUs available; with --scheduler: the cluster's)")
     parser.add_argument("--executor", default="local", choices=("local", "dask", "serial"),
@@ -21,6 +20,12 @@ def add_arguments(parser) -> None:
                         help="dask scheduler address, e.g. tcp://10.0.0.5:8786 (implies --executor dask)")
     parser.add_argument("--start-method", default="spawn", choices=("spawn", "forkserver"),
                         help="how the local executor starts workers (default: spawn)")
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("spec", metavar="SWEEP.toml", help="sweep specification (docs/sweeps.md)")
+    parser.add_argument("--catalogue", required=True, metavar="FILE", help="HDF5 catalogue to fill")
+    add_executor_arguments(parser)
     parser.add_argument("--dry-run", action="store_true",
                         help="validate, compute keys and show what would run; design nothing")
     parser.add_argument("--json", action="store_true", help="print one JSON report on stdout")
