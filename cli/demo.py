@@ -124,7 +124,7 @@ def run(args) -> int:
     # and a tip trajectory: a horizontal circle of 3 cm radius 5 mm above the rest tip (the
     # chambers only extend the trunk, pressures ≥ 0: below that height the circle is out of reach)
     from vertebra.designer import prepare
-    trunk = solver.build_model(prepare(target_scene, progress=False)[0])     # every entry is there: reused
+    trunk = solver.build_model(prepare(solver.load_scene(target_scene), progress=False)[0])     # every entry is there: reused
     rest_tip = trunk.effector_positions(trunk.rest_state)[0]
     tip_circle = circle([0.0, 0.0, rest_tip[2] + 0.005], 0.03, 13)
     write_trajectory(out / "cbha_circle.csv", Trajectory(tip_circle[:, None, :], np.arange(13, dtype=float)), ["tip"])

@@ -115,13 +115,14 @@ def cbha_catalogue(path, *, coarse: bool = True, estimate_accuracy: bool = True,
     dict naming the entries by key}``. ``scene_catalogue`` is the catalogue path written in the
     scene (default: ``path`` as given); ``pressures`` maps chamber names (``s1c0`` …) to Pa;
     ``progress`` shows the progress bar on stderr."""
-    from vertebra.designer.preparation import prepare
-    from vertebra.solver.scene import parse_scene
+    from vertebra.designer.preparation import Design, prepare_designs
     from vertebra.store import catalogue
 
-    scene = parse_scene(cbha_design_scene(coarse), source="designer.gallery.cbha_design_scene")
-    _, report = prepare(scene, path, executor=executor, workers=workers, estimate_accuracy=estimate_accuracy,
-                        progress=progress)
+    designs = [Design(i, s["family"], s["parameters"], {"mesh_size": s["mesh_size"], "order": s["order"]})
+               for i, s in enumerate(cbha_design_scene(coarse)["segment"])]
+    report = prepare_designs(designs, path, source="designer.gallery.cbha_design_scene", label="prepare CBHA slices",
+                             executor=executor, workers=workers, estimate_accuracy=estimate_accuracy,
+                             progress=progress)
     if report.exit_code:
         raise VertebraError("designing the CBHA slices failed:\n" + report.summary())
     seconds = {outcome.key: outcome.seconds for outcome in report.run.completed}

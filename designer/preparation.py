@@ -20,7 +20,7 @@ import dataclasses
 import os
 import time
 from dataclasses import dataclass
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 from vertebra.designer.sweep.plan import plan_batch
 from vertebra.designer.sweep.report import SweepReport
@@ -28,8 +28,10 @@ from vertebra.designer.sweep.run import run_plan
 from vertebra.designer.sweep.spec import DESIGN_OPTIONS, design_options
 from vertebra.designer.sweep.store import CatalogueStore, SweepStore
 from vertebra.designer.sweep.tasks import Batch, FiniteElementDesigner, SegmentDesigner, Task
-from vertebra.solver.scene import Scene, load_scene
 from vertebra.store.errors import SceneError
+
+if TYPE_CHECKING:       # the designer reads scenes as data; it never imports the solver at run time
+    from vertebra.solver.scene import Scene
 
 #: the material of an entry designed without a ``material`` option (small-strain linear elasticity)
 LINEAR = "linear"
@@ -129,43 +131,57 @@ class PrepareReport:
         return "\n".join(lines)
 
 
-def _segment_task(scene: Scene, index: int, run_options: dict) -> Task:
-    """A design segment as a sweep task: its design options checked against the sweep's table
-    (an invalid one is a SceneError naming the segment's field)."""
-    design = scene.segments[index].design
-    given = design.options()
+@dataclass(frozen=True)
+class Design:
+    """One segment design to prepare: the index it is reported under, its family, parameters
+    and the design options it sets (absent ones are left to the designer's defaults)."""
+
+    index: int
+    family: str
+    parameters: dict
+    options: dict
+
+
+def scene_designs(scene: "Scene") -> list[Design]:
+    """The design segments of a parsed scene, by segment index."""
+    return [Design(i, scene.segments[i].design.family, scene.segments[i].design.parameter_dict(),
+                   scene.segments[i].design.options()) for i in scene.design_segments]
+
+
+def _design_task(design: Design, source: str, run_options: dict) -> Task:
+    """A design as a sweep task: its design options checked against the sweep's table (an
+    invalid one is a SceneError naming the segment's field)."""
+    given = dict(design.options)
     known = {option.name for option in DESIGN_OPTIONS}
     if "material" not in known and given.get("material", LINEAR) == LINEAR:
         given.pop("material", None)           # the designer's only material needs no option
     elif "material" not in known:
         raise SceneError(f"material {given['material']!r} needs a nonlinear entry, which this vertebra's designer "
-                         f"does not make (it designs {LINEAR!r} entries)", file=scene.source,
-                         field=f"segment[{index}].material")
+                         f"does not make (it designs {LINEAR!r} entries)", file=source,
+                         field=f"segment[{design.index}].material")
     options = design_options({**run_options, **given},
-                             lambda name, reason: SceneError(reason, file=scene.source, field=f"segment[{index}].{name}"))
-    return Task(index=index, family=design.family, parameters=design.parameter_dict(), options=options)
+                             lambda name, reason: SceneError(reason, file=source, field=f"segment[{design.index}].{name}"))
+    return Task(index=design.index, family=design.family, parameters=design.parameters, options=options)
 
 
-def _check_families(scene: Scene, designer: SegmentDesigner) -> None:
+def _check_families(designs: list[Design], source: str, designer: SegmentDesigner) -> None:
     families = designer.families()
     if families is None:
         return
-    for i in scene.design_segments:
-        family = scene.segments[i].design.family
-        if family not in families:
-            raise SceneError(f"unknown family {family!r} (known: {', '.join(sorted(families))})", file=scene.source,
-                             field=f"segment[{i}].family")
+    for design in designs:
+        if design.family not in families:
+            raise SceneError(f"unknown family {design.family!r} (known: {', '.join(sorted(families))})", file=source,
+                             field=f"segment[{design.index}].family")
 
 
-def design_tasks(scene: Scene, *, linear_solver: str = "auto", estimate_accuracy: bool = True,
-                 designer: SegmentDesigner = FiniteElementDesigner()) -> Batch:
-    """The scene's design segments as a batch of sweep tasks (task index = segment index);
-    ``linear_solver`` and ``estimate_accuracy`` are the design options outside the content key."""
-    _check_families(scene, designer)
+def design_tasks(designs: list[Design], source: str, *, label: str = "prepare", linear_solver: str = "auto",
+                 estimate_accuracy: bool = True, designer: SegmentDesigner = FiniteElementDesigner()) -> Batch:
+    """Designs as a batch of sweep tasks (task index = segment index); ``linear_solver`` and
+    ``estimate_accuracy`` are the design options outside the content key."""
+    _check_families(designs, source, designer)
     run_options = {"linear_solver": linear_solver, "estimate_accuracy": estimate_accuracy}
-    tasks = tuple(_segment_task(scene, i, run_options) for i in scene.design_segments)
-    return Batch(tasks, scene.source, origin="scene", label=f"prepare {scene.name or os.path.basename(scene.source)}",
-                 describe={"scene": scene.source})
+    tasks = tuple(_design_task(design, source, run_options) for design in designs)
+    return Batch(tasks, source, origin="scene", label=label, describe={"scene": source})
 
 
 def _statuses(run: SweepReport) -> dict[int, str]:
@@ -186,26 +202,45 @@ def resolve(scene: Scene, keys: dict[int, str], catalogue) -> Scene:
     return dataclasses.replace(scene, segments=segments, catalogue=str(catalogue))
 
 
-def prepare(scene, catalogue=None, *, executor: str = "local", workers: int | None = None,
-            scheduler: str | None = None, start_method: str = "spawn", linear_solver: str = "auto",
-            estimate_accuracy: bool = True, progress: bool = True, dry_run: bool = False,
-            designer: SegmentDesigner = FiniteElementDesigner(),
-            store: Callable[[str], SweepStore] = CatalogueStore) -> tuple[Scene, PrepareReport]:
+def prepare_designs(designs: list[Design], catalogue, *, source: str, label: str = "prepare",
+                    executor: str = "local", workers: int | None = None, scheduler: str | None = None,
+                    start_method: str = "spawn", linear_solver: str = "auto", estimate_accuracy: bool = True,
+                    progress: bool = True, dry_run: bool = False,
+                    designer: SegmentDesigner = FiniteElementDesigner(),
+                    store: Callable[[str], SweepStore] = CatalogueStore) -> PrepareReport:
+    """Design the entries of ``designs`` missing from ``catalogue`` (``source`` names the file
+    that asked for them in errors and reports); see :func:`prepare`."""
+    start = time.perf_counter()
+    batch = design_tasks(designs, source, label=label, linear_solver=linear_solver,
+                         estimate_accuracy=estimate_accuracy, designer=designer)
+    plan = plan_batch(batch, catalogue, store=store, designer=designer)
+    if plan.invalid:
+        failure = plan.invalid[0]
+        raise SceneError(failure.message, file=source, field=f"segment[{failure.index}].parameters")
+    run = run_plan(plan, executor=executor, workers=workers, scheduler=scheduler, start_method=start_method,
+                   progress=progress, dry_run=dry_run, started=start)
+    status = _statuses(run)
+    segments = tuple(PreparedSegment(t.index, t.family, t.parameters, t.key_options, t.key, status[t.index])
+                     for t in plan.tasks)
+    return PrepareReport(source, str(catalogue), segments, run, time.perf_counter() - start)
+
+
+def prepare(scene: "Scene", catalogue=None, **options) -> tuple["Scene", PrepareReport]:
     """Design the entries a scene's design segments need and are missing from the catalogue.
 
-    ``scene``: a :class:`~vertebra.solver.scene.Scene`, a scene file or ``gallery:NAME``;
-    ``catalogue``: the catalogue file (default: the scene's ``[catalogue] path``). Returns the
-    scene with every design segment whose entry is in the catalogue resolved to it (with
-    ``dry_run``: only those already there; nothing is designed or written), and the report.
-    A design that fails is reported (``report.exit_code`` 1, the failure log next to the
-    catalogue), its segment stays unresolved. Raises SceneError (before any design) for a
-    missing catalogue, an unknown family, parameters the family refuses or bad design options;
-    OptionError for bad executor settings; CatalogueError when the catalogue's directory does
-    not exist. Executors and options are those of ``designer.sweep.run_sweep``.
+    ``scene``: a parsed scene (:class:`~vertebra.solver.scene.Scene`: the caller loads it, so
+    that the designer reads scenes as data and never imports the solver); ``catalogue``: the
+    catalogue file (default: the scene's ``[catalogue] path``). Returns the scene with every
+    design segment whose entry is in the catalogue resolved to it (with ``dry_run``: only
+    those already there; nothing is designed or written), and the report. A design that fails
+    is reported (``report.exit_code`` 1, the failure log next to the catalogue), its segment
+    stays unresolved. Raises SceneError (before any design) for a missing catalogue, an
+    unknown family, parameters the family refuses or bad design options; OptionError for bad
+    executor settings; CatalogueError when the catalogue's directory does not exist.
+    ``options`` are those of :func:`prepare_designs` (executor, workers, scheduler,
+    start_method, linear_solver, estimate_accuracy, progress, dry_run, designer, store).
     """
     start = time.perf_counter()
-    if not isinstance(scene, Scene):
-        scene = load_scene(scene)
     catalogue = catalogue if catalogue is not None else scene.catalogue
     if not scene.design_segments:
         resolved = scene if catalogue is None else dataclasses.replace(scene, catalogue=str(catalogue))
@@ -214,16 +249,8 @@ def prepare(scene, catalogue=None, *, executor: str = "local", workers: int | No
     if catalogue is None:
         raise SceneError("design segments need a catalogue to hold their entries: give [catalogue] path in the "
                          "scene (or --catalogue)", file=scene.source, field="catalogue.path")
-    batch = design_tasks(scene, linear_solver=linear_solver, estimate_accuracy=estimate_accuracy, designer=designer)
-    plan = plan_batch(batch, catalogue, store=store, designer=designer)
-    if plan.invalid:
-        failure = plan.invalid[0]
-        raise SceneError(failure.message, file=scene.source, field=f"segment[{failure.index}].parameters")
-    run = run_plan(plan, executor=executor, workers=workers, scheduler=scheduler, start_method=start_method,
-                   progress=progress, dry_run=dry_run, started=start)
-    status = _statuses(run)
-    segments = tuple(PreparedSegment(t.index, t.family, t.parameters, t.key_options, t.key, status[t.index])
-                     for t in plan.tasks)
-    keys = {s.segment: s.key for s in segments if s.status in ("reused", "designed")}
-    report = PrepareReport(scene.source, str(catalogue), segments, run, time.perf_counter() - start)
+    label = f"prepare {scene.name or os.path.basename(scene.source)}"
+    report = prepare_designs(scene_designs(scene), catalogue, source=scene.source, label=label, **options)
+    report = dataclasses.replace(report, elapsed_s=time.perf_counter() - start)
+    keys = {s.segment: s.key for s in report.segments if s.status in ("reused", "designed")}
     return resolve(scene, keys, catalogue), report

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from vertebra.designer.gallery import CBHA_MAX_PRESSURE, cbha_catalogue, cbha_slices
-from vertebra.solver.scene import scene_toml
+from vertebra.solver.scene import load_scene, scene_toml
 
 
 def test_cbha_slices_taper_and_are_valid():
@@ -102,7 +102,7 @@ def test_the_gallery_design_scene_prepares_from_the_catalogue_without_designing(
     from vertebra import solver
     from vertebra.designer import prepare
     path, result = cbha
-    resolved, report = prepare("gallery:cbha_design", path, executor="serial", estimate_accuracy=False,
+    resolved, report = prepare(load_scene("gallery:cbha_design"), path, executor="serial", estimate_accuracy=False,
                                progress=False)
     assert report.designed == [] and report.reused == [row["key"] for row in result["entries"]]
     model = solver.build_model(resolved)

@@ -17,7 +17,7 @@ import pytest
 from vertebra import designer, solver
 from vertebra.cli.main import main
 from vertebra.designer import prepare
-from vertebra.designer.preparation import design_tasks
+from vertebra.designer.preparation import design_tasks, scene_designs
 from vertebra.designer.sweep import DESIGN_OPTIONS, FiniteElementDesigner, parse_spec, plan_sweep
 from vertebra.solver.scene import scene_toml
 from vertebra.store import catalogue
@@ -106,7 +106,7 @@ def test_a_sweep_and_a_scene_naming_the_same_design_share_the_key(tmp_path):
                   "youngs_modulus": 1.0e6, "poisson_ratio": 0.45, "chambers": 3}
     scene = solver.parse_scene({"segment": [{"type": "design", "family": "pneumatic", "parameters": parameters,
                                              "mesh_size": 0.003, "order": 1}]})
-    [task] = design_tasks(scene).tasks
+    [task] = design_tasks(scene_designs(scene), scene.source).tasks
     spec = parse_spec({"family": "pneumatic", "mesh_size": 0.003, "order": 1, "list": [parameters]})
     [planned] = plan_sweep(spec, tmp_path / "cat.h5").tasks
     scene_key = FiniteElementDesigner().key(dataclasses.replace(
@@ -119,7 +119,7 @@ def test_a_sweep_and_a_scene_naming_the_same_design_share_the_key(tmp_path):
 
 def test_design_options_come_from_the_sweep_table():
     scene = solver.parse_scene(scene_dict(rod(0.004, order=1)))
-    [task] = design_tasks(scene, estimate_accuracy=False).tasks
+    [task] = design_tasks(scene_designs(scene), scene.source, estimate_accuracy=False).tasks
     assert set(task.options) == {option.name for option in DESIGN_OPTIONS}
     assert task.options["order"] == 1 and task.options["mesh_size"] == 0.004
     assert task.options["estimate_accuracy"] is False and task.options["linear_solver"] == "auto"
@@ -188,7 +188,7 @@ def test_a_design_scene_simulates_with_prepare_and_a_second_run_designs_nothing(
         assert sorted(cat.keys()) == sorted(again["reused"])
 
     # the resolved scene is an ordinary scene of entries: the same equilibrium, bit for bit
-    resolved, _ = prepare(path, **FAST)
+    resolved, _ = prepare(solver.load_scene(path), **FAST)
     assert [s.type for s in resolved.segments] == ["entry"] * 3 and resolved.segments[0].design is not None
     entries = scene_dict(*[{"type": "entry", "entry": s["key"], "count": s0["count"]}
                            for s, s0 in zip(again["segments"], [rod(0.004, count=2), rod(0.003), rod(0.004)])])
@@ -252,3 +252,12 @@ def test_prepare_command_dry_run_and_catalogue_option(tmp_path, capsys):
     assert main(["invert", str(path), "--prepare", "--catalogue", str(other), "--json"]) in (0, 1)
     captured = capsys.readouterr()
     assert "1 reused, 0 designed" in captured.err and json.loads(captured.out.splitlines()[-1])["steps"]
+
+
+def test_the_designer_never_imports_the_solver():
+    """Dependency direction designer → store only: the designer reads scenes as data."""
+    code = ("import sys, vertebra.designer, vertebra.designer.preparation, vertebra.designer.gallery, "
+            "vertebra.designer.sweep, vertebra.designer.scene_range; "
+            "print(','.join(m for m in sys.modules if m.startswith('vertebra.solver')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+    assert out == ""
