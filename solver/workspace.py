@@ -297,6 +297,7 @@ class Workspace:
     actuator_names: list
     effector_names: list
     effector_is_axis: np.ndarray
+    bounds: tuple                 # (lower, upper) of the actuation, N or Pa
     actuations: np.ndarray        # (n, n_act) N or Pa
     positions: np.ndarray         # (n, n_eff, 3) m (unit directions for axis effectors)
     converged: np.ndarray         # (n,) bool
@@ -346,8 +347,8 @@ class Workspace:
             "converged": int(np.count_nonzero(self.converged)),
             "failed": int(self.n_samples - np.count_nonzero(self.converged)),
             "settings": dict(self.settings),
-            "actuators": {name: {"lower": float(self.actuations[:, k].min()),
-                                 "upper": float(self.actuations[:, k].max())}
+            "actuators": {name: {"lower": _floats(self.bounds[0][k:k + 1])[0],
+                                 "upper": _floats(self.bounds[1][k:k + 1])[0]}
                           for k, name in enumerate(self.actuator_names)},
             "effectors": effectors,
             "iterations": {"mean": float(solved.mean()) if solved.size else None,
@@ -551,7 +552,8 @@ def sample_workspace(model, n_samples: int = 1000, *, method: str = "sobol", see
                "cpu_s": time.process_time() - cpu + _children_cpu_s() - children_cpu,
                "solve_cpu_s": float(sum(piece.cpu_s for piece in pieces))}
     return Workspace(list(model.actuator_names), list(model.effector_names),
-                     np.asarray(model.effector_is_axis, bool).copy(), actuations, **per_sample,
+                     np.asarray(model.effector_is_axis, bool).copy(),
+                     tuple(np.array(b, float) for b in model.actuator_bounds), actuations, **per_sample,
                      failures=failures, order=plan, settings=settings, timings=timings)
 
 
