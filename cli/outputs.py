@@ -32,3 +32,12 @@ def output_file(value: str | None, option: str, suffixes: tuple[str, ...]) -> Pa
     if not os.access(parent, os.W_OK):
         raise OptionError(f"{value}: directory {str(parent)!r} is not writable", field=option)
     return path
+
+
+def shown(values, scale: float, relative: float):
+    """``values`` with entries below ``relative`` × ``scale`` set to 0, for printing: a tension
+    of 3.7e-31 N beside tensions of newtons is rounding of a zero, and prints as 0."""
+    import numpy as np
+
+    values = np.asarray(values, dtype=float)
+    return np.where(np.abs(values) <= relative * abs(scale), 0.0, values)
