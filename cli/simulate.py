@@ -20,7 +20,7 @@ def add_arguments(parser):
 
 
 def run(args) -> int:
-    from vertebra import __version__, solver
+    from vertebra import solver
     from vertebra.solver.report import plot_static, static_report, write_vtk
     from vertebra.store.errors import ConvergenceError
 
@@ -43,7 +43,7 @@ def run(args) -> int:
         write_vtk(model, result.state, str(vtk))
         print(f"wrote {vtk}", file=sys.stderr)
     if args.json:
-        json.dump({"vertebra_version": __version__, **report}, sys.stdout)
+        json.dump(report, sys.stdout)
         sys.stdout.write("\n")
     else:
         status = "converged" if result.converged else "NOT converged"
