@@ -25,7 +25,7 @@ SUBCOMMANDS = {
     "prepare": ("vertebra.cli.prepare", "design only the entries a scene's design segments miss"),
     "catalogue": ("vertebra.cli.catalogue", "list, show, verify, merge, export catalogue entries"),
     "workspace": ("vertebra.cli.workspace", "reachable effector positions over sampled actuations"),
-
+    "examples": ("vertebra.cli.examples", "copy the example scripts, trajectories and sweep specs into DIR"),
     "demo": ("vertebra.cli.demo", "the main job on an embedded default, end to end"),
 }
 
