@@ -479,14 +479,15 @@ def _children_cpu_s() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
-def _solve_in_workers(model, actuations, plan: SolveOrder, tolerance, workers: int, progress) -> list:
-    """The solve order cut into runs of :data:`CHUNK` samples, solved by ``workers`` processes
+def _solve_in_workers(model, actuations, plan: SolveOrder, tolerance, workers: int, chunk: int,
+                      progress) -> list:
+    """The solve order cut into runs of ``chunk`` samples, solved by ``workers`` processes
     (started with ``spawn``; each receives the model once). A run's first sample, and any whose
     parent is in another run, starts from rest."""
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    runs = [plan.order[k:k + CHUNK] for k in range(0, len(plan.order), CHUNK)]
+    runs = [plan.order[k:k + chunk] for k in range(0, len(plan.order), chunk)]
     solved = []
     with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
                              initializer=_start_worker, initargs=(model,)) as pool:
@@ -504,23 +505,25 @@ def _solve_in_workers(model, actuations, plan: SolveOrder, tolerance, workers: i
 
 def sample_workspace(model, n_samples: int = 1000, *, method: str = "sobol", seed: int = 0,
                      ordering: str = "tree", tolerance: float | None = None, workers: int = 1,
-                     actuations: np.ndarray | None = None,
+                     chunk: int = CHUNK, actuations: np.ndarray | None = None,
                      progress: Callable[[int], object] | None = None) -> Workspace:
     """Solve the trunk at ``n_samples`` quasi-random actuations within the bounds (or at the
     given ``actuations``) and collect the effector positions.
 
-    Each sample starts from the equilibrium of the sample ``ordering`` names as its parent
-    (:data:`ORDERINGS`); the solver itself falls back to load stepping from rest when such a
-    warm start fails. ``tolerance`` overrides the scene's Newton tolerance. ``workers`` > 1
-    solves runs of the order in that many processes. ``progress(k)`` is called as ``k`` more
-    samples are done (e.g. a tqdm bar's ``update``)."""
+    Each sample starts from the Euler prediction off the equilibrium of the sample
+    ``ordering`` names as its parent (:data:`ORDERINGS`); the solver itself falls back to load
+    stepping from rest when such a warm start fails. ``tolerance`` overrides the scene's Newton
+    tolerance. ``workers`` > 1 solves runs of ``chunk`` consecutive samples of the order in
+    that many processes. ``progress(k)`` is called as ``k`` more samples are done (e.g. a tqdm
+    bar's ``update``)."""
     if ordering not in ORDERINGS:
         raise OptionError(f"unknown ordering {ordering!r}; choose one of {', '.join(ORDERINGS)}",
                           field="ordering")
     if tolerance is not None and not (tolerance > 0 and math.isfinite(tolerance)):
         raise OptionError(f"must be a positive number, got {tolerance}", field="tolerance")
-    if not (isinstance(workers, int) and workers >= 1):
-        raise OptionError(f"must be a positive whole number, got {workers}", field="workers")
+    for name, value in (("workers", workers), ("chunk", chunk)):
+        if not (isinstance(value, int) and value >= 1):
+            raise OptionError(f"must be a positive whole number, got {value}", field=name)
     wall, cpu, children_cpu = time.perf_counter(), time.process_time(), _children_cpu_s()
     sampled = actuations is None
     if sampled:
@@ -533,10 +536,10 @@ def sample_workspace(model, n_samples: int = 1000, *, method: str = "sobol", see
     n = len(actuations)
     plan = ORDERINGS[ordering](response_coordinates(model, actuations))
     order_s = time.perf_counter() - wall
-    if workers == 1 or n <= CHUNK:
+    if workers == 1 or n <= chunk:
         pieces = [_solve_samples(model, actuations, plan.order, plan.parent, tolerance, progress)]
     else:
-        pieces = _solve_in_workers(model, actuations, plan, tolerance, workers, progress)
+        pieces = _solve_in_workers(model, actuations, plan, tolerance, workers, chunk, progress)
 
     per_sample = {"positions": np.full((n, len(model.effector_names), 3), np.nan),
                   "converged": np.zeros(n, bool), "iterations": np.zeros(n, int),
