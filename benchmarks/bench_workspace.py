@@ -11,7 +11,11 @@ Sections:
    to solves at 1e-13 (1,000 samples).
 
 The machine is shared (2 cores, several jobs): CPU time is the figure to compare; wall time
-is what a user waits and is recorded with the load average at start and end.
+is what a user waits and is recorded with the load average at start and end. Contention
+inflates CPU time too, so the run also times a reference solve that ``bench_solver.py``
+timed at low load (``paper_5v_16t`` with 3 N on every fourth tendon, from rest, its row in
+``results/solver.json``): the ratio of the two is the slowdown at the time of this run, and
+the CPU time divided by it estimates the same run on the quiet machine.
 
 Run: ``.venv/bin/python benchmarks/bench_workspace.py [--quick]``; writes
 ``benchmarks/results/workspace.json``, ``workspace.md`` and two pictures
@@ -88,6 +92,29 @@ def tolerance_rows(model, n) -> list:
     return rows
 
 
+def reference_solve_cpu_s(model, repeats: int = 41) -> float:
+    """Median CPU time of bench_solver's gallery row for this robot: 3 N on every fourth
+    tendon, solved from rest."""
+    actuation = np.zeros(len(model.actuator_names))
+    actuation[:model.n_cables:4] = 3.0
+    times = []
+    for _ in range(repeats + 1):
+        start = time.process_time()
+        model.solve(actuation)
+        times.append(time.process_time() - start)
+    return float(np.median(times[1:]))
+
+
+def quiet_reference_s() -> tuple[float | None, list | None]:
+    """The same solve's CPU median in results/solver.json and the load it was measured at."""
+    try:
+        document = json.loads((RESULTS / "solver.json").read_text())
+        row = next(r for r in document["gallery"]["rows"] if r["scene"].startswith("paper_5v_16t ("))
+        return float(row["wall"]["cpu_median_s"]), row.get("loadavg")
+    except (OSError, KeyError, StopIteration, ValueError):
+        return None, None
+
+
 def commit() -> str:
     try:
         return subprocess.run(["git", "rev-parse", "--short=10", "HEAD"], capture_output=True, text=True,
@@ -126,6 +153,7 @@ def main(argv=None) -> int:
     load_start = os.getloadavg()
     model = solver.build_model(solver.load_scene(SCENE))
     sample_workspace(model, 16)                          # imports and caches warmed
+    reference_now = [reference_solve_cpu_s(model)]
 
     print(f"1. acceptance: {n_accept} samples of {SCENE}", flush=True)
     serial, workspace = run_row(model, n_accept)
@@ -152,7 +180,17 @@ def main(argv=None) -> int:
     for r in tolerances:
         print(f"   tol {r['tolerance']:g}: {r['iterations_mean']:.2f} iterations, {r['cpu_ms_per_sample']:.3f} ms CPU, "
               f"max error {r['max_error_m']:.2e} m", flush=True)
+    reference_now.append(reference_solve_cpu_s(model))
     load_end = os.getloadavg()
+    quiet_s, quiet_load = quiet_reference_s()
+    slowdown = float(np.mean(reference_now)) / quiet_s if quiet_s else None
+    calibration = {"reference_solve_cpu_s": reference_now, "quiet_reference_cpu_s": quiet_s,
+                   "quiet_reference_loadavg": quiet_load, "slowdown": slowdown,
+                   "serial_cpu_s_on_quiet_machine": serial["cpu_s"] / slowdown if slowdown else None,
+                   "two_workers_wall_s_on_quiet_machine": (parallel["cpu_s"] / slowdown / 2) if slowdown else None}
+    print(f"   reference solve {1e3 * np.mean(reference_now):.3f} ms CPU now"
+          + (f", {1e3 * quiet_s:.3f} ms at load {quiet_load[0]}: slowdown ×{slowdown:.2f}; serial run ≈ "
+             f"{calibration['serial_cpu_s_on_quiet_machine']:.1f} s CPU on the quiet machine" if slowdown else ""))
 
     RESULTS.mkdir(exist_ok=True)
     from vertebra.solver.workspace_plot import plot_workspace
@@ -166,6 +204,7 @@ def main(argv=None) -> int:
                 "host": platform.node(), "cpus": os.cpu_count(), "python": platform.python_version(),
                 "numpy": np.__version__, "load_average_start": load_start, "load_average_end": load_end,
                 "target_s": TARGET_S, "acceptance": {"serial": serial, "two_workers": parallel, "met_wall": met},
+                "calibration": calibration,
                 "orders": orders, "tolerance": tolerances}
     (RESULTS / "workspace.json").write_text(json.dumps(document, indent=1))
 
@@ -188,6 +227,14 @@ def main(argv=None) -> int:
                      f"{ms(row['cpu_ms_per_sample'])} | {row['order_s']:.2f} | {row['iterations_mean']:.2f} "
                      f"({row['iterations_max']}) | {row['iterations_histogram']} | {row['failures']} | "
                      f"{'-' if args.quick else ('yes' if row['wall_s'] <= TARGET_S else 'no')} |")
+    if slowdown:
+        lines += ["", f"Slowdown at the time of this run: a reference solve (paper_5v_16t, 3 N on every fourth "
+                  f"tendon, from rest) took {1e3 * np.mean(reference_now):.3f} ms CPU against "
+                  f"{1e3 * quiet_s:.3f} ms in `results/solver.json` (load {quiet_load[0]}): ×{slowdown:.2f}. "
+                  f"Divided by it, the single-process run is ≈ {calibration['serial_cpu_s_on_quiet_machine']:.1f} s "
+                  f"CPU on the quiet machine, and two workers would take ≈ "
+                  f"{calibration['two_workers_wall_s_on_quiet_machine']:.1f} s wall on two free cores "
+                  "(estimates, not measurements)."]
     lines += ["", f"## 2. Solve orders ({n_order} samples, same actuations)", "",
               "Each sample starts from its parent in the order: from the Euler predictor off the parent's "
               "equilibrium (`sample_workspace`), or from that equilibrium itself (baseline).", "",

@@ -1,6 +1,6 @@
 """``vertebra design FAMILY [--set NAME=VALUE ...] [--mesh-size H] [--order 1|2] --catalogue FILE``
 
-Mesh, solve and condense one segment into the catalogue (DESIGN.md §5). If the
+Mesh, solve and condense one segment into the catalogue (docs/designer.md). If the
 content key is already in the catalogue the entry is reused, not recomputed.
 ``vertebra design vertebra --set radius=.. --set thickness=.. --set density=..``
 prints a rigid vertebra's mass properties as a scene snippet (no catalogue).
