@@ -15,13 +15,13 @@ from vertebra.store.errors import OptionError
 PICTURE_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
 
 
-def output_file(value: str | None, option: str, suffixes: tuple[str, ...]) -> Path | None:
-    """``value`` as a path that can be written: one of ``suffixes`` (case-insensitive), in an
-    existing, writable directory, not a directory itself. ``None`` passes through."""
+def output_file(value: str | None, option: str, suffixes: tuple[str, ...] | None) -> Path | None:
+    """``value`` as a path that can be written: one of ``suffixes`` (case-insensitive; None:
+    any), in an existing, writable directory, not a directory itself. ``None`` passes through."""
     if value is None:
         return None
     path = Path(value)
-    if path.suffix.lower() not in suffixes:
+    if suffixes is not None and path.suffix.lower() not in suffixes:
         got = f"extension {path.suffix!r}" if path.suffix else "no extension"
         raise OptionError(f"{value}: {got}; {option} writes {' or '.join(suffixes)}", field=option)
     if path.is_dir():
