@@ -99,7 +99,8 @@ def response_coordinates(model, actuations: np.ndarray) -> np.ndarray:
     (translations m, rotations × trunk length), on its principal directions: Euclidean
     distances there approximate how far apart two samples' equilibria are."""
     actuations = np.asarray(actuations, float)
-    lower = actuation_box(model)[0]
+    lower = np.asarray(model.actuator_bounds[0], float)
+    lower = np.where(np.isfinite(lower), lower, 0.0)         # given actuations need no finite box
     lin = model.linearise(model.rest_state, lower)
     response = lin.solve(lin.actuator_forces)                         # (n_dof, n_act)
     response = response.reshape(-1, 6, response.shape[1])

@@ -177,3 +177,12 @@ def test_workspace_command_maps_the_tip_when_the_scene_has_no_effector(tmp_path,
     assert main(["workspace", str(path), "--samples", "8", "--json"]) == 0
     captured = capsys.readouterr()
     assert "tip" in json.loads(captured.out)["effectors"] and "no [[effector]]" in captured.err
+
+
+def test_given_actuations_need_no_finite_bounds():
+    data = gallery_data("paper_3v_4t")
+    del data["cable"][2]["max_tension"]
+    model = solver.build_model(solver.parse_scene(data))
+    workspace = sample_workspace(model, actuations=[[1.0, 0.0, 30.0, 0.0], [0.0, 2.0, 0.0, 0.0]])
+    assert workspace.converged.all() and workspace.settings["method"] == "given"
+    assert workspace.summary()["actuators"]["t3"]["upper"] is None     # JSON null, not inf
