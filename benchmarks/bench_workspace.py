@@ -131,7 +131,7 @@ def tolerance_picture(rows, path):
     fig, ax = plt.subplots(figsize=(6, 4.2))
     cost = [r["cpu_ms_per_sample"] for r in rows]
     error = [max(r["max_error_m"], 1e-16) for r in rows]
-    ax.loglog(cost, error, "o-")
+    ax.semilogy(cost, error, "o-")
     for r, c, e in zip(rows, cost, error):
         ax.annotate(f"tol {r['tolerance']:g}", (c, e), textcoords="offset points", xytext=(5, 3), fontsize=7)
     ax.set_xlabel("CPU time per sample [ms]")
