@@ -1,10 +1,12 @@
-"""``vertebra workspace SCENE [--samples N] [--json] [--plot FILE.png] [--points FILE.csv]``
+"""``vertebra workspace SCENE [--samples N] [--json] [--plot FILE.png] [--points FILE.csv] [--prepare]``
 
 Reachable effector positions over actuations sampled quasi-randomly within their bounds
 (``vertebra.solver.workspace``). Progress goes to stderr; ``--json`` prints one summary
 document on stdout (per effector: count, extents, centroid, convex hull; failures by
-sample); ``--points`` writes every sample. Exit codes: 0 when at least one sample
-converged (failed samples are counted and listed), 1 when none did, 2 bad input.
+sample); ``--points`` writes every sample; ``--processes N`` solves the samples in N
+processes (``--workers`` is for designing entries with ``--prepare``). Exit codes: 0 when at
+least one sample converged (failed samples are counted and listed), 1 when none did or a
+design failed, 2 bad input.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ import json
 import sys
 
 from vertebra.cli.outputs import PICTURE_SUFFIXES, output_file
+from vertebra.cli.prepare import add_preparation, prepared_scene
 
 POINT_SUFFIXES = (".csv", ".npz")
 
@@ -30,7 +33,9 @@ def add_arguments(parser) -> None:
                         help="solve order for warm starts (default tree)")
     parser.add_argument("--tolerance", type=float, default=None,
                         help="Newton tolerance (scaled residual; default: the scene's)")
-    parser.add_argument("--workers", type=int, default=1, metavar="N", help="worker processes (default 1)")
+    parser.add_argument("--processes", type=int, default=1, metavar="N",
+                        help="processes solving the samples (default 1)")
+    add_preparation(parser)
 
 
 def _with_tip_effector(scene):
@@ -55,18 +60,21 @@ def run(args) -> int:
     points = output_file(args.points, "--points", POINT_SUFFIXES)
     if args.samples < 1:
         raise OptionError(f"must be at least 1, got {args.samples}", field="--samples")
-    if args.workers < 1:
-        raise OptionError(f"must be at least 1, got {args.workers}", field="--workers")
+    if args.processes < 1:
+        raise OptionError(f"must be at least 1, got {args.processes}", field="--processes")
     if args.tolerance is not None and not args.tolerance > 0:
         raise OptionError(f"must be positive, got {args.tolerance}", field="--tolerance")
-    scene = _with_tip_effector(solver.load_scene(args.scene))
+    scene, code = prepared_scene(args)
+    if code:
+        return code
+    scene = _with_tip_effector(scene)
     model = solver.build_model(scene)
 
     from tqdm import tqdm
 
     with tqdm(total=args.samples, unit="solve", file=sys.stderr, disable=None, desc="workspace") as bar:
         workspace = sample_workspace(model, args.samples, method=args.sampler, seed=args.seed,
-                                     ordering=args.ordering, tolerance=args.tolerance, workers=args.workers,
+                                     ordering=args.ordering, tolerance=args.tolerance, workers=args.processes,
                                      progress=bar.update)
     if points is not None:
         write_points(workspace, points)

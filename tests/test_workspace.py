@@ -161,7 +161,8 @@ def test_workspace_command(tmp_path, capsys):
 def test_workspace_command_checks_outputs_before_solving(tmp_path, capsys):
     from vertebra.cli.main import main
 
-    for option, value in (("--plot", "w.vtu"), ("--points", "w.txt"), ("--plot", str(tmp_path / "no" / "w.png"))):
+    for option, value in (("--plot", "w.vtu"), ("--points", "w.txt"), ("--plot", str(tmp_path / "no" / "w.png")),
+                          ("--processes", "0")):
         assert main(["workspace", "gallery:paper_3v_4t", "--samples", "100000", option, value]) == 2
         assert option in capsys.readouterr().err      # refused at once, no 100,000 solves
 
@@ -186,3 +187,21 @@ def test_given_actuations_need_no_finite_bounds():
     workspace = sample_workspace(model, actuations=[[1.0, 0.0, 30.0, 0.0], [0.0, 2.0, 0.0, 0.0]])
     assert workspace.converged.all() and workspace.settings["method"] == "given"
     assert workspace.summary()["actuators"]["t3"]["upper"] is None     # JSON null, not inf
+
+
+def test_workspace_command_prepares_design_segments(tmp_path, capsys):
+    # a scene of one designed rod and one tendon: --prepare designs the entry first, then maps
+    from test_prepare import rod, scene_dict, write
+
+    from vertebra.cli.main import main
+
+    data = scene_dict(rod(0.004), catalogue=None)
+    data["cable"] = [{"name": "pull", "radius": 0.003, "to": 1, "max_tension": 0.01}]
+    path = write(tmp_path / "rods.toml", data)
+    catalogue = tmp_path / "rods.h5"
+    assert main(["workspace", str(path), "--samples", "6", "--json", "--prepare", "--catalogue", str(catalogue),
+                 "--executor", "serial", "--no-accuracy"]) == 0
+    captured = capsys.readouterr()
+    assert catalogue.exists() and "1 designed" in captured.err
+    document = json.loads(captured.out)
+    assert document["converged"] == 6 and document["effectors"]["tip"]["upper"][0] > 0   # pushed towards +x
