@@ -1,6 +1,6 @@
 """``vertebra design FAMILY [--set NAME=VALUE ...] [--mesh-size H] [--order 1|2] --catalogue FILE``
 
-Mesh, solve and condense one segment into the catalogue (DESIGN.md §5). If the
+Mesh, solve and condense one segment into the catalogue (docs/designer.md). If the
 content key is already in the catalogue the entry is reused, not recomputed.
 ``vertebra design vertebra --set radius=.. --set thickness=.. --set density=..``
 prints a rigid vertebra's mass properties as a scene snippet (no catalogue).
@@ -13,7 +13,10 @@ import json
 import sys
 import time
 
+from vertebra.cli.outputs import output_file
 from vertebra.store.errors import OptionError
+
+MESH_SUFFIXES = (".vtu", ".vtk")
 
 
 def add_arguments(parser) -> None:
@@ -25,7 +28,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--order", type=int, choices=(1, 2), default=2, help="element order (default 2)")
     parser.add_argument("--catalogue", metavar="FILE", help="HDF5 catalogue to add the entry to")
     parser.add_argument("--name", default=None, help="entry name (default FAMILY-<key prefix>)")
-    parser.add_argument("--export-mesh", metavar="FILE.vtu", default=None, help="also write the mesh (meshio)")
+    parser.add_argument("--export-mesh", metavar="FILE.vtu", default=None, help="also write the mesh (.vtu or .vtk)")
     parser.add_argument("--json", action="store_true", help="print the entry as JSON on stdout")
     parser.add_argument("--no-accuracy", action="store_true", help="skip the refined-mesh accuracy estimate")
     parser.add_argument("--linear-solver", choices=("auto", "direct", "amg"), default="auto")
@@ -80,6 +83,8 @@ def run(args) -> int:
         return _run_vertebra(args, values)
     if args.catalogue is None:
         raise OptionError("required to design a segment", field="--catalogue")
+    output_file(args.catalogue, "--catalogue", None)           # refused before meshing, not after
+    output_file(args.export_mesh, "--export-mesh", MESH_SUFFIXES)
     family = designer.FAMILIES.get(args.family)
     if family is None:
         raise OptionError(f"unknown family {args.family!r} (known: {', '.join(sorted(designer.FAMILIES))}, vertebra)",

@@ -1,14 +1,16 @@
 """``vertebra`` entry point. One module per subcommand, each with
 ``add_arguments(parser)`` and ``run(args) -> int``; heavy imports live inside ``run``.
 
-Exit codes (DESIGN.md §5): 0 success; 1 solved but not converged or target not
-reached; 2 bad input (the message names the file, the field and the reason).
+Exit codes: 0 success; 1 solved but not converged or target not reached; 2 bad input
+(the message names the file, the field and the reason); 141 (as for SIGPIPE) when the
+reader of stdout went away, e.g. ``vertebra simulate … | head``.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
 from vertebra import __version__
@@ -22,9 +24,21 @@ SUBCOMMANDS = {
     "sweep": ("vertebra.cli.sweep", "design-space sweep into the catalogue"),
     "prepare": ("vertebra.cli.prepare", "design only the entries a scene's design segments miss"),
     "catalogue": ("vertebra.cli.catalogue", "list, show, verify, merge, export catalogue entries"),
+    "workspace": ("vertebra.cli.workspace", "reachable effector positions over sampled actuations"),
+    "examples": ("vertebra.cli.examples", "copy the example scripts, trajectories and sweep specs into DIR"),
     "demo": ("vertebra.cli.demo", "the main job on an embedded default, end to end"),
 }
 
+BROKEN_PIPE = 141
+
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null so that the interpreter's final flush into the closed pipe
+    raises nothing (the recipe of Python's signal documentation)."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):   # stdout without a file descriptor (captured in tests)
+        pass
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
@@ -40,7 +54,6 @@ def build_parser() -> argparse.ArgumentParser:
         p.set_defaults(_run=module.run)
     return parser
 
-
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -48,7 +61,12 @@ def main(argv: list[str] | None = None) -> int:
 
     pin_blas_threads()      # one BLAS/OpenMP thread per process (designer/threads.py says why)
     try:
-        return int(args._run(args))
+        code = int(args._run(args))
+        sys.stdout.flush()          # a closed pipe shows here, not at interpreter exit
+        return code
+    except BrokenPipeError:
+        _silence_stdout()
+        return BROKEN_PIPE
     except (InputError, CatalogueError, GeometryError) as error:
         print(f"vertebra {args.command}: error: {error}", file=sys.stderr)
         return 2
@@ -58,7 +76,6 @@ def main(argv: list[str] | None = None) -> int:
     except FileNotFoundError as error:
         print(f"vertebra {args.command}: error: {error.filename}: file not found", file=sys.stderr)
         return 2
-
 
 if __name__ == "__main__":
     sys.exit(main())

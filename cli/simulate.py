@@ -5,11 +5,14 @@ from __future__ import annotations
 import json
 import sys
 
+from vertebra.cli.outputs import PICTURE_SUFFIXES, output_file, shown
 from vertebra.cli.prepare import add_preparation, prepared_scene
+
+VTK_SUFFIXES = (".vtu", ".vtk")
 
 
 def add_arguments(parser):
-    parser.add_argument("scene", help="scene file (TOML, DESIGN.md §4) or gallery:NAME")
+    parser.add_argument("scene", help="scene file (TOML; docs/scenes.md) or gallery:NAME")
     parser.add_argument("--json", action="store_true", help="print one JSON document on stdout")
     parser.add_argument("--plot", metavar="FILE.png", help="write a picture of the equilibrium")
     parser.add_argument("--vtk", metavar="FILE", help="write backbone and cables for ParaView (.vtu)")
@@ -21,6 +24,8 @@ def run(args) -> int:
     from vertebra.solver.report import plot_static, static_report, write_vtk
     from vertebra.store.errors import ConvergenceError
 
+    plot = output_file(args.plot, "--plot", PICTURE_SUFFIXES)
+    vtk = output_file(args.vtk, "--vtk", VTK_SUFFIXES)
     scene, code = prepared_scene(args)
     if code:
         return code
@@ -31,12 +36,12 @@ def run(args) -> int:
         result = error.result
         print(f"vertebra simulate: {error}", file=sys.stderr)
     report = static_report(model, result)
-    if args.plot:
-        plot_static(model, result, args.plot)
-        print(f"wrote {args.plot}", file=sys.stderr)
-    if args.vtk:
-        write_vtk(model, result.state, args.vtk)
-        print(f"wrote {args.vtk}", file=sys.stderr)
+    if plot is not None:
+        plot_static(model, result, str(plot))
+        print(f"wrote {plot}", file=sys.stderr)
+    if vtk is not None:
+        write_vtk(model, result.state, str(vtk))
+        print(f"wrote {vtk}", file=sys.stderr)
     if args.json:
         json.dump(report, sys.stdout)
         sys.stdout.write("\n")
@@ -46,9 +51,34 @@ def run(args) -> int:
               f"({report['diagnostics']['load_stages']} load stages), residual {result.residual:.3g}, "
               f"{1e3 * result.timings['solve_s']:.3f} ms")
         for name, value in report["effectors"].items():
-            print(f"  effector {name}: {' '.join(f'{v:+.6f}' for v in value['position'])} m")
-        for name, value in report["cables"].items():
-            print(f"  cable {name}: tension {value['tension']:g} N, stroke {value['stroke']:+.6g} m")
-        for name, value in report["chambers"].items():
-            print(f"  chamber {name}: pressure {value['pressure']:g} Pa, volume growth {value['volume_growth']:+.6g} m³")
+            where = (f"position {' '.join(f'{v:+.6f}' for v in value['position'])} m" if "position" in value
+                     else f"direction {' '.join(f'{v:+.6f}' for v in value['direction'])}")
+            print(f"  effector {name}: {where}")
+        _print_actuators(model, report, scene.solver.tolerance)
     return 0 if result.converged else 1
+
+
+def _largest(*groups) -> float:
+    """The largest finite magnitude among the values of ``groups`` (0 when there is none)."""
+    import numpy as np
+
+    values = np.abs(np.concatenate([np.ravel(np.asarray(g, dtype=float)) for g in groups]))
+    return float(values[np.isfinite(values)].max(initial=0.0))
+
+
+def _print_actuators(model, report: dict, tolerance: float) -> None:
+    """Tensions, strokes, pressures and volume growths; a value below the solver tolerance's
+    share of the largest of its kind (values and bounds) is rounding and prints as 0."""
+    upper, n = model.actuator_bounds[1], model.n_cables
+    cables, chambers = list(report["cables"].items()), list(report["chambers"].items())
+    tensions = [c["tension"] for _, c in cables]
+    strokes = [c["stroke"] for _, c in cables]
+    for (name, _), tension, stroke in zip(cables, shown(tensions, _largest(tensions, upper[:n]), tolerance),
+                                          shown(strokes, model.length_scale, tolerance)):
+        print(f"  cable {name}: tension {tension:g} N, stroke {stroke:+.6g} m")
+    pressures = [c["pressure"] for _, c in chambers]
+    volumes = [c["volume_growth"] for _, c in chambers]
+    rest = [c["rest_volume"] for _, c in chambers]
+    for (name, _), pressure, volume in zip(chambers, shown(pressures, _largest(pressures, upper[n:]), tolerance),
+                                           shown(volumes, _largest(volumes, rest), tolerance)):
+        print(f"  chamber {name}: pressure {pressure:g} Pa, volume growth {volume:+.6g} m³")

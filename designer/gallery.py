@@ -12,8 +12,6 @@ chamber spans the eight segments of its section (pressure 0–1.5 bar).
 
 from __future__ import annotations
 
-import math
-
 from vertebra.designer.vertebra import vertebra_properties
 from vertebra.store.errors import VertebraError
 
@@ -42,7 +40,7 @@ def cbha_slices(coarse: bool = True) -> list[dict]:
         length = section["length"] / n
         for k in range(n):
             t0, t1 = k / n, (k + 1) / n
-            p = {"length": length, "chambers": 3, "chamber_angle": math.pi / 2, **CBHA_MATERIAL}
+            p = {"length": length, "chambers": 3, "chamber_angle_deg": 90.0, **CBHA_MATERIAL}
             for name in ("outer_radius", "chamber_radius", "chamber_offset"):
                 p[f"bottom_{name}"] = round(_lerp(section[name], t0), 9)
                 p[f"top_{name}"] = round(_lerp(section[name], t1), 9)
@@ -60,7 +58,7 @@ def cbha_vertebra(section: int, slice_index: int) -> dict:
     t = (slice_index + 1) / CBHA_VERTEBRAE_PER_SECTION
     return vertebra_properties({"radius": _lerp(sec["outer_radius"], t), **CBHA_VERTEBRA, "holes": 3,
                                 "hole_radius": _lerp(sec["chamber_radius"], t),
-                                "hole_offset": _lerp(sec["chamber_offset"], t), "hole_angle": math.pi / 2})
+                                "hole_offset": _lerp(sec["chamber_offset"], t), "hole_angle_deg": 90.0})
 
 
 def _cbha_trunk(segments: list[dict], catalogue: str | None, pressures) -> dict:

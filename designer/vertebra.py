@@ -4,7 +4,7 @@ Not a catalogue entry: its mass, centre of mass and inertia follow from the
 geometry and density in closed form, and go into the scene as
 ``vertebra = { mass = .., center_of_mass = [..], inertia = [..] }``. The disc is
 centred on the vertebra frame (z from −thickness/2 to +thickness/2); hole k sits
-at ``hole_offset`` from the axis, at angle ``hole_angle + 2πk/holes`` from +x —
+at ``hole_offset`` from the axis, at ``hole_angle_deg + 360°·k/holes`` from +x —
 the ``radius``/``angle_deg`` of a scene ``[[cable]]`` through it.
 """
 
@@ -23,7 +23,7 @@ VERTEBRA_PARAMETERS = (
     Parameter("holes", "number of cable holes", default=0, integer=True),
     Parameter("hole_radius", "radius of each cable hole", default=0.0, unit="m"),
     Parameter("hole_offset", "distance of the hole centres from the axis", default=0.0, unit="m"),
-    Parameter("hole_angle", "angle of hole 0 about +z from +x", default=0.0, unit="rad"),
+    Parameter("hole_angle_deg", "angle of hole 0 about +z from +x", default=0.0, unit="deg"),
     Parameter("inner_radius", "central bore radius (0 = none)", default=0.0, unit="m"),
 )
 
@@ -79,7 +79,7 @@ def vertebra_properties(parameters: dict) -> dict:
         parts.append((-1, p["inner_radius"], 0.0, 0.0))
     holes = []
     for k in range(p["holes"]):
-        angle = p["hole_angle"] + 2 * math.pi * k / p["holes"]
+        angle = math.radians(p["hole_angle_deg"]) + 2 * math.pi * k / p["holes"]
         x, y = p["hole_offset"] * math.cos(angle), p["hole_offset"] * math.sin(angle)
         holes.append({"position": [x, y], "radius": p["hole_offset"], "angle_deg": math.degrees(angle)})
         parts.append((-1, p["hole_radius"], x, y))

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from vertebra import __version__
+from vertebra.solver.compliance import compliance_report
 from vertebra.solver.lie import qrotate
 from vertebra.solver.model import State, StaticResult, TrunkModel
 
@@ -25,6 +26,7 @@ def static_report(model: TrunkModel, result: StaticResult) -> dict:
     lengths = model.cable_lengths(state)
     volume = model.chamber_volume_growth(state, actuation[model.n_cables:])
     effectors = model.effector_positions(state)
+    compliance = compliance_report(model, result)
     return {
         "vertebra_version": __version__,
         "converged": bool(result.converged),
@@ -32,8 +34,9 @@ def static_report(model: TrunkModel, result: StaticResult) -> dict:
         "residual": float(result.residual),
         "vertebrae": [_pose(state.positions[f], state.quaternions[f]) for f in model.vertebra_frames],
         "frames": [_pose(p, q) for p, q in zip(state.positions, state.quaternions)],
-        "effectors": {name: ({"direction": [float(v) for v in effectors[k]]} if model.effector_is_axis[k]
-                             else {"position": [float(v) for v in effectors[k]]})
+        "effectors": {name: {**({"direction": [float(v) for v in effectors[k]]} if model.effector_is_axis[k]
+                                else {"position": [float(v) for v in effectors[k]]}),
+                             "compliance": compliance.get(name)}
                       for k, name in enumerate(model.effector_names)},
         "cables": {cable.name: {"tension": float(actuation[k]), "length": float(lengths[k]),
                                 "stroke": float(lengths[k] - model.rest_cable_lengths[k])}

@@ -11,6 +11,8 @@ load small enough that geometric nonlinearity stays below 1e-7 of the response.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -23,7 +25,7 @@ from vertebra.store.entry import SegmentEntry
 E = 1.0e6
 SEGMENTS = [  # bottom to top: three different segments with cavities
     ("pneumatic", dict(outer_radius=0.012, chamber_radius=0.0025, chamber_offset=0.006, chambers=2,
-                       chamber_angle=0.5, length=0.02, youngs_modulus=2 * E, poisson_ratio=0.3), 0.005),
+                       chamber_angle_deg=math.degrees(0.5), length=0.02, youngs_modulus=2 * E, poisson_ratio=0.3), 0.005),
     ("pneumatic", dict(outer_radius=0.012, chamber_radius=0.003, chamber_offset=0.0065, length=0.015,
                        youngs_modulus=E, poisson_ratio=0.45), 0.004),
     ("tapered_pneumatic", dict(bottom_outer_radius=0.012, top_outer_radius=0.01, bottom_chamber_radius=0.003,

@@ -80,6 +80,10 @@ class Family:
             raise GeometryError(f"family {self.name!r}: parameters must be a dict, got {type(parameters).__name__}")
         known = {p.name: p for p in self.parameters}
         unknown = sorted(set(parameters) - set(known))
+        for name in unknown:
+            if f"{name}_deg" in known:        # angles are given in degrees, as in scene files
+                raise GeometryError(f"family {self.name!r}: parameter {name!r} is spelt {name + '_deg'!r}: "
+                                    f"the angle in degrees (as the scenes' angle_deg)")
         if unknown:
             raise GeometryError(
                 f"family {self.name!r}: unknown parameter {unknown[0]!r} (known: {', '.join(sorted(known))})")

@@ -1,8 +1,8 @@
 """Multi-cavity pneumatic segment: one intervertebral slice of a CBHA-like section.
 
 ``chambers`` sealed cylindrical chambers of radius ``chamber_radius`` whose axes
-sit at ``chamber_offset`` from the segment axis (the first at ``chamber_angle``
-radians from +x, the others equally spaced), in a solid cylinder of radius
+sit at ``chamber_offset`` from the segment axis (the first at ``chamber_angle_deg``
+degrees from +x, the others equally spaced), in a solid cylinder of radius
 ``outer_radius`` with an optional central bore ``inner_radius`` (0 = none). The
 chambers run through the slice and are sealed by the vertebrae at both ends.
 
@@ -19,7 +19,7 @@ from vertebra.designer.families import MATERIAL, Family, Parameter, check_materi
 
 CHAMBER_PARAMETERS = (
     Parameter("chambers", "number of sealed chambers", default=3, integer=True),
-    Parameter("chamber_angle", "angle of chamber 0 about +z from +x", default=0.0, unit="rad"),
+    Parameter("chamber_angle_deg", "angle of chamber 0 about +z from +x", default=0.0, unit="deg"),
     Parameter("inner_radius", "central bore radius (0 = no bore)", default=0.0, unit="m"),
 )
 
@@ -60,9 +60,9 @@ def check_chambers(p: dict, sections: dict[str, tuple[float, float, float]]) -> 
 
 
 def chamber_centres(p: dict, offset: float) -> list[tuple[float, float]]:
-    n = p["chambers"]
-    return [(offset * math.cos(p["chamber_angle"] + 2 * math.pi * k / n),
-             offset * math.sin(p["chamber_angle"] + 2 * math.pi * k / n)) for k in range(n)]
+    n, first = p["chambers"], math.radians(p["chamber_angle_deg"])
+    return [(offset * math.cos(first + 2 * math.pi * k / n),
+             offset * math.sin(first + 2 * math.pi * k / n)) for k in range(n)]
 
 
 def _frustum(occ, z0, z1, centre0, centre1, r0, r1):

@@ -1,0 +1,43 @@
+"""Output files named on the command line, checked before any work is done.
+
+A subcommand that writes a file calls :func:`output_file` for its option while parsing its
+input, so that a misspelt extension or a missing directory is an :class:`OptionError`
+(exit 2, naming the option) instead of a failure after a long solve.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from vertebra.store.errors import OptionError
+
+PICTURE_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
+
+
+def output_file(value: str | None, option: str, suffixes: tuple[str, ...] | None) -> Path | None:
+    """``value`` as a path that can be written: one of ``suffixes`` (case-insensitive; None:
+    any), in an existing, writable directory, not a directory itself. ``None`` passes through."""
+    if value is None:
+        return None
+    path = Path(value)
+    if suffixes is not None and path.suffix.lower() not in suffixes:
+        got = f"extension {path.suffix!r}" if path.suffix else "no extension"
+        raise OptionError(f"{value}: {got}; {option} writes {' or '.join(suffixes)}", field=option)
+    if path.is_dir():
+        raise OptionError(f"{value}: is a directory, not a file name", field=option)
+    parent = path.parent
+    if not parent.is_dir():
+        raise OptionError(f"{value}: directory {str(parent)!r} does not exist", field=option)
+    if not os.access(parent, os.W_OK):
+        raise OptionError(f"{value}: directory {str(parent)!r} is not writable", field=option)
+    return path
+
+
+def shown(values, scale: float, relative: float):
+    """``values`` with entries below ``relative`` × ``scale`` set to 0, for printing: a tension
+    of 3.7e-31 N beside tensions of newtons is rounding of a zero, and prints as 0."""
+    import numpy as np
+
+    values = np.asarray(values, dtype=float)
+    return np.where(np.abs(values) <= relative * abs(scale), 0.0, values)

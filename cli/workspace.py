@@ -1,0 +1,123 @@
+"""``vertebra workspace SCENE [--samples N] [--json] [--plot FILE.png] [--points FILE.csv] [--prepare]``
+
+Reachable effector positions over actuations sampled quasi-randomly within their bounds
+(``vertebra.solver.workspace``). Progress goes to stderr; ``--json`` prints one summary
+document on stdout (per effector: count, extents, centroid, convex hull; failures by
+sample); ``--points`` writes every sample; ``--processes N`` solves the samples in N
+processes (``--workers`` is for designing entries with ``--prepare``). Exit codes: 0 when at
+least one sample converged (failed samples are counted and listed), 1 when none did or a
+design failed, 2 bad input.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+
+from vertebra.cli.outputs import PICTURE_SUFFIXES, output_file
+from vertebra.cli.prepare import add_preparation, prepared_scene
+
+POINT_SUFFIXES = (".csv", ".npz")
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("scene", help="scene file (TOML) or gallery:NAME")
+    parser.add_argument("--samples", type=int, default=1000, metavar="N", help="actuations to sample (default 1000)")
+    parser.add_argument("--json", action="store_true", help="print one JSON summary on stdout")
+    parser.add_argument("--plot", metavar="FILE.png", help="draw the clouds with their convex hulls and projections")
+    parser.add_argument("--points", metavar="FILE.csv", help="write every sample (.csv or .npz)")
+    parser.add_argument("--sampler", choices=("sobol", "halton"), default="sobol",
+                        help="quasi-random sequence (scrambled; default sobol)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the scrambling (default 0)")
+    parser.add_argument("--ordering", choices=("tree", "chain", "sampled"), default="tree",
+                        help="solve order for warm starts (default tree)")
+    parser.add_argument("--tolerance", type=float, default=None,
+                        help="Newton tolerance (scaled residual; default: the scene's)")
+    parser.add_argument("--processes", type=int, default=1, metavar="N",
+                        help="processes solving the samples (default 1)")
+    add_preparation(parser)
+
+
+def _with_tip_effector(scene):
+    """The scene with an effector ``tip`` at the last vertebra's origin when it has none."""
+    import dataclasses
+
+    from vertebra.solver.scene import EffectorSpec
+
+    if scene.effectors:
+        return scene
+    print("vertebra workspace: the scene has no [[effector]]; mapping the tip vertebra's origin as 'tip'",
+          file=sys.stderr)
+    return dataclasses.replace(scene, effectors=(EffectorSpec("tip", scene.n_vertebrae - 1),))
+
+
+def run(args) -> int:
+    from vertebra import __version__, solver
+    from vertebra.solver.workspace import sample_workspace, write_points
+    from vertebra.store.errors import OptionError
+
+    plot = output_file(args.plot, "--plot", PICTURE_SUFFIXES)
+    points = output_file(args.points, "--points", POINT_SUFFIXES)
+    if args.samples < 1:
+        raise OptionError(f"must be at least 1, got {args.samples}", field="--samples")
+    if args.processes < 1:
+        raise OptionError(f"must be at least 1, got {args.processes}", field="--processes")
+    if args.tolerance is not None and not args.tolerance > 0:
+        raise OptionError(f"must be positive, got {args.tolerance}", field="--tolerance")
+    scene, code = prepared_scene(args)
+    if code:
+        return code
+    scene = _with_tip_effector(scene)
+    model = solver.build_model(scene)
+
+    from tqdm import tqdm
+
+    with tqdm(total=args.samples, unit="solve", file=sys.stderr, disable=None, desc="workspace") as bar:
+        workspace = sample_workspace(model, args.samples, method=args.sampler, seed=args.seed,
+                                     ordering=args.ordering, tolerance=args.tolerance, workers=args.processes,
+                                     progress=bar.update)
+    if points is not None:
+        write_points(workspace, points)
+        print(f"wrote {points}", file=sys.stderr)
+    if plot is not None:
+        from vertebra.solver.workspace_plot import plot_workspace
+
+        plot_workspace(workspace, plot, rest=model.effector_positions(model.rest_state),
+                       title=f"{scene.name or args.scene}: reachable workspace, {workspace.n_samples} samples")
+        print(f"wrote {plot}", file=sys.stderr)
+    summary = workspace.summary()
+    if args.json:
+        document = {"vertebra_version": __version__, "scene": scene.name or args.scene, **summary,
+                    "points_file": None if points is None else str(points)}
+        json.dump(document, sys.stdout, allow_nan=False)
+        sys.stdout.write("\n")
+    else:
+        _print_summary(scene.name or args.scene, summary)
+    return 0 if summary["converged"] else 1
+
+
+def _print_summary(name: str, summary: dict) -> None:
+    timing = summary["timing"]
+    print(f"{name}: {summary['converged']} of {summary['samples']} samples converged "
+          f"({summary['failed']} failed), {summary['iterations']['mean'] or 0:.2f} Newton iterations per solve, "
+          f"{timing['wall_s']:.2f} s wall, {timing['cpu_s']:.2f} s CPU")
+    for effector, entry in summary["effectors"].items():
+        if entry["count"] == 0:
+            print(f"  effector {effector}: no converged sample")
+            continue
+        lower, upper = entry["lower"], entry["upper"]
+        extent = " ".join(f"{axis} {lo:+.4f}..{hi:+.4f}" for axis, lo, hi in zip("xyz", lower, upper))
+        hull = entry.get("hull")
+        if hull is None:
+            shape = "directions"
+        elif hull["dimension"] == 3:
+            shape = f"hull volume {hull['volume']:.4g} m³"
+        elif hull["dimension"] == 2:
+            shape = f"planar, hull area {hull['area']:.4g} m²"
+        else:
+            shape = f"spans {hull['dimension']} dimension(s)"
+        print(f"  effector {effector}: {extent} m, {shape}")
+    for failure in summary["failures"][:5]:
+        print(f"  sample {failure['sample']} failed: {failure['error']}: {failure['message']}")
+    if len(summary["failures"]) > 5:
+        print(f"  … and {len(summary['failures']) - 5} more failures (--json lists them all)")
