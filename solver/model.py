@@ -149,3 +149,10 @@ class TrunkModel:
     def effector_positions(self, state: State) -> np.ndarray:
         """World position of each point effector; world unit direction of each axis effector."""
         return outputs.effector_points(self.trunk, state)[1]
+
+    def effector_compliance(self, state: State, actuation=None):
+        """Cartesian compliance of every effector at the equilibrium ``state`` under ``actuation``
+        (``Je K⁻¹ Jeᵀ`` from the banded factor; :func:`vertebra.solver.compliance.effector_compliance`)."""
+        from vertebra.solver.compliance import effector_compliance
+
+        return effector_compliance(self, state, actuation)
