@@ -78,6 +78,37 @@ def run(args) -> int:
         for name, chamber in last["chambers"].items():
             print(f"chamber {name}: pressure {chamber['pressure']:.6g} Pa, "
                   f"volume growth {chamber['volume_growth']:.6g} m^3")
-        print(f"{'reached' if document['reached'] else 'NOT reached'} within {settings.tolerance:g} m; "
-              f"median step {document['timing']['median_step_s'] * 1e3:.3f} ms")
+        print(outcome(document, settings.tolerance, timed=trajectory.timed))
+        print(f"median step {document['timing']['median_step_s'] * 1e3:.3f} ms")
     return 0 if document["reached"] else 1
+
+
+SHOWN_STEPS = 5      # unreached steps named one by one in the text output; the rest are counted
+
+
+def _when(step: dict, index: int, timed: bool) -> str:
+    return f"step {index} (t = {step['t']:g} s)" if timed else f"step {index}"
+
+
+def outcome(document: dict, tolerance: float, *, timed: bool) -> str:
+    """One line saying whether every step reached its targets; if not, which steps (index and,
+    for a timed trajectory, time), which effectors and how far, and which found no equilibrium."""
+    steps, n = document["steps"], len(document["steps"])
+    if document["reached"]:
+        return f"reached within {tolerance:g} m at {'every one of ' if n > 1 else ''}{n} step{'s' * (n > 1)}"
+    misses: dict[int, list[str]] = {}
+    for miss in document["unreached"]:
+        misses.setdefault(miss["step"], []).append(f"{miss['effector']} {miss['error']:.3e} m")
+    failed = [i for i, step in enumerate(steps) if not step["equilibrium"]]
+    parts = []
+    if misses:
+        named = [f"{_when(steps[i], i, timed)}: {', '.join(what)}" for i, what in list(misses.items())[:SHOWN_STEPS]]
+        more = len(misses) - SHOWN_STEPS
+        parts.append(f"NOT reached within {tolerance:g} m at {len(misses)} of {n} step{'s' * (n > 1)}: "
+                     + "; ".join(named) + (f"; and {more} more" if more > 0 else ""))
+    if failed:
+        named = ", ".join(_when(steps[i], i, timed) for i in failed[:SHOWN_STEPS])
+        more = len(failed) - SHOWN_STEPS
+        parts.append(("" if misses else "NOT reached: ") + f"no equilibrium at {named}"
+                     + (f" and {more} more" if more > 0 else ""))
+    return "; ".join(parts)

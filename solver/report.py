@@ -55,8 +55,8 @@ def inverse_report(model: TrunkModel, steps: list, times, *, scene: str, mode: s
     reported at equilibrium where one was found) at ``times``: per step the actuator values and,
     per effector, target, position (or direction, for an axis effector) and error; the unreached
     effectors; the median and total step time."""
-    unreached = [{"step": i, "effector": name, "error": float(step.errors[k])}
-                 for i, step in enumerate(steps) for k, name in enumerate(model.effector_names)
+    unreached = [{"step": i, "t": float(t), "effector": name, "error": float(step.errors[k])}
+                 for i, (t, step) in enumerate(zip(times, steps)) for k, name in enumerate(model.effector_names)
                  if not step.errors[k] <= tolerance]
     converged = all(step.equilibrium for step in steps)
     step_times = [step.timings["total_s"] for step in steps]
