@@ -1,7 +1,7 @@
 """``vertebra`` entry point. One module per subcommand, each with
 ``add_arguments(parser)`` and ``run(args) -> int``; heavy imports live inside ``run``.
 
-Exit codes (DESIGN.md §5): 0 success; 1 solved but not converged or target not
+Exit codes: 0 success; 1 solved but not converged or target not
 reached; 2 bad input (the message names the file, the field and the reason).
 """
 

@@ -9,7 +9,7 @@ from vertebra.cli.prepare import add_preparation, prepared_scene
 
 
 def add_arguments(parser):
-    parser.add_argument("scene", help="scene file (TOML, DESIGN.md §4) or gallery:NAME")
+    parser.add_argument("scene", help="scene file (TOML; docs/scenes.md) or gallery:NAME")
     parser.add_argument("--json", action="store_true", help="print one JSON document on stdout")
     parser.add_argument("--plot", metavar="FILE.png", help="write a picture of the equilibrium")
     parser.add_argument("--vtk", metavar="FILE", help="write backbone and cables for ParaView (.vtu)")
