@@ -21,6 +21,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="targets per step: columns <effector>.x,.y,.z (optional leading t)")
     parser.add_argument("--json", action="store_true", help="print one JSON document on stdout")
     parser.add_argument("--plot", metavar="FILE.png", help="targets vs achieved paths and actuation")
+    parser.add_argument("--vtk", metavar="FILE.pvd",
+                        help="write the steps for ParaView: a .pvd time series of one .vtp per step "
+                             "in a folder beside it (docs/paraview.md)")
     parser.add_argument("--mode", choices=("converged", "tick"), default="converged",
                         help="converged static inverse (default) or one linearise–QP step per tick")
     parser.add_argument("--backend", default=None,
@@ -40,8 +43,10 @@ def run(args) -> int:
     from vertebra import solver
     from vertebra.solver.inverse import InverseController, InverseSettings
     from vertebra.solver.inverse.trajectory import read_trajectory, scene_trajectory
+    from vertebra.cli.simulate import check_suffix
     from vertebra.solver.report import inverse_report, plot_inverse
 
+    check_suffix(args.vtk, "--vtk", ".pvd")
     options = {key: value for key, value in (("backend", args.backend), ("tolerance", args.tolerance),
                                              ("regularisation", args.regularisation)) if value is not None}
     settings = InverseSettings(mode=args.mode, **options)
@@ -64,7 +69,15 @@ def run(args) -> int:
     document = inverse_report(model, steps, trajectory.times, scene=scene.name or args.scene, mode=args.mode,
                               backend=settings.backend, tolerance=settings.tolerance)
     if args.plot:
-        plot_inverse(model, steps, trajectory.times, args.plot)
+        plot_inverse(model, steps, trajectory.times if trajectory.timed else None, path=args.plot,
+                     tolerance=settings.tolerance)
+    if args.vtk:
+        from vertebra.solver.paraview import trunk_polydata, write_pvd
+
+        series = [(t, trunk_polydata(model, step.state, step.actuation, step.targets, time=t))
+                  for t, step in zip(trajectory.times if trajectory.timed else range(len(steps)), steps)]
+        files = write_pvd(args.vtk, series)
+        _log(f"wrote {args.vtk} ({len(files)} steps in {files[0].parent}/)")
     if args.json:
         print(json.dumps(document))
     else:

@@ -1,4 +1,5 @@
-"""``vertebra simulate SCENE [--json] [--plot FILE.png] [--vtk FILE] [--prepare]``: forward statics."""
+"""``vertebra simulate SCENE [--json] [--plot FILE.png] [--vtk FILE.vtp] [--frames FILE.csv] [--prepare]``:
+forward statics."""
 
 from __future__ import annotations
 
@@ -6,21 +7,35 @@ import json
 import sys
 
 from vertebra.cli.prepare import add_preparation, prepared_scene
+from vertebra.store.errors import OptionError
 
 
 def add_arguments(parser):
     parser.add_argument("scene", help="scene file (TOML; docs/scenes.md) or gallery:NAME")
     parser.add_argument("--json", action="store_true", help="print one JSON document on stdout")
     parser.add_argument("--plot", metavar="FILE.png", help="write a picture of the equilibrium")
-    parser.add_argument("--vtk", metavar="FILE", help="write backbone and cables for ParaView (.vtu)")
+    parser.add_argument("--vtk", metavar="FILE.vtp",
+                        help="write the trunk for ParaView: VTK PolyData with frames, cables, tensions, "
+                             "effectors and targets (docs/paraview.md)")
+    parser.add_argument("--frames", metavar="FILE.csv",
+                        help="write every frame's pose as a row-major 4x4 transform (n x 16, a header row)")
     add_preparation(parser)
+
+
+def check_suffix(value: str | None, option: str, suffix: str) -> None:
+    """An output file named on the command line must end in ``suffix`` (checked before solving)."""
+    if value is not None and not value.lower().endswith(suffix):
+        raise OptionError(f"{value}: {option} writes a {suffix} file", field=option)
 
 
 def run(args) -> int:
     from vertebra import solver
-    from vertebra.solver.report import plot_static, static_report, write_vtk
+    from vertebra.solver.paraview import trunk_polydata, write_vtp
+    from vertebra.solver.report import plot_static, static_report, write_frames
     from vertebra.store.errors import ConvergenceError
 
+    check_suffix(args.vtk, "--vtk", ".vtp")
+    check_suffix(args.frames, "--frames", ".csv")
     scene, code = prepared_scene(args)
     if code:
         return code
@@ -35,8 +50,11 @@ def run(args) -> int:
         plot_static(model, result, args.plot)
         print(f"wrote {args.plot}", file=sys.stderr)
     if args.vtk:
-        write_vtk(model, result.state, args.vtk)
+        write_vtp(args.vtk, trunk_polydata(model, result.state, result.actuation))
         print(f"wrote {args.vtk}", file=sys.stderr)
+    if args.frames:
+        write_frames(args.frames, result.state)
+        print(f"wrote {args.frames}", file=sys.stderr)
     if args.json:
         json.dump(report, sys.stdout)
         sys.stdout.write("\n")

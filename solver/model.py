@@ -62,6 +62,7 @@ class TrunkModel:
     def __init__(self, scene, entries: dict):
         self.trunk: Trunk = compile_trunk(scene, entries)
         self.memo = Memo(self.trunk)
+        self.entries: dict = dict(entries)      # the catalogue entries compiled, by name
 
     scene = property(lambda self: self.trunk.scene, doc="the scene the model was compiled from")
     rest_state = property(lambda self: self.trunk.rest_state, doc="the stress-free pose (carries its strains)")
