@@ -118,6 +118,12 @@ class Table:
         return value
 
     def table(self, key):
+        """The sub-table ``key`` (empty when absent, unless a field not asked for looks like its
+        misspelling: that is reported as unknown)."""
+        if not self._given(key):
+            found = self._misspelling(set(self.data) - self.asked, [key])
+            if found:
+                raise self.error(found[0], f"unknown field `{found[0]}`, did you mean `{found[1]}`?")
         return Table(self.raw(key, {}), self._name(key), self.source)
 
     def tables(self, key):

@@ -29,6 +29,9 @@ def renamed(table: dict, old: str, new: str) -> dict:
     ({"segment": [BEAM], "cable": [{"name": "t", "radius": 0.01, "to": 2, "max_tensoin": 3.0}]},
      "cable[0].max_tensoin", "max_tension"),
     ({"segment": [BEAM], "gravity": {"vectr": [0.0, 0.0, -9.81]}}, "gravity.vectr", "vector"),
+    # a misspelt table is reported before its absence makes anything else look missing
+    ({"segment": [BEAM], "solvr": {"tolerance": 1e-6}}, "solvr", "solver"),
+    ({"segment": [dict(BEAM, vertbra={"mass": 0.01})]}, "segment[0].vertbra", "vertebra"),
 ])
 def test_misspelt_fields_name_the_field_meant(data, field, meant):
     with pytest.raises(SceneError) as caught:
