@@ -13,6 +13,7 @@ import pytest
 from vertebra import solver
 from vertebra.cli.main import main
 from vertebra.solver import gallery
+from vertebra.solver.gallery.targets import pose_circle
 from vertebra.solver.inverse.trajectory import Trajectory, write_trajectory
 from vertebra.solver.lie import qmatrix
 from vertebra.solver.paraview import PARTS, trunk_polydata, write_vtp
@@ -152,18 +153,15 @@ def test_simulate_writes_vtp_and_frames(tmp_path, capsys):
 
 
 def test_invert_writes_a_pvd_time_series(tmp_path, capsys):
+    # three points of a reachable circle (a pulled tendon's pose turned about the axis)
     model = solver.build_model(gallery.load("paper_5v_16t"))
-    targets, state = [], None
-    for a in (0.2, 0.4, 0.6):
-        lam = np.full(16, 0.1)
-        lam[[0, 4, 8, 12]] += a
-        state = model.solve(lam, initial=state).state
-        targets.append(model.effector_positions(state))
+    pulled = np.zeros(16)
+    pulled[[3, 15]] = 1.0
     trajectory = tmp_path / "path.csv"
-    write_trajectory(trajectory, Trajectory(np.array(targets), np.array([0.0, 0.25, 0.5])), model.effector_names)
+    write_trajectory(trajectory, Trajectory(pose_circle(model, pulled, 3), np.array([0.0, 0.25, 0.5])),
+                     model.effector_names)
     pvd = tmp_path / "track.pvd"
-    code = main(["invert", "gallery:paper_5v_16t", "--trajectory", str(trajectory), "--mode", "tick",
-                 "--vtk", str(pvd), "--json"])
+    code = main(["invert", "gallery:paper_5v_16t", "--trajectory", str(trajectory), "--vtk", str(pvd), "--json"])
     assert code == 0
     document = __import__("json").loads(capsys.readouterr().out)
     steps = read_pvd(pvd)
