@@ -41,7 +41,7 @@ def frame_radii(model) -> np.ndarray:
     takes the first link's bottom). Beam links: :func:`section_outer_radius`; entry links: the
     entry's outer radius parameter; otherwise ``DEFAULT_RADIUS`` × the trunk length."""
     fallback = DEFAULT_RADIUS * model.length_scale
-    entries = getattr(model, "entries", {}) or {}
+    entries = model.entries
     bottom, top = [], []
     for segment in model.scene.segments:
         if segment.section is not None:
