@@ -247,10 +247,10 @@ def plot_inverse(model, steps, times=None, path=None, *, tolerance: float | None
     ax = axes[0]
     draw_trunk(ax, model, final.state, final.actuation, label="final ", cable_labels=False)
     points = ~np.asarray(model.effector_is_axis)               # a direction target is not a place in space
-    for k, name in enumerate(model.effector_names):
-        if points[k]:
-            ax.plot(*targets[:, k].T, "x--", color="tab:green", ms=5, lw=0.9, label=f"{name} targets")
-            ax.plot(*achieved[:, k].T, "o-", color="tab:red", ms=2.5, lw=1.1, label=f"{name} achieved")
+    for colour, k in enumerate(np.flatnonzero(points)):       # the colours of the error panel
+        name = model.effector_names[k]
+        ax.plot(*targets[:, k].T, "x--", color=f"C{colour}", ms=5, lw=0.9, label=f"{name} targets")
+        ax.plot(*achieved[:, k].T, "o-", color=f"C{colour}", ms=2.5, lw=1.4, alpha=0.8, label=f"{name} achieved")
     equal_axes(ax, np.vstack([targets[:, points].reshape(-1, 3), achieved[:, points].reshape(-1, 3),
                               final.state.positions, model.rest_state.positions]))
     ax.legend(fontsize=7, loc="upper left")
