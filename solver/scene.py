@@ -230,20 +230,20 @@ def parse_scene(data: dict, source: str = "<dict>", base_dir=".") -> Scene:
     cables = []
     for t in top.tables("cable"):
         first, last = vertebra_range(t)
-        cable_name = unique_name(t, "cable")
+        name = unique_name(t, "cable")
         radius = t.number("radius", required=True, nonneg=True)
         angle, tension = math.radians(t.number("angle_deg", 0.0)), t.number("tension", 0.0)
-        cables.append(CableSpec(cable_name, radius, angle, first, last, tension, *_bounds(t, "tension"),
+        cables.append(CableSpec(name, radius, angle, first, last, tension, *_bounds(t, "tension"),
                                 *_bounds(t, "stroke", -math.inf)))
         t.done()
 
     chambers = []
     for t in top.tables("chamber"):
         first, last = vertebra_range(t)
-        chamber_name = unique_name(t, "chamber")
+        name = unique_name(t, "chamber")
         cavity = t.number("cavity", 0, integer=True, nonneg=True)
         pressure = t.number("pressure", 0.0)
-        chambers.append(ChamberSpec(chamber_name, cavity, first, last, pressure, *_bounds(t, "pressure"),
+        chambers.append(ChamberSpec(name, cavity, first, last, pressure, *_bounds(t, "pressure"),
                                     *_bounds(t, "volume_growth", -math.inf)))
         t.done()
 
