@@ -12,13 +12,43 @@ import sys
 
 
 def _print_json(data) -> None:
-    json.dump(data, sys.stdout, allow_nan=False)
-    sys.stdout.write("\n")
+    from vertebra.cli.documents import print_document
+
+    print_document(data)
 
 
-def _short(params: dict, width: int = 60) -> str:
-    text = ", ".join(f"{k}={v}" for k, v in sorted(params.items()))
-    return text if len(text) <= width else text[: width - 1] + "…"
+def _text(params: dict) -> str:
+    return ", ".join(f"{k}={json.dumps(v, sort_keys=True)}" for k, v in sorted(params.items()))
+
+
+def _varied(rows: list[dict]) -> dict[str, dict]:
+    """Per family of two or more ``rows``: the parameters every entry of it shares (name → value)."""
+    by_family: dict[str, list[dict]] = {}
+    for r in rows:
+        by_family.setdefault(r["family"], []).append(r["parameters"])
+    common = {}
+    for family, params in by_family.items():
+        if len(params) > 1:
+            first = params[0]
+            common[family] = {k: v for k, v in first.items() if all(k in p and p[k] == v for p in params[1:])}
+    return common
+
+
+def _table(rows: list[dict], wide: bool, pending=frozenset()) -> None:
+    """Entries as aligned columns, nothing cut. The parameters column lists, per family of two or
+    more entries, only the parameters that vary; the shared ones follow on one line per family
+    (``wide``: every parameter on every row)."""
+    common = {} if wide else _varied(rows)
+    cells = [(r["key"], r["name"], r["family"], str(r["n_cavities"]),
+              _text({k: v for k, v in r["parameters"].items() if k not in common.get(r["family"], {})})
+              + (" (pending)" if r["key"] in pending else "")) for r in rows]
+    head = ("key", "name", "family", "cav", "parameters" if wide else "parameters (varied)")
+    widths = [max(len(c[j]) for c in cells + [head]) for j in range(4)]
+    for c in [head] + cells:
+        print("  ".join(value.ljust(width) for value, width in zip(c[:4], widths)) + "  " + c[4])
+    for family, shared in common.items():
+        if shared:
+            print(f"every {family} entry: {_text(shared)}")
 
 
 def _ls(args) -> int:
@@ -30,11 +60,7 @@ def _ls(args) -> int:
     if args.json:
         _print_json([{k: r[k] for k in ("key", "name", "family", "parameters")} for r in rows])
         return 0
-    print(f"{'key':20}  {'name':24}  {'family':10}  cav  parameters")
-    for r in rows:
-        mark = " (pending)" if r["key"] in pending else ""
-        print(f"{r['key']:20}  {r['name'][:24]:24}  {r['family'][:10]:10}  {r['n_cavities']:3d}  "
-              f"{_short(r['parameters'])}{mark}")
+    _table(rows, args.wide, pending)
     print(f"{len(rows)} entries", file=sys.stderr)
     return 0
 
@@ -107,8 +133,7 @@ def _query(args) -> int:
     if args.json:
         _print_json([{k: r[k] for k in ("key", "name", "family", "parameters")} for r in rows])
     else:
-        for r in rows:
-            print(f"{r['key']:20}  {r['name'][:24]:24}  {r['family'][:10]:10}  {_short(r['parameters'])}")
+        _table(rows, args.wide)
         print(f"{len(rows)} matching entries", file=sys.stderr)
     return 0
 
@@ -154,8 +179,13 @@ def _json(p):
     p.add_argument("--json", action="store_true", help="print JSON on stdout")
 
 
+def _wide(p):
+    p.add_argument("--wide", action="store_true",
+                   help="every parameter on every row (default: the varied ones; shared ones once per family)")
+
+
 ACTIONS = {
-    "ls": (_ls, "list entries", lambda p: (_file(p), _json(p))),
+    "ls": (_ls, "list entries", lambda p: (_file(p), _json(p), _wide(p))),
     "show": (_show, "show one entry (key, unique key prefix or unique name)",
              lambda p: (_file(p), p.add_argument("key", metavar="KEY"), _json(p))),
     "verify": (_verify, "check schema, checksums and index; exit 0 only if all good",
@@ -166,7 +196,7 @@ ACTIONS = {
     "query": (_query, "entries matching every --where condition",
               lambda p: (_file(p), p.add_argument("--where", action="append", metavar="COND",
                                                   help="e.g. 'radius>=0.01', 'family=rod' (= != < <= > >=)"),
-                         _json(p))),
+                         _json(p), _wide(p))),
     "export": (_export, "export one entry as JSON or NPZ",
                lambda p: (_file(p), p.add_argument("key", metavar="KEY"),
                           p.add_argument("--format", choices=("json", "npz"), default="json"),

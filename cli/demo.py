@@ -1,13 +1,14 @@
 """``vertebra demo [--out DIR]``: the whole pipeline on embedded defaults, end to end.
 
-1. forward statics of the gallery's two-section tendon robot (picture, VTK);
+1. forward statics of the gallery's two-section tendon robot (picture, ParaView .vtp, frames CSV);
 2. prepare: a CBHA-like pneumatic trunk (two tapered three-chamber sections) written as a
    scene of design segments (``gallery:cbha_design``); ``vertebra prepare`` meshes its 16
    slices with gmsh and condenses them with scikit-fem into an HDF5 catalogue, which is
    verified; ``simulate --prepare`` then reuses every entry and solves the trunk forward under
    chamber pressures (picture);
-3. inverse: the paper's 16-tendon robot tracking a circle with its tip, and the pneumatic
-   trunk reaching a target with its chamber pressures (pictures, JSON).
+3. inverse: the paper's 16-tendon robot tracking a circle with its tip (picture, JSON, ParaView
+   .pvd time series), and the pneumatic trunk reaching a target with its chamber pressures
+   (pictures, JSON).
 
 Every stage runs the same code as the corresponding ``vertebra`` subcommand.
 """
@@ -56,7 +57,7 @@ def run(args) -> int:
 
     _banner("1/3 forward statics: two-section tendon robot (gallery:tendon_two_section)")
     code = _command(["simulate", "gallery:tendon_two_section", "--plot", str(out / "tendon_forward.png"),
-                     "--vtk", str(out / "tendon_forward.vtu")])
+                     "--vtk", str(out / "tendon_forward.vtp"), "--frames", str(out / "tendon_forward_frames.csv")])
     summary["tendon_forward"] = code
 
     _banner("2/3 prepare → catalogue → forward: CBHA-like pneumatic trunk of design segments (gallery:cbha_design)")
@@ -101,7 +102,8 @@ def run(args) -> int:
     data["effector"] = [e for e in data["effector"] if e["name"] == "tip"]
     tip_only.write_text(scene_toml(data))
     summary["tendon_inverse"] = _command(["invert", str(tip_only), "--trajectory", str(trajectory_path),
-                                          "--json", "--plot", str(out / "tendon_inverse.png")],
+                                          "--json", "--plot", str(out / "tendon_inverse.png"),
+                                          "--vtk", str(out / "tendon_inverse.pvd")],
                                          stdout_path=out / "tendon_inverse.json")
     inverse = json.loads((out / "tendon_inverse.json").read_text())
     errors = [step["effectors"]["tip"]["error"] for step in inverse["steps"]]

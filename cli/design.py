@@ -1,6 +1,6 @@
 """``vertebra design FAMILY [--set NAME=VALUE ...] [--mesh-size H] [--order 1|2] --catalogue FILE``
 
-Mesh, solve and condense one segment into the catalogue (docs/designer.md). If the
+Mesh, solve and condense one segment into the catalogue. If the
 content key is already in the catalogue the entry is reused, not recomputed.
 ``vertebra design vertebra --set radius=.. --set thickness=.. --set density=..``
 prints a rigid vertebra's mass properties as a scene snippet (no catalogue).
@@ -9,7 +9,6 @@ Progress and logs go to stderr; ``--json`` prints one JSON document on stdout.
 
 from __future__ import annotations
 
-import json
 import sys
 import time
 
@@ -59,8 +58,9 @@ def _log(message: str) -> None:
 
 
 def _print_json(document) -> None:
-    json.dump(document, sys.stdout, allow_nan=False)
-    sys.stdout.write("\n")
+    from vertebra.cli.documents import print_document
+
+    print_document(document)
 
 
 def _run_vertebra(args, values) -> int:

@@ -12,6 +12,7 @@ import argparse
 import json
 import sys
 
+from vertebra.cli.outputs import PICTURE_SUFFIXES, output_file
 from vertebra.cli.prepare import add_preparation, prepared_scene
 
 
@@ -21,6 +22,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="targets per step: columns <effector>.x,.y,.z (optional leading t)")
     parser.add_argument("--json", action="store_true", help="print one JSON document on stdout")
     parser.add_argument("--plot", metavar="FILE.png", help="targets vs achieved paths and actuation")
+    parser.add_argument("--vtk", metavar="FILE.pvd",
+                        help="write the steps for ParaView: a .pvd time series of one .vtp per step "
+                             "in a folder beside it (docs/paraview.md)")
     parser.add_argument("--mode", choices=("converged", "tick"), default="converged",
                         help="converged static inverse (default) or one linearise–QP step per tick")
     parser.add_argument("--backend", default=None,
@@ -42,6 +46,8 @@ def run(args) -> int:
     from vertebra.solver.inverse.trajectory import read_trajectory, scene_trajectory
     from vertebra.solver.report import inverse_report, plot_inverse
 
+    plot = output_file(args.plot, "--plot", PICTURE_SUFFIXES)
+    vtk = output_file(args.vtk, "--vtk", (".pvd",))
     options = {key: value for key, value in (("backend", args.backend), ("tolerance", args.tolerance),
                                              ("regularisation", args.regularisation)) if value is not None}
     settings = InverseSettings(mode=args.mode, **options)
@@ -63,8 +69,16 @@ def run(args) -> int:
     steps = controller.track(trajectory.targets, settle=True, on_step=progress)
     document = inverse_report(model, steps, trajectory.times, scene=scene.name or args.scene, mode=args.mode,
                               backend=settings.backend, tolerance=settings.tolerance)
-    if args.plot:
-        plot_inverse(model, steps, trajectory.times, args.plot)
+    if plot is not None:
+        plot_inverse(model, steps, trajectory.times if trajectory.timed else None, path=str(plot),
+                     tolerance=settings.tolerance)
+    if vtk is not None:
+        from vertebra.solver.paraview import trunk_polydata, write_pvd
+
+        series = [(t, trunk_polydata(model, step.state, step.actuation, step.targets, time=t))
+                  for t, step in zip(trajectory.times if trajectory.timed else range(len(steps)), steps)]
+        files = write_pvd(str(vtk), series)
+        _log(f"wrote {args.vtk} ({len(files)} steps in {files[0].parent}/)")
     if args.json:
         print(json.dumps(document))
     else:
@@ -78,6 +92,37 @@ def run(args) -> int:
         for name, chamber in last["chambers"].items():
             print(f"chamber {name}: pressure {chamber['pressure']:.6g} Pa, "
                   f"volume growth {chamber['volume_growth']:.6g} m^3")
-        print(f"{'reached' if document['reached'] else 'NOT reached'} within {settings.tolerance:g} m; "
-              f"median step {document['timing']['median_step_s'] * 1e3:.3f} ms")
+        print(outcome(document, settings.tolerance, timed=trajectory.timed))
+        print(f"median step {document['timing']['median_step_s'] * 1e3:.3f} ms")
     return 0 if document["reached"] else 1
+
+
+SHOWN_STEPS = 5      # unreached steps named one by one in the text output; the rest are counted
+
+
+def _when(step: dict, index: int, timed: bool) -> str:
+    return f"step {index} (t = {step['t']:g} s)" if timed else f"step {index}"
+
+
+def outcome(document: dict, tolerance: float, *, timed: bool) -> str:
+    """One line saying whether every step reached its targets; if not, which steps (index and,
+    for a timed trajectory, time), which effectors and how far, and which found no equilibrium."""
+    steps, n = document["steps"], len(document["steps"])
+    if document["reached"]:
+        return f"reached within {tolerance:g} m at {'every one of ' if n > 1 else ''}{n} step{'s' * (n > 1)}"
+    misses: dict[int, list[str]] = {}
+    for miss in document["unreached"]:
+        misses.setdefault(miss["step"], []).append(f"{miss['effector']} {miss['error']:.3e} m")
+    failed = [i for i, step in enumerate(steps) if not step["equilibrium"]]
+    parts = []
+    if misses:
+        named = [f"{_when(steps[i], i, timed)}: {', '.join(what)}" for i, what in list(misses.items())[:SHOWN_STEPS]]
+        more = len(misses) - SHOWN_STEPS
+        parts.append(f"NOT reached within {tolerance:g} m at {len(misses)} of {n} step{'s' * (n > 1)}: "
+                     + "; ".join(named) + (f"; and {more} more" if more > 0 else ""))
+    if failed:
+        named = ", ".join(_when(steps[i], i, timed) for i in failed[:SHOWN_STEPS])
+        more = len(failed) - SHOWN_STEPS
+        parts.append(("" if misses else "NOT reached: ") + f"no equilibrium at {named}"
+                     + (f" and {more} more" if more > 0 else ""))
+    return "; ".join(parts)

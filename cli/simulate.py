@@ -1,4 +1,5 @@
-"""``vertebra simulate SCENE [--json] [--plot FILE.png] [--vtk FILE] [--prepare]``: forward statics."""
+"""``vertebra simulate SCENE [--json] [--plot FILE.png] [--vtk FILE.vtp] [--frames FILE.csv] [--prepare]``:
+forward statics."""
 
 from __future__ import annotations
 
@@ -8,24 +9,31 @@ import sys
 from vertebra.cli.outputs import PICTURE_SUFFIXES, output_file, shown
 from vertebra.cli.prepare import add_preparation, prepared_scene
 
-VTK_SUFFIXES = (".vtu", ".vtk")
+VTK_SUFFIXES = (".vtp",)
+FRAME_SUFFIXES = (".csv",)
 
 
 def add_arguments(parser):
     parser.add_argument("scene", help="scene file (TOML; docs/scenes.md) or gallery:NAME")
     parser.add_argument("--json", action="store_true", help="print one JSON document on stdout")
     parser.add_argument("--plot", metavar="FILE.png", help="write a picture of the equilibrium")
-    parser.add_argument("--vtk", metavar="FILE", help="write backbone and cables for ParaView (.vtu)")
+    parser.add_argument("--vtk", metavar="FILE.vtp",
+                        help="write the trunk for ParaView: VTK PolyData with frames, cables, tensions, "
+                             "effectors and targets (docs/paraview.md)")
+    parser.add_argument("--frames", metavar="FILE.csv",
+                        help="write every frame's pose as a row-major 4x4 transform (n x 16, a header row)")
     add_preparation(parser)
 
 
 def run(args) -> int:
     from vertebra import solver
-    from vertebra.solver.report import plot_static, static_report, write_vtk
+    from vertebra.solver.paraview import trunk_polydata, write_vtp
+    from vertebra.solver.report import plot_static, static_report, write_frames
     from vertebra.store.errors import ConvergenceError
 
     plot = output_file(args.plot, "--plot", PICTURE_SUFFIXES)
     vtk = output_file(args.vtk, "--vtk", VTK_SUFFIXES)
+    frames = output_file(args.frames, "--frames", FRAME_SUFFIXES)
     scene, code = prepared_scene(args)
     if code:
         return code
@@ -40,8 +48,11 @@ def run(args) -> int:
         plot_static(model, result, str(plot))
         print(f"wrote {plot}", file=sys.stderr)
     if vtk is not None:
-        write_vtk(model, result.state, str(vtk))
+        write_vtp(str(vtk), trunk_polydata(model, result.state, result.actuation))
         print(f"wrote {vtk}", file=sys.stderr)
+    if frames is not None:
+        write_frames(str(frames), result.state)
+        print(f"wrote {frames}", file=sys.stderr)
     if args.json:
         json.dump(report, sys.stdout)
         sys.stdout.write("\n")

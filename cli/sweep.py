@@ -6,7 +6,6 @@ Exit codes: 0 every task done (or already in the catalogue); 1 some task failed
 
 from __future__ import annotations
 
-import json
 import sys
 
 
@@ -40,7 +39,9 @@ def run(args) -> int:
                        scheduler=args.scheduler, start_method=args.start_method,
                        progress=not args.no_progress, dry_run=args.dry_run)
     if args.json:
-        print(json.dumps(report.to_json(), indent=1))
+        from vertebra.cli.documents import print_document
+
+        print_document(report.to_json(), indent=1)
     else:
         print(report.summary())
         if args.dry_run:

@@ -19,6 +19,7 @@ from importlib import metadata
 
 import numpy as np
 
+from vertebra import __version__
 from vertebra.designer.families import FAMILIES, Family
 from vertebra.store.entry import SegmentEntry, content_key
 from vertebra.store.errors import GeometryError
@@ -183,6 +184,7 @@ def design_segment(family, parameters: dict, *, mesh_size=None, order: int = 2, 
         "versions": {**result_versions(), "numpy": np.__version__, "scipy": _version("scipy"),
                      "pyamg": _version("pyamg"), "python": platform.python_version(),
                      "vertebra": _version("vertebra")},
+        "vertebra_version": __version__,
         "date": date, "host": socket.gethostname(),
         "linear_solver": {k: v for k, v in cond.info.items() if k != "iterations"}
         | ({"max_iterations": max(cond.info["iterations"])} if "iterations" in cond.info else {}),

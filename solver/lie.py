@@ -181,6 +181,18 @@ def qmatrix(q: np.ndarray) -> np.ndarray:
     return (outer @ R_TABLE).reshape(q.shape[:-1] + (3, 3))
 
 
+def pose_matrix(position: np.ndarray, quaternion: np.ndarray) -> np.ndarray:
+    """Homogeneous transforms ``(..., 4, 4)`` of poses (positions ``(..., 3)``, unit quaternions
+    ``(..., 4)`` [w, x, y, z]): ``[[R, p], [0, 1]]`` maps a point in the frame to the world."""
+    position, quaternion = np.asarray(position, dtype=float), np.asarray(quaternion, dtype=float)
+    shape = np.broadcast_shapes(position.shape[:-1], quaternion.shape[:-1])
+    out = np.zeros(shape + (4, 4))
+    out[..., :3, :3] = qmatrix(quaternion)
+    out[..., :3, 3] = position
+    out[..., 3, 3] = 1.0
+    return out
+
+
 def qrotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Rotate vectors ``v`` by unit quaternions ``q`` (broadcasting)."""
     return (qmatrix(q) @ v[..., None])[..., 0]

@@ -14,6 +14,9 @@ then runs many times without re-parsing or re-allocating the structure. The mode
 
 from __future__ import annotations
 
+from collections import Counter
+from collections.abc import Mapping
+
 import numpy as np
 
 from vertebra.solver import newton, outputs
@@ -23,7 +26,7 @@ from vertebra.solver.newton import StaticResult
 from vertebra.solver.outputs import Linearisation
 from vertebra.solver.state import State, StrainRecord, retract
 from vertebra.solver.trunk import Trunk, compile_trunk
-from vertebra.store.errors import CatalogueError
+from vertebra.store.errors import CatalogueError, OptionError
 
 __all__ = ["Linearisation", "State", "StaticResult", "StrainRecord", "TrunkModel", "build_model"]
 
@@ -59,6 +62,7 @@ class TrunkModel:
     def __init__(self, scene, entries: dict):
         self.trunk: Trunk = compile_trunk(scene, entries)
         self.memo = Memo(self.trunk)
+        self.entries: dict = dict(entries)      # the catalogue entries compiled, by name
 
     scene = property(lambda self: self.trunk.scene, doc="the scene the model was compiled from")
     rest_state = property(lambda self: self.trunk.rest_state, doc="the stress-free pose (carries its strains)")
@@ -84,23 +88,48 @@ class TrunkModel:
     effector_weights = _forward("effectors", "weights", "effector weights")
     has_dead_moments = _forward("loads", "has_dead_moments", "dead moments act (the tangent is unsymmetric)")
 
+    def __repr__(self) -> str:
+        kinds = Counter()
+        for segment in self.scene.segments:
+            kinds[segment.type] += segment.count * segment.elements
+        by_kind = ", ".join(f"{kind} {count}" for kind, count in kinds.items())
+        effectors = self.effector_names
+        return (f"<TrunkModel {self.scene.name or self.scene.source!r}: {self.n_frames} frames "
+                f"({len(self.vertebra_frames)} vertebrae), {self.n_links} links ({by_kind}), "
+                f"{self.n_cables} cables, {self.n_chambers} chambers, {len(effectors)} effectors"
+                + (f" ({', '.join(effectors)})" if effectors else "") + ">")
+
     def actuation(self, actuation=None) -> np.ndarray:
-        """``actuation`` as a float array of one value per actuator (None: the scene's values)."""
+        """``actuation`` as a float array of one value per actuator: None gives the scene's
+        values; a sequence gives every value (cables, then chambers); a mapping from actuator
+        names to values changes those and keeps the scene's value for the others. Unknown names
+        or a wrong count are an :class:`OptionError`."""
         default = self.trunk.actuators.default
         if actuation is None:
             return default.copy()
+        if isinstance(actuation, Mapping):
+            names = self.actuator_names
+            unknown = [str(name) for name in actuation if name not in names]
+            if unknown:
+                raise OptionError(f"unknown actuator name(s) {', '.join(map(repr, unknown))}; the model has "
+                                  f"{', '.join(names) or 'no actuators'}", field="actuation")
+            values = default.copy()
+            for name, value in actuation.items():
+                values[names.index(name)] = float(value)
+            return values
         actuation = np.asarray(actuation, dtype=float).reshape(-1)
         if actuation.shape != default.shape:
-            raise ValueError(f"actuation has {actuation.size} values, the model has "
-                             f"{default.size} actuators ({', '.join(self.actuator_names)})")
+            raise OptionError(f"{actuation.size} values for {default.size} actuators "
+                              f"({', '.join(self.actuator_names)})", field="actuation")
         return actuation
 
     # ------------------------------------------------------------------ solve
     def solve(self, actuation=None, initial: State | None = None, *, tolerance=None,
               max_iterations=None, load_steps=None, raise_on_failure=True) -> StaticResult:
         """Quasi-static equilibrium (paper eq. 9) by Newton with line search and automatic load
-        stepping (:mod:`~vertebra.solver.newton`). Raises :class:`ConvergenceError` (with the
-        partial result) on failure."""
+        stepping (:mod:`~vertebra.solver.newton`). ``actuation``: see :meth:`actuation`
+        (e.g. ``{"t1": 5.0}``). Raises :class:`ConvergenceError` (with the partial result) on
+        failure."""
         settings = self.scene.solver
         return newton.solve(
             self.trunk, self.memo, self.actuation(actuation), initial,

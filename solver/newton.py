@@ -49,6 +49,11 @@ class StaticResult:
     rounding_limited: bool = False   # stopped because the Newton correction fell below the
                                      # floating-point resolution of the poses (residual is rounding)
 
+    def __repr__(self) -> str:
+        tip = ", ".join(f"{v:.6g}" for v in self.state.positions[-1])
+        return (f"StaticResult(converged={self.converged}, iterations={self.iterations}, "
+                f"residual={self.residual:.3g}, load_steps={self.load_steps}, tip=[{tip}] m)")
+
 
 def residual_weights(trunk) -> np.ndarray:
     """Per-DoF weights of the residual measure: 1 for forces, 1/L for moments."""

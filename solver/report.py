@@ -1,8 +1,9 @@
-"""Results as plain data (the JSON documents of ``vertebra simulate`` and ``vertebra invert``)
-and as pictures or VTK files. Every document carries ``"vertebra_version"``.
+"""Results as plain data: the JSON documents of ``vertebra simulate`` and ``vertebra invert``
+(every document carries ``"vertebra_version"``) and the frames as 4×4 transforms (CSV).
 
-Matplotlib and meshio are imported lazily inside the functions that draw or write, so
-``import vertebra.solver`` stays light.
+Pictures are drawn by :mod:`vertebra.solver.plots` (``plot_static`` and ``plot_inverse`` are
+importable from here too), ParaView files written by :mod:`vertebra.solver.paraview`; both
+import what they need when called, so ``import vertebra.solver`` stays light.
 """
 
 from __future__ import annotations
@@ -11,8 +12,11 @@ import numpy as np
 
 from vertebra import __version__
 from vertebra.solver.compliance import compliance_report
-from vertebra.solver.lie import qrotate
 from vertebra.solver.model import State, StaticResult, TrunkModel
+from vertebra.solver.plots import plot_inverse, plot_static
+
+__all__ = ["FRAME_COLUMNS", "frames_table", "inverse_report", "plot_inverse", "plot_static", "static_report",
+           "write_frames"]
 
 
 def _pose(position, quaternion) -> dict:
@@ -58,8 +62,8 @@ def inverse_report(model: TrunkModel, steps: list, times, *, scene: str, mode: s
     reported at equilibrium where one was found) at ``times``: per step the actuator values and,
     per effector, target, position (or direction, for an axis effector) and error; the unreached
     effectors; the median and total step time."""
-    unreached = [{"step": i, "effector": name, "error": float(step.errors[k])}
-                 for i, step in enumerate(steps) for k, name in enumerate(model.effector_names)
+    unreached = [{"step": i, "t": float(t), "effector": name, "error": float(step.errors[k])}
+                 for i, (t, step) in enumerate(zip(times, steps)) for k, name in enumerate(model.effector_names)
                  if not step.errors[k] <= tolerance]
     converged = all(step.equilibrium for step in steps)
     step_times = [step.timings["total_s"] for step in steps]
@@ -103,132 +107,19 @@ def _inverse_step(model: TrunkModel, t, step) -> dict:
     }
 
 
-def cable_paths(model: TrunkModel, state: State) -> list[np.ndarray]:
-    """World polyline of each cable through its holes."""
-    return model.trunk.cables.paths(state.positions, state.quaternions)
+FRAME_COLUMNS = tuple(f"T{row}{column}" for row in range(1, 5) for column in range(1, 5))
 
 
-def _vertebra_radius(model: TrunkModel) -> float:
-    radii = [c.radius for c in model.scene.cables]
-    return 1.3 * max(radii) if radii and max(radii) > 0 else 0.03 * model.length_scale
+def frames_table(state: State) -> np.ndarray:
+    """Every frame's pose as a row-major 4×4 transform flattened to 16 values: ``(n_frames, 16)``,
+    columns :data:`FRAME_COLUMNS` (``T11 T12 T13 T14 T21 … T44``; translation in T14, T24, T34, m)."""
+    return state.transforms().reshape(-1, 16)
 
 
-def draw_trunk(ax, model: TrunkModel, state: State, *, rest: bool = True, targets: bool = True,
-               legend_prefix: str = ""):
-    """Draw backbone, vertebrae (discs), cables and effectors on a 3D matplotlib axis."""
-    if rest:
-        r = model.rest_state.positions
-        ax.plot(r[:, 0], r[:, 1], r[:, 2], color="0.75", lw=1, ls="--", label="rest")
-    x = state.positions
-    ax.plot(x[:, 0], x[:, 1], x[:, 2], color="k", lw=2, label=f"{legend_prefix}backbone")
-    radius = _vertebra_radius(model)
-    angle = np.linspace(0, 2 * np.pi, 33)
-    circle = np.stack([radius * np.cos(angle), radius * np.sin(angle), 0 * angle], -1)
-    for f in model.vertebra_frames:
-        ring = state.positions[f] + qrotate(state.quaternions[f][None], circle)
-        ax.plot(ring[:, 0], ring[:, 1], ring[:, 2], color="tab:blue", lw=1)
-    for k, path in enumerate(cable_paths(model, state)):
-        ax.plot(path[:, 0], path[:, 1], path[:, 2], lw=1, color=f"C{(k % 8) + 1}")
-    points = ~model.effector_is_axis            # directions are not drawn as points
-    if np.any(points):
-        e = model.effector_positions(state)[points]
-        ax.scatter(e[:, 0], e[:, 1], e[:, 2], color="tab:red", s=25, label=f"{legend_prefix}effectors")
-        t = model.effector_targets[points]
-        if targets and np.all(np.isfinite(t)):
-            ax.scatter(t[:, 0], t[:, 1], t[:, 2], marker="x", color="tab:green", s=40, label="targets")
-    equal_axes(ax, np.vstack([x, model.rest_state.positions]))
-
-
-def equal_axes(ax, points):
-    """Equal scales on a 3D axis around ``points`` (matplotlib has no 'equal' for 3D data)."""
-    centre = 0.5 * (points.max(0) + points.min(0))
-    half = 0.55 * max(np.ptp(points, axis=0).max(), 1e-9)
-    ax.set_xlim(centre[0] - half, centre[0] + half)
-    ax.set_ylim(centre[1] - half, centre[1] + half)
-    ax.set_zlim(centre[2] - half, centre[2] + half)
-    ax.set_xlabel("x [m]"), ax.set_ylabel("y [m]"), ax.set_zlabel("z [m]")
-
-
-def plot_static(model: TrunkModel, result: StaticResult, path: str, title: str | None = None):
-    """Write a PNG of the equilibrium shape (3D view and x–z side view)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    fig = plt.figure(figsize=(11, 5.5))
-    ax = fig.add_subplot(1, 2, 1, projection="3d")
-    draw_trunk(ax, model, result.state)
-    ax.legend(loc="upper left", fontsize=8)
-    side = fig.add_subplot(1, 2, 2)
-    r, x = model.rest_state.positions, result.state.positions
-    side.plot(r[:, 0], r[:, 2], color="0.75", ls="--", label="rest")
-    side.plot(x[:, 0], x[:, 2], color="k", lw=2, label="x–z")
-    side.plot(x[:, 1], x[:, 2], color="tab:orange", lw=1, label="y–z")
-    v = x[model.vertebra_frames]
-    side.scatter(v[:, 0], v[:, 2], s=12, color="tab:blue", label="vertebrae")
-    side.set_aspect("equal", adjustable="datalim")
-    side.set_xlabel("x or y [m]"), side.set_ylabel("z [m]"), side.legend(fontsize=8)
-    status = "converged" if result.converged else "NOT converged"
-    fig.suptitle(title or f"{model.scene.name or 'scene'}: {status} in {result.iterations} iterations, "
-                          f"residual {result.residual:.2g}")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-def plot_inverse(model: TrunkModel, steps: list, times, path: str):
-    """Write a PNG of inverse ``steps``: targets vs achieved effector paths with the last shape
-    (3D), and the actuation per step (bars for a single step)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    targets = np.array([step.targets for step in steps])
-    achieved = np.array([step.positions for step in steps])
-    actuation = np.array([step.actuation for step in steps])
-    final_state = steps[-1].state
-    fig = plt.figure(figsize=(11, 4.8))
-    ax = fig.add_subplot(1, 2, 1, projection="3d")
-    points = ~model.effector_is_axis                # a direction target is not a place in space
-    draw_trunk(ax, model, final_state, targets=False, legend_prefix="final ")
-    for k, name in enumerate(model.effector_names):
-        if points[k]:
-            ax.plot(*targets[:, k].T, "x--", ms=5, label=f"{name} target")
-            ax.plot(*achieved[:, k].T, "o-", ms=2, label=f"{name} achieved")
-    equal_axes(ax, np.vstack([targets[:, points].reshape(-1, 3), achieved[:, points].reshape(-1, 3),
-                              final_state.positions]))
-    ax.legend(fontsize=7)
-    ax2 = fig.add_subplot(1, 2, 2)
-    names = model.actuator_names
-    if len(steps) == 1:        # one target: the actuation as bars
-        ax2.bar(range(len(names)), actuation[0], color=[f"C{j % 10}" for j in range(len(names))])
-        ax2.set_xticks(range(len(names)), names, rotation=45, fontsize=7)
-    else:
-        for j, name in enumerate(names):
-            ax2.plot(times, actuation[:, j], label=name)
-        ax2.set_xlabel("t")
-        if len(names) <= 16:
-            ax2.legend(fontsize=6, ncol=2)
-    ax2.set_ylabel("actuation (N or Pa)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-def write_vtk(model: TrunkModel, state: State, path: str):
-    """Backbone and cables as VTK line cells (``.vtu``, ``.vtk`` … by extension, via meshio)."""
-    import meshio
-    points = [state.positions]
-    lines = [np.stack([np.arange(model.n_frames - 1), np.arange(1, model.n_frames)], -1)]
-    kind = [np.zeros(model.n_frames - 1, int)]
-    offset = model.n_frames
-    for k, path_points in enumerate(cable_paths(model, state)):
-        points.append(path_points)
-        n = len(path_points)
-        lines.append(offset + np.stack([np.arange(n - 1), np.arange(1, n)], -1))
-        kind.append(np.full(n - 1, k + 1))
-        offset += n
-    is_vertebra = np.zeros(offset, int)
-    is_vertebra[model.vertebra_frames] = 1
-    mesh = meshio.Mesh(np.vstack(points), [("line", np.vstack(lines))],
-                       point_data={"vertebra": is_vertebra},
-                       cell_data={"kind": [np.concatenate(kind)]})
-    mesh.write(path)
+def write_frames(path, state: State) -> None:
+    """Write :func:`frames_table` as CSV: a header row, then one row per frame (base first),
+    floats in shortest round-trip form."""
+    with open(path, "w", newline="") as handle:
+        handle.write(",".join(FRAME_COLUMNS) + "\n")
+        for row in frames_table(state):
+            handle.write(",".join(repr(float(v)) for v in row) + "\n")

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vertebra.solver.chain import Chain, chain_poses
+from vertebra.solver.lie import pose_matrix
 from vertebra.solver.links import Links
 
 
@@ -40,8 +41,17 @@ class State:
     quaternions: np.ndarray   # (n_frames, 4) [w, x, y, z]
     strains: StrainRecord | None = field(default=None, repr=False, compare=False)
 
+    def __repr__(self) -> str:
+        tip = ", ".join(f"{v:.6g}" for v in self.positions[-1])
+        return f"State({len(self.positions)} frames, tip at [{tip}] m)"
+
     def copy(self) -> "State":
         return State(self.positions.copy(), self.quaternions.copy(), self.strains)
+
+    def transforms(self) -> np.ndarray:
+        """The pose of every frame as a 4×4 homogeneous transform ``(n_frames, 4, 4)``
+        (:func:`vertebra.solver.lie.pose_matrix`)."""
+        return pose_matrix(self.positions, self.quaternions)
 
     def carried_strains(self) -> StrainRecord | None:
         """The strain record when it still describes these poses, else None. The solver's own

@@ -1,16 +1,23 @@
 """TOML tables read field by field: every error names the file, the dotted field and the reason.
 
 :class:`Table` consumes the fields it is asked for and rejects, when done, the ones it never
-read (unknown fields are errors, not silently ignored).
+read (unknown fields are errors, not silently ignored). A field name that is close to one the
+parser asked for is reported as a misspelling of it ("unknown field `youngs_modulous`, did you
+mean `youngs_modulus`?"), before a required field is reported missing.
 """
 
 from __future__ import annotations
 
+import difflib
 import math
 
 from vertebra.store.errors import SceneError
 
 MAX_MAGNITUDE = 1e100        # larger inputs are mistakes (and overflow in l³, r⁴)
+# How alike (difflib ratio) a field must be to one the parser asked for to be called its
+# misspelling: "youngs_modulous" 0.97, "lenght" 0.83, "radus" 0.91, while distinct fields of one
+# table stay below it ("outer_radius"/"inner_radius" 0.75, "youngs_modulus"/"shear_modulus" 0.67).
+MISSPELLING_RATIO = 0.8
 
 
 class Table:
@@ -20,6 +27,11 @@ class Table:
         if not isinstance(data, dict):
             raise SceneError(f"expected a table, got {type(data).__name__}", file=source, field=path or None)
         self.data, self.path, self.source, self.used = data, path, source, set()
+        self.asked = set()      # every field the parser looked for, given or not
+
+    def _given(self, key) -> bool:
+        self.asked.add(key)
+        return key in self.data
 
     def _name(self, key):
         return f"{self.path}.{key}" if self.path else key
@@ -28,19 +40,40 @@ class Table:
         return SceneError(reason, file=self.source, field=self._name(key))
 
     def has(self, key):
-        return key in self.data
+        return self._given(key)
 
     def raw(self, key, default=None):
+        self.asked.add(key)
         self.used.add(key)
         return self.data.get(key, default)
+
+    def _misspelling(self, candidates, fields):
+        """The first field of ``candidates`` (not asked for) that is close to one of ``fields``:
+        ``(candidate, field)`` or None."""
+        for candidate in sorted(str(c) for c in candidates):
+            match = difflib.get_close_matches(candidate, list(fields), n=1, cutoff=MISSPELLING_RATIO)
+            if match:
+                return candidate, match[0]
+        return None
+
+    def missing(self, key):
+        """The error for a required ``key`` that is absent. A field not asked for that looks
+        like a misspelling (of ``key`` first, else of another field asked for) is reported
+        instead: unknown fields are checked before required ones."""
+        self.asked.add(key)
+        unread = set(self.data) - self.asked
+        found = self._misspelling(unread, [key]) or self._misspelling(unread, self.asked)
+        if found:
+            return self.error(found[0], f"unknown field `{found[0]}`, did you mean `{found[1]}`?")
+        return self.error(key, "required field is missing")
 
     def number(self, key, default=None, *, positive=False, nonneg=False, required=False, integer=False,
                unbounded=False):
         """A number. Infinite values are accepted only where ``unbounded`` (actuator bounds:
         ``max_tension = inf``); magnitudes beyond 1e100 are refused as input mistakes."""
-        if key not in self.data:
+        if not self._given(key):
             if required:
-                raise self.error(key, "required field is missing")
+                raise self.missing(key)
             return default
         value = self.raw(key)
         if isinstance(value, bool) or not isinstance(value, (int, float)):
@@ -58,9 +91,9 @@ class Table:
         return int(value) if integer else float(value)
 
     def vector(self, key, n, default=None, *, required=False):
-        if key not in self.data:
+        if not self._given(key):
             if required:
-                raise self.error(key, "required field is missing")
+                raise self.missing(key)
             return default
         value = self.raw(key)
         if (not isinstance(value, list) or len(value) != n
@@ -73,9 +106,9 @@ class Table:
         return tuple(float(v) for v in value)
 
     def string(self, key, default=None, *, required=False, choices=None):
-        if key not in self.data:
+        if not self._given(key):
             if required:
-                raise self.error(key, "required field is missing")
+                raise self.missing(key)
             return default
         value = self.raw(key)
         if not isinstance(value, str) or not value:
@@ -85,6 +118,12 @@ class Table:
         return value
 
     def table(self, key):
+        """The sub-table ``key`` (empty when absent, unless a field not asked for looks like its
+        misspelling: that is reported as unknown)."""
+        if not self._given(key):
+            found = self._misspelling(set(self.data) - self.asked, [key])
+            if found:
+                raise self.error(found[0], f"unknown field `{found[0]}`, did you mean `{found[1]}`?")
         return Table(self.raw(key, {}), self._name(key), self.source)
 
     def tables(self, key):
@@ -94,6 +133,9 @@ class Table:
         return [Table(item, f"{self._name(key)}[{i}]", self.source) for i, item in enumerate(value)]
 
     def done(self):
-        unknown = sorted(set(self.data) - self.used)
+        unknown = sorted(str(key) for key in set(self.data) - self.used)
         if unknown:
+            found = self._misspelling(unknown, self.asked - set(self.data))
+            if found:
+                raise self.error(found[0], f"unknown field `{found[0]}`, did you mean `{found[1]}`?")
             raise self.error(unknown[0], "unknown field")

@@ -415,6 +415,9 @@ def _parse_condition(text: str):
     field, op, raw = m.groups()
     if len(raw) >= 2 and raw[0] == raw[-1] and raw[0] in "'\"":
         value = raw[1:-1]
+    elif not raw or raw[0] in "<>=!":            # 'radius>>1', 'radius>=': a mistyped operator
+        raise CatalogueError(f"query: condition {text!r}: after {field!r} {op!r} expected a value, got "
+                             f"{raw!r}; OP is one of = != < <= > >= (quote a value that starts with one)")
     else:
         try:
             value = json.loads(raw)

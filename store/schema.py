@@ -45,6 +45,23 @@ DICT_FIELDS = ("parameters", "mesh", "accuracy", "timings", "provenance")
 # merge skips them); every other field difference is a conflict.
 CIRCUMSTANTIAL_FIELDS = ("timings", "provenance")
 
+# HDF5 attributes ``units`` and ``description`` of every dataset vertebra writes (readers do not
+# need them: files without them read and verify as before). The compliance maps
+# [f (N); m (N m); p (Pa)] at frame b to [Δx (m); Δθ (rad); ΔV (m³)], in frame a's axes.
+DATASET_ATTRIBUTES = {
+    "compliance": ("[[m/N, 1/N, m/Pa], [rad/N, rad/(N m), rad/Pa], [m^3/N, m^2/N, m^3/Pa]]",
+                   "symmetric (6+n)x(6+n) compliance [[C, G], [G^T, V]]: rows [dx; dtheta; dV] (displacement "
+                   "and rotation vector of frame b relative to frame a, in a's axes; cavity volume growths), "
+                   "columns [f; m; p] (force and moment applied at b's origin, in a's axes; cavity pressures); "
+                   "units by block (rows dx, dtheta, dV; columns f, m, p)"),
+    "cavity_volumes": ("m^3", "rest volume of each cavity"),
+    "center_of_mass": ("m", "centre of mass of the segment in frame a"),
+    "rest_translation": ("m", "rest position d0 of frame b in frame a"),
+    "rest_quaternion": ("1", "rest rotation R0 of frame b in frame a, unit quaternion [w, x, y, z]"),
+    "index": ("none", "one canonical JSON row per entry: key, name, family, parameters, n_cavities, mass, "
+                      "checksum, content"),
+}
+
 MAX_JSON_BYTES = 1 << 20       # one metadata attribute or one index row
 MAX_TEXT_CHARS = 256           # names and families
 MAX_ARRAY_SIDE = 4096          # 6+n cavities; a larger compliance is not a segment
@@ -260,7 +277,7 @@ def write_entry(entries_group, enc: EncodedEntry) -> None:
     """Create ``entries_group/<key>`` holding the encoded entry (contiguous float64 datasets)."""
     group = entries_group.create_group(enc.key)
     for field in ARRAY_FIELDS:
-        group.create_dataset(field, data=enc.arrays[field])
+        _describe(group.create_dataset(field, data=enc.arrays[field]), field)
     group.attrs["name"] = _fixed_string(enc.name)
     group.attrs["family"] = _fixed_string(enc.family)
     group.attrs["mass"] = np.float64(enc.mass)
@@ -335,9 +352,16 @@ def init_file(f) -> None:
 
     f.attrs["format"] = _fixed_string(FORMAT)
     f.attrs["schema_version"] = np.int64(SCHEMA_VERSION)
-    f.create_dataset("index", shape=(0,), maxshape=(None,), chunks=(1024,),
-                     dtype=h5py.string_dtype("utf-8"))
+    _describe(f.create_dataset("index", shape=(0,), maxshape=(None,), chunks=(1024,),
+                               dtype=h5py.string_dtype("utf-8")), "index")
     f.create_group("entries")
+
+
+def _describe(dataset, field: str) -> None:
+    """Attach the ``units`` and ``description`` attributes (fixed-length UTF-8) of ``field``."""
+    units, description = DATASET_ATTRIBUTES[field]
+    dataset.attrs["units"] = _fixed_string(units)
+    dataset.attrs["description"] = _fixed_string(description)
 
 
 def check_file(f, what: str) -> None:

@@ -15,6 +15,7 @@ import h5py
 import numpy as np
 import pytest
 
+from vertebra import __version__ as vertebra_version
 from vertebra.store import catalogue, schema, shards
 from vertebra.store.entry import SegmentEntry
 from vertebra.store.errors import CatalogueError
@@ -396,8 +397,8 @@ def test_cli_ls_show_query_export_rm(cat3, tmp_path, monkeypatch, capsys):
     path, entries = cat3
     code, out, _ = vertebra(["ls", path, "--json"], monkeypatch, capsys)
     assert code == 0
-    assert json.loads(out) == [{"key": e.key, "name": e.name, "family": e.family, "parameters": e.parameters}
-                               for e in entries]
+    assert json.loads(out) == [{"vertebra_version": vertebra_version, "key": e.key, "name": e.name,
+                                "family": e.family, "parameters": e.parameters} for e in entries]
     code, out, _ = vertebra(["show", path, entries[1].name, "--json"], monkeypatch, capsys)
     assert code == 0 and json.loads(out)["compliance"] == entries[1].compliance.tolist()
     code, out, _ = vertebra(["query", path, "--where", "family=rod", "--json"], monkeypatch, capsys)

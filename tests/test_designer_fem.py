@@ -211,7 +211,7 @@ def test_design_segment_entry_fields():
     np.testing.assert_array_equal(entry.rest_translation, [0, 0, 0.02])
     assert set(entry.mesh) >= {"nodes", "elements", "dofs", "order", "mesh_size"}
     assert set(entry.timings) >= {"mesh_s", "assemble_s", "solve_s", "total_s"}
-    assert set(entry.provenance) >= {"versions", "date", "host"} and "gmsh" in entry.provenance["versions"]
+    assert set(entry.provenance) >= {"versions", "date", "host", "vertebra_version"} and "gmsh" in entry.provenance["versions"]
     assert entry.provenance["date"].endswith("+00:00")
     # accuracy: refined mesh change, small but not zero on such a coarse mesh
     assert 0 < entry.accuracy["relative_change"] < 0.2

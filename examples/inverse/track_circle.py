@@ -49,12 +49,13 @@ def run(scene_name="paper_5v_16t", posture=False, radius=0.01, points=36, mode="
     if csv:
         write_trajectory(csv, Trajectory(targets, np.arange(points, dtype=float)), model.effector_names)
     controller = InverseController(model, InverseSettings(mode=mode))
-    efforts, errors, times, achieved = [], [], [], []
+    efforts, errors, times, achieved, steps = [], [], [], [], []
     for target in targets:
         t0 = time.thread_time()
         step = controller.step(target)
         times.append(time.thread_time() - t0)
         step = controller.settled(step)  # a tick: where the robot settles under its actuation
+        steps.append(step)
         achieved.append(step.positions)
         errors.append(step.errors)
         efforts.append(step.actuation)
@@ -68,24 +69,10 @@ def run(scene_name="paper_5v_16t", posture=False, radius=0.01, points=36, mode="
         for key, value in summary.items():
             print(f"{key}: {value}")
     if plot:
-        import matplotlib
+        from vertebra.solver.plots import plot_inverse
 
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        fig = plt.figure(figsize=(11, 4.8))
-        ax = fig.add_subplot(1, 2, 1, projection="3d")
-        for e, name in enumerate(model.effector_names):
-            ax.plot(*targets[:, e].T, "--", label=f"{name} target")
-            ax.plot(*achieved[:, e].T, "o", ms=2, label=f"{name} achieved")
-        ax.legend(fontsize=7)
-        ax2 = fig.add_subplot(1, 2, 2)
-        ax2.plot(efforts)
-        ax2.set_xlabel("step")
-        ax2.set_ylabel("tension (N)")
-        fig.tight_layout()
-        fig.savefig(plot, dpi=110)
-        plt.close(fig)
+        plot_inverse(model, steps, path=plot, tolerance=controller.settings.tolerance,
+                     title=f"{scene_name}: {mode} inverse along a {radius * 1e3:g} mm circle")
     return summary
 
 

@@ -22,10 +22,12 @@ __all__ = ["Trajectory", "scene_trajectory", "read_trajectory", "write_trajector
 
 @dataclass(frozen=True)
 class Trajectory:
-    """Targets ``(n_steps, n_eff, 3)`` (m, world) and times ``(n_steps,)`` (s, or step index)."""
+    """Targets ``(n_steps, n_eff, 3)`` (m, world) and times ``(n_steps,)``: seconds when
+    ``timed`` (a CSV with a ``t`` column, or times given in code), else the step index."""
 
     targets: np.ndarray
     times: np.ndarray
+    timed: bool = True
 
     def __post_init__(self):
         t = np.asarray(self.targets, dtype=float)
@@ -45,7 +47,7 @@ def scene_trajectory(model) -> Trajectory:
         if not np.isfinite(targets[k]).all():
             raise SceneError(f"effector {name!r} has no target (give one, or a trajectory)",
                              file=model.scene.source, field=f"effector[{k}].target")
-    return Trajectory(targets[None].copy(), np.zeros(1))
+    return Trajectory(targets[None].copy(), np.zeros(1), timed=False)
 
 
 def read_trajectory(path, effector_names, default_targets=None) -> Trajectory:
@@ -120,7 +122,7 @@ def read_trajectory(path, effector_names, default_targets=None) -> Trajectory:
                 times[k] = value
             else:
                 targets[k, where[0], where[1]] = value
-    return Trajectory(targets, times)
+    return Trajectory(targets, times, timed=has_t)
 
 
 def write_trajectory(path, trajectory: Trajectory, effector_names) -> None:
