@@ -22,7 +22,7 @@ import numpy as np
 _RULES = {}
 
 
-def _rule(degree: int):
+def triangle_rule(degree: int):
     if degree not in _RULES:
         from skfem.quadrature import get_quadrature
         from skfem.refdom import RefTri
@@ -31,7 +31,7 @@ def _rule(degree: int):
     return _RULES[degree]
 
 
-def _shape(points: np.ndarray, k: int):
+def triangle_shape(points: np.ndarray, k: int):
     """Shape functions (nq, k) and derivatives (nq, k, 2) of the 3- or 6-node triangle
     (gmsh order: corners, then edges (0,1), (1,2), (2,0))."""
     xi, eta = points[:, 0], points[:, 1]
@@ -66,19 +66,22 @@ class Surface:
     @classmethod
     def build(cls, coordinates: np.ndarray, triangles: np.ndarray, inside_points: np.ndarray,
               degree: int = 6) -> "Surface":
-        """``inside_points`` (n_tri, 3): for each triangle a point of the solid next to it (the
-        opposite vertex of its tetrahedron); the normal is flipped to point away from it."""
+        """``inside_points`` (n_tri, 3): for each triangle the opposite vertex of its tetrahedron;
+        the normal is flipped to point away from it."""
         X = coordinates[triangles]                                   # (n_tri, k, 3)
         N, x, nda = cls._geometry(X, degree)
-        centroid = X[:, :3].mean(axis=1)
-        sign = np.sign(np.einsum("td,td->t", nda.sum(axis=1), centroid - inside_points))
+        # orientation from the corner triangle: (X1 − X0) × (X2 − X0) · (X0 − inside) is −6 × the signed
+        # volume of the tetrahedron on the triangle, exact whatever the curvature (the curved normal
+        # sum tilted one strongly curved 6-node triangle of a coarse chamber wall past the tangent)
+        flat = np.cross(X[:, 1] - X[:, 0], X[:, 2] - X[:, 0])
+        sign = np.sign(np.einsum("td,td->t", flat, X[:, 0] - inside_points))
         sign[sign == 0] = 1.0
         return cls(nodes=triangles, N=N, x=x, ndA=nda * sign[:, None, None], X=X, sign=sign)
 
     @staticmethod
     def _geometry(X, degree):
-        points, weights = _rule(degree)
-        N, dN = _shape(points, X.shape[1])
+        points, weights = triangle_rule(degree)
+        N, dN = triangle_shape(points, X.shape[1])
         x = np.einsum("qk,tkd->tqd", N, X)
         dxi = np.einsum("qk,tkd->tqd", dN[:, :, 0], X)
         deta = np.einsum("qk,tkd->tqd", dN[:, :, 1], X)
