@@ -12,6 +12,10 @@ Public API::
     resp.wrench, resp.tangent, resp.volumes, resp.dvolume_dpose, resp.dvolume_dpressure, resp.energy
     resp2 = seg.solve(R2, t2, initial=resp.state)                          # continuation
 
+    trunk = NonlinearTrunk([seg, seg, seg], vertebrae=[VertebraMass(...), ...])   # full-trunk reference
+    out = trunk.solve(TrunkLoads(forces={-1: F}, moments={-1: M}, gravity=g, pressures={s: p}))
+    out.positions, out.quaternions, out.volumes, out.diagnostics
+
 Conventions are documented in :mod:`.segment` and ``docs/nonlinear-fe.md``. Heavy
 imports (scikit-fem, gmsh, pyamg) happen inside functions.
 """
@@ -19,6 +23,9 @@ imports (scikit-fem, gmsh, pyamg) happen inside functions.
 from vertebra.designer.nonlinear.materials import MATERIALS, get_material
 from vertebra.designer.nonlinear.newton import NewtonSettings
 from vertebra.designer.nonlinear.segment import NonlinearSegment, SegmentResponse, SegmentSettings, SegmentState
+from vertebra.designer.nonlinear.trunk import (NonlinearTrunk, TrunkLoads, TrunkResponse, TrunkSettings, TrunkState,
+                                               VertebraMass)
 
 __all__ = ["MATERIALS", "get_material", "NewtonSettings", "NonlinearSegment", "SegmentResponse",
-           "SegmentSettings", "SegmentState"]
+           "SegmentSettings", "SegmentState", "NonlinearTrunk", "TrunkLoads", "TrunkResponse", "TrunkSettings",
+           "TrunkState", "VertebraMass"]

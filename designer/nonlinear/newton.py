@@ -63,8 +63,9 @@ class NewtonProblem(Protocol):
 
     def retract(self, state, step: Step, alpha: float): ...
 
-    def merit(self, state, evaluation) -> float:
-        """Merit of ``state`` (``evaluation`` at the start of the line search, for non-potential loads)."""
+    def merit(self, state, step: "Step | None" = None, alpha: float = 0.0) -> float:
+        """Merit of ``state``, reached by ``alpha`` × ``step`` from the line search's start (the
+        linearised work of non-potential loads along the step is subtracted)."""
 
     def merit_scale(self, evaluation) -> float: ...
 
@@ -105,7 +106,7 @@ def newton(problem: NewtonProblem, state, settings: NewtonSettings):
 
 
 def _line_search(problem, state, evaluation, settings, report):
-    merit0 = problem.merit(state, evaluation)
+    merit0 = problem.merit(state)
     scale = problem.merit_scale(evaluation)
     shift = 0.0
     for attempt in range(settings.max_shifts + 1):
@@ -123,7 +124,7 @@ def _line_search(problem, state, evaluation, settings, report):
     alpha = 1.0
     while alpha >= settings.min_step_length:
         trial = problem.retract(state, step, alpha)
-        merit = problem.merit(trial, evaluation)
+        merit = problem.merit(trial, step, alpha)
         if math.isfinite(merit):
             if merit <= merit0 + settings.armijo * alpha * step.slope:
                 return trial

@@ -348,7 +348,7 @@ class _PoseProblem:
     def retract(self, state: SegmentState, step: Step, alpha: float) -> SegmentState:
         return SegmentState(state.R, state.t, state.pressures, state.u_interior + alpha * step.direction)
 
-    def merit(self, state: SegmentState, evaluation) -> float:
+    def merit(self, state: SegmentState, step: Step | None = None, alpha: float = 0.0) -> float:
         start = time.perf_counter()
         value = self.framed.energy(state.u_interior, state.poses(), state.pressures, self.gravity)[0]
         self.times["evaluate_s"] += time.perf_counter() - start
