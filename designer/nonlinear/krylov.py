@@ -6,13 +6,16 @@ costs as much as tens of solves with it, and consecutive Newton tangents — wit
 load step, and between neighbouring poses of a continuation — differ little. So each
 solve runs conjugate gradients preconditioned with the last factor, all right-hand
 sides advancing together (one factor application per iteration for the block); when
-that does not converge within a budget of column-iterations, or meets negative
-curvature, the current matrix is factored afresh. With a fresh direct factor the
-solve is exact up to iterative refinement, also for indefinite matrices.
+that does not converge within its budget, or meets negative curvature, the current
+matrix is factored afresh. The budget is the time of the last factorization: the
+iterations allowed are those whose factor applications (timed as they run) cost
+less than refactoring would. With a fresh direct factor the solve is exact up to
+iterative refinement, also for indefinite matrices.
 """
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -20,9 +23,8 @@ import numpy as np
 from vertebra.designer.linsolve import AMG, AUTO_THRESHOLD, Direct
 from vertebra.store.errors import ConvergenceError, VertebraError
 
-#: column-iterations of preconditioned CG allowed before refactoring (a refactor of a 10k-DoF P2
-#: tangent costs about as much as 40 single-column solves with its factor)
-KRYLOV_BUDGET = 40
+#: fewest and most preconditioned-CG iterations before refactoring (within them, the timed budget)
+MIN_ITERATIONS, MAX_ITERATIONS = 3, 60
 #: SuperLU diagonal pivot threshold: small, so symmetric matrices keep perm_r == perm_c (inertia known)
 PIVOT_THRESHOLD = 1e-3
 
@@ -40,11 +42,12 @@ class ReusedFactorSolver:
     method: str = "auto"
     threshold: int = AUTO_THRESHOLD
     modes: np.ndarray | None = None
-    budget: int = KRYLOV_BUDGET
     factor: object = None
     fresh: bool = False                     # the factor is of the matrix of the last solve
     stats: dict = field(default_factory=lambda: {"factorizations": 0, "krylov_iterations": 0, "solves": 0})
     last_info: dict = field(default_factory=dict)
+    factor_time: float = 0.0                # seconds of the last factorization
+    apply_time: float = 0.0                 # seconds per right-hand side of one factor application
 
     def __post_init__(self):
         if self.method not in ("auto", "direct", "amg"):
@@ -58,7 +61,9 @@ class ReusedFactorSolver:
     def refactor(self, A) -> dict:
         kind = self._kind(A.shape[0])
         solver = _direct() if kind == "direct" else AMG()
+        start = time.perf_counter()
         self.factor = solver.factor(A, self.modes)
+        self.factor_time = time.perf_counter() - start
         self.kind = kind
         self.fresh = True
         self.stats["factorizations"] += 1
@@ -76,7 +81,9 @@ class ReusedFactorSolver:
             refactored = True
         else:
             self.fresh = False
-        maxit = max(4, self.budget // max(B2.shape[1], 1))
+        per_iteration = self.apply_time * B2.shape[1]
+        maxit = MAX_ITERATIONS if per_iteration <= 0 else int(self.factor_time / per_iteration)
+        maxit = min(max(maxit, MIN_ITERATIONS), MAX_ITERATIONS)
         X, iterations, ok = self._iterate(A, B2, rtol, maxit)
         if not ok and not refactored:
             self.refactor(A)
@@ -102,7 +109,12 @@ class ReusedFactorSolver:
 
     def _iterate(self, A, B, rtol, maxit):
         """Refinement (fresh direct factor) or block PCG with the current factor as preconditioner."""
-        M = self.factor.apply
+        def M(R):
+            start = time.perf_counter()
+            out = self.factor.apply(R)
+            self.apply_time = (time.perf_counter() - start) / R.reshape(R.shape[0], -1).shape[1]
+            return out
+
         bnorm = np.linalg.norm(B, axis=0)
         target = rtol * bnorm
         X = M(B).reshape(B.shape)

@@ -57,7 +57,7 @@ class SegmentSettings:
     max_translation_step: float = 0.1        # fraction of the segment length per load step
     max_pressure_step: float = 0.05          # fraction of Young's modulus per load step
     step_rtol: float = 1e-8                  # relative residual of each Newton-step linear solve
-    tangent_rtol: float = 1e-11              # relative residual of the condensed-tangent solves
+    tangent_rtol: float = 1e-10              # relative residual of the condensed-tangent solves
 
 
 @dataclass
