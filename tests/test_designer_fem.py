@@ -141,6 +141,19 @@ def test_cavity_geometry_from_the_mesh(pneumatic):
     assert Cfull[4, 6] < 0 and Cfull[2, 6] > 0
 
 
+def test_cavity_walls_are_oriented_out_of_the_solid_on_strongly_curved_coarse_meshes():
+    """Walls + caps close: ∫ n dA over the walls has no x, y part and its z part is the cap-area
+    difference, to round-off. This coarse two-chamber mesh has a 6-node wall triangle spanning 77°
+    of a 3 mm chamber, whose orientation the curved normal sum once got wrong (|∫ n dA| 4e-6 m²
+    against caps of 2.8e-5 m²)."""
+    fe = _fe("pneumatic", dict(outer_radius=0.012, chamber_radius=0.003, chamber_offset=0.0065, chambers=2,
+                               length=0.015, youngs_modulus=E, poisson_ratio=0.45), 0.005)
+    for k, walls in enumerate(fe.cavity_surfaces):
+        n_cavity = -walls.ndA.sum(axis=(0, 1))                    # out of the cavity
+        a_top, a_bottom = fe.cap_wrenches[k]["top"][2], -fe.cap_wrenches[k]["bottom"][2]
+        np.testing.assert_allclose(n_cavity, [0.0, 0.0, a_bottom - a_top], atol=1e-12 * a_top)
+
+
 def test_mesh_convergence_at_the_expected_order():
     """P1 compliance error vs a fine P2 reference falls like h^p with p ≈ 2 (energy norm squared);
     the edge where a rigid face meets the free surface is a stress singularity that lowers the
