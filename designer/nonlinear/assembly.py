@@ -107,10 +107,10 @@ class SparsePattern:
         r, c = r[keep], c[keep]
         order = np.lexsort((c, r))
         positions, r, c = positions[order], r[order], c[order]
-        indptr = np.zeros(rows.size + 1, dtype=np.int64)
+        index = np.int32 if positions.size < 2 ** 31 else np.int64      # scipy's index type for this size
+        indptr = np.zeros(rows.size + 1, dtype=index)
         np.cumsum(np.bincount(r, minlength=rows.size), out=indptr[1:])
-        return SubPattern(positions=positions, indptr=indptr, indices=c.astype(np.int32 if cols.size < 2**31 else np.int64),
-                          shape=(rows.size, cols.size))
+        return SubPattern(positions=positions, indptr=indptr, indices=c.astype(index), shape=(rows.size, cols.size))
 
 
 @dataclass

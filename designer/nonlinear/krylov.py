@@ -43,6 +43,7 @@ class ReusedFactorSolver:
     threshold: int = AUTO_THRESHOLD
     modes: np.ndarray | None = None
     factor: object = None
+    kind: str = ""                          # "direct" or "amg": the kind of the current factor
     fresh: bool = False                     # the factor is of the matrix of the last solve
     stats: dict = field(default_factory=lambda: {"factorizations": 0, "krylov_iterations": 0, "solves": 0})
     last_info: dict = field(default_factory=dict)

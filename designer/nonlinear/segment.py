@@ -125,6 +125,7 @@ class NonlinearSegment:
         kwargs = {} if amg_threshold is None else {"threshold": amg_threshold}
         self.solver = ReusedFactorSolver(method=linear_solver, modes=modes, **kwargs)
         self._rest = None
+        self.mesh_data = None           # the MeshData it was built from (for exporting the same mesh)
 
     # ---- construction ------------------------------------------------------------------------
     @classmethod
@@ -136,7 +137,9 @@ class NonlinearSegment:
         from vertebra.designer.fem import build_fe
         from vertebra.designer.nonlinear.assembly import SolidModel
         fe = build_fe(mesh_data, material.youngs_modulus, material.poisson_ratio, density, n_cavities, length)
-        return cls(FramedSolid(SolidModel(fe, material)), settings, linear_solver, amg_threshold)
+        segment = cls(FramedSolid(SolidModel(fe, material)), settings, linear_solver, amg_threshold)
+        segment.mesh_data = mesh_data
+        return segment
 
     @classmethod
     def from_family(cls, family, parameters: dict, material: str = "neo_hookean", *, mesh_size=None,

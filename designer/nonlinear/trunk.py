@@ -84,6 +84,7 @@ class TrunkState:
     u: list                               # per segment: interior displacement
     rest_R: np.ndarray = field(repr=False, default=None)
     rest_t: np.ndarray = field(repr=False, default=None)
+    loads: dict | None = field(repr=False, default=None)      # the loads this state is in equilibrium with
 
     @property
     def R(self) -> np.ndarray:
@@ -94,9 +95,8 @@ class TrunkState:
         return self.rest_t + self.dt
 
     def copy(self) -> "TrunkState":
-        out = TrunkState(self.dR.copy(), self.dt.copy(), [u.copy() for u in self.u], self.rest_R, self.rest_t)
-        out.loads = getattr(self, "loads", None)
-        return out
+        return TrunkState(self.dR.copy(), self.dt.copy(), [u.copy() for u in self.u], self.rest_R, self.rest_t,
+                          self.loads)
 
 
 @dataclass
@@ -223,25 +223,25 @@ class _TrunkProblem:
     def __init__(self, trunk: NonlinearTrunk, target: dict, initial: TrunkState):
         self.trunk = trunk
         self.target = target
-        self.lam0 = 0.0                   # loads of ``initial`` are taken as λ = 0 of this path
-        self.start_loads = getattr(initial, "loads", None)
-        self.initial = initial.copy()
-        self.initial.loads = self.start_loads or self._zero_loads()
+        self.initial = initial.copy()            # the path runs from its loads (none: unloaded) to the target
+        if self.initial.loads is None:
+            self.initial.loads = self._zero_loads()
         self.times = {"evaluate_s": 0.0, "solve_s": 0.0}
         self.lengths = np.mean([s.length for s in trunk.segments])
 
     def _zero_loads(self) -> dict:
         t = self.target
         return {"forces": np.zeros_like(t["forces"]), "moments": np.zeros_like(t["moments"]),
-                "pressures": [np.zeros_like(p) for p in t["pressures"]],
-                "gravity": None if t["gravity"] is None else np.zeros(3)}
+                "pressures": [np.zeros_like(p) for p in t["pressures"]], "gravity": None}
 
     def _loads_at(self, s: float) -> dict:
         a, b = self.initial.loads, self.target
         mix = lambda x, y: x + s * (y - x)   # noqa: E731
+        gravity = [g for g in (a["gravity"], b["gravity"]) if g is not None]
         return {"forces": mix(a["forces"], b["forces"]), "moments": mix(a["moments"], b["moments"]),
                 "pressures": [mix(x, y) for x, y in zip(a["pressures"], b["pressures"])],
-                "gravity": None if b["gravity"] is None else mix(a["gravity"], b["gravity"])}
+                "gravity": None if not gravity else mix(np.zeros(3) if a["gravity"] is None else a["gravity"],
+                                                        np.zeros(3) if b["gravity"] is None else b["gravity"])}
 
     # ---- load path -------------------------------------------------------------------------
     def advance(self, state: TrunkState, s_from: float, s_to: float) -> TrunkState:
