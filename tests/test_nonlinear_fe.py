@@ -300,3 +300,45 @@ def test_trunk_under_dead_moment_and_gravity_converges_quadratically(chain):
     assert resp.iterations <= 8 * resp.load_steps
     rotation = np.linalg.norm(resp.displacements(trunk.rest_state())[-1, 3:])
     assert rotation > 0.2                              # a large-rotation case
+
+
+# ---- closed forms and the thick-walled tube -----------------------------------------------------
+
+def test_one_dimensional_references_reduce_to_known_solutions():
+    from vertebra.designer.nonlinear.references import (lame_plane_strain_radial, neo_hookean_tube_plane_strain,
+                                                        planar_elastica_tip)
+    a, b = 0.005, 0.01
+    R, r = neo_hookean_tube_plane_strain(10.0, a, b, E, 0.45)
+    lame = lame_plane_strain_radial(np.array([a, b]), 10.0, a, b, E, 0.45)
+    # the finite-strain tube differs from Lamé by O(strain) = 2e-5 at 10 Pa
+    np.testing.assert_allclose([r[0] - a, r[-1] - b], lame, rtol=1e-4)
+    tip, angle = planar_elastica_tip(1e-4)
+    assert tip[1] == pytest.approx(1e-4 / 3, rel=1e-4) and angle == pytest.approx(1e-4 / 2, rel=1e-4)
+    # Bisshopp & Drucker's large-deflection cantilever, PL²/EI = 1: tip at (0.9436, 0.3017) L
+    tip, _ = planar_elastica_tip(1.0)
+    np.testing.assert_allclose(tip, [0.9436, 0.3017], atol=1e-4)
+
+
+def test_thick_walled_tube_inflates_like_the_finite_strain_plane_strain_solution():
+    """Clamped tube (a = 5 mm, b = 10 mm, L = 6 b, neo-Hookean, ν = 0.45) at 0.1 MPa: the bore grows by
+    28 %. At mid-length the FE radial displacements follow the plane-strain neo-Hookean solution
+    (within 4 %: the clamped ends still act at 3 b, and one P2 element spans the wall) while the
+    linear (Lamé) answer is 30 % smaller."""
+    from vertebra.designer.nonlinear.references import lame_plane_strain_radial, neo_hookean_tube_plane_strain
+    a, b, nu, h = 0.005, 0.01, 0.45, 0.004
+    L = 6 * b
+    seg = _segment("pneumatic", dict(outer_radius=b, chamber_radius=a, chamber_offset=0.0, chambers=1, length=L,
+                                     youngs_modulus=E, poisson_ratio=nu), h)
+    p = 1e5
+    resp = seg.solve(np.eye(3), [0.0, 0.0, L], [p])
+    framed = seg.framed
+    X = framed.solid.X.reshape(-1, 3)
+    x = X + framed.displacement(resp.state.u_interior, resp.state.poses()).reshape(-1, 3)
+    r0, r = np.hypot(X[:, 0], X[:, 1]), np.hypot(x[:, 0], x[:, 1])
+    mid = np.abs(X[:, 2] - L / 2) < 0.25 * h
+    _, reference = neo_hookean_tube_plane_strain(p, a, b, E, nu)
+    lame = lame_plane_strain_radial(np.array([a, b]), p, a, b, E, nu)
+    for radius, expected, linear in ((a, reference[0] - a, lame[0]), (b, reference[-1] - b, lame[1])):
+        u = (r - r0)[mid & (np.abs(r0 - radius) < 1e-9)].mean()
+        assert u == pytest.approx(expected, rel=0.04)
+        assert u > 1.25 * linear
