@@ -20,9 +20,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vertebra.designer.linsolve import AMG, AUTO_THRESHOLD, Direct
+from vertebra.designer.linsolve import AMG, Direct
 from vertebra.store.errors import ConvergenceError, VertebraError
 
+#: interior unknowns above which "auto" uses AMG: a reused SuperLU factor beat AMG-CG per pose by 1.6× at
+#: 10k DoFs and 2.5× at 20k (P2 rod, benchmarks/results/nonlinear_fe.md); higher than the linear
+#: designer's threshold because one factor serves many tangents here
+AUTO_THRESHOLD = 30_000
 #: fewest and most preconditioned-CG iterations before refactoring (within them, the timed budget)
 MIN_ITERATIONS, MAX_ITERATIONS = 3, 60
 #: SuperLU diagonal pivot threshold: small, so symmetric matrices keep perm_r == perm_c (inertia known)
