@@ -201,7 +201,7 @@ class SolidModel:
         self.nb = grads.shape[0]
         self.X = fe.doflocs[fe.components, np.arange(fe.n_dofs)].copy()  # reference coordinate per DoF
         self.pattern, self.element_scatter = SparsePattern.from_elements(self.element_dofs, self.n_dofs)
-        values = np.array([b[0].value for b in basis.basis])             # (nb, nel, nq)
+        values = np.array([np.array(b[0]) for b in basis.basis])            # (nb, nel, nq)
         lumped = np.einsum("aeq,eq->ea", values, self.dx)                 # ∫ N_a dV per element
         scalar_mass = np.bincount(basis.element_dofs.T.ravel(), weights=lumped.ravel(), minlength=basis.N)
         self.volume_weights = np.repeat(scalar_mass, 3)                  # ∫ N_a dV at each vector DoF
