@@ -342,3 +342,28 @@ def test_thick_walled_tube_inflates_like_the_finite_strain_plane_strain_solution
         u = (r - r0)[mid & (np.abs(r0 - radius) < 1e-9)].mean()
         assert u == pytest.approx(expected, rel=0.04)
         assert u > 1.25 * linear
+
+
+def test_segment_weight_is_shared_by_its_clamped_ends():
+    """A rod (L/R = 8) clamped at both ends under lateral gravity, small load: frame b carries half
+    the weight (symmetry; the unstructured mesh breaks it at ~1e-3) and the clamped-beam end moment
+    w L²/12 (beam theory; the 3-D rod with rigid end faces within 5 %)."""
+    R, L, rho = 0.003, 0.024, 1000.0
+    seg = _segment("rod", dict(radius=R, length=L, youngs_modulus=E, poisson_ratio=0.3, density=rho), 0.003)
+    g = np.array([9.81, 0.0, 0.0])
+    resp = seg.solve(*seg.rest_pose(), gravity=g)
+    weight = seg.framed.fe.mass * g
+    np.testing.assert_allclose(resp.wrench[:3], -0.5 * weight, atol=2e-3 * np.linalg.norm(weight))
+    # moment about b's origin needed to keep b from rotating: the clamped-beam end moment w L²/12
+    assert abs(resp.wrench_at_b[4]) == pytest.approx(np.linalg.norm(weight) * L / 12, rel=0.05)
+
+
+def test_p1_elements_have_the_linear_limit_too():
+    fam, p, mesh = _mesh("pneumatic", dict(PNEUMATIC, poisson_ratio=0.3), 0.005)
+    mesh = mesh_segment(fam, p, 0.005, 1)
+    seg = NonlinearSegment.build(mesh, get_material("neo_hookean", E, 0.3), n_cavities=2, length=fam.length(p))
+    cond = condense(seg.framed.fe, ("top",), linear_solver="direct")
+    A = _left(fam.length(p))
+    rest = seg.solve(*seg.rest_pose())
+    assert np.abs(rest.tangent - A.T @ cond.stiffness @ A).max() <= 1e-10 * np.abs(cond.stiffness).max()
+    assert np.abs(rest.dvolume_dpose - cond.pressure_wrench.T @ A).max() <= 1e-10 * np.abs(cond.pressure_wrench).max()
