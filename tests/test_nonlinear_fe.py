@@ -249,7 +249,7 @@ def test_limit_point_of_an_inflated_chamber_is_reported(pneumatic):
 
 @pytest.fixture(scope="module")
 def chain():
-    segments = [_segment("pneumatic", dict(PNEUMATIC, chambers=2, chamber_angle=0.5, length=0.02,
+    segments = [_segment("pneumatic", dict(PNEUMATIC, chambers=2, chamber_angle_deg=math.degrees(0.5), length=0.02,
                                            youngs_modulus=2 * E, poisson_ratio=0.3), 0.006),
                 _segment("pneumatic", dict(PNEUMATIC, chambers=3), 0.006)]
     return segments
