@@ -18,15 +18,17 @@ import numpy as np
 
 from vertebra.store.entry import SegmentEntry, canonical_json
 from vertebra.store.errors import CatalogueError
+from vertebra.store.h5read import walk
 from vertebra.store.schema import (ARRAY_FIELDS, DICT_FIELDS, SCHEMA_VERSION, EncodedEntry, check_key,
-                          differing_fields, read_entry, read_index)
-from vertebra.store.shards import (CONFLICT_SUFFIX, LOCK_TIMEOUT_S, Conflict, MergeReport, _temp_path,
-                          list_shards, open_checked, problem_files, rebuild, shards_dir,
-                          write_shard, _publish, _unlink_quietly)
+                                   differing_fields, entry_group, entry_keys, read_entry, read_index)
+from vertebra.store.shards import (CONFLICT_SUFFIX, LOCK_TIMEOUT_S, Conflict, LockTimeout, MergeReport,
+                                   _publish, _temp_path, _unlink_quietly, disk_error, guard_os_errors, list_shards,
+                                   open_checked,
+                                   problem_files, rebuild, shards_dir, write_shard)
 
-__all__ = ["add_entry", "add_entries", "has_entry", "open_catalogue", "Catalogue", "verify",
+__all__ = ["add_entry", "add_entries", "StoredKey", "has_entry", "open_catalogue", "Catalogue", "verify",
            "merge", "consolidate", "remove", "query", "export", "entry_to_dict", "entry_from_dict",
-           "MergeReport", "Conflict", "LIST_FIELDS"]
+           "MergeReport", "Conflict", "LockTimeout", "LIST_FIELDS"]
 
 log = logging.getLogger("vertebra.store")
 
@@ -44,6 +46,7 @@ class Catalogue:
     or call ``close()``.
     """
 
+    @guard_os_errors
     def __init__(self, path):
         self.path = Path(path)
         self._file = None
@@ -127,6 +130,7 @@ class Catalogue:
         raise CatalogueError(f"{self.path}: no entry with key, name or key prefix {key_or_name!r} "
                              f"({len(self._rows)} entries)")
 
+    @guard_os_errors
     def load(self, key_or_name: str) -> SegmentEntry:
         """Read, check (checksum) and return one entry; nothing else is read."""
         key = self.resolve(key_or_name)
@@ -145,10 +149,7 @@ class Catalogue:
 
 
 def _load_from(f, key: str, what: str) -> SegmentEntry:
-    entries = f["entries"]
-    if key not in entries:
-        raise CatalogueError(f"{what}: the index lists {key} but its entry group is missing (corrupt file)")
-    return read_entry(entries[key], key, what)
+    return read_entry(entry_group(f, key, what), key, what)
 
 
 def open_catalogue(path) -> Catalogue:
@@ -156,13 +157,14 @@ def open_catalogue(path) -> Catalogue:
     return Catalogue(path)
 
 
+@guard_os_errors
 def has_entry(path, key: str) -> bool:
     """Whether ``key`` is in the catalogue or a committed shard. Reads no entry data."""
     check_key(key)
     path = Path(path)
     if path.exists():
         with open_checked(path) as f:
-            if key in f["entries"]:
+            if entry_group(f, key, str(path), required=False) is not None:
                 return True
     d = shards_dir(path)
     if d.is_dir() and any(d.glob(f"{key}@*.h5")):
@@ -171,7 +173,7 @@ def has_entry(path, key: str) -> bool:
         if shard.name.startswith("batch@"):
             try:
                 with open_checked(shard) as f:
-                    if key in f["entries"]:
+                    if entry_group(f, key, f"shard {shard}", required=False) is not None:
                         return True
             except CatalogueError:
                 continue
@@ -189,10 +191,10 @@ def _lookup(path: Path, keys: list[str]) -> dict:
     found = {}
     if path.exists():
         with open_checked(path) as f:
-            entries = f["entries"]
             for key in keys:
-                if key in entries:
-                    found[key] = (read_stored_digests(entries[key], f"{path}: entry {key}")[1], path)
+                group = entry_group(f, key, str(path), required=False)
+                if group is not None:
+                    found[key] = (read_stored_digests(group, str(path), f"/entries/{key}")[1], path)
     for shard in reversed(list_shards(path)):          # oldest shard wins, as in the merger
         if shard.name.startswith("batch@"):
             try:
@@ -213,15 +215,41 @@ def _lookup(path: Path, keys: list[str]) -> dict:
 def _fields_against(source: Path, enc: EncodedEntry) -> list[str]:
     try:
         with open_checked(source) as f:
-            return differing_fields(read_entry(f["entries"][enc.key], enc.key, str(source)), enc.entry)
-    except (CatalogueError, KeyError):
+            return differing_fields(_load_from(f, enc.key, str(source)), enc.entry)
+    except CatalogueError:
         return ["?"]
 
 
-def add_entries(path, entries, *, consolidate: bool = True, timeout: float = LOCK_TIMEOUT_S) -> list[str]:
+class StoredKey(str):
+    """The key of an entry that ``add_entry`` stored, with how the merge went.
+
+    ``merge_deferred`` is None when nothing is left to do, else the reason the merge into the
+    catalogue file did not happen (lock not obtained, full or read-only disk, …): the entry is
+    nevertheless **stored** — its shard is committed, durable and visible to readers — and the
+    next merge (any writer, or ``vertebra catalogue consolidate``) picks it up.
+    """
+
+    merge_deferred: str | None
+
+    def __new__(cls, key: str, merge_deferred: str | None = None):
+        obj = super().__new__(cls, key)
+        obj.merge_deferred = merge_deferred
+        return obj
+
+    def __reduce__(self):
+        return (StoredKey, (str(self), self.merge_deferred))
+
+    @property
+    def status(self) -> str:
+        return "stored" if self.merge_deferred is None else "stored, merge deferred"
+
+
+@guard_os_errors
+def add_entries(path, entries, *, consolidate: bool = True,
+                timeout: float = LOCK_TIMEOUT_S) -> list[StoredKey]:
     """Add several entries in one shard (one merge): the bulk path for sweeps.
 
-    Same semantics as ``add_entry`` for each entry. Returns their keys.
+    Same semantics as ``add_entry`` for each entry. Returns their keys (:class:`StoredKey`).
     """
     path = Path(path)
     encs = [EncodedEntry(e) for e in entries]
@@ -244,13 +272,14 @@ def add_entries(path, entries, *, consolidate: bool = True, timeout: float = LOC
             raise CatalogueError(f"{path}: entry {enc.key} already exists with different content "
                                  f"({', '.join(_fields_against(source, enc))}); nothing written")
         pending_only |= source != path
+    deferred = None
     if not todo:
         if consolidate and pending_only:
-            _consolidate_quietly(path, None, timeout)
-        return [e.key for e in encs]
+            deferred = _consolidate_quietly(path, None, timeout)
+        return [StoredKey(e.key, deferred) for e in encs]
     shard = write_shard(path, todo)
     if consolidate:
-        _consolidate_quietly(path, shard, timeout)
+        deferred = _consolidate_quietly(path, shard, timeout)
         conflict = shard.with_name(shard.name + CONFLICT_SUFFIX)
         if conflict.exists():
             keys = _conflicting_keys(path, conflict)
@@ -258,31 +287,35 @@ def add_entries(path, entries, *, consolidate: bool = True, timeout: float = LOC
             raise CatalogueError(f"{path}: another process added {', '.join(keys) or 'these keys'} with "
                                  "different content at the same time; your entries with those keys were "
                                  "not stored (the others were)")
-    return [e.key for e in encs]
+    return [StoredKey(e.key, deferred) for e in encs]
 
 
 def add_entry(path, entry: SegmentEntry, *, consolidate: bool = True,
-              timeout: float = LOCK_TIMEOUT_S) -> str:
-    """Add one entry; returns its key. Safe with many concurrent writers.
+              timeout: float = LOCK_TIMEOUT_S) -> StoredKey:
+    """Add one entry; returns its key (a :class:`StoredKey`). Safe with many concurrent writers.
 
     Idempotent for identical content (timings and provenance do not count); a key
     already present with different content raises CatalogueError and writes nothing.
-    The entry is committed (durable, visible to readers) once its shard is in place;
-    with ``consolidate`` the shard is then merged into the catalogue file under the
-    lock. If the lock cannot be had within ``timeout`` the entry stays committed as a
-    shard and a warning is logged.
+    The entry is committed (durable, visible to readers) once its shard is in place; a
+    failure before that (full or read-only disk, …) raises CatalogueError and leaves no file.
+    With ``consolidate`` the shard is then merged into the catalogue file under the lock.
+    If that merge cannot happen (lock not obtained within ``timeout``, the disk refuses the
+    new file), the entry stays committed as a shard: the result says "stored, merge
+    deferred" (``StoredKey.merge_deferred``), a warning is logged, and the next merge picks
+    it up.
     """
     return add_entries(path, [entry], consolidate=consolidate, timeout=timeout)[0]
 
 
-def _consolidate_quietly(path, shard, timeout):
-    import filelock
-
+def _consolidate_quietly(path, shard, timeout) -> str | None:
+    """Merge; on failure return why (the committed shard stays for the next merge)."""
     try:
         rebuild(path, own_shard=shard, timeout=timeout)
-    except filelock.Timeout:
-        log.warning("%s: lock not obtained within %.0f s; entry stays committed as a shard "
-                    "(run `vertebra catalogue consolidate`)", path, timeout)
+    except CatalogueError as error:
+        log.warning("%s: entry stored, merge deferred: %s; it stays committed as a shard until the next "
+                    "merge (`vertebra catalogue consolidate %s`)", path, error, path)
+        return str(error)
+    return None
 
 
 def _conflicting_keys(path, conflict: Path) -> list[str]:
@@ -295,11 +328,13 @@ def _conflicting_keys(path, conflict: Path) -> list[str]:
         return []
 
 
+@guard_os_errors
 def consolidate(path, *, timeout: float = LOCK_TIMEOUT_S) -> MergeReport:
     """Merge every committed shard into the catalogue file now."""
     return rebuild(path, timeout=timeout)
 
 
+@guard_os_errors
 def merge(out_path, in_paths, *, timeout: float = LOCK_TIMEOUT_S) -> MergeReport:
     """Merge catalogues into ``out_path`` (created if missing).
 
@@ -324,6 +359,7 @@ def merge(out_path, in_paths, *, timeout: float = LOCK_TIMEOUT_S) -> MergeReport
     return rebuild(out_path, sources, timeout=timeout)
 
 
+@guard_os_errors
 def remove(path, key: str, *, timeout: float = LOCK_TIMEOUT_S) -> str:
     """Remove one entry (key, unique name or prefix); returns the removed key."""
     path = Path(path)
@@ -337,6 +373,7 @@ def remove(path, key: str, *, timeout: float = LOCK_TIMEOUT_S) -> str:
 
 # ---------------------------------------------------------------- verification
 
+@guard_os_errors
 def verify(path) -> list[str]:
     """Check schema, every entry (checksum, shapes, validity), the index and pending shards.
 
@@ -367,18 +404,22 @@ def verify(path) -> list[str]:
 
 
 def _verify_file(f, what: str) -> list[str]:
-    problems = []
+    """Problems of one open catalogue-format file: every object (links, foreign storage,
+    attribute sizes), the index row by row, every entry (checksum, validity, soundness), and
+    the agreement of index and entries."""
+    problems = walk(f, what)
     try:
         rows = read_index(f, what)
     except CatalogueError as error:
         problems.append(str(error))
         rows = None
-    entries = f["entries"]
-    keys = list(entries.keys())
+    try:
+        keys = entry_keys(f, what)
+    except CatalogueError as error:
+        return problems + [str(error)]
     for key in keys:
         try:
-            check_key(key, f"{what}: ")
-            entry = read_entry(entries[key], key, what)
+            entry = _load_from(f, key, what)
         except CatalogueError as error:
             problems.append(str(error))
             continue
@@ -393,10 +434,11 @@ def _verify_file(f, what: str) -> list[str]:
         if bad:
             problems.append(f"{what}: index row of {key} disagrees with the entry in {', '.join(bad)}")
     if rows is not None:
+        present = set(keys)
         for key in rows:
-            if key not in entries:
+            if key not in present:
                 problems.append(f"{what}: index lists {key} but there is no such entry group")
-    return problems
+    return list(dict.fromkeys(problems))
 
 
 # ---------------------------------------------------------------- query
@@ -525,30 +567,38 @@ def _npz_payload(entry: SegmentEntry) -> dict:
     return payload
 
 
+@guard_os_errors
 def export(path, key: str, fmt: str, out=None) -> Path:
     """Write one entry as ``json`` or ``npz`` (no pickle: strings are unicode arrays) to
-    ``out`` (default ``<key>.<fmt>`` in the current directory), atomically. Returns the path."""
+    ``out`` (default ``<key>.<fmt>`` in the current directory; an existing directory gets
+    ``<key>.<fmt>`` inside it), atomically. Returns the path. A disk that refuses the file
+    is a CatalogueError and leaves nothing behind."""
     if fmt not in ("json", "npz"):
         raise CatalogueError(f"export: format {fmt!r} unknown; use json or npz")
     with Catalogue(path) as cat:
         entry = cat.load(key)
     out = Path(out) if out is not None else Path(f"{entry.key}.{fmt}")
+    if out.is_dir():
+        out = out / f"{entry.key}.{fmt}"
+        if out.is_dir():
+            raise CatalogueError(f"export: {out} is a directory")
     if not out.parent.is_dir():
         raise CatalogueError(f"export: directory {out.parent} does not exist")
     tmp = _temp_path(out.parent, out.name)
     try:
         if fmt == "json":
-            with open(tmp, "x", encoding="utf-8") as fh:
-                json.dump(entry_to_dict(entry), fh, indent=1, allow_nan=False)
-                fh.write("\n")
+            data = (json.dumps(entry_to_dict(entry), indent=1, allow_nan=False) + "\n").encode("utf-8")
         else:
             buf = io.BytesIO()
             np.savez(buf, **_npz_payload(entry))
-            with open(tmp, "xb") as fh:
-                fh.write(buf.getvalue())
+            data = buf.getvalue()
+        with open(tmp, "xb") as fh:
+            fh.write(data)
         _publish(tmp, out)
-    except BaseException:
+    except BaseException as error:
         _unlink_quietly(tmp)
+        if isinstance(error, OSError):
+            raise disk_error(out, "cannot write the export", error) from None
         raise
     return out
 

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from vertebra.store.errors import CatalogueError
+from vertebra.store.soundness import soundness_problems
 
 SYMMETRY_TOLERANCE = 1e-8
 
@@ -49,7 +50,9 @@ def _array(value, name: str, shape: tuple | None = None) -> np.ndarray:
 
 @dataclass(frozen=True)
 class SegmentEntry:
-    """A validated, immutable catalogue entry. Invalid entries cannot be built."""
+    """A validated, immutable catalogue entry. Invalid entries cannot be built: besides shapes
+    and finiteness, the constructor runs ``store.soundness`` (positive definite compliance,
+    mass, rest pose and compliance bounds implied by the family's parameters)."""
 
     key: str
     name: str
@@ -81,6 +84,8 @@ class SegmentEntry:
             raise CatalogueError("entry field 'key': must be a non-empty string")
         if not isinstance(self.name, str) or not self.name:
             raise CatalogueError("entry field 'name': must be a non-empty string")
+        if isinstance(self.mass, bool) or not isinstance(self.mass, (int, float, np.floating, np.integer)):
+            raise CatalogueError(f"entry field 'mass': expected a number, got {type(self.mass).__name__}")
         if not (np.isfinite(self.mass) and self.mass >= 0.0):
             raise CatalogueError(f"entry field 'mass': {self.mass} is not a finite non-negative number")
         set_(self, "mass", float(self.mass))
@@ -90,10 +95,9 @@ class SegmentEntry:
         if not asym <= SYMMETRY_TOLERANCE:
             raise CatalogueError(
                 f"entry {self.name!r} field 'compliance': relative asymmetry {asym:.3g} > {SYMMETRY_TOLERANCE}")
-        try:
-            np.linalg.cholesky(0.5 * (c[:6, :6] + c[:6, :6].T))
-        except np.linalg.LinAlgError:
-            raise CatalogueError(f"entry {self.name!r} field 'compliance': 6×6 block C is not positive definite")
+        problems = soundness_problems(self)
+        if problems:
+            raise CatalogueError(f"entry {self.name!r} is not physically sound: " + "; ".join(problems))
 
     @property
     def n_cavities(self) -> int:

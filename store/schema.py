@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from vertebra.store.entry import SegmentEntry, canonical_json
+from vertebra.store import h5read
 from vertebra.store.errors import CatalogueError
 
 FORMAT = "vertebra-catalogue"
@@ -64,7 +65,8 @@ DATASET_ATTRIBUTES = {
 
 MAX_JSON_BYTES = 1 << 20       # one metadata attribute or one index row
 MAX_TEXT_CHARS = 256           # names and families
-MAX_ARRAY_SIDE = 4096          # 6+n cavities; a larger compliance is not a segment
+MAX_ARRAY_SIDE = 6 + 256       # 6+n cavities; a larger compliance is not a segment
+MAX_INDEX_ROWS = 10_000_000    # rows of /index
 
 KEY_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,127}$")
 
@@ -221,56 +223,25 @@ def _fixed_string(text: str) -> np.ndarray:
     return np.array(data, dtype=h5py.string_dtype("utf-8", max(len(data), 1)))
 
 
-def _read_string_attr(group, name: str, what: str, limit: int) -> str:
-    """Read a scalar string attribute, checking its stored size before reading it."""
-    import h5py
-
-    try:
-        attr_id = h5py.h5a.open(group.id, name.encode())
-    except (KeyError, OSError, ValueError):
-        raise CatalogueError(f"{what}: attribute {name!r} missing") from None
-    size = attr_id.get_storage_size()
-    if size > limit:
-        raise CatalogueError(f"{what}: attribute {name!r} is {size} bytes > limit {limit}")
-    dtype = attr_id.dtype
-    if attr_id.shape != ():
-        raise CatalogueError(f"{what}: attribute {name!r} is not a scalar")
-    if dtype.kind == "S":                       # fixed-length: what vertebra writes
-        buf = np.empty((), dtype=dtype)
-        attr_id.read(buf)
-        value = buf[()]
-    else:                                       # e.g. a variable-length string from another tool
-        value = group.attrs[name]
-        if isinstance(value, np.ndarray) and value.shape == ():
-            value = value[()]
-        if isinstance(value, (str, bytes)) and len(value) > limit:
-            raise CatalogueError(f"{what}: attribute {name!r} longer than limit {limit}")
-    if isinstance(value, bytes):
-        try:
-            return value.decode("utf-8")
-        except UnicodeDecodeError:
-            raise CatalogueError(f"{what}: attribute {name!r} is not UTF-8") from None
-    if isinstance(value, str):
-        return value
-    raise CatalogueError(f"{what}: attribute {name!r} is not a string")
+def _entry_path(key: str) -> str:
+    return f"/entries/{key}"
 
 
-def _read_float_array(group, field: str, what: str) -> np.ndarray:
-    import h5py
+def entry_group(f, key: str, what: str, *, required: bool = True):
+    """The group ``/entries/<key>`` of an open catalogue file, through hard links only
+    (None if absent and not ``required``)."""
+    check_key(key, f"{what}: ")
+    entries = h5read.child(f, "entries", what, "/", "group")
+    group = h5read.child(entries, key, what, "/entries", "group", required=False)
+    if group is None and required:
+        raise CatalogueError(f"{what}: the index lists {key} but its entry group is missing (corrupt file)")
+    return group
 
-    try:
-        did = h5py.h5d.open(group.id, field.encode())
-    except (KeyError, OSError, ValueError):
-        raise CatalogueError(f"{what}: dataset {field!r} missing") from None
-    dtype, shape = did.dtype, did.shape
-    if dtype not in (np.dtype("<f8"), np.dtype(">f8")):
-        raise CatalogueError(f"{what}: dataset {field!r} has dtype {dtype}, expected float64")
-    if len(shape) > 2 or any(s > MAX_ARRAY_SIDE for s in shape):
-        raise CatalogueError(f"{what}: dataset {field!r} has shape {shape}")
-    arr = np.empty(shape, dtype="<f8")
-    if arr.size:
-        did.read(h5py.h5s.ALL, h5py.h5s.ALL, arr)
-    return arr
+
+def entry_keys(f, what: str) -> list[str]:
+    """Names of the groups under ``/entries`` (no entry is opened)."""
+    entries = h5read.child(f, "entries", what, "/", "group")
+    return h5read.member_names(entries, what, "/entries")
 
 
 def write_entry(entries_group, enc: EncodedEntry) -> None:
@@ -287,41 +258,38 @@ def write_entry(entries_group, enc: EncodedEntry) -> None:
     group.attrs["content"] = _fixed_string(enc.content)
 
 
-def read_stored_digests(group, what: str) -> tuple[str, str]:
-    return (_read_string_attr(group, "checksum", what, 200), _read_string_attr(group, "content", what, 200))
+def read_stored_digests(group, what: str, path: str) -> tuple[str, str]:
+    return (h5read.read_string_attribute(group, "checksum", what, path, 200),
+            h5read.read_string_attribute(group, "content", what, path, 200))
 
 
 def read_entry(group, key: str, what: str) -> SegmentEntry:
-    """Read and check one entry group: shapes, dtypes, JSON, validation, checksum."""
-    import h5py
-
+    """Read and check one entry group: links, sizes, shapes, dtypes, JSON, checksum, validity
+    and physical soundness. Every problem is a CatalogueError naming ``what`` and the object."""
     check_key(key, f"{what}: ")
-    if not isinstance(group, h5py.Group):
-        raise CatalogueError(f"{what}: entry {key} is not a group")
+    path = _entry_path(key)
+    problems = h5read.walk(group, what, path)      # links, foreign storage, attribute sizes
+    if problems:
+        raise CatalogueError(problems[0] + (f" (and {len(problems) - 1} more problems)" if len(problems) > 1 else ""))
+    arrays = {field: h5read.read_float_dataset(group, field, what, path, max_side=MAX_ARRAY_SIDE)
+              for field in ARRAY_FIELDS}
+    name = h5read.read_string_attribute(group, "name", what, path, 4 * MAX_TEXT_CHARS)
+    family = h5read.read_string_attribute(group, "family", what, path, 4 * MAX_TEXT_CHARS)
+    mass = h5read.read_number_attribute(group, "mass", what, path, "f")
+    if not math.isfinite(mass):
+        raise h5read.failure(what, path, f"attribute 'mass' is {mass}, not a finite number")
+    dicts = {}
+    for field in DICT_FIELDS:
+        text = h5read.read_string_attribute(group, field, what, path, MAX_JSON_BYTES)
+        value = parse_json(text, f"{what}: {path}: attribute {field!r}")
+        if not isinstance(value, dict):
+            raise h5read.failure(what, path, f"attribute {field!r} is not a JSON object")
+        dicts[field] = value
+    stored_checksum, _ = read_stored_digests(group, what, path)
     try:
-        arrays = {field: _read_float_array(group, field, f"{what}: entry {key}") for field in ARRAY_FIELDS}
-        name = _read_string_attr(group, "name", f"{what}: entry {key}", 4 * MAX_TEXT_CHARS)
-        family = _read_string_attr(group, "family", f"{what}: entry {key}", 4 * MAX_TEXT_CHARS)
-        try:
-            mass_id = h5py.h5a.open(group.id, b"mass")
-        except (KeyError, OSError, ValueError):
-            raise CatalogueError(f"{what}: entry {key}: attribute 'mass' missing") from None
-        if mass_id.shape != () or mass_id.dtype.kind != "f":
-            raise CatalogueError(f"{what}: entry {key}: attribute 'mass' is not a float scalar")
-        mass_buf = np.empty((), dtype="<f8")
-        mass_id.read(mass_buf)
-        mass = float(mass_buf)
-        dicts = {}
-        for field in DICT_FIELDS:
-            text = _read_string_attr(group, field, f"{what}: entry {key}", MAX_JSON_BYTES)
-            value = parse_json(text, f"{what}: entry {key}: attribute {field!r}")
-            if not isinstance(value, dict):
-                raise CatalogueError(f"{what}: entry {key}: attribute {field!r} is not a JSON object")
-            dicts[field] = value
-        stored_checksum, _ = read_stored_digests(group, f"{what}: entry {key}")
-    except (OSError, KeyError, ValueError, TypeError, RuntimeError) as error:
-        raise CatalogueError(f"{what}: entry {key}: unreadable ({error})") from None
-    checksum, _ = digests(key, name, family, mass, arrays, dicts)
+        checksum, _ = digests(key, name, family, mass, arrays, dicts)
+    except (ValueError, TypeError) as error:
+        raise h5read.failure(what, path, f"metadata cannot be digested ({error})") from None
     if checksum != stored_checksum:
         raise CatalogueError(f"{what}: entry {key} ({name!r}): checksum mismatch — stored {stored_checksum}, "
                              f"data gives {checksum}; the entry is corrupt")
@@ -365,49 +333,39 @@ def _describe(dataset, field: str) -> None:
 
 
 def check_file(f, what: str) -> None:
-    """Refuse foreign files and schema versions this code does not know."""
-    if "format" not in f.attrs:
+    """Refuse foreign files and schema versions this code does not know; ``/index`` and
+    ``/entries`` must be a dataset and a group stored in the file itself."""
+    import h5py
+
+    try:
+        has_format = h5py.h5a.exists(f.id, b"format")
+    except h5read.H5_ERRORS as error:
+        raise h5read.failure(what, "/", f"unreadable root attributes ({error})") from None
+    if not has_format:
         raise CatalogueError(f"{what}: an HDF5 file but not a vertebra catalogue (no 'format' attribute)")
-    fmt = _read_string_attr(f, "format", what, 200)
+    fmt = h5read.read_string_attribute(f, "format", what, "/", 200)
     if fmt != FORMAT:
         raise CatalogueError(f"{what}: an HDF5 file but not a vertebra catalogue (format {fmt!r})")
-    if "schema_version" not in f.attrs:
-        raise CatalogueError(f"{what}: schema_version attribute missing")
-    version = np.asarray(f.attrs["schema_version"])
-    if version.shape != () or version.dtype.kind not in "iu":
-        raise CatalogueError(f"{what}: schema_version is not an integer")
-    version = int(version)
+    version = h5read.read_number_attribute(f, "schema_version", what, "/", "iu")
     if version > SCHEMA_VERSION:
         raise CatalogueError(f"{what}: catalogue schema version {version} is newer than this vertebra "
                              f"understands ({SCHEMA_VERSION}); upgrade vertebra")
     if version < 1:
         raise CatalogueError(f"{what}: invalid catalogue schema version {version}")
-    if "entries" not in f or "index" not in f:
-        raise CatalogueError(f"{what}: catalogue is missing its '/entries' group or '/index' dataset")
+    for name, kind in (("entries", "group"), ("index", "dataset")):
+        if h5read.link_kind(f, name, what, "/") is None:
+            raise CatalogueError(f"{what}: catalogue is missing its '/entries' group or '/index' dataset")
+        h5read.child(f, name, what, "/", kind)
 
 
 def read_index(f, what: str) -> dict:
-    """key -> index row, from the ``/index`` dataset (no entry data is read)."""
-    import h5py
-
-    ds = f["index"]
-    if not isinstance(ds, h5py.Dataset) or ds.ndim != 1 or ds.dtype.kind != "O":
-        raise CatalogueError(f"{what}: '/index' is not a 1-D string dataset")
-    try:
-        texts = ds.asstr()[()] if ds.shape[0] else []
-    except (OSError, ValueError, UnicodeDecodeError) as error:
-        raise CatalogueError(f"{what}: '/index' unreadable ({error})") from None
-    parsed = None
-    if all(len(t) <= MAX_JSON_BYTES for t in texts):
-        try:        # one C-level parse of all rows; per-row parsing below only on trouble
-            parsed = parse_json("[" + ",".join(texts) + "]", f"{what}: index", limit=1 << 62)
-        except CatalogueError:
-            parsed = None
-        if not isinstance(parsed, list) or len(parsed) != len(texts):
-            parsed = None
+    """key -> index row, from the ``/index`` dataset (no entry data is read). Rows are parsed
+    and checked one by one: a row is valid JSON on its own or the index is refused."""
+    ds = h5read.child(f, "index", what, "/", "dataset")
+    raw = h5read.read_string_rows(ds, what, "/index", max_rows=MAX_INDEX_ROWS, max_row_bytes=MAX_JSON_BYTES)
     rows = {}
-    for i, text in enumerate(texts):
-        row = parsed[i] if parsed is not None else parse_json(text, f"{what}: index row {i}")
+    for i, text in enumerate(raw):
+        row = parse_json(text, f"{what}: index row {i}")
         if not isinstance(row, dict) or not isinstance(row.get("key"), str):
             raise CatalogueError(f"{what}: index row {i} is not an entry row")
         check_key(row["key"], f"{what}: index row {i}: ")

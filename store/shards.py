@@ -13,27 +13,62 @@ old or the new catalogue — both complete files.
 
 from __future__ import annotations
 
+import contextlib
+import errno
+import functools
 import hashlib
 import logging
 import os
 import secrets
 import socket
 import stat
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from vertebra.store.errors import CatalogueError
-from vertebra.store.schema import (EncodedEntry, append_index, check_file, differing_fields, init_file,
-                          read_entry, read_index, write_entry)
+from vertebra.store.h5read import H5_ERRORS
+from vertebra.store.schema import (EncodedEntry, append_index, check_file, differing_fields, entry_group,
+                                   init_file, read_entry, read_index, write_entry)
 
 log = logging.getLogger("vertebra.store")
 
 LOCK_TIMEOUT_S = 600.0
+LOCK_FIRST_REPORT_S = 2.0       # a wait for the merger lock is reported after this long …
+LOCK_REPORT_EVERY_S = 15.0      # … and again at this interval until it is obtained or given up
 SHARD_SUFFIX = ".h5"
 CONFLICT_SUFFIX = ".conflict"
 CORRUPT_SUFFIX = ".corrupt"
 _HOST = socket.gethostname().replace("~", "-") or "host"
 _ALLOWED_MODES = ("r", "r+", "x")
+
+
+class LockTimeout(CatalogueError):
+    """The merger lock of a catalogue was not obtained in time."""
+
+
+def disk_error(path, action: str, error: BaseException) -> CatalogueError:
+    """One-line CatalogueError for a failed file operation (full disk, read-only filesystem,
+    permission denied, a directory where a file is expected, …)."""
+    if isinstance(error, CatalogueError):
+        return error
+    if isinstance(error, OSError) and error.errno is not None:
+        reason = f"{error.strerror or os.strerror(error.errno)} ({errno.errorcode.get(error.errno, error.errno)})"
+    else:                           # h5py reports HDF5's message (it names the system error)
+        reason = " ".join(str(error).split()) or type(error).__name__
+    return CatalogueError(f"{path}: {action}: {reason}")
+
+
+def guard_os_errors(fn):
+    """Decorator for the public store API: an OSError that escapes (a directory that cannot be
+    searched, a file vanishing, …) becomes a one-line CatalogueError naming the file."""
+    @functools.wraps(fn)
+    def guarded(*args, **kwargs):
+        try:
+            return fn(*args, **kwargs)
+        except OSError as error:
+            raise disk_error(error.filename or "catalogue", "cannot access", error) from None
+    return guarded
 
 
 # ---------------------------------------------------------------- paths
@@ -130,25 +165,34 @@ def open_checked(path, what: str | None = None):
     if st.st_size == 0:
         raise CatalogueError(f"{what}: empty file (0 bytes) — not a catalogue (an interrupted or "
                              "truncating write?)")
+    if not os.access(p, os.R_OK):
+        raise CatalogueError(f"{what}: not readable (permission denied)")
     try:
         is_hdf5 = h5py.is_hdf5(str(p))
-    except OSError as error:
-        raise CatalogueError(f"{what}: unreadable ({error})") from None
+    except H5_ERRORS as error:
+        raise CatalogueError(f"{what}: unreadable ({' '.join(str(error).split())})") from None
     if not is_hdf5:
         raise CatalogueError(f"{what}: not an HDF5 file (no HDF5 signature)")
     try:
         f = h5open(p, "r")
-    except OSError as error:
-        raise CatalogueError(f"{what}: unreadable HDF5 file (truncated or corrupt): {error}") from None
+    except H5_ERRORS as error:
+        raise CatalogueError(f"{what}: unreadable HDF5 file (truncated or corrupt): "
+                             f"{' '.join(str(error).split())}") from None
     try:
         check_file(f, what)
-    except CatalogueError:
-        f.close()
+    except BaseException as error:
+        _close_quietly(f)
+        if isinstance(error, H5_ERRORS):
+            raise CatalogueError(f"{what}: corrupt catalogue structure ({' '.join(str(error).split())})") from None
         raise
-    except (OSError, KeyError, ValueError) as error:
-        f.close()
-        raise CatalogueError(f"{what}: corrupt catalogue structure ({error})") from None
     return f
+
+
+def _close_quietly(f) -> None:
+    try:
+        f.close()
+    except H5_ERRORS:
+        pass
 
 
 def _fsync_path(path: Path, directory: bool = False) -> None:
@@ -159,20 +203,45 @@ def _fsync_path(path: Path, directory: bool = False) -> None:
         os.close(fd)
 
 
-def _copy_exclusive(src: Path, dst: Path) -> None:
-    """Byte copy into a new file (O_EXCL: never truncates anything)."""
-    with open(src, "rb") as fin:
-        fd = os.open(dst, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-        try:
-            size = os.fstat(fin.fileno()).st_size
-            offset = 0
-            while offset < size:
-                sent = os.sendfile(fd, fin.fileno(), offset, size - offset)
-                if sent == 0:
-                    raise CatalogueError(f"{src}: file shrank while being copied")
-                offset += sent
-        finally:
-            os.close(fd)
+def memory_file(image: bytes | None, label: str):
+    """An HDF5 file held in memory (core driver, no backing store): new, or opened read-write
+    from the bytes ``image`` of a file. Catalogue files are built this way and written with
+    :func:`write_new`, so a full or read-only disk fails a plain ``write`` (a clean OSError,
+    nothing half-flushed inside HDF5) and the temporary file is simply removed."""
+    import h5py
+
+    fapl = h5py.h5p.create(h5py.h5p.FILE_ACCESS)
+    fapl.set_fapl_core(backing_store=False)
+    name = f"memory:{label}:{secrets.token_hex(4)}".encode()
+    if image is None:
+        return h5py.File(h5py.h5f.create(name, h5py.h5f.ACC_EXCL, fapl=fapl))
+    fapl.set_file_image(image)
+    return h5py.File(h5py.h5f.open(name, h5py.h5f.ACC_RDWR, fapl))
+
+
+def file_image(f) -> bytes:
+    """The bytes of an in-memory HDF5 file (after a flush: a complete file)."""
+    f.flush()
+    return f.id.get_file_image()
+
+
+def read_bytes(path: Path) -> bytes:
+    try:
+        with open(path, "rb") as fh:
+            return fh.read()
+    except OSError as error:
+        raise disk_error(path, "cannot read", error) from None
+
+
+def write_new(path: Path, data: bytes) -> None:
+    """Write ``data`` into a NEW file (O_EXCL: never truncates anything)."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+    try:
+        view = memoryview(data)
+        while view:
+            view = view[os.write(fd, view):]
+    finally:
+        os.close(fd)
 
 
 def _publish(tmp: Path, final: Path, mode_from: Path | None = None) -> None:
@@ -188,14 +257,42 @@ def _publish(tmp: Path, final: Path, mode_from: Path | None = None) -> None:
 
 
 def _unlink_quietly(p: Path) -> None:
+    """Remove a file if it is there; a failure (read-only filesystem …) is logged, not raised:
+    callers clean up after an error that matters more."""
     try:
         p.unlink()
     except FileNotFoundError:
         pass
+    except OSError as error:
+        log.warning("%s: could not remove (%s)", p, error.strerror or error)
 
 
+def _lock_holder(lock: Path, soft: bool) -> str:
+    """What is known about the holder of the merger lock, for messages."""
+    if not soft:
+        return "held by another process (a merge in progress)"
+    try:
+        st = lock.stat()
+        with open(lock, "rb") as fh:
+            text = fh.read(4096).decode("utf-8", "replace")
+    except OSError:
+        return "soft lock file present"
+    fields = dict(line.split("=", 1) for line in text.splitlines() if "=" in line)
+    who = ", ".join(f"{k} {fields[k]}" for k in ("pid", "host") if k in fields)
+    if not who and text.strip().splitlines():
+        who = "pid " + text.strip().splitlines()[0][:20]
+    age = time.time() - st.st_mtime
+    return f"soft lock file created {age:.0f} s ago" + (f" by {who}" if who else "")
+
+
+@contextlib.contextmanager
 def catalogue_lock(path, timeout: float = LOCK_TIMEOUT_S):
-    """The merger lock, a separate file ``<catalogue>.lock`` (``filelock``).
+    """Hold the merger lock, a separate file ``<catalogue>.lock`` (``filelock``).
+
+    A wait is reported (logging, warning level: stderr by default) after
+    ``LOCK_FIRST_REPORT_S`` and every ``LOCK_REPORT_EVERY_S``, naming the lock and what is
+    known of its holder; after ``timeout`` seconds :class:`LockTimeout` says what to do. A lock
+    file that cannot be created (read-only filesystem, permissions) is a CatalogueError at once.
 
     ``VERTEBRA_CATALOGUE_LOCK=soft`` switches to ``SoftFileLock`` (existence of the lock
     file) for filesystems where ``fcntl`` locks do not work; a crashed merger then leaves
@@ -203,9 +300,33 @@ def catalogue_lock(path, timeout: float = LOCK_TIMEOUT_S):
     """
     import filelock
 
-    kind = os.environ.get("VERTEBRA_CATALOGUE_LOCK", "").strip().lower()
-    cls = filelock.SoftFileLock if kind == "soft" else filelock.FileLock
-    return cls(str(lock_path(path)), timeout=timeout)
+    lock_file = lock_path(path)
+    soft = os.environ.get("VERTEBRA_CATALOGUE_LOCK", "").strip().lower() == "soft"
+    lock = (filelock.SoftFileLock if soft else filelock.FileLock)(str(lock_file))
+    start = time.monotonic()
+    report_at = start + LOCK_FIRST_REPORT_S
+    while True:
+        now = time.monotonic()
+        try:
+            lock.acquire(timeout=max(0.0, min(start + timeout, report_at) - now), poll_interval=0.05)
+            break
+        except filelock.Timeout:
+            now = time.monotonic()
+            waited = now - start
+            if waited >= timeout:
+                raise LockTimeout(
+                    f"{lock_file}: catalogue lock not obtained within {timeout:.0f} s "
+                    f"({_lock_holder(lock_file, soft)}); if no merger is running"
+                    + (", the soft lock file is stale: delete it" if soft else ", try again")) from None
+            log.warning("%s: waiting %.0f s for the catalogue lock %s (%s); giving up after %.0f s",
+                        path, waited, lock_file, _lock_holder(lock_file, soft), timeout)
+            report_at = now + LOCK_REPORT_EVERY_S
+        except OSError as error:
+            raise disk_error(lock_file, "cannot create the catalogue lock file", error) from None
+    try:
+        yield lock
+    finally:
+        lock.release()
 
 
 # ---------------------------------------------------------------- writing shards
@@ -222,24 +343,37 @@ def _shard_name(encs: list[EncodedEntry]) -> str:
 def write_shard(path, encs: list[EncodedEntry]) -> Path:
     """Commit ``encs`` as one shard file next to catalogue ``path``; returns its path.
 
-    Same content gives the same shard name, so repeating a commit is harmless.
+    Same content gives the same shard name, so repeating a commit is harmless. A failed
+    write (full disk, read-only filesystem, …) leaves no file behind and raises CatalogueError.
     """
     path = Path(path)
     if not path.parent.is_dir():
         raise CatalogueError(f"{path}: directory {path.parent} does not exist")
     d = shards_dir(path)
-    d.mkdir(exist_ok=True)
-    final = d / _shard_name(encs)
-    tmp = _temp_path(d, "shard")
     try:
-        with h5open(tmp, "x") as f:
+        d.mkdir(exist_ok=True)
+    except FileExistsError:
+        raise CatalogueError(f"{d}: exists but is not a directory (the shards of {path} go there)") from None
+    except OSError as error:
+        raise disk_error(d, "cannot create the shards directory", error) from None
+    final = d / _shard_name(encs)
+    try:
+        with memory_file(None, final.name) as f:
             init_file(f)
             for enc in encs:
                 write_entry(f["entries"], enc)
             append_index(f, [enc.index_row() for enc in encs])
+            image = file_image(f)
+    except H5_ERRORS as error:
+        raise disk_error(final, "cannot build the shard in memory", error) from None
+    tmp = _temp_path(d, "shard")
+    try:
+        write_new(tmp, image)
         _publish(tmp, final)
-    except BaseException:
+    except BaseException as error:
         _unlink_quietly(tmp)
+        if isinstance(error, OSError):
+            raise disk_error(final, "cannot write the shard", error) from None
         raise
     return final
 
@@ -274,11 +408,18 @@ class MergeReport:
 
 def _conflict_fields(f, src, key, what_new) -> list[str]:
     try:
-        old = read_entry(f["entries"][key], key, "catalogue")
-        new = read_entry(src["entries"][key], key, what_new)
+        old = read_entry(entry_group(f, key, "catalogue"), key, "catalogue")
+        new = read_entry(entry_group(src, key, what_new), key, what_new)
         return differing_fields(old, new) or ["timings/provenance only"]
-    except (CatalogueError, KeyError) as error:
+    except CatalogueError as error:
         return [f"unreadable: {error}"]
+
+
+def _copy_entry(f, src, key, what) -> None:
+    try:
+        f.copy(entry_group(src, key, what), f["entries"], name=key)
+    except H5_ERRORS as error:
+        raise CatalogueError(f"{what}: /entries/{key}: cannot be copied ({' '.join(str(error).split())})") from None
 
 
 def _take(f, rows, new_rows, src, src_path, what, report, *, exclude) -> bool:
@@ -291,9 +432,7 @@ def _take(f, rows, new_rows, src, src_path, what, report, *, exclude) -> bool:
         if key in rows and rows[key]["content"] == src_row["content"]:
             report.skipped.append(key)          # same content already here: nothing to read or write
             continue
-        if key not in src["entries"]:
-            raise CatalogueError(f"{what}: index lists {key} but the entry group is missing")
-        entry = read_entry(src["entries"][key], key, what)       # checksum-checked before copying
+        entry = read_entry(entry_group(src, key, what), key, what)     # checked before copying
         row = EncodedEntry(entry).index_row()
         if key in rows:
             if rows[key]["content"] == row["content"]:
@@ -302,13 +441,14 @@ def _take(f, rows, new_rows, src, src_path, what, report, *, exclude) -> bool:
                 report.conflicts.append(Conflict(key, str(src_path), _conflict_fields(f, src, key, what)))
                 clean = False
             continue
-        f.copy(src["entries"][key], f["entries"], name=key)
+        _copy_entry(f, src, key, what)
         rows[key] = row
         new_rows.append(row)
         report.added.append(key)
     return clean
 
 
+@guard_os_errors
 def rebuild(path, inputs=(), *, exclude: str | None = None, own_shard: Path | None = None,
             timeout: float = LOCK_TIMEOUT_S) -> MergeReport | None:
     """The merger: new catalogue = current catalogue + pending shards + ``inputs``.
@@ -318,7 +458,9 @@ def rebuild(path, inputs=(), *, exclude: str | None = None, own_shard: Path | No
     ones ``*.corrupt``). ``exclude`` drops one key (the rebuild then copies entry by
     entry instead of copying the file, so the removed data really goes). With
     ``own_shard``, returns None at once if that shard was already merged by another
-    process. Raises ``filelock.Timeout`` if the lock is not obtained in ``timeout``.
+    process. Raises :class:`LockTimeout` if the lock is not obtained in ``timeout``, and a
+    CatalogueError naming the file when the disk refuses the new file (full, read-only, no
+    permission): the temporary file is removed and nothing committed is touched.
     """
     path = Path(path)
     with catalogue_lock(path, timeout):
@@ -334,60 +476,78 @@ def rebuild(path, inputs=(), *, exclude: str | None = None, own_shard: Path | No
         tmp = _temp_path(path.parent, path.name)
         merged, conflicted, corrupt = [], [], []
         try:
-            if path.exists() and exclude is None:
-                src = open_checked(path)          # refuse to build on a foreign/corrupt file
-                src.close()
-                _copy_exclusive(path, tmp)
-                f = h5open(tmp, "r+")
-            else:
-                f = h5open(tmp, "x")
-                init_file(f)
-            with f:
-                rows = read_index(f, str(path)) if exclude is None or not path.exists() else {}
-                new_rows: list[dict] = []
-                if exclude is not None and path.exists():
-                    with open_checked(path) as old:
-                        old_rows = read_index(old, str(path))
-                        for key, row in old_rows.items():
-                            if key == exclude:
-                                report.removed.append(key)
-                                continue
-                            f.copy(old["entries"][key], f["entries"], name=key)
-                            rows[key] = row
-                            new_rows.append(row)
-                for shard in shards:
-                    try:
-                        src = open_checked(shard, f"shard {shard}")
-                    except CatalogueError as error:
-                        if not shard.exists():            # cannot happen under the lock; be safe
-                            continue
-                        corrupt.append(shard)
-                        report.rejected.append(str(error))
-                        continue
-                    with src:
-                        mark = (len(rows), len(new_rows), len(report.added))
-                        try:
-                            ok = _take(f, rows, new_rows, src, shard, f"shard {shard}", report,
-                                       exclude=exclude)
-                        except CatalogueError as error:
-                            # undo this shard's additions, set it aside
-                            for key in report.added[mark[2]:]:
-                                del f["entries"][key]
-                                del rows[key]
-                            del new_rows[mark[1]:]
-                            del report.added[mark[2]:]
-                            corrupt.append(shard)
-                            report.rejected.append(str(error))
-                            continue
-                    (merged if ok else conflicted).append(shard)
-                for inp in inputs:
-                    with open_checked(inp) as src:
-                        _take(f, rows, new_rows, src, inp, str(inp), report, exclude=exclude)
-                append_index(f, new_rows)
+            image = _build(path, shards, inputs, exclude, report, merged, conflicted, corrupt)
+        except H5_ERRORS as error:
+            raise disk_error(path, "cannot build the merged catalogue in memory", error) from None
+        try:
+            write_new(tmp, image)
             _publish(tmp, path, mode_from=path if path.exists() else None)
-        except BaseException:
+        except BaseException as error:
             _unlink_quietly(tmp)
+            if isinstance(error, OSError):
+                raise disk_error(path, "cannot write the merged catalogue", error) from None
             raise
+        _settle(path, shards, merged, conflicted, corrupt)
+        return report
+
+
+def _build(path, shards, inputs, exclude, report, merged, conflicted, corrupt) -> bytes:
+    """The merged catalogue, built in memory (see :func:`rebuild`); returns its bytes."""
+    if path.exists() and exclude is None:
+        src = open_checked(path)          # refuse to build on a foreign/corrupt file
+        src.close()
+        f = memory_file(read_bytes(path), path.name)
+    else:
+        f = memory_file(None, path.name)
+        init_file(f)
+    with f:
+        rows = read_index(f, str(path)) if exclude is None or not path.exists() else {}
+        new_rows: list[dict] = []
+        if exclude is not None and path.exists():
+            with open_checked(path) as old:
+                for key, row in read_index(old, str(path)).items():
+                    if key == exclude:
+                        report.removed.append(key)
+                        continue
+                    _copy_entry(f, old, key, str(path))
+                    rows[key] = row
+                    new_rows.append(row)
+        for shard in shards:
+            try:
+                src = open_checked(shard, f"shard {shard}")
+            except CatalogueError as error:
+                if not shard.exists():            # cannot happen under the lock; be safe
+                    continue
+                corrupt.append(shard)
+                report.rejected.append(str(error))
+                continue
+            with src:
+                mark = (len(new_rows), len(report.added))
+                try:
+                    ok = _take(f, rows, new_rows, src, shard, f"shard {shard}", report, exclude=exclude)
+                except CatalogueError as error:
+                    # undo this shard's additions, set it aside
+                    for key in report.added[mark[1]:]:
+                        del f["entries"][key]
+                        del rows[key]
+                    del new_rows[mark[0]:]
+                    del report.added[mark[1]:]
+                    corrupt.append(shard)
+                    report.rejected.append(str(error))
+                    continue
+            (merged if ok else conflicted).append(shard)
+        for inp in inputs:
+            with open_checked(inp) as src:
+                _take(f, rows, new_rows, src, inp, str(inp), report, exclude=exclude)
+        append_index(f, new_rows)
+        return file_image(f)
+
+
+def _settle(path, shards, merged, conflicted, corrupt) -> None:
+    """After the new catalogue is published: delete merged shards, set problem shards aside.
+    A failure here loses nothing (a merged shard left behind is skipped as identical by the
+    next merge), so it is logged, not raised."""
+    try:
         for shard in merged:
             _unlink_quietly(shard)
         for shard in conflicted:
@@ -396,4 +556,6 @@ def rebuild(path, inputs=(), *, exclude: str | None = None, own_shard: Path | No
             os.replace(shard, shard.with_name(shard.name + CORRUPT_SUFFIX))
         if shards:
             _fsync_path(shards_dir(path), directory=True)
-        return report
+    except OSError as error:
+        log.warning("%s: merged, but tidying the shards failed (%s); the next merge finishes it",
+                    path, error.strerror or error)
