@@ -31,6 +31,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--json", action="store_true", help="print the entry as JSON on stdout")
     parser.add_argument("--no-accuracy", action="store_true", help="skip the refined-mesh accuracy estimate")
     parser.add_argument("--linear-solver", choices=("auto", "direct", "amg"), default="auto")
+    parser.add_argument("--max-elements", type=int, default=None, metavar="N",
+                        help="refuse meshes estimated above N tetrahedra before meshing "
+                             "(default 300,000: ~6.5 GB for second-order assembly)")
 
 
 def parse_values(values: list[str]) -> dict:
@@ -102,11 +105,15 @@ def run(args) -> int:
     else:
         entry = designer.design_segment(family, parameters, mesh_size=args.mesh_size, order=args.order,
                                         name=args.name, linear_solver=args.linear_solver,
-                                        estimate_accuracy=not args.no_accuracy, progress=_log)
+                                        estimate_accuracy=not args.no_accuracy, progress=_log,
+                                        max_elements=args.max_elements)
         stored = catalogue.add_entry(args.catalogue, entry)
-        _log(f"added {entry.name!r} (key {stored}) to {args.catalogue} in {time.perf_counter() - start:.2f} s")
+        _log(f"added {entry.name!r} (key {stored}) to {args.catalogue} in {time.perf_counter() - start:.2f} s"
+             + ("" if stored.merge_deferred is None else
+                f"; stored, merge deferred ({stored.merge_deferred}): the next merge picks it up"))
     if args.export_mesh:
-        legend = export_mesh(family, parameters, args.export_mesh, mesh_size=args.mesh_size, order=args.order)
+        legend = export_mesh(family, parameters, args.export_mesh, mesh_size=args.mesh_size, order=args.order,
+                             max_elements=args.max_elements)
         _log(f"mesh written to {args.export_mesh} (cell data 'group': "
              + ", ".join(f"{k}={v}" for k, v in legend.items()) + ")")
     document = entry_document(entry)
@@ -122,9 +129,11 @@ def run(args) -> int:
     if entry.n_cavities:
         print("cavity volumes       " + "  ".join(f"{v:.4g}" for v in entry.cavity_volumes) + " m^3")
     print(f"mass      {entry.mass:.6g} kg, centre of mass {list(map(float, entry.center_of_mass))}")
-    if "relative_change" in acc:
-        print(f"accuracy  relative compliance change vs refined mesh (h/{acc['method'].split('/')[-1]}): "
-              f"{acc['relative_change']:.3g}")
+    if acc.get("method") == "richardson":
+        print(f"accuracy  estimated relative compliance error {acc['relative_error']:.3g} (Richardson "
+              f"extrapolation from h = {acc['coarse_mesh_size']:.4g} m; extrapolated compliance in the entry)")
+    elif acc.get("method") == "unavailable":
+        print(f"accuracy  not estimated: {acc['reason']}")
     for warning in acc.get("warnings", []):
         print(f"warning   {warning}")
     print(f"timing    mesh {t['mesh_s']:.2f} s, assemble {t['assemble_s']:.2f} s, solve {t['solve_s']:.2f} s, "

@@ -76,6 +76,10 @@ def main(argv: list[str] | None = None) -> int:
     except FileNotFoundError as error:
         print(f"vertebra {args.command}: error: {error.filename}: file not found", file=sys.stderr)
         return 2
+    except OSError as error:            # a disk fault outside the catalogue (plots, meshes, exports)
+        where = f"{error.filename}: " if error.filename else ""
+        print(f"vertebra {args.command}: error: {where}{error.strerror or error}", file=sys.stderr)
+        return 2
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -12,6 +12,7 @@ chamber spans the eight segments of its section (pressure 0–1.5 bar).
 
 from __future__ import annotations
 
+from vertebra.designer.segment import estimated_error
 from vertebra.designer.vertebra import vertebra_properties
 from vertebra.store.errors import VertebraError
 
@@ -131,7 +132,7 @@ def cbha_catalogue(path, *, coarse: bool = True, estimate_accuracy: bool = True,
             rows.append({k: item[k] for k in ("name", "section", "slice")}
                         | {"key": prepared.key, "reused": prepared.status == "reused",
                            "total_s": seconds.get(prepared.key, 0.0), "dofs": entry.mesh["dofs"],
-                           "accuracy": entry.accuracy.get("relative_change")})
+                           "accuracy": estimated_error(entry.accuracy)})
     scene = cbha_scene([r["key"] for r in rows], str(path) if scene_catalogue is None else scene_catalogue,
                        pressures)
     return {"entries": rows, "scene": scene}

@@ -53,6 +53,21 @@ GMSH_OPTIONS = {
 }
 
 
+#: default cap on the estimated number of tetrahedra (second-order assembly holds ~22 kB per
+#: tetrahedron: 300,000 of them need ~6.5 GB; the default designs have ~1,000-20,000)
+DEFAULT_MAX_ELEMENTS = 300_000
+#: tetrahedra per unit volume / h³ and per unit boundary area / h² of gmsh's Delaunay meshes,
+#: fitted on every family from 5,000 to 720,000 tetrahedra (within a factor 1.5 there)
+ELEMENTS_PER_VOLUME = 4.5
+ELEMENTS_PER_AREA = 1.5
+
+
+def estimate_elements(volume: float, area: float, mesh_size: float) -> int:
+    """Tetrahedra gmsh will make for a solid of ``volume`` and boundary ``area`` at ``mesh_size``
+    (consistent units), before meshing."""
+    return int(ELEMENTS_PER_VOLUME * volume / mesh_size ** 3 + ELEMENTS_PER_AREA * area / mesh_size ** 2)
+
+
 @dataclass
 class MeshData:
     """A tetrahedral mesh as arrays. Vertices come first in ``nodes``.
@@ -120,14 +135,22 @@ def _initialize_gmsh(gmsh) -> None:
         pass
 
 
-def mesh_segment(family, p: dict, mesh_size: float, order: int = 2) -> MeshData:
-    """Build and mesh ``family`` with canonical parameters ``p``. Runs gmsh in-process."""
+def mesh_segment(family, p: dict, mesh_size: float, order: int = 2, *,
+                 max_elements: int = DEFAULT_MAX_ELEMENTS, progress=None) -> MeshData:
+    """Build and mesh ``family`` with canonical parameters ``p``. Runs gmsh in-process.
+
+    Before meshing, the number of tetrahedra is estimated from the solid's volume and boundary
+    area (:func:`estimate_elements`); above ``max_elements`` a GeometryError gives the estimate
+    and how to raise the cap, instead of a mesh that would not end. ``progress`` receives the
+    estimate."""
     import gmsh
 
     if order not in _TET_TYPE:
         raise GeometryError(f"parameter 'order': must be 1 or 2, got {order}")
     if not (mesh_size > 0 and math.isfinite(mesh_size)):
         raise GeometryError(f"parameter 'mesh_size': must be a positive number, got {mesh_size}")
+    if not (isinstance(max_elements, int) and max_elements > 0):
+        raise GeometryError(f"parameter 'max_elements': must be a positive integer, got {max_elements!r}")
     start = time.perf_counter()
     # mesh in units of the segment length: OCC and gmsh/tetgen work with absolute tolerances
     # (~1e-7), so a 20 µm segment failed where the same shape at 20 mm meshed. Scaled, the mesh
@@ -152,6 +175,19 @@ def mesh_segment(family, p: dict, mesh_size: float, order: int = 2) -> MeshData:
         if len(volumes) != 1:
             raise GeometryError(f"family {family.name!r}: the geometry is not one connected solid "
                                 f"({len(volumes)} volumes); check the parameters")
+        h = float(mesh_size) / scale
+        volume = sum(gmsh.model.occ.getMass(3, tag) for _, tag in volumes)
+        area = sum(gmsh.model.occ.getMass(2, abs(tag)) for _, tag in
+                   gmsh.model.getBoundary(volumes, combined=True, oriented=False, recursive=False))
+        estimate = estimate_elements(volume, area, h)
+        if progress is not None:
+            progress(f"{family.name}: about {estimate:,} tetrahedra expected at mesh_size = {mesh_size:.4g} m")
+        if estimate > max_elements:
+            raise GeometryError(
+                f"family {family.name!r}: mesh_size = {mesh_size:.4g} m would give about {estimate:,} tetrahedra "
+                f"(estimated from the solid's volume and surface), more than max_elements = {max_elements:,}; "
+                "use a larger mesh size, or raise the cap (vertebra design --max-elements N) if the machine "
+                "can take it")
         groups = _classify_surfaces(gmsh, family, p, volumes)
         n_cav = family.n_cavities(p)
         for required in ["bottom", "top"] + [f"cavity_{k}" for k in range(n_cav)]:

@@ -25,11 +25,15 @@ from vertebra.store.entry import SegmentEntry, content_key
 from vertebra.store.errors import GeometryError
 
 #: bump when a change in designer/ changes the numbers of an entry (part of the key)
-ALGORITHM_VERSION = "designer-2"   # 2: meshing in units of the segment length
+ALGORITHM_VERSION = "designer-3"   # 3: accuracy by Richardson extrapolation from a coarser mesh
 #: layout of the key payload
 KEY_SCHEMA = 1
-#: mesh-size ratio of the refined mesh used for the accuracy estimate
-REFINEMENT = 1.5
+#: the accuracy estimate solves the segment again on a mesh this much COARSER (cheap: ~1/3.4 of
+#: the elements), or on the next ratio when gmsh cannot mesh that size
+COARSENING = (1.5, 1.25)
+#: exponent p of the compliance error, error ≈ A h^p, per element order, used to extrapolate
+#: (measured on every family, ν up to 0.49: benchmarks/bench_accuracy.py, docs/designer.md)
+CONVERGENCE_ORDER = {1: 1.0, 2: 2.0}
 #: Poisson ratio above which P1 tetrahedra lock (FIELD-NOTES: ν = 0.499 P1 lateral 1.24 vs P2 2.89)
 LOCKING_POISSON = 0.45
 
@@ -107,23 +111,40 @@ def compliance_change(C_ref: np.ndarray, C: np.ndarray) -> float:
     return float(np.max(np.abs(C - C_ref) / np.outer(d, d)))
 
 
+def relative_error(C_ref: np.ndarray, C: np.ndarray) -> float:
+    """Largest relative compliance error over all loads: max over w of |wᵀ (C − C_ref) w| / wᵀ C_ref w
+    (the extreme generalised eigenvalue of (C − C_ref, C_ref)). Scale-free and independent of
+    units: wrenches, moments and pressures are compared through the work they do."""
+    from scipy.linalg import eigh
+
+    return float(np.max(np.abs(eigh(C - C_ref, C_ref, eigvals_only=True))))
+
+
+def richardson(C: np.ndarray, C_coarse: np.ndarray, ratio: float, exponent: float) -> np.ndarray:
+    """Richardson extrapolation to h → 0 of a compliance ``C`` at mesh size h from ``C_coarse`` at
+    ``ratio`` × h, for an error ≈ A h^exponent: C + (C − C_coarse) / (ratio^exponent − 1)."""
+    return C + (C - C_coarse) / (ratio ** exponent - 1.0)
+
+
 def _say(progress, message: str) -> None:
     if progress is not None:
         progress(message)
 
 
 def solve_segment(family, parameters: dict, *, mesh_size=None, order: int = 2, linear_solver: str = "auto",
-                  amg_threshold: int | None = None, progress=None):
-    """Mesh, assemble and condense. Returns ``(compliance, fe, mesh_data, condensation, timings)``."""
+                  amg_threshold: int | None = None, progress=None, max_elements: int | None = None):
+    """Mesh, assemble and condense. Returns ``(compliance, fe, mesh_data, condensation, timings)``.
+    ``max_elements``: cap on the estimated tetrahedra (default ``geometry.DEFAULT_MAX_ELEMENTS``)."""
     from vertebra.designer.fem import build_fe, condense
-    from vertebra.designer.geometry import mesh_segment
+    from vertebra.designer.geometry import DEFAULT_MAX_ELEMENTS, mesh_segment
 
     fam = family_of(family)
     p = canonical_parameters(fam, parameters)
     h = resolve_mesh_size(fam, p, mesh_size)
     start = time.perf_counter()
     _say(progress, f"{fam.name}: meshing (h = {h:.4g} m, order {order})")
-    mesh_data = mesh_segment(fam, p, h, order)
+    mesh_data = mesh_segment(fam, p, h, order, max_elements=max_elements or DEFAULT_MAX_ELEMENTS,
+                             progress=progress)
     _say(progress, f"{fam.name}: {mesh_data.tets.shape[0]} tetrahedra, {3 * mesh_data.nodes.shape[0]} DoFs; assembling")
     fe = build_fe(mesh_data, p["youngs_modulus"], p["poisson_ratio"], p["density"], fam.n_cavities(p), fam.length(p))
     _say(progress, f"{fam.name}: condensing ({linear_solver} linear solver)")
@@ -134,16 +155,59 @@ def solve_segment(family, parameters: dict, *, mesh_size=None, order: int = 2, l
     return compliance, fe, mesh_data, cond, timings
 
 
+def estimate_accuracy_of(family, parameters: dict, compliance: np.ndarray, *, mesh_size: float, order: int,
+                         linear_solver: str = "auto", amg_threshold: int | None = None, progress=None,
+                         max_elements: int | None = None) -> dict:
+    """The ``entry.accuracy`` of a compliance computed at ``mesh_size``: Richardson extrapolation
+    from one coarser mesh (``COARSENING``), with the order's ``CONVERGENCE_ORDER``.
+
+    Returns ``{"method": "richardson", "relative_error": estimated error of the stored compliance
+    (:func:`relative_error` against the extrapolated value), "relative_error_C" (6×6 block),
+    "extrapolated_compliance", "convergence_order", "coarse_mesh_size", "coarse_dofs",
+    "coarse_total_s"}``; ``{"method": "unavailable", "reason": …}`` when no coarser mesh could be made.
+    """
+    exponent = CONVERGENCE_ORDER[order]
+    failures = []
+    for ratio in COARSENING:
+        h_coarse = mesh_size * ratio
+        _say(progress, f"accuracy estimate: solving on a coarser mesh (h = {h_coarse:.4g} m)")
+        try:
+            coarse, fe_coarse, _, _, t_coarse = solve_segment(
+                family, parameters, mesh_size=h_coarse, order=order, linear_solver=linear_solver,
+                amg_threshold=amg_threshold, progress=None, max_elements=max_elements)
+        except GeometryError as error:
+            failures.append(str(error))
+            continue
+        extrapolated = richardson(compliance, coarse, ratio, exponent)
+        error = relative_error(extrapolated, compliance)
+        _say(progress, f"accuracy estimate: relative compliance error {error:.3g} (Richardson, p = {exponent:g})")
+        return {"method": "richardson", "relative_error": error,
+                "relative_error_C": relative_error(extrapolated[:6, :6], compliance[:6, :6]),
+                "extrapolated_compliance": extrapolated.tolist(), "convergence_order": exponent,
+                "coarse_mesh_size": h_coarse, "coarse_dofs": int(fe_coarse.n_dofs),
+                "coarse_total_s": t_coarse["total_s"]}
+    return {"method": "unavailable", "reason": "; ".join(failures)}
+
+
+def estimated_error(accuracy: dict) -> float | None:
+    """The estimated relative error an ``entry.accuracy`` records (None if it records none): the
+    Richardson estimate, or for older entries the change against a refined mesh."""
+    value = accuracy.get("relative_error", accuracy.get("relative_change"))
+    return float(value) if isinstance(value, (int, float)) else None
+
+
 def design_segment(family, parameters: dict, *, mesh_size=None, order: int = 2, name: str | None = None,
                    linear_solver: str = "auto", estimate_accuracy: bool = True, progress=None,
-                   amg_threshold: int | None = None) -> SegmentEntry:
+                   amg_threshold: int | None = None, max_elements: int | None = None) -> SegmentEntry:
     """Condensed catalogue entry of one segment (DESIGN.md §2).
 
     ``progress``: optional callable receiving one-line status messages.
     ``linear_solver``: "auto" | "direct" | "amg" (auto: direct below
     ``designer.linsolve.AUTO_THRESHOLD`` interior unknowns, overridable with ``amg_threshold``).
-    ``estimate_accuracy``: also solve on a mesh refined by ``REFINEMENT`` and store the
-    relative compliance change in ``entry.accuracy``.
+    ``estimate_accuracy``: also solve on a coarser mesh and store the Richardson estimate of the
+    compliance's discretisation error in ``entry.accuracy`` (:func:`estimate_accuracy_of`).
+    ``max_elements``: cap on the estimated tetrahedra, checked before meshing
+    (``geometry.DEFAULT_MAX_ELEMENTS`` when None).
     """
     from vertebra.designer.threads import pin_blas_threads
 
@@ -162,21 +226,13 @@ def design_segment(family, parameters: dict, *, mesh_size=None, order: int = 2, 
         warn.append(message)
     compliance, fe, mesh_data, cond, timings = solve_segment(
         fam, p, mesh_size=h, order=order, linear_solver=linear_solver, amg_threshold=amg_threshold,
-        progress=progress)
-    accuracy = {"method": "none", "warnings": warn}
+        progress=progress, max_elements=max_elements)
+    accuracy = {"method": "none"}
     if estimate_accuracy:
-        h_ref = h / REFINEMENT
-        _say(progress, f"{fam.name}: accuracy estimate on a refined mesh (h = {h_ref:.4g} m)")
-        ref, fe_ref, _, cond_ref, t_ref = solve_segment(fam, p, mesh_size=h_ref, order=order,
-                                                        linear_solver=linear_solver,
-                                                        amg_threshold=amg_threshold, progress=progress)
-        change = compliance_change(ref, compliance)
-        accuracy = {"method": f"refined mesh h/{REFINEMENT}", "relative_change": change,
-                    "relative_change_C": compliance_change(ref[:6, :6], compliance[:6, :6]),
-                    "refined_mesh_size": h_ref, "refined_dofs": int(fe_ref.n_dofs),
-                    "refined_total_s": t_ref["total_s"], "warnings": warn}
-        _say(progress, f"{fam.name}: relative compliance change vs refined mesh {change:.3g}")
-    timings["accuracy_s"] = accuracy.get("refined_total_s", 0.0)
+        accuracy = estimate_accuracy_of(fam, p, compliance, mesh_size=h, order=order, linear_solver=linear_solver,
+                                        amg_threshold=amg_threshold, progress=progress, max_elements=max_elements)
+    accuracy["warnings"] = warn
+    timings["accuracy_s"] = accuracy.get("coarse_total_s", 0.0)
     timings["total_s"] = time.perf_counter() - start       # everything, accuracy estimate included
     n = fe.n_cavities
     date = datetime.datetime.now(datetime.timezone.utc).replace(microsecond=0).isoformat()
@@ -209,7 +265,8 @@ def entry_document(entry: SegmentEntry) -> dict:
             "timing": {k: float(entry.timings.get(k, 0.0)) for k in ("mesh_s", "assemble_s", "solve_s", "total_s")}}
 
 
-def export_mesh(family, parameters: dict, path: str, *, mesh_size=None, order: int = 2) -> dict:
+def export_mesh(family, parameters: dict, path: str, *, mesh_size=None, order: int = 2,
+                max_elements: int | None = None) -> dict:
     """Write the segment mesh to a file meshio can write (e.g. .vtu): the tetrahedra (cell
     data ``group`` = 0) and the boundary triangles of every physical group (``group`` = 1, 2, …).
     Returns the legend ``{group name: id}``. gmsh meshes deterministically (fixed seed and
@@ -220,7 +277,10 @@ def export_mesh(family, parameters: dict, path: str, *, mesh_size=None, order: i
 
     fam = family_of(family)
     p = canonical_parameters(fam, parameters)
-    data = mesh_segment(fam, p, resolve_mesh_size(fam, p, mesh_size), order)
+    from vertebra.designer.geometry import DEFAULT_MAX_ELEMENTS
+
+    data = mesh_segment(fam, p, resolve_mesh_size(fam, p, mesh_size), order,
+                        max_elements=max_elements or DEFAULT_MAX_ELEMENTS)
     legend = {"volume": 0} | {name: i + 1 for i, name in enumerate(sorted(data.facets))}
     # scikit-fem, VTK and meshio share the tetra10 node order; triangle6 too (corners, then edges)
     cells = [("tetra10" if order == 2 else "tetra", data.tets)]

@@ -14,6 +14,7 @@ import math
 from vertebra.store.errors import SceneError
 
 MAX_MAGNITUDE = 1e100        # larger inputs are mistakes (and overflow in l³, r⁴)
+MIN_MAGNITUDE = 1e-100       # smaller positive sizes and moduli underflow (in l², r⁴) to zero
 # How alike (difflib ratio) a field must be to one the parser asked for to be called its
 # misspelling: "youngs_modulous" 0.97, "lenght" 0.83, "radus" 0.91, while distinct fields of one
 # table stay below it ("outer_radius"/"inner_radius" 0.75, "youngs_modulus"/"shear_modulus" 0.67).
@@ -86,6 +87,8 @@ class Table:
             raise self.error(key, f"magnitude {value!r} is beyond {MAX_MAGNITUDE:g}: not a physical input")
         if positive and not value > 0:
             raise self.error(key, f"must be > 0, got {value!r}")
+        if positive and value < MIN_MAGNITUDE:
+            raise self.error(key, f"magnitude {value!r} is below {MIN_MAGNITUDE:g}: not a physical input")
         if nonneg and not value >= 0:
             raise self.error(key, f"must be >= 0, got {value!r}")
         return int(value) if integer else float(value)

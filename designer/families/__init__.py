@@ -52,6 +52,15 @@ MATERIAL = (
 )
 
 
+#: plausible sizes of a segment's dimensions, m (beyond: not a segment, and meshing would not end)
+SIZE_RANGE = (1e-9, 1e4)
+#: largest ratio of two positive dimensions (a 1e4 aspect ratio already needs ~1e5 elements)
+MAX_ASPECT_RATIO = 1e4
+#: plausible Young's moduli, Pa (from soft gels to diamond, with margin) and densities, kg/m^3
+MODULUS_RANGE = (1e-3, 1e13)
+MAX_DENSITY = 1e5
+
+
 def require(condition: bool, parameter: str, message: str) -> None:
     """Raise ``GeometryError`` naming ``parameter`` unless ``condition`` holds."""
     if not condition:
@@ -63,6 +72,27 @@ def check_material(p: dict) -> None:
     require(-1.0 < p["poisson_ratio"] < 0.5, "poisson_ratio",
             f"must satisfy -1 < poisson_ratio < 0.5, got {p['poisson_ratio']}")
     require(p["density"] >= 0, "density", f"must be >= 0, got {p['density']}")
+    lo, hi = MODULUS_RANGE
+    require(lo <= p["youngs_modulus"] <= hi, "youngs_modulus",
+            f"{p['youngs_modulus']:g} Pa is outside the plausible range [{lo:g}, {hi:g}] Pa")
+    require(p["density"] <= MAX_DENSITY, "density",
+            f"{p['density']:g} kg/m^3 is above any material ({MAX_DENSITY:g} kg/m^3)")
+
+
+def check_plausible(family: "Family", p: dict) -> None:
+    """Physical plausibility of the dimensions (``unit == "m"``), before any meshing: each positive
+    dimension within ``SIZE_RANGE`` and no two further apart than ``MAX_ASPECT_RATIO`` (a radius
+    of 1e300 m next to a length of 4 cm would make gmsh run for ever)."""
+    sizes = {spec.name: p[spec.name] for spec in family.parameters if spec.unit == "m" and p[spec.name] > 0}
+    lo, hi = SIZE_RANGE
+    for name, value in sizes.items():
+        require(lo <= value <= hi, name, f"{value:g} m is outside the plausible range [{lo:g}, {hi:g}] m")
+    if sizes:
+        big, small = max(sizes, key=sizes.get), min(sizes, key=sizes.get)
+        ratio = sizes[big] / sizes[small]
+        require(ratio <= MAX_ASPECT_RATIO, big,
+                f"{big} / {small} = {ratio:.3g} > {MAX_ASPECT_RATIO:g}: no segment is that slender or flat "
+                "(and its mesh would not end)")
 
 
 class Family:
@@ -107,6 +137,7 @@ class Family:
                     raise GeometryError(f"parameter {spec.name!r}: must be finite, got {value!r}")
             out[spec.name] = value
         self.check(out)
+        check_plausible(self, out)
         return out
 
     def check(self, p: dict) -> None:
