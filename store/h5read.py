@@ -55,23 +55,30 @@ def _join(path: str, name: str) -> str:
     return f"{path.rstrip('/')}/{name}"
 
 
+def _low(obj):
+    """The low-level h5py identifier of an h5py object (or the identifier itself)."""
+    h5py = _h5py()
+    return obj.id if isinstance(obj, (h5py.Group, h5py.Dataset)) else obj
+
+
 def link_kind(group, name: str, what: str, path: str) -> str | None:
     """"hard link", "soft link", "external link", "user-defined link", or None if absent."""
     h5py = _h5py()
+    gid = _low(group)
     try:
-        if not group.id.links.exists(name.encode()):
+        if not gid.links.exists(name.encode()):
             return None
-        kind = group.id.links.get_info(name.encode()).type
+        kind = gid.links.get_info(name.encode()).type
     except H5_ERRORS as error:
         raise failure(what, _join(path, name), f"unreadable link ({error})") from None
-    return _LINK_KINDS.get(kind, "user-defined link") if kind != h5py.h5l.TYPE_HARD else "hard link"
+    return "hard link" if kind == h5py.h5l.TYPE_HARD else _LINK_KINDS.get(kind, "user-defined link")
 
 
 def check_dataset_storage(dataset, what: str, path: str) -> None:
     """Refuse datasets whose data live outside this file (virtual or external storage)."""
     h5py = _h5py()
     try:
-        plist = dataset.id.get_create_plist()
+        plist = _low(dataset).get_create_plist()
         layout = plist.get_layout()
         external = plist.get_external_count()
     except H5_ERRORS as error:
@@ -83,9 +90,8 @@ def check_dataset_storage(dataset, what: str, path: str) -> None:
                                   "files); refused")
 
 
-def child(group, name: str, what: str, path: str, kind: str, *, required: bool = True):
-    """Open ``group/name`` through a hard link and check it is a ``kind`` ("group" or
-    "dataset"). Returns None when absent and not ``required``."""
+def _open_child(group, name: str, what: str, path: str, kind: str, required: bool):
+    """Low-level identifier of ``group/name`` (hard link, right kind, data in this file)."""
     h5py = _h5py()
     obj_path = _join(path, name)
     link = link_kind(group, name, what, path)
@@ -97,27 +103,41 @@ def child(group, name: str, what: str, path: str, kind: str, *, required: bool =
         raise failure(what, obj_path, f"{link} refused: catalogue objects must be stored in the file itself "
                                       "(hard links only)")
     try:
-        obj = group[name]
+        oid = h5py.h5o.open(_low(group), name.encode())
     except H5_ERRORS as error:
         raise failure(what, obj_path, f"unreadable object ({error})") from None
-    expected = h5py.Group if kind == "group" else h5py.Dataset
-    if not isinstance(obj, expected):
+    expected = h5py.h5g.GroupID if kind == "group" else h5py.h5d.DatasetID
+    if not isinstance(oid, expected):
         raise failure(what, obj_path, f"is not a {kind}")
     if kind == "dataset":
-        check_dataset_storage(obj, what, obj_path)
-    return obj
+        check_dataset_storage(oid, what, obj_path)
+    return oid
+
+
+def child(group, name: str, what: str, path: str, kind: str, *, required: bool = True):
+    """Open ``group/name`` through a hard link and check it is a ``kind`` ("group" or
+    "dataset"; datasets must keep their data in this file). Returns an h5py Group or Dataset,
+    or None when absent and not ``required``."""
+    h5py = _h5py()
+    oid = _open_child(group, name, what, path, kind, required)
+    if oid is None:
+        return None
+    try:
+        return h5py.Group(oid) if kind == "group" else h5py.Dataset(oid)
+    except H5_ERRORS as error:
+        raise failure(what, _join(path, name), f"unreadable object ({error})") from None
 
 
 def member_names(group, what: str, path: str, limit: int = MAX_LINKS) -> list[str]:
     """Names of the links in ``group`` (no object is opened), at most ``limit``."""
-    names: list[str] = []
+    names: list[bytes] = []
 
     def collect(name):
         names.append(name)
         return 1 if len(names) > limit else None
 
     try:
-        group.id.links.iterate(collect)
+        _low(group).links.iterate(collect)
     except H5_ERRORS as error:
         raise failure(what, path, f"unreadable group ({error})") from None
     if len(names) > limit:
@@ -131,13 +151,16 @@ def member_names(group, what: str, path: str, limit: int = MAX_LINKS) -> list[st
     return out
 
 
-def _open_attribute(obj, name: str, what: str, path: str, limit: int):
+def _open_attribute(obj, name: str | bytes, what: str, path: str, limit: int):
     """Open an attribute after checking it is fixed-size and at most ``limit`` bytes."""
     h5py = _h5py()
+    raw = name if isinstance(name, bytes) else name.encode()
+    label = raw.decode("utf-8", "replace")
+    oid = _low(obj)
     try:
-        if not h5py.h5a.exists(obj.id, name.encode()):
-            raise failure(what, path, f"attribute {name!r} missing")
-        attr = h5py.h5a.open(obj.id, name.encode())
+        if not h5py.h5a.exists(oid, raw):
+            raise failure(what, path, f"attribute {label!r} missing")
+        attr = h5py.h5a.open(oid, raw)
         ftype = attr.get_type()
         variable = ftype.is_variable_str() if isinstance(ftype, h5py.h5t.TypeStringID) else \
             ftype.get_class() == h5py.h5t.VLEN
@@ -145,12 +168,12 @@ def _open_attribute(obj, name: str, what: str, path: str, limit: int):
     except CatalogueError:
         raise
     except H5_ERRORS as error:
-        raise failure(what, path, f"attribute {name!r} unreadable ({error})") from None
+        raise failure(what, path, f"attribute {label!r} unreadable ({error})") from None
     if variable:
-        raise failure(what, path, f"attribute {name!r} is variable-length (its size is unknown until it is "
+        raise failure(what, path, f"attribute {label!r} is variable-length (its size is unknown until it is "
                                   "read); vertebra stores fixed-length attributes only")
     if size > limit:
-        raise failure(what, path, f"attribute {name!r} is {size} bytes > limit {limit}")
+        raise failure(what, path, f"attribute {label!r} is {size} bytes > limit {limit}")
     return attr
 
 
@@ -197,9 +220,9 @@ def read_float_dataset(group, name: str, what: str, path: str, *, max_ndim: int 
     """A float64 dataset (little- or big-endian) read as little-endian, shape-checked first."""
     h5py = _h5py()
     obj_path = _join(path, name)
-    ds = child(group, name, what, path, "dataset")
+    did = _open_child(group, name, what, path, "dataset", True)
     try:
-        dtype, shape = ds.dtype, ds.shape
+        dtype, shape = did.dtype, did.shape
     except H5_ERRORS as error:
         raise failure(what, obj_path, f"unreadable dataset ({error})") from None
     if dtype not in (np.dtype("<f8"), np.dtype(">f8")):
@@ -209,7 +232,7 @@ def read_float_dataset(group, name: str, what: str, path: str, *, max_ndim: int 
     arr = np.empty(shape, dtype="<f8")
     if arr.size:
         try:
-            ds.id.read(h5py.h5s.ALL, h5py.h5s.ALL, arr)
+            did.read(h5py.h5s.ALL, h5py.h5s.ALL, arr)
         except H5_ERRORS as error:
             raise failure(what, obj_path, f"unreadable data ({error})") from None
     return arr
@@ -368,23 +391,27 @@ def read_string_rows(ds, what: str, path: str, *, max_rows: int, max_row_bytes: 
 
 
 def walk(root, what: str, path: str = "/", *, limit: int = MAX_LINKS,
-         attribute_limit: int = MAX_ATTRIBUTE_BYTES) -> list[str]:
+         attribute_limit: int = MAX_ATTRIBUTE_BYTES, skip: frozenset = frozenset()) -> list[str]:
     """Every object under ``root`` through hard links, once: problems found (not raised).
 
     Refused: soft, external and user-defined links; virtual datasets and datasets with external
-    storage; variable-length or oversized attributes; unreadable objects. Objects reachable
-    through several hard links are visited once (so hard-link cycles end).
+    storage; variable-length or oversized attributes; named datatypes; unreadable objects.
+    Objects reachable through several hard links are visited once (so hard-link cycles end).
+    The members of the groups whose paths are in ``skip`` are not visited (their callers walk
+    them one by one).
     """
     h5py = _h5py()
     problems: list[str] = []
     seen: set = set()
-    stack = [(root, path)]
+    stack = [(_low(root), path)]
     visited = 0
     while stack:
-        group, gpath = stack.pop()
-        _check_attributes(group, what, gpath, attribute_limit, problems)
+        gid, gpath = stack.pop()
+        _check_attributes(gid, what, gpath, attribute_limit, problems)
+        if gpath in skip:
+            continue
         try:
-            names = member_names(group, what, gpath, limit)
+            names = member_names(gid, what, gpath, limit)
         except CatalogueError as error:
             problems.append(str(error))
             continue
@@ -394,41 +421,38 @@ def walk(root, what: str, path: str = "/", *, limit: int = MAX_LINKS,
                 problems.append(str(failure(what, gpath, f"more than {limit} objects; walk stopped")))
                 return problems
             obj_path = _join(gpath, name)
+            raw = name.encode()
             try:
-                kind = link_kind(group, name, what, gpath)
+                kind = link_kind(gid, name, what, gpath)
                 if kind != "hard link":
                     raise failure(what, obj_path, f"{kind} refused: catalogue objects must be stored in the file "
                                                   "itself (hard links only)")
-                info = h5py.h5o.get_info(group.id, name.encode())
+                info = h5py.h5o.get_info(gid, raw)
                 token = (info.fileno, info.addr)
-                obj = group[name]
+                if token in seen:
+                    continue
+                seen.add(token)
+                if info.type == h5py.h5o.TYPE_GROUP:
+                    stack.append((h5py.h5g.open(gid, raw), obj_path))
+                elif info.type == h5py.h5o.TYPE_DATASET:
+                    did = h5py.h5d.open(gid, raw)
+                    check_dataset_storage(did, what, obj_path)
+                    if info.num_attrs:
+                        _check_attributes(did, what, obj_path, attribute_limit, problems)
+                else:
+                    raise failure(what, obj_path, "is neither a group nor a dataset")
             except CatalogueError as error:
                 problems.append(str(error))
-                continue
             except H5_ERRORS as error:
                 problems.append(str(failure(what, obj_path, f"unreadable object ({error})")))
-                continue
-            if token in seen:
-                continue
-            seen.add(token)
-            if isinstance(obj, h5py.Group):
-                stack.append((obj, obj_path))
-            elif isinstance(obj, h5py.Dataset):
-                try:
-                    check_dataset_storage(obj, what, obj_path)
-                except CatalogueError as error:
-                    problems.append(str(error))
-                _check_attributes(obj, what, obj_path, attribute_limit, problems)
-            else:
-                problems.append(str(failure(what, obj_path, "is neither a group nor a dataset")))
     return problems
 
 
-def _check_attributes(obj, what: str, path: str, limit: int, problems: list) -> None:
+def _check_attributes(oid, what: str, path: str, limit: int, problems: list) -> None:
     h5py = _h5py()
     names: list[bytes] = []
     try:
-        h5py.h5a.iterate(obj.id, lambda name: names.append(name) if len(names) <= 1000 else 1)
+        h5py.h5a.iterate(oid, lambda name: names.append(name) if len(names) <= 1000 else 1)
     except H5_ERRORS as error:
         problems.append(str(failure(what, path, f"unreadable attributes ({error})")))
         return
@@ -437,6 +461,6 @@ def _check_attributes(obj, what: str, path: str, limit: int, problems: list) -> 
         return
     for raw in names:
         try:
-            _open_attribute(obj, raw.decode("utf-8", "replace"), what, path, limit)
+            _open_attribute(oid, raw, what, path, limit)
         except CatalogueError as error:
             problems.append(str(error))

@@ -7,7 +7,7 @@ one would pass it and break a solve. :func:`soundness_problems` checks, for ever
 * **generic** (any family): compliance finite, symmetric, positive definite (the whole
   (6+n)×(6+n) matrix: it is a complementary energy) with diagonal entries in
   [1e-60, 1e60] (SI units; far outside any segment); mass, centre of mass, rest pose and
-  cavity volumes finite, mass ≥ 0, cavity volumes ≥ 0, rest length > 0.
+  cavity volumes finite, mass ≥ 0, cavity volumes ≥ 0.
 * **for the built-in families** whose parameters are complete (an :class:`Envelope`):
   rest pose ``d0 = (0, 0, length)``, ``R0 = I``; the number of cavities; mass = density ×
   solid volume within [0.5, 1.2] (a coarse mesh loses volume at curved walls); the centre
@@ -269,8 +269,6 @@ def _generic(entry) -> list[str]:
         problems.append(f"compliance ({c.shape[0]}×{c.shape[0]}) is not positive definite")
     if np.any(entry.cavity_volumes < 0):
         problems.append("a cavity rest volume is negative")
-    if not np.linalg.norm(entry.rest_translation) > 0:
-        problems.append("rest length |rest_translation| is zero")
     return problems
 
 

@@ -47,11 +47,14 @@ def fake_job(task):
         raise RuntimeError(f"boom in task {task.index}")
     if p.get("crash"):
         os._exit(3)                                      # a worker dying hard (segfault-like)
-    area = np.pi * p["radius"] ** 2
-    compliance = np.diag([1.0, 1.0, p["length"] / (p["youngs_modulus"] * area), 2.0, 2.0, 3.0])
+    # beam compliances of the rod: fake, but physical (the store checks entries against their family)
+    L, E, area = p["length"], p["youngs_modulus"], np.pi * p["radius"] ** 2
+    inertia, shear = area * p["radius"] ** 2 / 4, E / (2 * (1 + p.get("poisson_ratio", 0.3)))
+    compliance = np.diag([L ** 3 / (3 * E * inertia)] * 2 + [L / (E * area)] + [L / (E * inertia)] * 2
+                         + [L / (shear * 2 * inertia)])
     return SegmentEntry(key=fake_key(task), name=task.name or f"fake-{task.index}", family=task.family,
                         parameters=p, compliance=compliance, cavity_volumes=[], mass=0.0,
-                        center_of_mass=[0, 0, p["length"] / 2],
+                        center_of_mass=[0, 0, p["length"] / 2], rest_translation=[0, 0, p["length"]],
                         provenance={"omp": os.environ.get("OMP_NUM_THREADS")})
 
 

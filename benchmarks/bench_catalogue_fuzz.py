@@ -1,0 +1,139 @@
+"""Hostile catalogues: a large seeded corruption fuzz and the cost of refusing a huge attribute.
+
+1. ``--cases`` seeded corruptions (default 1000: bit flips, zeroed blocks, truncations, random
+   bytes, in turn) of a valid catalogue of real designed entries, each through
+   ``catalogue verify``, ``ls``, ``show`` and ``simulate`` in a forked child with a 30 s deadline
+   (tests/corruption.py; ``make test`` runs 100 of them). Counts outcomes per command and per
+   corruption kind: ``ok``/``refused``/``exit-1`` are fine; ``traceback``, ``hang`` and
+   ``unsound`` (a command accepting data other than what was stored) must be 0.
+2. A 300 MB variable-length string attribute in an entry: seconds to refuse it (verify, load)
+   against the seconds h5py needs to read it.
+
+Results: benchmarks/results/catalogue_fuzz.json and .md.
+
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_catalogue_fuzz.py [--cases 1000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import json
+import os
+import platform
+import shutil
+import sys
+import tempfile
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benchmarks" / "results"
+sys.path.insert(0, str(ROOT / "tests"))
+
+import corruption  # noqa: E402
+
+COMMANDS = ("verify", "ls", "show", "simulate")
+BAD = ("traceback", "hang", "unsound")
+
+
+def huge_attribute(directory: Path, megabytes: int = 300) -> dict:
+    import h5py
+
+    from vertebra.store import catalogue
+    from vertebra.store.errors import CatalogueError
+
+    valid = corruption.build_catalogue(directory)
+    path = directory / "huge.h5"
+    shutil.copy(valid, path)
+    with catalogue.open_catalogue(path) as cat:
+        key = cat.resolve("fuzz-pneumatic")
+    with h5py.File(path, "r+") as f:
+        f["entries"][key].attrs["provenance"] = "x" * (megabytes << 20)
+    out = {"megabytes": megabytes, "file_bytes": path.stat().st_size}
+    t0 = time.perf_counter()
+    with h5py.File(path, "r") as f:
+        value = f["entries"][key].attrs["provenance"]
+    out["h5py_read_s"] = time.perf_counter() - t0
+    del value
+    t0 = time.perf_counter()
+    problems = catalogue.verify(path)
+    out["verify_s"] = time.perf_counter() - t0
+    out["verify_problem"] = problems[0] if problems else None
+    t0 = time.perf_counter()
+    try:
+        with catalogue.open_catalogue(path) as cat:
+            cat.load(key)
+        out["load"] = "accepted"
+    except CatalogueError as error:
+        out["load"] = str(error)
+    out["load_s"] = time.perf_counter() - t0
+    return out
+
+
+def markdown(result: dict) -> str:
+    counts, kinds = result["counts"], result["by_kind"]
+    lines = ["# Hostile catalogues: seeded corruption fuzz", "",
+             f"{result['date']} on {result['host']} (2 shared cores), Python {result['python']}; load average "
+             f"{result['loadavg_start'][0]:.1f} → {result['loadavg_end'][0]:.1f}.", "",
+             f"{result['cases']} seeded corruptions (seeds {result['seeds'][0]}…{result['seeds'][1]}) of a "
+             f"{result['catalogue_bytes']}-byte catalogue of {len(corruption.SPECS)} designed entries "
+             "(rod, tube, bellows, pneumatic; 0–3 cavities), each through four commands in a forked child "
+             f"with a {result['deadline_s']:.0f} s deadline. Slowest case {result['max_case_s']:.2f} s "
+             f"(all four commands); whole run {result['run_s']:.0f} s.", "",
+             "| command | ok | refused | exit 1 | traceback | hang | unsound |", "|---|---:|---:|---:|---:|---:|---:|"]
+    for command in COMMANDS:
+        c = counts.get(command, {})
+        lines.append(f"| {command} | {c.get('ok', 0)} | {c.get('refused', 0)} | {c.get('exit-1', 0)} | "
+                     f"{c.get('traceback', 0)} | {c.get('hang', 0)} | {c.get('unsound', 0)} |")
+    lines += ["", "By corruption kind (verify):", "", "| kind | cases | refused by verify | file unchanged |",
+              "|---|---:|---:|---:|"]
+    for kind, row in kinds.items():
+        lines.append(f"| {kind} | {row['cases']} | {row['refused']} | {row['unchanged']} |")
+    huge = result["huge_attribute"]
+    lines += ["", f"## A {huge['megabytes']} MB variable-length attribute", "",
+              f"h5py reads it in {huge['h5py_read_s']:.2f} s; `verify` refuses the file in {huge['verify_s']:.3f} s "
+              f"and `load` the entry in {huge['load_s']:.3f} s, without reading it:", "",
+              f"> {huge['verify_problem']}", "", "Produced by `benchmarks/bench_catalogue_fuzz.py`."]
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--cases", type=int, default=1000)
+    parser.add_argument("--first-seed", type=int, default=1000, help="(make test uses seeds 0-99)")
+    args = parser.parse_args(argv)
+    result = {"date": datetime.now(timezone.utc).replace(microsecond=0).isoformat(), "host": platform.node(),
+              "python": platform.python_version(), "loadavg_start": os.getloadavg(), "deadline_s": 30.0,
+              "cases": args.cases, "seeds": [args.first_seed, args.first_seed + args.cases - 1]}
+    with tempfile.TemporaryDirectory() as d:
+        start = time.perf_counter()
+        results, counts = corruption.fuzz(Path(d), range(args.first_seed, args.first_seed + args.cases),
+                                          deadline_s=result["deadline_s"])
+        result["run_s"] = time.perf_counter() - start
+        result["catalogue_bytes"] = (Path(d) / "valid.h5").stat().st_size
+    result["counts"] = counts
+    by_kind = collections.defaultdict(lambda: {"cases": 0, "refused": 0, "unchanged": 0})
+    for r in results:
+        row = by_kind[r["kind"]]
+        row["cases"] += 1
+        row["refused"] += r.get("verify") == "refused"
+        row["unchanged"] += r.get("changed") is False
+    result["by_kind"] = dict(by_kind)
+    result["max_case_s"] = max(r.get("seconds", 0.0) for r in results)
+    result["failures"] = [r for r in results if r.get("hang") or r.get("detail") or "harness_error" in r]
+    with tempfile.TemporaryDirectory() as d:
+        result["huge_attribute"] = huge_attribute(Path(d))
+    result["loadavg_end"] = os.getloadavg()
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / "catalogue_fuzz.json").write_text(json.dumps(result, indent=1) + "\n")
+    text = markdown(result)
+    (RESULTS / "catalogue_fuzz.md").write_text(text + "\n")
+    print(text)
+    bad = sum(counts.get(c, {}).get(b, 0) for c in COMMANDS for b in BAD)
+    return 1 if bad or result["failures"] else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
