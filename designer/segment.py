@@ -29,8 +29,11 @@ ALGORITHM_VERSION = "designer-3"   # 3: accuracy by Richardson extrapolation fro
 #: layout of the key payload
 KEY_SCHEMA = 1
 #: the accuracy estimate solves the segment again on a mesh this much COARSER (cheap: ~1/3.4 of
-#: the elements), or on the next ratio when gmsh cannot mesh that size
-COARSENING = (1.5, 1.25)
+#: the elements); the next ratios serve when gmsh cannot mesh that size or the mesh is not
+#: coarser (small features fix the element size)
+COARSENING = (1.5, 2.0, 1.25)
+#: a coarse mesh must have this many times fewer elements to be used (ratio of mean sizes 1.08)
+MIN_ELEMENT_RATIO = 1.08 ** 3
 #: exponent p of the compliance error, error ≈ A h^p, per element order, used to extrapolate
 #: (measured on every family, ν up to 0.49: benchmarks/bench_accuracy.py, docs/designer.md)
 CONVERGENCE_ORDER = {1: 1.0, 2: 2.0}
@@ -111,13 +114,14 @@ def compliance_change(C_ref: np.ndarray, C: np.ndarray) -> float:
     return float(np.max(np.abs(C - C_ref) / np.outer(d, d)))
 
 
-def relative_error(C_ref: np.ndarray, C: np.ndarray) -> float:
-    """Largest relative compliance error over all loads: max over w of |wᵀ (C − C_ref) w| / wᵀ C_ref w
-    (the extreme generalised eigenvalue of (C − C_ref, C_ref)). Scale-free and independent of
-    units: wrenches, moments and pressures are compared through the work they do."""
+def relative_error(C: np.ndarray, C_other: np.ndarray) -> float:
+    """Largest relative difference of two compliances over all loads, relative to the first:
+    max over w of |wᵀ (C_other − C) w| / wᵀ C w (the extreme generalised eigenvalue of
+    (C_other − C, C)). Scale-free and independent of units: wrenches, moments and pressures
+    are compared through the work they do. ``C`` must be positive definite."""
     from scipy.linalg import eigh
 
-    return float(np.max(np.abs(eigh(C - C_ref, C_ref, eigvals_only=True))))
+    return float(np.max(np.abs(eigh(C_other - C, C, eigvals_only=True))))
 
 
 def richardson(C: np.ndarray, C_coarse: np.ndarray, ratio: float, exponent: float) -> np.ndarray:
@@ -156,35 +160,42 @@ def solve_segment(family, parameters: dict, *, mesh_size=None, order: int = 2, l
 
 
 def estimate_accuracy_of(family, parameters: dict, compliance: np.ndarray, *, mesh_size: float, order: int,
-                         linear_solver: str = "auto", amg_threshold: int | None = None, progress=None,
-                         max_elements: int | None = None) -> dict:
-    """The ``entry.accuracy`` of a compliance computed at ``mesh_size``: Richardson extrapolation
-    from one coarser mesh (``COARSENING``), with the order's ``CONVERGENCE_ORDER``.
+                         elements: int, linear_solver: str = "auto", amg_threshold: int | None = None,
+                         progress=None, max_elements: int | None = None) -> dict:
+    """The ``entry.accuracy`` of a compliance computed at ``mesh_size`` on a mesh of ``elements``
+    tetrahedra: Richardson extrapolation from one coarser mesh (``COARSENING``) with the order's
+    ``CONVERGENCE_ORDER``. The mesh-size ratio used is the effective one, (elements / coarse
+    elements)^(1/3): gmsh keeps elements small at small features whatever the requested size.
 
     Returns ``{"method": "richardson", "relative_error": estimated error of the stored compliance
-    (:func:`relative_error` against the extrapolated value), "relative_error_C" (6×6 block),
-    "extrapolated_compliance", "convergence_order", "coarse_mesh_size", "coarse_dofs",
-    "coarse_total_s"}``; ``{"method": "unavailable", "reason": …}`` when no coarser mesh could be made.
+    (:func:`relative_error`), "relative_error_C" (6×6 block), "extrapolated_compliance",
+    "convergence_order", "coarse_mesh_size", "coarse_dofs", "size_ratio", "coarse_total_s"}``, or
+    ``{"method": "unavailable", "reason": …}`` when no usable coarser mesh could be made.
     """
     exponent = CONVERGENCE_ORDER[order]
     failures = []
-    for ratio in COARSENING:
-        h_coarse = mesh_size * ratio
+    for factor in COARSENING:
+        h_coarse = mesh_size * factor
         _say(progress, f"accuracy estimate: solving on a coarser mesh (h = {h_coarse:.4g} m)")
         try:
-            coarse, fe_coarse, _, _, t_coarse = solve_segment(
+            coarse, fe_coarse, mesh_coarse, _, t_coarse = solve_segment(
                 family, parameters, mesh_size=h_coarse, order=order, linear_solver=linear_solver,
                 amg_threshold=amg_threshold, progress=None, max_elements=max_elements)
         except GeometryError as error:
-            failures.append(str(error))
+            failures.append(f"h = {h_coarse:.4g} m: {error}")
             continue
+        count = mesh_coarse.tets.shape[0]
+        if elements < MIN_ELEMENT_RATIO * count:
+            failures.append(f"h = {h_coarse:.4g} m gives {count} elements, not fewer enough than {elements}")
+            continue
+        ratio = (elements / count) ** (1.0 / 3.0)
         extrapolated = richardson(compliance, coarse, ratio, exponent)
-        error = relative_error(extrapolated, compliance)
+        error = relative_error(compliance, extrapolated)
         _say(progress, f"accuracy estimate: relative compliance error {error:.3g} (Richardson, p = {exponent:g})")
         return {"method": "richardson", "relative_error": error,
-                "relative_error_C": relative_error(extrapolated[:6, :6], compliance[:6, :6]),
+                "relative_error_C": relative_error(compliance[:6, :6], extrapolated[:6, :6]),
                 "extrapolated_compliance": extrapolated.tolist(), "convergence_order": exponent,
-                "coarse_mesh_size": h_coarse, "coarse_dofs": int(fe_coarse.n_dofs),
+                "coarse_mesh_size": h_coarse, "coarse_dofs": int(fe_coarse.n_dofs), "size_ratio": ratio,
                 "coarse_total_s": t_coarse["total_s"]}
     return {"method": "unavailable", "reason": "; ".join(failures)}
 
@@ -229,7 +240,8 @@ def design_segment(family, parameters: dict, *, mesh_size=None, order: int = 2, 
         progress=progress, max_elements=max_elements)
     accuracy = {"method": "none"}
     if estimate_accuracy:
-        accuracy = estimate_accuracy_of(fam, p, compliance, mesh_size=h, order=order, linear_solver=linear_solver,
+        accuracy = estimate_accuracy_of(fam, p, compliance, mesh_size=h, order=order,
+                                        elements=mesh_data.tets.shape[0], linear_solver=linear_solver,
                                         amg_threshold=amg_threshold, progress=progress, max_elements=max_elements)
     accuracy["warnings"] = warn
     timings["accuracy_s"] = accuracy.get("coarse_total_s", 0.0)

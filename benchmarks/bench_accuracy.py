@@ -1,0 +1,180 @@
+"""Accuracy estimate of a designed entry against the true error, and what it costs.
+
+For every family (rod, tube, bellows, pneumatic, tapered pneumatic), element order 1 and 2 and
+ν = 0.3, 0.45, 0.49, at the family's default mesh size: the compliance C_h, the estimate that
+``design_segment`` stores (Richardson extrapolation from one coarser mesh,
+``designer.segment.estimate_accuracy_of``) and the true error against a much finer second-order
+mesh (h/3; h/2.5 for the thin-walled bellows). Errors are relative compliance errors over all
+loads (``designer.segment.relative_error``). Also where each entry sits between the bounds the
+store checks (``store.soundness``).
+
+Then the acceptance case: ``design_segment`` of a ~50,000-DoF second-order rod with its
+estimate, timed (≤ 10 s), and its estimate against a reference at h/1.9 (~350,000 DoFs).
+
+Results: benchmarks/results/accuracy.json and .md.
+
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_accuracy.py [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+import warnings
+from datetime import datetime, timezone
+from pathlib import Path
+
+for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_name, "1")
+
+import numpy as np  # noqa: E402
+
+from vertebra.designer.segment import (canonical_parameters, design_segment, estimate_accuracy_of,  # noqa: E402
+                                       family_of, relative_error, solve_segment)
+from vertebra.store.soundness import bound_ratios  # noqa: E402
+
+RESULTS = Path(__file__).resolve().parent / "results"
+E = 1.0e6
+FAMILIES = {
+    "rod": dict(radius=0.01, length=0.04),
+    "tube": dict(outer_radius=0.01, inner_radius=0.006, length=0.03),
+    "bellows": dict(inner_radius=0.008, outer_radius=0.014, wall_thickness=0.0015, length=0.04),
+    "pneumatic": dict(outer_radius=0.02, chamber_radius=0.005, chamber_offset=0.011, length=0.02),
+    "tapered_pneumatic": dict(bottom_outer_radius=0.02, top_outer_radius=0.016, bottom_chamber_radius=0.005,
+                              top_chamber_radius=0.004, bottom_chamber_offset=0.011, top_chamber_offset=0.009,
+                              length=0.02),
+}
+REFINE = {"bellows": 2.5}          # the reference mesh is h / REFINE (default 3)
+LARGE = dict(FAMILIES["rod"], youngs_modulus=E, poisson_ratio=0.3)
+LARGE_H = 0.0019                   # ~45,600 second-order DoFs
+
+
+def log(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+def case(family: str, nu: float, order: int, reference) -> dict:
+    p = dict(FAMILIES[family], youngs_modulus=E, poisson_ratio=nu)
+    fam = family_of(family)
+    h = fam.default_mesh_size(canonical_parameters(fam, p))
+    t0 = time.perf_counter()
+    C, fe, mesh, _, t = solve_segment(family, p, mesh_size=h, order=order)
+    accuracy = estimate_accuracy_of(family, p, C, mesh_size=h, order=order, elements=mesh.tets.shape[0])
+    total = time.perf_counter() - t0
+    true = relative_error(C, reference)
+    row = {"family": family, "nu": nu, "order": order, "mesh_size": h, "dofs": int(fe.n_dofs),
+           "design_s": t["total_s"], "with_estimate_s": total, "true_error": true, "method": accuracy["method"]}
+    if accuracy["method"] == "richardson":
+        row.update(estimate=accuracy["relative_error"], ratio=accuracy["relative_error"] / true,
+                   coarse_dofs=accuracy["coarse_dofs"], size_ratio=accuracy["size_ratio"],
+                   extrapolated_error=relative_error(reference, np.array(accuracy["extrapolated_compliance"])))
+    return row
+
+
+def bounds_row(family: str, nu: float, order: int) -> dict:
+    p = dict(FAMILIES[family], youngs_modulus=E, poisson_ratio=nu, density=1000.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        entry = design_segment(family, p, order=order, estimate_accuracy=False)
+    ratios = bound_ratios(entry)
+    return {"family": family, "nu": nu, "order": order, "lower_min": min(ratios["lower"]),
+            "upper_max": max(ratios["upper"]), "upper_method": ratios["upper_method"]}
+
+
+def large_case() -> dict:
+    t0 = time.perf_counter()
+    entry = design_segment("rod", LARGE, mesh_size=LARGE_H, order=2)
+    total = time.perf_counter() - t0
+    log(f"large: {entry.mesh['dofs']} DoFs, {total:.2f} s with estimate; reference at h/1.9")
+    reference, fe_ref, *_ = solve_segment("rod", LARGE, mesh_size=LARGE_H / 1.9, order=2, max_elements=1_000_000)
+    true = relative_error(entry.compliance, reference)
+    acc = entry.accuracy
+    return {"mesh_size": LARGE_H, "dofs": entry.mesh["dofs"], "total_s": total,
+            "design_s": total - entry.timings["accuracy_s"], "accuracy_s": entry.timings["accuracy_s"],
+            "coarse_dofs": acc["coarse_dofs"], "estimate": acc["relative_error"], "true_error": true,
+            "ratio": acc["relative_error"] / true, "reference_dofs": int(fe_ref.n_dofs),
+            "extrapolated_error": relative_error(reference, np.array(acc["extrapolated_compliance"]))}
+
+
+def markdown(result: dict) -> str:
+    out = [f"# Accuracy estimate of designed entries ({result['date']}, {result['host']})", "",
+           f"Python {result['python']}, one BLAS thread; machine shared (load average {result['loadavg_start'][0]:.1f} "
+           f"→ {result['loadavg_end'][0]:.1f}). Error = largest relative compliance error over all loads, "
+           "max_w |wᵀ(C_ref − C_h)w| / wᵀC_h w. Estimate = Richardson extrapolation from one coarser mesh "
+           "(p = 1 for order 1, 2 for order 2, effective size ratio from the element counts). Truth = "
+           "second-order reference at h/3 (bellows h/2.5).", "",
+           "## Default mesh size, every family, order and ν", "",
+           "| family | ν | order | DoFs | coarse DoFs | true error | estimate | estimate / truth | error of the extrapolated value | design s | with estimate s |",
+           "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in result["cases"]:
+        if r["method"] != "richardson":
+            out.append(f"| {r['family']} | {r['nu']} | P{r['order']} | {r['dofs']} | – | {r['true_error']:.3g} | "
+                       f"{r['method']} | – | – | {r['design_s']:.2f} | {r['with_estimate_s']:.2f} |")
+            continue
+        flag = "" if 0.5 <= r["ratio"] <= 2 else " ✗"
+        out.append(f"| {r['family']} | {r['nu']} | P{r['order']} | {r['dofs']} | {r['coarse_dofs']} | "
+                   f"{r['true_error']:.3g} | {r['estimate']:.3g} | **{r['ratio']:.2f}**{flag} | "
+                   f"{r['extrapolated_error']:.3g} | {r['design_s']:.2f} | {r['with_estimate_s']:.2f} |")
+    ratios = [r["ratio"] for r in result["cases"] if "ratio" in r]
+    inside = sum(0.5 <= x <= 2 for x in ratios)
+    out += ["", f"Within a factor 2 of the truth: {inside} of {len(ratios)} cases "
+            f"(estimate / truth from {min(ratios):.2f} to {max(ratios):.2f}).", ""]
+    big = result["large"]
+    out += ["## ~50,000-DoF second-order rod (acceptance: ≤ 10 s with the estimate, within a factor 2)", "",
+            f"`design_segment('rod', R = 10 mm, L = 40 mm, ν = 0.3, h = {1000 * big['mesh_size']:.3g} mm, order 2)`: "
+            f"{big['dofs']} DoFs, **{big['total_s']:.2f} s** in all ({big['design_s']:.2f} s design, "
+            f"{big['accuracy_s']:.2f} s estimate on {big['coarse_dofs']} DoFs). Estimated error {big['estimate']:.3g}, "
+            f"true error {big['true_error']:.3g} against {big['reference_dofs']} DoFs: estimate / truth "
+            f"**{big['ratio']:.2f}**; the extrapolated compliance is {big['extrapolated_error']:.3g} from the "
+            "reference.", "",
+            "## Where designed entries sit between the store's bounds", "",
+            "C_ii / lower bound (must stay above 1/100) and C_ii / upper bound (must stay below 10), "
+            "smallest and largest over the six diagonal entries; default meshes, density 1000 kg/m³.", "",
+            "| family | ν | order | min C/lower | max C/upper | upper bound |", "|---|---|---|---|---|---|"]
+    for r in result["bounds"]:
+        out.append(f"| {r['family']} | {r['nu']} | P{r['order']} | {r['lower_min']:.3g} | {r['upper_max']:.3g} | "
+                   f"{r['upper_method']} |")
+    out += ["", "Produced by `benchmarks/bench_accuracy.py`."]
+    return "\n".join(out)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="rod and pneumatic at ν = 0.3 only; nothing saved")
+    args = parser.parse_args(argv)
+    families = ["rod", "pneumatic"] if args.quick else list(FAMILIES)
+    nus = [0.3] if args.quick else [0.3, 0.45, 0.49]
+    result = {"date": datetime.now(timezone.utc).replace(microsecond=0).isoformat(), "host": platform.node(),
+              "python": platform.python_version(), "loadavg_start": os.getloadavg(), "cases": [], "bounds": []}
+    warnings.simplefilter("ignore")                 # order-1 locking warnings: measured here, not the point
+    for family in families:
+        for nu in nus:
+            p = dict(FAMILIES[family], youngs_modulus=E, poisson_ratio=nu)
+            fam = family_of(family)
+            h = fam.default_mesh_size(canonical_parameters(fam, p))
+            log(f"{family} ν = {nu}: reference at h/{REFINE.get(family, 3)}")
+            reference, *_ = solve_segment(family, p, mesh_size=h / REFINE.get(family, 3), order=2,
+                                          max_elements=1_000_000)
+            for order in (1, 2):
+                row = case(family, nu, order, reference)
+                log(f"  P{order}: true {row['true_error']:.3g}, estimate {row.get('estimate', float('nan')):.3g}")
+                result["cases"].append(row)
+                if nu in (0.3, 0.49):
+                    result["bounds"].append(bounds_row(family, nu, order))
+    result["large"] = large_case()
+    result["loadavg_end"] = os.getloadavg()
+    text = markdown(result)
+    print(text)
+    if not args.quick:
+        RESULTS.mkdir(parents=True, exist_ok=True)
+        (RESULTS / "accuracy.json").write_text(json.dumps(result, indent=1) + "\n")
+        (RESULTS / "accuracy.md").write_text(text + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
