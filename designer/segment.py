@@ -231,7 +231,8 @@ def design_segment(family, parameters: dict, *, mesh_size=None, order: int = 2, 
     warn = []
     if order == 1 and p["poisson_ratio"] >= LOCKING_POISSON:
         message = (f"poisson_ratio = {p['poisson_ratio']} with order 1: linear tetrahedra lock as ν → 0.5 "
-                   "(compliance underestimated); use order 2")
+                   "(compliance underestimated, and the accuracy estimate can be several times too small); "
+                   "use order 2")
         warnings.warn(message, LockingWarning, stacklevel=2)
         _say(progress, f"warning: {message}")
         warn.append(message)

@@ -3,12 +3,16 @@
 The catalogue file ``X.h5`` is never modified in place and never opened with mode
 ``'w'``. A writer puts its entries into a new shard file in ``X.h5.shards/``
 (temporary name, fsync, atomic ``os.replace`` into place: from then on the entry is
-*committed*). A merger holding ``filelock.FileLock("X.h5.lock")`` copies the current
-catalogue into a temporary file next to it, appends the pending shards (each entry
-checked against its checksum), fsyncs, and ``os.replace``s it over ``X.h5``; only
-then are the merged shards deleted. A process killed at any moment leaves either a
-temporary file (ignored, later cleaned) or a committed shard (merged later) and the
-old or the new catalogue — both complete files.
+*committed*). A merger holding ``filelock.FileLock("X.h5.lock")`` reads the current
+catalogue into memory, appends the pending shards there (each entry checked — checksum,
+links, soundness — before it is copied), writes the result into a temporary file next to
+it, fsyncs, and ``os.replace``s it over ``X.h5``; only then are the merged shards deleted.
+A process killed at any moment leaves either a temporary file (ignored, later cleaned) or
+a committed shard (merged later) and the old or the new catalogue — both complete files.
+
+Files are built in memory (HDF5 core driver) and reach the disk through plain writes: a
+full, read-only or forbidden disk fails one ``write`` with a clean OSError, mapped to a
+one-line CatalogueError, and the temporary file is removed.
 """
 
 from __future__ import annotations
