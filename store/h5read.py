@@ -366,19 +366,17 @@ def read_string_rows(ds, what: str, path: str, *, max_rows: int, max_row_bytes: 
     reader = _FileBytes(ds, what, path)
     try:
         raw = _raw_elements(ds, reader, n, element, what, path)
-        refs = [(int.from_bytes(raw[i:i + 4], "little"),
-                 int.from_bytes(raw[i + 4:i + 4 + sizeof_addr], "little"),
-                 int.from_bytes(raw[i + 4 + sizeof_addr:i + element], "little"))
-                for i in range(0, n * element, element)]
-        heaps: dict[int, dict] = {}
-        for row, (length, address, index) in enumerate(refs):
-            if length > max_row_bytes:
-                raise failure(what, f"{path} row {row}", f"{length} bytes > limit {max_row_bytes}")
-            if length == 0:
-                continue
-            if address not in heaps:
-                heaps[address] = _heap_objects(reader, address, sizeof_size, what, path)
-            if heaps[address].get(index, -1) < length:
+        # each stored element: uint32 length, heap collection address, uint32 object index
+        refs = np.frombuffer(raw, dtype=np.dtype([("length", "<u4"), ("address", f"<u{sizeof_addr}"),
+                                                  ("index", "<u4")]), count=n)
+        too_long = np.flatnonzero(refs["length"] > max_row_bytes)
+        if too_long.size:
+            row = int(too_long[0])
+            raise failure(what, f"{path} row {row}", f"{int(refs['length'][row])} bytes > limit {max_row_bytes}")
+        heaps = {int(a): _heap_objects(reader, int(a), sizeof_size, what, path)
+                 for a in np.unique(refs["address"][refs["length"] > 0])}
+        for row, (length, address, index) in enumerate(refs.tolist()):
+            if length and heaps[address].get(index, -1) < length:
                 raise failure(what, f"{path} row {row}",
                               "refers to a missing or shorter global heap object (damaged file)")
     finally:

@@ -139,14 +139,17 @@ def parse_json(text: str | bytes, what: str, limit: int = MAX_JSON_BYTES) -> Any
             raise CatalogueError(f"{what}: not UTF-8 ({error})") from None
     if len(text) > limit:
         raise CatalogueError(f"{what}: {len(text)} characters > limit {limit}")
-
-    def reject(constant):
-        raise ValueError(f"{constant} is not allowed")
-
     try:
-        return json.loads(text, parse_constant=reject)
+        return _DECODER.decode(text)
     except (ValueError, RecursionError) as error:
         raise CatalogueError(f"{what}: invalid JSON ({error})") from None
+
+
+def _reject_constant(constant):
+    raise ValueError(f"{constant} is not allowed")
+
+
+_DECODER = json.JSONDecoder(parse_constant=_reject_constant)       # one decoder: rows are parsed one by one
 
 
 # ---------------------------------------------------------------- digests
