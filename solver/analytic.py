@@ -47,3 +47,17 @@ def arc_tip(moment_parameter: float, length: float = 1.0) -> np.ndarray:
 def cantilever_deflection_uniform_load(load_per_length: float, length: float, bending_stiffness: float) -> float:
     """Euler–Bernoulli tip deflection ``qL⁴ / 8EI`` of a cantilever under a uniform load."""
     return load_per_length * length ** 4 / (8.0 * bending_stiffness)
+
+
+def column_tip_angle(load_ratio: float) -> float:
+    """Tip rotation (rad) of the buckled inextensible clamped-free column (the elastica) under an
+    axial dead tip force of ``load_ratio`` × the Euler load ``π²EI/4L²``:
+    ``load_ratio = (2K(k)/π)²`` with ``k = sin(α/2)`` (K the complete elliptic integral of the
+    first kind). 0 below the Euler load."""
+    from scipy.optimize import brentq
+    from scipy.special import ellipk
+
+    if load_ratio <= 1.0:
+        return 0.0
+    m = brentq(lambda m: (2.0 * ellipk(m) / np.pi) ** 2 - load_ratio, 0.0, 1.0 - 1e-16, xtol=1e-15, rtol=1e-15)
+    return 2.0 * float(np.arcsin(np.sqrt(m)))

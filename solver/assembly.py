@@ -186,13 +186,15 @@ class BandAssembler:
 class Tangent:
     """The tangent stiffness at one state: the links' tangents side by side (with the trailing
     zero) and, when cables or gravity act, their blocks in flat block storage. Its full block
-    storage is assembled on first need (LU and shifted factors) and kept."""
+    storage (LU and shifted LU factors) and the lower band of its symmetric part are assembled
+    on first need and kept."""
 
-    __slots__ = ("assembler", "links", "extra", "_storage")
+    __slots__ = ("assembler", "links", "extra", "_storage", "_band")
 
     def __init__(self, assembler: BandAssembler, links: np.ndarray, extra: np.ndarray | None):
         self.assembler, self.links, self.extra = assembler, links, extra
         self._storage = None
+        self._band = None
 
     def storage(self) -> np.ndarray:
         """Flat block storage of the whole tangent (read it through ``new_storage``'s view shape)."""
@@ -209,37 +211,49 @@ class Tangent:
         return self.storage()[:-1].reshape((2,) + self.assembler.block_shape)
 
     def symmetric_band(self) -> np.ndarray:
-        """LAPACK lower band of the tangent's symmetric part."""
-        assembler = self.assembler
-        links = assembler.symmetric_from_links(self.links)
-        if links.shape[0] == assembler.kd + 1 and self.extra is None:
-            return links
-        band = (assembler.symmetric_from_storage(self.extra) if self.extra is not None
-                else np.zeros((assembler.kd + 1, assembler.n)))
-        band[:links.shape[0]] += links
-        return band
+        """LAPACK lower band of the tangent's symmetric part (kept: do not modify it)."""
+        if self._band is None:
+            assembler = self.assembler
+            links = assembler.symmetric_from_links(self.links)
+            if links.shape[0] == assembler.kd + 1 and self.extra is None:
+                band = links
+            else:
+                band = (assembler.symmetric_from_storage(self.extra) if self.extra is not None
+                        else np.zeros((assembler.kd + 1, assembler.n)))
+                band[:links.shape[0]] += links
+            self._band = band
+        return self._band
 
-    def factor(self, shift: float = 0.0, *, symmetric: bool = True) -> tuple[BandedFactor | None, str]:
-        """Factor the tangent (``shift`` adds μ·|diag| to it): banded Cholesky of its symmetric
-        part when that is exact (``symmetric``: conservative loads) and positive definite, banded
-        LU otherwise. Returns the factor (None when singular) and its kind: "cholesky",
-        "shifted" (Cholesky of the shifted matrix), "lu" or "shifted-lu"."""
-        if not shift and symmetric:
-            factor = factor_cholesky(self.symmetric_band())
-            if factor is not None:
-                return factor, "cholesky"
+    def diagonal(self) -> np.ndarray:
+        """The tangent's diagonal (n,)."""
+        return self.symmetric_band()[0]
+
+    def factor(self, shift: float = 0.0, *, symmetric: bool = True, scale: np.ndarray | None = None,
+               definite: bool = False) -> tuple[BandedFactor | None, str]:
+        """Factor the tangent plus ``shift`` · diag(``scale``) (``scale`` (n,): default |diag|):
+        banded Cholesky of its symmetric part when that is exact (``symmetric``: conservative
+        loads) and positive definite, banded LU otherwise (never with ``definite``: a symmetric
+        matrix that is not positive definite then gives no factor). Returns the factor (None
+        when singular, or indefinite with ``definite``) and its kind: "cholesky", "shifted"
+        (Cholesky of the shifted matrix), "lu" or "shifted-lu"."""
         assembler = self.assembler
+        if shift and scale is None:
+            scale = np.abs(self.diagonal()) + 1e-300
+        if symmetric:
+            band = self.symmetric_band()
+            if shift:
+                band = band.copy()
+                band[0] += shift * scale
+            factor = factor_cholesky(band)
+            if factor is not None:
+                return factor, ("shifted" if shift else "cholesky")
+            if definite:
+                return None, None
         storage = self.storage()
         if shift:
             storage = storage.copy()
-            blocks = storage[:-1].reshape((2,) + assembler.block_shape)
-            diagonal = assembler.diagonal(blocks)
-            scale = np.abs(np.einsum("cii->ci", diagonal)) + 1e-300
-            diagonal += shift * np.einsum("ci,ij->cij", scale, np.eye(6))
-            if symmetric:
-                factor = factor_cholesky(assembler.symmetric_from_storage(storage))
-                if factor is not None:
-                    return factor, "shifted"
+            diagonal = assembler.diagonal(storage[:-1].reshape((2,) + assembler.block_shape))
+            diagonal += np.einsum("ci,ij->cij", shift * scale.reshape(-1, 6), np.eye(6))
         blocks = storage[:-1].reshape((2,) + assembler.block_shape)
         factor = factor_lu(assembler.general_band(blocks), assembler.kd)
         return factor, ("shifted-lu" if shift else "lu") if factor is not None else None

@@ -60,6 +60,7 @@ class Chain:
     rotations: np.ndarray      # (N, 3, 3) world rotation matrices (the same products)
     translations: np.ndarray   # (n, 3) relative translations p of the links, in a's axes
     link_coefficients: np.ndarray | None   # (n, 31) lie.coefficients() of the strains, when carried
+    largest_turn2: float = 0.0             # the largest θ² of the links' rotations
 
 
 def chain_poses(q0: np.ndarray, x0: np.ndarray, xi: np.ndarray) -> Chain:
@@ -106,4 +107,4 @@ def chain_poses(q0: np.ndarray, x0: np.ndarray, xi: np.ndarray) -> Chain:
         M = M.reshape(m * c, 8, 8)[:N]
     quaternions = M[:, :4, 0]
     quaternions = quaternions / np.sqrt(quaternions[:, None, :] @ quaternions[:, :, None])[:, 0]
-    return Chain(quaternions, M[:, 4:7, 7].copy(), M[:, 4:7, 4:7], F[1:N, 20:23], link_coef)
+    return Chain(quaternions, M[:, 4:7, 7].copy(), M[:, 4:7, 4:7], F[1:N, 20:23], link_coef, largest)

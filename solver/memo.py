@@ -4,7 +4,8 @@
   evaluated, keyed by its strain record, whose arrays are read-only: a Newton step, or a step
   of the inverse from the state just linearised, reuses them. States given by their poses only
   are not remembered.
-* The links' tangent at the unstressed rest state (a model constant).
+* The links' tangent at the unstressed rest state and its diagonal, the stiffness scale of
+  every DoF (model constants).
 * The load case of the last (actuation, load factor) and the reference force of the last
   actuation: repeated solves and linearisations at one actuation compute them once, and a new
   actuation at the same load factor (a control loop's) keeps the weight and dead loads.
@@ -14,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from vertebra.solver.energy import LoadCase
+from vertebra.solver.energy import LoadCase, evaluate, tangent
 from vertebra.solver.links import Links
 
 
@@ -27,6 +28,7 @@ class Memo:
         self._rest_links = None
         self._last = (None, None)
         self._unstressed = None
+        self._stiffness = None
         self._load = (None, None, None)
         self._reference = (None, None)
 
@@ -50,6 +52,17 @@ class Memo:
         if self._unstressed is None:
             self._unstressed = compute()
         return self._unstressed
+
+    def stiffness_scale(self) -> np.ndarray:
+        """Diagonal (n_dof,) of the tangent at the unstressed rest state: the stiffness of every
+        DoF in its own units (positive: every free frame has a link)."""
+        if self._stiffness is None:
+            trunk = self._trunk
+            unloaded = LoadCase.of(trunk, np.zeros(trunk.actuators.default.size), 0.0)
+            ev = evaluate(trunk, trunk.rest_state, unloaded, self)
+            self._stiffness = tangent(trunk, ev, self).diagonal().copy()
+            self._stiffness.flags.writeable = False
+        return self._stiffness
 
     def load_case(self, actuation: np.ndarray, scale: float) -> LoadCase:
         """The load case of ``actuation`` at load factor ``scale``."""

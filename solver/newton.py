@@ -1,20 +1,41 @@
-"""Quasi-static equilibrium (paper eq. 9) by Newton's method with line search and load stepping.
+"""Quasi-static equilibrium (paper eq. 9): a minimum of the total potential, found by a
+globalised Newton method on the energy, with load continuation.
 
-* Each Newton direction solves the tangent's banded factor (:class:`~vertebra.solver.assembly.Tangent`):
-  Cholesky of its symmetric part when loads are conservative, LU when dead moments make it
-  unsymmetric; when a direction is rejected the factor is retried with ``H + μ·|diag H|``.
-* Backtracking (Armijo) line search on an energy-like merit: the total potential minus the
-  linearised work of dead moments (differences within 1e-12 of the potential count as rounding).
-* Automatic load stepping: the load factor's increment halves when a stage fails and doubles
-  when it succeeds; intermediate stages converge to 1e-6; a stage without progress for 20
-  iterations is abandoned early.
-* Only stable equilibria: when Newton reached an equilibrium through indefinite tangents and
-  loads are conservative, it is accepted only if its own tangent is positive definite.
-* Steps are applied by the strain-space retraction (:func:`~vertebra.solver.state.retract`).
+Each iteration at a fixed load factor
 
-Residuals are measured as max(|force|, |moment| / L) / F over the free frames, with F the
-largest out-of-balance load at the rest pose under the full load and L the trunk's length:
-dimensionless and invariant under a change of units.
+* solves ``(H + μ·D) p = r`` with the tangent's banded factor (:class:`~vertebra.solver.assembly.Tangent`):
+  the residual ``r = −∇E``, ``D`` the larger of ``|diag H|`` and the diagonal of the unstressed
+  tangent (a Marquardt scaling: every DoF in its own units). Conservative loads: banded Cholesky,
+  ``μ`` raised tenfold until the shifted matrix is positive definite, so ``p`` descends even on an
+  indefinite tangent (no LU there: it steers Newton towards saddles). Dead moments make ``H``
+  unsymmetric: banded LU of ``H + μ·D``, judged by an energy-like merit (the potential minus the
+  linearised work of the moments);
+* caps the step in strain space: no link's rotation changes by more than :data:`MAX_TURN` and
+  no link's translation strain by more than :data:`MAX_STRETCH` of its length (a larger step is
+  scaled, not turned);
+* accepts the first ``α p`` (α = 1, ½, ¼, …) that decreases the energy by an Armijo fraction of
+  the model's prediction; when none does, ``μ`` grows tenfold (a new, shorter, more gradient-like
+  direction);
+* adapts ``μ`` by the ratio of the actual to the predicted decrease of the full step: ``μ/4``
+  when the quadratic model was right (``μ`` falls to 0: pure Newton, quadratic convergence),
+  ``×4`` when the step had to be cut back.
+
+Only stable equilibria are accepted: a stationary point reached through shifted or LU factors
+is accepted when its own tangent is positive definite; at a saddle (a straight rod under an
+axial load beyond buckling) the solver steps along the direction of most negative curvature
+(inverse iteration with the shifted factor) and goes on.
+
+A state where a link turns towards π or folds through itself cannot be represented by the
+constant-strain links: the solve stops there with a :class:`ConvergenceError` that says which
+segment and how many links per repetition would represent the deformation. Non-finite values
+stop the solve with a :class:`ConvergenceError` naming the stage.
+
+Load continuation: the load factor's increment halves when a stage fails and doubles when it
+succeeds; intermediate stages converge to 1e-6. Residuals are measured as
+max(|force|, |moment| / L) / F over the free frames, with F the largest out-of-balance load at
+the rest pose under the full load and L the trunk's length: dimensionless and invariant under a
+change of units. Steps are applied by the strain-space retraction
+(:func:`~vertebra.solver.state.retract`).
 """
 
 from __future__ import annotations
@@ -26,11 +47,29 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vertebra.solver.energy import LoadCase, evaluate, tangent
-from vertebra.solver.state import State, retract
+from vertebra.solver.state import State, retract, strain_change
 from vertebra.store.errors import ConvergenceError
 
-SHIFTS = (0.0, 1e-8, 1e-6, 1e-4, 1e-2, 1.0)     # μ of the factors tried for one Newton direction
 RESOLUTION = 1e-13     # corrections below this fraction of the extent (and radians) are rounding
+MAX_TURN = 1.0         # rad: the largest change of a link's rotation in one step
+MAX_STRETCH = 0.5      # the largest change of a link's translation strain in one step, per length
+TURN_LIMIT = 0.9 * math.pi    # a link turning further cannot be represented (the log's branch cut is at π)
+COLLAPSE_LIMIT = 0.05  # a cable piece shorter than this fraction of its rest length: its holes meet
+FOLD_LIMIT = 0.1       # a link shorter than this fraction of its rest length has folded through itself
+REPRESENTED_TURN = math.pi / 3   # rotation per link the constant-strain links represent well
+SHIFT_START = 1e-10    # μ tried first when the tangent is not positive definite
+SHIFT_FLOOR = 1e-9     # μ below this is dropped (pure Newton)
+SHIFT_CEILING = 1e12   # μ beyond this leaves steps below rounding: the stage has failed
+ARMIJO = 1e-4
+ROUNDING = 1e-12       # energy changes below this fraction of the energy are rounding
+SEARCH_FLOOR = 1e-3    # smallest step fraction of the line search
+TRUSTED_RESIDUAL = 1e-3   # a positive definite tangent this close to equilibrium stays so at it
+NEUTRAL = 1e-9        # curvature above −NEUTRAL·D is neutral (a symmetry of the loads), not unstable
+ESCAPES = 3            # negative-curvature steps allowed per stage
+import os
+_DEBUG = bool(os.environ.get("NEWTON_DEBUG"))
+SQRT3 = math.sqrt(3.0)
+BUDGET = 10            # a solve stops after BUDGET × max_iterations Newton iterations
 
 
 @dataclass
@@ -48,6 +87,17 @@ class StaticResult:
     timings: dict = field(default_factory=dict)
     rounding_limited: bool = False   # stopped because the Newton correction fell below the
                                      # floating-point resolution of the poses (residual is rounding)
+    largest_turn: float = 0.0        # largest rotation of a link (rad) at the returned state
+    message: str = ""                # why the solve did not converge
+
+
+class Unrepresentable(Exception):
+    """Raised inside a stage at a state the links or the cable routing cannot represent (the
+    message says why; ``state`` is that state)."""
+
+    def __init__(self, message: str, state: State | None = None):
+        super().__init__(message)
+        self.state = state
 
     def __repr__(self) -> str:
         tip = ", ".join(f"{v:.6g}" for v in self.state.positions[-1])
@@ -74,11 +124,11 @@ def _force_scale(trunk, gradient: np.ndarray) -> float:
 
 def is_stable(trunk, ev, memo, matrix=None) -> bool:
     """Is the equilibrium of ``ev`` stable: is its tangent (``matrix`` when already assembled)
-    positive definite? Only decidable for conservative loads (dead moments make the tangent
+    positive definite, up to neutral directions (``H + 1e-9·|diag H|`` is)? Only decidable for conservative loads (dead moments make the tangent
     unsymmetric): then assumed so."""
     if trunk.loads.has_dead_moments:
         return True
-    return (matrix or tangent(trunk, ev, memo)).factor()[1] == "cholesky"
+    return (matrix or tangent(trunk, ev, memo)).factor(NEUTRAL, definite=True)[0] is not None
 
 
 def reference_force(trunk, actuation: np.ndarray, memo) -> float:
@@ -89,18 +139,39 @@ def reference_force(trunk, actuation: np.ndarray, memo) -> float:
     return memo.reference_force(actuation, compute)
 
 
+def largest_turn(xi: np.ndarray) -> float:
+    """The largest rotation (rad) of the links of strains ``ξ``."""
+    phi = xi[:, 3:]
+    return math.sqrt(float(np.einsum("ij,ij->i", phi, phi).max(initial=0.0)))
+
+
+def check_finite(stage: str, *values) -> None:
+    """:class:`ConvergenceError` naming ``stage`` when a value is NaN or infinite."""
+    for value in values:
+        if not np.isfinite(value).all():
+            raise ConvergenceError(f"non-finite values appeared in {stage}")
+
+
 class _Stage:
     """One Newton run at a fixed load factor: its inputs and what it found."""
 
     def __init__(self, trunk, memo, load: LoadCase, tolerance: float, max_iterations: int, reference: float,
-                 history: list, kinds: set):
+                 history: list, kinds: set, shift: float):
+        self.iterations = 0
         self.trunk, self.memo, self.load = trunk, memo, load
         self.tolerance, self.max_iterations = tolerance, max_iterations
         self.reference = reference            # force scale at this load factor
         self.history = history
         self.kinds = kinds                    # factor kinds used, and "rounding-limited" / "unstable" flags
+        self.shift = shift                    # μ, carried from stage to stage
         self.weights = residual_weights(trunk)
+        self.symmetric = not trunk.loads.has_dead_moments
         self._resolution = np.ones(6)         # per-DoF scale of a correction (translations: 1/extent)
+        rest = trunk.links.rest[:, :3]
+        squared = np.einsum("ij,ij->i", rest, rest)
+        self.axis = rest / squared[:, None]   # the axial stretch of a link is ρ · axis
+        self.shortest = math.sqrt(float(squared.min()))
+        self.turn = 0.0                       # largest link rotation of the current state
 
     def norm(self, ev) -> float:
         return residual_norm(ev.gradient[1:], self.reference, self.weights)
@@ -114,74 +185,245 @@ class _Stage:
         weights[:3] = 1.0 / (self.trunk.frames.length_scale + float(np.abs(state.positions).max()))
         return float(np.abs(dq.reshape(-1, 6) * weights).max()) <= RESOLUTION
 
+    def step_limit(self, dq: np.ndarray, change: np.ndarray, ev) -> float:
+        """The largest multiple of a step (frame increments ``dq``, strain change ``change``) that
+        turns no link by more than :data:`MAX_TURN`, stretches none by more than
+        :data:`MAX_STRETCH` of the shortest link, takes no link more than half-way from the
+        largest rotation to π and shortens no cable piece by more than half its length (to first
+        order): a state approaches what it cannot represent only gradually, never by overshooting."""
+        largest = np.abs(change).max(0).tolist()               # per component, over the links
+        room = min(MAX_TURN, 0.5 * (math.pi - self.turn))
+        limit = min(room / max(SQRT3 * max(largest[3:]), 1e-300),
+                    MAX_STRETCH * self.shortest / max(SQRT3 * max(largest[:3]), 1e-300))
+        pieces = ev.pieces
+        if pieces is not None:
+            moves = np.zeros((self.trunk.frames.count, 6))
+            moves[1:] = dq.reshape(-1, 6)
+            shortening = -np.einsum("ij,ij->i", pieces.unit, moves[self.trunk.cables.ends].reshape(-1, 12))
+            shortening /= pieces.length
+            worst = float(shortening.max())
+            if worst > 0.0:
+                limit = min(limit, 0.5 / worst)
+        return limit
+
+    def represented(self, state: State, ev) -> None:
+        """Raise :class:`Unrepresentable` when a link of ``state`` (evaluated in ``ev``) turns
+        beyond :data:`TURN_LIMIT` or folds through itself, or a cable piece collapses; keep the
+        largest link rotation."""
+        xi = ev.links.xi
+        record = state.carried_strains()
+        self.turn = math.sqrt(record.chain.largest_turn2) if record is not None else largest_turn(xi)
+        if self.turn > TURN_LIMIT:
+            raise Unrepresentable(_turn_message(self.trunk, xi, self.load.scale))
+        axial = np.einsum("ij,ij->i", xi[:, :3], self.axis)
+        if float(axial.min()) < FOLD_LIMIT:
+            k = int(np.argmin(axial))
+            segment, _ = _segment_of(self.trunk, k)
+            raise Unrepresentable(
+                f"link {k} (segment {segment}) is compressed to {axial[k]:.2g} of its length at load factor "
+                f"{self.load.scale:.3g}: it folds through itself, which a link cannot represent "
+                "(the load crushes the segment)")
+        pieces = ev.pieces
+        if pieces is not None:
+            ratio = pieces.length / self.trunk.rest_piece_lengths
+            k = int(np.argmin(ratio))
+            if ratio[k] < COLLAPSE_LIMIT:
+                cables = self.trunk.cables
+                vertebra = np.searchsorted(self.trunk.frames.vertebra, [cables.piece_a[k], cables.piece_b[k]])
+                raise Unrepresentable(
+                    f"cable {self.trunk.actuators.names[cables.owner[k]]!r} between vertebrae {vertebra[0]} and "
+                    f"{vertebra[1]} shrinks to {ratio[k]:.2g} of its rest length at load factor {self.load.scale:.3g}: "
+                    "the holes of the two vertebrae meet (their discs would collide), which the cable routing "
+                    "cannot represent; the tensions bend the robot further than its vertebrae allow")
+
+
+def _segment_of(trunk, link: int) -> tuple[int, int]:
+    """(segment index, links per repetition) of a link."""
+    start = 0
+    for index, segment in enumerate(trunk.scene.segments):
+        end = start + segment.count * segment.elements
+        if link < end:
+            return index, segment.elements
+        start = end
+    raise IndexError(link)
+
+
+def _turn_message(trunk, xi: np.ndarray, scale: float) -> str:
+    """Which link turns towards π, and how many links per repetition its segment would need to
+    turn at most :data:`REPRESENTED_TURN` each, estimated from the rotation the segment's
+    repetitions take here (extrapolated from the load factor reached to the full load)."""
+    turns = np.linalg.norm(xi[:, 3:] - trunk.links.rest[:, 3:], axis=1)
+    k = int(np.argmax(np.linalg.norm(xi[:, 3:], axis=1)))
+    segment, elements = _segment_of(trunk, k)
+    start = sum(s.count * s.elements for s in trunk.scene.segments[:segment])
+    count = trunk.scene.segments[segment].count
+    per_repetition = turns[start:start + count * elements].reshape(count, elements).sum(1).max()
+    needed = per_repetition / max(scale, 1e-12)
+    links = max(elements + 1, math.ceil(needed / REPRESENTED_TURN))
+    return (f"link {k} (segment {segment}) turns {math.degrees(float(np.linalg.norm(xi[k, 3:]))):.0f}° at load "
+            f"factor {scale:.3g}: the deformation cannot be represented with {elements} link(s) per repetition "
+            f"(a link's rotation must stay below 180°); the segment turns ≥ {math.degrees(needed):.0f}° per "
+            f"repetition, so it needs at least {links} links per repetition (elements = {links}) to turn "
+            f"≤ {math.degrees(REPRESENTED_TURN):.0f}° per link")
+
+
+def _raise_shift(shift: float, factor: float) -> float:
+    return max(SHIFT_START, factor * shift)
+
+
+def _negative_curvature(factor, shift: float, scale: np.ndarray, n: int):
+    """A direction ``v`` of most negative curvature of the tangent ``H`` in the D-metric
+    (``vᵀDv = 1``) and its curvature ``vᵀHv``, by inverse iteration with the factor of the
+    positive definite ``H + μD``; None when the curvature is not negative."""
+    v = np.random.default_rng(n).standard_normal(n)      # a deterministic start
+    curvature = 0.0
+    for _ in range(8):
+        w = factor.solve(scale * v)
+        norm = math.sqrt(float(w @ (scale * w)))
+        if not (norm > 0.0 and math.isfinite(norm)):
+            return None
+        curvature = float(w @ (scale * v)) / (norm * norm) - shift     # wᵀHw / wᵀDw
+        v = w / norm
+    return (v, curvature) if curvature < -NEUTRAL else None
+
 
 def _newton(stage: _Stage, state: State):
-    """Newton iterations at a fixed load factor. Returns (ok, state, iterations, residual).
-
-    The tangent is assembled only where a Newton step is taken (not at the converged state).
-    An equilibrium reached through indefinite tangents is accepted only when its own tangent
-    is positive definite: a saddle is not a quasi-static answer, and the caller then steps the
-    load from the last stable state instead."""
+    """Newton iterations at a fixed load factor (module docstring). Returns (ok, state, residual);
+    the iterations taken are counted in ``stage.iterations``."""
     trunk, memo, load, kinds = stage.trunk, stage.memo, stage.load, stage.kinds
-    symmetric = not trunk.loads.has_dead_moments
+    symmetric = stage.symmetric
     ev = evaluate(trunk, state, load, memo)
-    r = -ev.gradient[1:].reshape(-1)
     residual = stage.norm(ev)
+    if not math.isfinite(residual + ev.energy):
+        raise ConvergenceError(f"non-finite values appeared in the evaluation of the start state at load "
+                               f"factor {load.scale:.3g}")
+    stage.represented(state, ev)
+    r = -ev.gradient[1:].reshape(-1)
     moments = load.dead[1:, 3:].reshape(-1) if trunk.loads.has_dead_moments else None
-    best, best_at = residual, 0
-    last_kind = "cholesky"
-    for iteration in range(stage.max_iterations + 1):
+    # the last direction came from the unshifted Cholesky factor (a positive definite tangent) at a
+    # state already close to equilibrium: the equilibrium reached from it is taken as stable
+    trusted = False
+    escapes = 0
+    while True:
         stage.history.append(residual)
-        if not math.isfinite(residual):
-            return False, state, iteration, residual
-        if residual <= stage.tolerance:
-            if last_kind != "cholesky" and not stage.stable(ev):
+        converged = residual <= stage.tolerance
+        if converged:
+            if trusted or stage.stable(ev):
+                return True, state, residual
+            if escapes == ESCAPES:     # a saddle that the negative-curvature steps did not leave
                 kinds.add("unstable")
-                return False, state, iteration, residual
-            return True, state, iteration, residual
-        if residual < 0.5 * best:
-            best, best_at = residual, iteration
-        if iteration == stage.max_iterations or iteration - best_at > 20:
-            break     # out of iterations, or no progress for 20 iterations: smaller load step
-        accepted = False
+                return False, state, residual
+        if stage.iterations >= stage.max_iterations:
+            return False, state, residual
+        stage.iterations += 1
         matrix = tangent(trunk, ev, memo)
-        for shift in SHIFTS:
-            factor, kind = matrix.factor(shift, symmetric=symmetric)
+        shift = stage.shift
+        scale = None
+        while True:      # until a step is accepted
+            if shift > SHIFT_CEILING:
+                return False, state, residual
+            if shift and scale is None:
+                scale = np.maximum(np.abs(matrix.diagonal()), memo.stiffness_scale())
+            factor, kind = matrix.factor(shift, symmetric=symmetric, scale=scale, definite=symmetric)
             if factor is None:
+                shift = _raise_shift(shift, 10.0)
                 continue
-            dq = factor.solve(r)
+            if converged:
+                # a stationary point with an indefinite tangent: step along the direction of
+                # most negative curvature, as far as the strain-space cap allows
+                found = _negative_curvature(factor, shift, scale, r.size)
+                if found is None:
+                    return True, state, residual        # the curvature is not negative: stable
+                dq, curvature = found
+                if float(r @ dq) < 0.0:
+                    dq = -dq
+                change = strain_change(dq, ev.links)
+                limit = stage.step_limit(dq, change, ev)
+                dq, change, curvature = limit * dq, limit * change, curvature * limit * limit
+                escapes += 1
+                kind = "escape"
+            else:
+                dq = factor.solve(r)
+                curvature = None
             if stage.below_resolution(state, dq):
                 # the correction is below the floating-point resolution of the poses: the
                 # residual left is rounding, not error; stop here and report it as it is
-                if kind != "cholesky" and not stage.stable(ev, matrix):
+                if not (kind == "cholesky" or stage.stable(ev, matrix)):
                     kinds.add("unstable")
-                    return False, state, iteration, residual
+                    return False, state, residual
                 kinds.add(kind)
                 kinds.add("rounding-limited")
-                return True, state, iteration, residual
-            slope = -float(r @ dq)
-            if slope >= 0.0 and shift == 0.0 and kind != "cholesky":
-                continue      # indefinite tangent: the pure Newton step is no descent direction
-            alpha = 1.0
-            while alpha > 1e-3:
-                trial = retract(state, dq if alpha == 1.0 else alpha * dq, ev.links)
-                ev_trial = evaluate(trunk, trial, load, memo)
-                res_trial = stage.norm(ev_trial)
-                work = 0.0 if moments is None else alpha * float(moments @ dq.reshape(-1, 6)[:, 3:].reshape(-1))
-                merit_ok = ev_trial.energy - work <= ev.energy + 1e-4 * alpha * slope + 1e-12 * abs(ev.energy)
-                if math.isfinite(res_trial) and merit_ok:
-                    accepted = True
-                    break
-                alpha *= 0.5
-            if accepted:
-                kinds.add(kind)
-                last_kind = kind
+                return True, state, residual
+            rp = float(r @ dq)
+            if curvature is None:
+                if not rp > 0.0:                    # an LU direction that does not descend (or NaN)
+                    shift = _raise_shift(shift, 10.0)
+                    continue
+                curvature = rp - shift * float(dq @ (scale * dq)) if shift else rp    # pᵀHp: (H + μD)p = r
+                change = strain_change(dq, ev.links)
+            alpha = min(1.0, stage.step_limit(dq, change, ev))
+            step = _line_search(stage, state, ev, residual, dq, change, alpha, rp, curvature, moments)
+            if step is not None:
                 break
-        if not accepted:
-            return False, state, iteration + 1, residual
-        state, ev, residual = trial, ev_trial, res_trial
+            if kind == "escape":
+                kinds.add("unstable")
+                return False, state, residual
+            shift = _raise_shift(shift, 10.0)
+        trial, ev_trial, alpha, decrease, predicted, quality = step
+        # how well the quadratic model predicted the full step sets μ for the next iteration
+        if kind != "escape":
+            if quality >= 0.75:
+                shift = 0.0 if shift / 4.0 < SHIFT_FLOOR else shift / 4.0
+            elif quality < 0.25:
+                shift = _raise_shift(shift, 4.0)
+        stage.shift = shift
+        if _DEBUG:
+            print(f"  it {stage.iterations} res {residual:.3e} E {ev.energy:.12e} dec {decrease:.3e} pred {predicted:.3e} "
+                  f"alpha {alpha:.3g} kind {kind} mu {shift:.2e} turn {stage.turn:.3f}")
+        trusted = kind == "cholesky" and residual <= TRUSTED_RESIDUAL
+        kinds.add(kind)
+        state, ev = trial, ev_trial
+        residual = stage.norm(ev)
+        if not math.isfinite(residual):
+            raise ConvergenceError(f"non-finite forces appeared after a Newton step at load factor {load.scale:.3g}")
+        try:
+            stage.represented(state, ev)
+        except Unrepresentable as why:
+            why.state = state
+            raise
         r = -ev.gradient[1:].reshape(-1)
-    return False, state, iteration, residual
+
+
+def _line_search(stage: _Stage, state: State, ev, residual: float, dq, change, alpha: float, rp: float,
+                 curvature: float, moments):
+    """Backtracking from ``alpha`` along ``dq``: the first fraction that lowers the energy (the
+    merit, with dead moments) by an Armijo share of the quadratic model's prediction ``α r·p −
+    ½α² pᵀHp`` — or, where the prediction is below the energy's rounding, that does not raise
+    the residual. Returns (state, evaluation, α, decrease, prediction, quality) with quality the
+    ratio of actual to predicted decrease of the first (full) trial (1 below rounding, 0 when
+    it was cut back), or None."""
+    trunk, memo, load = stage.trunk, stage.memo, stage.load
+    noise = ROUNDING * abs(ev.energy)
+    quality = None
+    while alpha >= SEARCH_FLOOR:
+        trial = retract(state, alpha * dq, ev.links, alpha * change)
+        ev_trial = evaluate(trunk, trial, load, memo)
+        predicted = alpha * rp - 0.5 * alpha * alpha * curvature
+        decrease = ev.energy - ev_trial.energy
+        if moments is not None:
+            decrease += alpha * float(moments @ dq.reshape(-1, 6)[:, 3:].reshape(-1))
+        if predicted <= noise:       # the energy cannot judge this step: the residual does
+            good = stage.norm(ev_trial) <= residual
+            ratio = 1.0
+        else:
+            good = decrease >= ARMIJO * predicted - noise
+            ratio = decrease / predicted
+        if quality is None:
+            quality = ratio if good else 0.0
+        if good:
+            return trial, ev_trial, alpha, decrease, predicted, quality
+        alpha *= 0.5
+    return None
 
 
 def solve(trunk, memo, actuation: np.ndarray, initial: State | None, *, tolerance: float,
@@ -190,7 +432,11 @@ def solve(trunk, memo, actuation: np.ndarray, initial: State | None, *, toleranc
     the load stepped in ``load_steps`` stages). Raises :class:`ConvergenceError` (carrying the
     partial result) on failure unless ``raise_on_failure`` is False."""
     start = time.perf_counter()
+    check_finite("the actuation", actuation)
+    if initial is not None:
+        check_finite("the initial state", initial.positions, initial.quaternions)
     reference = reference_force(trunk, actuation, memo)
+    check_finite("the reference force at rest", reference)
     history, kinds = [], set()
     state = (initial or trunk.rest_state).copy()
     if reference == 0.0:
@@ -200,24 +446,34 @@ def solve(trunk, memo, actuation: np.ndarray, initial: State | None, *, toleranc
         gradient = evaluate(trunk, state, load, memo).gradient
         if not np.any(gradient[1:]):
             return StaticResult(True, 0, 0.0, state, actuation, [0.0], 1, "none",
-                                {"solve_s": time.perf_counter() - start})
+                                {"solve_s": time.perf_counter() - start}, largest_turn=_turn(trunk, state, memo))
         reference = _force_scale(trunk, gradient)
 
     scale, increment = 0.0, 1.0 / load_steps
     if initial is not None:
         increment = 1.0   # warm start: try the full load from the given pose first
     iterations, stages = 0, 0
-    last_good = state
+    last_good = state_new = state
     converged = False
     residual = math.inf
+    shift = 0.0
+    message = ""
     while True:
         target = min(1.0, scale + increment)
         load = memo.load_case(actuation, target)
-        stage = _Stage(trunk, memo, load, tolerance if target >= 1.0 else max(tolerance, 1e-6), max_iterations,
-                       reference * max(target, 1e-300), history, kinds)
-        ok, state_new, its, residual = _newton(stage, last_good)
-        iterations += its
+        stage = _Stage(trunk, memo, load, tolerance if target >= 1.0 else max(tolerance, 1e-6),
+                       min(max_iterations, BUDGET * max_iterations - iterations),
+                       reference * max(target, 1e-300), history, kinds, shift)
+        try:
+            ok, state_new, residual = _newton(stage, last_good)
+        except Unrepresentable as why:
+            message, state_new = str(why), why.state
+            iterations += stage.iterations
+            stages += 1
+            break
+        iterations += stage.iterations
         stages += 1
+        shift = stage.shift
         if ok:
             last_good, scale = state_new, target
             if scale >= 1.0:
@@ -230,18 +486,25 @@ def solve(trunk, memo, actuation: np.ndarray, initial: State | None, *, toleranc
                 increment = 1.0 / load_steps
                 continue
             increment *= 0.5
-            if increment < 1e-4 or iterations > 50 * max_iterations:
+            if increment < 1e-4 or iterations >= BUDGET * max_iterations:
                 break
     limited = "rounding-limited" in kinds
     saddles = "unstable" in kinds
     kinds -= {"rounding-limited", "unstable"}
-    result = StaticResult(converged, iterations, float(residual), last_good if converged else state_new,
-                          actuation, history, stages, "+".join(sorted(kinds)) or "none",
-                          {"solve_s": time.perf_counter() - start}, rounding_limited=limited and converged)
+    final = last_good if converged else state_new
+    if not converged and not message:
+        message = (f"Newton did not converge: scaled residual {residual:.3g} > {tolerance:g} after {iterations} "
+                   f"iterations and {stages} load stages (reached load factor {scale:.4g})"
+                   + ("; equilibria found on the way were unstable (indefinite tangent) and refused"
+                      if saddles else ""))
+    result = StaticResult(converged, iterations, float(residual), final, actuation, history, stages,
+                          "+".join(sorted(kinds)) or "none", {"solve_s": time.perf_counter() - start},
+                          rounding_limited=limited and converged, largest_turn=_turn(trunk, final, memo),
+                          message=message)
     if not converged and raise_on_failure:
-        raise ConvergenceError(
-            f"Newton did not converge: scaled residual {residual:.3g} > {tolerance:g} after {iterations} "
-            f"iterations and {stages} load stages (reached load factor {scale:.4g})"
-            + ("; equilibria found on the way were unstable (indefinite tangent) and refused" if saddles else ""),
-            result)
+        raise ConvergenceError(message, result)
     return result
+
+
+def _turn(trunk, state: State, memo) -> float:
+    return largest_turn(memo.links(state, state.carried_strains()).xi)

@@ -9,6 +9,7 @@ copy whose poses no longer match the record is evaluated from its poses.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -16,6 +17,7 @@ import numpy as np
 from vertebra.solver.chain import Chain, chain_poses
 from vertebra.solver.lie import pose_matrix
 from vertebra.solver.links import Links
+from vertebra.store.errors import ConvergenceError
 
 
 @dataclass
@@ -89,13 +91,26 @@ def kinematics(state: State) -> Links:
     return Links.of(q[:-1], x[:-1], q[1:], x[1:])
 
 
-def retract(state: State, dq: np.ndarray, links: Links) -> State:
-    """Retraction in strain space: each link's strain ``ξ = log(T_a⁻¹ T_b)`` moves by its
-    linearised change ``J_l⁻¹ ζ(dq)`` and the chain is rebuilt from the base by composing
-    ``exp(ξ)``. To first order this is the update ``x + dx``, ``exp(dφ) R`` (so Newton keeps its
-    quadratic convergence), but a step that predicts no stretch of a link creates none: stiff
-    axial and shear links absorb no spurious strain when frames rotate. ``dq`` holds
-    ``[dx; dφ]`` (world axes) of every free frame; ``links``: the state's kinematics."""
-    d = np.zeros((state.positions.shape[0], 6))
+def strain_change(dq: np.ndarray, links: Links) -> np.ndarray:
+    """The links' linearised strain change ``J_l⁻¹ ζ(dq)`` (n_links, 6) under frame increments
+    ``dq`` (``[dx; dφ]`` of every free frame, world axes; ``links``: the state's kinematics)."""
+    d = np.zeros((links.xi.shape[0] + 1, 6))
     d[1:] = np.asarray(dq).reshape(-1, 6)
-    return compose(state.quaternions[0], state.positions[0], links.xi + links.strain_change(links.zeta(d)))
+    return links.strain_change(links.zeta(d))
+
+
+def retract(state: State, dq: np.ndarray, links: Links, change: np.ndarray | None = None) -> State:
+    """Retraction in strain space: each link's strain ``ξ = log(T_a⁻¹ T_b)`` moves by its
+    linearised change ``J_l⁻¹ ζ(dq)`` (:func:`strain_change`; ``change`` when already computed)
+    and the chain is rebuilt from the base by composing ``exp(ξ)``. To first order this is the
+    update ``x + dx``, ``exp(dφ) R`` (so Newton keeps its quadratic convergence), but a step
+    that predicts no stretch of a link creates none: stiff axial and shear links absorb no
+    spurious strain when frames rotate. ``dq`` holds ``[dx; dφ]`` (world axes) of every free
+    frame; ``links``: the state's kinematics. Non-finite strains raise :class:`ConvergenceError`."""
+    if change is None:
+        change = strain_change(dq, links)
+    xi = links.xi + change
+    if not math.isfinite(float(np.einsum("ij,ij->", xi, xi))):
+        raise ConvergenceError("non-finite values appeared in the retraction (a step of non-finite or "
+                               "overflowing size)")
+    return compose(state.quaternions[0], state.positions[0], xi)

@@ -134,6 +134,7 @@ class Trunk:
     assembler: BandAssembler
     rest_state: State
     rest_cable_lengths: np.ndarray
+    rest_piece_lengths: np.ndarray     # (m,) length of every cable piece at rest
 
     def __post_init__(self):
         if self.links.count != self.frames.count - 1:
@@ -141,6 +142,7 @@ class Trunk:
         if self.assembler.n_blocks != self.links.count:
             raise ValueError("band layout does not match the frames")
         _read_only(self.rest_cable_lengths)
+        _read_only(self.rest_piece_lengths)
 
     @property
     def n_dof(self) -> int:
@@ -155,7 +157,7 @@ def compile_trunk(scene, entries: dict) -> Trunk:
     rest_pieces = cables.pieces(rest_state.positions, qmatrix(rest_state.quaternions))
     return Trunk(scene, frames, links, cables, _actuators(scene, rest_volumes), _loads(scene, frames),
                  _effectors(scene, frames), BandAssembler(frames.count - 1, cables.span, cables.piece_a, cables.piece_b),
-                 rest_state, cables.lengths(rest_pieces))
+                 rest_state, cables.lengths(rest_pieces), rest_pieces.length)
 
 
 def _compile_links(scene, entries):
