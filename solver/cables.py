@@ -50,12 +50,9 @@ class CablePieces:
     def of_pairs(cls, R, x, holes) -> "CablePieces":
         """From the rotations (2m, 3, 3), positions (2m, 3) and hole offsets (2m, 3, 1) of the two
         ends of every piece, interleaved (a₀, b₀, a₁, b₁, …)."""
-        m = x.shape[0] // 2
-        offsets = (R @ holes).reshape(m, 6)                   # [s_a, s_b]
-        d = (x.reshape(m, 6) + offsets) @ _DIFFERENCE         # P_b − P_a
-        length = np.sqrt((d[:, None, :] @ d[:, :, None])[:, 0, 0])
+        offsets, d, length = _spans(R, x, holes)
         u = d / length[:, None]
-        C = (offsets @ _C_TABLE).reshape(m, 12, 3) + _C_CONST
+        C = (offsets @ _C_TABLE).reshape(-1, 12, 3) + _C_CONST
         return cls(C, u, length, (C @ u[:, :, None])[:, :, 0])
 
     def tangent(self, tension: np.ndarray) -> np.ndarray:
@@ -67,6 +64,16 @@ class CablePieces:
         H[:, 3:6, 3:6] += U @ C[:, 3:6]                      # −τ û ŝ_a
         H[:, 9:, 9:] += U @ C[:, 9:]                         # +τ û ŝ_b
         return H
+
+
+def _spans(R, x, holes):
+    """Hole offsets ``[s_a, s_b]`` (m, 6), spans ``d = P_b − P_a`` (m, 3) and lengths (m,) of the
+    pieces whose ends have rotations ``R`` (2m, 3, 3), positions ``x`` (2m, 3) and hole offsets
+    ``holes`` (2m, 3, 1), interleaved."""
+    m = x.shape[0] // 2
+    offsets = (R @ holes).reshape(m, 6)
+    d = (x.reshape(m, 6) + offsets) @ _DIFFERENCE
+    return offsets, d, np.sqrt((d[:, None, :] @ d[:, :, None])[:, 0, 0])
 
 
 def incidence(rows: np.ndarray, n_rows: int):
@@ -122,6 +129,10 @@ class CableRouting:
     def pieces(self, positions: np.ndarray, rotations: np.ndarray) -> CablePieces:
         """Kinematics of every piece at frame ``positions`` (N, 3) and ``rotations`` (N, 3, 3)."""
         return CablePieces.of_pairs(rotations.take(self.ends, 0), positions.take(self.ends, 0), self.holes)
+
+    def piece_lengths(self, positions: np.ndarray, rotations: np.ndarray) -> np.ndarray:
+        """Length of every piece (m,) at frame ``positions`` and ``rotations`` (no kinematics)."""
+        return _spans(rotations.take(self.ends, 0), positions.take(self.ends, 0), self.holes)[2]
 
     def lengths(self, pieces: CablePieces) -> np.ndarray:
         """Length of each cable (sum of its pieces)."""

@@ -90,11 +90,7 @@ def evaluate(trunk, state, load: LoadCase, memo) -> Evaluation:
         rotations = qmatrix(state.quaternions)
     else:
         rotations = None
-    energies = trunk.links.energies
-    if len(energies) == 1:
-        total, w = energies[0].response(links.xi, load.link_loads[0])
-    else:
-        total, w = link_response(trunk, links.xi, load.link_loads)
+    total, w = link_response(trunk, links.xi, load.link_loads)
     g_links = links.gradient(w)
     grad = np.zeros((x.shape[0], 6))
     grad[:-1] = g_links[:, :6]
@@ -111,7 +107,7 @@ def evaluate(trunk, state, load: LoadCase, memo) -> Evaluation:
         lever = (rotations @ trunk.frames.moment[:, :, None])[:, :, 0]   # R s: first moment in world axes
         grad[:, :3] -= load.frame_weight
         grad[:, 3:] -= lever @ load.weight_hat                 # moment (R s) × m g at the frame
-        total -= float((trunk.frames.mass @ x + lever.sum(0)) @ load.weight)
+        total += _weight_potential(trunk, x, lever, load)
 
     if load.dead is not None:
         grad -= load.dead
@@ -120,9 +116,34 @@ def evaluate(trunk, state, load: LoadCase, memo) -> Evaluation:
                       record is not None and record is trunk.rest_state.strains)
 
 
+def potential(trunk, state, load: LoadCase, memo) -> float:
+    """The total potential at ``state`` under ``load`` without its gradient (the same terms as
+    :func:`evaluate`): what judging a step needs. A state that carries its strains needs no
+    link kinematics; one given by its poses is evaluated in full."""
+    record = state.carried_strains()
+    if record is None:
+        return evaluate(trunk, state, load, memo).energy
+    x, rotations = state.positions, record.chain.rotations
+    total = link_response(trunk, record.xi, load.link_loads)[0]
+    if load.piece_tension is not None:
+        total += float(load.piece_tension @ trunk.cables.piece_lengths(x, rotations))
+    if load.weight is not None:
+        total += _weight_potential(trunk, x, (rotations @ trunk.frames.moment[:, :, None])[:, :, 0], load)
+    if load.dead is not None:
+        total -= float(np.vdot(load.dead_forces, x))
+    return total
+
+
+def _weight_potential(trunk, x: np.ndarray, lever: np.ndarray, load: LoadCase) -> float:
+    """``−Σ m g · (x + R s)`` with the first mass moments ``lever = R s`` in world axes."""
+    return -float((trunk.frames.mass @ x + lever.sum(0)) @ load.weight)
+
+
 def link_response(trunk, xi: np.ndarray, link_loads: tuple) -> tuple[float, np.ndarray]:
-    """``(Σ ψ, w = ∂ψ/∂ξ (n, 6))`` over several link energies."""
+    """``(Σ ψ, w = ∂ψ/∂ξ (n, 6))`` over the link energies."""
     energies = trunk.links.energies
+    if len(energies) == 1:
+        return energies[0].response(xi, link_loads[0])
     w = np.empty_like(xi)
     total = 0.0
     for energy, prepared in zip(energies, link_loads):

@@ -20,7 +20,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from vertebra.solver import newton, outputs
-from vertebra.solver.energy import Evaluation, evaluate
+from vertebra.solver.energy import Evaluation, evaluate, potential
 from vertebra.solver.memo import Memo
 from vertebra.solver.newton import StaticResult
 from vertebra.solver.outputs import Linearisation
@@ -80,6 +80,7 @@ class TrunkModel:
     default_actuation = _forward("actuators", "default", "the scene's tensions and pressures")
     actuator_bounds = _forward("actuators", "bounds", "(lower, upper) bounds on the actuation")
     displacement_bounds = _forward("actuators", "displacement_bounds", "(lower, upper) on strokes, volume growths")
+    actuator_max_change = _forward("actuators", "max_change", "largest change of each actuator per control tick")
     chamber_rest_volumes = _forward("actuators", "chamber_rest_volumes", "rest volume of each chamber")
     effector_names = property(lambda self: list(self.trunk.effectors.names), doc="effector names")
     effector_frames = _forward("effectors", "frames", "frame of each effector")
@@ -144,6 +145,11 @@ class TrunkModel:
         actuation = self.actuation(actuation)
         load = self.memo.load_case(actuation, scale)
         return evaluate(self.trunk, state, load, self.memo)
+
+    def potential(self, state: State, actuation=None) -> float:
+        """Total potential at ``state`` under the actuation and loads, without its gradient
+        (:func:`vertebra.solver.energy.potential`)."""
+        return potential(self.trunk, state, self.memo.load_case(self.actuation(actuation), 1.0), self.memo)
 
     def residual_norm(self, residual: np.ndarray, actuation=None) -> float:
         """The solver's convergence measure of an out-of-balance force ``residual`` (n_dof,):

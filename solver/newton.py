@@ -214,7 +214,7 @@ class _Stage:
         record = state.carried_strains()
         self.turn = math.sqrt(record.chain.largest_turn2) if record is not None else largest_turn(xi)
         if self.turn > TURN_LIMIT:
-            raise Unrepresentable(_turn_message(self.trunk, xi, self.load.scale))
+            raise Unrepresentable(_turn_message(self.trunk, xi, self.load.scale), state)
         axial = np.einsum("ij,ij->i", xi[:, :3], self.axis)
         if float(axial.min()) < FOLD_LIMIT:
             k = int(np.argmin(axial))
@@ -222,7 +222,7 @@ class _Stage:
             raise Unrepresentable(
                 f"link {k} (segment {segment}) is compressed to {axial[k]:.2g} of its length at load factor "
                 f"{self.load.scale:.3g}: it folds through itself, which a link cannot represent "
-                "(the load crushes the segment)")
+                "(the load crushes the segment)", state)
         pieces = ev.pieces
         if pieces is not None:
             ratio = pieces.length / self.trunk.rest_piece_lengths
@@ -234,7 +234,7 @@ class _Stage:
                     f"cable {self.trunk.actuators.names[cables.owner[k]]!r} between vertebrae {vertebra[0]} and "
                     f"{vertebra[1]} shrinks to {ratio[k]:.2g} of its rest length at load factor {self.load.scale:.3g}: "
                     "the holes of the two vertebrae meet (their discs would collide), which the cable routing "
-                    "cannot represent; the tensions bend the robot further than its vertebrae allow")
+                    "cannot represent; the tensions bend the robot further than its vertebrae allow", state)
 
 
 def _segment_of(trunk, link: int) -> tuple[int, int]:
@@ -386,11 +386,7 @@ def _newton(stage: _Stage, state: State):
         residual = stage.norm(ev)
         if not math.isfinite(residual):
             raise ConvergenceError(f"non-finite forces appeared after a Newton step at load factor {load.scale:.3g}")
-        try:
-            stage.represented(state, ev)
-        except Unrepresentable as why:
-            why.state = state
-            raise
+        stage.represented(state, ev)
         r = -ev.gradient[1:].reshape(-1)
 
 

@@ -25,6 +25,7 @@ class Linearisation:
     effector_jacobian: np.ndarray
     effector_positions: np.ndarray
     actuator_displacements: np.ndarray
+    energy: float = 0.0          # total potential at the state (dead moments excluded)
 
     def solve(self, rhs: np.ndarray, *, overwrite: bool = False) -> np.ndarray:
         """``K⁻¹ rhs`` with the banded factor, for ``rhs`` of shape (n_dof,) or (n_dof, k): the
@@ -111,4 +112,5 @@ def linearise(trunk, state, actuation: np.ndarray, memo) -> Linearisation:
         actuator_jacobian=jac[:, 1:].reshape(n_act, n_dof),
         effector_jacobian=Je[:, 1:].reshape(3 * len(effectors.names), n_dof),
         effector_positions=positions,
-        actuator_displacements=actuator_displacements(trunk, state, actuation, memo, links=links, pieces=pieces))
+        actuator_displacements=actuator_displacements(trunk, state, actuation, memo, links=links, pieces=pieces),
+        energy=ev.energy)

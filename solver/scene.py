@@ -46,6 +46,7 @@ class CableSpec:
     max_tension: float = math.inf
     min_stroke: float = -math.inf
     max_stroke: float = math.inf
+    max_tension_change: float | None = None     # N per control tick (None: derived from the bounds)
 
 
 @dataclass(frozen=True)
@@ -59,6 +60,7 @@ class ChamberSpec:
     max_pressure: float = math.inf
     min_volume_growth: float = -math.inf
     max_volume_growth: float = math.inf
+    max_pressure_change: float | None = None    # Pa per control tick (None: derived from the bounds)
 
 
 @dataclass(frozen=True)
@@ -234,7 +236,8 @@ def parse_scene(data: dict, source: str = "<dict>", base_dir=".") -> Scene:
         radius = t.number("radius", required=True, nonneg=True)
         angle, tension = math.radians(t.number("angle_deg", 0.0)), t.number("tension", 0.0)
         cables.append(CableSpec(name, radius, angle, first, last, tension, *_bounds(t, "tension"),
-                                *_bounds(t, "stroke", -math.inf)))
+                                *_bounds(t, "stroke", -math.inf),
+                                t.number("max_tension_change", None, positive=True, unbounded=True)))
         t.done()
 
     chambers = []
@@ -244,7 +247,8 @@ def parse_scene(data: dict, source: str = "<dict>", base_dir=".") -> Scene:
         cavity = t.number("cavity", 0, integer=True, nonneg=True)
         pressure = t.number("pressure", 0.0)
         chambers.append(ChamberSpec(name, cavity, first, last, pressure, *_bounds(t, "pressure"),
-                                    *_bounds(t, "volume_growth", -math.inf)))
+                                    *_bounds(t, "volume_growth", -math.inf),
+                                    t.number("max_pressure_change", None, positive=True, unbounded=True)))
         t.done()
 
     loads = []

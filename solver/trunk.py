@@ -87,11 +87,12 @@ class Actuators(_Frozen):
     bounds: tuple                 # (lower, upper) on λ
     displacement_bounds: tuple    # (lower, upper) on strokes and volume growths
     chamber_rest_volumes: np.ndarray
+    max_change: np.ndarray        # largest change of each actuator per control tick (inf: none)
 
     def validate(self):
         if self.default.shape != (self.n_cables + self.n_chambers,):
             raise ValueError(f"actuators: {len(self.names)} names but {self.default.shape} values")
-        for array in (*self.bounds, *self.displacement_bounds):
+        for array in (*self.bounds, *self.displacement_bounds, self.max_change):
             _read_only(array)
 
 
@@ -227,16 +228,22 @@ def _compile_links(scene, entries):
     return frames, links, rest_volumes
 
 
+CHANGE_FRACTION = 0.25    # default per-tick change of an actuator: this fraction of its range
+
+
 def _actuators(scene, rest_volumes) -> Actuators:
     cables, chambers = scene.cables, scene.chambers
+    lower = np.array([c.min_tension for c in cables] + [c.min_pressure for c in chambers], float)
+    upper = np.array([c.max_tension for c in cables] + [c.max_pressure for c in chambers], float)
+    given = [c.max_tension_change for c in cables] + [c.max_pressure_change for c in chambers]
+    derived = CHANGE_FRACTION * (upper - lower)            # inf when a bound is
+    max_change = np.array([d if g is None else g for g, d in zip(given, derived)], float)
     return Actuators(
         tuple(c.name for c in cables) + tuple(c.name for c in chambers), len(cables), len(chambers),
-        np.array([c.tension for c in cables] + [c.pressure for c in chambers], float),
-        (np.array([c.min_tension for c in cables] + [c.min_pressure for c in chambers], float),
-         np.array([c.max_tension for c in cables] + [c.max_pressure for c in chambers], float)),
+        np.array([c.tension for c in cables] + [c.pressure for c in chambers], float), (lower, upper),
         (np.array([c.min_stroke for c in cables] + [c.min_volume_growth for c in chambers], float),
          np.array([c.max_stroke for c in cables] + [c.max_volume_growth for c in chambers], float)),
-        rest_volumes)
+        rest_volumes, max_change)
 
 
 def _loads(scene, frames: Frames) -> Loads:

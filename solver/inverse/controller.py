@@ -9,13 +9,24 @@ its QP backend. Each inverse step then
    ``K⁻¹[r, B]``, then ``W_ea``, ``W_aa`` and the free gaps, paper eqs. 10–12);
 3. solves the **QP** in the total actuation λ (``solve_constraint_problem``, paper eq. 13),
    whose box is the actuator limits and whose regulariser is the actuation energy;
-4. **steps**: in ``tick`` mode (real time) ``state ← model.step(state, dq(λ))``, one
-   Newton-like update per control tick whose remaining imbalance the next tick's ``K⁻¹r``
-   corrects; in ``converged`` mode (static inverse) ``model.solve(λ, initial=stepped state)``
-   to equilibrium, repeated until the effectors are within tolerance or the error stops falling.
+4. **steps** within a trust region (:class:`~solver.inverse.trust.TrustRegion`): effectors aim
+   at most a radius from where they are, and the step ``(λ − λ0, dq)`` is scaled so that no
+   frame moves or turns by more than the radii;
 
-Both modes warm-start from the previous state, actuation and QP answer along a trajectory.
-:meth:`InverseController.settled` reports a tick at the equilibrium its actuation reaches.
+   * ``tick`` mode (real time): the λ box is narrowed to ``λ0 ± max_change`` (the actuators'
+     per-tick changes) and ``state ← model.step(state, α·dq)``, one Newton-like update per
+     control tick whose remaining imbalance the next tick's ``K⁻¹r`` corrects. The step is
+     applied only when it lowers the total potential under the new actuation by at least a
+     tenth of what the linearisation predicts; otherwise it is cut back (α/4, twice), and not
+     applied at all when that fails too;
+   * ``converged`` mode (static inverse): ``model.solve(λ, initial=stepped state)`` to
+     equilibrium, repeated — far targets through intermediate ones — until the effectors are
+     within tolerance, the error stops falling, or the iteration or time budget ends (closest
+     reach so far).
+
+The radii adapt to how well each step's prediction held. Both modes warm-start from the
+previous state, actuation and QP answer along a trajectory. :meth:`InverseController.settled`
+reports a tick at the equilibrium its actuation reaches.
 """
 
 from __future__ import annotations
@@ -30,6 +41,7 @@ import numpy as np
 from vertebra.solver.inverse.backends import DEFAULT_BACKEND, get_backend
 from vertebra.solver.inverse.qp import ConstraintSolution, solve_constraint_problem
 from vertebra.solver.inverse.space import DEFAULT_REGULARISATION, ConstraintSpace
+from vertebra.solver.inverse.trust import GOOD, TrustRegion
 from vertebra.store.errors import ConvergenceError, OptionError, SceneError
 
 __all__ = ["InverseSettings", "InverseStep", "InverseController", "invert", "MODES", "DEFAULT_TOLERANCE"]
@@ -37,6 +49,9 @@ __all__ = ["InverseSettings", "InverseStep", "InverseController", "invert", "MOD
 # effector error (m) counted as reached, per mode: a converged static inverse is exact up to the
 # solver tolerances; one linearise–QP step per tick lags a moving target
 DEFAULT_TOLERANCE = {"converged": 1e-6, "tick": 1e-3}
+ACCEPT = 0.1    # a tick is applied when the potential falls by at least this share of the prediction
+CUTS = 3        # attempts of one step (the first, then two cut back by ¼ each)
+DAMPING = 1e-4  # Levenberg–Marquardt damping of the QP (ticks, and converged steps towards far targets)
 
 
 @dataclass(frozen=True)
@@ -49,6 +64,7 @@ class InverseSettings:
     regularisation: float = DEFAULT_REGULARISATION
     tolerance: float | None = None
     max_iterations: int = 30  # outer linearise–QP–solve iterations (converged mode)
+    time_budget: float = 2.0  # s per target (converged mode): then the closest reach so far
     patience: int = 3  # converged mode gives up after this many iterations without progress …
     progress: float = 0.01  # … where progress means cutting the best error by this fraction
     actuation_tolerance: float = 1e-4  # … and, reached or not, once λ changes by less than this (relative)
@@ -68,6 +84,8 @@ class InverseSettings:
             raise OptionError(f"must be > 0, got {self.qp_tolerance}", field="qp_tolerance")
         if self.max_iterations < 1:
             raise OptionError(f"must be ≥ 1, got {self.max_iterations}", field="max_iterations")
+        if not self.time_budget > 0:
+            raise OptionError(f"must be a positive time (s), got {self.time_budget}", field="time_budget")
         if not (0.0 < self.progress < 1.0):
             raise OptionError(f"must lie in (0, 1), got {self.progress}", field="progress")
         if self.patience < 1:
@@ -93,6 +111,7 @@ class InverseStep:
     status: str = ""
     actuation_change: float = math.nan  # relative change of λ in the last iteration (converged mode)
     equilibrium_failure: str = ""  # why :meth:`InverseController.settled` found no equilibrium
+    fraction: float = 1.0  # share of the QP's step applied (tick: 0 when the step was not applied)
 
 
 def _errors(positions: np.ndarray, targets: np.ndarray) -> np.ndarray:
@@ -123,21 +142,29 @@ class InverseController:
         self.actuation = np.clip(start, self.space.lambda_lower, self.space.lambda_upper)
         self.state = (state or model.rest_state).copy()
         self.equilibrium = False
+        self.trust = TrustRegion.of_model(model)
+        self._moments = (model.trunk.loads.dead[1:, 3:].reshape(-1) if model.has_dead_moments else None)
 
     # ------------------------------------------------------------------ pieces
-    def _linearised_step(self, targets, timings):
-        """linearise → project → QP at the current state and actuation; adds to ``timings``.
-        Returns the projection and the QP solution."""
+    def _linearised_step(self, targets, timings, box=None, damping=None):
+        """linearise → project → QP at the current state and actuation, the effectors aiming
+        within the trust region and λ in ``box`` (None: the actuator limits); the QP is damped
+        by ``damping`` (None: :data:`DAMPING` while the trust region holds an effector back from
+        its target, else none); adds to ``timings``. Returns the linearisation, the projection,
+        the QP solution and the aim."""
         t0 = time.perf_counter()
         lin = self.model.linearise(self.state, self.actuation)
         t1 = time.perf_counter()
-        projection = self.space.project(lin, targets, self.actuation)
+        aim = self.trust.aim(lin.effector_positions, targets, self.model.effector_is_axis)
+        if damping is None:
+            damping = 0.0 if aim is targets else DAMPING
+        projection = self.space.project(lin, aim, self.actuation, box, damping)
         t2 = time.perf_counter()
         sol = solve_constraint_problem(projection.problem, self.backend, tolerance=self.settings.qp_tolerance)
         t3 = time.perf_counter()
         for key, value in (("linearise_s", t1 - t0), ("W_s", t2 - t1), ("qp_s", t3 - t2), ("inverse_s", t3 - t0)):
             timings[key] = timings.get(key, 0.0) + value
-        return projection, sol
+        return lin, projection, sol, aim
 
     def _result(self, targets, sol, iterations, timings, t_start, equilibrium, status, displacements=None):
         positions = self.model.effector_positions(self.state)
@@ -153,61 +180,123 @@ class InverseController:
 
     # ------------------------------------------------------------------ modes
     def tick(self, targets) -> InverseStep:
-        """One linearise–project–QP–step (real-time mode): no Newton solve; ``state`` is the
-        linearised prediction, not an equilibrium (the next tick corrects it), and the reported
-        displacements are the QP's prediction."""
+        """One linearise–project–QP–step (real-time mode) inside the trust region and the per-tick
+        actuator changes: no Newton solve; ``state`` is the linearised prediction, not an
+        equilibrium (the next tick corrects it), and the reported displacements are the QP's
+        prediction. A step whose prediction fails is cut back, or not applied (``fraction``)."""
         targets = self._targets(targets)
         t_start = time.perf_counter()
         timings: dict = {}
-        projection, sol = self._linearised_step(targets, timings)
+        lin, projection, sol, aim = self._linearised_step(targets, timings, self.space.tick_box(self.actuation),
+                                                          DAMPING)
         t0 = time.perf_counter()
-        self.state = self.model.step(self.state, projection.state_change(sol.actuation))
-        self.actuation = sol.actuation
+        fraction = self._advance(lin, projection, sol.actuation, aim is not targets)
         self.equilibrium = False
         timings["step_s"] = time.perf_counter() - t0
-        return self._result(targets, sol, 1, timings, t_start, False, "tick", displacements=sol.delta_a.copy())
+        status = "tick" if fraction == 1.0 else ("cut back" if fraction > 0.0 else "not applied")
+        result = self._result(targets, sol, 1, timings, t_start, False, status,
+                              displacements=projection.problem.predict(self.actuation)[1])
+        result.fraction = fraction
+        return result
+
+    def _advance(self, lin, projection, lam_target, aimed: bool) -> float:
+        """Move state and actuation by the largest share ``α`` of the linearised step towards
+        ``lam_target`` that the trust region allows and whose prediction holds: the potential
+        under the new actuation falls by at least :data:`ACCEPT` of the quadratic model's
+        prediction. Cut back by ¼ when it does not (twice); returns the share applied (0: none).
+        ``aimed``: the trust region moved an effector's target closer."""
+        model, lam0, state0 = self.model, self.actuation, self.state
+        d_lam = lam_target - lam0
+        dq = projection.state_change(lam_target)
+        alpha = self.trust.fraction(dq)
+        cut = aimed or alpha < 1.0
+        r = lin.residual
+        r_dq = float(dq @ r)
+        b_dq = float(dq @ (lin.actuator_forces @ d_lam))
+        n_cables = model.n_cables
+        lengths = model.rest_cable_lengths + lin.actuator_displacements[:n_cables]
+        quality = 0.0
+        for _ in range(CUTS):
+            lam = lam0 + alpha * d_lam
+            # the model of the potential under λ along α·dq: E_λ(q) − r_λ·d + ½ dᵀK d, with
+            # r_λ = r + B(λ − λ0) and K dq = r + B d_lam
+            predicted = alpha * (1.0 - 0.5 * alpha) * r_dq + 0.5 * alpha * alpha * b_dq
+            if model.n_chambers:
+                before = model.potential(state0, lam)
+            else:      # the potential is linear in the tensions: E_λ(q) = E_λ0(q) + (λ − λ0)·L(q)
+                before = lin.energy + alpha * float(d_lam @ lengths)
+            try:
+                trial = model.step(state0, alpha * dq)
+                after = model.potential(trial, lam)
+            except ConvergenceError:
+                after = math.nan
+            if self._moments is not None:
+                after -= alpha * float(self._moments @ dq.reshape(-1, 6)[:, 3:].reshape(-1))
+            decrease = before - after
+            noise = 1e-12 * abs(before)
+            quality = decrease / predicted if predicted > noise else (1.0 if decrease >= -noise else 0.0)
+            if quality >= ACCEPT:        # (False for NaN)
+                self.state, self.actuation = trial, lam
+                self.trust.update(quality, cut)
+                return alpha
+            alpha *= 0.25
+            cut = True
+        self.trust.update(quality if math.isfinite(quality) else 0.0, cut)
+        return 0.0
 
     def converge(self, targets) -> InverseStep:
-        """Static inverse: repeat linearise → project → QP → equilibrium solve until the effectors
-        are within tolerance or the error stops falling (unreachable: closest reach)."""
+        """Static inverse: repeat linearise → project → QP → equilibrium solve, each step inside
+        the trust region (far targets through intermediate ones), until the effectors are within
+        tolerance, the error stops falling (unreachable: closest reach), or the iteration or time
+        budget ends (status ``"budget"``: the closest reach so far)."""
         targets = self._targets(targets)
         t_start = time.perf_counter()
+        deadline = t_start + self.settings.time_budget
         timings: dict = {"solve_s": 0.0}
         s = self.settings
         if not self.equilibrium:
             self._equilibrate(self.actuation, self.state, timings)
         error = float(np.max(_errors(self.model.effector_positions(self.state), targets)))
         best, idle, reached_for, change = error, 0, 0, math.nan
+        closest = (error, self.actuation, self.state)
         sol, status, iterations = None, "max_iterations", 0
         for iterations in range(1, s.max_iterations + 1):
-            projection, sol = self._linearised_step(targets, timings)
+            if time.perf_counter() > deadline:
+                status, iterations = "budget", iterations - 1
+                break
+            lin, projection, sol, aim = self._linearised_step(targets, timings)
             dq = projection.state_change(sol.actuation)
             lam_old, state_old = self.actuation, self.state
-            new_error = math.inf
-            # what the linear model promises (a bound may force it above the current error)
-            predicted = float(np.max(np.linalg.norm(sol.delta_e.reshape(-1, 3), axis=1)))
-            acceptable = max(error, 1.1 * predicted + s.tolerance)
-            # Backtrack on the actuation change when the linear prediction overshoots
-            # (large steps) or the equilibrium solve fails.
-            for fraction in (1.0, 0.5, 0.25, 0.125, 0.0625):
-                lam = lam_old + fraction * (sol.actuation - lam_old)
-                guess = self.model.step(state_old, fraction * dq)
-                try:
-                    self._equilibrate(lam, guess, timings)
-                except ConvergenceError:
-                    try:  # the stepped guess may be poor: start from the last equilibrium
-                        self._equilibrate(lam, state_old, timings)
-                    except ConvergenceError:
-                        self.actuation, self.state = lam_old, state_old
-                        continue
-                new_error = float(np.max(_errors(self.model.effector_positions(self.state), targets)))
-                if new_error <= acceptable or fraction == 0.0625:
-                    break
+            d_lam = sol.actuation - lam_old
+            alpha = self.trust.fraction(dq)
+            cut = aim is not targets or alpha < 1.0
+            new_error, quality = math.inf, 0.0
+            for _ in range(CUTS):
+                lam = lam_old + alpha * d_lam
+                # what the linear model promises at λ for the real targets (a bound may keep it
+                # above the current error)
+                gap = projection.problem.predict(lam)[0].reshape(-1, 3) + (aim - targets)
+                predicted = float(np.sqrt(np.einsum("ij,ij->i", gap, gap)).max())
+                if self._settle(lam, self._stepped(state_old, alpha * dq), state_old, timings):
+                    new_error = float(np.max(_errors(self.model.effector_positions(self.state), targets)))
+                    # how much of the promised improvement came (not judged below the tolerance:
+                    # there the errors are the equilibrium solves' rounding)
+                    promised = error - predicted
+                    quality = ((error - new_error) / promised if promised > s.tolerance
+                               else float(new_error <= error + s.tolerance))
+                    if new_error <= max(error, 1.1 * predicted + s.tolerance):
+                        break
+                self.actuation, self.state = lam_old, state_old
+                new_error = math.inf
+                alpha *= 0.25
+                cut = True
+            self.trust.update(quality, cut)
             if not math.isfinite(new_error):
                 status = "equilibrium_failed"
-                self.actuation, self.state = lam_old, state_old
                 break
             error = new_error
+            if error < closest[0]:
+                closest = (error, self.actuation, self.state)
             # Relative change of the actuation. Reaching the target is not enough: in the
             # redundant null space the effort settles on the unique regularised fixed point
             # only when λ stops moving (so the answer does not depend on the path taken).
@@ -232,6 +321,8 @@ class InverseController:
                     status = "closest_reach"  # the error stopped falling: unreachable or a bound binds
                     break
             status = "max_iterations"
+        if status == "budget" and closest[0] < error:
+            error, self.actuation, self.state = closest      # the closest reach found in the time given
         result = self._result(targets, sol, iterations, timings, t_start, self.equilibrium, status)
         result.actuation_change = change
         return result
@@ -274,6 +365,26 @@ class InverseController:
         return steps
 
     # ------------------------------------------------------------------ helpers
+    def _stepped(self, state, dq):
+        """``state`` moved by ``dq``, or None when the step does not give finite poses."""
+        try:
+            return self.model.step(state, dq)
+        except ConvergenceError:
+            return None
+
+    def _settle(self, actuation, guess, fallback, timings) -> bool:
+        """Equilibrium under ``actuation`` from ``guess``, else from ``fallback``; False when
+        neither converges (state and actuation then unchanged)."""
+        for start in (guess, fallback):
+            if start is None:
+                continue
+            try:
+                self._equilibrate(actuation, start, timings)
+                return True
+            except ConvergenceError:
+                continue
+        return False
+
     def _equilibrate(self, actuation, guess, timings):
         t0 = time.perf_counter()
         try:

@@ -7,6 +7,7 @@ small dense problem in the actuator efforts ``λ`` (n actuators, m = 3·effector
     δa(λ) = δa_free + W_aa λ            predicted actuator displacements (paper eq. 12)
 
     minimise   ½ ‖Wₑ^{1/2} δe(λ)‖²  +  ½ ρ Σᵢ dᵢ λᵢ²                 (paper eq. 13 + regulariser)
+               [ + ½ δ s Σᵢ dᵢ (λᵢ − λ0ᵢ)² ]                            (damping, when asked)
     subject to λ_lower ≤ λ ≤ λ_upper,   δa_lower ≤ δa(λ) ≤ δa_upper
 
 The regulariser makes the answer unique when ``W_eaᵀ W_ea`` is only semi-definite
@@ -19,6 +20,12 @@ mixed cable/chamber actuation. ``ρ = ε·s`` with a dimensionless ``ε`` (defau
 actuators. Without ``W_aa``, ``dᵢ = Hᵢᵢ`` (Marquardt scaling). ``ε`` biases the fixed point of
 the converged inverse by ≈ ε × (effector motion) ≪ 1e-6 m (``benchmarks/bench_qp.py``) and
 leaves the active-set solver a Hessian of condition ≲ 1/ε.
+
+A problem may ask for Levenberg–Marquardt **damping** ``δ`` (dimensionless, scaled like ``ε``):
+it penalises the change from the current actuation ``λ0``, so that directions the effectors
+barely feel to first order (a straight trunk's effector moves along its axis only by
+compressing it) do not take large efforts that the linearisation cannot vouch for. It is
+centred on ``λ0``, so a converged fixed point (λ = λ0) is not biased by it.
 
 :func:`solve_constraint_problem` builds the :func:`quadratic_form` in the coordinates its
 backend asks for (``solver.inverse.backends``), solves it, clips the answer into the λ box
@@ -98,6 +105,12 @@ def quadratic_form(problem: ConstraintProblem, displacement_bounds=None, *, scal
     s = float(np.add.reduce(diagonal / d)) / n  # the mean of Hᵢᵢ/dᵢ
     rho = space.regularisation * (s if s > 0 else 1.0)
     diagonal += rho * d  # P = H + ρ diag(d), symmetric by construction (Wᵀ diag(w) W)
+    if problem.damping:
+        # Levenberg–Marquardt damping of the change from λ0: ½ δ s Σ dᵢ (λᵢ − λ0ᵢ)²
+        weight = problem.damping * (s if s > 0 else 1.0) * d
+        diagonal += weight
+        q = q - weight * problem.lambda0
+        c += 0.5 * float(weight @ (problem.lambda0 * problem.lambda0))
     dlo, dhi = (space.displacement_lower, space.displacement_upper) if displacement_bounds is None \
         else displacement_bounds
     rows = space.rows

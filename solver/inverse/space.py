@@ -59,7 +59,8 @@ class ConstraintSpace:
     ``n_actuators`` efforts ``λ`` (cables then chambers) in ``[lambda_lower, lambda_upper]``;
     ``n_rows`` effector rows (three per effector) weighted by ``effector_weights`` (> 0);
     actuator displacements in ``[displacement_lower, displacement_upper]`` (±inf: none);
-    ``regularisation`` the dimensionless actuation-energy weight ``ε`` (``solver.inverse.qp``).
+    ``regularisation`` the dimensionless actuation-energy weight ``ε`` (``solver.inverse.qp``);
+    ``max_change`` the largest change of each effort in one control tick (≥ 0, inf: none).
     Scalars apply to every entry. Arrays are stored as read-only copies.
     """
 
@@ -71,6 +72,7 @@ class ConstraintSpace:
     displacement_lower: np.ndarray | float = -np.inf
     displacement_upper: np.ndarray | float = np.inf
     regularisation: float = DEFAULT_REGULARISATION
+    max_change: np.ndarray | float = np.inf
     rows: np.ndarray = field(init=False, repr=False, compare=False)  # actuators with a finite displacement bound
 
     def __post_init__(self):
@@ -88,28 +90,41 @@ class ConstraintSpace:
         w = _bound("effector_weights", self.effector_weights, m)
         if not (np.isfinite(w).all() and (w > 0).all()):
             raise OptionError(f"must be finite and > 0, got min {w.min()}", field="effector_weights")
+        change = _bound("max_change", self.max_change, n)
+        if (change < 0).any():
+            raise OptionError(f"must be ≥ 0, got min {change.min()}", field="max_change")
         eps = float(self.regularisation)
         if not (math.isfinite(eps) and eps >= 0):
             raise OptionError(f"must be finite and ≥ 0, got {eps}", field="regularisation")
         for key, value in (("n_actuators", int(n)), ("n_rows", int(m)), ("lambda_lower", lo), ("lambda_upper", hi),
                            ("displacement_lower", dlo), ("displacement_upper", dhi), ("effector_weights", w),
-                           ("regularisation", eps)):
+                           ("regularisation", eps), ("max_change", change)):
             set_(key, value)
         set_("rows", _read_only(np.flatnonzero(np.isfinite(dlo) | np.isfinite(dhi))))
 
     @classmethod
     def of_model(cls, model, regularisation: float = DEFAULT_REGULARISATION) -> "ConstraintSpace":
-        """The space of a compiled ``solver.TrunkModel``: its actuator and displacement bounds and
-        its effector weights (one per effector, applied to its three rows)."""
+        """The space of a compiled ``solver.TrunkModel``: its actuator and displacement bounds, its
+        actuators' per-tick changes and its effector weights (one per effector, applied to its
+        three rows)."""
         lo, hi = model.actuator_bounds
         dlo, dhi = model.displacement_bounds
         return cls(len(model.actuator_names), 3 * len(model.effector_names), lambda_lower=lo, lambda_upper=hi,
                    effector_weights=np.repeat(model.effector_weights, 3), displacement_lower=dlo,
-                   displacement_upper=dhi, regularisation=regularisation)
+                   displacement_upper=dhi, regularisation=regularisation, max_change=model.actuator_max_change)
 
-    def project(self, lin, targets: np.ndarray, actuation: np.ndarray) -> "Projection":
+    def tick_box(self, actuation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The λ box of one control tick from ``actuation``: the actuator limits intersected with
+        ``actuation ± max_change``."""
+        return (np.maximum(self.lambda_lower, actuation - self.max_change),
+                np.minimum(self.lambda_upper, actuation + self.max_change))
+
+    def project(self, lin, targets: np.ndarray, actuation: np.ndarray, box: tuple | None = None,
+                damping: float = 0.0) -> "Projection":
         """Project a ``solver.Linearisation`` at ``actuation`` (``λ0``) with effector ``targets``
-        (n_effectors, 3) into this space (module docstring). One banded solve for ``K⁻¹[r, B]``."""
+        (n_effectors, 3) into this space (module docstring). One banded solve for ``K⁻¹[r, B]``.
+        ``box`` (lower, upper) narrows the λ box of this one problem (a tick's, :meth:`tick_box`);
+        ``damping`` weighs the change from ``actuation`` (:class:`ConstraintProblem`)."""
         B = lin.actuator_forces
         rhs = np.empty((B.shape[0], 1 + B.shape[1]), order="F")  # LAPACK's layout: no copy in the solve
         rhs[:, 0] = lin.residual
@@ -124,7 +139,7 @@ class ConstraintSpace:
         delta_e_free -= W_ea @ actuation
         delta_a_free = lin.actuator_displacements + JaX[:, 0]
         delta_a_free -= W_aa @ actuation
-        problem = ConstraintProblem(self, W_ea, delta_e_free, W_aa, delta_a_free, actuation)
+        problem = ConstraintProblem(self, W_ea, delta_e_free, W_aa, delta_a_free, actuation, box, damping)
         return Projection(problem, X[:, 0], X[:, 1:])
 
 
@@ -153,7 +168,10 @@ class ConstraintProblem:
 
     ``W_ea`` (m×n) and ``delta_e_free`` (m) are required; ``W_aa`` (n×n) and ``delta_a_free``
     (n) come together and are needed when the space has displacement limits. ``lambda0`` (n)
-    is the current actuation (the QP's warm start). The arrays are used as given (not copied).
+    is the current actuation (the QP's warm start). ``box`` (lower, upper), when given, is this
+    problem's λ box inside the space's (a control tick's); ``damping`` (≥ 0, needs ``lambda0``)
+    the dimensionless weight of the change from ``lambda0`` (``solver.inverse.qp``). The arrays
+    are used as given (not copied).
     """
 
     space: ConstraintSpace
@@ -162,6 +180,8 @@ class ConstraintProblem:
     W_aa: np.ndarray | None = None
     delta_a_free: np.ndarray | None = None
     lambda0: np.ndarray | None = None
+    box: tuple | None = None
+    damping: float = 0.0
 
     def __post_init__(self):
         space = self.space
@@ -197,6 +217,16 @@ class ConstraintProblem:
         for name, a in arrays:
             if a is not getattr(self, name):  # converted from another type
                 object.__setattr__(self, name, a)
+        if self.damping:
+            if not (math.isfinite(self.damping) and self.damping > 0) or lambda0 is None:
+                raise OptionError(f"must be finite and ≥ 0, with lambda0, got {self.damping}", field="damping")
+        if self.box is not None:
+            lower, upper = (_array(f"box[{k}]", b, (n,)) for k, b in enumerate(self.box))
+            inside = (space.lambda_lower <= lower) & (lower <= upper)
+            inside &= upper <= space.lambda_upper             # False for NaN
+            if not inside.all():
+                raise OptionError("must be an ordered box inside the actuator limits", field="box")
+            object.__setattr__(self, "box", (lower, upper))
 
     @property
     def n_actuators(self) -> int:
@@ -209,12 +239,12 @@ class ConstraintProblem:
     @property
     def lambda_lower(self) -> np.ndarray:
         """Lower bounds of the efforts in this step."""
-        return self.space.lambda_lower
+        return self.space.lambda_lower if self.box is None else self.box[0]
 
     @property
     def lambda_upper(self) -> np.ndarray:
         """Upper bounds of the efforts in this step."""
-        return self.space.lambda_upper
+        return self.space.lambda_upper if self.box is None else self.box[1]
 
     def start(self) -> np.ndarray:
         """The warm start ``λ0`` (zeros when none) inside the λ box."""
