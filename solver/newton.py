@@ -61,6 +61,7 @@ SHIFT_START = 1e-10    # μ tried first when the tangent is not positive definit
 SHIFT_FLOOR = 1e-9     # μ below this is dropped (pure Newton)
 SHIFT_CEILING = 1e12   # μ beyond this leaves steps below rounding: the stage has failed
 ARMIJO = 1e-4
+BEND_SHIFT = 1e-2      # μ from which a negative-curvature step is weighed against the shifted one
 ROUNDING = 1e-12       # energy changes below this fraction of the energy are rounding
 SEARCH_FLOOR = 1e-3    # smallest step fraction of the line search
 TRUSTED_RESIDUAL = 1e-3   # a positive definite tangent this close to equilibrium stays so at it
@@ -156,8 +157,9 @@ class _Stage:
     """One Newton run at a fixed load factor: its inputs and what it found."""
 
     def __init__(self, trunk, memo, load: LoadCase, tolerance: float, max_iterations: int, reference: float,
-                 history: list, kinds: set, shift: float):
+                 history: list, kinds: set, shift: float, linear: np.ndarray | None = None):
         self.iterations = 0
+        self.linear = linear                  # the links' rotations in the linear response to the full load
         self.trunk, self.memo, self.load = trunk, memo, load
         self.tolerance, self.max_iterations = tolerance, max_iterations
         self.reference = reference            # force scale at this load factor
@@ -214,7 +216,7 @@ class _Stage:
         record = state.carried_strains()
         self.turn = math.sqrt(record.chain.largest_turn2) if record is not None else largest_turn(xi)
         if self.turn > TURN_LIMIT:
-            raise Unrepresentable(_turn_message(self.trunk, xi, self.load.scale), state)
+            raise Unrepresentable(_turn_message(self.trunk, xi, self.load.scale, self.linear), state)
         axial = np.einsum("ij,ij->i", xi[:, :3], self.axis)
         if float(axial.min()) < FOLD_LIMIT:
             k = int(np.argmin(axial))
@@ -248,23 +250,25 @@ def _segment_of(trunk, link: int) -> tuple[int, int]:
     raise IndexError(link)
 
 
-def _turn_message(trunk, xi: np.ndarray, scale: float) -> str:
+def _turn_message(trunk, xi: np.ndarray, scale: float, linear: np.ndarray | None) -> str:
     """Which link turns towards π, and how many links per repetition its segment would need to
-    turn at most :data:`REPRESENTED_TURN` each, estimated from the rotation the segment's
-    repetitions take here (extrapolated from the load factor reached to the full load)."""
-    turns = np.linalg.norm(xi[:, 3:] - trunk.links.rest[:, 3:], axis=1)
+    turn at most :data:`REPRESENTED_TURN` each. The rotation a repetition needs is estimated as
+    the larger of what it turns here (extrapolated from the load factor reached to the full
+    load) and what it turns in the linear response to the full load (``linear``, per link)."""
+    turns = np.linalg.norm(xi[:, 3:] - trunk.links.rest[:, 3:], axis=1) / max(scale, 1e-12)
+    if linear is not None:
+        turns = np.maximum(turns, linear)
     k = int(np.argmax(np.linalg.norm(xi[:, 3:], axis=1)))
     segment, elements = _segment_of(trunk, k)
     start = sum(s.count * s.elements for s in trunk.scene.segments[:segment])
     count = trunk.scene.segments[segment].count
-    per_repetition = turns[start:start + count * elements].reshape(count, elements).sum(1).max()
-    needed = per_repetition / max(scale, 1e-12)
+    needed = turns[start:start + count * elements].reshape(count, elements).sum(1).max()
     links = max(elements + 1, math.ceil(needed / REPRESENTED_TURN))
     return (f"link {k} (segment {segment}) turns {math.degrees(float(np.linalg.norm(xi[k, 3:]))):.0f}° at load "
             f"factor {scale:.3g}: the deformation cannot be represented with {elements} link(s) per repetition "
-            f"(a link's rotation must stay below 180°); the segment turns ≥ {math.degrees(needed):.0f}° per "
-            f"repetition, so it needs at least {links} links per repetition (elements = {links}) to turn "
-            f"≤ {math.degrees(REPRESENTED_TURN):.0f}° per link")
+            f"(a link's rotation must stay below 180°); a repetition of the segment turns about "
+            f"{math.degrees(needed):.0f}°, so it needs at least {links} links per repetition "
+            f"(elements = {links}) to turn ≤ {math.degrees(REPRESENTED_TURN):.0f}° per link")
 
 
 def _raise_shift(shift: float, factor: float) -> float:
@@ -285,6 +289,23 @@ def _negative_curvature(factor, shift: float, scale: np.ndarray, n: int):
         curvature = float(w @ (scale * v)) / (norm * norm) - shift     # wᵀHw / wᵀDw
         v = w / norm
     return (v, curvature) if curvature < -NEUTRAL else None
+
+
+def _bend(stage: _Stage, ev, r: np.ndarray, factor, shift: float, scale: np.ndarray):
+    """The step along the tangent's direction of most negative curvature (:func:`_negative_curvature`),
+    turned downhill and stretched to the strain-space caps: (dq, strain change, r·dq, dqᵀH dq,
+    predicted decrease), or None when the curvature is not negative."""
+    found = _negative_curvature(factor, shift, scale, r.size)
+    if found is None:
+        return None
+    v, curvature = found
+    if float(r @ v) < 0.0:
+        v = -v
+    change = strain_change(v, ev.links)
+    limit = stage.step_limit(v, change, ev)
+    dq, change, curvature = limit * v, limit * change, curvature * limit * limit
+    rp = float(r @ dq)
+    return dq, change, rp, curvature, rp - 0.5 * curvature
 
 
 def _newton(stage: _Stage, state: State):
@@ -319,6 +340,7 @@ def _newton(stage: _Stage, state: State):
         matrix = tangent(trunk, ev, memo)
         shift = stage.shift
         scale = None
+        indefinite = False       # a factor of this tangent failed: it is not positive definite
         while True:      # until a step is accepted
             if shift > SHIFT_CEILING:
                 return False, state, residual
@@ -326,52 +348,54 @@ def _newton(stage: _Stage, state: State):
                 scale = np.maximum(np.abs(matrix.diagonal()), memo.stiffness_scale())
             factor, kind = matrix.factor(shift, symmetric=symmetric, scale=scale, definite=symmetric)
             if factor is None:
+                indefinite = True
                 shift = _raise_shift(shift, 10.0)
                 continue
-            if converged:
-                # a stationary point with an indefinite tangent: step along the direction of
-                # most negative curvature, as far as the strain-space cap allows
-                found = _negative_curvature(factor, shift, scale, r.size)
-                if found is None:
-                    return True, state, residual        # the curvature is not negative: stable
-                dq, curvature = found
-                if float(r @ dq) < 0.0:
-                    dq = -dq
-                change = strain_change(dq, ev.links)
-                limit = stage.step_limit(dq, change, ev)
-                dq, change, curvature = limit * dq, limit * change, curvature * limit * limit
-                escapes += 1
-                kind = "escape"
-            else:
+            dq = curvature = None
+            if not converged:
                 dq = factor.solve(r)
-                curvature = None
-            if stage.below_resolution(state, dq):
-                # the correction is below the floating-point resolution of the poses: the
-                # residual left is rounding, not error; stop here and report it as it is
-                if not (kind == "cholesky" or stage.stable(ev, matrix)):
-                    kinds.add("unstable")
-                    return False, state, residual
-                kinds.add(kind)
-                kinds.add("rounding-limited")
-                return True, state, residual
-            rp = float(r @ dq)
-            if curvature is None:
+                rp = float(r @ dq)
                 if not rp > 0.0:                    # an LU direction that does not descend (or NaN)
                     shift = _raise_shift(shift, 10.0)
                     continue
                 curvature = rp - shift * float(dq @ (scale * dq)) if shift else rp    # pᵀHp: (H + μD)p = r
                 change = strain_change(dq, ev.links)
-            alpha = min(1.0, stage.step_limit(dq, change, ev))
+                if stage.linear is None and ev.at_rest and not shift:
+                    # the linear response from rest: what the load asks of each link, to first order
+                    stage.linear = np.linalg.norm(change[:, 3:], axis=1) / load.scale
+                alpha = min(1.0, stage.step_limit(dq, change, ev))
+                if stage.below_resolution(state, alpha * dq):
+                    # the correction is below the floating-point resolution of the poses: the
+                    # residual left is rounding, not error; stop here and report it as it is
+                    if not (kind == "cholesky" or stage.stable(ev, matrix)):
+                        kinds.add("unstable")
+                        return False, state, residual
+                    kinds.add(kind)
+                    kinds.add("rounding-limited")
+                    return True, state, residual
+            if converged or (indefinite and shift >= BEND_SHIFT):
+                # a negative-curvature step (as far as the strain-space caps allow) where it
+                # promises more than the shifted Newton step: how a stationary point with an
+                # indefinite tangent (a saddle) is left, and how a column compressed far beyond
+                # its buckling load buckles (where the shift that makes the tangent positive
+                # definite leaves only a short, gradient-like step)
+                bend = _bend(stage, ev, r, factor, shift, scale)
+                if bend is None and converged:
+                    return True, state, residual        # the curvature is not negative: stable
+                if bend is not None and (dq is None or bend[-1] > alpha * rp - 0.5 * alpha * alpha * curvature):
+                    dq, change, rp, curvature, _ = bend
+                    alpha, kind = 1.0, "curvature"
+                    escapes += converged
             step = _line_search(stage, state, ev, residual, dq, change, alpha, rp, curvature, moments)
             if step is not None:
                 break
-            if kind == "escape":
+            if kind == "curvature" and converged:
                 kinds.add("unstable")
                 return False, state, residual
             shift = _raise_shift(shift, 10.0)
         trial, ev_trial, alpha, decrease, predicted, quality = step
         # how well the quadratic model predicted the full step sets μ for the next iteration
-        if kind != "escape":
+        if kind != "curvature":
             if quality >= 0.75:
                 shift = 0.0 if shift / 4.0 < SHIFT_FLOOR else shift / 4.0
             elif quality < 0.25:
@@ -452,14 +476,14 @@ def solve(trunk, memo, actuation: np.ndarray, initial: State | None, *, toleranc
     last_good = state_new = state
     converged = False
     residual = math.inf
-    shift = 0.0
+    shift, linear = 0.0, None
     message = ""
     while True:
         target = min(1.0, scale + increment)
         load = memo.load_case(actuation, target)
         stage = _Stage(trunk, memo, load, tolerance if target >= 1.0 else max(tolerance, 1e-6),
                        min(max_iterations, BUDGET * max_iterations - iterations),
-                       reference * max(target, 1e-300), history, kinds, shift)
+                       reference * max(target, 1e-300), history, kinds, shift, linear)
         try:
             ok, state_new, residual = _newton(stage, last_good)
         except Unrepresentable as why:
@@ -469,7 +493,7 @@ def solve(trunk, memo, actuation: np.ndarray, initial: State | None, *, toleranc
             break
         iterations += stage.iterations
         stages += 1
-        shift = stage.shift
+        shift, linear = stage.shift, stage.linear
         if ok:
             last_good, scale = state_new, target
             if scale >= 1.0:
