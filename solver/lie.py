@@ -35,6 +35,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
+from vertebra.store.errors import ConvergenceError
 from scipy.special import zeta
 
 # ----------------------------------------------------------------------------- tables
@@ -126,7 +128,11 @@ EXP_SERIES_LIMIT = 16.0      # θ² up to which EXP_TABLE is summed (θ = 4 rad)
 
 
 def terms(largest: float) -> int:
-    """Series terms needed for θ² ≤ ``largest``: the k-th is below ``(θ²/4π²)^k`` relative."""
+    """Series terms needed for θ² ≤ ``largest``: the k-th is below ``(θ²/4π²)^k`` relative.
+    A non-finite ``largest`` (a state or step that is not finite) raises :class:`ConvergenceError`."""
+    if not math.isfinite(largest):
+        raise ConvergenceError("non-finite link rotations reached the Lie-group series (the state or the "
+                               "step that produced it is not finite)")
     ratio = largest / (4.0 * np.pi * np.pi)
     return TERMS if ratio >= 0.25 else min(TERMS, 4 + int(-41.5 / math.log(max(ratio, 1e-300))))
 

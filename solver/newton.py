@@ -70,6 +70,7 @@ ESCAPES = 3            # negative-curvature steps allowed per stage
 import os
 _DEBUG = bool(os.environ.get("NEWTON_DEBUG"))
 SQRT3 = math.sqrt(3.0)
+SMALL_INCREMENT = 1.0 / 16.0   # a load increment this small that reaches an unrepresentable state: say so
 BUDGET = 10            # a solve stops after BUDGET × max_iterations Newton iterations
 
 
@@ -487,10 +488,16 @@ def solve(trunk, memo, actuation: np.ndarray, initial: State | None, *, toleranc
         try:
             ok, state_new, residual = _newton(stage, last_good)
         except Unrepresentable as why:
-            message, state_new = str(why), why.state
-            iterations += stage.iterations
-            stages += 1
-            break
+            # a large load increment may overshoot into a state the links cannot represent
+            # where the loading path does not go: retry in smaller increments, and say why
+            # once small increments lead there too
+            message, state_new, ok = str(why), why.state, False
+            if target - scale <= SMALL_INCREMENT:
+                iterations += stage.iterations
+                stages += 1
+                break
+        else:
+            message = ""
         iterations += stage.iterations
         stages += 1
         shift, linear = stage.shift, stage.linear

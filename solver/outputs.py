@@ -3,6 +3,7 @@ linearisation the inverse uses (paper eqs. 10–12)."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -77,6 +78,9 @@ def linearise(trunk, state, actuation: np.ndarray, memo) -> Linearisation:
     """Tangent stiffness factor, actuator and effector Jacobians at ``state`` under ``actuation``."""
     load = memo.load_case(actuation, 1.0)
     ev = evaluate(trunk, state, load, memo)
+    if not math.isfinite(ev.energy):
+        raise ConvergenceError("non-finite values appeared in the linearisation (the state or the actuation "
+                               "is not finite)")
     matrix = tangent(trunk, ev, memo)
     for shift in LINEARISATION_SHIFTS:
         factor, _ = matrix.factor(shift, symmetric=not trunk.loads.has_dead_moments)
