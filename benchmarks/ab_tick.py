@@ -3,9 +3,14 @@
 Each revision's package root, ``solver/`` and ``store/`` are snapshot with ``git archive`` into
 a temporary ``vertebra/`` folder; rounds alternate A B B A … in fresh subprocesses that put
 their snapshot first on ``sys.path``. Every subprocess times ``InverseController.step`` in tick
-mode on the gallery robots (median CPU time of the thread over ``--repeats`` ticks from the same
-state and actuation), so load bursts on the shared machine hit both revisions alike. The
-ratio reported is the median over rounds of B/A.
+mode on the gallery robots (median CPU time of the thread over ``--repeats`` ticks), so load
+bursts on the shared machine hit both revisions alike, in two ways:
+
+* ``<scene>``: every tick from the same state and actuation towards targets 1 mm off;
+* ``<scene>/loop``: a control loop — each tick from the state and actuation the last one left,
+  towards a target moving on a 1 mm circle (one turn per 100 ticks) around those points.
+
+The ratio reported is the median over rounds of B/A.
 
 Run: ``.venv/bin/python benchmarks/ab_tick.py [--base main] [--head HEAD|worktree] [--rounds 8]``;
 writes ``benchmarks/results/ab_tick.json``.
@@ -78,6 +83,19 @@ def measure(repeats: int) -> dict:
             tick()
             times.append(time.thread_time() - t0)
         out[name] = float(np.median(times))
+
+        controller.state, controller.actuation = state, lam
+        centre = model.effector_positions(state)
+        angles = 2 * np.pi * np.arange(20 + repeats) / 100
+        loop = centre[None] + 1e-3 * np.stack([np.cos(angles), np.sin(angles), np.zeros_like(angles)], 1)[:, None]
+        for k in range(20):
+            controller.step(loop[k])
+        times = []
+        for k in range(20, 20 + repeats):
+            t0 = time.thread_time()
+            controller.step(loop[k])
+            times.append(time.thread_time() - t0)
+        out[f"{name}/loop"] = float(np.median(times))
     return out
 
 
@@ -112,7 +130,7 @@ def main(argv=None) -> int:
     import numpy as np
 
     summary = {}
-    for name in SCENES:
+    for name in [key for scene in SCENES for key in (scene, f"{scene}/loop")]:
         a = np.array([run[name] for run in runs["A"]])
         b = np.array([run[name] for run in runs["B"]])
         summary[name] = {"A_median_s": float(np.median(a)), "B_median_s": float(np.median(b)),

@@ -25,6 +25,7 @@ from vertebra.solver.lie import (
     powers,
     terms,
 )
+from vertebra.store.errors import ConvergenceError
 
 CARRY_ANGLE = 0.99 * math.pi     # largest link rotation whose strain a composed state carries
 _CHAIN_TABLE = np.concatenate([SERIES, EXP_TABLE], 1)     # link coefficients and exp coefficients
@@ -72,6 +73,9 @@ def chain_poses(q0: np.ndarray, x0: np.ndarray, xi: np.ndarray) -> Chain:
     rho, phi = xi[:, :3], xi[:, 3:]
     theta2 = (phi[:, None, :] @ phi[:, :, None])[:, 0, 0]
     largest = float(theta2.max()) if n else 0.0
+    if not largest < math.inf:                   # NaN, or a rotation whose square overflows
+        raise ConvergenceError("non-finite values appeared in the retraction (a step of non-finite or "
+                               "overflowing size)")
     link_coef = None
     if largest <= EXP_SERIES_LIMIT:
         carry = largest < CARRY_ANGLE ** 2

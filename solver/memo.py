@@ -6,9 +6,10 @@
   are not remembered.
 * The links' tangent at the unstressed rest state and its diagonal, the stiffness scale of
   every DoF (model constants).
-* The load case of the last (actuation, load factor) and the reference force of the last
-  actuation: repeated solves and linearisations at one actuation compute them once, and a new
-  actuation at the same load factor (a control loop's) keeps the weight and dead loads.
+* The load cases of the last two (actuation, load factor) and the reference force of the last
+  actuation: repeated solves and linearisations at one actuation compute them once, a control
+  tick's two actuations (linearised at one, stepped to the other) alternate without rebuilding,
+  and a new actuation at the same load factor (a control loop's) keeps the weight and dead loads.
 """
 
 from __future__ import annotations
@@ -29,7 +30,8 @@ class Memo:
         self._last = (None, None)
         self._unstressed = None
         self._stiffness = None
-        self._load = (None, None, None)
+        self._axes = None
+        self._loads = [(None, None, None), (None, None, None)]   # the last two, most recent first
         self._reference = (None, None)
 
     def links(self, state, record) -> Links:
@@ -64,13 +66,29 @@ class Memo:
             self._stiffness.flags.writeable = False
         return self._stiffness
 
+    def link_axes(self) -> tuple[np.ndarray, float]:
+        """``(ρ₀/|ρ₀|², shortest |ρ₀|)`` of the links' rest translation strains ``ρ₀``: a link's
+        axial stretch is ``ρ · axis``."""
+        if self._axes is None:
+            rest = self._trunk.links.rest[:, :3]
+            squared = np.einsum("ij,ij->i", rest, rest)
+            axis = rest / squared[:, None]
+            axis.flags.writeable = False
+            self._axes = (axis, float(np.sqrt(squared.min())))
+        return self._axes
+
     def load_case(self, actuation: np.ndarray, scale: float) -> LoadCase:
-        """The load case of ``actuation`` at load factor ``scale``."""
+        """The load case of ``actuation`` at load factor ``scale`` (the last two are kept: a
+        control tick judges its step under the new actuation while the next one linearises)."""
         key = actuation.tobytes()
-        last_key, last_scale, load = self._load
-        if last_key != key or last_scale != scale:
-            load = LoadCase.of(self._trunk, actuation, scale, load)
-            self._load = (key, scale, load)
+        loads = self._loads
+        for k, (last_key, last_scale, load) in enumerate(loads):
+            if last_key == key and last_scale == scale:
+                if k:
+                    loads.reverse()
+                return load
+        load = LoadCase.of(self._trunk, actuation, scale, loads[0][2])
+        loads[1], loads[0] = loads[0], (key, scale, load)
         return load
 
     def reference_force(self, actuation: np.ndarray, compute) -> float:

@@ -147,13 +147,6 @@ def largest_turn(xi: np.ndarray) -> float:
     return math.sqrt(float(np.einsum("ij,ij->i", phi, phi).max(initial=0.0)))
 
 
-def check_finite(stage: str, *values) -> None:
-    """:class:`ConvergenceError` naming ``stage`` when a value is NaN or infinite."""
-    for value in values:
-        if not np.isfinite(value).all():
-            raise ConvergenceError(f"non-finite values appeared in {stage}")
-
-
 class _Stage:
     """One Newton run at a fixed load factor: its inputs and what it found."""
 
@@ -170,10 +163,7 @@ class _Stage:
         self.weights = residual_weights(trunk)
         self.symmetric = not trunk.loads.has_dead_moments
         self._resolution = np.ones(6)         # per-DoF scale of a correction (translations: 1/extent)
-        rest = trunk.links.rest[:, :3]
-        squared = np.einsum("ij,ij->i", rest, rest)
-        self.axis = rest / squared[:, None]   # the axial stretch of a link is ρ · axis
-        self.shortest = math.sqrt(float(squared.min()))
+        self.axis, self.shortest = memo.link_axes()   # the axial stretch of a link is ρ · axis
         self.turn = 0.0                       # largest link rotation of the current state
 
     def norm(self, ev) -> float:
@@ -317,8 +307,8 @@ def _newton(stage: _Stage, state: State):
     ev = evaluate(trunk, state, load, memo)
     residual = stage.norm(ev)
     if not math.isfinite(residual + ev.energy):
-        raise ConvergenceError(f"non-finite values appeared in the evaluation of the start state at load "
-                               f"factor {load.scale:.3g}")
+        raise ConvergenceError(f"non-finite values appeared in the evaluation of the start state (the initial "
+                               f"state given, or the last converged stage) at load factor {load.scale:.3g}")
     stage.represented(state, ev)
     r = -ev.gradient[1:].reshape(-1)
     moments = load.dead[1:, 3:].reshape(-1) if trunk.loads.has_dead_moments else None
@@ -453,11 +443,10 @@ def solve(trunk, memo, actuation: np.ndarray, initial: State | None, *, toleranc
     the load stepped in ``load_steps`` stages). Raises :class:`ConvergenceError` (carrying the
     partial result) on failure unless ``raise_on_failure`` is False."""
     start = time.perf_counter()
-    check_finite("the actuation", actuation)
-    if initial is not None:
-        check_finite("the initial state", initial.positions, initial.quaternions)
     reference = reference_force(trunk, actuation, memo)
-    check_finite("the reference force at rest", reference)
+    if not math.isfinite(reference):
+        raise ConvergenceError("non-finite values appeared in the actuation or the loads (the out-of-balance "
+                               "force at rest is not finite)")
     history, kinds = [], set()
     state = (initial or trunk.rest_state).copy()
     if reference == 0.0:
@@ -534,4 +523,7 @@ def solve(trunk, memo, actuation: np.ndarray, initial: State | None, *, toleranc
 
 
 def _turn(trunk, state: State, memo) -> float:
-    return largest_turn(memo.links(state, state.carried_strains()).xi)
+    record = state.carried_strains()
+    if record is not None:
+        return math.sqrt(record.chain.largest_turn2)
+    return largest_turn(memo.links(state, None).xi)
