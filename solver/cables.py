@@ -21,7 +21,6 @@ _C_TABLE = np.zeros((6, 12, 3))
 _C_TABLE[:3, 3:6] = -HAT_TABLE.reshape(3, 3, 3)        # −ŝ_a
 _C_TABLE[3:, 9:] = HAT_TABLE.reshape(3, 3, 3)          # ŝ_b
 _C_TABLE = _C_TABLE.reshape(6, 36)
-_DIFFERENCE = np.concatenate([-np.eye(3), np.eye(3)])   # [P_a; P_b] → P_b − P_a
 _EYE3 = np.eye(3)
 
 
@@ -70,10 +69,10 @@ def _spans(R, x, holes):
     """Hole offsets ``[s_a, s_b]`` (m, 6), spans ``d = P_b − P_a`` (m, 3) and lengths (m,) of the
     pieces whose ends have rotations ``R`` (2m, 3, 3), positions ``x`` (2m, 3) and hole offsets
     ``holes`` (2m, 3, 1), interleaved."""
-    m = x.shape[0] // 2
-    offsets = (R @ holes).reshape(m, 6)
-    d = (x.reshape(m, 6) + offsets) @ _DIFFERENCE
-    return offsets, d, np.sqrt((d[:, None, :] @ d[:, :, None])[:, 0, 0])
+    offsets = np.einsum("nij,nj->ni", R, holes[:, :, 0])
+    ends = (x + offsets).reshape(-1, 2, 3)
+    d = ends[:, 1] - ends[:, 0]
+    return offsets.reshape(-1, 6), d, np.sqrt(np.einsum("ij,ij->i", d, d))
 
 
 def incidence(rows: np.ndarray, n_rows: int):

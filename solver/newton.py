@@ -70,6 +70,7 @@ ESCAPES = 3            # negative-curvature steps allowed per stage
 import os
 _DEBUG = bool(os.environ.get("NEWTON_DEBUG"))
 SQRT3 = math.sqrt(3.0)
+STRETCHING = 1e-3      # a step changing a translation strain by more than this share of the shortest link
 SMALL_INCREMENT = 1.0 / 16.0   # a load increment this small that reaches an unrepresentable state: say so
 BUDGET = 10            # a solve stops after BUDGET × max_iterations Newton iterations
 
@@ -165,6 +166,7 @@ class _Stage:
         self._resolution = np.ones(6)         # per-DoF scale of a correction (translations: 1/extent)
         self.axis, self.shortest = memo.link_axes()   # the axial stretch of a link is ρ · axis
         self.turn = 0.0                       # largest link rotation of the current state
+        self.stretching = True                # the last step may have changed a link's length
 
     def norm(self, ev) -> float:
         return residual_norm(ev.gradient[1:], self.reference, self.weights)
@@ -172,11 +174,12 @@ class _Stage:
     def stable(self, ev, matrix=None) -> bool:
         return is_stable(self.trunk, ev, self.memo, matrix)
 
-    def below_resolution(self, state: State, dq: np.ndarray) -> bool:
-        """Is every translation below 1e-13 of the extent and every rotation below 1e-13 rad?"""
+    def below_resolution(self, state: State, dq: np.ndarray, alpha: float = 1.0) -> bool:
+        """Is every translation of ``α·dq`` below 1e-13 of the extent and every rotation below
+        1e-13 rad?"""
         weights = self._resolution
         weights[:3] = 1.0 / (self.trunk.frames.length_scale + float(np.abs(state.positions).max()))
-        return float(np.abs(dq.reshape(-1, 6) * weights).max()) <= RESOLUTION
+        return alpha * float(np.abs(dq.reshape(-1, 6) * weights).max()) <= RESOLUTION
 
     def step_limit(self, dq: np.ndarray, change: np.ndarray, ev) -> float:
         """The largest multiple of a step (frame increments ``dq``, strain change ``change``) that
@@ -186,8 +189,9 @@ class _Stage:
         order): a state approaches what it cannot represent only gradually, never by overshooting."""
         largest = np.abs(change).max(0).tolist()               # per component, over the links
         room = min(MAX_TURN, 0.5 * (math.pi - self.turn))
-        limit = min(room / max(SQRT3 * max(largest[3:]), 1e-300),
-                    MAX_STRETCH * self.shortest / max(SQRT3 * max(largest[:3]), 1e-300))
+        stretch = SQRT3 * max(largest[:3])
+        self.stretching |= stretch > STRETCHING * self.shortest
+        limit = min(room / max(SQRT3 * max(largest[3:]), 1e-300), MAX_STRETCH * self.shortest / max(stretch, 1e-300))
         pieces = ev.pieces
         if pieces is not None:
             moves = np.zeros((self.trunk.frames.count, 6))
@@ -208,14 +212,6 @@ class _Stage:
         self.turn = math.sqrt(record.chain.largest_turn2) if record is not None else largest_turn(xi)
         if self.turn > TURN_LIMIT:
             raise Unrepresentable(_turn_message(self.trunk, xi, self.load.scale, self.linear), state)
-        axial = np.einsum("ij,ij->i", xi[:, :3], self.axis)
-        if float(axial.min()) < FOLD_LIMIT:
-            k = int(np.argmin(axial))
-            segment, _ = _segment_of(self.trunk, k)
-            raise Unrepresentable(
-                f"link {k} (segment {segment}) is compressed to {axial[k]:.2g} of its length at load factor "
-                f"{self.load.scale:.3g}: it folds through itself, which a link cannot represent "
-                "(the load crushes the segment)", state)
         pieces = ev.pieces
         if pieces is not None:
             ratio = pieces.length / self.trunk.rest_piece_lengths
@@ -228,6 +224,19 @@ class _Stage:
                     f"{vertebra[1]} shrinks to {ratio[k]:.2g} of its rest length at load factor {self.load.scale:.3g}: "
                     "the holes of the two vertebrae meet (their discs would collide), which the cable routing "
                     "cannot represent; the tensions bend the robot further than its vertebrae allow", state)
+        if self.stretching:           # (a step that changes no link's length noticeably folds none)
+            self._folded(state, xi)
+
+    def _folded(self, state: State, xi: np.ndarray) -> None:
+        """Raise :class:`Unrepresentable` when a link is compressed below :data:`FOLD_LIMIT`."""
+        axial = np.einsum("ij,ij->i", xi[:, :3], self.axis)
+        if float(axial.min()) < FOLD_LIMIT:
+            k = int(np.argmin(axial))
+            segment, _ = _segment_of(self.trunk, k)
+            raise Unrepresentable(
+                f"link {k} (segment {segment}) is compressed to {axial[k]:.2g} of its length at load factor "
+                f"{self.load.scale:.3g}: it folds through itself, which a link cannot represent "
+                "(the load crushes the segment)", state)
 
 
 def _segment_of(trunk, link: int) -> tuple[int, int]:
@@ -328,6 +337,7 @@ def _newton(stage: _Stage, state: State):
         if stage.iterations >= stage.max_iterations:
             return False, state, residual
         stage.iterations += 1
+        stage.stretching = False
         matrix = tangent(trunk, ev, memo)
         shift = stage.shift
         scale = None
@@ -355,7 +365,7 @@ def _newton(stage: _Stage, state: State):
                     # the linear response from rest: what the load asks of each link, to first order
                     stage.linear = np.linalg.norm(change[:, 3:], axis=1) / load.scale
                 alpha = min(1.0, stage.step_limit(dq, change, ev))
-                if stage.below_resolution(state, alpha * dq):
+                if stage.below_resolution(state, dq, alpha):
                     # the correction is below the floating-point resolution of the poses: the
                     # residual left is rounding, not error; stop here and report it as it is
                     if not (kind == "cholesky" or stage.stable(ev, matrix)):

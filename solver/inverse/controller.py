@@ -195,7 +195,8 @@ class InverseController:
         timings["step_s"] = time.perf_counter() - t0
         status = "tick" if fraction == 1.0 else ("cut back" if fraction > 0.0 else "not applied")
         result = self._result(targets, sol, 1, timings, t_start, False, status,
-                              displacements=projection.problem.predict(self.actuation)[1])
+                              displacements=sol.delta_a if fraction == 1.0 else
+                              projection.problem.predict(self.actuation)[1])
         result.fraction = fraction
         return result
 
@@ -214,7 +215,9 @@ class InverseController:
         r_dq = float(dq @ r)
         b_dq = float(dq @ (lin.actuator_forces @ d_lam))
         n_cables = model.n_cables
-        lengths = model.rest_cable_lengths + lin.actuator_displacements[:n_cables]
+        # ∂E/∂λ of the cables: their lengths L(q) = L0 + stroke
+        d_energy = float(d_lam[:n_cables] @ model.rest_cable_lengths) + \
+            float(d_lam[:n_cables] @ lin.actuator_displacements[:n_cables])
         quality = 0.0
         for _ in range(CUTS):
             lam = lam0 + alpha * d_lam
@@ -224,7 +227,7 @@ class InverseController:
             if model.n_chambers:
                 before = model.potential(state0, lam)
             else:      # the potential is linear in the tensions: E_λ(q) = E_λ0(q) + (λ − λ0)·L(q)
-                before = lin.energy + alpha * float(d_lam @ lengths)
+                before = lin.energy + alpha * d_energy
             try:
                 trial = model.step(state0, alpha * dq)
                 after = model.potential(trial, lam)

@@ -107,10 +107,11 @@ def quadratic_form(problem: ConstraintProblem, displacement_bounds=None, *, scal
     diagonal += rho * d  # P = H + ρ diag(d), symmetric by construction (Wᵀ diag(w) W)
     if problem.damping:
         # Levenberg–Marquardt damping of the change from λ0: ½ δ s Σ dᵢ (λᵢ − λ0ᵢ)²
-        weight = problem.damping * (s if s > 0 else 1.0) * d
+        weight = (problem.damping * (s if s > 0 else 1.0)) * d
         diagonal += weight
-        q = q - weight * problem.lambda0
-        c += 0.5 * float(weight @ (problem.lambda0 * problem.lambda0))
+        pull = weight * problem.lambda0
+        q = q - pull
+        c += 0.5 * float(pull @ problem.lambda0)
     dlo, dhi = (space.displacement_lower, space.displacement_upper) if displacement_bounds is None \
         else displacement_bounds
     rows = space.rows

@@ -169,7 +169,8 @@ class ConstraintProblem:
     ``W_ea`` (m×n) and ``delta_e_free`` (m) are required; ``W_aa`` (n×n) and ``delta_a_free``
     (n) come together and are needed when the space has displacement limits. ``lambda0`` (n)
     is the current actuation (the QP's warm start). ``box`` (lower, upper), when given, is this
-    problem's λ box inside the space's (a control tick's); ``damping`` (≥ 0, needs ``lambda0``)
+    problem's λ box in place of the space's (a control tick's, :meth:`ConstraintSpace.tick_box`,
+    inside the actuator limits); ``damping`` (≥ 0, needs ``lambda0``)
     the dimensionless weight of the change from ``lambda0`` (``solver.inverse.qp``). The arrays
     are used as given (not copied).
     """
@@ -222,10 +223,8 @@ class ConstraintProblem:
                 raise OptionError(f"must be finite and ≥ 0, with lambda0, got {self.damping}", field="damping")
         if self.box is not None:
             lower, upper = (_array(f"box[{k}]", b, (n,)) for k, b in enumerate(self.box))
-            inside = (space.lambda_lower <= lower) & (lower <= upper)
-            inside &= upper <= space.lambda_upper             # False for NaN
-            if not inside.all():
-                raise OptionError("must be an ordered box inside the actuator limits", field="box")
+            if not (lower <= upper).all():                    # (False for NaN)
+                raise OptionError("must be an ordered box (lower ≤ upper) without NaN", field="box")
             object.__setattr__(self, "box", (lower, upper))
 
     @property

@@ -57,8 +57,11 @@ class TrustRegion:
         """Targets (n_eff, 3) moved towards ``positions`` so that none lies farther than a
         radius (``rotation`` for axis effectors, ``translation`` for points)."""
         gap = targets - positions
-        distance = np.sqrt(np.einsum("ij,ij->i", gap, gap))
+        squared = np.einsum("ij,ij->i", gap, gap)
+        if float(squared.max()) <= min(self.translation, self.rotation) ** 2:
+            return targets
         radius = np.where(is_axis, self.rotation, self.translation)
+        distance = np.sqrt(squared)
         if (distance <= radius).all():
             return targets
         factor = np.minimum(1.0, radius / np.maximum(distance, 1e-300))
