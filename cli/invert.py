@@ -1,4 +1,4 @@
-"""``vertebra invert SCENE [--trajectory FILE.csv] [--json] [--plot FILE.png] [--mode converged|tick] [--prepare]``
+"""``vertebra invert SCENE [--trajectory FILE.csv] [--json] [--plot FILE.png] [--mode converged|tick] [--budget S] [--prepare]``
 
 Actuation that brings the scene's effectors to their targets (or along a trajectory). Each
 step is reported at the equilibrium its actuation reaches (``InverseController.settled``).
@@ -33,6 +33,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="effector error counted as reached, m (default 1e-6 converged, 1e-3 tick)")
     parser.add_argument("--regularisation", type=float, default=None,
                         help="dimensionless actuation-energy weight ε (default 1e-8)")
+    parser.add_argument("--budget", type=float, default=None, metavar="S",
+                        help="time budget per target in converged mode, s (default 2): then the closest "
+                             "reach so far is reported (status \"budget\", exit 1)")
     add_preparation(parser)
 
 
@@ -49,7 +52,8 @@ def run(args) -> int:
     plot = output_file(args.plot, "--plot", PICTURE_SUFFIXES)
     vtk = output_file(args.vtk, "--vtk", (".pvd",))
     options = {key: value for key, value in (("backend", args.backend), ("tolerance", args.tolerance),
-                                             ("regularisation", args.regularisation)) if value is not None}
+                                             ("regularisation", args.regularisation), ("time_budget", args.budget))
+               if value is not None}
     settings = InverseSettings(mode=args.mode, **options)
     scene, code = prepared_scene(args)
     if code:

@@ -99,6 +99,8 @@ def _inverse_step(model: TrunkModel, t, step) -> dict:
         "equilibrium": bool(step.equilibrium),
         "status": step.status,
         "iterations": int(step.iterations),
+        "fraction": float(step.fraction),
+        **({"equilibrium_failure": step.equilibrium_failure} if step.equilibrium_failure else {}),
         "qp": {"status": step.qp.status if step.qp else None,
                "iterations": int(step.qp.iterations) if step.qp else 0,
                "active_bounds": [] if active is None else
