@@ -67,8 +67,6 @@ SEARCH_FLOOR = 1e-3    # smallest step fraction of the line search
 TRUSTED_RESIDUAL = 1e-3   # a positive definite tangent this close to equilibrium stays so at it
 NEUTRAL = 1e-9        # curvature above −NEUTRAL·D is neutral (a symmetry of the loads), not unstable
 ESCAPES = 3            # negative-curvature steps allowed per stage
-import os
-_DEBUG = bool(os.environ.get("NEWTON_DEBUG"))
 SQRT3 = math.sqrt(3.0)
 STRETCHING = 1e-3      # a step changing a translation strain by more than this share of the shortest link
 SMALL_INCREMENT = 1.0 / 16.0   # a load increment this small that reaches an unrepresentable state: say so
@@ -185,8 +183,10 @@ class _Stage:
         """The largest multiple of a step (frame increments ``dq``, strain change ``change``) that
         turns no link by more than :data:`MAX_TURN`, stretches none by more than
         :data:`MAX_STRETCH` of the shortest link, takes no link more than half-way from the
-        largest rotation to π and shortens no cable piece by more than half its length (to first
-        order): a state approaches what it cannot represent only gradually, never by overshooting."""
+        largest rotation to π and leaves every cable piece at least half as long as it is (its
+        holes moved to first order; a piece may swing round, but its holes never pass through
+        each other): a state approaches what it cannot represent only gradually, never by
+        overshooting."""
         largest = np.abs(change).max(0).tolist()               # per component, over the links
         room = min(MAX_TURN, 0.5 * (math.pi - self.turn))
         stretch = SQRT3 * max(largest[:3])
@@ -194,13 +194,18 @@ class _Stage:
         limit = min(room / max(SQRT3 * max(largest[3:]), 1e-300), MAX_STRETCH * self.shortest / max(stretch, 1e-300))
         pieces = ev.pieces
         if pieces is not None:
+            # |d + α Δd| ≥ ½ |d| for every piece (Δd = Cᵀ dq its linearised change): the first
+            # root in α of |d|² + 2α d·Δd + α²|Δd|² = ¼|d|², where there is one
             moves = np.zeros((self.trunk.frames.count, 6))
             moves[1:] = dq.reshape(-1, 6)
-            shortening = -np.einsum("ij,ij->i", pieces.unit, moves[self.trunk.cables.ends].reshape(-1, 12))
-            shortening /= pieces.length
-            worst = float(shortening.max())
-            if worst > 0.0:
-                limit = min(limit, 0.5 / worst)
+            delta = np.einsum("mij,mi->mj", pieces.C, moves[self.trunk.cables.ends].reshape(-1, 12))
+            along = np.einsum("mj,mj->m", pieces.u, delta) * pieces.length        # d·Δd
+            squared = np.einsum("mj,mj->m", delta, delta)                        # |Δd|²
+            discriminant = along * along - 0.75 * squared * pieces.length ** 2
+            closing = (along < 0.0) & (discriminant > 0.0)
+            if closing.any():
+                roots = (-along[closing] - np.sqrt(discriminant[closing])) / squared[closing]
+                limit = min(limit, float(roots.min()))
         return limit
 
     def represented(self, state: State, ev) -> None:
@@ -402,9 +407,6 @@ def _newton(stage: _Stage, state: State):
             elif quality < 0.25:
                 shift = _raise_shift(shift, 4.0)
         stage.shift = shift
-        if _DEBUG:
-            print(f"  it {stage.iterations} res {residual:.3e} E {ev.energy:.12e} dec {decrease:.3e} pred {predicted:.3e} "
-                  f"alpha {alpha:.3g} kind {kind} mu {shift:.2e} turn {stage.turn:.3f}")
         trusted = kind == "cholesky" and residual <= TRUSTED_RESIDUAL
         kinds.add(kind)
         state, ev = trial, ev_trial
