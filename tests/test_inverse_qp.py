@@ -294,3 +294,32 @@ def test_backends_are_reached_only_through_the_registry():
                                    atol=1e-6 * np.abs(reference.actuation).max())
     finally:
         del BACKENDS["counted"]
+
+
+def test_damping_is_centred_on_the_current_actuation():
+    # Levenberg–Marquardt damping penalises λ − λ0 only: started at the undamped answer it
+    # returns it (to the solver's tolerance; the damped and undamped QPs share that minimiser),
+    # and from λ0 = 0 it shortens the step (the change it weighs can only shrink).
+    W_ea, de, W_aa, _ = synthetic_problem(6, n_act=6)
+    space = ConstraintSpace(6, 3, lambda_lower=0.0, lambda_upper=20.0)
+    plain = solve_constraint_problem(ConstraintProblem(space, W_ea, de, W_aa, np.zeros(6), np.zeros(6)))
+    again = solve_constraint_problem(ConstraintProblem(space, W_ea, de, W_aa, np.zeros(6), plain.actuation,
+                                                       damping=1e-2))
+    assert np.allclose(again.actuation, plain.actuation, rtol=1e-7, atol=1e-9 * plain.actuation.max())
+    damped = solve_constraint_problem(ConstraintProblem(space, W_ea, de, W_aa, np.zeros(6), np.zeros(6),
+                                                        damping=1e-2))
+    assert np.linalg.norm(damped.actuation) < np.linalg.norm(plain.actuation)
+
+
+def test_a_tick_box_narrows_the_actuator_limits_by_the_per_tick_changes():
+    space = ConstraintSpace(3, 3, lambda_lower=0.0, lambda_upper=[30.0, 30.0, np.inf], max_change=[7.5, 1.0, np.inf])
+    lower, upper = space.tick_box(np.array([2.0, 29.5, 5.0]))
+    assert np.array_equal(lower, [0.0, 28.5, 0.0]) and np.array_equal(upper, [9.5, 30.0, np.inf])
+    W_ea, de, _, _ = synthetic_problem(1, n_act=3)
+    answer = solve_constraint_problem(ConstraintProblem(space, W_ea, de * 100, lambda0=np.array([2.0, 29.5, 5.0]),
+                                                        box=(lower, upper)))
+    assert np.all(answer.actuation >= lower) and np.all(answer.actuation <= upper)
+    with pytest.raises(OptionError, match="max_change"):
+        ConstraintSpace(3, 3, max_change=-1.0)
+    with pytest.raises(OptionError, match="box"):
+        ConstraintProblem(space, W_ea, de, box=(upper, lower))

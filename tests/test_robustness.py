@@ -200,3 +200,16 @@ def test_the_trust_radii_start_from_the_robot_size():
     model = polymer(True)
     region = InverseController(model, InverseSettings(mode="tick")).trust
     assert region.translation == pytest.approx(TRANSLATION * 0.15) and region.rotation == ROTATION
+
+
+def test_per_tick_changes_come_from_the_scene_or_a_quarter_of_the_range():
+    from vertebra.store.errors import SceneError
+    base = {"segment": [{"type": "beam", "count": 2, "elements": 2, "length": 0.03, "youngs_modulus": 2e9,
+                         "poisson_ratio": 0.35, "section": {"shape": "circle", "radius": 1e-3}}]}
+    cables = [{"name": "given", "radius": 0.01, "to": 2, "max_tension": 30.0, "max_tension_change": 2.0},
+              {"name": "derived", "radius": 0.01, "to": 2, "min_tension": 2.0, "max_tension": 30.0},
+              {"name": "unbounded", "radius": 0.01, "to": 2}]
+    model = build(dict(base, cable=cables))
+    assert model.actuator_max_change.tolist() == [2.0, 7.0, math.inf]
+    with pytest.raises(SceneError, match="max_tension_change"):
+        build(dict(base, cable=[dict(cables[0], max_tension_change=-1.0)]))

@@ -222,10 +222,13 @@ class ConstraintProblem:
             if not (math.isfinite(self.damping) and self.damping > 0) or lambda0 is None:
                 raise OptionError(f"must be finite and ≥ 0, with lambda0, got {self.damping}", field="damping")
         if self.box is not None:
-            lower, upper = (_array(f"box[{k}]", b, (n,)) for k, b in enumerate(self.box))
-            if not (lower <= upper).all():                    # (False for NaN)
-                raise OptionError("must be an ordered box (lower ≤ upper) without NaN", field="box")
-            object.__setattr__(self, "box", (lower, upper))
+            lower, upper = self.box
+            if not (isinstance(lower, np.ndarray) and isinstance(upper, np.ndarray)):
+                lower, upper = (_array(f"box[{k}]", b, (n,)) for k, b in enumerate(self.box))
+                object.__setattr__(self, "box", (lower, upper))
+            if lower.shape != (n,) or upper.shape != (n,) or not (lower <= upper).all():   # (False for NaN)
+                raise OptionError(f"must be two ordered arrays (lower ≤ upper) of {n} values without NaN",
+                                  field="box")
 
     @property
     def n_actuators(self) -> int:
