@@ -91,6 +91,11 @@ class StaticResult:
     largest_turn: float = 0.0        # largest rotation of a link (rad) at the returned state
     message: str = ""                # why the solve did not converge
 
+    def __repr__(self) -> str:
+        tip = ", ".join(f"{v:.6g}" for v in self.state.positions[-1])
+        return (f"StaticResult(converged={self.converged}, iterations={self.iterations}, "
+                f"residual={self.residual:.3g}, load_steps={self.load_steps}, tip=[{tip}] m)")
+
 
 class Unrepresentable(Exception):
     """Raised inside a stage at a state the links or the cable routing cannot represent (the
@@ -99,11 +104,6 @@ class Unrepresentable(Exception):
     def __init__(self, message: str, state: State | None = None):
         super().__init__(message)
         self.state = state
-
-    def __repr__(self) -> str:
-        tip = ", ".join(f"{v:.6g}" for v in self.state.positions[-1])
-        return (f"StaticResult(converged={self.converged}, iterations={self.iterations}, "
-                f"residual={self.residual:.3g}, load_steps={self.load_steps}, tip=[{tip}] m)")
 
 
 def residual_weights(trunk) -> np.ndarray:
