@@ -13,7 +13,7 @@ size of the motion. A :class:`TrustRegion` bounds each step:
   over predicted improvement) was ≥ 0.75 and that the region cut, and shrink (×¼, down to
   1/1024 of their start) after one of quality < 0.25.
 
-The radii start from the robot's size: ``translation = 0.05 × length``, ``rotation = 0.25 rad``.
+The radii start from the robot's size: ``translation = 0.15 × length``, ``rotation = 0.25 rad``.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ import numpy as np
 
 __all__ = ["TrustRegion", "GOOD", "POOR"]
 
-TRANSLATION = 0.05    # start translation radius, per unit of the robot's length
+TRANSLATION = 0.15   # start translation radius, per unit of the robot's length
 ROTATION = 0.25       # start rotation radius, rad
 GROWTH, SHRINK = 2.0, 0.25
 LARGEST, SMALLEST = 4.0, 1.0 / 1024.0   # radii bounds, relative to their start
