@@ -1,5 +1,6 @@
 """Quasi-static equilibrium (paper eq. 9): a minimum of the total potential, found by a
-globalised Newton method on the energy, with load continuation.
+globalised Newton method on the energy, with load continuation. Only the energy, its gradient,
+the tangent's banded factor and the retraction are used: nothing assumes a quadratic link energy.
 
 Each iteration at a fixed load factor
 
@@ -10,32 +11,36 @@ Each iteration at a fixed load factor
   indefinite tangent (no LU there: it steers Newton towards saddles). Dead moments make ``H``
   unsymmetric: banded LU of ``H + μ·D``, judged by an energy-like merit (the potential minus the
   linearised work of the moments);
-* caps the step in strain space: no link's rotation changes by more than :data:`MAX_TURN` and
-  no link's translation strain by more than :data:`MAX_STRETCH` of its length (a larger step is
-  scaled, not turned);
-* accepts the first ``α p`` (α = 1, ½, ¼, …) that decreases the energy by an Armijo fraction of
-  the model's prediction; when none does, ``μ`` grows tenfold (a new, shorter, more gradient-like
-  direction);
+* where the tangent proved indefinite and the shift needed is large (``μ ≥`` :data:`BEND_SHIFT`),
+  or at a stationary point that is a saddle, weighs a step along the direction of most negative
+  curvature (inverse iteration with the shifted factor) against the shifted one;
+* caps the step (:meth:`_Stage.step_limit`): no link's rotation changes by more than
+  :data:`MAX_TURN`, no translation strain by more than :data:`MAX_STRETCH` of the shortest
+  link, no link goes more than half-way from its rotation to π, no cable piece loses more than
+  half its length (a larger step is scaled, not turned);
+* accepts the first ``α p`` (α = 1, ½, ¼, …) that lowers the energy by an Armijo share of the
+  quadratic model's prediction (where that prediction is below the energy's rounding: that does
+  not raise the residual); when none does, ``μ`` grows tenfold;
 * adapts ``μ`` by the ratio of the actual to the predicted decrease of the full step: ``μ/4``
-  when the quadratic model was right (``μ`` falls to 0: pure Newton, quadratic convergence),
-  ``×4`` when the step had to be cut back.
+  when the model was right (``μ`` falls to 0: pure Newton, quadratic convergence), ``×4`` when
+  the step had to be cut back.
 
-Only stable equilibria are accepted: a stationary point reached through shifted or LU factors
-is accepted when its own tangent is positive definite; at a saddle (a straight rod under an
-axial load beyond buckling) the solver steps along the direction of most negative curvature
-(inverse iteration with the shifted factor) and goes on.
+Only stable equilibria are accepted: a stationary point reached through shifted or LU factors,
+or from far away, is accepted when its own tangent is positive definite up to neutral
+directions (:func:`is_stable`); a saddle is left along negative curvature.
 
-A state where a link turns towards π or folds through itself cannot be represented by the
-constant-strain links: the solve stops there with a :class:`ConvergenceError` that says which
-segment and how many links per repetition would represent the deformation. Non-finite values
-stop the solve with a :class:`ConvergenceError` naming the stage.
+A state where a link turns towards π, folds through itself, or where a cable's holes meet cannot
+be represented: the load is retried in smaller increments, and when a small one leads there too
+the solve stops with a :class:`ConvergenceError` that says so (for a link: how many links per
+repetition would represent the deformation). Non-finite values stop the solve with a
+:class:`ConvergenceError` naming the stage.
 
 Load continuation: the load factor's increment halves when a stage fails and doubles when it
-succeeds; intermediate stages converge to 1e-6. Residuals are measured as
-max(|force|, |moment| / L) / F over the free frames, with F the largest out-of-balance load at
-the rest pose under the full load and L the trunk's length: dimensionless and invariant under a
-change of units. Steps are applied by the strain-space retraction
-(:func:`~vertebra.solver.state.retract`).
+succeeds; intermediate stages converge to 1e-6; a solve stops after :data:`BUDGET` ×
+``max_iterations`` iterations. Residuals are measured as max(|force|, |moment| / L) / F over the
+free frames, with F the largest out-of-balance load at the rest pose under the full load and L
+the trunk's length: dimensionless and invariant under a change of units. Steps are applied by
+the strain-space retraction (:func:`~vertebra.solver.state.retract`).
 """
 
 from __future__ import annotations
