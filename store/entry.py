@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from vertebra.store.energy import EnergyFit
 from vertebra.store.errors import CatalogueError
 
 SYMMETRY_TOLERANCE = 1e-8
@@ -65,6 +66,7 @@ class SegmentEntry:
     accuracy: dict = field(default_factory=dict)    # e.g. {"relative_change": 1e-3, "method": "..."}
     timings: dict = field(default_factory=dict)     # mesh_s, assemble_s, solve_s, total_s
     provenance: dict = field(default_factory=dict)  # versions, date, host
+    energy: EnergyFit | None = None                 # nonlinear segments: ψ(s, p) (schema v2, store.energy)
 
     def __post_init__(self):
         n = np.asarray(self.cavity_volumes).reshape(-1).size
@@ -94,6 +96,16 @@ class SegmentEntry:
             np.linalg.cholesky(0.5 * (c[:6, :6] + c[:6, :6].T))
         except np.linalg.LinAlgError:
             raise CatalogueError(f"entry {self.name!r} field 'compliance': 6×6 block C is not positive definite")
+        if self.energy is not None:
+            if not isinstance(self.energy, EnergyFit):
+                raise CatalogueError(f"entry {self.name!r} field 'energy': expected an EnergyFit, "
+                                     f"got {type(self.energy).__name__}")
+            if self.energy.n_cavities != n:
+                raise CatalogueError(f"entry {self.name!r} field 'energy': fitted for {self.energy.n_cavities} "
+                                     f"cavities, the entry has {n}")
+            if np.any(quaternion != np.array([1.0, 0.0, 0.0, 0.0])):
+                raise CatalogueError(f"entry {self.name!r} field 'energy': a nonlinear entry needs the identity "
+                                     "rest rotation")
 
     @property
     def n_cavities(self) -> int:

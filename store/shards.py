@@ -22,9 +22,11 @@ import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from vertebra.store.errors import CatalogueError
-from vertebra.store.schema import (EncodedEntry, append_index, check_file, differing_fields, init_file,
-                          read_entry, read_index, write_entry)
+from vertebra.store.schema import (ENERGY_SCHEMA_VERSION, EncodedEntry, append_index, check_file, differing_fields,
+                          init_file, read_entry, read_index, stamp_version, write_entry)
 
 log = logging.getLogger("vertebra.store")
 
@@ -303,6 +305,8 @@ def _take(f, rows, new_rows, src, src_path, what, report, *, exclude) -> bool:
                 clean = False
             continue
         f.copy(src["entries"][key], f["entries"], name=key)
+        if entry.energy is not None:
+            stamp_version(f, ENERGY_SCHEMA_VERSION)
         rows[key] = row
         new_rows.append(row)
         report.added.append(key)
@@ -347,6 +351,7 @@ def rebuild(path, inputs=(), *, exclude: str | None = None, own_shard: Path | No
                 new_rows: list[dict] = []
                 if exclude is not None and path.exists():
                     with open_checked(path) as old:
+                        stamp_version(f, int(np.asarray(old.attrs["schema_version"])))
                         old_rows = read_index(old, str(path))
                         for key, row in old_rows.items():
                             if key == exclude:
