@@ -235,8 +235,8 @@ def _substitution(exponents_by_degree: list[np.ndarray], L: np.ndarray, shifts: 
 
 def invariant_basis(nv: int, m: int, degree: int, pressure_degree: int, group: list[np.ndarray],
                     scales: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(exponents (T, nv), basis (T, q))``: every monomial of degree 3…``degree`` (pressures of
-    joint degree ≤ ``pressure_degree``) in the scaled variables ``u = z / scales``, and an
+    """``(exponents (T, nv), basis (T, q))``: every monomial of degree 3…``degree`` (those with a
+    pressure of degree ≤ ``pressure_degree``) in the scaled variables ``u = z / scales``, and an
     orthonormal basis of the polynomials invariant under ``group`` (the range of the
     Reynolds projector ``mean_g f∘g``). Monomials no invariant polynomial uses are dropped."""
     scaled = [np.diag(1.0 / scales) @ g @ np.diag(scales) for g in group]
@@ -387,14 +387,17 @@ class FitResult:
     unknowns: int                    # invariant basis size
     errors: dict                     # held-out (and training) errors, see :func:`fit_errors`
     settings: dict = field(default_factory=dict)
+    fold: float | None = None        # fold pressure of the map w(p) (store.energy), None: w = p
 
 
 def fit_energy(samples: Samples, linear: tuple, *, degree: int, pressure_degree: int, group: list[np.ndarray],
-               scales: np.ndarray, held_out: np.ndarray, hessian_weight: float = 1.0) -> FitResult:
+               scales: np.ndarray, held_out: np.ndarray, hessian_weight: float = 1.0,
+               fold: float | None = None) -> FitResult:
     """Least squares for ψ_nl on the training samples (``~held_out``): gradients and (weighted)
-    Hessians of ψ in the scaled variables ``u = z / scales``, with ψ_lin fixed. ``linear``:
-    ``(K, S, V)``; ``group``: :func:`symmetry_group`; ``held_out``: boolean mask of samples
-    kept out of the fit and used for its error."""
+    Hessians of ψ in the scaled variables ``u = [s; w(p)] / scales``, with ψ_lin fixed.
+    ``linear``: ``(K, S, V)``; ``group``: :func:`symmetry_group`; ``held_out``: boolean mask of
+    samples kept out of the fit and used for its error; ``fold``: pressure of the fold map
+    ``w(p)`` (store.energy) or None for ``w = p``."""
     K, S, V = linear
     m = samples.n_cavities
     nv = 6 + m
@@ -402,14 +405,23 @@ def fit_energy(samples: Samples, linear: tuple, *, degree: int, pressure_degree:
     design = _Design(exponents, basis)
     train = samples.take(~held_out)
     z = train.variables()
-    u = z / scales
     g_lin, H_lin = linear_derivatives(z, K, S, V)
+    g_nl, H_nl = train.full_gradient() - g_lin, train.full_hessian() - H_lin
+    if fold is not None and m:                      # ψ_nl's derivatives in w(p) instead of p
+        from vertebra.store.energy import fold_map
+        w, w1, w2 = fold_map(z[:, 6:], fold)
+        z = np.concatenate([z[:, :6], w], axis=1)
+        H_nl[:, 6:, 6:] -= (g_nl[:, 6:] * w2 / w1)[:, :, None] * np.eye(m)
+        g_nl[:, 6:] /= w1
+        H_nl[:, :, 6:] /= w1[:, None, :]
+        H_nl[:, 6:, :] /= w1[:, :, None]
+    u = z / scales
     # residual targets in energy units: scales_j ∂ψ/∂z_j and scales_j scales_k ∂²ψ/∂z_j∂z_k
-    target_g = (train.full_gradient() - g_lin) * scales
+    target_g = g_nl * scales
     upper = np.array([(j, k) for j in range(nv) for k in range(j, nv)])
     rows = upper[:, 0] * nv + upper[:, 1]
     weight_h = hessian_weight * np.where(upper[:, 0] == upper[:, 1], 1.0, math.sqrt(2.0))
-    target_h = ((train.full_hessian() - H_lin) * np.outer(scales, scales)).reshape(-1, nv * nv)[:, rows]
+    target_h = (H_nl * np.outer(scales, scales)).reshape(-1, nv * nv)[:, rows]
     A_g = design.gradient(u).reshape(-1, basis.shape[1])
     blocks, rhs = [A_g], [target_g.reshape(-1)]
     if hessian_weight > 0:
@@ -428,7 +440,7 @@ def fit_energy(samples: Samples, linear: tuple, *, degree: int, pressure_degree:
     result = FitResult(exponents=exponents[keep], coefficients=coefficients[keep], scales=np.asarray(scales, float),
                        unknowns=int(basis.shape[1]), errors={},
                        settings={"degree": degree, "pressure_degree": pressure_degree,
-                                 "hessian_weight": hessian_weight, "group_order": len(group)})
+                                 "hessian_weight": hessian_weight, "group_order": len(group)}, fold=fold)
     return result
 
 
@@ -438,9 +450,10 @@ def evaluate_fit(result: FitResult, linear: tuple, z: np.ndarray):
 
     m = z.shape[1] - 6
     wide = np.full(4, 1e300)
+    top = np.full(m, 1e300 if result.fold is None else result.fold * (1 - 1e-15))
     fit = EnergyFit(exponents=result.exponents, coefficients=result.coefficients, scales=result.scales,
                     range=EnergyRange(np.array([0.0, -1e300, 0.0, -1e300]), wide, np.array([0.0, -1e300, 0.0, -1e300]),
-                                      wide, np.full(m, -1e300), np.full(m, 1e300)))
+                                      wide, np.full(m, -1e300), top), fold_pressure=result.fold)
     values = EnergyModel(fit, *linear).evaluate(z[:, :6], z[:, 6:])
     grad = np.concatenate([values.gradient, values.pressure_gradient], axis=1)
     H = np.concatenate([np.concatenate([values.hessian, values.mixed_hessian], 2),

@@ -79,7 +79,8 @@ class SamplingSettings:
     """How a nonlinear entry is sampled and fitted (all part of its content key)."""
 
     degree: int = 6                  # total degree of ψ in (s, p)
-    pressure_degree: int = 3         # joint degree of ψ in the pressures
+    pressure_degree: int = 4         # total degree of the terms of ψ that involve a pressure
+    fold: bool = True                # pressures through the fold map w(p) at the limit point found
     paths: int = 18                  # scrambled-Halton loading paths (the box axes come in addition)
     steps: int = 6                   # samples per path
     held_out: int = 4                # every held_out-th Halton path is held out of the fit
@@ -97,6 +98,7 @@ class SamplingSettings:
         checks = {
             "degree": isinstance(self.degree, int) and 3 <= self.degree <= 10,
             "pressure_degree": isinstance(self.pressure_degree, int) and 0 <= self.pressure_degree <= self.degree,
+            "fold": isinstance(self.fold, bool),
             "paths": isinstance(self.paths, int) and self.paths >= 0,
             "steps": isinstance(self.steps, int) and self.steps >= 1,
             "held_out": isinstance(self.held_out, int) and self.held_out >= 2,
@@ -340,7 +342,8 @@ def run_pressure_ramp(task: PressureTask) -> PressureOutcome:
     the pose per increment) until the FE fails or the free volume compliance has grown 25×
     over its rest value (the approach of a limit point, where it diverges); the failing
     increment is bisected down to ``min_step``. The limit is the last converged pressure
-    plus the extrapolation of the inverse compliance to zero."""
+    plus the extrapolation of the inverse compliance squared to zero (a fold's normal form),
+    at most two ``min_step`` beyond it."""
     start = time.perf_counter()
     model = worker_model(task.spec)
     m = len(task.rest_volumes)
@@ -383,9 +386,10 @@ def run_pressure_ramp(task: PressureTask) -> PressureOutcome:
     if reached < task.largest:
         limit = reached
         if len(inverse) >= 2:
+            # near a fold the compliance grows like 1/√(P − p): 1/compliance² falls linearly to 0 at P
             (p1, c1), (p2, c2) = inverse[-2], inverse[-1]
-            if c2 < c1:                                # 1/compliance → 0 at the limit point
-                limit = max(reached, p2 + c2 * (p2 - p1) / (c1 - c2))
+            if c2 < c1:
+                limit = max(reached, p2 + c2 ** 2 * (p2 - p1) / (c1 ** 2 - c2 ** 2))
         limit = min(limit, reached + 2 * task.min_step)
     return PressureOutcome(reached=reached, limit=limit, volume_growth=history, solves=solves,
                            seconds=time.perf_counter() - start, reason=reason)

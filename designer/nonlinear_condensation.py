@@ -166,8 +166,12 @@ def condense_energy(entry, spec, *, radius: float, youngs_modulus: float, symmet
     group = symmetry_group(symmetry, settings.degree)
     held_out = held_paths[samples.path]
     t1 = time.perf_counter()
+    fold = limit if (m and settings.fold and limit is not None) else None
+    if fold is not None:                # the pressures' scale in the fold variable w(p)
+        scales[6:] = 2.0 * fold * (1.0 - math.sqrt(1.0 - p_top / fold))
     result = fit_energy(samples, linear, degree=settings.degree, pressure_degree=settings.pressure_degree if m else 0,
-                        group=group, scales=scales, held_out=held_out, hessian_weight=settings.hessian_weight)
+                        group=group, scales=scales, held_out=held_out, hessian_weight=settings.hessian_weight,
+                        fold=fold)
     volume_scale = float(np.abs(samples.pressure_gradient).max()) if m else None
     bounds = energy_range.load_upper
     errors = {"held_out": fit_errors(result, linear, samples.take(held_out), bounds, volume_scale)
@@ -189,6 +193,6 @@ def condense_energy(entry, spec, *, radius: float, youngs_modulus: float, symmet
                              "twist": box.twist, "pressure": box.pressure},
                 "pose_caps": caps.tolist(), **pressure_info}
     energy = EnergyFit(exponents=result.exponents, coefficients=result.coefficients, scales=result.scales,
-                       range=energy_range, fit_error=errors, material=material, sampling=sampling)
+                       range=energy_range, fit_error=errors, material=material, sampling=sampling, fold_pressure=fold)
     timings["total_s"] = time.perf_counter() - start
     return Condensed(energy=energy, samples=samples, held_out=held_out, timings=timings)

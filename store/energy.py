@@ -14,7 +14,7 @@ Form::
 
     ψ(s, p) = ψ_lin(s, p) + ψ_nl(s, p)
     ψ_lin   = ½ (s − S p)ᵀ K (s − S p) − ½ pᵀ V p          (:func:`linear_terms`)
-    ψ_nl    = Σ_α c_α u^α,   u = [s; p] / scales,   every |α| ≥ 3
+    ψ_nl    = Σ_α c_α u^α,   u = [s; w(p)] / scales,   every |α| ≥ 3   (w(p) = p but near a fold)
 
 ``ψ_lin`` is exactly the energy the runtime builds from the entry's linear compliance
 ``[[C, G], [Gᵀ, V]]``: ``K = inv(A C Aᵀ)`` and ``S = A G`` with ``A = ∂ξ/∂δ`` at rest (the log's
@@ -23,6 +23,13 @@ total degree below three in ``(s, p)``, so the Hessian of ψ at rest IS the line
 small-load results do not change. Derivatives: ``∂ψ/∂s`` is the generalised force of the
 segment on its strain (the wrench conjugate to ``s``), ``ΔV = −∂ψ/∂p`` the cavity volume growth
 relative to the rest volumes.
+
+Pressures near an inflation limit point. A chamber that balloons has a limit point ``P`` in
+pressure where its volume growth behaves like ``V_P − a√(P − p)`` (a fold): no polynomial in
+``p`` follows it closely. With ``fold_pressure = P`` the pressures enter ψ_nl through
+``w(p) = 2P(1 − √(1 − p/P))`` (``u = [s; w(p)] / scales``; ψ_lin keeps ``p``). In ``w`` the fold
+is smooth: ``∂ψ_nl/∂w = −(ΔV − ΔV_lin)·√(1 − p/P)`` with ``√(1 − p/P) = 1 − w/2P``, and since
+``w = p + p²/4P + …`` ψ_nl still has no term below degree 3 in ``p``. Without a fold ``w = p``.
 
 Range. A fit is only trusted where it was sampled. :class:`EnergyRange` bounds four group
 coordinates — lateral translation ``|ρ⊥|``, axial translation ``ρ_z``, bending ``|φ⊥|``,
@@ -185,10 +192,11 @@ class EnergyFit:
     """The fitted nonlinear part ψ_nl of a segment's energy and what it was fitted on.
 
     ``exponents`` (m, 6+n) non-negative integers, each row of total degree ≥ 3 (unique rows);
-    ``coefficients`` (m,) in J; ``scales`` (6+n,) of the variables ``[s; p]`` (m, rad, Pa);
+    ``coefficients`` (m,) in J; ``scales`` (6+n,) of the variables ``[s; w(p)]`` (m, rad, Pa);
     ``range``: where it was sampled; ``fit_error``: errors on held-out samples; ``material``:
     the constitutive model and its constants; ``sampling``: how the samples were chosen and
-    solved (JSON objects)."""
+    solved (JSON objects); ``fold_pressure``: the pressure of the fold map ``w(p)`` (module
+    docstring) or ``None``."""
 
     exponents: np.ndarray
     coefficients: np.ndarray
@@ -197,6 +205,7 @@ class EnergyFit:
     fit_error: dict = field(default_factory=dict)
     material: dict = field(default_factory=dict)
     sampling: dict = field(default_factory=dict)
+    fold_pressure: float | None = None
     representation: str = REPRESENTATION
 
     def __post_init__(self):
@@ -236,6 +245,12 @@ class EnergyFit:
                                  f"{nv - 6} cavities")
         for name in ("fit_error", "material", "sampling"):
             set_(self, name, _json_roundtrip(getattr(self, name), name))
+        if self.fold_pressure is not None:
+            fold = float(self.fold_pressure)
+            if not (nv > 6 and math.isfinite(fold) and fold > 0 and np.all(self.range.pressure_upper < fold)):
+                raise CatalogueError(f"energy field 'fold_pressure': {self.fold_pressure!r} must be a finite pressure "
+                                     "above the sampled pressures of a segment with cavities")
+            set_(self, "fold_pressure", fold)
 
     def __eq__(self, other):
         return isinstance(other, EnergyFit) and self.digest() == other.digest()
@@ -253,7 +268,8 @@ class EnergyFit:
     def attributes(self) -> dict:
         """The JSON metadata stored beside the arrays."""
         return {"representation": self.representation, "range": self.range.to_dict(),
-                "fit_error": self.fit_error, "material": self.material, "sampling": self.sampling}
+                "fit_error": self.fit_error, "material": self.material, "sampling": self.sampling,
+                "fold_pressure": self.fold_pressure}
 
     def digest_bytes(self) -> bytes:
         """Bytes that identify the fit, for the entry checksum: the arrays (little-endian, shapes
@@ -280,7 +296,7 @@ class EnergyFit:
         if not isinstance(data, dict):
             raise CatalogueError("energy: not a JSON object")
         names = ("exponents", "coefficients", "scales", "representation", "range", "fit_error", "material",
-                 "sampling")
+                 "sampling", "fold_pressure")
         missing = [n for n in names if n not in data]
         if missing:
             raise CatalogueError(f"energy: field {missing[0]!r} missing")
@@ -291,7 +307,8 @@ class EnergyFit:
         return cls(exponents=np.array(data["exponents"], dtype=np.int64).reshape(-1, nv),
                    coefficients=data["coefficients"], scales=data["scales"],
                    range=EnergyRange.from_dict(data["range"]), fit_error=data["fit_error"],
-                   material=data["material"], sampling=data["sampling"], representation=data["representation"])
+                   material=data["material"], sampling=data["sampling"], fold_pressure=data["fold_pressure"],
+                   representation=data["representation"])
 
     def check(self, compliance: np.ndarray, rest_translation: np.ndarray) -> list[str]:
         """Consistency with its entry (``verify``): problems found, [] if none. The Hessian at rest
@@ -350,12 +367,13 @@ def monomial_exponents(n_variables: int, max_degree: int, min_degree: int = 0,
                        tail: int = 0, tail_degree: int | None = None) -> np.ndarray:
     """(m, n_variables) exponents of every monomial of total degree in [min_degree, max_degree],
     ordered by degree then lexicographically (last variable fastest); with ``tail_degree``,
-    the last ``tail`` variables (the pressures) together have degree ≤ ``tail_degree``."""
+    monomials that involve any of the last ``tail`` variables (the pressures) have total
+    degree ≤ ``tail_degree``."""
     rows = []
     for degree in range(min_degree, max_degree + 1):
         for combo in itertools.combinations_with_replacement(range(n_variables), degree):
             alpha = np.bincount(np.array(combo, dtype=np.int64), minlength=n_variables)
-            if tail_degree is not None and tail and alpha[n_variables - tail:].sum() > tail_degree:
+            if tail_degree is not None and tail and degree > tail_degree and alpha[n_variables - tail:].any():
                 continue
             rows.append(alpha)
     return np.array(rows, dtype=np.int64).reshape(-1, n_variables)
@@ -448,7 +466,12 @@ class EnergyModel:
         n, m = s.shape[0], self.fit.n_cavities
         nv = 6 + m
         p = np.zeros((n, m)) if p is None else np.asarray(p, dtype=float).reshape(n, m)
-        u = (np.concatenate([s, p], axis=1).T if m else s.T) * self._inv_scales      # (nv, n)
+        fold = self.fit.fold_pressure
+        if m and fold is not None:
+            w, w1, w2 = fold_map(p, fold)
+        else:
+            w = p
+        u = (np.concatenate([s, w], axis=1).T if m else s.T) * self._inv_scales      # (nv, n)
         mon = self._table.values_t(u)
         both = self._gradient @ mon                                 # (2 nv, n)
         energy = (u * both[nv:]).sum(0)
@@ -456,9 +479,15 @@ class EnergyModel:
         hess = (self._hessian @ mon[:self._n_hess]).T.reshape(n, nv, nv)
         K = self.stiffness
         if m:
-            e = s - p @ self.pressure_map.T
+            if fold is not None:                                    # chain rule from w(p) to p
+                gw = grad[:, 6:] * w2
+                grad[:, 6:] *= w1
+                hess[:, :, 6:] *= w1[:, None, :]
+                hess[:, 6:, :] *= w1[:, :, None]
+                hess[:, 6:, 6:] += gw[:, :, None] * np.eye(m)
+            e = s - p @ self.pressure_map.T                         # ψ_lin(s, p)
             Ke = e @ K
-            energy += 0.5 * np.einsum("ij,ij->i", e, Ke) - 0.5 * np.einsum("ij,jk,ik->i", p, self.volume_compliance, p)
+            energy += 0.5 * (e * Ke).sum(1) - 0.5 * ((p @ self.volume_compliance) * p).sum(1)
             grad[:, :6] += Ke
             grad[:, 6:] -= Ke @ self.pressure_map + p @ self.volume_compliance
             hess[:, :6, :6] += K
@@ -475,6 +504,12 @@ class EnergyModel:
         return EnergyValues(energy=energy, gradient=gradient, hessian=hess[:, :6, :6],
                             pressure_gradient=grad[:, 6:], mixed_hessian=hess[:, :6, 6:],
                             pressure_hessian=hess[:, 6:, 6:], range_excess=excess, in_range=excess <= 0.0)
+
+
+def fold_map(p: np.ndarray, fold: float):
+    """``w(p) = 2P(1 − √(1 − p/P))`` and its first two derivatives (pressures below ``P``)."""
+    root = np.sqrt(1.0 - p / fold)
+    return 2.0 * fold * (1.0 - root), 1.0 / root, 0.5 / (fold * root ** 3)
 
 
 class Monomials:
@@ -538,8 +573,8 @@ MAX_JSON_BYTES = 1 << 20
 
 def write_group(entry_group, fit: EnergyFit) -> None:
     """Create ``<entry>/energy``: datasets ``exponents`` (int64 (m, 6+n)), ``coefficients``
-    (float64 (m,)), ``scales`` (float64 (6+n,)); JSON attributes ``representation``, ``range``,
-    ``fit_error``, ``material``, ``sampling`` (fixed-length UTF-8)."""
+    (float64 (m,)), ``scales`` (float64 (6+n,)); attributes ``representation`` (text) and
+    ``range``, ``fit_error``, ``material``, ``sampling``, ``fold_pressure`` (JSON; fixed-length UTF-8)."""
     import h5py
 
     group = entry_group.create_group(GROUP)
@@ -570,7 +605,7 @@ def read_group(entry_group, what: str) -> EnergyFit:
             raise CatalogueError(f"{what}: energy dataset {name!r} has dtype {ds.dtype} and shape {ds.shape}")
         arrays[name] = np.asarray(ds[()], dtype=dtype)
     attrs = {}
-    for name in ("representation", "range", "fit_error", "material", "sampling"):
+    for name in ("representation", "range", "fit_error", "material", "sampling", "fold_pressure"):
         if name not in group.attrs:
             raise CatalogueError(f"{what}: energy attribute {name!r} missing")
         value = group.attrs[name]
@@ -593,7 +628,7 @@ def read_group(entry_group, what: str) -> EnergyFit:
         return EnergyFit(exponents=arrays["exponents"], coefficients=arrays["coefficients"],
                          scales=arrays["scales"], range=EnergyRange.from_dict(attrs["range"]),
                          fit_error=attrs["fit_error"], material=attrs["material"], sampling=attrs["sampling"],
-                         representation=attrs["representation"])
+                         fold_pressure=attrs["fold_pressure"], representation=attrs["representation"])
     except CatalogueError as error:
         raise CatalogueError(f"{what}: {error}") from None
 
