@@ -9,6 +9,7 @@ the :class:`store.energy.EnergyFit` a nonlinear catalogue entry carries.
 
 from __future__ import annotations
 
+import json
 import math
 import time
 from dataclasses import dataclass
@@ -29,6 +30,33 @@ POSE_MARGIN = 0.02
 def _say(progress, message: str) -> None:
     if progress is not None:
         progress(message)
+
+
+@dataclass(frozen=True)
+class FamilySolid:
+    """ModelSpec (:class:`designer.energy_sampling.ModelSpec`) of a designed segment's nonlinear FE:
+    the family's mesh (gmsh meshes deterministically, so it is the linear entry's mesh) with a
+    material of :data:`designer.nonlinear.MATERIALS`."""
+
+    family: str
+    parameters: str                  # canonical JSON of the canonical parameters
+    mesh_size: float
+    order: int
+    material: str
+    linear_solver: str = "auto"
+
+    def key(self) -> str:
+        return json.dumps([self.family, self.parameters, self.mesh_size, self.order, self.material,
+                           self.linear_solver])
+
+    def build(self):
+        from vertebra.designer.nonlinear import NonlinearSegment
+        from vertebra.designer.threads import pin_blas_threads
+
+        pin_blas_threads(1)
+        return NonlinearSegment.from_family(self.family, json.loads(self.parameters), self.material,
+                                            mesh_size=self.mesh_size, order=self.order,
+                                            linear_solver=self.linear_solver)
 
 
 @dataclass
