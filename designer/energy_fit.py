@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from vertebra.designer.families import SegmentSymmetry
 from vertebra.store.energy import Monomials, monomial_exponents
 from vertebra.store.errors import GeometryError
 
@@ -101,28 +102,6 @@ def pose_derivatives(s: np.ndarray, rest_translation, gradient: np.ndarray, hess
 
 # ------------------------------------------------------------------ symmetry
 
-@dataclass(frozen=True)
-class SegmentSymmetry:
-    """Isometries that map a segment onto itself, as a family declares them.
-
-    ``order``: rotations about the axis by 2π/order (0: every angle, an axisymmetric
-    segment); ``mirror``: mirror planes through the axis, one at ``mirror_angle`` from +x
-    (with the rotations, the dihedral group); ``end_flip``: the segment is the same seen
-    from either end (a half turn about a horizontal axis in the mirror plane swaps a and b);
-    ``cavity_angles``: angle of each cavity's centre about the axis (how isometries permute
-    cavities; cavities on the axis are not allowed with rotations that move them)."""
-
-    order: int = 1
-    mirror: bool = False
-    mirror_angle: float = 0.0
-    end_flip: bool = False
-    cavity_angles: tuple = ()
-
-    def describe(self) -> dict:
-        return {"order": self.order, "mirror": self.mirror, "mirror_angle": self.mirror_angle,
-                "end_flip": self.end_flip, "cavities": len(self.cavity_angles)}
-
-
 def _rotation_z(angle: float) -> np.ndarray:
     c, s = math.cos(angle), math.sin(angle)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
@@ -143,16 +122,20 @@ def _half_turn(angle: float) -> np.ndarray:
 def _element(Q: np.ndarray, flip: bool, angles: np.ndarray) -> np.ndarray:
     """The (6+m)×(6+m) map of ``z = [s; p]`` under an isometry ``Q`` of the segment (composed with
     the exchange of its ends when ``flip``): ``s ↦ ±[Qρ; det(Q) Q φ]``, cavities permuted."""
-    m = angles.size
+    m = len(angles)
     L = np.zeros((6 + m, 6 + m))
     sign = -1.0 if flip else 1.0
     L[:3, :3] = sign * Q
     L[3:6, 3:6] = sign * np.linalg.det(Q) * Q
-    if m:
-        centres = np.stack([np.cos(angles), np.sin(angles)], 1)
-        images = centres @ Q[:2, :2].T
-        for k in range(m):
-            target = np.flatnonzero(np.linalg.norm(centres - images[k], axis=1) < 1e-9)
+    on_axis = np.array([a is None for a in angles], dtype=bool)
+    values = np.array([0.0 if a is None else a for a in angles], dtype=float)
+    centres = np.stack([np.cos(values), np.sin(values)], 1) * (~on_axis)[:, None]
+    images = centres @ Q[:2, :2].T
+    for k in range(m):
+        if on_axis[k]:
+            L[6 + k, 6 + k] = 1.0
+        else:
+            target = np.flatnonzero((np.linalg.norm(centres - images[k], axis=1) < 1e-9) & ~on_axis)
             if target.size != 1:
                 raise GeometryError(f"symmetry maps cavity {k} onto no cavity: the declared symmetry "
                                     "does not hold for the cavities")
@@ -164,16 +147,16 @@ def symmetry_group(symmetry: SegmentSymmetry, degree: int) -> list[np.ndarray]:
     """The group's elements as maps of ``z = [s; p]``. An axisymmetric segment is represented by
     the rotations by 2π/(degree + 1): a polynomial of degree ≤ ``degree`` invariant under them
     is invariant under every rotation about the axis (its angular frequencies are ≤ degree)."""
-    angles = np.asarray(symmetry.cavity_angles, dtype=float)
+    angles = tuple(symmetry.cavity_angles)
     order = symmetry.order if symmetry.order > 0 else degree + 1
-    if symmetry.order == 0 and angles.size:
+    if symmetry.order == 0 and any(a is not None for a in angles):
         raise GeometryError("an axisymmetric segment cannot have off-axis cavities")
     generators = [_element(_rotation_z(2 * math.pi / order), False, angles)]
     if symmetry.mirror:
         generators.append(_element(_reflection(symmetry.mirror_angle), False, angles))
     if symmetry.end_flip:
         generators.append(_element(_half_turn(symmetry.mirror_angle), True, angles))
-    group = [np.eye(6 + angles.size)]
+    group = [np.eye(6 + len(angles))]
     frontier = list(group)
     while frontier:
         new = []

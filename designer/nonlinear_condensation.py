@@ -32,6 +32,16 @@ def _say(progress, message: str) -> None:
         progress(message)
 
 
+def material_constants(material: str, parameters: dict) -> dict:
+    """The ``material`` record of an energy: model name and its constants (DESIGN §2 forms)."""
+    E, nu = parameters["youngs_modulus"], parameters["poisson_ratio"]
+    mu, bulk = E / (2 * (1 + nu)), E / (3 * (1 - 2 * nu))
+    out = {"model": material, "youngs_modulus": E, "poisson_ratio": nu, "shear_modulus": mu, "bulk_modulus": bulk}
+    if material == "neo_hookean":
+        out.update(C10=mu / 2, D1=2 / bulk)
+    return out
+
+
 @dataclass(frozen=True)
 class FamilySolid:
     """ModelSpec (:class:`designer.energy_sampling.ModelSpec`) of a designed segment's nonlinear FE:
