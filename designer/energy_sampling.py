@@ -87,8 +87,8 @@ class SamplingSettings:
     bending: float = 1.05            # rad, largest bending angle sampled
     twist: float = 0.6               # rad, largest twist sampled
     strain: float = 0.4              # outer-fibre strain bounding bending and twist (·L/r)
-    shear: float = 0.08              # lateral displacement / length
-    axial: float = 0.08              # axial stretch and compression / length
+    shear: float = 0.25              # lateral displacement of the strain chart / length
+    axial: float = 0.1               # axial stretch and compression / length
     pressure: float | None = None    # Pa, largest pressure (None: up to the limit point)
     limit_fraction: float = 0.9      # pressures stay below this fraction of the inflation limit
     hessian_weight: float = 1.0      # weight of the tangent rows in the least squares
@@ -153,14 +153,19 @@ class LoadBox:
 def load_box(K: np.ndarray, length: float, radius: float, settings: SamplingSettings,
              pressure: float = 0.0) -> tuple[LoadBox, np.ndarray]:
     """The load box and the pose caps ``[lateral, axial, bending, twist]`` from the linear
-    stiffness ``K`` of the strain chart: a pure load of each group's bound displaces the
-    segment, linearly, by the corresponding cap."""
+    stiffness ``K`` of the strain chart. Moments: those that bend and twist the segment,
+    linearly, by the angle caps. Forces: a tip force on a single segment bends it about its
+    middle with a lever of ``L/2``, so the lateral bound is ``2 M_bending / L`` — unless that
+    displaces the segment laterally by more than ``shear·L``; the axial bound is the lateral
+    one unless it stretches by more than ``axial·L``."""
     compliance = np.diag(np.linalg.inv(K))
     bending = min(settings.bending, settings.strain * length / radius)
     twist = min(settings.twist, settings.strain * length / radius)
-    caps = np.array([settings.shear * length, settings.axial * length, bending, twist])
-    box = LoadBox(lateral=caps[0] / compliance[0], axial=caps[1] / compliance[2], bending=caps[2] / compliance[3],
-                  twist=caps[3] / compliance[5], pressure=pressure)
+    moment = bending / compliance[3]
+    lateral = min(2.0 * moment / length, settings.shear * length / compliance[0])
+    axial = min(lateral, settings.axial * length / compliance[2])
+    caps = np.array([lateral * compliance[0], axial * compliance[2], bending, twist])
+    box = LoadBox(lateral=lateral, axial=axial, bending=moment, twist=twist / compliance[5], pressure=pressure)
     return box, caps
 
 
