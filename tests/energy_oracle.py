@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vertebra.designer.energy_fit import FitResult, evaluate_fit, pose_derivatives
+from vertebra.designer.energy_fit import FitResult, pose_derivatives
 from vertebra.solver.beam import Section, timoshenko_compliance
 from vertebra.store.energy import linear_terms, rest_strain_map
 from vertebra.store.entry import SegmentEntry
@@ -86,19 +86,31 @@ class OracleSegment:
 
     def derivatives(self, s, p):
         """(gradient (n, 6+m), Hessian (n, 6+m, 6+m)) of ψ in the strain chart."""
+        return self.terms(s, p)[1:]
+
+    def terms(self, s, p):
+        """(ψ (n,), gradient (n, 6+m), Hessian (n, 6+m, 6+m)) in the strain chart."""
+        from vertebra.store.energy import EnergyFit, EnergyModel, EnergyRange
+
         linear = linear_terms(self.entry.compliance, self.entry.rest_translation)
         m = self.n_cavities
-        z = np.concatenate([s, p], 1)
-        if self.polynomial is not None:
-            g, H = evaluate_fit(self.polynomial, linear, z)
-        else:
-            from vertebra.designer.energy_fit import linear_derivatives
-            g, H0 = linear_derivatives(z, *linear)
-            H = np.broadcast_to(H0, (len(z),) + H0.shape).copy()
+        poly = self.polynomial
+        exponents = np.zeros((0, 6 + m), dtype=np.int64) if poly is None else poly.exponents
+        wide, low = np.full(4, 1e300), np.array([0.0, -1e300, 0.0, -1e300])
+        model = EnergyModel(EnergyFit(exponents, np.zeros(0) if poly is None else poly.coefficients,
+                                      np.ones(6 + m) if poly is None else poly.scales,
+                                      EnergyRange(low, wide, low, wide, np.full(m, -1e300), np.full(m, 1e300))),
+                            *linear)
+        values = model.evaluate(s, p)
+        energy = values.energy.copy()
+        g = np.concatenate([values.gradient, values.pressure_gradient], 1)
+        H = np.concatenate([np.concatenate([values.hessian, values.mixed_hessian], 2),
+                            np.concatenate([values.mixed_hessian.mT, values.pressure_hessian], 2)], 1)
         if self.kappa:
             phi = s[:, 3:5] / self.theta0
             F, F1, F2 = _cosh_terms((phi * phi).sum(1))
             d = 2 * phi / self.theta0
+            energy += self.kappa * F
             g[:, 3:5] += self.kappa * F1[:, None] * d
             H[:, 3:5, 3:5] += self.kappa * (F2[:, None, None] * d[:, :, None] * d[:, None, :]
                                             + F1[:, None, None] * 2 * np.eye(2) / self.theta0 ** 2)
@@ -107,9 +119,10 @@ class OracleSegment:
             root = np.sqrt(np.clip(1 - x, 1e-300, None))
             dV = self.balloon * (1 - root) - self.balloon * x / 2            # ΔV minus its linear part
             ddV = self.balloon / (2 * self.p_limit) * (1 / root - 1)
+            energy -= self.balloon * (p + 2 * self.p_limit / 3 * (root ** 3 - 1) - p * x / 4).sum(1)
             g[:, 6:] -= dV
             H[:, 6:, 6:] -= ddV[:, :, None] * np.eye(m)[None]
-        return g, H
+        return energy, g, H
 
     def solve(self, R, t, pressures=None, initial=None):
         from scipy.spatial.transform import Rotation
@@ -130,6 +143,19 @@ class OracleSegment:
         return Response(wrench=wrench[0], tangent=tangent[0],
                         volumes=self.entry.cavity_volumes - g[0, 6:], dvolume_dpose=-mixed[0].T,
                         dvolume_dpressure=-H[0, 6:, 6:])
+
+
+class OracleEnergy:
+    """The oracle's ψ as a chain segment (designer.energy_chain.SegmentEnergy): the true chain."""
+
+    def __init__(self, oracle: OracleSegment):
+        self.oracle = oracle
+        self.rest_translation = oracle.entry.rest_translation
+        self.n_cavities = oracle.n_cavities
+
+    def evaluate(self, s, p):
+        energy, g, H = self.oracle.terms(s[None], p[None])
+        return float(energy[0]), g[0, :6], H[0, :6, :6], -g[0, 6:]
 
 
 @dataclass(frozen=True)
