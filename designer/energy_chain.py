@@ -10,10 +10,9 @@ pressures. The unknowns are the strains ``s = (s_1, …, s_n)``; the potential
     E(s) = Σ_i ψ_i(s_i, p_i) − Σ_loads F · x(s)
 
 is minimised by Newton with a backtracking line search, its Hessian the segments' Hessians
-plus the loads' (central differences of their closed-form gradient). Because the vertebrae
-are rigid, the same chain with each ψ_i evaluated by the segment's nonlinear FE
-(:class:`FiniteElementEnergy`) IS the full nonlinear FE model of the trunk, solved by domain
-decomposition — the reference the fitted energies (:class:`FittedEnergy`) are measured against.
+plus the loads' (central differences of their closed-form gradient). The reference it is
+measured against is the full nonlinear FE of the same trunk
+(:class:`designer.nonlinear.trunk.NonlinearTrunk`, same meshes and material).
 """
 
 from __future__ import annotations
@@ -23,7 +22,7 @@ from typing import Protocol
 
 import numpy as np
 
-from vertebra.designer.energy_fit import inverse_left_jacobian, pose_of_strain, strain_derivatives
+from vertebra.designer.energy_fit import inverse_left_jacobian, pose_of_strain
 from vertebra.store.errors import ConvergenceError
 
 
@@ -58,27 +57,6 @@ class FittedEnergy:
         values = self.model.evaluate(s[None], p[None])
         self.left_range |= not bool(values.in_range[0])
         return float(values.energy[0]), values.gradient[0], values.hessian[0], values.volume_growth[0]
-
-
-class FiniteElementEnergy:
-    """ψ of a segment evaluated by its nonlinear FE (designer.nonlinear.NonlinearSegment), with
-    continuation from the last solution."""
-
-    def __init__(self, segment, rest_translation):
-        self.segment = segment
-        self.rest_translation = np.asarray(rest_translation, dtype=float)
-        self.n_cavities = segment.n_cavities
-        self.rest_volumes = segment.rest_volumes
-        self.state = None
-        self.solves = 0
-
-    def evaluate(self, s, p):
-        R, t = pose_of_strain(s[None], self.rest_translation)
-        response = self.segment.solve(R[0], t[0], p if self.n_cavities else None, initial=self.state)
-        self.solves += 1
-        self.state = response.state
-        g, H, _ = strain_derivatives(s[None], self.rest_translation, response.wrench[None], response.tangent[None])
-        return float(response.energy), g[0], H[0], np.asarray(response.volumes) - self.rest_volumes
 
 
 @dataclass(frozen=True)
