@@ -170,8 +170,10 @@ def symmetry_group(symmetry: SegmentSymmetry, degree: int) -> list[np.ndarray]:
     return group
 
 
-def _homogeneous(nv: int, degree: int, m: int, pressure_degree: int) -> np.ndarray:
-    return monomial_exponents(nv, degree, degree, tail=m, tail_degree=pressure_degree)
+def _homogeneous(nv: int, k: int, m: int, pressure_degree: int) -> np.ndarray:
+    """The monomials of total degree ``k`` a fit uses: those with a pressure only up to
+    ``pressure_degree`` (every monomial below degree 3, which the recursions need)."""
+    return monomial_exponents(nv, k, k, tail=m, tail_degree=pressure_degree if k >= 3 else None)
 
 
 def _shift_tables(exponents_by_degree: list[np.ndarray]) -> list:
@@ -218,10 +220,11 @@ def _substitution(exponents_by_degree: list[np.ndarray], L: np.ndarray, shifts: 
 
 def invariant_basis(nv: int, m: int, degree: int, pressure_degree: int, group: list[np.ndarray],
                     scales: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(exponents (T, nv), basis (T, q))``: every monomial of degree 3…``degree`` (those with a
-    pressure of degree ≤ ``pressure_degree``) in the scaled variables ``u = z / scales``, and an
-    orthonormal basis of the polynomials invariant under ``group`` (the range of the
-    Reynolds projector ``mean_g f∘g``). Monomials no invariant polynomial uses are dropped."""
+    """``(exponents (T, nv), basis (T, q))``: the monomials of degree ≥ 3 of :func:`_homogeneous` in
+    the scaled variables ``u = z / scales``, and an orthonormal basis of the polynomials
+    invariant under ``group`` (the range of the Reynolds projector ``mean_g f∘g``; the group
+    keeps the degrees in ``s`` and in ``p``, so it maps the selection onto itself). Monomials
+    no invariant polynomial uses are dropped."""
     scaled = [np.diag(1.0 / scales) @ g @ np.diag(scales) for g in group]
     by_degree = [_homogeneous(nv, k, m, pressure_degree) for k in range(degree + 1)]
     blocks_e, blocks_b = [], []

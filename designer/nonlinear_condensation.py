@@ -92,10 +92,12 @@ def _run(executor, function, items):
 
 
 def pressure_range(executor, spec, entry, linear, settings: SamplingSettings, youngs_modulus: float,
-                   progress=None) -> tuple[float, float | None, dict]:
-    """``(largest sampled pressure, inflation limit point or None, diagnostics)``: a ramp of
-    cavity 0's pressure with the top free (by the family's symmetry every cavity behaves
-    alike) up to the requested pressure, or up to the Young's modulus when none is requested."""
+                   progress=None):
+    """``(largest sampled pressure, inflation limit point or None, fold pressure or None, free pose at
+    the top pressure, diagnostics)``: a ramp of cavity 0's pressure with the top free (by the
+    family's symmetry every cavity behaves alike) up to the requested pressure, or up to the
+    Young's modulus when none is requested. Without a limit point below the ramp, the fold
+    map uses where the ramp's last steps put it (if beyond the sampled pressures)."""
     K, S, V = linear
     largest = settings.pressure / settings.limit_fraction if settings.pressure else youngs_modulus
     task = PressureTask(spec=spec, rest_translation=tuple(entry.rest_translation),
@@ -113,8 +115,12 @@ def pressure_range(executor, spec, entry, linear, settings: SamplingSettings, yo
     else:
         top = settings.pressure or largest
         _say(progress, f"no limit point below {largest:.4g} Pa; pressures sampled up to {top:.4g} Pa")
-    return top, outcome.limit, {"ramp_solves": outcome.solves, "ramp_s": outcome.seconds,
-                                "ramp_reached": outcome.reached, "ramp_reason": outcome.reason}
+    fold = outcome.limit if outcome.limit is not None else outcome.fold
+    if fold is not None and not fold > 1.02 * top:
+        fold = None
+    return top, outcome.limit, fold, outcome.free_pose, {
+        "ramp_solves": outcome.solves, "ramp_s": outcome.seconds, "ramp_reached": outcome.reached,
+        "ramp_reason": outcome.reason, "ramp_fold_estimate": outcome.fold}
 
 
 def _tasks(spec, entry, linear, box: LoadBox, caps, endpoints, settings, workers: int) -> list[PathTask]:
@@ -155,19 +161,19 @@ def condense_energy(entry, spec, *, radius: float, youngs_modulus: float, symmet
     nonlinear FE described by ``spec`` (:class:`designer.energy_sampling.ModelSpec`)."""
     from vertebra.designer.executors import make_executor
 
-    settings = settings or SamplingSettings()
+    m = entry.n_cavities
+    settings = (settings or SamplingSettings()).resolved(m)
     start = time.perf_counter()
     linear = linear_terms(entry.compliance, entry.rest_translation)
     K = linear[0]
-    m = entry.n_cavities
     length = float(np.linalg.norm(entry.rest_translation))
     timings = {}
     with make_executor(executor, workers=workers, scheduler=scheduler) as pool:
-        pressure_info, limit, p_top = {}, None, 0.0
+        pressure_info, limit, fold_estimate, p_top, free_pose = {}, None, None, 0.0, np.zeros(4)
         if m:
-            p_top, limit, pressure_info = pressure_range(pool, spec, entry, linear, settings, youngs_modulus,
-                                                         progress)
-        box, caps = load_box(K, length, radius, settings, pressure=p_top)
+            p_top, limit, fold_estimate, free_pose, pressure_info = pressure_range(
+                pool, spec, entry, linear, settings, youngs_modulus, progress)
+        box, caps = load_box(K, length, radius, settings, pressure=p_top, free_pose=free_pose)
         endpoints, held_paths = path_endpoints(m, settings)
         tasks = _tasks(spec, entry, linear, box, caps, endpoints, settings, pool.workers)
         _say(progress, f"sampling {len(endpoints)} loading paths × {settings.steps} steps in {len(tasks)} tasks "
@@ -204,7 +210,7 @@ def condense_energy(entry, spec, *, radius: float, youngs_modulus: float, symmet
     group = symmetry_group(symmetry, settings.degree)
     held_out = held_paths[samples.path]
     t1 = time.perf_counter()
-    fold = limit if (m and settings.fold and limit is not None) else None
+    fold = fold_estimate if (m and settings.fold) else None
     if fold is not None:                # the pressures' scale in the fold variable w(p)
         scales[6:] = 2.0 * fold * (1.0 - math.sqrt(1.0 - p_top / fold))
     result = fit_energy(samples, linear, degree=settings.degree, pressure_degree=settings.pressure_degree if m else 0,

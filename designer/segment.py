@@ -123,7 +123,8 @@ def key_payload(family, parameters: dict, *, mesh_size=None, order: int = 2, mat
                "versions": result_versions()}
     if check_material(material) != LINEAR:
         payload["material"] = material
-        payload["nonlinear"] = {"sampling": sampling_settings(sampling).describe(), "version": NONLINEAR_VERSION}
+        settings = sampling_settings(sampling).resolved(fam.n_cavities(p))
+        payload["nonlinear"] = {"sampling": settings.describe(), "version": NONLINEAR_VERSION}
     return payload
 
 
