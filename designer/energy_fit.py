@@ -38,21 +38,68 @@ _DIFFERENCE_STEP = 1e-3
 
 # ------------------------------------------------------------------ SE(3) charts
 
+def _hat(v: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) skew matrices of (n, 3) vectors."""
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., 0, 1], out[..., 0, 2], out[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    out[..., 1, 0], out[..., 2, 0], out[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
+    return out
+
+
+#: below this rotation angle the coefficients use their Taylor series (next terms < 1e-16)
+_SERIES_ANGLE = 1e-2
+
+
+def _coefficients(theta2: np.ndarray) -> np.ndarray:
+    """(n, 6): sin θ/θ, (1 − cos θ)/θ², (θ − sin θ)/θ³, 1/θ² − (1 + cos θ)/(2θ sin θ),
+    (θ² + 2 cos θ − 2)/(2θ⁴), (2θ − 3 sin θ + θ cos θ)/(2θ⁵) (Barfoot 2017, §7.1)."""
+    small = theta2 < _SERIES_ANGLE ** 2
+    t2 = np.where(small, 1.0, theta2)
+    t = np.sqrt(t2)
+    s, c = np.sin(t), np.cos(t)
+    exact = np.stack([s / t, (1 - c) / t2, (t - s) / (t2 * t), 1 / t2 - (1 + c) / (2 * t * s),
+                      (t2 + 2 * c - 2) / (2 * t2 * t2), (2 * t - 3 * s + t * c) / (2 * t2 * t2 * t)], -1)
+    x = theta2[..., None]
+    series = np.array([[1, -1 / 6, 1 / 120], [1 / 2, -1 / 24, 1 / 720], [1 / 6, -1 / 120, 1 / 5040],
+                       [1 / 12, 1 / 720, 1 / 30240], [1 / 24, -1 / 720, 1 / 40320],
+                       [1 / 120, -1 / 2520, 1 / 120960]])
+    approx = series[:, 0] + x * (series[:, 1] + x * series[:, 2])
+    return np.where(small[..., None], approx, exact)
+
+
+def se3_exp(xi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation matrices (n, 3, 3) and translations (n, 3) of ``exp(ξ^)``, ``ξ = [ρ; φ]`` (n, 6)."""
+    xi = np.asarray(xi, dtype=float).reshape(-1, 6)
+    P = _hat(xi[:, 3:])
+    P2 = P @ P
+    c = _coefficients((xi[:, 3:] ** 2).sum(1))[:, :, None, None]
+    R = np.eye(3) + c[:, 0] * P + c[:, 1] * P2
+    V = np.eye(3) + c[:, 1] * P + c[:, 2] * P2
+    return R, (V @ xi[:, :3, None])[:, :, 0]
+
+
 def pose_of_strain(s: np.ndarray, rest_translation) -> tuple[np.ndarray, np.ndarray]:
     """Rotation matrices (n, 3, 3) and translations (n, 3) of ``exp(ξ₀ + s)``."""
-    from vertebra.solver.rotations import qmatrix, se3_exp
-
     xi = np.asarray(s, dtype=float).reshape(-1, 6).copy()
     xi[:, :3] += np.asarray(rest_translation, dtype=float)
-    q, t = se3_exp(xi)
-    return qmatrix(q), t
+    return se3_exp(xi)
 
 
 def inverse_left_jacobian(xi: np.ndarray) -> np.ndarray:
-    """``J_l⁻¹(ξ)`` (n, 6, 6) of twists (n, 6)."""
-    from vertebra.solver.rotations import se3_exp, se3_log
-
-    return se3_log(*se3_exp(np.asarray(xi, dtype=float)))[1]
+    """``J_l⁻¹(ξ)`` (n, 6, 6) of twists (n, 6): ``log(exp(ζ^) exp(ξ^)) = ξ + J_l⁻¹ ζ + O(ζ²)``,
+    ``J_l⁻¹ = [[J⁻¹, −J⁻¹ Q J⁻¹], [0, J⁻¹]]`` with SO(3)'s ``J⁻¹`` and Barfoot's ``Q`` (2017, eq. 7.86)."""
+    xi = np.asarray(xi, dtype=float).reshape(-1, 6)
+    P, Rh = _hat(xi[:, 3:]), _hat(xi[:, :3])
+    P2 = P @ P
+    c = _coefficients((xi[:, 3:] ** 2).sum(1))[:, :, None, None]
+    Jinv = np.eye(3) - 0.5 * P + c[:, 3] * P2
+    X, Y = P @ Rh, Rh @ P
+    Z = X @ P
+    Q = 0.5 * Rh + c[:, 2] * (X + Y + Z) + c[:, 4] * (P @ X + Y @ P - 3.0 * Z) + c[:, 5] * (Z @ P + P @ Z)
+    out = np.zeros((xi.shape[0], 6, 6))
+    out[:, :3, :3] = out[:, 3:, 3:] = Jinv
+    out[:, :3, 3:] = -Jinv @ Q @ Jinv
+    return out
 
 
 def _jacobian_derivative(xi: np.ndarray, g: np.ndarray) -> np.ndarray:
