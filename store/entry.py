@@ -5,6 +5,10 @@ A segment with ``n`` cavities is one symmetric (6+n)×(6+n) compliance
 cavity pressures]`` to ``[displacement of b relative to a (translation;
 rotation vector, in a's axes); cavity volume growths]`` with frame ``a`` clamped
 (paper eq. 2 for the 6×6 block ``C``).
+
+A nonlinear entry (catalogue schema v2) also carries ``energy``: its segment's energy
+ψ(s, p) over end poses and pressures (:mod:`store.energy`), whose Hessian at rest is the
+inverse of this compliance.
 """
 
 from __future__ import annotations
