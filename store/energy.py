@@ -568,6 +568,12 @@ class Monomials:
 
 GROUP = "energy"
 _DATASETS = {"exponents": "<i8", "coefficients": "<f8", "scales": "<f8"}
+#: ``units`` and ``description`` attributes of the datasets (for readers with other tools)
+_DATASET_ATTRIBUTES = {
+    "exponents": ("1", "exponents of the monomials of psi_nl in u = [s; w(p)] / scales, one row per term"),
+    "coefficients": ("J", "coefficient of each monomial of psi_nl"),
+    "scales": ("[m, m, m, rad, rad, rad, Pa...]", "scales of the variables [s; w(p)] (u = [s; w(p)] / scales)"),
+}
 MAX_JSON_BYTES = 1 << 20
 
 
@@ -579,7 +585,9 @@ def write_group(entry_group, fit: EnergyFit) -> None:
 
     group = entry_group.create_group(GROUP)
     for name, dtype in _DATASETS.items():
-        group.create_dataset(name, data=np.ascontiguousarray(getattr(fit, name), dtype=dtype))
+        dataset = group.create_dataset(name, data=np.ascontiguousarray(getattr(fit, name), dtype=dtype))
+        for attribute, text in zip(("units", "description"), _DATASET_ATTRIBUTES[name]):
+            dataset.attrs[attribute] = np.array(text.encode(), dtype=h5py.string_dtype("utf-8", len(text.encode())))
     for name, value in fit.attributes().items():
         text = value if isinstance(value, str) else json.dumps(value, sort_keys=True, separators=(",", ":"),
                                                                allow_nan=False)

@@ -126,7 +126,7 @@ class OracleSegment:
 
     def solve(self, R, t, pressures=None, initial=None):
         from scipy.spatial.transform import Rotation
-        from vertebra.solver.rotations import se3_log
+        from vertebra.solver.lie import se3_log
 
         m = self.n_cavities
         p = np.zeros(m) if pressures is None else np.asarray(pressures, float).reshape(m)

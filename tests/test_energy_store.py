@@ -83,7 +83,7 @@ def test_hessian_at_rest_is_the_linear_compliance_exactly(m, fold):
 
 def test_linear_terms_are_the_runtime_link_stiffness():
     """ψ_lin is the energy the runtime builds from a linear entry: same K_ξ = inv(A C Aᵀ) and
-    pressure map A G as solver.model (one link per entry), to round-off."""
+    pressure map A G as the linear-entry link kind (one link per entry), to round-off."""
     from vertebra import solver
 
     entry = dataclasses.replace(rod_entry(cavities=2), name="e", key="k")
@@ -92,8 +92,9 @@ def test_linear_terms_are_the_runtime_link_stiffness():
                                 "chamber": [{"name": "c", "cavity": 1, "from": 1, "to": 1, "pressure": 0.0}]})
     model = solver.build_model(scene, entries={"e": entry})
     K, S, V = linear_terms(entry.compliance, entry.rest_translation)
-    assert np.allclose(model.link_stiffness[0], K, rtol=1e-12, atol=1e-12 * np.abs(K).max())
-    assert np.allclose(model.link_pressure_map[0][:, 0], S[:, 1], rtol=1e-12, atol=1e-14)
+    quadratic = model.trunk.links.energies[0]               # the linear-entry link kind's energy
+    assert np.allclose(quadratic.stiffness[0], K, rtol=1e-12, atol=1e-12 * np.abs(K).max())
+    assert np.allclose(quadratic.pressure_strain[0][:, 0], S[:, 1], rtol=1e-12, atol=1e-14)
     xi0, _ = rest_strain_map(entry.rest_translation)
     assert np.allclose(model.link_rest[0], xi0, atol=1e-15)
 

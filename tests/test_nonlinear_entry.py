@@ -14,7 +14,7 @@ from vertebra import designer
 from vertebra.designer.energy_chain import FittedEnergy, PointLoad, solve_chain
 from vertebra.designer.nonlinear_condensation import FamilySolid
 from vertebra.store import catalogue
-from vertebra.store.errors import OptionError, SceneError
+from vertebra.store.errors import OptionError, SpecError
 
 ROD = {"radius": 0.01, "length": 0.04, "youngs_modulus": 1e6, "poisson_ratio": 0.3}
 MESH = 0.008                                              # 1.1k DoFs: a coarse P2 rod
@@ -110,15 +110,19 @@ def test_design_cli_material_json(tmp_path):
 
 
 def test_sweep_spec_material():
-    from vertebra.designer.sweep import expand, parse_spec
+    """Sweeps take the material and the sampling settings as design options (both in the key)."""
+    from vertebra.designer.sweep.spec import keyed_options, parse_spec
+    from vertebra.designer.sweep.tasks import expand
 
     fixed = {k: v for k, v in ROD.items() if k != "radius"}
     spec = parse_spec({"family": "rod", "parameters": fixed, "grid": {"radius": [0.01, 0.012]}, "material": "svk",
                        "sampling": {"degree": 4}})
     tasks = expand(spec)
-    assert all(t.material == "svk" and t.sampling == {"degree": 4} for t in tasks)
-    with pytest.raises(SceneError, match="material"):
+    assert all(t.options["material"] == "svk" and t.options["sampling"] == {"degree": 4} for t in tasks)
+    assert keyed_options(tasks[0].options)["material"] == "svk"
+    assert parse_spec({"family": "rod", "parameters": fixed, "grid": {"radius": [0.01]}}).options["material"] == "linear"
+    with pytest.raises(SpecError, match="rubber"):
         parse_spec({"family": "rod", "parameters": fixed, "grid": {"radius": [0.01]}, "material": "rubber"})
-    with pytest.raises(SceneError, match="sampling.steps"):
+    with pytest.raises(SpecError, match="sampling.steps"):
         parse_spec({"family": "rod", "parameters": fixed, "grid": {"radius": [0.01]}, "material": "svk",
                     "sampling": {"steps": 0}})

@@ -27,9 +27,9 @@ CHAMBER_PARAMETERS = (
 
 def chamber_symmetry(p: dict, end_flip: bool) -> SegmentSymmetry:
     """Dihedral symmetry of N equal chambers (mirror planes through the chambers' axes)."""
-    n = p["chambers"]
-    return SegmentSymmetry(order=n, mirror=True, mirror_angle=p["chamber_angle"], end_flip=end_flip,
-                           cavity_angles=tuple(p["chamber_angle"] + 2 * math.pi * k / n for k in range(n)))
+    n, first = p["chambers"], math.radians(p["chamber_angle_deg"])
+    return SegmentSymmetry(order=n, mirror=True, mirror_angle=first, end_flip=end_flip,
+                           cavity_angles=tuple(first + 2 * math.pi * k / n for k in range(n)))
 
 
 def _lerp(a, b, t):
