@@ -419,16 +419,19 @@ def picture(results: dict) -> None:
     for degree, marker in ((4, "o"), (6, "s"), (8, "^")):
         rows = [r for r in study if r["degree"] == degree]
         solves = [r["training_samples"] for r in rows]
-        worst = [max((c["fit"] or np.nan) for t in r["trunks"].values() for c in t) * 100 for r in rows]
+        inside = [max((c["fit"] or np.nan) for t in r["trunks"].values() for c in t if not c.get("left_range"))
+                  * 100 for r in rows]
+        every = [max((c["fit"] or np.nan) for t in r["trunks"].values() for c in t) * 100 for r in rows]
         held = [r["held_out"]["load_max"] * 100 for r in rows]
-        axes[0].semilogy(solves, worst, marker=marker, label=f"degree {degree}")
+        line, = axes[0].semilogy(solves, inside, marker=marker, label=f"degree {degree}")
+        axes[0].semilogy(solves, every, marker=marker, ls=":", color=line.get_color(), alpha=0.6)
         axes[1].semilogy(solves, held, marker=marker, label=f"degree {degree}")
-    if "kernel" in results:
-        pass
-    linear = max(c["linear"] for r in study for t in r["trunks"].values() for c in t if c["linear"])
-    axes[0].axhline(linear * 100, color="k", ls="--", label="linear entries")
+    linear = max(c["linear"] for r in study for t in r["trunks"].values() for c in t
+                 if c["linear"] and not c.get("left_range"))
+    axes[0].axhline(linear * 100, color="k", ls="--", label="linear entries (in range)")
+    axes[0].set_ylim(top=linear * 100 * 1.6)
     axes[0].set(xlabel="FE samples in the fit (sampling cost)", ylabel="worst tip error, % of trunk length",
-                title="Rod trunks (2, 4 segments, up to ~90°)")
+                title="Rod trunks, 2 and 4 segments (dotted: with states out of range)")
     axes[1].set(xlabel="FE samples in the fit", ylabel="held-out load error, % of range",
                 title="Held-out fit error")
     for ax in axes:

@@ -33,7 +33,7 @@ def _say(progress, message: str) -> None:
 
 
 def material_constants(material: str, parameters: dict) -> dict:
-    """The ``material`` record of an energy: model name and its constants (DESIGN §2 forms)."""
+    """The ``material`` record of an energy: model name and its constants (neo-Hooke as C10, D1)."""
     E, nu = parameters["youngs_modulus"], parameters["poisson_ratio"]
     mu, bulk = E / (2 * (1 + nu)), E / (3 * (1 - 2 * nu))
     out = {"model": material, "youngs_modulus": E, "poisson_ratio": nu, "shear_modulus": mu, "bulk_modulus": bulk}
