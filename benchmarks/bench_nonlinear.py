@@ -343,6 +343,15 @@ def section_pneumatic(results, quick):
 
 # ------------------------------------------------------------------ report
 
+def _series(cases: list) -> tuple[str, str, str]:
+    """Table cells of a load series: angles, fitted and linear tip errors in % (`*`: out of range)."""
+    angles = "/".join(f"{c['angle_deg']:.0f}" for c in cases)
+    fit = "/".join("–" if c["fit"] is None else f"{100 * c['fit']:.3f}" + ("*" if c.get("left_range") else "")
+                   for c in cases)
+    lin = "/".join("–" if c["linear"] is None else f"{100 * c['linear']:.2f}" for c in cases)
+    return angles, fit, lin
+
+
 def markdown(results: dict) -> str:
     out = ["# Nonlinear condensation: cost and accuracy of fitted segment energies", "",
            "Produced by `benchmarks/bench_nonlinear.py` (see docs/nonlinear-condensation.md). Errors against "
@@ -367,10 +376,7 @@ def markdown(results: dict) -> str:
                 "|---|---|---|---|---|---|---|---|"]
         for row in r["study"]:
             for trunk, cases in row["trunks"].items():
-                angles = "/".join(f"{c['angle_deg']:.0f}" for c in cases)
-                fit = "/".join("–" if c["fit"] is None else f"{100 * c['fit']:.3f}" + ("*" if c.get("left_range") else "")
-                               for c in cases)
-                lin = "/".join("–" if c["linear"] is None else f"{100 * c['linear']:.2f}" for c in cases)
+                angles, fit, lin = _series(cases)
                 out.append(f"| {row['degree']} | {row['paths']} | {row['unknowns']} | "
                            f"{row['held_out']['load_max']:.2%} | {trunk} | {angles} | {fit} | {lin} |")
         out += ["", "`*`: the state left the fitted range (reported by the kernel).", ""]
@@ -382,10 +388,7 @@ def markdown(results: dict) -> str:
             p = row["parameters"]
             ratio = p["length"] / p.get("radius", p.get("outer_radius"))
             for kind, cases in row["trunks"].items():
-                angles = "/".join(f"{c['angle_deg']:.0f}" for c in cases)
-                fit = "/".join("–" if c["fit"] is None else f"{100 * c['fit']:.3f}" + ("*" if c.get("left_range") else "")
-                               for c in cases)
-                lin = "/".join("–" if c["linear"] is None else f"{100 * c['linear']:.2f}" for c in cases)
+                angles, fit, lin = _series(cases)
                 out.append(f"| {row['family']} | {ratio:g} | {row['material']} | {row['dofs']} | {row['segments']} | "
                            f"{row['held_out']['load_max']:.2%} | {kind} | {angles} | {fit} | {lin} |")
         out.append("")
