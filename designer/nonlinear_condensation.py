@@ -79,16 +79,15 @@ class Condensed:
     timings: dict
 
 
-def _run(executor, function, items):
-    """Every result of ``function`` over ``items`` through ``executor``; a crash is an error."""
+def _results(executor, function, items):
+    """The results of ``function`` over ``items`` through ``executor``, as they complete; a
+    worker that crashed is an error (the sampling has no use for part of its paths)."""
     from vertebra.designer.executors import Crash
 
-    out = {}
-    for item, result in executor.map_unordered(function, items):
+    for _, result in executor.map_unordered(function, items):
         if isinstance(result, Crash):
             raise ConvergenceError(f"nonlinear sampling: a worker failed: {result.error_type}: {result.message}")
-        out[id(item)] = result
-    return [out[id(item)] for item in items]
+        yield result
 
 
 def pressure_range(executor, spec, entry, linear, settings: SamplingSettings, youngs_modulus: float,
@@ -105,7 +104,7 @@ def pressure_range(executor, spec, entry, linear, settings: SamplingSettings, yo
                         mixed=tuple((-K @ S).ravel()), cavity=0, rest_compliance=float(V[0, 0]),
                         largest=largest, first_step=largest / 16.0, min_step=largest / 512.0)
     _say(progress, f"pressure ramp of cavity 0 up to {largest:.4g} Pa (inflation limit point search)")
-    outcome = _run(executor, run_pressure_ramp, [task])[0]
+    outcome = next(_results(executor, run_pressure_ramp, [task]))
     if outcome.limit is not None:
         top = settings.limit_fraction * outcome.limit
         if settings.pressure:
@@ -180,10 +179,7 @@ def condense_energy(entry, spec, *, radius: float, youngs_modulus: float, symmet
                        f"({pool.name} executor, {pool.workers} worker(s)); bending up to {caps[2]:.3g} rad, "
                        f"twist {caps[3]:.3g} rad")
         outcomes, done, t0 = [], 0, time.perf_counter()
-        from vertebra.designer.executors import Crash
-        for _, result in pool.map_unordered(run_paths, tasks):
-            if isinstance(result, Crash):
-                raise ConvergenceError(f"nonlinear sampling: a worker failed: {result.error_type}: {result.message}")
+        for result in _results(pool, run_paths, tasks):
             outcomes.append(result)
             done += len(result.reached)
             _say(progress, f"  {done}/{len(endpoints)} paths, {sum(o.solves for o in outcomes)} FE solves, "
