@@ -1,7 +1,10 @@
-"""``vertebra design FAMILY [--set NAME=VALUE ...] [--mesh-size H] [--order 1|2] --catalogue FILE``
+"""``vertebra design FAMILY [--set NAME=VALUE ...] [--mesh-size H] [--order 1|2] [--material M] --catalogue FILE``
 
 Mesh, solve and condense one segment into the catalogue. If the
 content key is already in the catalogue the entry is reused, not recomputed.
+``--material svk|neo_hookean`` also samples the segment's nonlinear response and fits its
+energy (``--sampling NAME=VALUE`` settings; the FE solves run on ``--executor``, by default a
+local process pool with one worker per core).
 ``vertebra design vertebra --set radius=.. --set thickness=.. --set density=..``
 prints a rigid vertebra's mass properties as a scene snippet (no catalogue).
 Progress and logs go to stderr; ``--json`` prints one JSON document on stdout.
@@ -34,6 +37,13 @@ def add_arguments(parser) -> None:
     parser.add_argument("--max-elements", type=int, default=None, metavar="N",
                         help="refuse meshes estimated above N tetrahedra before meshing "
                              "(default 300,000: ~6.5 GB for second-order assembly)")
+    parser.add_argument("--material", default="linear", metavar="linear|svk|neo_hookean",
+                        help="constitutive model (default linear: the linear condensation alone)")
+    parser.add_argument("--sampling", dest="sampling", action="append", default=[], metavar="NAME=VALUE",
+                        help="a nonlinear sampling/fit setting (repeatable), e.g. --sampling degree=8")
+    parser.add_argument("--executor", default="local", help="where nonlinear FE solves run: serial | local | dask")
+    parser.add_argument("--workers", type=int, default=None, help="worker processes (default: one per core)")
+    parser.add_argument("--scheduler", default=None, help="dask scheduler address (with --executor dask)")
 
 
 def parse_values(values: list[str]) -> dict:
@@ -53,6 +63,32 @@ def parse_values(values: list[str]) -> dict:
             except ValueError:
                 raise OptionError(f"parameter {name!r}: not a number: {text!r}", field="--set") from None
         out[name] = value
+    return out
+
+
+def parse_sampling(values: list[str]) -> dict:
+    """``--sampling NAME=VALUE`` strings to settings (numbers, true/false, none)."""
+    from vertebra.store.errors import OptionError
+
+    out = {}
+    for item in values:
+        name, sep, text = item.partition("=")
+        name, text = name.strip(), text.strip()
+        if not sep or not name:
+            raise OptionError(f"{item!r}: expected NAME=VALUE", field="--sampling")
+        lowered = text.lower()
+        if lowered in ("true", "false"):
+            out[name] = lowered == "true"
+        elif lowered == "none":
+            out[name] = None
+        else:
+            try:
+                out[name] = int(text)
+            except ValueError:
+                try:
+                    out[name] = float(text)
+                except ValueError:
+                    raise OptionError(f"{name}: not a number: {text!r}", field="--sampling") from None
     return out
 
 
@@ -93,7 +129,9 @@ def run(args) -> int:
         raise OptionError(f"unknown family {args.family!r} (known: {', '.join(sorted(designer.FAMILIES))}, vertebra)",
                           field="FAMILY")
     parameters = designer.canonical_parameters(family, values)          # GeometryError before meshing
-    key = designer.entry_key(family, parameters, mesh_size=args.mesh_size, order=args.order)
+    sampling = parse_sampling(args.sampling) if args.material != "linear" else None
+    key = designer.entry_key(family, parameters, mesh_size=args.mesh_size, order=args.order, material=args.material,
+                             sampling=sampling)
 
     from vertebra.store import catalogue
 
@@ -106,7 +144,8 @@ def run(args) -> int:
         entry = designer.design_segment(family, parameters, mesh_size=args.mesh_size, order=args.order,
                                         name=args.name, linear_solver=args.linear_solver,
                                         estimate_accuracy=not args.no_accuracy, progress=_log,
-                                        max_elements=args.max_elements)
+                                        max_elements=args.max_elements, material=args.material, sampling=sampling,
+                                        executor=args.executor, workers=args.workers, scheduler=args.scheduler)
         stored = catalogue.add_entry(args.catalogue, entry)
         _log(f"added {entry.name!r} (key {stored}) to {args.catalogue} in {time.perf_counter() - start:.2f} s"
              + ("" if stored.merge_deferred is None else
@@ -136,6 +175,18 @@ def run(args) -> int:
         print(f"accuracy  not estimated: {acc['reason']}")
     for warning in acc.get("warnings", []):
         print(f"warning   {warning}")
+    if entry.energy is not None:
+        energy = document["energy"]
+        held = energy["fit_error"].get("held_out", {})
+        print(f"energy    {energy['material']['model']}: degree {energy['degree']}, {energy['terms']} terms, "
+              f"{energy['sampling']['samples']} samples; held-out load error {held.get('load_max', float('nan')):.3g} "
+              f"of the range (linear entry {held.get('linear_load_max', float('nan')):.3g})"
+              + (f", volume {held['volume_max']:.3g}" if "volume_max" in held else ""))
+        rng = energy["range"]
+        print(f"range     bending ≤ {rng['pose_upper'][2]:.3g} rad, twist {rng['pose_lower'][3]:.3g}…"
+              f"{rng['pose_upper'][3]:.3g} rad" + (f", pressure ≤ {max(rng['pressure_upper']):.4g} Pa"
+                                                   if rng["pressure_upper"] else "")
+              + (f" (inflation limit point ≈ {rng['limit_pressure']:.4g} Pa)" if rng["limit_pressure"] else ""))
     print(f"timing    mesh {t['mesh_s']:.2f} s, assemble {t['assemble_s']:.2f} s, solve {t['solve_s']:.2f} s, "
           f"total {t['total_s']:.2f} s")
     return 0

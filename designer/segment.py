@@ -8,8 +8,10 @@ gmsh option is set explicitly with a fixed seed. It does not write anywhere;
 
 from __future__ import annotations
 
+import dataclasses
 import datetime
 import functools
+import json
 import math
 import platform
 import socket
@@ -26,6 +28,11 @@ from vertebra.store.errors import GeometryError
 
 #: bump when a change in designer/ changes the numbers of an entry (part of the key)
 ALGORITHM_VERSION = "designer-3"   # 3: accuracy by Richardson extrapolation from a coarser mesh
+#: bump when a change in the nonlinear FE, the sampling or the fit changes a nonlinear entry's ψ
+NONLINEAR_VERSION = "nonlinear-1"
+#: the materials of ``design_segment``: ``linear`` (small strain, the condensation alone) and the
+#: hyperelastic models of designer.nonlinear (an energy ψ(s, p) is sampled and fitted)
+LINEAR = "linear"
 #: layout of the key payload
 KEY_SCHEMA = 1
 #: the accuracy estimate solves the segment again on a mesh this much COARSER (cheap: ~1/3.4 of
@@ -92,19 +99,47 @@ def result_versions() -> dict:
     return dict(_result_versions())
 
 
-def key_payload(family, parameters: dict, *, mesh_size=None, order: int = 2) -> dict:
+def check_material(material: str) -> str:
+    from vertebra.designer.nonlinear.materials import MATERIALS
+    from vertebra.store.errors import OptionError
+
+    if material != LINEAR and material not in MATERIALS:
+        raise OptionError(f"unknown material {material!r} (known: {', '.join(sorted(set(MATERIALS) | {LINEAR}))})",
+                          field="material")
+    return material
+
+
+def sampling_settings(sampling=None):
+    """``designer.energy_sampling.SamplingSettings`` from None (defaults), a dict or settings."""
+    from vertebra.designer.energy_sampling import SamplingSettings
+
+    return sampling if isinstance(sampling, SamplingSettings) else SamplingSettings.from_dict(sampling)
+
+
+def key_payload(family, parameters: dict, *, mesh_size=None, order: int = 2, material: str = LINEAR,
+                sampling=None) -> dict:
+    """What the content key hashes. A nonlinear material adds ``material`` and ``nonlinear``
+    (the sampling and fit settings and the nonlinear algorithm version); a linear entry's
+    payload (and key) is the same as before nonlinear entries existed."""
     fam = family_of(family)
     p = canonical_parameters(fam, parameters)
     if order not in (1, 2):
         raise GeometryError(f"parameter 'order': must be 1 or 2, got {order!r}")
-    return {"family": fam.name, "parameters": p,
-            "mesh": {"mesh_size": resolve_mesh_size(fam, p, mesh_size), "order": int(order)},
-            "versions": result_versions()}
+    payload = {"family": fam.name, "parameters": p,
+               "mesh": {"mesh_size": resolve_mesh_size(fam, p, mesh_size), "order": int(order)},
+               "versions": result_versions()}
+    if check_material(material) != LINEAR:
+        payload["material"] = material
+        settings = sampling_settings(sampling).resolved(fam.n_cavities(p))
+        payload["nonlinear"] = {"sampling": settings.describe(), "version": NONLINEAR_VERSION}
+    return payload
 
 
-def entry_key(family, parameters: dict, *, mesh_size=None, order: int = 2) -> str:
+def entry_key(family, parameters: dict, *, mesh_size=None, order: int = 2, material: str = LINEAR,
+              sampling=None) -> str:
     """Content key of the entry WITHOUT meshing (store.content_key of the key payload)."""
-    return content_key(key_payload(family, parameters, mesh_size=mesh_size, order=order))
+    return content_key(key_payload(family, parameters, mesh_size=mesh_size, order=order, material=material,
+                                   sampling=sampling))
 
 
 def compliance_change(C_ref: np.ndarray, C: np.ndarray) -> float:
@@ -209,7 +244,9 @@ def estimated_error(accuracy: dict) -> float | None:
 
 def design_segment(family, parameters: dict, *, mesh_size=None, order: int = 2, name: str | None = None,
                    linear_solver: str = "auto", estimate_accuracy: bool = True, progress=None,
-                   amg_threshold: int | None = None, max_elements: int | None = None) -> SegmentEntry:
+                   amg_threshold: int | None = None, max_elements: int | None = None, material: str = LINEAR,
+                   sampling=None, executor: str = "serial", workers: int | None = None,
+                   scheduler: str | None = None) -> SegmentEntry:
     """Condensed catalogue entry of one segment (DESIGN.md §2).
 
     ``progress``: optional callable receiving one-line status messages.
@@ -219,6 +256,11 @@ def design_segment(family, parameters: dict, *, mesh_size=None, order: int = 2, 
     compliance's discretisation error in ``entry.accuracy`` (:func:`estimate_accuracy_of`).
     ``max_elements``: cap on the estimated tetrahedra, checked before meshing
     (``geometry.DEFAULT_MAX_ELEMENTS`` when None).
+    ``material``: ``"linear"`` (the condensation alone), ``"svk"`` or ``"neo_hookean"``: the
+    segment's energy ψ(s, p) is then sampled with its nonlinear FE on the same mesh and fitted
+    (``entry.energy``, designer.nonlinear_condensation) with ``sampling`` settings
+    (``designer.energy_sampling.SamplingSettings`` or a dict of them), the FE solves running
+    on ``executor`` (``serial``, ``local`` with ``workers``, ``dask`` with ``scheduler``).
     """
     from vertebra.designer.threads import pin_blas_threads
 
@@ -227,7 +269,11 @@ def design_segment(family, parameters: dict, *, mesh_size=None, order: int = 2, 
     fam = family_of(family)
     p = canonical_parameters(fam, parameters)
     h = resolve_mesh_size(fam, p, mesh_size)
-    key = entry_key(fam, p, mesh_size=h, order=order)
+    check_material(material)
+    nonlinear = material != LINEAR
+    if nonlinear:
+        sampling = sampling_settings(sampling)
+    key = entry_key(fam, p, mesh_size=h, order=order, material=material, sampling=sampling)
     warn = []
     if order == 1 and p["poisson_ratio"] >= LOCKING_POISSON:
         message = (f"poisson_ratio = {p['poisson_ratio']} with order 1: linear tetrahedra lock as ν → 0.5 "
@@ -262,20 +308,47 @@ def design_segment(family, parameters: dict, *, mesh_size=None, order: int = 2, 
             "dofs": int(fe.n_dofs), "interior_dofs": int(cond.info["interior_dofs"]),
             "order": int(order), "mesh_size": float(h), "element": "tetra10" if order == 2 else "tetra4",
             "mesher": f"gmsh {mesh_data.gmsh_version} OCC"}
-    return SegmentEntry(
+    entry = SegmentEntry(
         key=key, name=name or f"{fam.name}-{key[:8]}", family=fam.name, parameters=p,
         compliance=compliance, cavity_volumes=fe.cavity_volumes.reshape(n), mass=fe.mass,
         center_of_mass=fe.center_of_mass, rest_translation=np.array([0.0, 0.0, fam.length(p)]),
         rest_quaternion=np.array([1.0, 0.0, 0.0, 0.0]), mesh=mesh, accuracy=accuracy,
         timings={k: float(v) for k, v in timings.items()}, provenance=provenance)
+    if not nonlinear:
+        return entry
+    from vertebra.designer.nonlinear_condensation import FamilySolid, condense_energy, material_constants
+
+    _say(progress, f"{fam.name}: nonlinear condensation with the {material} material")
+    spec = FamilySolid(family=fam.name, parameters=json.dumps(p, sort_keys=True), mesh_size=h, order=order,
+                       material=material, linear_solver=linear_solver)
+    condensed = condense_energy(entry, spec, radius=fam.outer_radius(p), youngs_modulus=p["youngs_modulus"],
+                                symmetry=fam.symmetry(p), material=material_constants(material, p),
+                                settings=sampling, executor=executor, workers=workers, scheduler=scheduler,
+                                progress=progress)
+    timings.update({k: v for k, v in condensed.timings.items() if k != "total_s"})
+    timings["total_s"] = time.perf_counter() - start
+    provenance["nonlinear"] = {"executor": executor, "workers": workers, "version": NONLINEAR_VERSION}
+    return dataclasses.replace(entry, energy=condensed.energy, timings={k: float(v) for k, v in timings.items()},
+                               provenance=provenance)
 
 
 def entry_document(entry: SegmentEntry) -> dict:
-    """The DESIGN.md §5 JSON document of ``vertebra design --json``."""
-    return {"key": entry.key, "name": entry.name, "compliance": entry.compliance.tolist(),
-            "cavity_volumes": entry.cavity_volumes.tolist(), "mass": entry.mass,
-            "dofs": int(entry.mesh.get("dofs", 0)), "accuracy": dict(entry.accuracy),
-            "timing": {k: float(entry.timings.get(k, 0.0)) for k in ("mesh_s", "assemble_s", "solve_s", "total_s")}}
+    """The DESIGN.md §5 JSON document of ``vertebra design --json`` (with ``material``, and for a
+    nonlinear entry an ``energy`` summary: degree, terms, fit error, range, sampling, timings)."""
+    document = {"key": entry.key, "name": entry.name, "compliance": entry.compliance.tolist(),
+                "cavity_volumes": entry.cavity_volumes.tolist(), "mass": entry.mass,
+                "dofs": int(entry.mesh.get("dofs", 0)), "accuracy": dict(entry.accuracy),
+                "material": LINEAR if entry.energy is None else entry.energy.material.get("model"),
+                "timing": {k: float(entry.timings.get(k, 0.0)) for k in ("mesh_s", "assemble_s", "solve_s", "total_s")}}
+    if entry.energy is not None:
+        energy = entry.energy
+        document["energy"] = {"degree": energy.degree, "terms": int(energy.coefficients.size),
+                              "fit_error": energy.fit_error, "range": energy.range.to_dict(),
+                              "fold_pressure": energy.fold_pressure, "material": energy.material,
+                              "sampling": {k: energy.sampling[k] for k in ("samples", "solves", "paths", "held_out_paths")
+                                           if k in energy.sampling}}
+        document["timing"].update({k: float(entry.timings[k]) for k in ("sampling_s", "fit_s") if k in entry.timings})
+    return document
 
 
 def export_mesh(family, parameters: dict, path: str, *, mesh_size=None, order: int = 2,

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from vertebra.store.energy import EnergyFit
 from vertebra.store.entry import SegmentEntry, canonical_json
 from vertebra.store.errors import CatalogueError
 from vertebra.store.h5read import walk
@@ -423,6 +424,9 @@ def _verify_file(f, what: str) -> list[str]:
         except CatalogueError as error:
             problems.append(str(error))
             continue
+        if entry.energy is not None:
+            problems.extend(f"{what}: entry {key}: {problem}"
+                            for problem in entry.energy.check(entry.compliance, entry.rest_translation))
         if rows is None:
             continue
         row = rows.get(key)
@@ -539,6 +543,8 @@ def entry_to_dict(entry: SegmentEntry) -> dict:
         out[field] = enc.arrays[field].tolist()
     out.update(enc.dicts)
     out["n_cavities"] = entry.n_cavities
+    if entry.energy is not None:
+        out["energy"] = entry.energy.to_dict()
     out["checksum"] = enc.checksum
     return out
 
@@ -549,6 +555,8 @@ def entry_from_dict(data: dict) -> SegmentEntry:
         kwargs = {f: data[f] for f in ("key", "name", "family", "mass") + ARRAY_FIELDS + DICT_FIELDS}
     except KeyError as error:
         raise CatalogueError(f"exported entry: field {error} missing") from None
+    if data.get("energy") is not None:
+        kwargs["energy"] = EnergyFit.from_dict(data["energy"])
     entry = SegmentEntry(**kwargs)
     if "checksum" in data and EncodedEntry(entry).checksum != data["checksum"]:
         raise CatalogueError(f"exported entry {entry.key}: checksum mismatch")
@@ -564,6 +572,8 @@ def _npz_payload(entry: SegmentEntry) -> dict:
         payload[name] = np.array(text)
     for field in DICT_FIELDS:
         payload[field + "_json"] = np.array(canonical_json(enc.dicts[field]))
+    if entry.energy is not None:
+        payload["energy_json"] = np.array(canonical_json(entry.energy.to_dict()))
     return payload
 
 
@@ -612,6 +622,8 @@ def entry_from_npz(file) -> SegmentEntry:
         kwargs.update(key=str(z["key"]), name=str(z["name"]), family=str(z["family"]), mass=float(z["mass"]))
         for field in DICT_FIELDS:
             kwargs[field] = parse_json(str(z[field + "_json"]), f"npz field {field}")
+        if "energy_json" in z:
+            kwargs["energy"] = EnergyFit.from_dict(parse_json(str(z["energy_json"]), "npz field energy"))
         checksum = str(z["checksum"])
     entry = SegmentEntry(**kwargs)
     if EncodedEntry(entry).checksum != checksum:

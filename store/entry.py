@@ -5,6 +5,10 @@ A segment with ``n`` cavities is one symmetric (6+n)×(6+n) compliance
 cavity pressures]`` to ``[displacement of b relative to a (translation;
 rotation vector, in a's axes); cavity volume growths]`` with frame ``a`` clamped
 (paper eq. 2 for the 6×6 block ``C``).
+
+A nonlinear entry (catalogue schema v2) also carries ``energy``: its segment's energy
+ψ(s, p) over end poses and pressures (:mod:`store.energy`), whose Hessian at rest is the
+inverse of this compliance.
 """
 
 from __future__ import annotations
@@ -16,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from vertebra.store.energy import EnergyFit
 from vertebra.store.errors import CatalogueError
 from vertebra.store.soundness import soundness_problems
 
@@ -68,6 +73,7 @@ class SegmentEntry:
     accuracy: dict = field(default_factory=dict)    # e.g. {"relative_change": 1e-3, "method": "..."}
     timings: dict = field(default_factory=dict)     # mesh_s, assemble_s, solve_s, total_s
     provenance: dict = field(default_factory=dict)  # versions, date, host
+    energy: EnergyFit | None = None                 # nonlinear segments: ψ(s, p) (schema v2, store.energy)
 
     def __post_init__(self):
         n = np.asarray(self.cavity_volumes).reshape(-1).size
@@ -98,6 +104,16 @@ class SegmentEntry:
         problems = soundness_problems(self)
         if problems:
             raise CatalogueError(f"entry {self.name!r} is not physically sound: " + "; ".join(problems))
+        if self.energy is not None:
+            if not isinstance(self.energy, EnergyFit):
+                raise CatalogueError(f"entry {self.name!r} field 'energy': expected an EnergyFit, "
+                                     f"got {type(self.energy).__name__}")
+            if self.energy.n_cavities != n:
+                raise CatalogueError(f"entry {self.name!r} field 'energy': fitted for {self.energy.n_cavities} "
+                                     f"cavities, the entry has {n}")
+            if np.any(quaternion != np.array([1.0, 0.0, 0.0, 0.0])):
+                raise CatalogueError(f"entry {self.name!r} field 'energy': a nonlinear entry needs the identity "
+                                     "rest rotation")
 
     @property
     def n_cavities(self) -> int:

@@ -1,4 +1,4 @@
-"""HDF5 layout of a catalogue file (schema version 1; described in docs/catalogue.md).
+"""HDF5 layout of a catalogue file (schema version 2; described in docs/catalogue.md).
 
 Layout::
 
@@ -15,6 +15,11 @@ Layout::
         attrs: name, family (fixed-length UTF-8 strings), mass (float64),
                parameters, mesh, accuracy, timings, provenance (canonical JSON,
                fixed-length UTF-8 strings), checksum, content ("sha256:<hex>")
+        energy/           optional (schema v2): ψ(s, p) of a nonlinear segment, see
+                          ``store.energy.write_group``; covered by the checksum
+
+A version-1 file is a version-2 file without energy groups: it reads unchanged. A file
+is stamped 2 once it holds an entry with an energy group.
 
 This module only knows how to write one entry into an open group, read it back
 (checked), and compute digests. File-level concerns (locking, shards, atomic
@@ -32,12 +37,15 @@ from typing import Any
 
 import numpy as np
 
+from vertebra.store import energy as energy_schema
 from vertebra.store.entry import SegmentEntry, canonical_json
 from vertebra.store import h5read
 from vertebra.store.errors import CatalogueError
 
 FORMAT = "vertebra-catalogue"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+#: the schema version a file needs: 1 unless it holds an entry with an energy group
+ENERGY_SCHEMA_VERSION = 2
 
 ARRAY_FIELDS = ("compliance", "cavity_volumes", "center_of_mass", "rest_translation", "rest_quaternion")
 DICT_FIELDS = ("parameters", "mesh", "accuracy", "timings", "provenance")
@@ -163,22 +171,25 @@ def _metadata(key, name, family, mass, dicts: dict, *, content_only: bool) -> di
     return meta
 
 
-def _digest(arrays: dict, meta: dict) -> str:
+def _digest(arrays: dict, meta: dict, energy=None) -> str:
     """SHA-256 over, per array in ARRAY_FIELDS order, ``b"<name>:<shape,comma-joined>:"``
-    followed by the little-endian float64 C-order bytes, then the canonical JSON of ``meta``."""
+    followed by the little-endian float64 C-order bytes, then the canonical JSON of ``meta``,
+    then (schema v2, only when the entry has one) ``energy.digest_bytes()``."""
     h = hashlib.sha256()
     for field in ARRAY_FIELDS:
         arr = np.ascontiguousarray(arrays[field], dtype="<f8")
         h.update(f"{field}:{','.join(str(s) for s in arr.shape)}:".encode())
         h.update(arr.tobytes())
     h.update(canonical_json(meta).encode())
+    if energy is not None:
+        h.update(energy.digest_bytes())
     return "sha256:" + h.hexdigest()
 
 
-def digests(key, name, family, mass, arrays: dict, dicts: dict) -> tuple[str, str]:
+def digests(key, name, family, mass, arrays: dict, dicts: dict, energy=None) -> tuple[str, str]:
     """(checksum over every field, content digest without timings/provenance)."""
-    checksum = _digest(arrays, _metadata(key, name, family, mass, dicts, content_only=False))
-    content = _digest(arrays, _metadata(key, name, family, mass, dicts, content_only=True))
+    checksum = _digest(arrays, _metadata(key, name, family, mass, dicts, content_only=False), energy)
+    content = _digest(arrays, _metadata(key, name, family, mass, dicts, content_only=True), energy)
     return checksum, content
 
 
@@ -209,7 +220,7 @@ class EncodedEntry:
                 raise CatalogueError(f"{where}field {field!r}: more than {MAX_JSON_BYTES} bytes of JSON")
             self.dicts[field] = plain
         self.checksum, self.content = digests(self.key, self.name, self.family, self.mass,
-                                              self.arrays, self.dicts)
+                                              self.arrays, self.dicts, entry.energy)
 
     def index_row(self) -> dict:
         return {"key": self.key, "name": self.name, "family": self.family,
@@ -259,6 +270,9 @@ def write_entry(entries_group, enc: EncodedEntry) -> None:
         group.attrs[field] = _fixed_string(canonical_json(enc.dicts[field]))
     group.attrs["checksum"] = _fixed_string(enc.checksum)
     group.attrs["content"] = _fixed_string(enc.content)
+    if enc.entry.energy is not None:
+        energy_schema.write_group(group, enc.entry.energy)
+        stamp_version(group.file, ENERGY_SCHEMA_VERSION)
 
 
 def read_stored_digests(group, what: str, path: str) -> tuple[str, str]:
@@ -289,15 +303,22 @@ def read_entry(group, key: str, what: str) -> SegmentEntry:
             raise h5read.failure(what, path, f"attribute {field!r} is not a JSON object")
         dicts[field] = value
     stored_checksum, _ = read_stored_digests(group, what, path)
+    energy = None
+    energy_group = h5read.child(group, energy_schema.GROUP, what, path, "group", required=False)
+    if energy_group is not None:
+        try:
+            energy = energy_schema.read_group(group, f"{what}: {path}")
+        except (OSError, KeyError, ValueError, TypeError, RuntimeError) as error:
+            raise h5read.failure(what, f"{path}/{energy_schema.GROUP}", f"unreadable ({error})") from None
     try:
-        checksum, _ = digests(key, name, family, mass, arrays, dicts)
+        checksum, _ = digests(key, name, family, mass, arrays, dicts, energy)
     except (ValueError, TypeError) as error:
         raise h5read.failure(what, path, f"metadata cannot be digested ({error})") from None
     if checksum != stored_checksum:
         raise CatalogueError(f"{what}: entry {key} ({name!r}): checksum mismatch — stored {stored_checksum}, "
                              f"data gives {checksum}; the entry is corrupt")
     try:
-        return SegmentEntry(key=key, name=name, family=family, mass=mass, **arrays, **dicts)
+        return SegmentEntry(key=key, name=name, family=family, mass=mass, **arrays, **dicts, energy=energy)
     except CatalogueError as error:
         raise CatalogueError(f"{what}: entry {key}: {error}") from None
 
@@ -312,7 +333,15 @@ def differing_fields(a: SegmentEntry, b: SegmentEntry) -> list[str]:
         x, y = getattr(a, field), getattr(b, field)
         if x.shape != y.shape or x.tobytes() != y.tobytes():
             out.append(field)
+    if a.energy != b.energy and not (a.energy is None and b.energy is None):
+        out.append("energy")
     return out
+
+
+def stamp_version(f, version: int) -> None:
+    """Raise the file's ``schema_version`` to ``version`` (never lowers it)."""
+    if int(np.asarray(f.attrs["schema_version"])) < version:
+        f.attrs["schema_version"] = np.int64(version)
 
 
 # ---------------------------------------------------------------- file level
@@ -322,7 +351,7 @@ def init_file(f) -> None:
     import h5py
 
     f.attrs["format"] = _fixed_string(FORMAT)
-    f.attrs["schema_version"] = np.int64(SCHEMA_VERSION)
+    f.attrs["schema_version"] = np.int64(1)      # stamped 2 by the first entry with an energy group
     _describe(f.create_dataset("index", shape=(0,), maxshape=(None,), chunks=(1024,),
                                dtype=h5py.string_dtype("utf-8")), "index")
     f.create_group("entries")

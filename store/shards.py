@@ -30,10 +30,12 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from vertebra.store.errors import CatalogueError
 from vertebra.store.h5read import H5_ERRORS
-from vertebra.store.schema import (EncodedEntry, append_index, check_file, differing_fields, entry_group,
-                                   init_file, read_entry, read_index, write_entry)
+from vertebra.store.schema import (ENERGY_SCHEMA_VERSION, EncodedEntry, append_index, check_file, differing_fields,
+                                   entry_group, init_file, read_entry, read_index, stamp_version, write_entry)
 
 log = logging.getLogger("vertebra.store")
 
@@ -446,6 +448,8 @@ def _take(f, rows, new_rows, src, src_path, what, report, *, exclude) -> bool:
                 clean = False
             continue
         _copy_entry(f, src, key, what)
+        if entry.energy is not None:
+            stamp_version(f, ENERGY_SCHEMA_VERSION)
         rows[key] = row
         new_rows.append(row)
         report.added.append(key)
@@ -509,6 +513,7 @@ def _build(path, shards, inputs, exclude, report, merged, conflicted, corrupt) -
         new_rows: list[dict] = []
         if exclude is not None and path.exists():
             with open_checked(path) as old:
+                stamp_version(f, int(np.asarray(old.attrs["schema_version"])))
                 for key, row in read_index(old, str(path)).items():
                     if key == exclude:
                         report.removed.append(key)

@@ -30,8 +30,9 @@ def test_design_json_document_and_reuse(tmp_path):
     assert first.returncode == 0, first.stderr
     document = json.loads(first.stdout)                       # stdout holds one JSON document only
     assert set(document) == {"vertebra_version", "key", "name", "compliance", "cavity_volumes", "mass", "dofs",
-                             "accuracy", "timing"}
+                             "accuracy", "timing", "material"}
     assert document["vertebra_version"] == __import__("vertebra").__version__
+    assert document["material"] == "linear"
     assert set(document["timing"]) == {"mesh_s", "assemble_s", "solve_s", "total_s"}
     C = np.array(document["compliance"])
     assert C.shape == (6, 6) and np.array_equal(C, C.T)

@@ -151,17 +151,17 @@ def test_prepare_needs_a_catalogue(tmp_path):
     assert report.planned and resolved.catalogue == str(tmp_path / "cat.h5")
 
 
-@pytest.mark.skipif("material" in {o.name for o in DESIGN_OPTIONS}, reason="the designer makes nonlinear entries")
-def test_a_nonlinear_material_is_refused_until_the_designer_makes_such_entries(tmp_path):
-    scene = solver.parse_scene(scene_dict(rod(0.004, material="neo_hookean")), source="s.toml")
-    with pytest.raises(SceneError) as info:
-        prepare(scene, tmp_path / "cat.h5", **FAST)
-    assert info.value.field == "segment[0].material" and "nonlinear" in info.value.reason
-    # "linear" is what the designer does anyway: same key as no material at all
+def test_a_nonlinear_material_is_planned_with_its_own_key(tmp_path):
+    """A design segment with ``material = "neo_hookean"`` is planned under the nonlinear entry's key
+    (material and default sampling settings in it); ``"linear"`` keeps the plain key."""
+    nonlinear = solver.parse_scene(scene_dict(rod(0.004, material="neo_hookean")))
     linear = solver.parse_scene(scene_dict(rod(0.004, material="linear")))
     plain = solver.parse_scene(scene_dict(rod(0.004)))
-    keys = [prepare(s, tmp_path / "cat.h5", dry_run=True, **FAST)[1].planned for s in (linear, plain)]
-    assert keys[0] == keys[1]
+    reports = [prepare(s, tmp_path / "cat.h5", dry_run=True, **FAST)[1] for s in (nonlinear, linear, plain)]
+    keys = [r.segments[0].key for r in reports]
+    parameters = reports[0].segments[0].parameters
+    assert keys[1] == keys[2] != keys[0]
+    assert keys[0] == designer.entry_key("rod", parameters, mesh_size=0.004, material="neo_hookean")
 
 
 # ------------------------------------------------------------------ acceptance, end to end

@@ -35,6 +35,32 @@ def register_family(cls):
 
 
 @dataclass(frozen=True)
+class SegmentSymmetry:
+    """Isometries that map a segment onto itself (its nonlinear energy is invariant under them).
+
+    ``order``: rotations about the axis by 2π/order (0: every angle, an axisymmetric
+    segment); ``mirror``: mirror planes through the axis, one at ``mirror_angle`` from +x
+    (with the rotations, the dihedral group); ``end_flip``: the segment is the same seen
+    from either end (a half turn about a horizontal axis in the mirror plane swaps a and b);
+    ``cavity_angles``: per cavity, the angle of its centre about the axis, or ``None`` for a
+    cavity on the axis (how the isometries permute cavities)."""
+
+    order: int = 1
+    mirror: bool = False
+    mirror_angle: float = 0.0
+    end_flip: bool = False
+    cavity_angles: tuple = ()
+
+    def describe(self) -> dict:
+        return {"order": self.order, "mirror": self.mirror, "mirror_angle": self.mirror_angle,
+                "end_flip": self.end_flip, "cavity_angles": list(self.cavity_angles)}
+
+
+#: a solid of revolution symmetric about its mid-plane (rod, tube)
+AXISYMMETRIC = SegmentSymmetry(order=0, mirror=True, end_flip=True)
+
+
+@dataclass(frozen=True)
 class Parameter:
     """One design parameter. ``default=None`` means required."""
 
@@ -157,6 +183,14 @@ class Family:
     def build(self, occ, p: dict) -> list[tuple[int, int]]:
         """Create the solid with ``gmsh.model.occ``; return its volume dimTags."""
         raise NotImplementedError
+
+    def outer_radius(self, p: dict) -> float:
+        """Largest distance of the solid from the axis (bounds the fibre strain of bending)."""
+        return p["outer_radius"]
+
+    def symmetry(self, p: dict) -> SegmentSymmetry:
+        """The isometries mapping the segment onto itself (none unless a family says so)."""
+        return SegmentSymmetry()
 
     def classify(self, point, p: dict) -> str:
         """Name of the physical group of the boundary surface through ``point``

@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import math
 
-from vertebra.designer.families import MATERIAL, Family, Parameter, check_material, register_family, require
+from vertebra.designer.families import (MATERIAL, Family, Parameter, SegmentSymmetry, check_material, register_family,
+                                       require)
 
 
 @register_family
@@ -46,6 +47,10 @@ class Bellows(Family):
         # also make AMG stall, so these meshes go to the direct solver — keep them small)
         pitch = p["length"] / p["convolutions"]
         return min(max(1.5 * p["wall_thickness"], pitch / 6.0), p["outer_radius"] / 3.0)
+
+    def symmetry(self, p):
+        # a solid of revolution; r_mid(L − z) = r_mid(z), so the ends are alike; the bore is on the axis
+        return SegmentSymmetry(order=0, mirror=True, end_flip=True, cavity_angles=(None,))
 
     def mid_radius(self, z, p):
         amplitude = 0.5 * (p["outer_radius"] - p["inner_radius"] - p["wall_thickness"])

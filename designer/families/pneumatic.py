@@ -15,13 +15,21 @@ from __future__ import annotations
 
 import math
 
-from vertebra.designer.families import MATERIAL, Family, Parameter, check_material, nearest, register_family, require
+from vertebra.designer.families import (MATERIAL, Family, Parameter, SegmentSymmetry, check_material, nearest,
+                                       register_family, require)
 
 CHAMBER_PARAMETERS = (
     Parameter("chambers", "number of sealed chambers", default=3, integer=True),
     Parameter("chamber_angle_deg", "angle of chamber 0 about +z from +x", default=0.0, unit="deg"),
     Parameter("inner_radius", "central bore radius (0 = no bore)", default=0.0, unit="m"),
 )
+
+
+def chamber_symmetry(p: dict, end_flip: bool) -> SegmentSymmetry:
+    """Dihedral symmetry of N equal chambers (mirror planes through the chambers' axes)."""
+    n, first = p["chambers"], math.radians(p["chamber_angle_deg"])
+    return SegmentSymmetry(order=n, mirror=True, mirror_angle=first, end_flip=end_flip,
+                           cavity_angles=tuple(first + 2 * math.pi * k / n for k in range(n)))
 
 
 def _lerp(a, b, t):
@@ -135,6 +143,9 @@ class Pneumatic(Family):
 
     def default_mesh_size(self, p):
         return min(p["outer_radius"] / 3.0, 1.2 * p["chamber_radius"], p["length"] / 3.0)
+
+    def symmetry(self, p):
+        return chamber_symmetry(p, end_flip=True)
 
     def build(self, occ, p):
         s = self._section(p)

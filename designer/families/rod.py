@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from vertebra.designer.families import MATERIAL, Family, Parameter, check_material, register_family, require
+from vertebra.designer.families import (AXISYMMETRIC, MATERIAL, Family, Parameter, check_material, register_family,
+                                       require)
 
 
 @register_family
@@ -25,6 +26,12 @@ class Rod(Family):
 
     def build(self, occ, p):
         return [(3, occ.addCylinder(0, 0, 0, 0, 0, p["length"], p["radius"]))]
+
+    def outer_radius(self, p):
+        return p["radius"]
+
+    def symmetry(self, p):
+        return AXISYMMETRIC
 
     def classify(self, point, p):
         return "wall"

@@ -4,7 +4,8 @@ chamber offset change linearly from the bottom (z = 0) to the top (z = length)."
 from __future__ import annotations
 
 from vertebra.designer.families import MATERIAL, Family, Parameter, register_family
-from vertebra.designer.families.pneumatic import CHAMBER_PARAMETERS, build_chambered, check_chambers, classify_chambered
+from vertebra.designer.families.pneumatic import (CHAMBER_PARAMETERS, build_chambered, chamber_symmetry, check_chambers,
+                                                  classify_chambered)
 
 
 @register_family
@@ -38,6 +39,13 @@ class TaperedPneumatic(Family):
         R = min(p["bottom_outer_radius"], p["top_outer_radius"])
         r = min(p["bottom_chamber_radius"], p["top_chamber_radius"])
         return min(R / 3.0, 1.2 * r, p["length"] / 3.0)
+
+    def outer_radius(self, p):
+        return max(p["bottom_outer_radius"], p["top_outer_radius"])
+
+    def symmetry(self, p):
+        # the taper makes the two ends different: no end flip
+        return chamber_symmetry(p, end_flip=False)
 
     def build(self, occ, p):
         return build_chambered(occ, p, *self._sections(p))

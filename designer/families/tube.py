@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from vertebra.designer.families import MATERIAL, Family, Parameter, check_material, register_family, require
+from vertebra.designer.families import (AXISYMMETRIC, MATERIAL, Family, Parameter, check_material, register_family,
+                                       require)
 
 
 @register_family
@@ -32,6 +33,9 @@ class Tube(Family):
         inner = occ.addCylinder(0, 0, -p["length"], 0, 0, 3 * p["length"], p["inner_radius"])
         out, _ = occ.cut([(3, outer)], [(3, inner)])
         return out
+
+    def symmetry(self, p):
+        return AXISYMMETRIC
 
     def classify(self, point, p):
         return "wall"

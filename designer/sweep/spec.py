@@ -50,6 +50,32 @@ def _flag(value):
     return value
 
 
+def _material(value):
+    from vertebra.designer.segment import check_material
+    from vertebra.store.errors import OptionError
+
+    try:
+        return check_material(value) if isinstance(value, str) else _text(value)
+    except OptionError as error:
+        raise Invalid(error.reason) from None
+
+
+def _sampling(value):
+    """Nonlinear sampling and fit settings: a table of ``SamplingSettings`` fields (checked)."""
+    from vertebra.designer.segment import sampling_settings
+    from vertebra.store.errors import OptionError
+
+    if value is None:
+        return None
+    if not isinstance(value, dict):
+        raise Invalid(f"expected a table of sampling settings, got {value!r}")
+    try:
+        sampling_settings(value)
+    except OptionError as error:
+        raise Invalid(f"{error.field}: {error.reason}") from None
+    return dict(value)
+
+
 @dataclass(frozen=True)
 class DesignOption:
     """A spec field passed to ``design_segment`` as the keyword argument of the same name."""
@@ -65,6 +91,8 @@ DESIGN_OPTIONS: tuple[DesignOption, ...] = (
     DesignOption("order", 2, _element_order, keyed=True),
     DesignOption("linear_solver", "auto", _text),
     DesignOption("estimate_accuracy", True, _flag),
+    DesignOption("material", "linear", _material, keyed=True),      # linear | svk | neo_hookean
+    DesignOption("sampling", None, _sampling, keyed=True),          # nonlinear sampling and fit settings
 )
 
 #: top-level fields that are not design options or samplers

@@ -1,0 +1,238 @@
+"""Nonlinear condensation: a segment's energy ψ(s, p) sampled with its nonlinear FE and fitted.
+
+:func:`condense_energy` runs the whole step for one segment whose linear entry (its
+compliance on the same mesh) is known: the pressure ramp to the inflation limit point (for
+segments with cavities), the loading paths through an executor, the range, the fit and its
+held-out error (:mod:`designer.energy_sampling`, :mod:`designer.energy_fit`). The result is
+the :class:`store.energy.EnergyFit` a nonlinear catalogue entry carries.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from vertebra.designer.energy_fit import (SegmentSymmetry, Samples, convexity, fit_energy, fit_errors,
+                                          symmetry_group)
+from vertebra.designer.energy_sampling import (LoadBox, PathTask, PressureTask, SamplingSettings, load_box,
+                                               path_endpoints, run_paths, run_pressure_ramp)
+from vertebra.store.energy import EnergyFit, EnergyRange, group_coordinates, linear_terms
+from vertebra.store.errors import ConvergenceError
+
+#: margin added around the sampled poses when stating the range (fraction of each group's width)
+POSE_MARGIN = 0.02
+
+
+def _say(progress, message: str) -> None:
+    if progress is not None:
+        progress(message)
+
+
+def material_constants(material: str, parameters: dict) -> dict:
+    """The ``material`` record of an energy: model name and its constants (neo-Hooke as C10, D1)."""
+    E, nu = parameters["youngs_modulus"], parameters["poisson_ratio"]
+    mu, bulk = E / (2 * (1 + nu)), E / (3 * (1 - 2 * nu))
+    out = {"model": material, "youngs_modulus": E, "poisson_ratio": nu, "shear_modulus": mu, "bulk_modulus": bulk}
+    if material == "neo_hookean":
+        out.update(C10=mu / 2, D1=2 / bulk)
+    return out
+
+
+@dataclass(frozen=True)
+class FamilySolid:
+    """ModelSpec (:class:`designer.energy_sampling.ModelSpec`) of a designed segment's nonlinear FE:
+    the family's mesh (gmsh meshes deterministically, so it is the linear entry's mesh) with a
+    material of :data:`designer.nonlinear.MATERIALS`."""
+
+    family: str
+    parameters: str                  # canonical JSON of the canonical parameters
+    mesh_size: float
+    order: int
+    material: str
+    linear_solver: str = "auto"
+
+    def key(self) -> str:
+        return json.dumps([self.family, self.parameters, self.mesh_size, self.order, self.material,
+                           self.linear_solver])
+
+    def build(self):
+        from vertebra.designer.nonlinear import NonlinearSegment
+        from vertebra.designer.threads import pin_blas_threads
+
+        pin_blas_threads(1)
+        return NonlinearSegment.from_family(self.family, json.loads(self.parameters), self.material,
+                                            mesh_size=self.mesh_size, order=self.order,
+                                            linear_solver=self.linear_solver)
+
+
+@dataclass
+class Condensed:
+    """The fitted energy and how it was obtained."""
+
+    energy: EnergyFit
+    samples: Samples
+    held_out: np.ndarray
+    timings: dict
+
+
+def _results(executor, function, items):
+    """The results of ``function`` over ``items`` through ``executor``, as they complete; a
+    worker that crashed is an error (the sampling has no use for part of its paths)."""
+    from vertebra.designer.executors import Crash
+
+    for _, result in executor.map_unordered(function, items):
+        if isinstance(result, Crash):
+            raise ConvergenceError(f"nonlinear sampling: a worker failed: {result.error_type}: {result.message}")
+        yield result
+
+
+def pressure_range(executor, spec, entry, linear, settings: SamplingSettings, youngs_modulus: float,
+                   progress=None):
+    """``(largest sampled pressure, inflation limit point or None, fold pressure or None, free pose at
+    the top pressure, diagnostics)``: a ramp of cavity 0's pressure with the top free (by the
+    family's symmetry every cavity behaves alike) up to the requested pressure, or up to the
+    Young's modulus when none is requested. Without a limit point below the ramp, the fold
+    map uses where the ramp's last steps put it (if beyond the sampled pressures)."""
+    K, S, V = linear
+    largest = settings.pressure / settings.limit_fraction if settings.pressure else youngs_modulus
+    task = PressureTask(spec=spec, rest_translation=tuple(entry.rest_translation),
+                        rest_volumes=tuple(entry.cavity_volumes), stiffness=tuple(K.ravel()),
+                        mixed=tuple((-K @ S).ravel()), cavity=0, rest_compliance=float(V[0, 0]),
+                        largest=largest, first_step=largest / 16.0, min_step=largest / 512.0)
+    _say(progress, f"pressure ramp of cavity 0 up to {largest:.4g} Pa (inflation limit point search)")
+    outcome = next(_results(executor, run_pressure_ramp, [task]))
+    if outcome.limit is not None:
+        top = settings.limit_fraction * outcome.limit
+        if settings.pressure:
+            top = min(top, settings.pressure)
+        _say(progress, f"inflation limit point near {outcome.limit:.4g} Pa ({outcome.reason}); "
+                       f"pressures sampled up to {top:.4g} Pa")
+    else:
+        top = settings.pressure or largest
+        _say(progress, f"no limit point below {largest:.4g} Pa; pressures sampled up to {top:.4g} Pa")
+    fold = outcome.limit if outcome.limit is not None else outcome.fold
+    if fold is not None and not fold > 1.02 * top:
+        fold = None
+    return top, outcome.limit, fold, outcome.free_pose, {
+        "ramp_solves": outcome.solves, "ramp_s": outcome.seconds, "ramp_reached": outcome.reached,
+        "ramp_reason": outcome.reason, "ramp_fold_estimate": outcome.fold}
+
+
+def _tasks(spec, entry, linear, box: LoadBox, caps, endpoints, settings, workers: int) -> list[PathTask]:
+    K, S, _ = linear
+    per_task = max(1, math.ceil(len(endpoints) / (3 * max(1, workers))))
+    tasks = []
+    for lo in range(0, len(endpoints), per_task):
+        paths = tuple((i, tuple(endpoints[i])) for i in range(lo, min(lo + per_task, len(endpoints))))
+        tasks.append(PathTask(spec=spec, rest_translation=tuple(entry.rest_translation),
+                              rest_volumes=tuple(entry.cavity_volumes), stiffness=tuple(K.ravel()),
+                              mixed=tuple((-K @ S).ravel()), box=box, caps=tuple(caps), paths=paths,
+                              steps=settings.steps))
+    return tasks
+
+
+def sampled_range(samples: Samples, box: LoadBox, load_fraction: float, limit: float | None) -> EnergyRange:
+    """The range of a fit: the sampled poses' bounding box in group coordinates (plus
+    :data:`POSE_MARGIN`), the load box scaled by ``load_fraction`` (< 1 when paths stopped
+    early on a failure), the sampled pressures."""
+    groups = group_coordinates(samples.strain)
+    lower = np.array([0.0, min(0.0, groups[:, 1].min()), 0.0, min(0.0, groups[:, 3].min())])
+    upper = np.array([groups[:, 0].max(), max(0.0, groups[:, 1].max()), groups[:, 2].max(),
+                      max(0.0, groups[:, 3].max())])
+    width = np.maximum(upper - lower, 1e-300)
+    lower = lower - POSE_MARGIN * width * np.array([0, 1, 0, 1])
+    upper = upper + POSE_MARGIN * width
+    bounds = load_fraction * box.group_bounds()
+    m = samples.n_cavities
+    p_top = samples.pressure.max(axis=0) if m else np.zeros(0)
+    return EnergyRange(pose_lower=lower, pose_upper=upper, load_lower=np.array([0.0, -bounds[1], 0.0, -bounds[3]]),
+                       load_upper=bounds, pressure_lower=np.zeros(m), pressure_upper=p_top, limit_pressure=limit)
+
+
+def condense_energy(entry, spec, *, radius: float, youngs_modulus: float, symmetry: SegmentSymmetry,
+                    material: dict, settings: SamplingSettings | None = None, executor: str = "serial",
+                    workers: int | None = None, scheduler: str | None = None, progress=None) -> Condensed:
+    """Sample and fit the energy of the segment of the linear ``entry`` (same mesh) with the
+    nonlinear FE described by ``spec`` (:class:`designer.energy_sampling.ModelSpec`)."""
+    from vertebra.designer.executors import make_executor
+
+    m = entry.n_cavities
+    settings = (settings or SamplingSettings()).resolved(m)
+    start = time.perf_counter()
+    linear = linear_terms(entry.compliance, entry.rest_translation)
+    K = linear[0]
+    length = float(np.linalg.norm(entry.rest_translation))
+    timings = {}
+    with make_executor(executor, workers=workers, scheduler=scheduler) as pool:
+        pressure_info, limit, fold_estimate, p_top, free_pose = {}, None, None, 0.0, np.zeros(4)
+        if m:
+            p_top, limit, fold_estimate, free_pose, pressure_info = pressure_range(
+                pool, spec, entry, linear, settings, youngs_modulus, progress)
+        box, caps = load_box(K, length, radius, settings, pressure=p_top, free_pose=free_pose)
+        endpoints, held_paths = path_endpoints(m, settings)
+        tasks = _tasks(spec, entry, linear, box, caps, endpoints, settings, pool.workers)
+        _say(progress, f"sampling {len(endpoints)} loading paths × {settings.steps} steps in {len(tasks)} tasks "
+                       f"({pool.name} executor, {pool.workers} worker(s)); bending up to {caps[2]:.3g} rad, "
+                       f"twist {caps[3]:.3g} rad")
+        outcomes, done, t0 = [], 0, time.perf_counter()
+        for result in _results(pool, run_paths, tasks):
+            outcomes.append(result)
+            done += len(result.reached)
+            _say(progress, f"  {done}/{len(endpoints)} paths, {sum(o.solves for o in outcomes)} FE solves, "
+                           f"{time.perf_counter() - t0:.1f} s")
+    timings["sampling_s"] = time.perf_counter() - start
+    parts = [o.samples for o in outcomes if o.samples is not None]
+    if not parts:
+        raise ConvergenceError("nonlinear sampling: no FE solve converged")
+    samples = Samples.concatenate(parts)
+    reached = {i: f for o in outcomes for i, f in o.reached.items()}
+    stopped = {i: r for o in outcomes for i, r in o.stopped.items()}
+    failed = [reached[i] for i, reason in stopped.items() if not reason.startswith("pose")]
+    load_fraction = min([1.0] + [max(f, 1.0 / settings.steps) for f in failed])
+    if stopped:
+        _say(progress, f"{len(stopped)} path(s) stopped early: " + "; ".join(
+            f"#{i} at {reached[i]:.2f} ({r})" for i, r in sorted(stopped.items())[:4]))
+    energy_range = sampled_range(samples, box, load_fraction, limit)
+    scales = np.concatenate([
+        [energy_range.pose_upper[0]] * 2,
+        [max(abs(energy_range.pose_lower[1]), energy_range.pose_upper[1])],
+        [energy_range.pose_upper[2]] * 2,
+        [max(abs(energy_range.pose_lower[3]), energy_range.pose_upper[3])],
+        [max(p_top, 1e-300)] * m])
+    group = symmetry_group(symmetry, settings.degree)
+    held_out = held_paths[samples.path]
+    t1 = time.perf_counter()
+    fold = fold_estimate if (m and settings.fold) else None
+    if fold is not None:                # the pressures' scale in the fold variable w(p)
+        scales[6:] = 2.0 * fold * (1.0 - math.sqrt(1.0 - p_top / fold))
+    result = fit_energy(samples, linear, degree=settings.degree, pressure_degree=settings.pressure_degree if m else 0,
+                        group=group, scales=scales, held_out=held_out, hessian_weight=settings.hessian_weight,
+                        fold=fold)
+    volume_scale = float(np.abs(samples.pressure_gradient).max()) if m else None
+    bounds = energy_range.load_upper
+    errors = {"held_out": fit_errors(result, linear, samples.take(held_out), bounds, volume_scale)
+              if held_out.any() else {"samples": 0},
+              "training": fit_errors(result, linear, samples.take(~held_out), bounds, volume_scale),
+              "convexity_min_relative_eigenvalue": convexity(result, linear, samples.variables()),
+              "unknowns": result.unknowns}
+    timings["fit_s"] = time.perf_counter() - t1
+    held = errors["held_out"]
+    _say(progress, f"fit of degree {settings.degree}: {result.unknowns} unknowns, {len(result.exponents)} terms; "
+                   f"held-out load error {held.get('load_max', float('nan')):.3g} of the range "
+                   f"(linear {held.get('linear_load_max', float('nan')):.3g}); convexity "
+                   f"{errors['convexity_min_relative_eigenvalue']:.3g}")
+    sampling = {"settings": settings.describe(), "symmetry": symmetry.describe(), "group_order": len(group),
+                "paths": int(len(endpoints)), "held_out_paths": int(held_paths.sum()), "samples": int(samples.size),
+                "solves": int(sum(o.solves for o in outcomes)),
+                "stopped": {str(i): r for i, r in sorted(stopped.items())}, "load_fraction": load_fraction,
+                "load_box": {"lateral": box.lateral, "axial": box.axial, "bending": box.bending,
+                             "twist": box.twist, "pressure": box.pressure},
+                "pose_caps": caps.tolist(), **pressure_info}
+    energy = EnergyFit(exponents=result.exponents, coefficients=result.coefficients, scales=result.scales,
+                       range=energy_range, fit_error=errors, material=material, sampling=sampling, fold_pressure=fold)
+    timings["total_s"] = time.perf_counter() - start
+    return Condensed(energy=energy, samples=samples, held_out=held_out, timings=timings)

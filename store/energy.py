@@ -1,0 +1,645 @@
+"""The energy of a nonlinear segment, ψ(s, p): the optional part of a catalogue entry (schema v2).
+
+Because the vertebrae are rigid, a segment's whole response is fixed by the relative pose of
+its end frames and its cavity pressures. A nonlinear entry stores that response as an energy.
+
+Variables::
+
+    s = ξ − ξ₀ ∈ R⁶,   ξ = log_SE3(T_a⁻¹ T_b) = [ρ; φ]   (translation first, as the runtime links)
+    p ∈ Rⁿ                                              (cavity pressures, Pa)
+
+with ``ξ₀ = [d₀; 0]`` the rest strain (rest translation ``d₀``, rest rotation the identity).
+
+Form::
+
+    ψ(s, p) = ψ_lin(s, p) + ψ_nl(s, p)
+    ψ_lin   = ½ (s − S p)ᵀ K (s − S p) − ½ pᵀ V p          (:func:`linear_terms`)
+    ψ_nl    = Σ_α c_α u^α,   u = [s; w(p)] / scales,   every |α| ≥ 3   (w(p) = p but near a fold)
+
+``ψ_lin`` is exactly the energy the runtime builds from the entry's linear compliance
+``[[C, G], [Gᵀ, V]]``: ``K = inv(A C Aᵀ)`` and ``S = A G`` with ``A = ∂ξ/∂δ`` at rest (the log's
+translation includes half the lever arm, so ``K`` is not ``inv(C)``). ``ψ_nl`` has no term of
+total degree below three in ``(s, p)``, so the Hessian of ψ at rest IS the linear one and
+small-load results do not change. Derivatives: ``∂ψ/∂s`` is the generalised force of the
+segment on its strain (the wrench conjugate to ``s``), ``ΔV = −∂ψ/∂p`` the cavity volume growth
+relative to the rest volumes.
+
+Pressures near an inflation limit point. A chamber that balloons has a limit point ``P`` in
+pressure where its volume growth behaves like ``V_P − a√(P − p)`` (a fold): no polynomial in
+``p`` follows it closely. With ``fold_pressure = P`` the pressures enter ψ_nl through
+``w(p) = 2P(1 − √(1 − p/P))`` (``u = [s; w(p)] / scales``; ψ_lin keeps ``p``). In ``w`` the fold
+is smooth: ``∂ψ_nl/∂w = −(ΔV − ΔV_lin)·√(1 − p/P)`` with ``√(1 − p/P) = 1 − w/2P``, and since
+``w = p + p²/4P + …`` ψ_nl still has no term below degree 3 in ``p``. Without a fold ``w = p``.
+
+Range. A fit is only trusted where it was sampled. :class:`EnergyRange` bounds four group
+coordinates — lateral translation ``|ρ⊥|``, axial translation ``ρ_z``, bending ``|φ⊥|``,
+twist ``φ_z`` — of both the strain ``s`` and the load ``∂ψ/∂s``, and each pressure. The
+groups are invariant under rotations about the segment axis, so the test is the same for a
+segment turned about its axis. The load test carries the shape of the sampled set: the
+axial log coordinate of a bent soft segment moves with about the square of the bending
+angle, so a box in ``s`` alone would either cut off bent states or accept stretched ones
+that were never sampled; the loads a segment carries are what the sampling bounded.
+
+The evaluation kernel :class:`EnergyModel` is what the runtime calls once per Newton
+iteration for all links of one entry: a monomial table built degree by degree (one gather
+and one product per degree) and three matrix products give ψ, its gradient and Hessian
+for every link at once. numpy only: the runtime imports this module.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import math
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+
+from vertebra.store.errors import CatalogueError
+
+#: name of the stored form (the ``representation`` attribute)
+REPRESENTATION = "scaled-monomials"
+#: smallest total degree of a ψ_nl term: the Hessian at rest stays the linear one
+MIN_DEGREE = 3
+#: largest total degree accepted when reading (a fit of degree 12 in 9 variables has 2·10⁵ terms)
+MAX_DEGREE = 12
+MAX_TERMS = 200_000
+MAX_CAVITIES = 64
+#: names of the four group coordinates of a strain or a load (the range is stated in them)
+GROUPS = ("lateral", "axial", "bending", "twist")
+_RADIAL = (0, 2)             # groups that are norms of (x, y) pairs: lower bound 0
+
+
+def _json_roundtrip(value, what: str) -> dict:
+    if not isinstance(value, dict):
+        raise CatalogueError(f"energy field {what!r}: must be a dict, got {type(value).__name__}")
+    try:
+        return json.loads(json.dumps(value, allow_nan=False))
+    except (TypeError, ValueError) as error:
+        raise CatalogueError(f"energy field {what!r}: not JSON data ({error})") from None
+
+
+def _floats(value, what: str, shape: tuple) -> np.ndarray:
+    arr = np.array(value, dtype=float)
+    if arr.shape != shape:
+        raise CatalogueError(f"energy field {what!r}: shape {arr.shape}, expected {shape}")
+    if not np.all(np.isfinite(arr)):
+        raise CatalogueError(f"energy field {what!r}: contains NaN or infinity")
+    arr.setflags(write=False)
+    return arr
+
+
+def group_coordinates(v: np.ndarray) -> np.ndarray:
+    """(…, 4) ``[|v_xy(translation)|, v_z, |v_xy(rotation)|, v_φz]`` of (…, 6) strains or loads."""
+    out = np.empty(v.shape[:-1] + (4,))
+    out[..., 0] = np.hypot(v[..., 0], v[..., 1])
+    out[..., 1] = v[..., 2]
+    out[..., 2] = np.hypot(v[..., 3], v[..., 4])
+    out[..., 3] = v[..., 5]
+    return out
+
+
+@dataclass(frozen=True)
+class EnergyRange:
+    """Where a fit was sampled: bounds on the group coordinates (:data:`GROUPS`) of the strain
+    ``s`` and of the load ``∂ψ/∂s``, and on each cavity pressure. ``limit_pressure``: the
+    inflation limit point met while sampling (Pa; ``None`` if none was met below the sampled
+    pressures); the pressure range stays below it."""
+
+    pose_lower: np.ndarray
+    pose_upper: np.ndarray
+    load_lower: np.ndarray
+    load_upper: np.ndarray
+    pressure_lower: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    pressure_upper: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    limit_pressure: float | None = None
+
+    def __post_init__(self):
+        set_ = object.__setattr__
+        for name in ("pose_lower", "pose_upper", "load_lower", "load_upper"):
+            set_(self, name, _floats(getattr(self, name), f"range.{name}", (4,)))
+        n = np.reshape(self.pressure_lower, -1).size
+        for name in ("pressure_lower", "pressure_upper"):
+            set_(self, name, _floats(np.reshape(getattr(self, name), -1), f"range.{name}", (n,)))
+        for kind in ("pose", "load"):
+            lower, upper = getattr(self, f"{kind}_lower"), getattr(self, f"{kind}_upper")
+            if not np.all(upper > lower):
+                bad = GROUPS[int(np.argmin(upper - lower))]
+                raise CatalogueError(f"energy range: {kind} bounds of {bad!r} are empty ({lower}, {upper})")
+            if np.any(lower[list(_RADIAL)] != 0.0):
+                raise CatalogueError(f"energy range: {kind} lower bounds of the radial groups must be 0")
+        if not np.all(self.pressure_upper >= self.pressure_lower):
+            raise CatalogueError("energy range: a pressure upper bound is below its lower bound")
+        if self.limit_pressure is not None:
+            limit = float(self.limit_pressure)
+            if not (math.isfinite(limit) and np.all(self.pressure_upper < limit)):
+                raise CatalogueError(f"energy range: pressures reach the inflation limit point {limit}")
+            set_(self, "limit_pressure", limit)
+
+    @property
+    def n_cavities(self) -> int:
+        return self.pressure_lower.size
+
+    def excess(self, s: np.ndarray, load: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """(n,) largest excess over the bounds, as a fraction of the bounded interval's width
+        (≤ 0: inside the fitted range). Vectorised over states."""
+        lower, upper, inverse_width, radial, signed = self._bounds
+        both = np.concatenate([s, load], axis=1)
+        values = np.empty((s.shape[0], 8 + self.n_cavities))
+        np.sqrt((both * both) @ radial, out=values[:, :4])
+        values[:, 4:8] = both[:, signed]
+        values[:, 8:] = p
+        values *= inverse_width
+        return np.maximum(values - upper, lower - values).max(axis=1)
+
+    @cached_property
+    def _bounds(self):
+        """Bounds of ``[radial groups of s and load, signed groups of s and load, pressures]``
+        divided by their intervals' widths, the widths' inverses, and the maps from ``[s, load]``."""
+        radial_groups, signed_groups = list(_RADIAL), [1, 3]
+        lower = np.concatenate([self.pose_lower[radial_groups], self.load_lower[radial_groups],
+                                self.pose_lower[signed_groups], self.load_lower[signed_groups], self.pressure_lower])
+        upper = np.concatenate([self.pose_upper[radial_groups], self.load_upper[radial_groups],
+                                self.pose_upper[signed_groups], self.load_upper[signed_groups], self.pressure_upper])
+        inverse_width = 1.0 / np.where(upper > lower, upper - lower, 1.0)
+        radial = np.zeros((12, 4))
+        for column, pair in enumerate(((0, 1), (3, 4), (6, 7), (9, 10))):
+            radial[list(pair), column] = 1.0
+        signed = np.array([2, 5, 8, 11])
+        return lower * inverse_width, upper * inverse_width, inverse_width, radial, signed
+
+    def to_dict(self) -> dict:
+        return {"pose_lower": self.pose_lower.tolist(), "pose_upper": self.pose_upper.tolist(),
+                "load_lower": self.load_lower.tolist(), "load_upper": self.load_upper.tolist(),
+                "pressure_lower": self.pressure_lower.tolist(), "pressure_upper": self.pressure_upper.tolist(),
+                "limit_pressure": self.limit_pressure, "groups": list(GROUPS)}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "EnergyRange":
+        if not isinstance(data, dict):
+            raise CatalogueError("energy range: not a JSON object")
+        names = ("pose_lower", "pose_upper", "load_lower", "load_upper", "pressure_lower", "pressure_upper")
+        missing = [n for n in names + ("limit_pressure",) if n not in data]
+        if missing:
+            raise CatalogueError(f"energy range: field {missing[0]!r} missing")
+        return cls(**{n: data[n] for n in names}, limit_pressure=data["limit_pressure"])
+
+
+@dataclass(frozen=True)
+class EnergyFit:
+    """The fitted nonlinear part ψ_nl of a segment's energy and what it was fitted on.
+
+    ``exponents`` (m, 6+n) non-negative integers, each row of total degree ≥ 3 (unique rows);
+    ``coefficients`` (m,) in J; ``scales`` (6+n,) of the variables ``[s; w(p)]`` (m, rad, Pa);
+    ``range``: where it was sampled; ``fit_error``: errors on held-out samples; ``material``:
+    the constitutive model and its constants; ``sampling``: how the samples were chosen and
+    solved (JSON objects); ``fold_pressure``: the pressure of the fold map ``w(p)`` (module
+    docstring) or ``None``."""
+
+    exponents: np.ndarray
+    coefficients: np.ndarray
+    scales: np.ndarray
+    range: EnergyRange
+    fit_error: dict = field(default_factory=dict)
+    material: dict = field(default_factory=dict)
+    sampling: dict = field(default_factory=dict)
+    fold_pressure: float | None = None
+    representation: str = REPRESENTATION
+
+    def __post_init__(self):
+        set_ = object.__setattr__
+        if self.representation != REPRESENTATION:
+            raise CatalogueError(f"energy: representation {self.representation!r} unknown "
+                                 f"(this vertebra reads {REPRESENTATION!r})")
+        scales = _floats(np.reshape(self.scales, -1), "scales", (np.size(self.scales),))
+        nv = scales.size
+        if not 6 <= nv <= 6 + MAX_CAVITIES:
+            raise CatalogueError(f"energy field 'scales': {nv} variables, expected 6 + cavities")
+        if not np.all(scales > 0):
+            raise CatalogueError("energy field 'scales': must be positive")
+        exponents = np.array(self.exponents)
+        if exponents.ndim != 2 or exponents.shape[1] != nv or exponents.shape[0] > MAX_TERMS:
+            raise CatalogueError(f"energy field 'exponents': shape {exponents.shape}, expected (terms ≤ "
+                                 f"{MAX_TERMS}, {nv})")
+        if exponents.size and (exponents.dtype.kind not in "iu" or exponents.min() < 0):
+            raise CatalogueError("energy field 'exponents': must be non-negative integers")
+        exponents = exponents.astype(np.int64).reshape(-1, nv)
+        degree = exponents.sum(1)
+        if exponents.size and (degree.min() < MIN_DEGREE or degree.max() > MAX_DEGREE):
+            raise CatalogueError(f"energy field 'exponents': total degrees {degree.min()}…{degree.max()}, "
+                                 f"expected {MIN_DEGREE}…{MAX_DEGREE} (no term below degree {MIN_DEGREE}: "
+                                 "the Hessian at rest must be the linear one)")
+        if np.unique(exponents, axis=0).shape[0] != exponents.shape[0]:
+            raise CatalogueError("energy field 'exponents': repeated rows")
+        exponents.setflags(write=False)
+        set_(self, "exponents", exponents)
+        set_(self, "scales", scales)
+        set_(self, "coefficients", _floats(np.reshape(self.coefficients, -1), "coefficients",
+                                           (exponents.shape[0],)))
+        if not isinstance(self.range, EnergyRange):
+            raise CatalogueError(f"energy field 'range': expected an EnergyRange, got {type(self.range).__name__}")
+        if self.range.n_cavities != nv - 6:
+            raise CatalogueError(f"energy field 'range': {self.range.n_cavities} pressure bounds for "
+                                 f"{nv - 6} cavities")
+        for name in ("fit_error", "material", "sampling"):
+            set_(self, name, _json_roundtrip(getattr(self, name), name))
+        if self.fold_pressure is not None:
+            fold = float(self.fold_pressure)
+            if not (nv > 6 and math.isfinite(fold) and fold > 0 and np.all(self.range.pressure_upper < fold)):
+                raise CatalogueError(f"energy field 'fold_pressure': {self.fold_pressure!r} must be a finite pressure "
+                                     "above the sampled pressures of a segment with cavities")
+            set_(self, "fold_pressure", fold)
+
+    def __eq__(self, other):
+        return isinstance(other, EnergyFit) and self.digest() == other.digest()
+
+    __hash__ = None
+
+    @property
+    def n_cavities(self) -> int:
+        return self.scales.size - 6
+
+    @property
+    def degree(self) -> int:
+        return int(self.exponents.sum(1).max()) if self.exponents.size else 0
+
+    def attributes(self) -> dict:
+        """The JSON metadata stored beside the arrays."""
+        return {"representation": self.representation, "range": self.range.to_dict(),
+                "fit_error": self.fit_error, "material": self.material, "sampling": self.sampling,
+                "fold_pressure": self.fold_pressure}
+
+    def digest_bytes(self) -> bytes:
+        """Bytes that identify the fit, for the entry checksum: the arrays (little-endian, shapes
+        prefixed) and the canonical JSON of the metadata."""
+        parts = []
+        for name, arr in (("exponents", np.ascontiguousarray(self.exponents, "<i8")),
+                          ("coefficients", np.ascontiguousarray(self.coefficients, "<f8")),
+                          ("scales", np.ascontiguousarray(self.scales, "<f8"))):
+            parts.append(f"energy.{name}:{','.join(map(str, arr.shape))}:".encode() + arr.tobytes())
+        parts.append(json.dumps(self.attributes(), sort_keys=True, separators=(",", ":"),
+                                allow_nan=False).encode())
+        return b"".join(parts)
+
+    def digest(self) -> str:
+        return hashlib.sha256(self.digest_bytes()).hexdigest()
+
+    def to_dict(self) -> dict:
+        """JSON-ready (exponents as integer lists, floats exact)."""
+        return {"exponents": self.exponents.tolist(), "coefficients": self.coefficients.tolist(),
+                "scales": self.scales.tolist(), **self.attributes()}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "EnergyFit":
+        if not isinstance(data, dict):
+            raise CatalogueError("energy: not a JSON object")
+        names = ("exponents", "coefficients", "scales", "representation", "range", "fit_error", "material",
+                 "sampling", "fold_pressure")
+        missing = [n for n in names if n not in data]
+        if missing:
+            raise CatalogueError(f"energy: field {missing[0]!r} missing")
+        exponents = np.array(data["exponents"], dtype=object)
+        if exponents.size and not all(isinstance(v, int) and not isinstance(v, bool) for v in exponents.flat):
+            raise CatalogueError("energy field 'exponents': must be integers")
+        nv = len(data["scales"]) if isinstance(data["scales"], list) else 0
+        return cls(exponents=np.array(data["exponents"], dtype=np.int64).reshape(-1, nv),
+                   coefficients=data["coefficients"], scales=data["scales"],
+                   range=EnergyRange.from_dict(data["range"]), fit_error=data["fit_error"],
+                   material=data["material"], sampling=data["sampling"], fold_pressure=data["fold_pressure"],
+                   representation=data["representation"])
+
+    def check(self, compliance: np.ndarray, rest_translation: np.ndarray) -> list[str]:
+        """Consistency with its entry (``verify``): problems found, [] if none. The Hessian at rest
+        must be the linear one (no term below degree 3: checked on construction, and here by
+        evaluation); the range must contain the rest state; the linear energy must be built."""
+        problems = []
+        try:
+            model = EnergyModel(self, *linear_terms(compliance, rest_translation))
+        except CatalogueError as error:
+            return [str(error)]
+        rest = model.evaluate(np.zeros((1, 6)), np.zeros((1, self.n_cavities)))
+        K, S, V = model.stiffness, model.pressure_map, model.volume_compliance
+        hessian = np.block([[K, -K @ S], [-(K @ S).T, S.T @ K @ S - V]])
+        got = np.block([[rest.hessian[0], rest.mixed_hessian[0]],
+                        [rest.mixed_hessian[0].T, rest.pressure_hessian[0]]])
+        scale = np.sqrt(np.abs(np.diag(hessian)))
+        scale[scale == 0] = 1.0
+        if not np.max(np.abs(got - hessian) / np.outer(scale, scale)) <= 1e-12:
+            problems.append("energy: the Hessian at rest differs from the linear compliance's")
+        if np.any(np.abs(rest.gradient) > 0) or np.any(np.abs(rest.pressure_gradient) > 0):
+            problems.append("energy: nonzero load at rest")
+        if not rest.in_range[0]:
+            problems.append("energy: the fitted range does not contain the rest state")
+        return problems
+
+
+# ------------------------------------------------------------------------ linear part
+
+def rest_strain_map(rest_translation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(ξ₀, A)`` of a rest pose with the identity rotation and translation ``d₀``:
+    ``ξ₀ = [d₀; 0]`` and ``A = ∂ξ/∂δ = [[I, ½ d̂₀], [0, I]]`` (δ = [Δx; Δθ] of b in a's axes).
+    For a pure translation ``ad(ξ₀)² = 0``, so ``J_l⁻¹(ξ₀) = I − ½ ad(ξ₀)`` and with the lever
+    shift ``[[I, d̂₀], [0, I]]`` the log's translation carries half the lever arm."""
+    d = np.asarray(rest_translation, dtype=float).reshape(3)
+    A = np.eye(6)
+    A[:3, 3:] = 0.5 * np.array([[0.0, -d[2], d[1]], [d[2], 0.0, -d[0]], [-d[1], d[0], 0.0]])
+    return np.concatenate([d, np.zeros(3)]), A
+
+
+def linear_terms(compliance: np.ndarray, rest_translation: np.ndarray):
+    """``(K, S, V)`` of ψ_lin from an entry's compliance ``[[C, G], [Gᵀ, V]]``: ``K = inv(A C Aᵀ)``
+    (symmetrised), ``S = A G``, ``V``."""
+    compliance = np.asarray(compliance, dtype=float)
+    _, A = rest_strain_map(rest_translation)
+    C, G, V = compliance[:6, :6], compliance[:6, 6:], compliance[6:, 6:]
+    try:
+        K = np.linalg.inv(A @ C @ A.T)
+    except np.linalg.LinAlgError:
+        raise CatalogueError("energy: the entry's 6×6 compliance is singular") from None
+    return 0.5 * (K + K.T), A @ G, V
+
+
+# ------------------------------------------------------------------------ kernel
+
+def monomial_exponents(n_variables: int, max_degree: int, min_degree: int = 0,
+                       tail: int = 0, tail_degree: int | None = None) -> np.ndarray:
+    """(m, n_variables) exponents of every monomial of total degree in [min_degree, max_degree],
+    ordered by degree then lexicographically (last variable fastest); with ``tail_degree``,
+    monomials that involve any of the last ``tail`` variables (the pressures) have total
+    degree ≤ ``tail_degree``."""
+    rows = []
+    for degree in range(min_degree, max_degree + 1):
+        for combo in itertools.combinations_with_replacement(range(n_variables), degree):
+            alpha = np.bincount(np.array(combo, dtype=np.int64), minlength=n_variables)
+            if tail_degree is not None and tail and degree > tail_degree and alpha[n_variables - tail:].any():
+                continue
+            rows.append(alpha)
+    return np.array(rows, dtype=np.int64).reshape(-1, n_variables)
+
+
+@dataclass(slots=True)
+class EnergyValues:
+    """ψ and its derivatives at ``n`` states (one row per link)."""
+
+    energy: np.ndarray             # (n,) J
+    gradient: np.ndarray           # (n, 6) ∂ψ/∂s
+    hessian: np.ndarray            # (n, 6, 6) ∂²ψ/∂s²
+    pressure_gradient: np.ndarray  # (n, m) ∂ψ/∂p = −ΔV
+    mixed_hessian: np.ndarray      # (n, 6, m) ∂²ψ/∂s∂p
+    pressure_hessian: np.ndarray   # (n, m, m) ∂²ψ/∂p²
+    range_excess: np.ndarray       # (n,) ≤ 0 inside the fitted range (see EnergyRange.excess)
+    in_range: np.ndarray           # (n,) bool
+
+    @property
+    def volume_growth(self) -> np.ndarray:
+        """(n, m) ΔV = −∂ψ/∂p, relative to the rest volumes."""
+        return -self.pressure_gradient
+
+
+class EnergyModel:
+    """A fit compiled for batched evaluation with its entry's linear part ``(K, S, V)``
+    (:func:`linear_terms`). Build once per entry; :meth:`evaluate` once per Newton iteration.
+
+    Only monomials of degree ≤ d − 1 are evaluated: the gradient of each homogeneous part
+    ψ_k is kept apart, and Euler's identity ``ψ_k(u) = u·∇ψ_k(u) / k`` gives the energy. States
+    run along the columns of the monomial table (row gathers of contiguous memory)."""
+
+    def __init__(self, fit: EnergyFit, stiffness: np.ndarray, pressure_map: np.ndarray,
+                 volume_compliance: np.ndarray):
+        n = fit.n_cavities
+        self.fit = fit
+        self.stiffness = _floats(stiffness, "stiffness", (6, 6))
+        self.pressure_map = _floats(np.reshape(pressure_map, (6, n)), "pressure_map", (6, n))
+        self.volume_compliance = _floats(np.reshape(volume_compliance, (n, n)), "volume_compliance", (n, n))
+        self._compile()
+
+    @classmethod
+    def of_entry(cls, entry) -> "EnergyModel":
+        if entry.energy is None:
+            raise CatalogueError(f"entry {entry.name!r} has no energy (a linear entry)")
+        return cls(entry.energy, *linear_terms(entry.compliance, entry.rest_translation))
+
+    def _compile(self) -> None:
+        fit = self.fit
+        nv = fit.scales.size
+        inv = 1.0 / fit.scales
+        lowered = [alpha - np.eye(nv, dtype=np.int64)[j] for alpha in fit.exponents for j in np.flatnonzero(alpha)]
+        table = Monomials(np.array(lowered, dtype=np.int64).reshape(-1, nv))
+        total = table.exponents.sum(1)
+        n_hess = int(np.sum(total <= max(fit.degree - 2, 0)))
+        index = table.index
+        # rows 0…nv−1: ∂ψ_nl/∂u_j; rows nv…2nv−1: Σ_k (∂ψ_k/∂u_j)/k, whose dot with u is ψ_nl
+        gradient = np.zeros((2 * nv, table.size))
+        hessian = np.zeros((nv, nv, n_hess))
+        for alpha, c in zip(fit.exponents, fit.coefficients):
+            degree = alpha.sum()
+            for j in np.flatnonzero(alpha):
+                a1 = alpha.copy()
+                a1[j] -= 1
+                gradient[j, index[tuple(a1)]] += c * alpha[j]
+                gradient[nv + j, index[tuple(a1)]] += c * alpha[j] / degree
+                for k in np.flatnonzero(a1):
+                    a2 = a1.copy()
+                    a2[k] -= 1
+                    hessian[j, k, index[tuple(a2)]] += c * alpha[j] * a1[k]
+        # fold the variable scales in: derivatives in z = u·scales
+        gradient[:nv] *= inv[:, None]
+        hessian *= (inv[:, None] * inv[None, :])[:, :, None]
+        self._table = table
+        self._gradient = gradient
+        self._hessian = hessian.reshape(nv * nv, n_hess)
+        self._n_hess = n_hess
+        self._inv_scales = inv[:, None]
+        K, S = self.stiffness, self.pressure_map
+        self._KS = K @ S
+        self._pp = S.T @ K @ S - self.volume_compliance
+
+    @property
+    def n_monomials(self) -> int:
+        return self._table.size
+
+    def evaluate(self, s: np.ndarray, p: np.ndarray | None = None) -> EnergyValues:
+        """ψ and its derivatives at the strains ``s`` (n, 6) and pressures ``p`` (n, m)."""
+        s = np.asarray(s, dtype=float)
+        n, m = s.shape[0], self.fit.n_cavities
+        nv = 6 + m
+        p = np.zeros((n, m)) if p is None else np.asarray(p, dtype=float).reshape(n, m)
+        fold = self.fit.fold_pressure
+        if m and fold is not None:
+            w, w1, w2 = fold_map(p, fold)
+        else:
+            w = p
+        u = (np.concatenate([s, w], axis=1).T if m else s.T) * self._inv_scales      # (nv, n)
+        mon = self._table.values_t(u)
+        both = self._gradient @ mon                                 # (2 nv, n)
+        energy = (u * both[nv:]).sum(0)
+        grad = both[:nv].T                                          # (n, nv)
+        hess = (self._hessian @ mon[:self._n_hess]).T.reshape(n, nv, nv)
+        K = self.stiffness
+        if m:
+            if fold is not None:                                    # chain rule from w(p) to p
+                gw = grad[:, 6:] * w2
+                grad[:, 6:] *= w1
+                hess[:, :, 6:] *= w1[:, None, :]
+                hess[:, 6:, :] *= w1[:, :, None]
+                hess[:, 6:, 6:] += gw[:, :, None] * np.eye(m)
+            e = s - p @ self.pressure_map.T                         # ψ_lin(s, p)
+            Ke = e @ K
+            energy += 0.5 * (e * Ke).sum(1) - 0.5 * ((p @ self.volume_compliance) * p).sum(1)
+            grad[:, :6] += Ke
+            grad[:, 6:] -= Ke @ self.pressure_map + p @ self.volume_compliance
+            hess[:, :6, :6] += K
+            hess[:, :6, 6:] -= self._KS
+            hess[:, 6:, :6] -= self._KS.T
+            hess[:, 6:, 6:] += self._pp
+        else:
+            Ke = s @ K
+            energy += 0.5 * (s * Ke).sum(1)
+            grad += Ke
+            hess += K
+        gradient = grad[:, :6]
+        excess = self.fit.range.excess(s, gradient, p)
+        return EnergyValues(energy=energy, gradient=gradient, hessian=hess[:, :6, :6],
+                            pressure_gradient=grad[:, 6:], mixed_hessian=hess[:, :6, 6:],
+                            pressure_hessian=hess[:, 6:, 6:], range_excess=excess, in_range=excess <= 0.0)
+
+
+def fold_map(p: np.ndarray, fold: float):
+    """``w(p) = 2P(1 − √(1 − p/P))`` and its first two derivatives (pressures below ``P``)."""
+    root = np.sqrt(1.0 - p / fold)
+    return 2.0 * fold * (1.0 - root), 1.0 / root, 0.5 / (fold * root ** 3)
+
+
+class Monomials:
+    """The monomials dividing a set of exponents (constant included), ordered by degree, with
+    the tree that evaluates them: each monomial of degree k is a parent of degree k − 1 times
+    one variable, so :meth:`values` costs one gather and one product per degree."""
+
+    def __init__(self, exponents: np.ndarray):
+        exponents = np.asarray(exponents, dtype=np.int64)
+        nv = exponents.shape[1]
+        seen = {tuple([0] * nv)}
+        frontier = {tuple(int(v) for v in row) for row in exponents}
+        while frontier:
+            seen |= frontier
+            below = set()
+            for alpha in frontier:
+                for j, a in enumerate(alpha):
+                    if a:
+                        beta = alpha[:j] + (a - 1,) + alpha[j + 1:]
+                        if beta not in seen:
+                            below.add(beta)
+            frontier = below
+        closure = np.array(sorted(seen), dtype=np.int64).reshape(-1, nv)
+        closure = closure[np.lexsort(tuple(closure[:, ::-1].T) + (closure.sum(1),))]
+        total = closure.sum(1)
+        self.exponents = closure
+        self.index = {tuple(row): i for i, row in enumerate(closure.tolist())}
+        self.blocks = []
+        for k in range(1, int(total.max(initial=0)) + 1):
+            rows = np.flatnonzero(total == k)
+            last = nv - 1 - np.argmax(closure[rows, ::-1] > 0, axis=1)      # highest variable present
+            parents = closure[rows].copy()
+            parents[np.arange(rows.size), last] -= 1
+            self.blocks.append((int(rows[0]), int(rows[-1]) + 1,
+                                np.array([self.index[tuple(r)] for r in parents.tolist()]), last))
+
+    @property
+    def size(self) -> int:
+        return self.exponents.shape[0]
+
+    def values(self, u: np.ndarray) -> np.ndarray:
+        """(n, size) values of the monomials at the points ``u`` (n, variables)."""
+        return self.values_t(np.asarray(u, dtype=float).T).T
+
+    def values_t(self, u_t: np.ndarray) -> np.ndarray:
+        """(size, n) values of the monomials at the points ``u_t`` (variables, n): one point per column."""
+        u_t = np.ascontiguousarray(u_t)
+        mon = np.empty((self.size, u_t.shape[1]))
+        mon[0] = 1.0
+        for lo, hi, parents, variables in self.blocks:
+            np.multiply(np.take(mon, parents, axis=0), np.take(u_t, variables, axis=0), out=mon[lo:hi])
+        return mon
+
+
+# ------------------------------------------------------------------------ HDF5
+
+GROUP = "energy"
+_DATASETS = {"exponents": "<i8", "coefficients": "<f8", "scales": "<f8"}
+#: ``units`` and ``description`` attributes of the datasets (for readers with other tools)
+_DATASET_ATTRIBUTES = {
+    "exponents": ("1", "exponents of the monomials of psi_nl in u = [s; w(p)] / scales, one row per term"),
+    "coefficients": ("J", "coefficient of each monomial of psi_nl"),
+    "scales": ("[m, m, m, rad, rad, rad, Pa...]", "scales of the variables [s; w(p)] (u = [s; w(p)] / scales)"),
+}
+MAX_JSON_BYTES = 1 << 20
+
+
+def write_group(entry_group, fit: EnergyFit) -> None:
+    """Create ``<entry>/energy``: datasets ``exponents`` (int64 (m, 6+n)), ``coefficients``
+    (float64 (m,)), ``scales`` (float64 (6+n,)); attributes ``representation`` (text) and
+    ``range``, ``fit_error``, ``material``, ``sampling``, ``fold_pressure`` (JSON; fixed-length UTF-8)."""
+    import h5py
+
+    group = entry_group.create_group(GROUP)
+    for name, dtype in _DATASETS.items():
+        dataset = group.create_dataset(name, data=np.ascontiguousarray(getattr(fit, name), dtype=dtype))
+        for attribute, text in zip(("units", "description"), _DATASET_ATTRIBUTES[name]):
+            dataset.attrs[attribute] = np.array(text.encode(), dtype=h5py.string_dtype("utf-8", len(text.encode())))
+    for name, value in fit.attributes().items():
+        text = value if isinstance(value, str) else json.dumps(value, sort_keys=True, separators=(",", ":"),
+                                                               allow_nan=False)
+        data = text.encode("utf-8")
+        group.attrs[name] = np.array(data, dtype=h5py.string_dtype("utf-8", max(len(data), 1)))
+
+
+def read_group(entry_group, what: str) -> EnergyFit:
+    """Read and validate ``<entry>/energy`` (dtypes, shapes and sizes checked before reading)."""
+    import h5py
+
+    group = entry_group[GROUP]
+    if not isinstance(group, h5py.Group):
+        raise CatalogueError(f"{what}: '{GROUP}' is not a group")
+    arrays = {}
+    for name, dtype in _DATASETS.items():
+        ds = group.get(name)
+        if not isinstance(ds, h5py.Dataset):
+            raise CatalogueError(f"{what}: energy dataset {name!r} missing")
+        kind = "iu" if dtype == "<i8" else "f"
+        if ds.dtype.kind not in kind or ds.dtype.itemsize != 8 or ds.ndim > 2 \
+                or any(n > MAX_TERMS for n in ds.shape):
+            raise CatalogueError(f"{what}: energy dataset {name!r} has dtype {ds.dtype} and shape {ds.shape}")
+        arrays[name] = np.asarray(ds[()], dtype=dtype)
+    attrs = {}
+    for name in ("representation", "range", "fit_error", "material", "sampling", "fold_pressure"):
+        if name not in group.attrs:
+            raise CatalogueError(f"{what}: energy attribute {name!r} missing")
+        value = group.attrs[name]
+        if isinstance(value, np.ndarray) and value.shape == ():
+            value = value[()]
+        if isinstance(value, bytes):
+            if len(value) > MAX_JSON_BYTES:
+                raise CatalogueError(f"{what}: energy attribute {name!r} larger than {MAX_JSON_BYTES} bytes")
+            value = value.decode("utf-8", errors="strict")
+        if not isinstance(value, str):
+            raise CatalogueError(f"{what}: energy attribute {name!r} is not a string")
+        if name == "representation":
+            attrs[name] = value
+            continue
+        try:
+            attrs[name] = json.loads(value, parse_constant=_reject_constant)
+        except ValueError as error:
+            raise CatalogueError(f"{what}: energy attribute {name!r}: invalid JSON ({error})") from None
+    try:
+        return EnergyFit(exponents=arrays["exponents"], coefficients=arrays["coefficients"],
+                         scales=arrays["scales"], range=EnergyRange.from_dict(attrs["range"]),
+                         fit_error=attrs["fit_error"], material=attrs["material"], sampling=attrs["sampling"],
+                         fold_pressure=attrs["fold_pressure"], representation=attrs["representation"])
+    except CatalogueError as error:
+        raise CatalogueError(f"{what}: {error}") from None
+
+
+def _reject_constant(constant):
+    raise ValueError(f"{constant} is not allowed")
