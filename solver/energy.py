@@ -71,6 +71,7 @@ class Evaluation:
     gradient: np.ndarray          # (n_frames, 6), dead moments included (as −M)
     links: Links                  # kinematics of the links
     w: np.ndarray                 # (n_links, 6) ∂ψ/∂ξ of every link
+    kept: tuple                   # what each link energy's response kept for its derivatives
     link_gradient: np.ndarray     # (n_links, 12) the links' gradient on their two frames
     pieces: CablePieces | None    # cable kinematics (None when every cable is slack)
     lever: np.ndarray | None      # (n_frames, 3) R s, the first mass moments in world axes (gravity)
@@ -90,7 +91,7 @@ def evaluate(trunk, state, load: LoadCase, memo) -> Evaluation:
         rotations = qmatrix(state.quaternions)
     else:
         rotations = None
-    total, w = link_response(trunk, links.xi, load.link_loads)
+    total, w, kept = link_response(trunk, links.xi, load.link_loads)
     g_links = links.gradient(w)
     grad = np.zeros((x.shape[0], 6))
     grad[:-1] = g_links[:, :6]
@@ -112,7 +113,7 @@ def evaluate(trunk, state, load: LoadCase, memo) -> Evaluation:
     if load.dead is not None:
         grad -= load.dead
         total -= float(np.vdot(load.dead_forces, x))
-    return Evaluation(total, grad, links, w, g_links, pieces, lever, load,
+    return Evaluation(total, grad, links, w, kept, g_links, pieces, lever, load,
                       record is not None and record is trunk.rest_state.strains)
 
 
@@ -139,17 +140,32 @@ def _weight_potential(trunk, x: np.ndarray, lever: np.ndarray, load: LoadCase) -
     return -float((trunk.frames.mass @ x + lever.sum(0)) @ load.weight)
 
 
-def link_response(trunk, xi: np.ndarray, link_loads: tuple) -> tuple[float, np.ndarray]:
-    """``(Σ ψ, w = ∂ψ/∂ξ (n, 6))`` over the link energies."""
+def link_response(trunk, xi: np.ndarray, link_loads: tuple) -> tuple[float, np.ndarray, tuple]:
+    """``(Σ ψ, w = ∂ψ/∂ξ (n, 6), kept)`` over the link energies; ``kept`` holds, per energy, what
+    its response kept for the derivatives (:class:`~vertebra.solver.kinds.LinkEnergy`)."""
     energies = trunk.links.energies
     if len(energies) == 1:
-        return energies[0].response(xi, link_loads[0])
+        total, w, kept = energies[0].response(xi, link_loads[0])
+        return total, w, (kept,)
     w = np.empty_like(xi)
     total = 0.0
+    kept = []
     for energy, prepared in zip(energies, link_loads):
-        part, w[energy.links] = energy.response(xi[energy.links], prepared)
+        part, w[energy.links], values = energy.response(xi[energy.links], prepared)
         total += part
-    return total, w
+        kept.append(values)
+    return total, w, tuple(kept)
+
+
+def out_of_range(trunk, state, load: LoadCase, memo) -> tuple:
+    """Every quantity of the links' states at ``state`` under ``load`` that lies outside the
+    range its energy was fitted on (:class:`~vertebra.solver.kinds.RangeExcess`, link order)."""
+    record = state.carried_strains()
+    xi = record.xi if record is not None else memo.links(state, None).xi
+    found = []
+    for energy, prepared in zip(trunk.links.energies, load.link_loads):
+        found.extend(energy.out_of_range(xi[energy.links], prepared))
+    return tuple(sorted(found, key=lambda excess: excess.link))
 
 
 def _per_link(trunk, ev: Evaluation, method: str, shape: tuple) -> np.ndarray:
@@ -157,10 +173,10 @@ def _per_link(trunk, ev: Evaluation, method: str, shape: tuple) -> np.ndarray:
     ``chamber_forces``), side by side in link order."""
     energies, xi = trunk.links.energies, ev.links.xi
     if len(energies) == 1:
-        return getattr(energies[0], method)(xi, ev.load.link_loads[0], ev.w)
+        return getattr(energies[0], method)(xi, ev.load.link_loads[0], ev.kept[0])
     out = np.empty((xi.shape[0],) + shape)
-    for energy, prepared in zip(energies, ev.load.link_loads):
-        out[energy.links] = getattr(energy, method)(xi[energy.links], prepared, ev.w[energy.links])
+    for energy, prepared, kept in zip(energies, ev.load.link_loads, ev.kept):
+        out[energy.links] = getattr(energy, method)(xi[energy.links], prepared, kept)
     return out
 
 
@@ -180,7 +196,7 @@ def volume_growth(trunk, links: Links, pressures: np.ndarray) -> np.ndarray:
 def link_tangents(trunk, ev: Evaluation, out: np.ndarray) -> np.ndarray:
     """The links' tangents (n_links, 12, 12) into ``out``."""
     energies = trunk.links.energies
-    material = (energies[0].material_tangent(ev.links.xi, ev.load.link_loads[0], ev.w) if len(energies) == 1
+    material = (energies[0].material_tangent(ev.links.xi, ev.load.link_loads[0], ev.kept[0]) if len(energies) == 1
                 else _per_link(trunk, ev, "material_tangent", (6, 6)))
     return link_tangent(ev.links, ev.w, material, ev.link_gradient, out=out)
 

@@ -51,7 +51,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vertebra.solver.energy import LoadCase, evaluate, tangent
+from vertebra.solver.energy import LoadCase, evaluate, out_of_range, tangent
 from vertebra.solver.state import State, retract, strain_change
 from vertebra.store.errors import ConvergenceError
 
@@ -95,6 +95,8 @@ class StaticResult:
                                      # floating-point resolution of the poses (residual is rounding)
     largest_turn: float = 0.0        # largest rotation of a link (rad) at the returned state
     message: str = ""                # why the solve did not converge
+    out_of_range: tuple = ()         # RangeExcess: where the returned state leaves the range a
+                                     # link energy was fitted on (empty: inside, or no fitted energies)
 
     def __repr__(self) -> str:
         tip = ", ".join(f"{v:.6g}" for v in self.state.positions[-1])
@@ -530,10 +532,11 @@ def solve(trunk, memo, actuation: np.ndarray, initial: State | None, *, toleranc
                    f"iterations and {stages} load stages (reached load factor {scale:.4g})"
                    + ("; equilibria found on the way were unstable (indefinite tangent) and refused"
                       if saddles else ""))
+    excess = out_of_range(trunk, final, memo.load_case(actuation, 1.0 if converged else load.scale), memo)
     result = StaticResult(converged, iterations, float(residual), final, actuation, history, stages,
                           "+".join(sorted(kinds)) or "none", {"solve_s": time.perf_counter() - start},
                           rounding_limited=limited and converged, largest_turn=_turn(trunk, final, memo),
-                          message=message)
+                          message=message, out_of_range=excess)
     if not converged and raise_on_failure:
         raise ConvergenceError(message, result)
     return result

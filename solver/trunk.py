@@ -199,7 +199,7 @@ def _compile_links(scene, entries):
         volume = np.array([v.cavity_volumes[chamber.cavity] if v.cavity_volumes.size > chamber.cavity else 0.0
                            for v in sources])
         rest_volumes[j] = np.cumsum(volume[source_of_link[covered]])[-1]
-    compiled = CompiledLinks(sources, rest, strain_map, source_of_link, cavity,
+    compiled = CompiledLinks(sources, rest, strain_map, source_of_link, cavity, vertebra_of_link,
                              [f"segment[{i}]" for i in range(len(sources))], scene.source)
     energies = []
     for energy in dict.fromkeys(kind.energy for kind in kinds):

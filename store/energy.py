@@ -145,14 +145,41 @@ class EnergyRange:
     def excess(self, s: np.ndarray, load: np.ndarray, p: np.ndarray) -> np.ndarray:
         """(n,) largest excess over the bounds, as a fraction of the bounded interval's width
         (≤ 0: inside the fitted range). Vectorised over states."""
-        lower, upper, inverse_width, radial, signed = self._bounds
+        return self.excesses(s, load, p).max(axis=1)
+
+    def excesses(self, s: np.ndarray, load: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """(n, 8 + cavities) excess of each bounded quantity (:attr:`quantities`) over its
+        bounds, as a fraction of the interval's width (≤ 0: inside)."""
+        lower, upper, inverse_width, _ = self._bounds
+        values = self.values(s, load, p)
+        values *= inverse_width
+        return np.maximum(values - upper, lower - values)
+
+    def values(self, s: np.ndarray, load: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """(n, 8 + cavities) the bounded quantities (:attr:`quantities`) of strains ``s`` (n, 6),
+        loads ``∂ψ/∂s`` (n, 6) and pressures ``p`` (n, cavities)."""
+        _, _, _, (radial, signed) = self._bounds
         both = np.concatenate([s, load], axis=1)
         values = np.empty((s.shape[0], 8 + self.n_cavities))
         np.sqrt((both * both) @ radial, out=values[:, :4])
         values[:, 4:8] = both[:, signed]
         values[:, 8:] = p
-        values *= inverse_width
-        return np.maximum(values - upper, lower - values).max(axis=1)
+        return values
+
+    @property
+    def quantities(self) -> tuple[str, ...]:
+        """Names of the columns of :meth:`values` and :meth:`excesses`: the group coordinates
+        (:data:`GROUPS`) of the strain and of the load, then each cavity's pressure."""
+        groups = [GROUPS[g] for g in _RADIAL] * 2 + [GROUPS[g] for g in (1, 3)] * 2
+        kinds = ["strain", "strain", "load", "load"] * 2
+        return tuple(f"{group} {kind}" for kind, group in zip(kinds, groups)) + \
+            tuple(f"cavity {k} pressure" for k in range(self.n_cavities))
+
+    @property
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lower, upper) of the quantities of :meth:`values`, in their units."""
+        lower, upper, inverse_width, _ = self._bounds
+        return lower / inverse_width, upper / inverse_width
 
     @cached_property
     def _bounds(self):
@@ -168,7 +195,7 @@ class EnergyRange:
         for column, pair in enumerate(((0, 1), (3, 4), (6, 7), (9, 10))):
             radial[list(pair), column] = 1.0
         signed = np.array([2, 5, 8, 11])
-        return lower * inverse_width, upper * inverse_width, inverse_width, radial, signed
+        return lower * inverse_width, upper * inverse_width, inverse_width, (radial, signed)
 
     def to_dict(self) -> dict:
         return {"pose_lower": self.pose_lower.tolist(), "pose_upper": self.pose_upper.tolist(),

@@ -12,7 +12,9 @@ kinematics and the assembly consume only
 * the material tangent ``∂²ψ/∂ξ²`` (n, 6, 6),
 * the chamber forces ``−∂²ψ/∂ξ∂p`` (n, n_chambers, 6) — the strain-space force per unit
   pressure, giving the chambers' actuator Jacobian columns — and the volume growth
-  ``−∂ψ/∂p`` (n_chambers,).
+  ``−∂ψ/∂p`` (n_chambers,);
+* the states outside the range an energy was fitted on (:class:`RangeExcess`), for the
+  diagnostics of a result (an energy valid everywhere reports none).
 
 Kinds register themselves: each module of this package calls :func:`register` when it is
 imported, and every module here is imported the first time a kind is looked up, so adding a
@@ -54,6 +56,7 @@ class CompiledLinks:
     ``sources[s]`` made the links with ``source_of_link == s``; ``rest[s]``/``strain_map[s]``
     are the source's rest strain ``ξ₀`` and ``A = ∂ξ/∂δ`` at rest (δ = [Δx; Δθ] of b in a's axes);
     ``cavity[l, j]`` is the cavity of link l that chamber j pressurises (−1: none);
+    ``vertebra[l]`` the vertebra that ends link l's repetition (its proximal one is the previous);
     ``fields[s]`` names the scene field of the source (for errors), ``file`` the scene."""
 
     sources: Sequence[LinkSource]
@@ -61,6 +64,7 @@ class CompiledLinks:
     strain_map: np.ndarray      # (n_sources, 6, 6)
     source_of_link: np.ndarray  # (n,)
     cavity: np.ndarray          # (n, n_chambers) int
+    vertebra: np.ndarray        # (n,) int
     fields: Sequence[str]
     file: str
 
@@ -68,11 +72,38 @@ class CompiledLinks:
         return SceneError(reason, file=self.file, field=self.fields[source])
 
 
+@dataclass(frozen=True)
+class RangeExcess:
+    """A quantity of a link's state outside the range its energy was fitted on: ``value`` lies
+    ``excess`` widths of the fitted interval ``[lower, upper]`` beyond its nearer bound."""
+
+    link: int                   # the link, in trunk order
+    segment: int                # the scene segment that made it
+    vertebrae: tuple            # (proximal, distal) vertebra of its repetition
+    source: str                 # what the energy was fitted for (a catalogue entry's name)
+    quantity: str               # e.g. "bending strain", "axial load", "cavity 0 pressure"
+    value: float
+    lower: float
+    upper: float
+    excess: float
+
+    def to_dict(self) -> dict:
+        return {"link": self.link, "segment": self.segment, "vertebrae": list(self.vertebrae), "entry": self.source,
+                "quantity": self.quantity, "value": self.value, "lower": self.lower, "upper": self.upper,
+                "excess": self.excess}
+
+    def __str__(self) -> str:
+        return (f"link {self.link} (segment {self.segment}, vertebrae {self.vertebrae[0]}–{self.vertebrae[1]}, "
+                f"entry {self.source!r}): {self.quantity} {self.value:.4g} outside the fitted range "
+                f"[{self.lower:.4g}, {self.upper:.4g}] by {100.0 * self.excess:.3g} % of its width")
+
+
 class LinkEnergy(Protocol):
     """The energy of a batch of links of one kind, evaluated batched (no per-link Python).
 
     ``prepared`` is what :meth:`prepare` made of the chamber pressures (once per load stage);
-    ``xi`` are the strains of the batch's links (n, 6)."""
+    ``xi`` are the strains of the batch's links (n, 6); ``kept`` is what :meth:`response` kept
+    of its evaluation for the derivatives at the same strains (None when they need nothing)."""
 
     links: np.ndarray           # (n,) which links of the trunk, in order
     rest: np.ndarray            # (n, 6) rest strains ξ₀
@@ -82,17 +113,20 @@ class LinkEnergy(Protocol):
 
     def prepare(self, pressures: np.ndarray) -> Any: ...
 
-    def response(self, xi: np.ndarray, prepared: Any) -> tuple[float, np.ndarray]:
-        """``(Σ ψ, w = ∂ψ/∂ξ (n, 6))``."""
+    def response(self, xi: np.ndarray, prepared: Any) -> tuple[float, np.ndarray, Any]:
+        """``(Σ ψ, w = ∂ψ/∂ξ (n, 6), kept)``."""
 
-    def material_tangent(self, xi: np.ndarray, prepared: Any, w: np.ndarray) -> np.ndarray:
+    def material_tangent(self, xi: np.ndarray, prepared: Any, kept: Any) -> np.ndarray:
         """``∂²ψ/∂ξ²`` (n, 6, 6) (may be a constant array shared between calls)."""
 
-    def chamber_forces(self, xi: np.ndarray, prepared: Any, w: np.ndarray) -> np.ndarray:
+    def chamber_forces(self, xi: np.ndarray, prepared: Any, kept: Any) -> np.ndarray:
         """``−∂²ψ/∂ξ∂p`` (n, n_chambers, 6)."""
 
     def volume_growth(self, xi: np.ndarray, prepared: Any, pressures: np.ndarray) -> np.ndarray:
         """``−∂ψ/∂p`` summed over the links (n_chambers,)."""
+
+    def out_of_range(self, xi: np.ndarray, prepared: Any) -> tuple[RangeExcess, ...]:
+        """Every quantity of the links' states outside the range their energy was fitted on."""
 
 
 class LinkKind(Protocol):

@@ -19,7 +19,7 @@ from typing import Callable, ClassVar
 
 import numpy as np
 
-from vertebra.solver.kinds import CompiledLinks, LinkSource
+from vertebra.solver.kinds import CompiledLinks, LinkSource, RangeExcess
 
 
 @dataclass(frozen=True)
@@ -44,23 +44,23 @@ class QuadraticEnergy:
 
     @classmethod
     def compile(cls, links: np.ndarray, compiled: CompiledLinks) -> "QuadraticEnergy":
-        n_sources = len(compiled.sources)
-        K = np.empty((n_sources, 6, 6))
-        for s, source in enumerate(compiled.sources):
-            C, A = source.parameters.C, compiled.strain_map[s]
+        of = compiled.source_of_link[links]
+        mine = np.unique(of).tolist()            # the sources of other kinds are theirs to compile
+        K = np.empty((len(compiled.sources), 6, 6))
+        for s in mine:
+            C, A = compiled.sources[s].parameters.C, compiled.strain_map[s]
             with np.errstate(all="ignore"):
                 K_s = np.linalg.inv(A @ C @ A.T)
             K[s] = 0.5 * (K_s + K_s.T)
             if not (np.all(np.isfinite(K[s])) and np.all(np.isfinite(C)) and np.all(np.diag(K[s]) > 0)):
                 raise compiled.error(s, "length, section and moduli give a compliance that is not finite and "
                                         "positive in double precision")
-        of = compiled.source_of_link[links]
         cavity = compiled.cavity[links]
         n, m = cavity.shape
         P = np.zeros((n, 6, m))
         V = np.zeros((m, m))
         if m:
-            AG = [compiled.strain_map[s] @ source.parameters.G for s, source in enumerate(compiled.sources)]
+            AG = {s: compiled.strain_map[s] @ compiled.sources[s].parameters.G for s in mine}
             for k in np.flatnonzero((cavity >= 0).any(1)):
                 source = compiled.sources[of[k]].parameters
                 served = np.flatnonzero(cavity[k] >= 0)
@@ -76,21 +76,26 @@ class QuadraticEnergy:
             return self.rest, 0.0
         return self.rest + self.pressure_strain @ pressures, -0.5 * float(pressures @ self.volume_compliance @ pressures)
 
-    def response(self, xi: np.ndarray, prepared: tuple[np.ndarray, float]) -> tuple[float, np.ndarray]:
+    def response(self, xi: np.ndarray, prepared: tuple[np.ndarray, float]) -> tuple[float, np.ndarray, None]:
         rest, constant = prepared
         e = xi - rest
         w = (self.stiffness @ e[:, :, None])[:, :, 0]
-        return 0.5 * float(np.vdot(e, w)) + constant, w
+        return 0.5 * float(np.vdot(e, w)) + constant, w, None
 
-    def material_tangent(self, xi: np.ndarray, prepared: tuple, w: np.ndarray) -> np.ndarray:
+    def material_tangent(self, xi: np.ndarray, prepared: tuple, kept: None) -> np.ndarray:
         return self.stiffness
 
-    def chamber_forces(self, xi: np.ndarray, prepared: tuple, w: np.ndarray) -> np.ndarray:
+    def chamber_forces(self, xi: np.ndarray, prepared: tuple, kept: None) -> np.ndarray:
         return self.pressure_force
 
     def volume_growth(self, xi: np.ndarray, prepared: tuple, pressures: np.ndarray) -> np.ndarray:
         w = (self.stiffness @ (xi - prepared[0])[:, :, None])[:, :, 0]
         return np.einsum("nij,ni->j", self.pressure_strain, w) + self.volume_compliance @ pressures
+
+    def out_of_range(self, xi: np.ndarray, prepared: tuple) -> tuple[RangeExcess, ...]:
+        """None: a quadratic energy is the linear condensation itself, valid at any strain (its
+        accuracy at large strain is the link discretisation's and the material's, not a fit's)."""
+        return ()
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,214 @@
+"""Catalogue entries with a fitted energy (nonlinear entries, catalogue schema v2) as links.
+
+An entry designed with a nonlinear material stores its segment's energy ``ψ(s, p)`` as a
+function of the strain ``s = ξ − ξ₀`` of its end frames and of its cavity pressures ``p``
+(:mod:`vertebra.store.energy`; DESIGN §2): because the vertebrae are rigid, that energy is the
+segment's whole response, and a chain of such links is the full nonlinear model of the trunk up
+to the fit. Each repetition of the segment makes one link that stores ψ itself:
+
+    ψ_link(ξ, p_chambers) = ψ(ξ − ξ₀, M p_chambers)
+
+where ``M`` (cavities × chambers, 0/1) says which chamber pressurises which cavity of the link
+(chambers map onto cavities as for quadratic links: a cavity served by two chambers carries the
+sum of their pressures). The entry's rest rotation is the identity, so ``ξ₀ = [d₀; 0]`` is the
+fit's rest strain. The kernel (:class:`~vertebra.store.energy.EnergyModel`, one call per distinct
+entry and evaluation, batched over its links) gives every derivative the runtime consumes:
+
+* ``w = ∂ψ/∂s`` and the material tangent ``∂²ψ/∂s²`` (kept from the same call: ``response``
+  evaluates once, the tangent reuses it);
+* the chamber forces ``−∂²ψ/∂s∂p · M`` and the volume growth ``−(∂ψ/∂p) · M`` summed over the
+  links, so the chambers' actuator Jacobian columns and displacements follow ψ's own pressure
+  dependence (the ballooning a linear cavity Jacobian misses).
+
+The energy includes its pressure terms, so the total potential that Newton and the inverse's
+tick acceptance judge is the right one. At small strains and pressures ψ is the linear entry's
+quadratic energy plus terms of degree ≥ 3: the links reproduce the linear entry's.
+
+Range. The fit is trusted where it was sampled; :meth:`FittedEnergy.out_of_range` reports every
+quantity of a state (group coordinates of the strain and of the load, cavity pressures) outside
+the entry's ``EnergyRange`` — a result's diagnostics, never a silent extrapolation. A pressure at
+or beyond the inflation limit point (the fold of the fitted volume, or the limit met while
+sampling) has no equilibrium near it: such a load case is refused with a ConvergenceError.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from vertebra.solver.kinds import CompiledLinks, LinkSource, RangeExcess, register
+from vertebra.solver.kinds.entry import entry_link
+from vertebra.store.energy import EnergyModel, EnergyValues
+from vertebra.store.errors import ConvergenceError
+
+
+@dataclass(frozen=True)
+class FittedEntry:
+    """What a link of a nonlinear entry keeps of the entry: its name and key, and its compiled
+    energy (:class:`~vertebra.store.energy.EnergyModel`, built once per entry)."""
+
+    name: str
+    key: str
+    model: EnergyModel
+
+
+@dataclass(frozen=True)
+class _Group:
+    """The links of one entry within a batch: rows of the batch, the entry's kernel, and the
+    chamber → cavity incidence of each link."""
+
+    rows: np.ndarray            # (k,) positions in the batch
+    entry: FittedEntry
+    links: np.ndarray           # (k,) trunk links
+    segment: np.ndarray         # (k,) scene segments
+    vertebra: np.ndarray        # (k,) distal vertebra of each link's repetition
+    incidence: np.ndarray       # (k, cavities, chambers) 0/1: M of each link
+    limit: float                # pressure with no equilibrium beyond it (inf: none known)
+
+
+def _limit_pressure(model: EnergyModel) -> float:
+    """The inflation limit point of an entry's energy: the fold of its pressure map or the limit
+    point met while sampling, whichever is lower (inf when neither is known)."""
+    fit = model.fit
+    known = [v for v in (fit.fold_pressure, fit.range.limit_pressure) if v is not None]
+    return min(known, default=np.inf)
+
+
+@dataclass(frozen=True)
+class FittedEnergy:
+    """Links of nonlinear catalogue entries, batched (see the module docstring)."""
+
+    links: np.ndarray           # (n,) which links of the trunk
+    rest: np.ndarray            # (n, 6) ξ₀
+    groups: tuple               # _Group per distinct entry
+    n_chambers: int
+
+    @classmethod
+    def compile(cls, links: np.ndarray, compiled: CompiledLinks) -> "FittedEnergy":
+        of = compiled.source_of_link[links]
+        cavity = compiled.cavity[links]
+        n_chambers = cavity.shape[1]
+        by_key: dict[str, list[int]] = {}
+        for s in np.unique(of).tolist():
+            by_key.setdefault(compiled.sources[s].parameters.key, []).append(s)
+        groups = []
+        for sources in by_key.values():
+            rows = np.flatnonzero(np.isin(of, sources))
+            entry = compiled.sources[sources[0]].parameters
+            m = entry.model.fit.n_cavities
+            incidence = np.zeros((rows.size, m, n_chambers))
+            for j in range(n_chambers):
+                served = np.flatnonzero(cavity[rows, j] >= 0)
+                incidence[served, cavity[rows[served], j], j] = 1.0
+            groups.append(_Group(rows, entry, links[rows], of[rows], compiled.vertebra[links[rows]], incidence,
+                                 _limit_pressure(entry.model)))
+        return cls(links, compiled.rest[of], tuple(groups), n_chambers)
+
+    def prepare(self, pressures: np.ndarray) -> tuple:
+        """The cavity pressures (k, cavities) of every group's links (None: all zero). Pressures
+        at or beyond an entry's inflation limit point raise ConvergenceError."""
+        if not pressures.size or not np.any(pressures):
+            return (None,) * len(self.groups)
+        prepared = []
+        for group in self.groups:
+            p = group.incidence @ pressures
+            if np.any(p >= group.limit):
+                k = int(np.argmax(p.max(1)))
+                c = int(np.argmax(p[k]))
+                raise ConvergenceError(
+                    f"cavity {c} of segment {group.segment[k]} (entry {group.entry.name!r}, vertebrae "
+                    f"{group.vertebra[k] - 1}–{group.vertebra[k]}) is pressurised to {p[k, c]:.6g} Pa, at or beyond "
+                    f"the inflation limit point of its fitted energy ({group.limit:.6g} Pa): the chamber has no "
+                    "equilibrium there (it balloons), and the fit is not extrapolated through the limit point")
+            prepared.append(p)
+        return tuple(prepared)
+
+    def _evaluate(self, group: _Group, xi: np.ndarray, p) -> EnergyValues:
+        rows = group.rows
+        return group.entry.model.evaluate(xi[rows] - self.rest[rows], p)
+
+    def response(self, xi: np.ndarray, prepared: tuple) -> tuple[float, np.ndarray, tuple]:
+        if len(self.groups) == 1:
+            values = self.groups[0].entry.model.evaluate(xi - self.rest, prepared[0])
+            return float(values.energy.sum()), values.gradient, (values,)
+        total, w, kept = 0.0, np.empty_like(xi), []
+        for group, p in zip(self.groups, prepared):
+            values = self._evaluate(group, xi, p)
+            total += float(values.energy.sum())
+            w[group.rows] = values.gradient
+            kept.append(values)
+        return total, w, tuple(kept)
+
+    def material_tangent(self, xi: np.ndarray, prepared: tuple, kept: tuple) -> np.ndarray:
+        if len(self.groups) == 1:
+            return kept[0].hessian
+        out = np.empty((xi.shape[0], 6, 6))
+        for group, values in zip(self.groups, kept):
+            out[group.rows] = values.hessian
+        return out
+
+    def chamber_forces(self, xi: np.ndarray, prepared: tuple, kept: tuple) -> np.ndarray:
+        """``−∂²ψ/∂s∂p · M`` per link (n, chambers, 6)."""
+        out = np.zeros((xi.shape[0], self.n_chambers, 6))
+        if self.n_chambers:
+            for group, values in zip(self.groups, kept):
+                out[group.rows] = -np.einsum("kim,kmj->kji", values.mixed_hessian, group.incidence)
+        return out
+
+    def volume_growth(self, xi: np.ndarray, prepared: tuple, pressures: np.ndarray) -> np.ndarray:
+        """``−(∂ψ/∂p) · M`` summed over the links (chambers,)."""
+        total = np.zeros(self.n_chambers)
+        if self.n_chambers:
+            for group, p in zip(self.groups, prepared):
+                values = self._evaluate(group, xi, p)
+                total += np.einsum("km,kmj->j", values.volume_growth, group.incidence)
+        return total
+
+    def out_of_range(self, xi: np.ndarray, prepared: tuple) -> tuple[RangeExcess, ...]:
+        found = []
+        for group, p in zip(self.groups, prepared):
+            values = self._evaluate(group, xi, p)
+            if not np.any(values.range_excess > 0.0):
+                continue
+            fitted = group.entry.model.fit.range
+            s = xi[group.rows] - self.rest[group.rows]
+            cavities = fitted.n_cavities
+            p = np.zeros((s.shape[0], cavities)) if p is None else p
+            quantities = fitted.values(s, values.gradient, p)
+            excess = fitted.excesses(s, values.gradient, p)
+            lower, upper = fitted.bounds
+            names = fitted.quantities
+            for k, q in zip(*np.nonzero(excess > 0.0)):
+                found.append(RangeExcess(
+                    link=int(group.links[k]), segment=int(group.segment[k]),
+                    vertebrae=(int(group.vertebra[k]) - 1, int(group.vertebra[k])), source=group.entry.name,
+                    quantity=names[q], value=float(quantities[k, q]), lower=float(lower[q]),
+                    upper=float(upper[q]), excess=float(excess[k, q])))
+        return tuple(found)
+
+
+def fitted_link(segment, entry) -> LinkSource:
+    return dataclasses.replace(entry_link(segment, entry),
+                               parameters=FittedEntry(entry.name, entry.key, EnergyModel.of_entry(entry)))
+
+
+@dataclass(frozen=True)
+class FittedKind:
+    """Catalogue entries that carry a fitted energy (``entry.energy``); entries without one stay
+    quadratic (the ``linear-entry`` kind)."""
+
+    name: ClassVar[str] = "nonlinear-entry"
+    priority: ClassVar[int] = 1
+    energy: ClassVar[type] = FittedEnergy
+
+    def claims(self, segment, entry) -> bool:
+        return segment.type == "entry" and getattr(entry, "energy", None) is not None
+
+    def source(self, segment, entry) -> LinkSource:
+        return fitted_link(segment, entry)
+
+
+register(FittedKind())
