@@ -408,16 +408,18 @@ def monomial_exponents(n_variables: int, max_degree: int, min_degree: int = 0,
 
 @dataclass(slots=True)
 class EnergyValues:
-    """ψ and its derivatives at ``n`` states (one row per link)."""
+    """ψ and its derivatives at ``n`` states (one row per link). The pressure derivatives are
+    None when not asked for, the range fields when the range was not checked
+    (:meth:`FixedPressures.evaluate`)."""
 
-    energy: np.ndarray             # (n,) J
-    gradient: np.ndarray           # (n, 6) ∂ψ/∂s
-    hessian: np.ndarray            # (n, 6, 6) ∂²ψ/∂s²
-    pressure_gradient: np.ndarray  # (n, m) ∂ψ/∂p = −ΔV
-    mixed_hessian: np.ndarray      # (n, 6, m) ∂²ψ/∂s∂p
-    pressure_hessian: np.ndarray   # (n, m, m) ∂²ψ/∂p²
-    range_excess: np.ndarray       # (n,) ≤ 0 inside the fitted range (see EnergyRange.excess)
-    in_range: np.ndarray           # (n,) bool
+    energy: np.ndarray                     # (n,) J
+    gradient: np.ndarray                   # (n, 6) ∂ψ/∂s
+    hessian: np.ndarray                    # (n, 6, 6) ∂²ψ/∂s²
+    pressure_gradient: np.ndarray | None   # (n, m) ∂ψ/∂p = −ΔV
+    mixed_hessian: np.ndarray | None       # (n, 6, m) ∂²ψ/∂s∂p
+    pressure_hessian: np.ndarray | None    # (n, m, m) ∂²ψ/∂p²
+    range_excess: np.ndarray | None        # (n,) ≤ 0 inside the fitted range (see EnergyRange.excess)
+    in_range: np.ndarray | None            # (n,) bool
 
     @property
     def volume_growth(self) -> np.ndarray:
@@ -427,11 +429,18 @@ class EnergyValues:
 
 class EnergyModel:
     """A fit compiled for batched evaluation with its entry's linear part ``(K, S, V)``
-    (:func:`linear_terms`). Build once per entry; :meth:`evaluate` once per Newton iteration.
+    (:func:`linear_terms`). Build once per entry.
 
-    Only monomials of degree ≤ d − 1 are evaluated: the gradient of each homogeneous part
-    ψ_k is kept apart, and Euler's identity ``ψ_k(u) = u·∇ψ_k(u) / k`` gives the energy. States
-    run along the columns of the monomial table (row gathers of contiguous memory)."""
+    Evaluation has two stages, because a trunk holds its pressures while Newton moves its
+    strains. :meth:`at` fixes the pressures: at given ``p`` the fitted part is a polynomial in
+    the scaled strain ``u = s / scales`` alone, ``ψ_nl = Σ_β d_β(p) u^β`` with
+    ``d(p) = Σ_π c_(β,π) w(p)^π`` (so are its pressure derivatives), and the matrices that map
+    the monomials of ``u`` to the gradient, the Hessian and the pressure derivatives are gathered
+    from ``d`` once per distinct pressure row. :meth:`FixedPressures.evaluate` then evaluates a
+    table of the monomials of degree ≤ d − 1 in ``u`` (built degree by degree: one gather and one
+    product per degree, the states along the columns) and two matrix products per distinct
+    pressure row; Euler's identity ``q_k(u) = u·∇q_k(u)/k`` per degree ``k`` in ``u`` gives the
+    energy (the degree-d monomials are never formed). :meth:`evaluate` does both stages."""
 
     def __init__(self, fit: EnergyFit, stiffness: np.ndarray, pressure_map: np.ndarray,
                  volume_compliance: np.ndarray):
@@ -449,88 +458,204 @@ class EnergyModel:
         return cls(entry.energy, *linear_terms(entry.compliance, entry.rest_translation))
 
     def _compile(self) -> None:
+        """The strain exponents ``β``, pressure exponents ``π`` and the coefficient matrix
+        ``c_(β,π)``; the monomial table in ``u`` and the gathers from ``d`` to the matrices of
+        :meth:`at` (index ``len(β)`` reads a zero)."""
         fit = self.fit
-        nv = fit.scales.size
-        inv = 1.0 / fit.scales
-        lowered = [alpha - np.eye(nv, dtype=np.int64)[j] for alpha in fit.exponents for j in np.flatnonzero(alpha)]
-        table = Monomials(np.array(lowered, dtype=np.int64).reshape(-1, nv))
-        total = table.exponents.sum(1)
-        n_hess = int(np.sum(total <= max(fit.degree - 2, 0)))
+        m = fit.n_cavities
+        exponents = fit.exponents
+        strain, of_strain = np.unique(exponents[:, :6].reshape(-1, 6), axis=0, return_inverse=True)
+        if m and exponents.size:
+            pressure, of_pressure = np.unique(exponents[:, 6:], axis=0, return_inverse=True)
+        else:
+            pressure, of_pressure = np.zeros((1, m), dtype=np.int64), np.zeros(exponents.shape[0], dtype=np.int64)
+        coefficients = np.zeros((pressure.shape[0], strain.shape[0]))
+        coefficients[of_pressure.reshape(-1), of_strain.reshape(-1)] = fit.coefficients
+        lowered, carried = [], []
+        for beta, with_pressure in zip(strain, [np.any(exponents[of_strain.reshape(-1) == b, 6:]) for b in
+                                               range(strain.shape[0])]):
+            lowered += [beta - np.eye(6, dtype=np.int64)[j] for j in np.flatnonzero(beta)]
+            if with_pressure:
+                carried.append(beta)
+        table = Monomials(np.array(lowered + carried, dtype=np.int64).reshape(-1, 6))
         index = table.index
-        # rows 0…nv−1: ∂ψ_nl/∂u_j; rows nv…2nv−1: Σ_k (∂ψ_k/∂u_j)/k, whose dot with u is ψ_nl
-        gradient = np.zeros((2 * nv, table.size))
-        hessian = np.zeros((nv, nv, n_hess))
-        for alpha, c in zip(fit.exponents, fit.coefficients):
-            degree = alpha.sum()
-            for j in np.flatnonzero(alpha):
-                a1 = alpha.copy()
-                a1[j] -= 1
-                gradient[j, index[tuple(a1)]] += c * alpha[j]
-                gradient[nv + j, index[tuple(a1)]] += c * alpha[j] / degree
-                for k in np.flatnonzero(a1):
-                    a2 = a1.copy()
-                    a2[k] -= 1
-                    hessian[j, k, index[tuple(a2)]] += c * alpha[j] * a1[k]
-        # fold the variable scales in: derivatives in z = u·scales
-        gradient[:nv] *= inv[:, None]
-        hessian *= (inv[:, None] * inv[None, :])[:, :, None]
-        self._table = table
-        self._gradient = gradient
-        self._hessian = hessian.reshape(nv * nv, n_hess)
-        self._n_hess = n_hess
+        size, nb = table.size, strain.shape[0]
+        n_hess = int(np.sum(table.exponents.sum(1) <= max(fit.degree - 2, 0)))
+        inv = 1.0 / fit.scales[:6]
+        gather = np.full((6, size), nb)                 # gradient and energy rows
+        gradient_factor, energy_factor = np.zeros((6, size)), np.zeros((6, size))
+        hess_gather = np.full((6, 6, n_hess), nb)
+        hess_factor = np.zeros((6, 6, n_hess))
+        value_gather = np.full(size, nb)                # values of the pressure derivatives
+        constant = nb                                   # β = 0: the energy's constant at given p
+        for b, beta in enumerate(strain):
+            degree = int(beta.sum())
+            if tuple(beta) in index:
+                value_gather[index[tuple(beta)]] = b
+            if degree == 0:
+                constant = b
+            for j in np.flatnonzero(beta):
+                b1 = beta.copy()
+                b1[j] -= 1
+                t = index[tuple(b1)]
+                gather[j, t] = b
+                gradient_factor[j, t] = beta[j] * inv[j]
+                energy_factor[j, t] = beta[j] / degree
+                for k in np.flatnonzero(b1):
+                    b2 = b1.copy()
+                    b2[k] -= 1
+                    t2 = index[tuple(b2)]
+                    hess_gather[j, k, t2] = b
+                    hess_factor[j, k, t2] = beta[j] * b1[k] * inv[j] * inv[k]
+        self._strain, self._pressure, self._coefficients = strain, pressure, coefficients
+        self._table, self._n_hess = table, n_hess
+        self._gather = np.concatenate([gather, gather])
+        self._gather_factor = np.concatenate([gradient_factor, energy_factor])
+        self._hess_gather, self._hess_factor = hess_gather.reshape(36, n_hess), hess_factor.reshape(36, n_hess)
+        self._value_gather, self._constant = value_gather, constant
         self._inv_scales = inv[:, None]
         K, S = self.stiffness, self.pressure_map
         self._KS = K @ S
         self._pp = S.T @ K @ S - self.volume_compliance
+        self._rest = self._restrict(np.zeros((1, m)))
+        self._rest_pressures = None
 
     @property
     def n_monomials(self) -> int:
         return self._table.size
 
-    def evaluate(self, s: np.ndarray, p: np.ndarray | None = None) -> EnergyValues:
-        """ψ and its derivatives at the strains ``s`` (n, 6) and pressures ``p`` (n, m)."""
-        s = np.asarray(s, dtype=float)
-        n, m = s.shape[0], self.fit.n_cavities
-        nv = 6 + m
-        p = np.zeros((n, m)) if p is None else np.asarray(p, dtype=float).reshape(n, m)
+    def _pressure_monomials(self, p: np.ndarray, order: int):
+        """The pressure monomials ``w(p)^π`` (u, Π) of the rows of ``p`` (u, m) and, with
+        ``order`` 2, the coefficient vectors of ``∂d/∂p`` (u, m, B) and ``∂²d/∂p²`` (u, m, m, B)
+        (``fold_map``'s chain rule included)."""
+        m = self.fit.n_cavities
+        powers = self._pressure                                      # (Π, m)
         fold = self.fit.fold_pressure
         if m and fold is not None:
             w, w1, w2 = fold_map(p, fold)
         else:
-            w = p
-        u = (np.concatenate([s, w], axis=1).T if m else s.T) * self._inv_scales      # (nv, n)
-        mon = self._table.values_t(u)
-        both = self._gradient @ mon                                 # (2 nv, n)
-        energy = (u * both[nv:]).sum(0)
-        grad = both[:nv].T                                          # (n, nv)
-        hess = (self._hessian @ mon[:self._n_hess]).T.reshape(n, nv, nv)
-        K = self.stiffness
+            w, w1, w2 = p, np.ones_like(p), np.zeros_like(p)
+        scale = self.fit.scales[6:]
+        up = (w / scale)[:, None, :]                                 # (u, 1, m)
+        if order == 0:
+            return np.prod(up ** powers, axis=2)
+        eye = np.eye(m, dtype=np.int64)
+        once = np.maximum(powers[None] - eye[:, None], 0)            # (m, Π, m): π − e_c
+        twice = np.maximum(once[:, None] - eye[None, :, None], 0)    # (m, m, Π, m): π − e_c − e_e
+        first = powers.T * np.prod(up[:, None] ** once, axis=3)      # (u, m, Π): ∂/∂u_c
+        second = powers.T[:, None] * (powers.T[None] - eye[:, :, None]) * np.prod(up[:, None, None] ** twice, axis=4)
+        C = self._coefficients
+        chain = w1 / scale                                           # ∂u_c/∂p_c
+        d1 = first @ C
+        d2 = (second @ C) * (chain[:, :, None] * chain[:, None, :])[..., None]
+        d2 += (w2 / scale)[:, :, None, None] * np.eye(m)[None, :, :, None] * d1[:, :, None]
+        return d1 * chain[:, :, None], d2
+
+    def _restrict(self, p: np.ndarray) -> list:
+        """For each row of the pressures ``p`` (u, m): (strain matrix (12, T) — gradient rows, then
+        the energy's Euler rows —, Hessian matrix (36, T_h), the energy's constant)."""
+        d = self._pressure_monomials(p, 0) @ self._coefficients      # (u, B)
+        d = np.concatenate([d, np.zeros((d.shape[0], 1))], axis=1)   # the zero that absent entries read
+        return [(row[self._gather] * self._gather_factor, row[self._hess_gather] * self._hess_factor,
+                 float(row[self._constant])) for row in d]
+
+    def _restrict_pressures(self, p: np.ndarray) -> list:
+        """For each row of the pressures ``p`` (u, m): the matrix (m + 6m + m², T) of the pressure
+        derivatives of ψ_nl — ∂ψ_nl/∂p values, ∂²ψ_nl/∂s∂p rows, ∂²ψ_nl/∂p² values."""
+        m = self.fit.n_cavities
+        d1, d2 = self._pressure_monomials(p, 2)
+        zero = np.zeros(d1.shape[:2] + (1,))
+        d1 = np.concatenate([d1, zero], axis=2)
+        d2 = np.concatenate([d2.reshape(d1.shape[0], m * m, -1), np.zeros((d1.shape[0], m * m, 1))], axis=2)
+        gather, factor = self._gather[:6], self._gather_factor[:6]
+        return [np.concatenate([first[:, self._value_gather], (first[:, gather] * factor).reshape(6 * m, -1),
+                                second[:, self._value_gather]]) for first, second in zip(d1, d2)]
+
+    def at(self, p: np.ndarray | None = None) -> "FixedPressures":
+        """The energy at the cavity pressures ``p`` (n, m) (None: all zero), ready to evaluate
+        at strains of the same ``n`` rows."""
+        m = self.fit.n_cavities
+        if p is None or not m:
+            return FixedPressures(self, None, np.zeros((1, m)), None, self._rest)
+        p = np.asarray(p, dtype=float).reshape(-1, m)
+        if not np.any(p):
+            return FixedPressures(self, p, np.zeros((1, m)), None, self._rest)
+        distinct, inverse = np.unique(p, axis=0, return_inverse=True)
+        inverse = inverse.reshape(-1)
+        groups = None if distinct.shape[0] == 1 else [np.flatnonzero(inverse == g) for g in range(distinct.shape[0])]
+        return FixedPressures(self, p, distinct, groups, self._restrict(distinct))
+
+    def evaluate(self, s: np.ndarray, p: np.ndarray | None = None) -> EnergyValues:
+        """ψ and all its derivatives, and the range test, at the strains ``s`` (n, 6) and
+        pressures ``p`` (n, m)."""
+        return self.at(p).evaluate(s)
+
+
+class FixedPressures:
+    """An :class:`EnergyModel` at fixed cavity pressures (see :meth:`EnergyModel.at`): the rows
+    with the same pressures (``distinct``) share one restricted polynomial (``groups``: their row
+    indices, or None when every row has the first). The matrices of the pressure derivatives are
+    gathered when first asked for."""
+
+    def __init__(self, model: EnergyModel, p: np.ndarray | None, distinct: np.ndarray, groups: list | None,
+                 restricted: list):
+        self.model, self.p, self.distinct, self.groups, self.restricted = model, p, distinct, groups, restricted
+        self._pressures = None
+
+    def _pressure_matrices(self) -> list:
+        if self._pressures is None:
+            model = self.model
+            if self.restricted is model._rest:          # zero pressures: a model constant
+                if model._rest_pressures is None:
+                    model._rest_pressures = model._restrict_pressures(self.distinct)
+                self._pressures = model._rest_pressures
+            else:
+                self._pressures = model._restrict_pressures(self.distinct)
+        return self._pressures
+
+    def evaluate(self, s: np.ndarray, *, pressures: bool = True, check_range: bool = True) -> EnergyValues:
+        """ψ, ``∂ψ/∂s`` and ``∂²ψ/∂s²`` at the strains ``s`` (n, 6); with ``pressures`` also
+        ``∂ψ/∂p``, ``∂²ψ/∂s∂p``, ``∂²ψ/∂p²``; with ``check_range`` the range test."""
+        model = self.model
+        s = np.asarray(s, dtype=float)
+        n, m = s.shape[0], model.fit.n_cavities
+        p = np.zeros((n, m)) if self.p is None else self.p
+        u = np.ascontiguousarray(s.T) * model._inv_scales                # (6, n)
+        energy, grad, hess = np.empty(n), np.empty((n, 6)), np.empty((n, 6, 6))
+        extra = np.empty((n, m + 6 * m + m * m)) if pressures and m else None
+        matrices = self._pressure_matrices() if extra is not None else [None] * len(self.restricted)
+        rows = [slice(None)] if self.groups is None else self.groups
+        for row, (strain, hessian, constant), pressure in zip(rows, self.restricted, matrices):
+            ug = u[:, row]
+            mon = model._table.values_t(ug)
+            both = strain @ mon                                          # (12, k)
+            grad[row] = both[:6].T
+            energy[row] = constant + (ug * both[6:]).sum(0)
+            hess[row] = (hessian @ mon[:model._n_hess]).T.reshape(-1, 6, 6)
+            if extra is not None:
+                extra[row] = (pressure @ mon).T
+        K = model.stiffness
+        pressure_gradient = mixed = pressure_hessian = None
         if m:
-            if fold is not None:                                    # chain rule from w(p) to p
-                gw = grad[:, 6:] * w2
-                grad[:, 6:] *= w1
-                hess[:, :, 6:] *= w1[:, None, :]
-                hess[:, 6:, :] *= w1[:, :, None]
-                hess[:, 6:, 6:] += gw[:, :, None] * np.eye(m)
-            e = s - p @ self.pressure_map.T                         # ψ_lin(s, p)
+            e = s - p @ model.pressure_map.T                             # ψ_lin(s, p)
             Ke = e @ K
-            energy += 0.5 * (e * Ke).sum(1) - 0.5 * ((p @ self.volume_compliance) * p).sum(1)
-            grad[:, :6] += Ke
-            grad[:, 6:] -= Ke @ self.pressure_map + p @ self.volume_compliance
-            hess[:, :6, :6] += K
-            hess[:, :6, 6:] -= self._KS
-            hess[:, 6:, :6] -= self._KS.T
-            hess[:, 6:, 6:] += self._pp
+            energy += 0.5 * (e * Ke).sum(1) - 0.5 * ((p @ model.volume_compliance) * p).sum(1)
+            grad += Ke
+            if extra is not None:
+                pressure_gradient = extra[:, :m] - Ke @ model.pressure_map - p @ model.volume_compliance
+                mixed = extra[:, m:7 * m].reshape(n, m, 6).transpose(0, 2, 1) - model._KS
+                pressure_hessian = extra[:, 7 * m:].reshape(n, m, m) + model._pp
         else:
             Ke = s @ K
             energy += 0.5 * (s * Ke).sum(1)
             grad += Ke
-            hess += K
-        gradient = grad[:, :6]
-        excess = self.fit.range.excess(s, gradient, p)
-        return EnergyValues(energy=energy, gradient=gradient, hessian=hess[:, :6, :6],
-                            pressure_gradient=grad[:, 6:], mixed_hessian=hess[:, :6, 6:],
-                            pressure_hessian=hess[:, 6:, 6:], range_excess=excess, in_range=excess <= 0.0)
+            if pressures:
+                pressure_gradient, mixed, pressure_hessian = np.zeros((n, 0)), np.zeros((n, 6, 0)), np.zeros((n, 0, 0))
+        hess += K
+        excess = model.fit.range.excess(s, grad, p) if check_range else None
+        return EnergyValues(energy=energy, gradient=grad, hessian=hess, pressure_gradient=pressure_gradient,
+                            mixed_hessian=mixed, pressure_hessian=pressure_hessian, range_excess=excess,
+                            in_range=None if excess is None else excess <= 0.0)
 
 
 def fold_map(p: np.ndarray, fold: float):

@@ -41,7 +41,7 @@ import numpy as np
 
 from vertebra.solver.kinds import CompiledLinks, LinkSource, RangeExcess, register
 from vertebra.solver.kinds.entry import entry_link
-from vertebra.store.energy import EnergyModel, EnergyValues
+from vertebra.store.energy import EnergyModel, EnergyValues, FixedPressures
 from vertebra.store.errors import ConvergenceError
 
 
@@ -108,10 +108,11 @@ class FittedEnergy:
         return cls(links, compiled.rest[of], tuple(groups), n_chambers)
 
     def prepare(self, pressures: np.ndarray) -> tuple:
-        """The cavity pressures (k, cavities) of every group's links (None: all zero). Pressures
-        at or beyond an entry's inflation limit point raise ConvergenceError."""
+        """Every group's energy at its links' cavity pressures (one
+        :class:`~vertebra.store.energy.FixedPressures` per group). Pressures at or beyond an
+        entry's inflation limit point raise ConvergenceError."""
         if not pressures.size or not np.any(pressures):
-            return (None,) * len(self.groups)
+            return tuple(group.entry.model.at(None) for group in self.groups)
         prepared = []
         for group in self.groups:
             p = group.incidence @ pressures
@@ -123,20 +124,21 @@ class FittedEnergy:
                     f"{group.vertebra[k] - 1}–{group.vertebra[k]}) is pressurised to {p[k, c]:.6g} Pa, at or beyond "
                     f"the inflation limit point of its fitted energy ({group.limit:.6g} Pa): the chamber has no "
                     "equilibrium there (it balloons), and the fit is not extrapolated through the limit point")
-            prepared.append(p)
+            prepared.append(group.entry.model.at(p))
         return tuple(prepared)
 
-    def _evaluate(self, group: _Group, xi: np.ndarray, p) -> EnergyValues:
+    def _evaluate(self, group: _Group, xi: np.ndarray, fixed: FixedPressures, **what) -> EnergyValues:
         rows = group.rows
-        return group.entry.model.evaluate(xi[rows] - self.rest[rows], p)
+        return fixed.evaluate(xi[rows] - self.rest[rows], **what)
 
     def response(self, xi: np.ndarray, prepared: tuple) -> tuple[float, np.ndarray, tuple]:
+        """ψ, ``w = ∂ψ/∂s`` and (kept for the tangent) ``∂²ψ/∂s²``: the strain derivatives only."""
         if len(self.groups) == 1:
-            values = self.groups[0].entry.model.evaluate(xi - self.rest, prepared[0])
+            values = prepared[0].evaluate(xi - self.rest, pressures=False, check_range=False)
             return float(values.energy.sum()), values.gradient, (values,)
         total, w, kept = 0.0, np.empty_like(xi), []
-        for group, p in zip(self.groups, prepared):
-            values = self._evaluate(group, xi, p)
+        for group, fixed in zip(self.groups, prepared):
+            values = self._evaluate(group, xi, fixed, pressures=False, check_range=False)
             total += float(values.energy.sum())
             w[group.rows] = values.gradient
             kept.append(values)
@@ -154,7 +156,8 @@ class FittedEnergy:
         """``−∂²ψ/∂s∂p · M`` per link (n, chambers, 6)."""
         out = np.zeros((xi.shape[0], self.n_chambers, 6))
         if self.n_chambers:
-            for group, values in zip(self.groups, kept):
+            for group, fixed in zip(self.groups, prepared):
+                values = self._evaluate(group, xi, fixed, check_range=False)
                 out[group.rows] = -np.einsum("kim,kmj->kji", values.mixed_hessian, group.incidence)
         return out
 
@@ -162,21 +165,20 @@ class FittedEnergy:
         """``−(∂ψ/∂p) · M`` summed over the links (chambers,)."""
         total = np.zeros(self.n_chambers)
         if self.n_chambers:
-            for group, p in zip(self.groups, prepared):
-                values = self._evaluate(group, xi, p)
+            for group, fixed in zip(self.groups, prepared):
+                values = self._evaluate(group, xi, fixed, check_range=False)
                 total += np.einsum("km,kmj->j", values.volume_growth, group.incidence)
         return total
 
     def out_of_range(self, xi: np.ndarray, prepared: tuple) -> tuple[RangeExcess, ...]:
         found = []
-        for group, p in zip(self.groups, prepared):
-            values = self._evaluate(group, xi, p)
+        for group, fixed in zip(self.groups, prepared):
+            values = self._evaluate(group, xi, fixed, pressures=False)
             if not np.any(values.range_excess > 0.0):
                 continue
             fitted = group.entry.model.fit.range
             s = xi[group.rows] - self.rest[group.rows]
-            cavities = fitted.n_cavities
-            p = np.zeros((s.shape[0], cavities)) if p is None else p
+            p = np.zeros((s.shape[0], fitted.n_cavities)) if fixed.p is None else fixed.p
             quantities = fitted.values(s, values.gradient, p)
             excess = fitted.excesses(s, values.gradient, p)
             lower, upper = fitted.bounds
