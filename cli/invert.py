@@ -12,7 +12,7 @@ import argparse
 import json
 import sys
 
-from vertebra.cli.outputs import PICTURE_SUFFIXES, output_file
+from vertebra.cli.outputs import PICTURE_SUFFIXES, output_file, range_warnings
 from vertebra.cli.prepare import add_preparation, prepared_scene
 
 
@@ -66,6 +66,8 @@ def run(args) -> int:
     def progress(i, step):
         if step.equilibrium_failure:
             _log(f"step {i}: no equilibrium under the commanded actuation: {step.equilibrium_failure}")
+        for line in range_warnings(step.out_of_range, f"step {i}: "):
+            _log(line)
         if not args.json:
             _log(f"step {i}: error {step.errors.max():.3e} m ({step.status}, {step.iterations} iteration(s), "
                  f"{step.timings['total_s'] * 1e3:.2f} ms)")

@@ -34,6 +34,22 @@ def output_file(value: str | None, option: str, suffixes: tuple[str, ...] | None
     return path
 
 
+def range_warnings(excesses, where: str = "", limit: int = 3) -> list[str]:
+    """One-line warnings for the states outside the range a link energy was fitted on
+    (:class:`~vertebra.solver.kinds.RangeExcess`): the largest ``limit`` excesses, and how many
+    more there are."""
+    if not excesses:
+        return []
+    worst = sorted(excesses, key=lambda excess: -excess.excess)
+    lines = [f"warning: {where}{len(excesses)} quantit{'y' if len(excesses) == 1 else 'ies'} of "
+             f"{len({e.link for e in excesses})} link(s) outside the range their fitted energy was sampled on "
+             "(extrapolated; see diagnostics.out_of_range in the JSON):"]
+    lines += [f"  {excess}" for excess in worst[:limit]]
+    if len(worst) > limit:
+        lines.append(f"  … and {len(worst) - limit} more")
+    return lines
+
+
 def shown(values, scale: float, relative: float):
     """``values`` with entries below ``relative`` × ``scale`` set to 0, for printing: a tension
     of 3.7e-31 N beside tensions of newtons is rounding of a zero, and prints as 0."""

@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 import sys
 
-from vertebra.cli.outputs import PICTURE_SUFFIXES, output_file, shown
+from vertebra.cli.outputs import PICTURE_SUFFIXES, output_file, range_warnings, shown
 from vertebra.cli.prepare import add_preparation, prepared_scene
 
 VTK_SUFFIXES = (".vtp",)
@@ -41,8 +41,12 @@ def run(args) -> int:
     try:
         result = model.solve()
     except ConvergenceError as error:
+        if error.result is None:          # no state to report (e.g. a chamber beyond its limit point)
+            raise
         result = error.result
         print(f"vertebra simulate: {error}", file=sys.stderr)
+    for line in range_warnings(result.out_of_range):
+        print(f"vertebra simulate: {line}", file=sys.stderr)
     report = static_report(model, result)
     if plot is not None:
         plot_static(model, result, str(plot))

@@ -20,7 +20,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from vertebra.solver import newton, outputs
-from vertebra.solver.energy import Evaluation, evaluate, potential
+from vertebra.solver.energy import Evaluation, evaluate, out_of_range, potential
 from vertebra.solver.memo import Memo
 from vertebra.solver.newton import StaticResult
 from vertebra.solver.outputs import Linearisation
@@ -180,6 +180,12 @@ class TrunkModel:
         """Cable strokes ``L − L0``, then chamber volume growths."""
         return outputs.actuator_displacements(self.trunk, state, self.actuation(actuation), self.memo,
                                               links=links, pieces=pieces)
+
+    def out_of_range(self, state: State, actuation=None) -> tuple:
+        """Where the links' states at ``state`` under ``actuation`` leave the range their energies
+        were fitted on (:class:`~vertebra.solver.kinds.RangeExcess`, in link order; empty when
+        inside, or when no link energy is a fit): what a solve reports in ``out_of_range``."""
+        return out_of_range(self.trunk, state, self.memo.load_case(self.actuation(actuation), 1.0), self.memo)
 
     def effector_positions(self, state: State) -> np.ndarray:
         """World position of each point effector; world unit direction of each axis effector."""

@@ -52,7 +52,8 @@ def static_report(model: TrunkModel, result: StaticResult) -> dict:
         "timing": {key: float(value) for key, value in result.timings.items()},
         "diagnostics": {"load_stages": int(result.load_steps), "factorization": result.factorization,
                         "rounding_limited": bool(result.rounding_limited),
-                        "frames": int(model.n_frames), "residual_history": [float(r) for r in result.residual_history]},
+                        "frames": int(model.n_frames), "residual_history": [float(r) for r in result.residual_history],
+                        "out_of_range": [excess.to_dict() for excess in result.out_of_range]},
     }
 
 
@@ -97,6 +98,7 @@ def _inverse_step(model: TrunkModel, t, step) -> dict:
                              "error": float(step.errors[k])} for k, name in enumerate(model.effector_names)},
         "reached": bool(step.reached and step.equilibrium),
         "equilibrium": bool(step.equilibrium),
+        "out_of_range": [excess.to_dict() for excess in step.out_of_range],
         "status": step.status,
         "iterations": int(step.iterations),
         "fraction": float(step.fraction),

@@ -112,6 +112,7 @@ class InverseStep:
     actuation_change: float = math.nan  # relative change of λ in the last iteration (converged mode)
     equilibrium_failure: str = ""  # why :meth:`InverseController.settled` found no equilibrium
     fraction: float = 1.0  # share of the QP's step applied (tick: 0 when the step was not applied)
+    out_of_range: tuple = ()  # RangeExcess: where ``state`` leaves the range a link energy was fitted on
 
 
 def _errors(positions: np.ndarray, targets: np.ndarray) -> np.ndarray:
@@ -176,7 +177,8 @@ class InverseController:
         return InverseStep(
             actuation=self.actuation.copy(), state=self.state, targets=targets.copy(), positions=positions,
             errors=errors, displacements=displacements, reached=all(e <= tolerance for e in errors.tolist()),
-            equilibrium=equilibrium, iterations=iterations, qp=sol, timings=timings, status=status)
+            equilibrium=equilibrium, iterations=iterations, qp=sol, timings=timings, status=status,
+            out_of_range=self.model.out_of_range(self.state, self.actuation))
 
     # ------------------------------------------------------------------ modes
     def tick(self, targets) -> InverseStep:
@@ -224,15 +226,15 @@ class InverseController:
             # the model of the potential under λ along α·dq: E_λ(q) − r_λ·d + ½ dᵀK d, with
             # r_λ = r + B(λ − λ0) and K dq = r + B d_lam
             predicted = alpha * (1.0 - 0.5 * alpha) * r_dq + 0.5 * alpha * alpha * b_dq
-            if model.n_chambers:
-                before = model.potential(state0, lam)
-            else:      # the potential is linear in the tensions: E_λ(q) = E_λ0(q) + (λ − λ0)·L(q)
-                before = lin.energy + alpha * d_energy
-            try:
+            try:     # (a pressure beyond a chamber's inflation limit point has no potential: not applied)
+                if model.n_chambers:
+                    before = model.potential(state0, lam)
+                else:      # the potential is linear in the tensions: E_λ(q) = E_λ0(q) + (λ − λ0)·L(q)
+                    before = lin.energy + alpha * d_energy
                 trial = model.step(state0, alpha * dq)
                 after = model.potential(trial, lam)
             except ConvergenceError:
-                after = math.nan
+                before = after = math.nan
             if self._moments is not None:
                 after -= alpha * float(self._moments @ dq.reshape(-1, 6)[:, 3:].reshape(-1))
             decrease = before - after
@@ -342,16 +344,17 @@ class InverseController:
         if step.equilibrium:
             return step
         try:
-            state = self.model.solve(step.actuation, initial=step.state).state
+            solved = self.model.solve(step.actuation, initial=step.state)
         except ConvergenceError as error:
             return dataclasses.replace(step, equilibrium_failure=str(error))
+        state = solved.state
         positions = self.model.effector_positions(state)
         errors = _errors(positions, step.targets)
         tolerance = self.settings.tolerance
         return dataclasses.replace(
             step, state=state, positions=positions, errors=errors, equilibrium=True,
             displacements=self.model.actuator_displacements(state, step.actuation),
-            reached=all(e <= tolerance for e in errors.tolist()))
+            reached=all(e <= tolerance for e in errors.tolist()), out_of_range=solved.out_of_range)
 
     def track(self, trajectory, *, settle: bool = False, on_step=None) -> list[InverseStep]:
         """Targets (n_steps, n_eff, 3) in order, warm-starting each step from the last. With
