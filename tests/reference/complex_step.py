@@ -238,6 +238,26 @@ def link_gradient(qa, xa, qb, xb, stiffness, xi_rest):
     return geometry.generalised_force(geometry.transport(w)), 0.5 * dot(e, w), geometry
 
 
+def polynomial_link_gradient(qa, xa, qb, xb, exponents, coefficients, scales, stiffness, xi_rest, shift):
+    """Gradient (…, 12) and energy of a link that stores a polynomial energy of its strain
+    ``s = log(T_a⁻¹ T_b) − ξ_rest``: ``ψ = ½ (s − shift)ᵀ K (s − shift) + Σ_α c_α (s / scales)^α``
+    (a fitted energy at fixed pressures: ``shift = S p``, the pressure factors multiplied into
+    the coefficients). ``exponents`` (m, 6), ``coefficients`` (m,), ``scales`` (6,); term by term,
+    complex-analytic."""
+    geometry = LinkGeometry.of(qa, xa, qb, xb)
+    s = geometry.twist() - xi_rest
+    u = s / scales
+    w = matvec(stiffness, s - shift)
+    energy = 0.5 * dot(s - shift, w)
+    for alpha, c in zip(exponents, coefficients):
+        energy = energy + c * np.prod(u ** alpha, axis=-1)
+        for j in np.flatnonzero(alpha):
+            lowered = alpha.copy()
+            lowered[j] -= 1
+            w = w + (c * alpha[j] / scales[j]) * np.prod(u ** lowered, axis=-1)[..., None] * np.eye(6)[j]
+    return geometry.generalised_force(geometry.transport(w)), energy, geometry
+
+
 def cable_gradient(qa, xa, qb, xb, hole_a, hole_b, tension):
     """Gradient and energy ``τ |P_b − P_a|`` of cable pieces between holes ``r`` of two frames."""
     sa = qrotate(qa, hole_a)
