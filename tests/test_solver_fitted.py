@@ -362,3 +362,38 @@ def test_chain_of_nonlinear_entries_against_the_full_nonlinear_fe(rod, case):
     assert np.linalg.norm(tip - reference.positions[-1]) <= 1e-3 * length
     assert np.linalg.norm(linear.state.positions[-1] - reference.positions[-1]) >= 3e-3 * length
     assert nonlinear.out_of_range == ()
+
+
+def test_simulate_cli_warns_and_reports_the_range(tmp_path):
+    """``vertebra simulate``: a warning on stderr naming the link, segment, vertebrae and quantity;
+    the JSON's ``diagnostics.out_of_range``; the exit code stays that of convergence."""
+    import subprocess
+    import sys
+
+    from vertebra.store import catalogue
+
+    entry = _narrow(FITTED, 0.05)
+    catalogue.add_entry(tmp_path / "cat.h5", entry)
+    (tmp_path / "scene.toml").write_text(f"""
+[catalogue]
+path = "cat.h5"
+[[segment]]
+type = "entry"
+entry = "{entry.name}"
+count = 4
+[[load]]
+vertebra = -1
+moment = [0.0, 0.25, 0.0]
+[[effector]]
+name = "tip"
+vertebra = -1
+""")
+    run = lambda *extra: subprocess.run([sys.executable, "-m", "vertebra", "simulate", str(tmp_path / "scene.toml"),  # noqa: E731
+                                         *extra], capture_output=True, text=True, timeout=120)
+    text = run()
+    assert text.returncode == 0, text.stderr
+    assert "warning: 4 quantities of 4 link(s) outside the range" in text.stderr
+    assert "link 0 (segment 0, vertebrae 0–1, entry 'slice-nl'): bending strain" in text.stderr
+    document = json.loads(run("--json").stdout)
+    rows = document["diagnostics"]["out_of_range"]
+    assert [row["link"] for row in rows] == [0, 1, 2, 3] and {row["quantity"] for row in rows} == {"bending strain"}
