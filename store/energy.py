@@ -477,7 +477,8 @@ class EnergyModel:
             lowered += [beta - np.eye(6, dtype=np.int64)[j] for j in np.flatnonzero(beta)]
             if with_pressure:
                 carried.append(beta)
-        table = Monomials(np.array(lowered + carried, dtype=np.int64).reshape(-1, 6))
+        units = list(np.eye(6, dtype=np.int64))                     # the linear part's monomials u_k
+        table = Monomials(np.array(lowered + carried + units, dtype=np.int64).reshape(-1, 6))
         index = table.index
         size, nb = table.size, strain.shape[0]
         n_hess = int(np.sum(table.exponents.sum(1) <= max(fit.degree - 2, 0)))
@@ -513,6 +514,7 @@ class EnergyModel:
         self._gather_factor = np.concatenate([gradient_factor, energy_factor])
         self._hess_gather, self._hess_factor = hess_gather.reshape(36, n_hess), hess_factor.reshape(36, n_hess)
         self._value_gather, self._constant = value_gather, constant
+        self._units = np.array([index[tuple(unit)] for unit in units])
         self._inv_scales = inv[:, None]
         K, S = self.stiffness, self.pressure_map
         self._KS = K @ S
@@ -552,24 +554,50 @@ class EnergyModel:
         return d1 * chain[:, :, None], d2
 
     def _restrict(self, p: np.ndarray) -> list:
-        """For each row of the pressures ``p`` (u, m): (strain matrix (12, T) — gradient rows, then
-        the energy's Euler rows —, Hessian matrix (36, T_h), the energy's constant)."""
+        """For each row of the pressures ``p`` (u, m): the whole ψ(·, p) as a polynomial in the
+        scaled strain — (strain matrix (12, T): gradient rows, then the energy's Euler rows;
+        Hessian matrix (36, T_h); the energy's constant). ψ_lin is folded in: at given ``p`` it is
+        ``½ sᵀKs − (KSp)·s + ½ (Sp)ᵀK(Sp) − ½ pᵀVp``, terms of degree 2, 1 and 0 in ``u``."""
         d = self._pressure_monomials(p, 0) @ self._coefficients      # (u, B)
         d = np.concatenate([d, np.zeros((d.shape[0], 1))], axis=1)   # the zero that absent entries read
-        return [(row[self._gather] * self._gather_factor, row[self._hess_gather] * self._hess_factor,
-                 float(row[self._constant])) for row in d]
+        K, S, V = self.stiffness, self.pressure_map, self.volume_compliance
+        scaled = K * self.fit.scales[:6]                             # K D: ∂(½ sᵀKs)/∂s on the monomials u_k
+        out = []
+        for row, pressures in zip(d, p):
+            strain = row[self._gather] * self._gather_factor
+            hess = row[self._hess_gather] * self._hess_factor
+            shift = S @ pressures                                    # S p
+            force = K @ shift                                        # K S p
+            strain[:6, self._units] += scaled
+            strain[6:, self._units] += 0.5 * self.fit.scales[:6, None] * scaled
+            strain[:6, 0] -= force
+            strain[6:, 0] -= force * self.fit.scales[:6]
+            hess[:, 0] += K.reshape(36)
+            constant = float(row[self._constant]) + 0.5 * float(shift @ force) - 0.5 * float(pressures @ V @ pressures)
+            out.append((strain, hess, constant))
+        return out
 
     def _restrict_pressures(self, p: np.ndarray) -> list:
         """For each row of the pressures ``p`` (u, m): the matrix (m + 6m + m², T) of the pressure
-        derivatives of ψ_nl — ∂ψ_nl/∂p values, ∂²ψ_nl/∂s∂p rows, ∂²ψ_nl/∂p² values."""
+        derivatives of ψ(·, p) — ∂ψ/∂p values, ∂²ψ/∂s∂p rows (cavity-major), ∂²ψ/∂p² values; ψ_lin
+        folded in (``∂ψ_lin/∂p = −SᵀK(s − Sp) − Vp``, ``∂²ψ_lin/∂s∂p = −KS``, ``∂²ψ_lin/∂p² = SᵀKS − V``)."""
         m = self.fit.n_cavities
         d1, d2 = self._pressure_monomials(p, 2)
         zero = np.zeros(d1.shape[:2] + (1,))
         d1 = np.concatenate([d1, zero], axis=2)
         d2 = np.concatenate([d2.reshape(d1.shape[0], m * m, -1), np.zeros((d1.shape[0], m * m, 1))], axis=2)
         gather, factor = self._gather[:6], self._gather_factor[:6]
-        return [np.concatenate([first[:, self._value_gather], (first[:, gather] * factor).reshape(6 * m, -1),
-                                second[:, self._value_gather]]) for first, second in zip(d1, d2)]
+        KS = self._KS
+        out = []
+        for first, second, pressures in zip(d1, d2, p):
+            matrix = np.concatenate([first[:, self._value_gather], (first[:, gather] * factor).reshape(6 * m, -1),
+                                     second[:, self._value_gather]])
+            matrix[:m, 0] += self._pp @ pressures
+            matrix[:m, self._units] -= KS.T * self.fit.scales[:6]
+            matrix[m:7 * m, 0] -= KS.T.reshape(6 * m)
+            matrix[7 * m:, 0] += self._pp.reshape(m * m)
+            out.append(matrix)
+        return out
 
     def at(self, p: np.ndarray | None = None) -> "FixedPressures":
         """The energy at the cavity pressures ``p`` (n, m) (None: all zero), ready to evaluate
@@ -619,11 +647,10 @@ class FixedPressures:
         model = self.model
         s = np.asarray(s, dtype=float)
         n, m = s.shape[0], model.fit.n_cavities
-        p = np.zeros((n, m)) if self.p is None else self.p
         u = np.ascontiguousarray(s.T) * model._inv_scales                # (6, n)
         energy, grad, hess = np.empty(n), np.empty((n, 6)), np.empty((n, 6, 6))
-        extra = np.empty((n, m + 6 * m + m * m)) if pressures and m else None
-        matrices = self._pressure_matrices() if extra is not None else [None] * len(self.restricted)
+        extra = np.empty((n, m + 6 * m + m * m)) if pressures else None
+        matrices = self._pressure_matrices() if pressures and m else [None] * len(self.restricted)
         rows = [slice(None)] if self.groups is None else self.groups
         for row, (strain, hessian, constant), pressure in zip(rows, self.restricted, matrices):
             ug = u[:, row]
@@ -632,26 +659,14 @@ class FixedPressures:
             grad[row] = both[:6].T
             energy[row] = constant + (ug * both[6:]).sum(0)
             hess[row] = (hessian @ mon[:model._n_hess]).T.reshape(-1, 6, 6)
-            if extra is not None:
+            if pressure is not None:
                 extra[row] = (pressure @ mon).T
-        K = model.stiffness
         pressure_gradient = mixed = pressure_hessian = None
-        if m:
-            e = s - p @ model.pressure_map.T                             # ψ_lin(s, p)
-            Ke = e @ K
-            energy += 0.5 * (e * Ke).sum(1) - 0.5 * ((p @ model.volume_compliance) * p).sum(1)
-            grad += Ke
-            if extra is not None:
-                pressure_gradient = extra[:, :m] - Ke @ model.pressure_map - p @ model.volume_compliance
-                mixed = extra[:, m:7 * m].reshape(n, m, 6).transpose(0, 2, 1) - model._KS
-                pressure_hessian = extra[:, 7 * m:].reshape(n, m, m) + model._pp
-        else:
-            Ke = s @ K
-            energy += 0.5 * (s * Ke).sum(1)
-            grad += Ke
-            if pressures:
-                pressure_gradient, mixed, pressure_hessian = np.zeros((n, 0)), np.zeros((n, 6, 0)), np.zeros((n, 0, 0))
-        hess += K
+        if extra is not None:
+            pressure_gradient = extra[:, :m]
+            mixed = extra[:, m:7 * m].reshape(n, m, 6).transpose(0, 2, 1)
+            pressure_hessian = extra[:, 7 * m:].reshape(n, m, m)
+        p = np.zeros((n, m)) if self.p is None else self.p
         excess = model.fit.range.excess(s, grad, p) if check_range else None
         return EnergyValues(energy=energy, gradient=grad, hessian=hess, pressure_gradient=pressure_gradient,
                             mixed_hessian=mixed, pressure_hessian=pressure_hessian, range_excess=excess,

@@ -1,5 +1,6 @@
-"""Nonlinear catalogue entries with a known fitted energy, for tests of the runtime's
-``nonlinear-entry`` link kind without the nonlinear FE.
+"""Nonlinear catalogue entries for tests: synthetic ones with a known fitted energy (tests of
+the runtime's ``nonlinear-entry`` link kind without the nonlinear FE), and one designed coarse
+neo-Hookean rod (:func:`nonlinear_rod`, designed once per test process).
 
 :func:`with_energy` gives a linear entry a ψ_nl of degree 3–4 in the scaled variables
 ``u = [s; p] / scales``: a convex quartic ``κ E₀ |u|⁴`` (so Newton has a minimum to find at any
@@ -11,11 +12,26 @@ of a unit scaled strain along its softest direction. The range is a box around t
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import numpy as np
 
 from vertebra.store.energy import EnergyFit, EnergyRange, linear_terms, monomial_exponents
+
+
+ROD = {"radius": 0.01, "length": 0.04, "youngs_modulus": 1e6, "poisson_ratio": 0.3}
+ROD_MESH = 0.008                                         # 1.1k DoFs: a coarse P2 rod
+ROD_SAMPLING = {"paths": 8, "steps": 4, "degree": 6}
+
+
+@functools.cache
+def nonlinear_rod():
+    """The neo-Hookean rod entry (``ROD`` on ``ROD_MESH``, ``ROD_SAMPLING``; ~6 s, once)."""
+    from vertebra import designer
+
+    return designer.design_segment("rod", ROD, mesh_size=ROD_MESH, material="neo_hookean", sampling=ROD_SAMPLING,
+                                   estimate_accuracy=False, executor="serial")
 
 
 def with_energy(entry, *, strength=0.05, convex=0.5, seed=0, bending=0.8, twist=0.6, stretch=0.2,

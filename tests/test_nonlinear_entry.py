@@ -16,15 +16,14 @@ from vertebra.designer.nonlinear_condensation import FamilySolid
 from vertebra.store import catalogue
 from vertebra.store.errors import OptionError, SpecError
 
-ROD = {"radius": 0.01, "length": 0.04, "youngs_modulus": 1e6, "poisson_ratio": 0.3}
-MESH = 0.008                                              # 1.1k DoFs: a coarse P2 rod
-SAMPLING = {"paths": 8, "steps": 4, "degree": 6}
+from fitted_energies import ROD, nonlinear_rod
+from fitted_energies import ROD_MESH as MESH
+from fitted_energies import ROD_SAMPLING as SAMPLING
 
 
 @pytest.fixture(scope="module")
 def rod_entry():
-    return designer.design_segment("rod", ROD, mesh_size=MESH, material="neo_hookean", sampling=SAMPLING,
-                                   estimate_accuracy=False, executor="serial")
+    return nonlinear_rod()
 
 
 def test_keys_linear_unchanged_nonlinear_distinct():

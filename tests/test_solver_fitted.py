@@ -21,7 +21,7 @@ import json
 import numpy as np
 import pytest
 
-from fitted_energies import with_energy
+from fitted_energies import ROD, ROD_MESH, nonlinear_rod, with_energy
 from reference.complex_step import pair_tangent, polynomial_link_gradient
 from test_solver_actuation import synthetic_entry
 from vertebra import solver
@@ -315,17 +315,9 @@ def test_inverse_steps_report_the_range():
 
 # ---------------------------------------------------------------------------- against the FE
 
-ROD = {"radius": 0.01, "length": 0.04, "youngs_modulus": 1e6, "poisson_ratio": 0.3}
-MESH = 0.008                                              # 1.1k DoFs: a coarse P2 rod
-SAMPLING = {"paths": 8, "steps": 4, "degree": 6}
-
-
 @pytest.fixture(scope="module")
 def rod():
-    from vertebra import designer
-
-    return designer.design_segment("rod", ROD, mesh_size=MESH, material="neo_hookean", sampling=SAMPLING,
-                                   estimate_accuracy=False, executor="serial")
+    return nonlinear_rod()
 
 
 @pytest.mark.parametrize("case", ["3d-two", "planar-three"])
@@ -351,7 +343,7 @@ def test_chain_of_nonlinear_entries_against_the_full_nonlinear_fe(rod, case):
     loads = tuple({"vertebra": k, "force": f} for k, f in forces.items())
     nonlinear = _model(rod, count=count, loads=loads).solve()
     linear = _model(dataclasses.replace(rod, energy=None), count=count, loads=loads).solve()
-    segment = FamilySolid("rod", json.dumps(rod.parameters, sort_keys=True), MESH, 2, "neo_hookean").build()
+    segment = FamilySolid("rod", json.dumps(rod.parameters, sort_keys=True), ROD_MESH, 2, "neo_hookean").build()
     reference = NonlinearTrunk([segment] * count).solve(TrunkLoads(forces={k: np.array(f) for k, f in forces.items()}))
     chain = solve_chain([ChainEnergy(rod)] * count, [PointLoad(k, tuple(f)) for k, f in forces.items()])
     length = count * ROD["length"]
