@@ -27,7 +27,6 @@ its tasks.
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from dataclasses import asdict, dataclass, field
