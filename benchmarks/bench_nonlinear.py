@@ -177,7 +177,7 @@ def chain_errors(entry, cases, n):
 # ------------------------------------------------------------------ sections
 
 def section_kernel(results, quick):
-    from vertebra.designer.energy_fit import FitResult, invariant_basis, symmetry_group
+    from vertebra.designer.energy_fit import invariant_basis, symmetry_group
     from vertebra.designer.families import AXISYMMETRIC, FAMILIES
     from vertebra.solver.lie import qexp
     from vertebra.solver.links import Links, link_tangent

@@ -27,7 +27,6 @@ its tasks.
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from dataclasses import asdict, dataclass, field
@@ -84,7 +83,7 @@ class SamplingSettings:
     paths: int | None = None         # scrambled-Halton loading paths besides the box axes (None: 18, 30 with cavities)
     steps: int = 6                   # samples per path
     held_out: int = 4                # every held_out-th Halton path is held out of the fit
-    bending: float = 1.05            # rad, largest bending angle sampled
+    bending: float = 1.3             # rad, largest bending angle sampled (75°)
     twist: float = 0.6               # rad, largest twist sampled
     strain: float = 0.4              # outer-fibre strain bounding bending and twist (·L/r)
     shear: float = 0.25              # lateral displacement of the strain chart / length

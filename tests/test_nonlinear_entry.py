@@ -2,7 +2,6 @@
 the fit against the full trunk (the chain of FE-evaluated segments: exact domain decomposition),
 the command line and sweep specs."""
 
-import dataclasses
 import json
 import subprocess
 import sys
