@@ -100,8 +100,9 @@ class StaticResult:
 
     def __repr__(self) -> str:
         tip = ", ".join(f"{v:.6g}" for v in self.state.positions[-1])
+        outside = f", out_of_range={len(self.out_of_range)}" if self.out_of_range else ""
         return (f"StaticResult(converged={self.converged}, iterations={self.iterations}, "
-                f"residual={self.residual:.3g}, load_steps={self.load_steps}, tip=[{tip}] m)")
+                f"residual={self.residual:.3g}, load_steps={self.load_steps}, tip=[{tip}] m{outside})")
 
 
 class Unrepresentable(Exception):

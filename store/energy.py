@@ -579,8 +579,9 @@ class EnergyModel:
 
     def _restrict_pressures(self, p: np.ndarray) -> list:
         """For each row of the pressures ``p`` (u, m): the matrix (m + 6m + m², T) of the pressure
-        derivatives of ψ(·, p) — ∂ψ/∂p values, ∂²ψ/∂s∂p rows (cavity-major), ∂²ψ/∂p² values; ψ_lin
-        folded in (``∂ψ_lin/∂p = −SᵀK(s − Sp) − Vp``, ``∂²ψ_lin/∂s∂p = −KS``, ``∂²ψ_lin/∂p² = SᵀKS − V``)."""
+        derivatives of ψ(·, p) — ∂ψ/∂p values, ∂²ψ/∂s∂p rows (cavity-major), ∂²ψ/∂p² values;
+        ψ_lin folded in (``∂ψ_lin/∂p = −SᵀK(s − Sp) − Vp``, ``∂²ψ_lin/∂s∂p = −KS``,
+        ``∂²ψ_lin/∂p² = SᵀKS − V``)."""
         m = self.fit.n_cavities
         d1, d2 = self._pressure_monomials(p, 2)
         zero = np.zeros(d1.shape[:2] + (1,))

@@ -56,7 +56,8 @@ def with_energy(entry, *, strength=0.05, convex=0.5, seed=0, bending=0.8, twist=
     lateral = math.hypot(loads[0], loads[1])
     bend = math.hypot(loads[3], loads[4])
     fitted_range = EnergyRange(
-        pose_lower=[0.0, -stretch * length, 0.0, -twist], pose_upper=[stretch * length, stretch * length, bending, twist],
+        pose_lower=[0.0, -stretch * length, 0.0, -twist],
+        pose_upper=[stretch * length, stretch * length, bending, twist],
         load_lower=[0.0, -loads[2], 0.0, -loads[5]], load_upper=[lateral, loads[2], bend, loads[5]],
         pressure_lower=np.zeros(m), pressure_upper=np.full(m, pressure), limit_pressure=limit_pressure)
     fit = EnergyFit(exponents=exponents, coefficients=coefficients, scales=scales, range=fitted_range,

@@ -150,8 +150,8 @@ def test_a_turned_and_moved_trunk_finds_the_turned_equilibrium():
     turn, shift = qexp(np.array([0.4, 0.2, -0.9])), np.array([0.2, 0.1, -0.3])
     turned_loads = tuple({"vertebra": load["vertebra"], "force": qrotate(turn, np.array(load["force"])).tolist()}
                          for load in loads)
-    second = _model(FITTED, chambers=CHAMBERS, loads=turned_loads, gravity=qrotate(turn, gravity), solver_settings=settings,
-                    base={"position": shift.tolist(), "quaternion": turn.tolist()})
+    second = _model(FITTED, chambers=CHAMBERS, loads=turned_loads, gravity=qrotate(turn, gravity),
+                    solver_settings=settings, base={"position": shift.tolist(), "quaternion": turn.tolist()})
     a, b = first.solve(), second.solve()
     assert a.converged and b.converged
     bend = np.degrees(np.linalg.norm(solver.lie.qlog(a.state.quaternions[-1])))
@@ -380,8 +380,11 @@ moment = [0.0, 0.25, 0.0]
 name = "tip"
 vertebra = -1
 """)
-    run = lambda *extra: subprocess.run([sys.executable, "-m", "vertebra", "simulate", str(tmp_path / "scene.toml"),  # noqa: E731
-                                         *extra], capture_output=True, text=True, timeout=120)
+
+    def run(*extra):
+        return subprocess.run([sys.executable, "-m", "vertebra", "simulate", str(tmp_path / "scene.toml"), *extra],
+                              capture_output=True, text=True, timeout=120)
+
     text = run()
     assert text.returncode == 0, text.stderr
     assert "warning: 4 quantities of 4 link(s) outside the range" in text.stderr
