@@ -5,9 +5,9 @@ The runtime solver (its ``nonlinear-entry`` link kind) is the product; this chai
 independent yardstick for it: the strains are the unknowns, Newton is dense and none of
 ``vertebra.solver`` is used (only the energy kernel they share), so the runtime's kinematics,
 chambers and Newton are checked against it (tests/test_solver_fitted.py). The chain is
-clamped at the base (frame a of segment 1 at the origin, axis +z); vertebra ``i`` sits at ``T_i = T_{i−1} exp(ξ₀ᵢ + s_i)``; loads are
-dead forces at points of vertebrae (conservative: moments come from lever arms) and cavity
-pressures. The unknowns are the strains ``s = (s_1, …, s_n)``; the potential
+clamped at the base (frame a of segment 1 at the origin, axis +z); vertebra ``i`` sits at
+``T_i = T_{i−1} exp(ξ₀ᵢ + s_i)``; loads are dead forces at points of vertebrae (conservative:
+moments come from lever arms) and cavity pressures. The unknowns are the strains ``s = (s_1, …, s_n)``; the potential
 
     E(s) = Σ_i ψ_i(s_i, p_i) − Σ_loads F · x(s)
 
