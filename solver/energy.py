@@ -185,11 +185,12 @@ def chamber_forces(trunk, ev: Evaluation) -> np.ndarray:
     return _per_link(trunk, ev, "chamber_forces", (trunk.actuators.n_chambers, 6))
 
 
-def volume_growth(trunk, links: Links, pressures: np.ndarray) -> np.ndarray:
-    """``−∂ψ/∂p`` (n_chambers,): the chambers' volume growth."""
+def volume_growth(trunk, links: Links, pressures: np.ndarray, link_loads: tuple) -> np.ndarray:
+    """``−∂ψ/∂p`` (n_chambers,): the chambers' volume growth (``link_loads``: what the link
+    energies prepared of ``pressures``)."""
     total = np.zeros(trunk.actuators.n_chambers)
-    for energy in trunk.links.energies:
-        total += energy.volume_growth(links.xi[energy.links], energy.prepare(pressures), pressures)
+    for energy, prepared in zip(trunk.links.energies, link_loads):
+        total += energy.volume_growth(links.xi[energy.links], prepared, pressures)
     return total
 
 

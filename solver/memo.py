@@ -10,6 +10,8 @@
   actuation: repeated solves and linearisations at one actuation compute them once, a control
   tick's two actuations (linearised at one, stepped to the other) alternate without rebuilding,
   and a new actuation at the same load factor (a control loop's) keeps the weight and dead loads.
+  What the link energies prepared of given chamber pressures comes from those load cases, or
+  from the last pressures asked for (volume growths reported at other pressures).
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ class Memo:
         self._axes = None
         self._loads = [(None, None, None), (None, None, None)]   # the last two, most recent first
         self._reference = (None, None)
+        self._link_loads = (None, None)
 
     def links(self, state, record) -> Links:
         """Link kinematics of ``state`` (``record``: its carried strains or None)."""
@@ -90,6 +93,17 @@ class Memo:
         load = LoadCase.of(self._trunk, actuation, scale, loads[0][2])
         loads[1], loads[0] = loads[0], (key, scale, load)
         return load
+
+    def link_loads(self, pressures: np.ndarray) -> tuple:
+        """What the link energies prepared of the chamber ``pressures`` (the remembered load
+        cases' when one has these pressures)."""
+        for _, _, load in self._loads:
+            if load is not None and np.array_equal(load.pressures, pressures):
+                return load.link_loads
+        key = pressures.tobytes()
+        if self._link_loads[0] != key:
+            self._link_loads = (key, tuple(e.prepare(pressures) for e in self._trunk.links.energies))
+        return self._link_loads[1]
 
     def reference_force(self, actuation: np.ndarray, compute) -> float:
         """The reference force of ``actuation`` (``compute()`` when it is not the last one)."""

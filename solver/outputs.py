@@ -62,7 +62,8 @@ def chamber_volume_growth(trunk, state, pressures: np.ndarray, memo, links=None)
         return np.zeros(0)
     if links is None:
         links = memo.links(state, state.carried_strains())
-    return volume_growth(trunk, links, np.asarray(pressures, float))
+    pressures = np.asarray(pressures, float)
+    return volume_growth(trunk, links, pressures, memo.link_loads(pressures))
 
 
 def actuator_displacements(trunk, state, actuation: np.ndarray, memo, *, links=None, pieces=None) -> np.ndarray:

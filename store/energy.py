@@ -509,6 +509,12 @@ class EnergyModel:
                     hess_gather[j, k, t2] = b
                     hess_factor[j, k, t2] = beta[j] * b1[k] * inv[j] * inv[k]
         self._strain, self._pressure, self._coefficients = strain, pressure, coefficients
+        self._pressure_degree = int(pressure.max(initial=0))
+        eye = np.eye(m, dtype=np.int64)
+        once = np.maximum(pressure[None] - eye[:, None], 0)          # (m, Π, m): π − e_c
+        twice = np.maximum(once[:, None] - eye[None, :, None], 0)    # (m, m, Π, m): π − e_c − e_e
+        self._pressure_lowered = (once, twice, pressure.T.astype(float),
+                                  (pressure.T[:, None] * (pressure.T[None] - eye[:, :, None])).astype(float))
         self._table, self._n_hess = table, n_hess
         self._gather = np.concatenate([gather, gather])
         self._gather_factor = np.concatenate([gradient_factor, energy_factor])
@@ -538,14 +544,18 @@ class EnergyModel:
         else:
             w, w1, w2 = p, np.ones_like(p), np.zeros_like(p)
         scale = self.fit.scales[6:]
-        up = (w / scale)[:, None, :]                                 # (u, 1, m)
+        up = w / scale
+        table = np.empty((p.shape[0], m, self._pressure_degree + 1))  # u_c^k: products, no pow()
+        table[:, :, 0] = 1.0
+        for k in range(1, table.shape[2]):
+            np.multiply(table[:, :, k - 1], up, out=table[:, :, k])
+        cavity = np.arange(m)
+        monomials = np.prod(table[:, cavity, powers], axis=2)          # (u, Π)
         if order == 0:
-            return np.prod(up ** powers, axis=2)
-        eye = np.eye(m, dtype=np.int64)
-        once = np.maximum(powers[None] - eye[:, None], 0)            # (m, Π, m): π − e_c
-        twice = np.maximum(once[:, None] - eye[None, :, None], 0)    # (m, m, Π, m): π − e_c − e_e
-        first = powers.T * np.prod(up[:, None] ** once, axis=3)      # (u, m, Π): ∂/∂u_c
-        second = powers.T[:, None] * (powers.T[None] - eye[:, :, None]) * np.prod(up[:, None, None] ** twice, axis=4)
+            return monomials
+        once, twice, once_factor, twice_factor = self._pressure_lowered
+        first = once_factor * np.prod(table[:, cavity, once], axis=3)                  # (u, m, Π): ∂/∂u_c
+        second = twice_factor * np.prod(table[:, cavity, twice], axis=4)              # (u, m, m, Π)
         C = self._coefficients
         chain = w1 / scale                                           # ∂u_c/∂p_c
         d1 = first @ C
@@ -609,9 +619,10 @@ class EnergyModel:
         p = np.asarray(p, dtype=float).reshape(-1, m)
         if not np.any(p):
             return FixedPressures(self, p, np.zeros((1, m)), None, self._rest)
-        distinct, inverse = np.unique(p, axis=0, return_inverse=True)
-        inverse = inverse.reshape(-1)
-        groups = None if distinct.shape[0] == 1 else [np.flatnonzero(inverse == g) for g in range(distinct.shape[0])]
+        rows = np.ascontiguousarray(p).view(np.dtype((np.void, 8 * m))).reshape(-1)    # a row as one key
+        _, first, inverse = np.unique(rows, return_index=True, return_inverse=True)
+        distinct = p[first]
+        groups = None if first.size == 1 else [np.flatnonzero(inverse == g) for g in range(first.size)]
         return FixedPressures(self, p, distinct, groups, self._restrict(distinct))
 
     def evaluate(self, s: np.ndarray, p: np.ndarray | None = None) -> EnergyValues:
@@ -624,12 +635,14 @@ class FixedPressures:
     """An :class:`EnergyModel` at fixed cavity pressures (see :meth:`EnergyModel.at`): the rows
     with the same pressures (``distinct``) share one restricted polynomial (``groups``: their row
     indices, or None when every row has the first). The matrices of the pressure derivatives are
-    gathered when first asked for."""
+    gathered when first asked for; the last complete evaluation is kept (a linearisation asks for
+    the chamber forces, the volume growth and the range at the same strains)."""
 
     def __init__(self, model: EnergyModel, p: np.ndarray | None, distinct: np.ndarray, groups: list | None,
                  restricted: list):
         self.model, self.p, self.distinct, self.groups, self.restricted = model, p, distinct, groups, restricted
         self._pressures = None
+        self._last = (None, None)
 
     def _pressure_matrices(self) -> list:
         if self._pressures is None:
@@ -645,8 +658,17 @@ class FixedPressures:
     def evaluate(self, s: np.ndarray, *, pressures: bool = True, check_range: bool = True) -> EnergyValues:
         """ψ, ``∂ψ/∂s`` and ``∂²ψ/∂s²`` at the strains ``s`` (n, 6); with ``pressures`` also
         ``∂ψ/∂p``, ``∂²ψ/∂s∂p``, ``∂²ψ/∂p²``; with ``check_range`` the range test."""
-        model = self.model
         s = np.asarray(s, dtype=float)
+        complete = pressures and check_range
+        if complete and self._last[0] is not None and np.array_equal(self._last[0], s):
+            return self._last[1]
+        values = self._evaluate(s, pressures, check_range)
+        if complete:
+            self._last = (s.copy(), values)
+        return values
+
+    def _evaluate(self, s: np.ndarray, pressures: bool, check_range: bool) -> EnergyValues:
+        model = self.model
         n, m = s.shape[0], model.fit.n_cavities
         u = np.ascontiguousarray(s.T) * model._inv_scales                # (6, n)
         energy, grad, hess = np.empty(n), np.empty((n, 6)), np.empty((n, 6, 6))

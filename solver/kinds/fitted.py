@@ -157,7 +157,7 @@ class FittedEnergy:
         out = np.zeros((xi.shape[0], self.n_chambers, 6))
         if self.n_chambers:
             for group, fixed in zip(self.groups, prepared):
-                values = self._evaluate(group, xi, fixed, check_range=False)
+                values = self._evaluate(group, xi, fixed)
                 out[group.rows] = -np.einsum("kim,kmj->kji", values.mixed_hessian, group.incidence)
         return out
 
@@ -166,14 +166,14 @@ class FittedEnergy:
         total = np.zeros(self.n_chambers)
         if self.n_chambers:
             for group, fixed in zip(self.groups, prepared):
-                values = self._evaluate(group, xi, fixed, check_range=False)
+                values = self._evaluate(group, xi, fixed)
                 total += np.einsum("km,kmj->j", values.volume_growth, group.incidence)
         return total
 
     def out_of_range(self, xi: np.ndarray, prepared: tuple) -> tuple[RangeExcess, ...]:
         found = []
         for group, fixed in zip(self.groups, prepared):
-            values = self._evaluate(group, xi, fixed, pressures=False)
+            values = self._evaluate(group, xi, fixed)
             if not np.any(values.range_excess > 0.0):
                 continue
             fitted = group.entry.model.fit.range
