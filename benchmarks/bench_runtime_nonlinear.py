@@ -9,6 +9,8 @@ Sections (tables in ``results/runtime_nonlinear.md``, numbers in ``results/runti
     Newton iterations, time per iteration, and the links' part of one Newton evaluation. Entries:
     a neo-Hookean rod (degree 6 and 8) and a CBHA-like pneumatic slice (three chambers, degree 6,
     the default sampling), with a tip load and (pneumatic) one chamber pressurised along the trunk.
+    Also the inverse's control tick (tick mode, one linearise–QP–step per target) on eight CBHA
+    slices whose tip follows a small circle, nonlinear vs linear entries.
     The run-time cost of an entry is set by its fit (degree, symmetry, cavities), not by the mesh
     it was sampled on: the entries are designed on coarse meshes.
 ``accuracy``
@@ -185,6 +187,33 @@ def section_speed(results: dict, entries: dict, quick: bool) -> None:
         log(f"  {label}: nonlinear {row['nonlinear']['solve_ms']:.3f} ms ({row['nonlinear']['iterations']} it), "
             f"linear {row['linear']['solve_ms']:.3f} ms ({row['linear']['iterations']} it): ×{row['ratio']:.2f}")
     results["speed"] = {"rows": rows, "rounds": rounds, "repeats": repeats}
+    results["tick"] = tick_speed(entries["cbha-d6"], rounds, 30 if quick else 60)
+
+
+def tick_speed(entry, rounds: int, ticks: int) -> dict:
+    """CPU time per control tick (tick mode) of eight slices whose tip follows a 2 mm circle,
+    nonlinear vs linear entries, interleaved rounds of ``ticks`` ticks from rest."""
+    from vertebra.solver.inverse import InverseController, InverseSettings
+
+    models = {"nonlinear": trunk(entry, 8), "linear": trunk(linear_of(entry), 8)}
+    tip = models["linear"].effector_positions(models["linear"].rest_state)[0]
+    angle = np.linspace(0.0, 2.0 * math.pi, ticks)
+    targets = (tip + 0.002 * np.stack([np.sin(angle), 1.0 - np.cos(angle), 0.0 * angle], 1))[:, None, :]
+    per_tick = {kind: [] for kind in models}
+    errors = {}
+    for _ in range(rounds):
+        for kind, model in models.items():
+            controller = InverseController(model, InverseSettings(mode="tick"), actuation=np.zeros(3))
+            start = time.process_time()
+            steps = controller.track(targets)
+            per_tick[kind].append((time.process_time() - start) / ticks)
+            errors[kind] = float(max(step.errors.max() for step in steps[ticks // 4:]))
+    out = {kind: {"tick_ms": 1e3 * float(np.median(values)), "max_error_m": errors[kind]}
+           for kind, values in per_tick.items()}
+    out["ratio"] = out["nonlinear"]["tick_ms"] / out["linear"]["tick_ms"]
+    log(f"  tick: nonlinear {out['nonlinear']['tick_ms']:.3f} ms, linear {out['linear']['tick_ms']:.3f} ms: "
+        f"×{out['ratio']:.2f}")
+    return out
 
 
 # ------------------------------------------------------------------ accuracy
@@ -298,6 +327,13 @@ def markdown(results: dict) -> str:
                        f"{r['ratio_per_iteration']:.2f}× | {nl['links_evaluation_us']:.0f} / "
                        f"{li['links_evaluation_us']:.0f} | {r['out_of_range']} |")
         out.append("")
+    tick = results.get("tick")
+    if tick:
+        nl, li = tick["nonlinear"], tick["linear"]
+        out += [f"Control tick (tick mode), eight CBHA slices, tip on a 2 mm circle: nonlinear "
+                f"{nl['tick_ms']:.3f} ms, linear {li['tick_ms']:.3f} ms per tick (**{tick['ratio']:.2f}×**); "
+                f"largest lag after the first quarter {1e3 * nl['max_error_m']:.3f} / {1e3 * li['max_error_m']:.3f} mm.",
+                ""]
     rods = results.get("accuracy_rods")
     if rods:
         out += ["## Accuracy spot check: rod trunks against the full nonlinear FE", "",

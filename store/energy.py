@@ -526,16 +526,16 @@ class EnergyModel:
         self._KS = K @ S
         self._pp = S.T @ K @ S - self.volume_compliance
         self._rest = self._restrict(np.zeros((1, m)))
-        self._rest_pressures = None
+        self._rest_pressures = {}
 
     @property
     def n_monomials(self) -> int:
         return self._table.size
 
     def _pressure_monomials(self, p: np.ndarray, order: int):
-        """The pressure monomials ``w(p)^π`` (u, Π) of the rows of ``p`` (u, m) and, with
-        ``order`` 2, the coefficient vectors of ``∂d/∂p`` (u, m, B) and ``∂²d/∂p²`` (u, m, m, B)
-        (``fold_map``'s chain rule included)."""
+        """The pressure monomials ``w(p)^π`` (u, Π) of the rows of ``p`` (u, m) (``order`` 0), or
+        the coefficient vectors of ``∂d/∂p`` (u, m, B) and, with ``order`` 2, of ``∂²d/∂p²``
+        (u, m, m, B) (``fold_map``'s chain rule included)."""
         m = self.fit.n_cavities
         powers = self._pressure                                      # (Π, m)
         fold = self.fit.fold_pressure
@@ -555,10 +555,12 @@ class EnergyModel:
             return monomials
         once, twice, once_factor, twice_factor = self._pressure_lowered
         first = once_factor * np.prod(table[:, cavity, once], axis=3)                  # (u, m, Π): ∂/∂u_c
-        second = twice_factor * np.prod(table[:, cavity, twice], axis=4)              # (u, m, m, Π)
         C = self._coefficients
         chain = w1 / scale                                           # ∂u_c/∂p_c
         d1 = first @ C
+        if order == 1:
+            return d1 * chain[:, :, None], None
+        second = twice_factor * np.prod(table[:, cavity, twice], axis=4)              # (u, m, m, Π)
         d2 = (second @ C) * (chain[:, :, None] * chain[:, None, :])[..., None]
         d2 += (w2 / scale)[:, :, None, None] * np.eye(m)[None, :, :, None] * d1[:, :, None]
         return d1 * chain[:, :, None], d2
@@ -587,26 +589,28 @@ class EnergyModel:
             out.append((strain, hess, constant))
         return out
 
-    def _restrict_pressures(self, p: np.ndarray) -> list:
-        """For each row of the pressures ``p`` (u, m): the matrix (m + 6m + m², T) of the pressure
-        derivatives of ψ(·, p) — ∂ψ/∂p values, ∂²ψ/∂s∂p rows (cavity-major), ∂²ψ/∂p² values;
-        ψ_lin folded in (``∂ψ_lin/∂p = −SᵀK(s − Sp) − Vp``, ``∂²ψ_lin/∂s∂p = −KS``,
-        ``∂²ψ_lin/∂p² = SᵀKS − V``)."""
+    def _restrict_pressures(self, p: np.ndarray, order: int) -> list:
+        """For each row of the pressures ``p`` (u, m): the matrix (m + 6m, T) of the pressure
+        derivatives of ψ(·, p) — ∂ψ/∂p values, ∂²ψ/∂s∂p rows (cavity-major) — and with ``order``
+        2 also (m², T) of ∂²ψ/∂p² values; ψ_lin folded in (``∂ψ_lin/∂p = −SᵀK(s − Sp) − Vp``,
+        ``∂²ψ_lin/∂s∂p = −KS``, ``∂²ψ_lin/∂p² = SᵀKS − V``)."""
         m = self.fit.n_cavities
-        d1, d2 = self._pressure_monomials(p, 2)
-        zero = np.zeros(d1.shape[:2] + (1,))
-        d1 = np.concatenate([d1, zero], axis=2)
-        d2 = np.concatenate([d2.reshape(d1.shape[0], m * m, -1), np.zeros((d1.shape[0], m * m, 1))], axis=2)
+        d1, d2 = self._pressure_monomials(p, order)
+        d1 = np.concatenate([d1, np.zeros(d1.shape[:2] + (1,))], axis=2)
         gather, factor = self._gather[:6], self._gather_factor[:6]
         KS = self._KS
         out = []
-        for first, second, pressures in zip(d1, d2, p):
-            matrix = np.concatenate([first[:, self._value_gather], (first[:, gather] * factor).reshape(6 * m, -1),
-                                     second[:, self._value_gather]])
+        for g, (first, pressures) in enumerate(zip(d1, p)):
+            parts = [first[:, self._value_gather], (first[:, gather] * factor).reshape(6 * m, -1)]
+            if order == 2:
+                second = np.concatenate([d2[g].reshape(m * m, -1), np.zeros((m * m, 1))], axis=1)
+                parts.append(second[:, self._value_gather])
+            matrix = np.concatenate(parts)
             matrix[:m, 0] += self._pp @ pressures
             matrix[:m, self._units] -= KS.T * self.fit.scales[:6]
             matrix[m:7 * m, 0] -= KS.T.reshape(6 * m)
-            matrix[7 * m:, 0] += self._pp.reshape(m * m)
+            if order == 2:
+                matrix[7 * m:, 0] += self._pp.reshape(m * m)
             out.append(matrix)
         return out
 
@@ -635,45 +639,43 @@ class FixedPressures:
     """An :class:`EnergyModel` at fixed cavity pressures (see :meth:`EnergyModel.at`): the rows
     with the same pressures (``distinct``) share one restricted polynomial (``groups``: their row
     indices, or None when every row has the first). The matrices of the pressure derivatives are
-    gathered when first asked for; the last complete evaluation is kept (a linearisation asks for
-    the chamber forces, the volume growth and the range at the same strains)."""
+    gathered when first asked for; the last evaluation with the range test is kept (a
+    linearisation asks for the chamber forces, the volume growth and the range at one state)."""
 
     def __init__(self, model: EnergyModel, p: np.ndarray | None, distinct: np.ndarray, groups: list | None,
                  restricted: list):
         self.model, self.p, self.distinct, self.groups, self.restricted = model, p, distinct, groups, restricted
-        self._pressures = None
-        self._last = (None, None)
+        self._pressures = {}
+        self._last = (None, -1, None)
 
-    def _pressure_matrices(self) -> list:
-        if self._pressures is None:
-            model = self.model
-            if self.restricted is model._rest:          # zero pressures: a model constant
-                if model._rest_pressures is None:
-                    model._rest_pressures = model._restrict_pressures(self.distinct)
-                self._pressures = model._rest_pressures
-            else:
-                self._pressures = model._restrict_pressures(self.distinct)
-        return self._pressures
+    def _pressure_matrices(self, order: int) -> list:
+        model = self.model
+        cache = model._rest_pressures if self.restricted is model._rest else self._pressures   # zero p: a constant
+        if 2 in cache:
+            return cache[2]
+        if order not in cache:
+            cache[order] = model._restrict_pressures(self.distinct, order)
+        return cache[order]
 
-    def evaluate(self, s: np.ndarray, *, pressures: bool = True, check_range: bool = True) -> EnergyValues:
-        """ψ, ``∂ψ/∂s`` and ``∂²ψ/∂s²`` at the strains ``s`` (n, 6); with ``pressures`` also
-        ``∂ψ/∂p``, ``∂²ψ/∂s∂p``, ``∂²ψ/∂p²``; with ``check_range`` the range test."""
+    def evaluate(self, s: np.ndarray, *, derivatives: int = 2, check_range: bool = True) -> EnergyValues:
+        """ψ, ``∂ψ/∂s`` and ``∂²ψ/∂s²`` at the strains ``s`` (n, 6); with ``derivatives`` 1 also
+        ``∂ψ/∂p`` and ``∂²ψ/∂s∂p``, with 2 also ``∂²ψ/∂p²``; with ``check_range`` the range test."""
         s = np.asarray(s, dtype=float)
-        complete = pressures and check_range
-        if complete and self._last[0] is not None and np.array_equal(self._last[0], s):
-            return self._last[1]
-        values = self._evaluate(s, pressures, check_range)
-        if complete:
-            self._last = (s.copy(), values)
+        kept, order, values = self._last
+        if check_range and order >= derivatives and np.array_equal(kept, s):
+            return values
+        values = self._evaluate(s, derivatives, check_range)
+        if check_range:
+            self._last = (s.copy(), derivatives, values)
         return values
 
-    def _evaluate(self, s: np.ndarray, pressures: bool, check_range: bool) -> EnergyValues:
+    def _evaluate(self, s: np.ndarray, derivatives: int, check_range: bool) -> EnergyValues:
         model = self.model
         n, m = s.shape[0], model.fit.n_cavities
         u = np.ascontiguousarray(s.T) * model._inv_scales                # (6, n)
         energy, grad, hess = np.empty(n), np.empty((n, 6)), np.empty((n, 6, 6))
-        extra = np.empty((n, m + 6 * m + m * m)) if pressures else None
-        matrices = self._pressure_matrices() if pressures and m else [None] * len(self.restricted)
+        extra = np.empty((n, 7 * m + (m * m if derivatives == 2 else 0))) if derivatives else None
+        matrices = self._pressure_matrices(derivatives) if derivatives and m else [None] * len(self.restricted)
         rows = [slice(None)] if self.groups is None else self.groups
         for row, (strain, hessian, constant), pressure in zip(rows, self.restricted, matrices):
             ug = u[:, row]
@@ -683,12 +685,13 @@ class FixedPressures:
             energy[row] = constant + (ug * both[6:]).sum(0)
             hess[row] = (hessian @ mon[:model._n_hess]).T.reshape(-1, 6, 6)
             if pressure is not None:
-                extra[row] = (pressure @ mon).T
+                extra[row] = (pressure[:extra.shape[1]] @ mon).T
         pressure_gradient = mixed = pressure_hessian = None
         if extra is not None:
             pressure_gradient = extra[:, :m]
             mixed = extra[:, m:7 * m].reshape(n, m, 6).transpose(0, 2, 1)
-            pressure_hessian = extra[:, 7 * m:].reshape(n, m, m)
+            if derivatives == 2:
+                pressure_hessian = extra[:, 7 * m:].reshape(n, m, m)
         p = np.zeros((n, m)) if self.p is None else self.p
         excess = model.fit.range.excess(s, grad, p) if check_range else None
         return EnergyValues(energy=energy, gradient=grad, hessian=hess, pressure_gradient=pressure_gradient,

@@ -134,11 +134,11 @@ class FittedEnergy:
     def response(self, xi: np.ndarray, prepared: tuple) -> tuple[float, np.ndarray, tuple]:
         """ψ, ``w = ∂ψ/∂s`` and (kept for the tangent) ``∂²ψ/∂s²``: the strain derivatives only."""
         if len(self.groups) == 1:
-            values = prepared[0].evaluate(xi - self.rest, pressures=False, check_range=False)
+            values = prepared[0].evaluate(xi - self.rest, derivatives=0, check_range=False)
             return float(values.energy.sum()), values.gradient, (values,)
         total, w, kept = 0.0, np.empty_like(xi), []
         for group, fixed in zip(self.groups, prepared):
-            values = self._evaluate(group, xi, fixed, pressures=False, check_range=False)
+            values = self._evaluate(group, xi, fixed, derivatives=0, check_range=False)
             total += float(values.energy.sum())
             w[group.rows] = values.gradient
             kept.append(values)
@@ -157,7 +157,7 @@ class FittedEnergy:
         out = np.zeros((xi.shape[0], self.n_chambers, 6))
         if self.n_chambers:
             for group, fixed in zip(self.groups, prepared):
-                values = self._evaluate(group, xi, fixed)
+                values = self._evaluate(group, xi, fixed, derivatives=1)
                 out[group.rows] = -np.einsum("kim,kmj->kji", values.mixed_hessian, group.incidence)
         return out
 
@@ -166,14 +166,14 @@ class FittedEnergy:
         total = np.zeros(self.n_chambers)
         if self.n_chambers:
             for group, fixed in zip(self.groups, prepared):
-                values = self._evaluate(group, xi, fixed)
+                values = self._evaluate(group, xi, fixed, derivatives=1)
                 total += np.einsum("km,kmj->j", values.volume_growth, group.incidence)
         return total
 
     def out_of_range(self, xi: np.ndarray, prepared: tuple) -> tuple[RangeExcess, ...]:
         found = []
         for group, fixed in zip(self.groups, prepared):
-            values = self._evaluate(group, xi, fixed)
+            values = self._evaluate(group, xi, fixed, derivatives=1)
             if not np.any(values.range_excess > 0.0):
                 continue
             fitted = group.entry.model.fit.range
