@@ -1,6 +1,6 @@
 """Designer benchmark: cost and accuracy of condensing a segment, per mesh size and element order.
 
-For a rod (R = 10 mm, L = 40 mm, E = 1 MPa, ν = 0.3 — the FIELD-NOTES cylinder) and one
+For a rod (R = 10 mm, L = 40 mm, E = 1 MPa, ν = 0.3 — the reference cylinder) and one
 pneumatic segment (3 chambers, ν = 0.45): DoFs, mesh / assemble / solve seconds and the
 compliance error against the finest mesh (scale-free: max |ΔC_ij| / sqrt(C_ii C_jj)); the
 rod rows also give the axial and lateral compliance over the closed forms. Then direct vs

@@ -1,4 +1,4 @@
-"""Benchmark of the runtime forward solver (solver/): speed and accuracy rows of DESIGN §7.
+"""Benchmark of the runtime forward solver (solver/): speed and accuracy rows.
 
 Sections (each a table in ``results/solver.md`` and a key in ``results/solver.json``):
 

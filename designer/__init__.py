@@ -1,6 +1,6 @@
 """designer/: parametrised segments and vertebrae → gmsh → scikit-fem → condensed catalogue entries.
 
-Public API (DESIGN.md §1, §2)::
+Public API::
 
     designer.FAMILIES                                  # name -> family (rod, tube, bellows, pneumatic, tapered_pneumatic)
     designer.canonical_parameters(family, parameters)  # validated, defaults filled (GeometryError before meshing)

@@ -5,7 +5,7 @@ follows the 6-DoF frame of that face: ``u = t + θ × (x - c)`` with ``c`` the
 face centre on the axis, i.e. ``u_face = T q_frame``. The reduced unknowns are
 the interior DoFs ``u_i`` and the frame DoFs ``q``; the reduced stiffness is
 ``Pᵀ K P`` with ``P = diag(I, T)`` (a Galerkin master–slave reduction — not
-``skfem.utils.mpc``, which drops the slave rows, FIELD-NOTES). We never form it:
+``skfem.utils.mpc``, which drops the slave rows). We never form it:
 with ``K_iq = K_it T`` and ``K_qq = Tᵀ K_tt T`` the frame DoFs are condensed by
 a Schur complement
 

@@ -89,7 +89,7 @@ def _vertebra_table(index: int) -> dict:
 
 
 def cbha_scene(names: list[str], catalogue: str, pressures=None) -> dict:
-    """Scene dictionary (DESIGN.md §4) for the 16 entries ``names`` (bottom to top)."""
+    """Scene dictionary (docs/scenes.md) for the 16 entries ``names`` (bottom to top)."""
     segments = [{"type": "entry", "entry": name, "count": 1, "vertebra": _vertebra_table(i)}
                 for i, name in enumerate(names)]
     return _cbha_trunk(segments, catalogue, pressures)

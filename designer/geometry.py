@@ -1,6 +1,6 @@
 """Mesh a segment with gmsh (OpenCASCADE kernel) into plain arrays.
 
-One gmsh per process (FIELD-NOTES): :func:`mesh_segment` initialises gmsh,
+One gmsh per process (gmsh is not thread-safe): :func:`mesh_segment` initialises gmsh,
 sets every option it relies on explicitly (one thread, fixed seed, algorithms,
 sizes, element order), builds the family's solid, names the physical groups
 (``bottom``, ``top``, ``cavity_k``, ``wall`` and always ``volume``), meshes,

@@ -12,7 +12,7 @@ condensed tangent) and ``solve(A, B, modes) -> (X, info)`` (factor, then solve).
   tangent stiffness that lost positive definiteness.
 * ``amg``: pyamg smoothed aggregation (3×3 blocks, rigid-body near-null space,
   ``coarse_solver='splu'`` — the default ``'pinv'`` cost ~30 s at 34k DoFs,
-  FIELD-NOTES — and Chebyshev smoothing) as preconditioner of conjugate
+  measured — and Chebyshev smoothing) as preconditioner of conjugate
   gradients, one right-hand side at a time.
 * ``auto``: ``direct`` below ``AUTO_THRESHOLD`` unknowns, ``amg`` above, and ``direct``
   again when AMG-PCG stalls (more than 150 iterations: thin-walled geometry).

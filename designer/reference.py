@@ -1,4 +1,4 @@
-"""Reference models for verification (DESIGN.md §7): a full FE model of a chain of
+"""Reference models for verification: a full FE model of a chain of
 segments joined by rigid vertebrae, and the same chain built from condensed compliances.
 
 Both are linear. The full model is ONE assembled FE system: the interior DoFs of
@@ -99,7 +99,7 @@ def chain_fe_solve(fes: list[SegmentFE], tip_wrench, pressures=None) -> dict:
 def chain_condensed_solve(compliances: list[np.ndarray], lengths: list[float], tip_wrench,
                           pressures=None) -> dict:
     """The same chain from condensed (6+n)×(6+n) compliances: link energy ½ δᵀ K δ with
-    ``δ = q_b − H q_a − G p`` (DESIGN.md §2: pressure shifts the rest pose by G p)."""
+    ``δ = q_b − H q_a − G p`` (pressure shifts the rest pose by G p, see docs/catalogue.md)."""
     m = len(compliances)
     Kg = np.zeros((6 * m, 6 * m))
     f = np.zeros(6 * m)

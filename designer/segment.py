@@ -44,7 +44,7 @@ MIN_ELEMENT_RATIO = 1.08 ** 3
 #: exponent p of the compliance error, error ≈ A h^p, per element order, used to extrapolate
 #: (measured on every family, ν up to 0.49: benchmarks/bench_accuracy.py, docs/designer.md)
 CONVERGENCE_ORDER = {1: 1.0, 2: 2.0}
-#: Poisson ratio above which P1 tetrahedra lock (FIELD-NOTES: ν = 0.499 P1 lateral 1.24 vs P2 2.89)
+#: Poisson ratio above which P1 tetrahedra lock (measured: ν = 0.499 P1 lateral 1.24 vs P2 2.89)
 LOCKING_POISSON = 0.45
 
 
@@ -247,7 +247,7 @@ def design_segment(family, parameters: dict, *, mesh_size=None, order: int = 2, 
                    amg_threshold: int | None = None, max_elements: int | None = None, material: str = LINEAR,
                    sampling=None, executor: str = "serial", workers: int | None = None,
                    scheduler: str | None = None) -> SegmentEntry:
-    """Condensed catalogue entry of one segment (DESIGN.md §2).
+    """Condensed catalogue entry of one segment (docs/catalogue.md).
 
     ``progress``: optional callable receiving one-line status messages.
     ``linear_solver``: "auto" | "direct" | "amg" (auto: direct below
@@ -333,7 +333,7 @@ def design_segment(family, parameters: dict, *, mesh_size=None, order: int = 2, 
 
 
 def entry_document(entry: SegmentEntry) -> dict:
-    """The DESIGN.md §5 JSON document of ``vertebra design --json`` (with ``material``, and for a
+    """The JSON document (docs/json.md) of ``vertebra design --json`` (with ``material``, and for a
     nonlinear entry an ``energy`` summary: degree, terms, fit error, range, sampling, timings)."""
     document = {"key": entry.key, "name": entry.name, "compliance": entry.compliance.tolist(),
                 "cavity_volumes": entry.cavity_volumes.tolist(), "mass": entry.mass,

@@ -1,7 +1,7 @@
 """Analytic beam sections and their cantilever compliance (Timoshenko).
 
 A uniform beam of length ``l`` clamped at frame ``a`` and loaded at frame ``b`` has a
-closed-form 6×6 compliance (DESIGN.md §2): displacement ``[Δx; Δθ]`` of ``b`` in
+closed-form 6×6 compliance: displacement ``[Δx; Δθ]`` of ``b`` in
 ``a``'s axes per unit wrench ``[f; m]`` at ``b``'s origin. The beam axis is local +z;
 ``Ixx`` governs bending in the y–z plane (deflection along y), ``Iyy`` in the x–z plane.
 """

@@ -173,7 +173,7 @@ class TrunkModel:
         return outputs.cable_lengths(self.trunk, state, pieces)
 
     def chamber_volume_growth(self, state: State, pressures: np.ndarray, links=None) -> np.ndarray:
-        """ΔV_j of every chamber under ``pressures`` (DESIGN §2: reciprocity gives the Gᵀ row)."""
+        """ΔV_j of every chamber under ``pressures`` (reciprocity gives the Gᵀ row)."""
         return outputs.chamber_volume_growth(self.trunk, state, pressures, self.memo, links)
 
     def actuator_displacements(self, state: State, actuation=None, *, links=None, pieces=None) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""Scene files (DESIGN.md §4, TOML version 1): loading and validation.
+"""Scene files (docs/scenes.md, TOML version 1): loading and validation.
 
 Every table is read through :class:`Table`, which consumes the fields it knows and
 raises :class:`SceneError` naming the file, the dotted field and the reason for unknown

@@ -22,7 +22,7 @@ from vertebra.solver.beam import Section
 from vertebra.solver.tables import Table
 from vertebra.store.errors import SceneError
 
-#: materials a design segment may ask for (DESIGN §2): small-strain linear elasticity,
+#: materials a design segment may ask for: small-strain linear elasticity,
 #: St Venant–Kirchhoff and the compressible neo-Hooke form of Abaqus and CalculiX
 DESIGN_MATERIALS = ("linear", "svk", "neo_hookean")
 

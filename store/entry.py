@@ -1,4 +1,4 @@
-"""The catalogue entry: a condensed intervertebral segment (DESIGN.md §2).
+"""The catalogue entry: a condensed intervertebral segment (docs/catalogue.md).
 
 A segment with ``n`` cavities is one symmetric (6+n)×(6+n) compliance
 ``[[C, G], [Gᵀ, V]]`` that maps ``[wrench on b (in a's axes, at b's origin);

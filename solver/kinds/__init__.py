@@ -38,7 +38,7 @@ from vertebra.store.errors import SceneError
 @dataclass(frozen=True)
 class LinkSource:
     """One link of a segment repetition as its kind describes it, before it is repeated along
-    the trunk: rest pose of ``b`` in ``a`` (DESIGN §2), mass properties, cavity rest volumes and
+    the trunk: rest pose of ``b`` in ``a``, mass properties, cavity rest volumes and
     the kind's own ``parameters`` (for a quadratic link its compliance blocks)."""
 
     rest_quaternion: np.ndarray     # (4,)

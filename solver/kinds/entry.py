@@ -1,7 +1,7 @@
 """Catalogue entries with a linear condensation (``type = "entry"`` segments) as quadratic links.
 
 The entry's symmetric compliance ``[[C, G], [Gᵀ, V]]``, rest pose, mass properties and cavity
-rest volumes make one link per repetition (DESIGN §2).
+rest volumes make one link per repetition.
 """
 
 from __future__ import annotations

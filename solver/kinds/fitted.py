@@ -2,7 +2,7 @@
 
 An entry designed with a nonlinear material stores its segment's energy ``ψ(s, p)`` as a
 function of the strain ``s = ξ − ξ₀`` of its end frames and of its cavity pressures ``p``
-(:mod:`vertebra.store.energy`; DESIGN §2): because the vertebrae are rigid, that energy is the
+(:mod:`vertebra.store.energy`; docs/nonlinear-condensation.md): because the vertebrae are rigid, that energy is the
 segment's whole response, and a chain of such links is the full nonlinear model of the trunk up
 to the fit. Each repetition of the segment makes one link that stores ψ itself:
 

@@ -1,4 +1,4 @@
-"""Quadratic links: the linear condensation of a segment (DESIGN §2) as an energy of the strain.
+"""Quadratic links: the linear condensation of a segment (docs/catalogue.md) as an energy of the strain.
 
 A link with compliance blocks ``[[C, G], [Gᵀ, V]]`` (displacement of ``b`` and volume growths
 per unit wrench and pressure) stores
@@ -7,7 +7,7 @@ per unit wrench and pressure) stores
 
 where ``A = ∂ξ/∂δ`` at rest maps the displacement ``δ = [Δx; Δθ]`` of ``b`` in ``a``'s axes to
 the strain (so the linearisation at rest reproduces ``C`` exactly), and a pressure shifts the
-rest strain by ``A G p`` (the rest-pose shift ``G p`` of DESIGN §2). Hence ``w = K e``, the
+rest strain by ``A G p`` (the rest-pose shift ``G p`` of a pressurised entry). Hence ``w = K e``, the
 material tangent is ``K``, the chamber forces are ``K A G`` and the volume growth is
 ``−∂ψ/∂p = (A G)ᵀ K e + V p`` (Maxwell–Betti reciprocity gives the ``Gᵀ`` row).
 """
