@@ -157,9 +157,13 @@ def link_response(trunk, xi: np.ndarray, link_loads: tuple) -> tuple[float, np.n
     return total, w, tuple(kept)
 
 
-def out_of_range(trunk, state, load: LoadCase, memo) -> tuple:
-    """Every quantity of the links' states at ``state`` under ``load`` that lies outside the
-    range its energy was fitted on (:class:`~vertebra.solver.kinds.RangeExcess`, link order)."""
+def out_of_range(trunk, state, load_case, memo) -> tuple:
+    """Every quantity of the links' states at ``state`` that lies outside the range its energy
+    was fitted on (:class:`~vertebra.solver.kinds.RangeExcess`, link order), under the load case
+    ``load_case()`` makes (called only when some link energy is fitted)."""
+    if not trunk.links.fitted:
+        return ()
+    load = load_case()
     record = state.carried_strains()
     xi = record.xi if record is not None else memo.links(state, None).xi
     found = []

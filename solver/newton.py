@@ -533,7 +533,7 @@ def solve(trunk, memo, actuation: np.ndarray, initial: State | None, *, toleranc
                    f"iterations and {stages} load stages (reached load factor {scale:.4g})"
                    + ("; equilibria found on the way were unstable (indefinite tangent) and refused"
                       if saddles else ""))
-    excess = out_of_range(trunk, final, memo.load_case(actuation, 1.0 if converged else load.scale), memo)
+    excess = out_of_range(trunk, final, lambda: memo.load_case(actuation, 1.0 if converged else load.scale), memo)
     result = StaticResult(converged, iterations, float(residual), final, actuation, history, stages,
                           "+".join(sorted(kinds)) or "none", {"solve_s": time.perf_counter() - start},
                           rounding_limited=limited and converged, largest_turn=_turn(trunk, final, memo),

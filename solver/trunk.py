@@ -75,6 +75,11 @@ class LinkSet(_Frozen):
     def count(self) -> int:
         return self.rest.shape[0]
 
+    @property
+    def fitted(self) -> bool:
+        """Is any link energy fitted on a range (can a state leave it)?"""
+        return any(energy.fitted for energy in self.energies)
+
 
 @dataclass(frozen=True)
 class Actuators(_Frozen):

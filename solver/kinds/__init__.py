@@ -107,6 +107,7 @@ class LinkEnergy(Protocol):
 
     links: np.ndarray           # (n,) which links of the trunk, in order
     rest: np.ndarray            # (n, 6) rest strains ξ₀
+    fitted: ClassVar[bool]      # was the energy fitted on a range (may ``out_of_range`` report)?
 
     @classmethod
     def compile(cls, links: np.ndarray, compiled: CompiledLinks) -> "LinkEnergy": ...

@@ -83,6 +83,7 @@ class FittedEnergy:
 
     links: np.ndarray           # (n,) which links of the trunk
     rest: np.ndarray            # (n, 6) ξ₀
+    fitted: ClassVar[bool] = True
     groups: tuple               # _Group per distinct entry
     n_chambers: int
 

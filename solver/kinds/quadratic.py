@@ -37,6 +37,7 @@ class QuadraticEnergy:
 
     links: np.ndarray             # (n,) which links of the trunk
     rest: np.ndarray              # (n, 6) ξ₀
+    fitted: ClassVar[bool] = False  # the linear condensation itself: no fitted range
     stiffness: np.ndarray         # (n, 6, 6) K
     pressure_strain: np.ndarray   # (n, 6, m) A G per chamber
     pressure_force: np.ndarray    # (n, m, 6) K A G: the chamber forces
