@@ -152,8 +152,9 @@ def test_simulate_writes_vtp_and_frames(tmp_path, capsys):
     assert np.array_equal(table[:, 12:], np.tile([0.0, 0.0, 0.0, 1.0], (model.n_frames, 1)))
 
 
-def test_invert_writes_a_pvd_time_series(tmp_path, capsys):
-    # three points of a reachable circle (a pulled tendon's pose turned about the axis)
+def _track(tmp_path, capsys):
+    """``vertebra invert --vtk track.pvd`` along three points of a reachable circle (a pulled
+    tendon's pose turned about the axis): the .pvd's path and the run's JSON document."""
     model = solver.build_model(gallery.load("paper_5v_16t"))
     pulled = np.zeros(16)
     pulled[[3, 15]] = 1.0
@@ -163,7 +164,11 @@ def test_invert_writes_a_pvd_time_series(tmp_path, capsys):
     pvd = tmp_path / "track.pvd"
     code = main(["invert", "gallery:paper_5v_16t", "--trajectory", str(trajectory), "--vtk", str(pvd), "--json"])
     assert code == 0
-    document = __import__("json").loads(capsys.readouterr().out)
+    return pvd, __import__("json").loads(capsys.readouterr().out)
+
+
+def test_invert_writes_a_pvd_time_series(tmp_path, capsys):
+    pvd, document = _track(tmp_path, capsys)
     steps = read_pvd(pvd)
     assert [t for t, _ in steps] == [0.0, 0.25, 0.5]
     assert [f.relative_to(tmp_path).as_posix() for _, f in steps] == [f"track/track_{i:04d}.vtp" for i in range(3)]
@@ -233,3 +238,22 @@ def test_vtk_reads_the_files_and_tubes_take_the_radius(tendon, tmp_path):
     tube.Update()
     xyz = vtk_to_numpy(tube.GetOutput().GetPoints().GetData())
     assert np.allclose(np.hypot(xyz[:, 0], xyz[:, 1]), 7e-4, rtol=1e-6)
+
+
+def test_vtk_reads_every_step_of_the_pvd_series(tmp_path, capsys):
+    vtk = pytest.importorskip("vtk")
+    from vtk.util.numpy_support import vtk_to_numpy
+
+    pvd, _ = _track(tmp_path, capsys)
+    reader = vtk.vtkXMLPolyDataReader()
+    for t, file in read_pvd(pvd):
+        reader.SetFileName(str(file))
+        reader.Update()
+        data = reader.GetOutput()
+        mine = read_vtp(file)
+        assert data.GetNumberOfPoints() == len(mine.points) > 0
+        point_data, cell_data = data.GetPointData(), data.GetCellData()
+        assert {point_data.GetArrayName(i) for i in range(point_data.GetNumberOfArrays())} == POINT_ARRAYS
+        assert {cell_data.GetArrayName(i) for i in range(cell_data.GetNumberOfArrays())} == CELL_ARRAYS
+        assert vtk_to_numpy(data.GetFieldData().GetArray("TimeValue")).tolist() == [t]
+        assert np.array_equal(vtk_to_numpy(cell_data.GetArray("tension")), mine.cell_data["tension"])
