@@ -161,7 +161,7 @@ def condense_energy(entry, spec, *, radius: float, youngs_modulus: float, symmet
     from vertebra.designer.executors import make_executor
 
     m = entry.n_cavities
-    settings = (settings or SamplingSettings()).resolved(m)
+    settings = (settings or SamplingSettings()).resolved(m, material["model"])
     start = time.perf_counter()
     linear = linear_terms(entry.compliance, entry.rest_translation)
     K = linear[0]

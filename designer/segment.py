@@ -130,7 +130,7 @@ def key_payload(family, parameters: dict, *, mesh_size=None, order: int = 2, mat
                "versions": result_versions()}
     if check_material(material) != LINEAR:
         payload["material"] = material
-        settings = sampling_settings(sampling).resolved(fam.n_cavities(p))
+        settings = sampling_settings(sampling).resolved(fam.n_cavities(p), material)
         payload["nonlinear"] = {"sampling": settings.describe(), "version": NONLINEAR_VERSION}
     return payload
 
