@@ -11,9 +11,17 @@ Units in the deck are mm, N, MPa, t (tonne), s — the inputs here are SI and co
   vertebra ties (and its cap plugs); ``Rj`` sits at the frame origin ``(0, 0, z_j)``. Vertebra 0
   (the base) has ``Rj`` and ``Qj`` fixed, so their reactions are the base's force and moment.
 * Dead forces: ``*CLOAD`` on ``Rj`` (its direction stays fixed under NLGEOM).
-* Moments: ``*CLOAD`` on ``Qj``. Under NLGEOM the rot node's unknown is the total rotation
-  vector ``w``, so a load ``q`` there is the moment ``T(w)⁻ᵀ q`` — the caller passes ``q``
-  (see :mod:`ccx.run`, which iterates ``q = T(w)ᵀ M`` for a dead moment ``M``).
+* Moments: four "arm" nodes per vertebra, at ``±ℓ e_x`` and ``±ℓ e_y`` from the frame origin,
+  belong to its rigid body; dead forces on them form a couple (:func:`ccx.run.arm_forces` builds
+  them from the moment and the vertebra's rotation, and :mod:`ccx.run` iterates on that
+  rotation). Two things rule out simpler ways: a ``*CLOAD`` on the rot node is no dead moment
+  under NLGEOM (the rot node's unknown is the total rotation vector ``w``, so a load ``q`` there
+  is the moment ``T(w)⁻ᵀ q``), and CalculiX's rigid-body constraint is linearised without its
+  second derivative, so its Newton iterations lose convergence when the forces on a rigid body
+  have a large symmetric first moment ``Σ f ⊗ r`` — a pure bending moment through the rot node
+  (or a prescribed rotation) stalled near 0.9 rad of tip rotation on 3k–9k-DoF trunks. Bending
+  couples made of forces along the vertebra's axis at ``±ℓ`` mirror the face's own bending
+  stresses, so at the tip the two first moments cancel; torsion couples have none.
 * Chamber pressure: ``*DLOAD`` ``Pk`` on the C3D10 faces of the cavity walls (it follows the
   deformed surface under NLGEOM). The caps lie on the rigid vertebrae: each is closed by a fan of
   extra C3D10 "plug" elements whose nodes all belong to that vertebra's rigid body (a rigid
@@ -36,6 +44,7 @@ import numpy as np
 MM = 1.0e3                  # m -> mm
 MPA = 1.0e-6                # Pa -> MPa
 DENSITY = 1.0e-12           # kg/m^3 -> t/mm^3
+ARMS = np.array([[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, -1.0, 0.0]])   # arm nodes / ℓ
 
 
 @dataclass(frozen=True)
@@ -68,12 +77,12 @@ MATERIAL_CARDS = {"neo_hookean": _neo_hookean, "svk": _svk}
 
 @dataclass
 class LoadLevel:
-    """Loads of one step (absolute values, SI): ``forces``/``rot_loads`` by vertebra number
-    (``rot_loads`` are the rot-node loads ``q``, N m), ``pressures`` by (segment, cavity) in Pa,
-    ``gravity`` in m/s²."""
+    """Loads of one step (absolute values, SI): ``forces`` (3,) at the frame origin and
+    ``arm_forces`` (4, 3) on the arm nodes (+x, −x, +y, −y), by vertebra number, in N; ``pressures`` by
+    (segment, cavity) in Pa; ``gravity`` in m/s²."""
 
     forces: dict = field(default_factory=dict)
-    rot_loads: dict = field(default_factory=dict)
+    arm_forces: dict = field(default_factory=dict)
     pressures: dict = field(default_factory=dict)
     gravity: tuple = (0.0, 0.0, 0.0)
 
@@ -82,6 +91,7 @@ class LoadLevel:
 class Deck:
     text: str
     ref_nodes: list                 # vertebra j -> node id of Rj
+    arm_length: float               # m
     rot_nodes: list                 # vertebra j -> node id of Qj
     wall_node_ids: np.ndarray       # ids printed for the cavity volumes (1-based trunk node ids)
     n_steps: int
@@ -134,7 +144,7 @@ def _plugs(trunk, first_node: int, first_element: int):
 
 
 def write_deck(trunk, materials: list[Material], levels: list[LoadLevel], *, nlgeom: bool = True,
-               initial_increment: float = 0.25, min_increment: float = 1e-5, max_increments: int = 400) -> Deck:
+               arm_length: float = 0.01, initial_increment: float = 0.25, min_increment: float = 1e-5, max_increments: int = 400) -> Deck:
     """The input deck of ``trunk`` (:class:`ccx.trunk.TrunkMesh`) with one material per segment
     and one step per load level."""
     if len(materials) != trunk.n_segments:
@@ -148,6 +158,7 @@ def write_deck(trunk, materials: list[Material], levels: list[LoadLevel], *, nlg
     m1 = len(trunk.z)
     ref = [n + n_plug + 1 + j for j in range(m1)]
     rot = [n + n_plug + 1 + m1 + j for j in range(m1)]
+    arms = [[n + n_plug + 1 + 2 * m1 + 4 * j + k for k in range(4)] for j in range(m1)]
     w("** vertebra trunk: segments, rigid vertebrae (mm, N, MPa, t, s)\n*NODE, NSET=NALL\n")
     x = np.concatenate([trunk.nodes, plug_x.reshape(-1, 3)]) * MM
     for i, p in enumerate(x):
@@ -156,6 +167,10 @@ def write_deck(trunk, materials: list[Material], levels: list[LoadLevel], *, nlg
         w(f"{ref[j]}, 0.0, 0.0, {trunk.z[j] * MM:.12e}\n")
     for j in range(m1):
         w(f"{rot[j]}, 0.0, 0.0, {trunk.z[j] * MM:.12e}\n")
+    for j in range(m1):
+        for k, offset in enumerate(ARMS):
+            a = np.array([0.0, 0.0, trunk.z[j]]) + arm_length * offset
+            w(f"{arms[j][k]}, {a[0] * MM:.12e}, {a[1] * MM:.12e}, {a[2] * MM:.12e}\n")
     for s in range(trunk.n_segments):
         w(f"*ELEMENT, TYPE=C3D10, ELSET=SEG{s}\n")
         for e in np.flatnonzero(trunk.segment_of_tet == s):
@@ -166,7 +181,7 @@ def write_deck(trunk, materials: list[Material], levels: list[LoadLevel], *, nlg
             w(f"{ne + 1 + i}, " + ", ".join(str(v) for v in el) + "\n")
     w("*ELSET, ELSET=SOLID\n" + "\n".join(f"SEG{s}," for s in range(trunk.n_segments)) + "\n")
     for j in range(m1):
-        ids = np.concatenate([trunk.face_nodes[j] + 1, np.asarray(plug_nodes[j], dtype=np.int64)])
+        ids = np.concatenate([trunk.face_nodes[j] + 1, np.asarray(plug_nodes[j] + arms[j], dtype=np.int64)])
         w(f"*NSET, NSET=V{j}\n" + "\n".join(_fmt_ids(ids)) + "\n")
     w("*NSET, NSET=REFS\n" + "\n".join(_fmt_ids(ref)) + "\n")
     w("*NSET, NSET=ROTS\n" + "\n".join(_fmt_ids(rot)) + "\n")
@@ -190,10 +205,10 @@ def write_deck(trunk, materials: list[Material], levels: list[LoadLevel], *, nlg
         w(f"{initial_increment}, 1.0, {min_increment}, 1.0\n" if nlgeom else "1.0, 1.0\n")
         loads = []
         for j in range(1, m1):
-            f = np.asarray(level.forces.get(j, np.zeros(3)), float)
-            q = np.asarray(level.rot_loads.get(j, np.zeros(3)), float) * MM
+            arm = np.asarray(level.arm_forces.get(j, np.zeros((4, 3))), float)
+            f = np.asarray(level.forces.get(j, np.zeros(3)), float) - arm.sum(axis=0)
             loads += [f"{ref[j]}, {d + 1}, {f[d]:.12e}" for d in range(3)]
-            loads += [f"{rot[j]}, {d + 1}, {q[d]:.12e}" for d in range(3)]
+            loads += [f"{arms[j][k]}, {d + 1}, {arm[k, d]:.12e}" for k in range(4) for d in range(3)]
         w("*CLOAD\n" + "\n".join(loads) + "\n")
         if faces_of:
             w("*DLOAD\n")
@@ -212,4 +227,4 @@ def write_deck(trunk, materials: list[Material], levels: list[LoadLevel], *, nlg
         if wall_ids.size:
             w("*NODE PRINT, NSET=WALLS\nU\n")
         w("*END STEP\n")
-    return Deck(text=out.getvalue(), ref_nodes=ref, rot_nodes=rot, wall_node_ids=wall_ids, n_steps=len(levels))
+    return Deck(text=out.getvalue(), ref_nodes=ref, arm_length=arm_length, rot_nodes=rot, wall_node_ids=wall_ids, n_steps=len(levels))
