@@ -96,31 +96,32 @@ CBHA = SegmentSpec.of("pneumatic", 0.012, 4, outer_radius=0.04, chamber_radius=0
                       length=0.03, chambers=3, youngs_modulus=0.5e6, poisson_ratio=0.45)
 
 _CASES = [
-    TrunkCase("rod4_planar_nh", "4 rods R 10 mm, L/R 2, ν 0.45, tip force along x (planar)", "neo_hookean",
+    TrunkCase("rod4_planar_nh", "4 rods R 10 mm, L/R 2, ν 0.45, tip force along (1, 0, −1) (planar; a "
+              "force normal to the trunk cannot turn the tip past 90°)", "neo_hookean",
+              (_rod(0.01, 0.02, 0.45, 0.005, 4),), levels=(0.2, 0.45, 0.7, 1.0),
+              forces={-1: (5.0, 0.0, -5.0)}, tags=("planar", "rod")),
+    TrunkCase("rod4_planar_svk", "the same trunk in St Venant–Kirchhoff, to ~50°", "svk",
               (_rod(0.01, 0.02, 0.45, 0.005, 4),), levels=(0.25, 0.6, 1.0),
               forces={-1: (3.0, 0.0, 0.0)}, tags=("planar", "rod")),
-    TrunkCase("rod4_planar_svk", "the same trunk in St Venant–Kirchhoff, to ~50°", "svk",
-              (_rod(0.01, 0.02, 0.45, 0.005, 4),), levels=(0.25, 0.6),
-              forces={-1: (3.0, 0.0, 0.0)}, tags=("planar", "rod")),
     TrunkCase("tube2_slender_svk", "2 tubes R 10/6 mm, L/R 4, ν 0.3, tip force along x (planar)", "svk",
-              (_tube(0.01, 0.006, 0.04, 0.3, 0.005, 2),), levels=(0.3, 0.7, 1.0),
-              forces={-1: (0.25, 0.0, 0.0)}, tags=("planar", "tube")),
+              (_tube(0.01, 0.006, 0.04, 0.3, 0.005, 2),), levels=(0.2, 0.5, 1.0),
+              forces={-1: (2.2, 0.0, 0.0)}, tags=("planar", "tube")),
     TrunkCase("rod16_squat_nh", "16 rods R 10 mm, L/R 0.5, ν 0.3, tip force along x with gravity along −x "
               "(rods 1100 kg/m³, vertebrae 5 g)", "neo_hookean",
-              (_rod(0.01, 0.005, 0.3, 0.006, 16, density=1100.0),), levels=(0.3, 1.0),
-              forces={-1: (2.0, 0.0, 0.0)}, gravity=(-9.81, 0.0, 0.0), vertebra_mass=0.005,
+              (_rod(0.01, 0.005, 0.3, 0.006, 16, density=1100.0),), levels=(0.25, 0.6, 1.0),
+              forces={-1: (6.0, 0.0, 0.0)}, gravity=(-9.81, 0.0, 0.0), vertebra_mass=0.005,
               tags=("planar", "rod", "gravity")),
     TrunkCase("tube4_3d_nh", "4 tubes R 10/5 mm, L/R 1.5, ν 0.4: tip force in the diagonal plane x = y, "
               "axial compression and torsion (3-D)", "neo_hookean",
-              (_tube(0.01, 0.005, 0.015, 0.4, 0.004, 4),), levels=(0.35, 1.0),
-              forces={-1: (1.2, 1.2, -1.0)}, moments={-1: (0.0, 0.0, 0.01)}, tags=("3d", "tube", "torsion")),
+              (_tube(0.01, 0.005, 0.015, 0.4, 0.004, 4),), levels=(0.3, 0.65, 1.0),
+              forces={-1: (3.5, 3.5, -1.5)}, moments={-1: (0.0, 0.0, 0.03)}, tags=("3d", "tube", "torsion")),
     TrunkCase("rod6_two_loads_svk", "6 rods R 10 mm, L/R 1, ν 0.35: force along x at vertebra 3 and along y "
               "at the tip (3-D)", "svk",
               (_rod(0.01, 0.01, 0.35, 0.005, 6),), levels=(0.4, 1.0),
-              forces={3: (2.0, 0.0, 0.0), -1: (0.0, 1.0, 0.0)}, tags=("3d", "rod")),
+              forces={3: (6.0, 0.0, 0.0), -1: (0.0, 3.0, 0.0)}, tags=("3d", "rod")),
     TrunkCase("cbha4_pneumatic_nh", "4 CBHA-like slices (R 40 mm, three chambers r 10 mm at 21.5 mm, L 30 mm, "
               "E 0.5 MPa, ν 0.45), chamber 0 pressurised in every slice; levels in bar", "neo_hookean",
-              (CBHA,), levels=(0.25, 0.5, 1.0, 1.25, 1.4, 1.5),
+              (CBHA,), levels=(0.25, 0.5, 1.0, 1.25, 1.5, 1.6, 1.7, 1.8, 2.0),
               pressures={s: (BAR, 0.0, 0.0) for s in range(4)}, tags=("pneumatic",), level_unit="bar"),
 ]
 CASES = {c.name: c for c in _CASES}
@@ -145,19 +146,44 @@ def n_cavities(spec: SegmentSpec) -> int:
     return family.n_cavities(canonical_parameters(family, spec.p))
 
 
-def project_trunk(case: TrunkCase, **segment_options):
-    """The project's full nonlinear FE trunk (``designer.nonlinear.NonlinearTrunk``) on the case's meshes."""
-    from vertebra.designer.nonlinear import NonlinearSegment, NonlinearTrunk, VertebraMass
+QUADRATURES = ("project", "calculix")
+
+
+def _segment(spec: SegmentSpec, mesh, material_name: str, quadrature: str, **options):
+    """``designer.nonlinear.NonlinearSegment`` of one spec. ``quadrature="calculix"`` integrates the
+    volume terms with CalculiX's C3D10 rule (4 points per tetrahedron) instead of the project's
+    (order 4, 11 points), which isolates the quadrature's share of a difference between the codes."""
+    from vertebra.designer.nonlinear import NonlinearSegment
     from vertebra.designer.nonlinear.materials import get_material
+    p = spec.p
+    material = get_material(material_name, p["youngs_modulus"], p["poisson_ratio"])
+    common = dict(density=p.get("density", 0.0), n_cavities=n_cavities(spec), length=p["length"])
+    if quadrature == "project":
+        return NonlinearSegment.build(mesh, material, **common, **options)
+    if quadrature != "calculix":
+        raise ValueError(f"quadrature {quadrature!r}: expected one of {QUADRATURES}")
+    from skfem import Basis, ElementTetP2
+
+    from vertebra.designer.fem import build_fe
+    from vertebra.designer.nonlinear.assembly import SolidModel
+    from vertebra.designer.nonlinear.framed import FramedSolid
+    fe = build_fe(mesh, material.youngs_modulus, material.poisson_ratio, common["density"], common["n_cavities"],
+                  common["length"])
+    fe.basis = Basis(fe.mesh, ElementTetP2(), intorder=2)
+    segment = NonlinearSegment(FramedSolid(SolidModel(fe, material)), **options)
+    segment.mesh_data = mesh
+    return segment
+
+
+def project_trunk(case: TrunkCase, quadrature: str = "project", **segment_options):
+    """The project's full nonlinear FE trunk (``designer.nonlinear.NonlinearTrunk``) on the case's
+    meshes; ``segment_options`` go to ``NonlinearSegment``."""
+    from vertebra.designer.nonlinear import NonlinearTrunk, VertebraMass
     built = {}
     segments = []
     for spec, mesh in zip(case.specs(), case_meshes(case)):
         if spec not in built:
-            p = spec.p
-            built[spec] = NonlinearSegment.build(mesh, get_material(case.material, p["youngs_modulus"],
-                                                                    p["poisson_ratio"]),
-                                                 density=p.get("density", 0.0), n_cavities=n_cavities(spec),
-                                                 length=p["length"], **segment_options)
+            built[spec] = _segment(spec, mesh, case.material, quadrature, **segment_options)
         segments.append(built[spec])
     masses = [VertebraMass()] + [VertebraMass(case.vertebra_mass) for _ in range(case.n_segments)]
     return NonlinearTrunk(segments, vertebrae=masses)

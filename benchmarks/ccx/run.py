@@ -142,8 +142,9 @@ def solve(trunk, materials, loadings: list[Loading], *, nlgeom: bool = True, thr
           arm_length: float | None = None, **deck_options) -> dict:
     """All load levels in one CalculiX run per pass; dead moments by repeated passes (module doc).
 
-    Passes stop when, at every level, the moment the arm forces carry at the rotations reached
-    is within ``moment_tolerance`` (relative) of the dead moment asked for. Returns the last
+    Passes stop when, at every level reached, the moment the arm forces carry at the rotations
+    reached is within ``moment_tolerance`` (relative) of the dead moment asked for (and the run
+    finished, or reached no further than the pass before). Returns the last
     pass's :func:`run_deck` result plus ``passes`` (per pass: wall seconds, largest rotation
     change in rad, that moment residual) and ``moment_residual`` per step."""
     version = ccx_version()
@@ -156,10 +157,10 @@ def solve(trunk, materials, loadings: list[Loading], *, nlgeom: bool = True, thr
         levels = []
         for k, L in enumerate(loadings):
             arms = {}
+            # the vertebra's rotation from the previous pass at this level (or the highest level it reached)
+            known = [] if rotations is None or not nlgeom else [int(i) for i in rotations if int(i) <= k + 1]
             for j, M in L.moments.items():
-                R = np.eye(3)
-                if nlgeom and rotations is not None and str(k + 1) in rotations:
-                    R = rotation_matrix(rotations[str(k + 1)][j])
+                R = rotation_matrix(rotations[str(max(known))][j]) if known else np.eye(3)
                 arms[j] = arm_forces(M, R, arm_length)
             levels.append(LoadLevel(forces=L.forces, arm_forces=arms, pressures=L.pressures, gravity=L.gravity))
         deck = write_deck(trunk, materials, levels, nlgeom=nlgeom, arm_length=arm_length, **deck_options)
@@ -179,8 +180,10 @@ def solve(trunk, materials, loadings: list[Loading], *, nlgeom: bool = True, thr
         passes.append({"wall_s": result["wall_s"], "key": result["key"], "finished": result["finished"],
                        "rotation_change": None if rotations is None else change,
                        "moment_residual": max(residual.values(), default=0.0)})
+        # settled: the moments are right wherever the run got, and another pass would get no further
+        settled = max(residual.values(), default=0.0) < moment_tolerance and (
+            result["finished"] or (rotations is not None and len(new) <= len(rotations)))
         rotations = new
-        settled = max(residual.values(), default=0.0) < moment_tolerance
         if not (nlgeom and has_moments) or settled or len(passes) >= max_passes:
             break
     return dict(result, passes=passes, moment_residual=residual)
