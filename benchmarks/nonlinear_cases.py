@@ -98,7 +98,7 @@ CBHA = SegmentSpec.of("pneumatic", 0.012, 4, outer_radius=0.04, chamber_radius=0
 _CASES = [
     TrunkCase("rod4_planar_nh", "4 rods R 10 mm, L/R 2, ν 0.45, tip force along (1, 0, −1) (planar; a "
               "force normal to the trunk cannot turn the tip past 90°)", "neo_hookean",
-              (_rod(0.01, 0.02, 0.45, 0.005, 4),), levels=(0.2, 0.45, 0.7, 1.0),
+              (_rod(0.01, 0.02, 0.45, 0.005, 4),), levels=(0.15, 0.32, 0.47, 0.72),
               forces={-1: (5.0, 0.0, -5.0)}, tags=("planar", "rod")),
     TrunkCase("rod4_planar_svk", "the same trunk in St Venant–Kirchhoff, to ~50°", "svk",
               (_rod(0.01, 0.02, 0.45, 0.005, 4),), levels=(0.25, 0.6, 1.0),
@@ -108,7 +108,7 @@ _CASES = [
               forces={-1: (2.2, 0.0, 0.0)}, tags=("planar", "tube")),
     TrunkCase("rod16_squat_nh", "16 rods R 10 mm, L/R 0.5, ν 0.3, tip force along x with gravity along −x "
               "(rods 1100 kg/m³, vertebrae 5 g)", "neo_hookean",
-              (_rod(0.01, 0.005, 0.3, 0.006, 16, density=1100.0),), levels=(0.25, 0.6, 1.0),
+              (_rod(0.01, 0.005, 0.3, 0.006, 16, density=1100.0),), levels=(0.25, 0.6, 1.0, 1.7),
               forces={-1: (6.0, 0.0, 0.0)}, gravity=(-9.81, 0.0, 0.0), vertebra_mass=0.005,
               tags=("planar", "rod", "gravity")),
     TrunkCase("tube4_3d_nh", "4 tubes R 10/5 mm, L/R 1.5, ν 0.4: tip force in the diagonal plane x = y, "
