@@ -64,6 +64,7 @@ class TrunkCase:
     vertebra_mass: float = 0.0                  # kg, every free vertebra, at its frame origin
     tags: tuple = ()
     level_unit: str = ""                        # what a level means, e.g. "bar" for pneumatic cases
+    symmetric_xz: bool = False                  # geometry and loads symmetric about the xz-plane
 
     def specs(self) -> list:
         """One SegmentSpec per segment, bottom to top."""
@@ -121,8 +122,9 @@ _CASES = [
               forces={3: (6.0, 0.0, 0.0), -1: (0.0, 3.0, 0.0)}, tags=("3d", "rod")),
     TrunkCase("cbha4_pneumatic_nh", "4 CBHA-like slices (R 40 mm, three chambers r 10 mm at 21.5 mm, L 30 mm, "
               "E 0.5 MPa, ν 0.45), chamber 0 pressurised in every slice; levels in bar", "neo_hookean",
-              (CBHA,), levels=(0.25, 0.5, 1.0, 1.25, 1.5, 1.6, 1.7, 1.8, 2.0),
-              pressures={s: (BAR, 0.0, 0.0) for s in range(4)}, tags=("pneumatic",), level_unit="bar"),
+              (CBHA,), levels=(0.25, 0.5, 1.0, 1.25, 1.4, 1.5, 1.55, 1.6, 1.65, 1.7),
+              pressures={s: (BAR, 0.0, 0.0) for s in range(4)}, tags=("pneumatic",), level_unit="bar",
+              symmetric_xz=True),
 ]
 CASES = {c.name: c for c in _CASES}
 

@@ -154,9 +154,12 @@ def _plugs(trunk, first_node: int, first_element: int):
 
 
 def write_deck(trunk, materials: list[Material], levels: list[LoadLevel], *, nlgeom: bool = True,
-               arm_length: float = 0.01, initial_increment: float = 0.25, min_increment: float = 1e-5, max_increments: int = 400) -> Deck:
+               arm_length: float = 0.01, initial_increment: float = 0.25, min_increment: float = 1e-5,
+               max_increments: int = 400, symmetric_xz: bool = False) -> Deck:
     """The input deck of ``trunk`` (:class:`ccx.trunk.TrunkMesh`) with one material per segment
-    and one step per load level."""
+    and one step per load level. ``symmetric_xz`` holds every vertebra in the xz-plane (no y
+    translation, rotation about y only): the symmetric path of a problem symmetric about that
+    plane, for when CalculiX's Newton iterations fail in the vertebrae's out-of-plane modes."""
     if len(materials) != trunk.n_segments:
         raise ValueError(f"{len(materials)} materials for {trunk.n_segments} segments")
     out = io.StringIO()
@@ -209,6 +212,8 @@ def write_deck(trunk, materials: list[Material], levels: list[LoadLevel], *, nlg
     for j in range(m1):
         w(f"*RIGID BODY, NSET=V{j}, REF NODE={ref[j]}, ROT NODE={rot[j]}\n")
     w(f"*BOUNDARY\n{ref[0]}, 1, 3\n{rot[0]}, 1, 3\n")
+    if symmetric_xz:
+        w("".join(f"{ref[j]}, 2, 2\n{rot[j]}, 1, 1\n{rot[j]}, 3, 3\n" for j in range(1, m1)))
     faces_of = {(c.segment, c.index): c for c in trunk.cavities}
     for k, level in enumerate(levels):
         w(f"*STEP{', NLGEOM' if nlgeom else ''}, INC={max_increments}\n")
