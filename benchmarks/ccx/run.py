@@ -88,8 +88,14 @@ def _as_json(step: dict) -> dict:
     return {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in step.items()}
 
 
-def run_deck(deck, trunk, *, threads: int = 1, cache: Path | None = CACHE, version: str | None = None) -> dict:
-    """Solve ``deck`` (cached). Returns ``{"key", "wall_s", "finished", "message", "last_time",
+class NotCached(RuntimeError):
+    """A deck's CalculiX results are not in the cache and running CalculiX was not allowed."""
+
+
+def run_deck(deck, trunk, *, threads: int = 1, cache: Path | None = CACHE, version: str | None = None,
+             cached_only: bool = False) -> dict:
+    """Solve ``deck`` (cached; with ``cached_only`` a deck not in the cache raises
+    :class:`NotCached` instead of running CalculiX). Returns ``{"key", "wall_s", "finished", "message", "last_time",
     "steps": {k: {"translation", "rotation", "base_force", "base_rot_reaction", "volumes"}}}``
     with ``volumes`` the deformed volume of every cavity of ``trunk`` (in ``trunk.cavities``
     order) and arrays as nested lists."""
@@ -98,6 +104,8 @@ def run_deck(deck, trunk, *, threads: int = 1, cache: Path | None = CACHE, versi
     path = None if cache is None else Path(cache) / f"{key}.json"
     if path is not None and path.exists():
         return json.loads(path.read_text())
+    if cached_only:
+        raise NotCached(f"no cached CalculiX result {key}.json in {cache} for this deck")
     with tempfile.TemporaryDirectory(prefix="vertebra-ccx-") as tmp:
         Path(tmp, "job.inp").write_text(deck.text)
         start = time.perf_counter()
@@ -139,14 +147,15 @@ class Loading:
 
 def solve(trunk, materials, loadings: list[Loading], *, nlgeom: bool = True, threads: int = 1,
           moment_tolerance: float = 1e-5, max_passes: int = 6, cache: Path | None = CACHE,
-          arm_length: float | None = None, **deck_options) -> dict:
+          arm_length: float | None = None, cached_only: bool = False, **deck_options) -> dict:
     """All load levels in one CalculiX run per pass; dead moments by repeated passes (module doc).
 
     Passes stop when, at every level reached, the moment the arm forces carry at the rotations
     reached is within ``moment_tolerance`` (relative) of the dead moment asked for (and the run
     finished, or reached no further than the pass before). Returns the last
     pass's :func:`run_deck` result plus ``passes`` (per pass: wall seconds, largest rotation
-    change in rad, that moment residual) and ``moment_residual`` per step."""
+    change in rad, that moment residual) and ``moment_residual`` per step. ``cached_only``: every
+    pass must be in the cache (:class:`NotCached` otherwise)."""
     version = ccx_version()
     if arm_length is None:
         arm_length = float(np.max(np.abs(trunk.nodes[:, :2])))
@@ -164,7 +173,7 @@ def solve(trunk, materials, loadings: list[Loading], *, nlgeom: bool = True, thr
                 arms[j] = arm_forces(M, R, arm_length)
             levels.append(LoadLevel(forces=L.forces, arm_forces=arms, pressures=L.pressures, gravity=L.gravity))
         deck = write_deck(trunk, materials, levels, nlgeom=nlgeom, arm_length=arm_length, **deck_options)
-        result = run_deck(deck, trunk, threads=threads, cache=cache, version=version)
+        result = run_deck(deck, trunk, threads=threads, cache=cache, version=version, cached_only=cached_only)
         new = {k: np.array(v["rotation"]) for k, v in result["steps"].items()}
         change = np.inf if rotations is None else max(
             (float(np.max(np.abs(new[k] - rotations[k]))) for k in new if k in rotations), default=np.inf)
