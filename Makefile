@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test bench clean
+.PHONY: demo test bench bench-ccx clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -20,6 +20,9 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	MPLBACKEND=Agg $(PY) benchmarks/run_all.py
+
+bench-ccx: $(STAMP)
+	MPLBACKEND=Agg $(PY) benchmarks/bench_ccx_crosscheck.py
 
 clean:
 	rm -rf $(VENV) demo-output .pytest_cache
