@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test bench bench-ccx clean
+.PHONY: demo test bench bench-ccx bench-trade clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -23,6 +23,9 @@ bench: $(STAMP)
 
 bench-ccx: $(STAMP)
 	MPLBACKEND=Agg $(PY) benchmarks/bench_ccx_crosscheck.py
+
+bench-trade: $(STAMP)
+	OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MPLBACKEND=Agg $(PY) benchmarks/bench_trade.py
 
 clean:
 	rm -rf $(VENV) demo-output .pytest_cache

@@ -666,18 +666,25 @@ def markdown_tick(section) -> list:
            "| mode | targets per lap | target step | ms per step | mean error | max error |", "|---|---|---|---|---|---|"]
     for r in section["rows"]:
         out.append(f"| {r['mode']} | {r['points_per_lap']} | {r['target_step_mm']:.2f} mm | {r['step_ms']:.2f} | "
-                   f"{1e3 * r['mean_error_mm']:.2f} µm | {1e3 * r['max_error_mm']:.2f} µm |")
+                   f"{1e3 * r['mean_error_mm']:.3g} µm | {1e3 * r['max_error_mm']:.3g} µm |")
     return out + [""]
+
+
+FLOOR_UM = 1e-6     # errors below this (µm) are drawn at it: log axes
+
+
+def um(x_mm: float) -> float:
+    return max(1e3 * x_mm, FLOOR_UM)
 
 
 def plot_tick(ax, section):
     for mode, marker in (("tick", "o"), ("converged", "s")):
         sel = [r for r in section["rows"] if r["mode"] == mode]
-        ax.plot([r["step_ms"] for r in sel], [1e3 * r["max_error_mm"] for r in sel], marker + "-", label=f"{mode}: max")
-        ax.plot([r["step_ms"] for r in sel], [1e3 * r["mean_error_mm"] for r in sel], marker + ":", mfc="none",
+        ax.plot([r["step_ms"] for r in sel], [um(r["max_error_mm"]) for r in sel], marker + "-", label=f"{mode}: max")
+        ax.plot([r["step_ms"] for r in sel], [um(r["mean_error_mm"]) for r in sel], marker + ":", mfc="none",
                 label=f"{mode}: mean")
         for r in sel:
-            ax.annotate(f"{r['points_per_lap']}/lap", (r["step_ms"], 1e3 * r["max_error_mm"]), fontsize=7,
+            ax.annotate(f"{r['points_per_lap']}/lap", (r["step_ms"], um(r["max_error_mm"])), fontsize=7,
                         xytext=(3, 3), textcoords="offset points")
     ax.set(xlabel="inverse step (CPU ms)", ylabel="tracking error at equilibrium (µm)", title="(f) tick vs converged")
 
@@ -718,20 +725,20 @@ def markdown_qp(section) -> list:
     out = ["## (g) QP tolerance and regularisation of the inverse", "",
            f"{section['slices']} CBHA slices (nonlinear entries), {section['targets']} targets round the circle of (f); "
            "error: distance of the equilibrium reached from the target (µm); CPU ms per step.", "",
-           "| mode | regularisation | QP tolerance | ms per step | mean error | max error |", "|---|---|---|---|---|---|"]
+           "| mode | regularisation | QP tolerance | ms per step | mean error µm | max error µm |", "|---|---|---|---|---|---|"]
     for r in section["rows"]:
         out.append(f"| {r['mode']} | {r['regularisation']:g} | {r['qp_tolerance']:g} | {r['step_ms']:.2f} | "
-                   f"{1e3 * r['mean_error_mm']:.2f} | {1e3 * r['max_error_mm']:.2f} |")
+                   f"{1e3 * r['mean_error_mm']:.3g} | {1e3 * r['max_error_mm']:.3g} |")
     return out + [""]
 
 
 def plot_qp(ax, section):
     for (mode, q), marker in zip(sorted({(r["mode"], r["qp_tolerance"]) for r in section["rows"]}), "os^dvp"):
         sel = [r for r in section["rows"] if r["mode"] == mode and r["qp_tolerance"] == q]
-        ax.plot([r["step_ms"] for r in sel], [1e3 * r["max_error_mm"] for r in sel], marker + "-",
+        ax.plot([r["step_ms"] for r in sel], [um(r["max_error_mm"]) for r in sel], marker + "-",
                 label=f"{mode}, QP tol {q:g}")
         for r in sel:
-            ax.annotate(f"{r['regularisation']:g}", (r["step_ms"], 1e3 * r["max_error_mm"]), fontsize=6,
+            ax.annotate(f"{r['regularisation']:g}", (r["step_ms"], um(r["max_error_mm"])), fontsize=6,
                         xytext=(3, 3), textcoords="offset points")
     ax.set(xlabel="inverse step (CPU ms)", ylabel="max target error at equilibrium (µm)",
            title="(g) QP tolerance, regularisation (labels)")
