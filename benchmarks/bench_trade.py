@@ -55,6 +55,7 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from bench_runtime_nonlinear import linear_of, loadavg, log  # noqa: E402  (this folder)
 from vertebra import solver  # noqa: E402
 from vertebra.solver import analytic  # noqa: E402
 
@@ -68,17 +69,6 @@ CBHA = dict(outer_radius=0.04, chamber_radius=0.01, chamber_offset=0.0215, lengt
             youngs_modulus=5e5, poisson_ratio=0.45)
 CBHA_SAMPLING = {"degree": 6, "pressure": 1.5e5, "limit_fraction": 0.95}
 BAR = 1e5
-
-
-def log(message: str) -> None:
-    print(message, file=sys.stderr, flush=True)
-
-
-def loadavg() -> float:
-    try:
-        return os.getloadavg()[0]
-    except OSError:
-        return math.nan
 
 
 # ------------------------------------------------------------------ timing
@@ -145,11 +135,6 @@ def designed(design: Design, cache: Path):
     log(f"  {entry.timings['total_s']:.0f} s, {entry.mesh.get('dofs')} DoFs, {entry.energy.coefficients.size} terms")
     catalogue.add_entry(path, entry)
     return entry
-
-
-def linear_of(entry):
-    """The same entry without its fitted energy: the linear condensation alone."""
-    return dataclasses.replace(entry, energy=None)
 
 
 def design_cost(entry) -> dict:
@@ -295,7 +280,8 @@ def section_mesh(results, cache, refs, quick):
             row["levels"].append(level)
         rows.append(row)
         log(f"  {design.label}: {row['dofs']} DoFs, {row['cost']['total_s']:.0f} s; tip error vs fine FE "
-            + ", ".join(f"{lv['fe_angle_deg']:.0f}°: {lv['nonlinear']['tip_error_pct']:.3f} %" for lv in row["levels"]))
+            + ", ".join(f"{lv['fe_angle_deg']:.0f}°: {lv['nonlinear']['tip_error_pct']:.3f} %"
+                        for lv in row["levels"]))
     results["mesh"] = {"rows": rows, "reference": {"mesh_size": MESH_REFERENCE[0], "order": MESH_REFERENCE[1],
                                                    "seconds": [r.get("seconds") for r in reference]},
                        "segments": count}
@@ -307,19 +293,21 @@ def markdown_mesh(section) -> list:
     head = " / ".join(f"{a:.0f}°" for a in angles)
     out = ["## (a) Mesh size and element order of the designed entry", "",
            f"Two neo-Hookean rod segments (R 10 mm, L 40 mm, E 1 MPa, ν 0.3), dead tip force; reference: the "
-           f"full nonlinear FE on a P{section['reference']['order']} mesh of {1e3 * section['reference']['mesh_size']:g} mm. "
+           f"full nonlinear FE on a P{section['reference']['order']} mesh of "
+           f"{1e3 * section['reference']['mesh_size']:g} mm. "
            "Tip error in % of the trunk length at the FE tip angles "
            f"{head}. `own-mesh FE`: the full FE on the entry's mesh (its discretisation error alone); "
            "cost: wall time of the design on 2 workers (linear condensation / total).", "",
-           f"| entry | DoFs | design s (linear / total) | held-out load | own-mesh FE | nonlinear entry | linear entry |",
+           "| entry | DoFs | design s (linear / total) | held-out load | own-mesh FE | nonlinear entry "
+           "| linear entry |",
            "|---|---|---|---|---|---|---|"]
     for r in rows:
         lv = r["levels"]
         out.append(f"| P{r['order']} h {1e3 * r['mesh_size']:g} mm | {r['dofs']} | {r['cost']['linear_s']:.2f} / "
                    f"{r['cost']['total_s']:.0f} | {100 * r['held_out_load_max']:.2f} % | "
                    + " / ".join(f"{x['same_mesh_fe_pct']:.3f}" for x in lv) + " % | "
-                   + " / ".join(f"{x['nonlinear']['tip_error_pct']:.3f}" + ("*" if x["nonlinear"]["out_of_range"] else "")
-                                for x in lv) + " % | "
+                   + " / ".join(f"{x['nonlinear']['tip_error_pct']:.3f}"
+                                + ("*" if x["nonlinear"]["out_of_range"] else "") for x in lv) + " % | "
                    + " / ".join(f"{x['linear']['tip_error_pct']:.3f}" for x in lv) + " % |")
     return out + ["", "`*`: the runtime reported states outside the fitted range.", ""]
 
@@ -458,7 +446,8 @@ def markdown_links(section) -> list:
            "| k | tip angle | links per segment | links | vs elastica | vs fine | solve ms | iterations |",
            "|---|---|---|---|---|---|---|---|"]
     for r in section["rows"]:
-        out.append(f"| {r['load_parameter']:g} | {r['tip_angle_deg']:.0f}° | {r['links_per_segment']} | {r['links']} | "
+        out.append(f"| {r['load_parameter']:g} | {r['tip_angle_deg']:.0f}° | {r['links_per_segment']} | "
+                   f"{r['links']} | "
                    f"{pct(r['elastica_pct'])} | {pct(r['fine_pct'])} | {r['solve_ms']:.3f} | {r['iterations']} |")
     return out + [""]
 
@@ -504,11 +493,13 @@ def section_entries(results, cache, refs, quick):
                    "fe_seconds": ref.get("seconds")}
             for kind, model in models.items():
                 result = model.solve(raise_on_failure=False)
-                row[kind] = {"tip_error_pct": 100 * float(np.linalg.norm(result.state.positions[-1] - ref["tip"])) / length,
+                miss = float(np.linalg.norm(result.state.positions[-1] - ref["tip"]))
+                row[kind] = {"tip_error_pct": 100 * miss / length,
                              "solve_ms": 1e3 * times[kind], "iterations": result.iterations,
                              "converged": bool(result.converged), "out_of_range": len(result.out_of_range)}
             rows.append(row)
-            log(f"  {label} ×{level:g} ({row['fe_angle_deg']:.0f}°): nonlinear {row['nonlinear']['tip_error_pct']:.4f} % "
+            log(f"  {label} ×{level:g} ({row['fe_angle_deg']:.0f}°): "
+                f"nonlinear {row['nonlinear']['tip_error_pct']:.4f} % "
                 f"{row['nonlinear']['solve_ms']:.2f} ms, linear {row['linear']['tip_error_pct']:.3f} % "
                 f"{row['linear']['solve_ms']:.2f} ms")
     results["entries"] = {"rows": rows, "entry": ENTRY_DESIGN.label, "dofs": int(entry.mesh.get("dofs", 0)),
@@ -540,9 +531,21 @@ def plot_entries(ax, section):
             y = [r[kind]["tip_error_pct"] for r in sel]
             ax.plot(x, y, marker + style, mfc="none" if kind == "linear" else None, label=f"{case}: {kind} entries")
             for r, xi, yi in zip(sel, x, y):
-                ax.annotate(f"{r['fe_angle_deg']:.0f}°", (xi, yi), fontsize=7, xytext=(3, 3), textcoords="offset points")
+                ax.annotate(f"{r['fe_angle_deg']:.0f}°", (xi, yi), fontsize=7, xytext=(3, 3),
+                            textcoords="offset points")
     ax.set(xlabel="forward solve (CPU ms)", ylabel="tip error vs full nonlinear FE, % of length",
            title="(d) linear vs nonlinear entries (labels: tip angle)")
+
+
+def plot_entries_by_angle(ax, section):
+    """The same errors against the FE tip angle (the companion of the headline panel)."""
+    for case, marker in zip(sorted({r["case"] for r in section["rows"]}), "os"):
+        sel = [r for r in section["rows"] if r["case"] == case]
+        for kind, style in (("nonlinear", "-"), ("linear", "--")):
+            ax.plot([r["fe_angle_deg"] for r in sel], [r[kind]["tip_error_pct"] for r in sel], marker + style,
+                    mfc="none" if kind == "linear" else None, label=f"{case}: {kind} entries")
+    ax.set(xlabel="tip angle of the full FE (°)", ylabel="tip error vs full nonlinear FE, % of length",
+           title="(d) the same against bending")
 
 
 # ------------------------------------------------------------------ (e) Newton tolerance
@@ -663,7 +666,8 @@ def markdown_tick(section) -> list:
            "reached at 0.6/0.3/0.3 bar. Error: distance from the target of the equilibrium that the commanded "
            "pressures reach (a tick's own state is a linear prediction, so every step is solved to equilibrium "
            "after the run); time: CPU ms per step of the timed run (median of interleaved repeats).", "",
-           "| mode | targets per lap | target step | ms per step | mean error | max error |", "|---|---|---|---|---|---|"]
+           "| mode | targets per lap | target step | ms per step | mean error | max error |",
+           "|---|---|---|---|---|---|"]
     for r in section["rows"]:
         out.append(f"| {r['mode']} | {r['points_per_lap']} | {r['target_step_mm']:.2f} mm | {r['step_ms']:.2f} | "
                    f"{1e3 * r['mean_error_mm']:.3g} µm | {1e3 * r['max_error_mm']:.3g} µm |")
@@ -735,7 +739,8 @@ def section_qp(results, cache, refs, quick):
 
 def markdown_qp(section) -> list:
     out = ["## (g) QP tolerance and regularisation of the inverse", "",
-           f"{section['slices']} CBHA slices (nonlinear entries), {section['targets']} targets round the circle of (f). "
+           f"{section['slices']} CBHA slices (nonlinear entries), {section['targets']} targets round the circle "
+           "of (f). "
            "The regularisation is swept with the exact QP (`daqp`, which has no tolerance); the QP tolerance "
            "with the iterative Gauss–Seidel QP at the default regularisation. Error: distance of the "
            "equilibrium reached from the target (µm); CPU ms per step.", "",
@@ -766,7 +771,8 @@ def plot_qp(ax, section):
 
 CBHA_SLICES = 4
 CBHA_PRESSURES = (0.25, 0.5, 0.75, 1.0, 1.25, 1.5)            # bar, chamber 0
-CBHA_TARGETS = ((0.5, 0.0, 0.0), (0.8, 0.3, 0.0), (1.0, 0.4, 0.0), (1.2, 0.5, 0.8))   # bar: the FE tip under these is the target
+# chamber pressures (bar) under which the full FE's tip is an inverse target (reachable by construction)
+CBHA_TARGETS = ((0.5, 0.0, 0.0), (0.8, 0.3, 0.0), (1.0, 0.4, 0.0), (1.2, 0.5, 0.8))
 
 
 def section_cbha(results, cache, refs, quick):
@@ -816,7 +822,8 @@ def section_cbha(results, cache, refs, quick):
             p = np.asarray(step.actuation[model.n_cables:], dtype=float)
             applied, _ = refs.solve(solid, n, pressures=p)
             achieved = ("failed" not in applied)
-            row[kind] = {"pressures_bar": (p / BAR).tolist(), "model_error_pct": 100 * float(step.errors.max()) / length,
+            row[kind] = {"pressures_bar": (p / BAR).tolist(),
+                         "model_error_pct": 100 * float(step.errors.max()) / length,
                          "reached": bool(step.reached), "invert_ms": 1e3 * float(np.median(times)),
                          "out_of_range": len(step.out_of_range),
                          "fe_error_pct": 100 * float(np.linalg.norm(np.asarray(applied["tip"]) - target)) / length
@@ -835,7 +842,8 @@ def markdown_cbha(section) -> list:
            f"entry {section['entry']}, {section['dofs']} DoFs, ψ of {section['terms']} terms) against the full "
            "nonlinear FE with follower pressure on the same meshes.", "",
            "### Forward: chamber 0 pressurised", "",
-           "Tip error in % of length; bending angle and chamber volume growth relative to the FE; CPU ms per solve.", "",
+           "Tip error in % of length; bending angle and chamber volume growth relative to the FE; CPU ms per "
+           "solve.", "",
            "| pressure | FE angle | nonlinear: tip | angle | volume | ms | linear: tip | angle | volume | ms |",
            "|---|---|---|---|---|---|---|---|---|---|"]
     for r in section["forward"]:
@@ -844,7 +852,8 @@ def markdown_cbha(section) -> list:
             continue
         nl, li = r["nonlinear"], r["linear"]
         out.append(f"| {r['pressure_bar']:g} bar | {r['fe_angle_deg']:.1f}° | {pct(nl['tip_error_pct'])}"
-                   f"{'*' if nl['out_of_range'] else ''} | {nl['angle_error_pct']:+.2f} % | {nl['volume_error_pct']:+.2f} % | "
+                   f"{'*' if nl['out_of_range'] else ''} | {nl['angle_error_pct']:+.2f} % | "
+                   f"{nl['volume_error_pct']:+.2f} % | "
                    f"{nl['solve_ms']:.2f} | {pct(li['tip_error_pct'])} | {li['angle_error_pct']:+.1f} % | "
                    f"{li['volume_error_pct']:+.1f} % | {li['solve_ms']:.2f} |")
     out += ["", "### Inverse: chamber pressures for a target tip position, applied to the full FE", "",
@@ -892,7 +901,7 @@ SECTIONS = {
     "mesh": (section_mesh, markdown_mesh, plot_mesh),
     "fit": (section_fit, markdown_fit, plot_fit),
     "links": (section_links, markdown_links, plot_links),
-    "entries": (section_entries, markdown_entries, plot_entries),
+    "entries": (section_entries, markdown_entries, plot_entries, plot_entries_by_angle),
     "tolerance": (section_tolerance, markdown_tolerance, plot_tolerance),
     "tick": (section_tick, markdown_tick, plot_tick),
     "qp": (section_qp, markdown_qp, plot_qp),
@@ -906,18 +915,26 @@ def markdown(results: dict) -> str:
            f"Machine: {m['host']}, Python {m['python']}, {m['date']}, load average {m['loadavg'][0]:.1f} → "
            f"{m['loadavg'][1]:.1f}. Produced by `benchmarks/bench_trade.py`; how to read it: `docs/trade.md`. "
            "Timings: CPU time of the thread, one BLAS thread, medians of interleaved rounds.", ""]
-    for name, (_, write, _) in SECTIONS.items():
+    for name, (_, write, *_) in SECTIONS.items():
         if results.get(name):
             out += write(results[name])
     return "\n".join(out)
 
 
 def pictures(results: dict, directory: Path) -> list:
-    """One picture per knob (log–log, error vs cost) and a summary of all of them."""
+    """One picture per knob (error vs cost, log axes; a companion panel where a section has one)
+    and a summary of all the knobs' main panels."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
+    def draw(ax, plot, section, xlog=True):
+        plot(ax, section)
+        ax.set_xscale("log" if xlog else "linear")
+        ax.set_yscale("log")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
 
     names = [name for name in SECTIONS if results.get(name)]
     written = []
@@ -927,17 +944,12 @@ def pictures(results: dict, directory: Path) -> list:
     for ax in axes.flat[len(names):]:
         ax.set_visible(False)
     for name, ax in zip(names, axes.flat):
-        SECTIONS[name][2](ax, results[name])
-        ax.set_xscale("log")
-        ax.set_yscale("log")
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=7)
-        fig, single = plt.subplots(figsize=(6.4, 4.6))
-        SECTIONS[name][2](single, results[name])
-        single.set_xscale("log")
-        single.set_yscale("log")
-        single.grid(True, which="both", alpha=0.3)
-        single.legend(fontsize=7)
+        main_plot, *extra = SECTIONS[name][2:]
+        draw(ax, main_plot, results[name])
+        fig, panels = plt.subplots(1, 1 + len(extra), figsize=(6.4 * (1 + len(extra)), 4.6), squeeze=False)
+        draw(panels[0, 0], main_plot, results[name])
+        for ax_extra, plot in zip(panels[0, 1:], extra):
+            draw(ax_extra, plot, results[name], xlog=False)
         fig.tight_layout()
         path = directory / f"trade-{name}.png"
         fig.savefig(path, dpi=110)
