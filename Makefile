@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test bench bench-ccx bench-trade clean
+.PHONY: demo test bench bench-ccx bench-trade bench-large-deformation clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -26,6 +26,9 @@ bench-ccx: $(STAMP)
 
 bench-trade: $(STAMP)
 	OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MPLBACKEND=Agg $(PY) benchmarks/bench_trade.py
+
+bench-large-deformation: $(STAMP)
+	OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MPLBACKEND=Agg $(PY) benchmarks/bench_nonlinear_acceptance.py
 
 clean:
 	rm -rf $(VENV) demo-output .pytest_cache
