@@ -223,7 +223,7 @@ def test_designer_se3_matches_the_runtime():
         assert np.abs(inverse_left_jacobian(xi) - J_ref).max() < 1e-12 * np.abs(J_ref).max()
 
 
-def test_softening_materials_are_sampled_to_a_smaller_strain():
+def test_automatic_sampling_settings_depend_on_material_and_cavities():
     # St Venant-Kirchhoff has a compressive limit point at the stretch 1/sqrt(3): its default box
     # stops at 25 % outer-fibre strain (40 % otherwise); an explicit setting wins, and the
     # resolved value is part of the content key
@@ -232,6 +232,10 @@ def test_softening_materials_are_sampled_to_a_smaller_strain():
     assert SamplingSettings().resolved(0, "svk").strain == 0.25
     assert SamplingSettings().resolved(0, "neo_hookean").strain == 0.4
     assert SamplingSettings(strain=0.3).resolved(0, "svk").strain == 0.3
+    # segments with cavities: more paths and more levels per path (the response steepens
+    # towards the inflation limit)
+    assert (SamplingSettings().resolved(0, "neo_hookean").steps, SamplingSettings().resolved(3, "neo_hookean").steps) == (6, 10)
+    assert SamplingSettings(steps=4).resolved(3, "neo_hookean").steps == 4
     rod = {"radius": 0.01, "length": 0.01, "youngs_modulus": 1e6, "poisson_ratio": 0.35}
     assert entry_key("rod", rod, material="svk") == entry_key("rod", rod, material="svk", sampling={"strain": 0.25})
     assert entry_key("rod", rod, material="svk") != entry_key("rod", rod, material="svk", sampling={"strain": 0.4})
