@@ -43,7 +43,8 @@ def _prepare(args, *, dry_run: bool = False, progress: bool = True):
     from vertebra import solver
     from vertebra.designer import prepare
 
-    return prepare(solver.load_scene(args.scene), args.catalogue, executor="dask" if args.scheduler else args.executor,
+    return prepare(solver.load_scene(args.scene), args.catalogue, build_model=solver.build_model,
+                   executor="dask" if args.scheduler else args.executor,
                    workers=args.workers, scheduler=args.scheduler,
                    start_method=args.start_method, estimate_accuracy=not args.no_accuracy,
                    progress=progress, dry_run=dry_run)

@@ -1,14 +1,26 @@
 """Model only what a scene requires: design a scene's missing entries, resolve its design segments.
 
 A ``type = "design"`` segment names a geometry family, its parameters and the design options
-(mesh size, element order, material). :func:`prepare` turns each one into a sweep task — the
-family's parameters checked, the content key computed by the same designer and design options
-as ``vertebra design`` and ``vertebra sweep`` (:data:`~vertebra.designer.sweep.DESIGN_OPTIONS`)
-— plans them against the catalogue, designs only the entries it lacks through the sweep's run
-loop (same executors, progress bar, shard commits and failure log), and returns the scene with
-every design segment whose entry is in the catalogue resolved to it (``type = "entry"``,
-``entry`` = the key; the design is kept on the segment). The runtime then reads only those
-entries, as for any scene.
+(mesh size, element order, material, sampling settings). :func:`prepare` turns each one into a
+sweep task — the family's parameters checked, the content key computed by the same designer and
+design options as ``vertebra design`` and ``vertebra sweep``
+(:data:`~vertebra.designer.sweep.DESIGN_OPTIONS`) — plans them against the catalogue, designs
+only the entries it lacks through the sweep's run loop (same executors, progress bar, shard
+commits and failure log), and returns the scene with every design segment whose entry is in the
+catalogue resolved to it (``type = "entry"``, ``entry`` = the key; the design is kept on the
+segment). The runtime then reads only those entries, as for any scene.
+
+Design segments with a nonlinear material (``svk``, ``neo_hookean``) are prepared in two
+stages, so that the range their energy is fitted on covers what the scene asks of them:
+
+1. the *linear* entries — the scene's linear design segments and the linear counterpart of
+   every nonlinear one (the same design with ``material = "linear"``) — are designed or reused;
+2. the scene is solved with them at the corners of its actuation box under its loads and
+   gravity (:func:`~vertebra.designer.scene_range.estimate_ranges`); the ranges of the segments
+   that share a design are joined and turned into that design's sampling settings
+   (:func:`~vertebra.designer.scene_range.choose_sampling`: raised to the estimate, rounded up
+   onto a coarse grid, never below the defaults; settings the scene gives win), which are part
+   of the nonlinear entry's key; then the nonlinear entries are planned and designed like any.
 
 Two segments (or two scenes, or a sweep and a scene) that describe the same design share one
 key, hence one entry; a second run designs nothing.
@@ -16,11 +28,13 @@ key, hence one entry; a second run designs nothing.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
+import sys
 import time
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 from vertebra.designer.sweep.plan import plan_batch
 from vertebra.designer.sweep.report import SweepReport
@@ -28,7 +42,7 @@ from vertebra.designer.sweep.run import run_plan
 from vertebra.designer.sweep.spec import DESIGN_OPTIONS, design_options
 from vertebra.designer.sweep.store import CatalogueStore, SweepStore
 from vertebra.designer.sweep.tasks import Batch, FiniteElementDesigner, SegmentDesigner, Task
-from vertebra.store.errors import SceneError
+from vertebra.store.errors import ConvergenceError, OptionError, SceneError
 
 if TYPE_CHECKING:       # the designer reads scenes as data; it never imports the solver at run time
     from vertebra.solver.scene import Scene
@@ -42,32 +56,55 @@ class PreparedSegment:
     """One design segment of the scene: its entry's key and what became of that entry.
 
     ``status``: ``reused`` (already in the catalogue), ``designed`` (designed by this run),
-    ``planned`` (a dry run would design it), ``failed``, ``not run`` (interrupted)."""
+    ``planned`` (a dry run would design it), ``failed``, ``not run`` (interrupted, or a nonlinear
+    design whose range could not be estimated: ``key`` is then None). A nonlinear design carries
+    its ``sampling`` (:class:`~vertebra.designer.scene_range.SamplingChoice`: the range it is
+    sampled for and where each bound came from) and ``warnings`` where it cannot cover the scene."""
 
     segment: int
     family: str
     parameters: dict                  # canonical (defaults filled)
     options: dict                     # the design options in the content key
-    key: str
+    key: str | None
     status: str
+    sampling: Any = None              # SamplingChoice (nonlinear designs prepared for a scene)
+    warnings: tuple = ()
 
     def to_json(self) -> dict:
-        return {"segment": self.segment, "family": self.family, "parameters": self.parameters, **self.options,
-                "key": self.key, "status": self.status}
+        out = {"segment": self.segment, "family": self.family, "parameters": self.parameters, **self.options,
+               "key": self.key, "status": self.status}
+        if self.sampling is not None:
+            out["range"] = self.sampling.to_json()
+        if self.warnings:
+            out["warnings"] = list(self.warnings)
+        return out
+
+
+def _unique_keys(rows, status: str) -> list[str]:
+    return list(dict.fromkeys(s.key for s in rows if s.status == status and s.key is not None))
 
 
 @dataclass(frozen=True)
 class PrepareReport:
-    """What :func:`prepare` did: one row per design segment, and the run of the missing designs."""
+    """What :func:`prepare` did: one row per design segment, and the run of the missing designs.
+
+    For a scene with nonlinear design segments: ``counterparts`` (one row per nonlinear segment:
+    its linear counterpart), ``linear_run`` (the run of the linear stage), ``estimate`` (the
+    :class:`~vertebra.designer.scene_range.RangeEstimate` the sampling settings came from, None
+    when it failed) and ``warnings`` (about the estimate itself)."""
 
     scene: str
     catalogue: str | None
     segments: tuple                   # PreparedSegment, in scene order
     run: SweepReport | None           # None: the scene has no design segment
     elapsed_s: float = 0.0
+    counterparts: tuple = ()          # PreparedSegment of the linear counterparts of nonlinear designs
+    linear_run: SweepReport | None = None
+    estimate: Any = None              # RangeEstimate
+    warnings: tuple = ()
 
     def _keys(self, status: str) -> list[str]:
-        return list(dict.fromkeys(s.key for s in self.segments if s.status == status))
+        return _unique_keys(self.segments, status)
 
     @property
     def reused(self) -> list[str]:
@@ -85,32 +122,45 @@ class PrepareReport:
         return self._keys("planned")
 
     @property
+    def runs(self) -> tuple:
+        return tuple(r for r in (self.linear_run, self.run) if r is not None)
+
+    @property
     def dry_run(self) -> bool:
-        return self.run is not None and self.run.dry_run
+        return any(r.dry_run for r in self.runs)
 
     @property
     def exit_code(self) -> int:
         """0: every design segment has its entry (or, dry run, could be planned); 1: a design
         failed; 130: interrupted."""
-        return 0 if self.run is None else self.run.exit_code
+        codes = [r.exit_code for r in self.runs]
+        return 130 if 130 in codes else max(codes, default=0)
 
     def to_json(self) -> dict:
         from vertebra import __version__
 
-        run = self.run
-        failures = [] if run is None else [
-            {"segment": f.index, "key": f.task.key, "stage": f.stage, "error_type": f.error_type,
-             "message": f.message} for f in run.failures]
-        return {"vertebra_version": __version__, "scene": self.scene, "catalogue": self.catalogue,
-                "dry_run": self.dry_run, "reused": self.reused, "designed": self.designed, "planned": self.planned,
-                "failed": self._keys("failed"), "segments": [s.to_json() for s in self.segments],
-                "executor": None if run is None else run.executor, "failures": failures,
-                "failure_log": None if run is None else run.failure_log, "interrupted": bool(run and run.interrupted),
-                "timing": {"total_s": self.elapsed_s,
-                           "entries_per_minute": None if run is None else run.entries_per_minute}}
+        failures = [{"segment": f.index, "key": f.task.key, "stage": f.stage, "error_type": f.error_type,
+                     "message": f.message} for r in self.runs for f in r.failures]
+        run = self.run or self.linear_run
+        out = {"vertebra_version": __version__, "scene": self.scene, "catalogue": self.catalogue,
+               "dry_run": self.dry_run, "reused": self.reused, "designed": self.designed, "planned": self.planned,
+               "failed": self._keys("failed"), "segments": [s.to_json() for s in self.segments],
+               "executor": None if run is None else run.executor, "failures": failures,
+               "failure_log": next((r.failure_log for r in self.runs if r.failure_log), None),
+               "interrupted": any(r.interrupted for r in self.runs),
+               "timing": {"total_s": self.elapsed_s,
+                          "entries_per_minute": None if self.run is None else self.run.entries_per_minute}}
+        if self.counterparts:
+            out["counterparts"] = {status: _unique_keys(self.counterparts, status)
+                                   for status in ("reused", "designed", "planned", "failed")}
+            out["range_estimate"] = None if self.estimate is None else {
+                k: v for k, v in self.estimate.to_json().items() if k != "segments"}
+            out["warnings"] = list(self.warnings)
+        return out
 
     def summary(self, rows: bool = True) -> str:
-        """A one-line count, then (``rows``) one line per design segment, then any failures."""
+        """A one-line count, then (``rows``) one line per design segment (a nonlinear one with the
+        range it is sampled for), then any failures and warnings."""
         if not self.segments:
             return f"prepare {self.scene}: no design segments, nothing to do"
         head = "dry run" if self.dry_run else "prepare"
@@ -119,14 +169,29 @@ class PrepareReport:
                  f"{len(dict.fromkeys(s.key for s in self.segments))} entries: {len(self.reused)} reused, {counts}"
                  + (f", {len(self._keys('failed'))} failed" if self._keys("failed") else "")
                  + f" (catalogue {self.catalogue})"]
+        if self.counterparts:
+            done = "to design" if self.dry_run else "designed"
+            lines.append(f"  linear counterparts of the nonlinear designs (for the range estimate): "
+                         f"{len(_unique_keys(self.counterparts, 'reused'))} reused, "
+                         f"{len(_unique_keys(self.counterparts, 'planned' if self.dry_run else 'designed'))} {done}"
+                         + (" (designed in memory for the estimate, not stored)" if self.dry_run else ""))
+            if self.estimate is not None:
+                lines.append(f"  range estimate: {len(self.estimate.actuations)} actuations solved with linear "
+                             f"entries in {self.estimate.seconds:.2g} s"
+                             + (f", {len(self.estimate.failed)} without equilibrium" if self.estimate.failed else ""))
         for s in self.segments if rows else ():
-            lines.append(f"  {f'segment[{s.segment}]':12s} {s.family:18s} {s.key}  {s.status}")
-        if self.run is not None:
-            for f in self.run.failures:
+            lines.append(f"  {f'segment[{s.segment}]':12s} {s.family:18s} {s.key or '(key pending)'}  {s.status}")
+            if s.sampling is not None:
+                lines.append(f"    sampled for: {s.sampling.describe()}")
+        for s in self.segments:
+            lines.extend(f"  warning: segment[{s.segment}]: {w}" for w in s.warnings)
+        lines.extend(f"  warning: {w}" for w in self.warnings)
+        for run in self.runs:
+            for f in run.failures:
                 lines.append(f"  segment[{f.index}] failed [{f.stage}] {f.error_type}: {f.message}")
-            if self.run.failure_log:
-                lines.append(f"  failures logged to {self.run.failure_log}")
-            if self.run.interrupted:
+            if run.failure_log:
+                lines.append(f"  failures logged to {run.failure_log}")
+            if run.interrupted:
                 lines.append("  interrupted: run the same command again to resume")
         return "\n".join(lines)
 
@@ -225,18 +290,23 @@ def prepare_designs(designs: list[Design], catalogue, *, source: str, label: str
     return PrepareReport(source, str(catalogue), segments, run, time.perf_counter() - start)
 
 
-def prepare(scene: "Scene", catalogue=None, **options) -> tuple["Scene", PrepareReport]:
+def prepare(scene: "Scene", catalogue=None, *, build_model: Callable | None = None,
+            **options) -> tuple["Scene", PrepareReport]:
     """Design the entries a scene's design segments need and are missing from the catalogue.
 
     ``scene``: a parsed scene (:class:`~vertebra.solver.scene.Scene`: the caller loads it, so
     that the designer reads scenes as data and never imports the solver); ``catalogue``: the
-    catalogue file (default: the scene's ``[catalogue] path``). Returns the scene with every
-    design segment whose entry is in the catalogue resolved to it (with ``dry_run``: only
-    those already there; nothing is designed or written), and the report. A design that fails
-    is reported (``report.exit_code`` 1, the failure log next to the catalogue), its segment
-    stays unresolved. Raises SceneError (before any design) for a missing catalogue, an
-    unknown family, parameters the family refuses or bad design options; OptionError for bad
-    executor settings; CatalogueError when the catalogue's directory does not exist.
+    catalogue file (default: the scene's ``[catalogue] path``); ``build_model``: the runtime's
+    ``build_model(scene, entries)`` (:func:`vertebra.solver.build_model`), needed to estimate the
+    ranges of nonlinear design segments (module docstring) — the caller passes it for the same
+    reason. Returns the scene with every design segment whose entry is in the catalogue resolved
+    to it (with ``dry_run``: only those already there; nothing is designed or written, except
+    that the linear entries a range estimate needs and the catalogue lacks are designed in
+    memory), and the report. A design that fails is reported (``report.exit_code`` 1, the
+    failure log next to the catalogue), its segment stays unresolved. Raises SceneError (before
+    any design) for a missing catalogue, an unknown family, parameters the family refuses or bad
+    design options; OptionError for bad executor settings or a nonlinear design segment without
+    ``build_model``; CatalogueError when the catalogue's directory does not exist.
     ``options`` are those of :func:`prepare_designs` (executor, workers, scheduler,
     start_method, linear_solver, estimate_accuracy, progress, dry_run, designer, store).
     """
@@ -250,7 +320,171 @@ def prepare(scene: "Scene", catalogue=None, **options) -> tuple["Scene", Prepare
         raise SceneError("design segments need a catalogue to hold their entries: give [catalogue] path in the "
                          "scene (or --catalogue)", file=scene.source, field="catalogue.path")
     label = f"prepare {scene.name or os.path.basename(scene.source)}"
-    report = prepare_designs(scene_designs(scene), catalogue, source=scene.source, label=label, **options)
+    designs = scene_designs(scene)
+    if all(_material(d) == LINEAR for d in designs):
+        report = prepare_designs(designs, catalogue, source=scene.source, label=label, **options)
+    else:
+        if build_model is None:
+            raise OptionError("nonlinear design segments need build_model (vertebra.solver.build_model) to estimate "
+                              "the range their entries must cover", field="build_model")
+        report = _prepare_nonlinear(scene, designs, catalogue, label, build_model, options)
     report = dataclasses.replace(report, elapsed_s=time.perf_counter() - start)
     keys = {s.segment: s.key for s in report.segments if s.status in ("reused", "designed")}
     return resolve(scene, keys, catalogue), report
+
+
+def _material(design: Design) -> str:
+    return design.options.get("material", LINEAR)
+
+
+def linear_counterpart(design: Design) -> Design:
+    """The same design with the linear material (no sampling settings): what the range of a
+    nonlinear design is estimated with."""
+    options = {k: v for k, v in design.options.items() if k not in ("material", "sampling")}
+    return Design(design.index, design.family, design.parameters, options)
+
+
+def _say(progress: bool, message: str) -> None:
+    if progress:
+        print(message, file=sys.stderr, flush=True)
+
+
+def _estimate_progress(progress: bool, every_s: float = 2.0):
+    """A progress callback for the range estimate's forward solves: a line every ``every_s``
+    seconds (none for a quick estimate)."""
+    last = [0.0]
+
+    def report(done: int, total: int, seconds: float) -> None:
+        if progress and done < total and seconds - last[0] >= every_s:
+            last[0] = seconds
+            _say(progress, f"range estimate: {done}/{total} actuations solved with linear entries, {seconds:.1f} s")
+    return report
+
+
+def _prepare_nonlinear(scene, designs: list[Design], catalogue, label: str, build_model, options: dict) -> PrepareReport:
+    """The two stages of a scene with nonlinear design segments (module docstring)."""
+    from vertebra.designer.segment import family_of
+    from vertebra.designer.scene_range import choose_sampling, estimate_ranges, union
+
+    progress, dry_run = options.get("progress", True), options.get("dry_run", False)
+    designer = options.get("designer", FiniteElementDesigner())
+    nonlinear = {d.index for d in designs if _material(d) != LINEAR}
+    linear = prepare_designs([linear_counterpart(d) if d.index in nonlinear else d for d in designs], catalogue,
+                             source=scene.source, label=f"{label}: linear entries", **options)
+    rows = {row.segment: row for row in linear.segments}
+    counterparts = tuple(rows[i] for i in sorted(nonlinear))
+    pending = [PreparedSegment(d.index, d.family, rows[d.index].parameters, {}, None, "not run")
+               for d in designs if d.index in nonlinear]
+    base = dict(scene=scene.source, catalogue=str(catalogue), run=None, counterparts=counterparts, linear_run=linear.run)
+    if any(row.status not in ("reused", "designed", "planned") for row in linear.segments):
+        missing = "failed" if linear.exit_code == 1 else "was not run"
+        return PrepareReport(segments=_in_order(linear.segments, nonlinear, pending), **base, warnings=(
+            f"the nonlinear designs were not prepared: a linear entry their range estimate needs {missing}",))
+    entries = _designed_in_memory(linear.segments, designer, options) if dry_run else {}
+    warnings, estimate = [], None
+    try:
+        model = build_model(resolve(scene, {r.segment: r.key for r in linear.segments}, catalogue), entries)
+        estimate = estimate_ranges(model, progress=_estimate_progress(progress))
+        _say(progress, f"range estimate: {len(estimate.actuations)} actuations solved with linear entries in "
+                       f"{estimate.seconds:.2g} s")
+    except ConvergenceError as error:
+        warnings.append(f"no range estimate ({error}): the nonlinear entries are sampled over the default range")
+    # one choice per nonlinear design (segments sharing a design share its entry): the union of their ranges
+    groups: dict = {}
+    for d in designs:
+        if d.index in nonlinear:
+            groups.setdefault((rows[d.index].key, _material(d), repr(sorted(d.options.get("sampling", {}).items()))),
+                              []).append(d)
+    choices = {}
+    with _entries(catalogue, entries) as load:
+        for (key, _, _), members in groups.items():
+            entry = load(key)
+            first = members[0]
+            user = first.options.get("sampling")
+            fam = family_of(first.family)
+            if estimate is None:
+                choice = _default_choice(user, entry.n_cavities,
+                                         fam.length(rows[first.index].parameters) / fam.outer_radius(rows[first.index].parameters))
+            else:
+                choice = choose_sampling(union(estimate.segments[d.index] for d in members),
+                                         compliance=entry.compliance, rest_translation=entry.rest_translation,
+                                         radius=fam.outer_radius(rows[first.index].parameters), user=user)
+            choices.update({d.index: choice for d in members})
+    chosen = [dataclasses.replace(d, options={**d.options, "sampling": choices[d.index].settings})
+              for d in designs if d.index in nonlinear]
+    report = prepare_designs(chosen, catalogue, source=scene.source, label=f"{label}: nonlinear entries", **options)
+    fitted = _coverage(report.segments, estimate, catalogue)
+    rows_nl = tuple(dataclasses.replace(row, sampling=choices[row.segment],
+                                        warnings=choices[row.segment].warnings + fitted.get(row.segment, ()))
+                    for row in report.segments)
+    return PrepareReport(segments=_in_order(linear.segments, nonlinear, rows_nl), estimate=estimate,
+                         warnings=tuple(warnings), **{**base, "run": report.run})
+
+
+def _in_order(linear_rows, nonlinear: set, nonlinear_rows) -> tuple:
+    rows = [r for r in linear_rows if r.segment not in nonlinear] + list(nonlinear_rows)
+    return tuple(sorted(rows, key=lambda r: r.segment))
+
+
+def _default_choice(user: dict | None, cavities: int, slenderness: float):
+    """The choice when no range could be estimated: the scene's settings, the defaults otherwise."""
+    from vertebra.designer.energy_sampling import SamplingSettings
+    from vertebra.designer.scene_range import RANGE_SETTINGS, SamplingChoice
+
+    settings = SamplingSettings.from_dict(user)
+    user = dict(user or {})
+    return SamplingChoice(user, {n: getattr(settings, n) for n in RANGE_SETTINGS},
+                          {n: "scene setting" if n in user else "default" for n in RANGE_SETTINGS},
+                          {n: None for n in RANGE_SETTINGS}, cavities=cavities,
+                          slenderness=slenderness)
+
+
+def _designed_in_memory(rows, designer: SegmentDesigner, options: dict) -> dict:
+    """Dry run: the linear entries the estimate needs and the catalogue lacks, designed without
+    storing them (by key)."""
+    planned = [r for r in rows if r.status == "planned"]
+    entries = {}
+    for row in {r.key: r for r in planned}.values():
+        _say(options.get("progress", True), f"dry run: designing {row.family} {row.key} in memory for the range estimate")
+        task = Task(index=row.segment, family=row.family, parameters=row.parameters, key=row.key,
+                    options={**row.options, "linear_solver": options.get("linear_solver", "auto"),
+                             "estimate_accuracy": False})
+        entries[row.key] = designer.design(task)
+    return entries
+
+
+@contextlib.contextmanager
+def _entries(catalogue, memory: dict):
+    """``load(key)``: an entry from ``memory`` first, else from the catalogue (opened once, on
+    first need)."""
+    with contextlib.ExitStack() as stack:
+        opened = []
+
+        def load(key: str):
+            if key in memory:
+                return memory[key]
+            if not opened:
+                from vertebra.store.catalogue import open_catalogue
+
+                opened.append(stack.enter_context(open_catalogue(catalogue)))
+            return opened[0].load(key)
+        yield load
+
+
+def _coverage(rows, estimate, catalogue) -> dict:
+    """Per nonlinear segment whose entry is in the catalogue: where the scene's estimated range
+    leaves the range the entry was actually fitted on (paths stopped early, pressures clamped
+    below an inflation limit point, settings the scene gave)."""
+    from vertebra.designer.scene_range import uncovered
+
+    ready = [r for r in rows if r.status in ("reused", "designed")]
+    if estimate is None or not ready:
+        return {}
+    out = {}
+    with _entries(catalogue, {}) as load:
+        fitted = {key: load(key).energy.range for key in {r.key for r in ready}}
+    for row in ready:
+        missed = uncovered(estimate.segments[row.segment], fitted[row.key])
+        if missed:
+            out[row.segment] = tuple(f"the entry's fitted range misses the scene's estimate: {m}" for m in missed)
+    return out

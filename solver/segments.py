@@ -6,7 +6,8 @@ Three types (a registry of parsers, :data:`SEGMENT_PARSERS`):
 * ``beam`` — an analytic Timoshenko beam of ``elements`` links per repetition;
 * ``entry`` — a catalogue entry named by key, unique key prefix or name;
 * ``design`` — a segment the scene describes by its design (geometry family, parameters,
-  mesh settings, material). The runtime keeps it as data (:class:`DesignSpec`): the
+  mesh settings, material, and for a nonlinear material optionally the ``sampling`` settings of
+  its fitted energy). The runtime keeps it as data (:class:`DesignSpec`): the
   precompute side (``vertebra prepare``, ``vertebra.designer.prepare``) checks the family's
   parameters, computes the content key and designs the missing entries, and returns the
   scene with each design segment resolved to its entry (``type = "entry"``, ``entry`` = the
@@ -44,13 +45,15 @@ class DesignSpec:
     mesh_size: float | None = None
     order: int | None = None
     material: str | None = None
+    sampling: tuple | None = None     # (name, value) pairs sorted by name: the nonlinear sampling settings given
 
     def parameter_dict(self) -> dict:
         return dict(self.parameters)
 
     def options(self) -> dict:
         """The design options the scene sets (absent ones are left to the designer's defaults)."""
-        given = {"mesh_size": self.mesh_size, "order": self.order, "material": self.material}
+        given = {"mesh_size": self.mesh_size, "order": self.order, "material": self.material,
+                 "sampling": None if self.sampling is None else dict(self.sampling)}
         return {name: value for name, value in given.items() if value is not None}
 
 
@@ -162,9 +165,26 @@ def _design(t: Table, count: int, elements: int, vertebra: VertebraSpec) -> Segm
     if order is not None and order not in (1, 2):
         raise t.error("order", f"must be 1 or 2, got {order}")
     design = DesignSpec(family=family, parameters=parameters, mesh_size=t.number("mesh_size", None, positive=True),
-                        order=order, material=t.string("material", None, choices=DESIGN_MATERIALS))
+                        order=order, material=t.string("material", None, choices=DESIGN_MATERIALS),
+                        sampling=_sampling(t))
     _one_link(t, elements, "a designed entry")
     return SegmentSpec(type="design", count=count, vertebra=vertebra, design=design)
+
+
+def _sampling(t: Table) -> tuple | None:
+    """The ``sampling`` table (numbers and true/false; their names and ranges are the
+    designer's to check), or None when absent."""
+    if not t.has("sampling"):
+        return None
+    st = t.table("sampling")
+    values = []
+    for name in sorted(st.data):
+        value = st.raw(name)
+        if not isinstance(value, (bool, int, float)):
+            raise st.error(name, f"expected a number or true/false, got {value!r}")
+        values.append((name, st.number(name) if isinstance(value, float) else value))   # integers stay integers
+    st.done()
+    return tuple(values)
 
 
 #: segment type -> parser of the rest of its table (count, elements and vertebra are read first)
