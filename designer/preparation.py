@@ -369,6 +369,7 @@ def _prepare_nonlinear(scene, designs: list[Design], catalogue, label: str, buil
     progress, dry_run = options.get("progress", True), options.get("dry_run", False)
     designer = options.get("designer", FiniteElementDesigner())
     nonlinear = {d.index for d in designs if _material(d) != LINEAR}
+    design_tasks(designs, scene.source, designer=designer)        # every design option checked before any design
     linear = prepare_designs([linear_counterpart(d) if d.index in nonlinear else d for d in designs], catalogue,
                              source=scene.source, label=f"{label}: linear entries", **options)
     rows = {row.segment: row for row in linear.segments}
