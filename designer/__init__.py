@@ -7,8 +7,9 @@ Public API::
     designer.entry_key(family, parameters, mesh_size=None, order=2)   # content key without meshing
     designer.design_segment(family, parameters, ...)   # -> store.entry.SegmentEntry
     designer.vertebra_properties(parameters)           # rigid vertebra disc: mass, centre of mass, inertia
-    designer.prepare(scene, catalogue=None, ...)       # -> (resolved scene, PrepareReport): design what a
-                                                       #    scene's design segments miss (docs/prepare.md)
+    designer.prepare(scene, catalogue=None, build_model=None, ...)   # -> (resolved scene, PrepareReport):
+                                                       #    design what a scene's design segments miss, nonlinear
+                                                       #    ones sampled over the scene's range (docs/prepare.md)
 
 Heavy imports (gmsh, scikit-fem, pyamg, meshio) happen inside the functions; ``prepare``
 (which uses the runtime's scenes) is imported on first use, so sweep workers do not load the

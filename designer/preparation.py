@@ -36,6 +36,8 @@ import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Callable
 
+import numpy as np
+
 from vertebra.designer.sweep.plan import plan_batch
 from vertebra.designer.sweep.report import SweepReport
 from vertebra.designer.sweep.run import run_plan
@@ -357,14 +359,15 @@ def _estimate_progress(progress: bool, every_s: float = 2.0):
     def report(done: int, total: int, seconds: float) -> None:
         if progress and done < total and seconds - last[0] >= every_s:
             last[0] = seconds
-            _say(progress, f"range estimate: {done}/{total} actuations solved with linear entries, {seconds:.1f} s")
+            _say(progress, f"range estimate: {done}/{total} actuations solved with linear entries, "
+                           f"{seconds:.1f} s")
     return report
 
 
-def _prepare_nonlinear(scene, designs: list[Design], catalogue, label: str, build_model, options: dict) -> PrepareReport:
+def _prepare_nonlinear(scene, designs: list[Design], catalogue, label: str, build_model,
+                       options: dict) -> PrepareReport:
     """The two stages of a scene with nonlinear design segments (module docstring)."""
-    from vertebra.designer.segment import family_of
-    from vertebra.designer.scene_range import choose_sampling, estimate_ranges, union
+    from vertebra.designer.scene_range import estimate_ranges
 
     progress, dry_run = options.get("progress", True), options.get("dry_run", False)
     designer = options.get("designer", FiniteElementDesigner())
@@ -376,7 +379,8 @@ def _prepare_nonlinear(scene, designs: list[Design], catalogue, label: str, buil
     counterparts = tuple(rows[i] for i in sorted(nonlinear))
     pending = [PreparedSegment(d.index, d.family, rows[d.index].parameters, {}, None, "not run")
                for d in designs if d.index in nonlinear]
-    base = dict(scene=scene.source, catalogue=str(catalogue), run=None, counterparts=counterparts, linear_run=linear.run)
+    base = dict(scene=scene.source, catalogue=str(catalogue), run=None, counterparts=counterparts,
+                linear_run=linear.run)
     if any(row.status not in ("reused", "designed", "planned") for row in linear.segments):
         missing = "failed" if linear.exit_code == 1 else "was not run"
         return PrepareReport(segments=_in_order(linear.segments, nonlinear, pending), **base, warnings=(
@@ -390,27 +394,7 @@ def _prepare_nonlinear(scene, designs: list[Design], catalogue, label: str, buil
                        f"{estimate.seconds:.2g} s")
     except ConvergenceError as error:
         warnings.append(f"no range estimate ({error}): the nonlinear entries are sampled over the default range")
-    # one choice per nonlinear design (segments sharing a design share its entry): the union of their ranges
-    groups: dict = {}
-    for d in designs:
-        if d.index in nonlinear:
-            groups.setdefault((rows[d.index].key, _material(d), repr(sorted(d.options.get("sampling", {}).items()))),
-                              []).append(d)
-    choices = {}
-    with _entries(catalogue, entries) as load:
-        for (key, _, _), members in groups.items():
-            entry = load(key)
-            first = members[0]
-            user = first.options.get("sampling")
-            fam = family_of(first.family)
-            if estimate is None:
-                choice = _default_choice(user, entry.n_cavities,
-                                         fam.length(rows[first.index].parameters) / fam.outer_radius(rows[first.index].parameters))
-            else:
-                choice = choose_sampling(union(estimate.segments[d.index] for d in members),
-                                         compliance=entry.compliance, rest_translation=entry.rest_translation,
-                                         radius=fam.outer_radius(rows[first.index].parameters), user=user)
-            choices.update({d.index: choice for d in members})
+    choices = _sampling_choices([d for d in designs if d.index in nonlinear], rows, estimate, catalogue, entries)
     chosen = [dataclasses.replace(d, options={**d.options, "sampling": choices[d.index].settings})
               for d in designs if d.index in nonlinear]
     report = prepare_designs(chosen, catalogue, source=scene.source, label=f"{label}: nonlinear entries", **options)
@@ -420,6 +404,33 @@ def _prepare_nonlinear(scene, designs: list[Design], catalogue, label: str, buil
                     for row in report.segments)
     return PrepareReport(segments=_in_order(linear.segments, nonlinear, rows_nl), estimate=estimate,
                          warnings=tuple(warnings), **{**base, "run": report.run})
+
+
+def _sampling_choices(designs: list[Design], rows: dict, estimate, catalogue, entries: dict) -> dict:
+    """Per nonlinear design segment, its SamplingChoice: one per design (segments that share a
+    linear counterpart, material and scene settings share the entry), from the union of their
+    estimated ranges, or the defaults and scene settings when there is no estimate."""
+    from vertebra.designer.scene_range import choose_sampling, union
+    from vertebra.designer.segment import family_of
+
+    groups: dict = {}
+    for d in designs:
+        user = repr(sorted(d.options.get("sampling", {}).items()))
+        groups.setdefault((rows[d.index].key, _material(d), user), []).append(d)
+    choices = {}
+    with _entries(catalogue, entries) as load:
+        for (key, _, _), members in groups.items():
+            entry, first = load(key), members[0]
+            radius = family_of(first.family).outer_radius(rows[first.index].parameters)
+            user = first.options.get("sampling")
+            if estimate is None:
+                choice = _default_choice(user, entry.n_cavities, np.linalg.norm(entry.rest_translation) / radius)
+            else:
+                choice = choose_sampling(union(estimate.segments[d.index] for d in members),
+                                         compliance=entry.compliance, rest_translation=entry.rest_translation,
+                                         radius=radius, user=user)
+            choices.update({d.index: choice for d in members})
+    return choices
 
 
 def _in_order(linear_rows, nonlinear: set, nonlinear_rows) -> tuple:
@@ -446,7 +457,8 @@ def _designed_in_memory(rows, designer: SegmentDesigner, options: dict) -> dict:
     planned = [r for r in rows if r.status == "planned"]
     entries = {}
     for row in {r.key: r for r in planned}.values():
-        _say(options.get("progress", True), f"dry run: designing {row.family} {row.key} in memory for the range estimate")
+        _say(options.get("progress", True),
+             f"dry run: designing {row.family} {row.key} in memory for the range estimate")
         task = Task(index=row.segment, family=row.family, parameters=row.parameters, key=row.key,
                     options={**row.options, "linear_solver": options.get("linear_solver", "auto"),
                              "estimate_accuracy": False})
