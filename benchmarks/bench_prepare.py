@@ -43,12 +43,13 @@ def first_and_second_run(executor: str, workers: int) -> dict:
         catalogue = Path(tmp) / "cbha.h5"
         load = loadavg()
         start = time.perf_counter()
-        _, report = prepare(SCENE, catalogue, executor=executor, workers=workers, estimate_accuracy=False,
-                            progress=False)
+        _, report = prepare(solver.load_scene(SCENE), catalogue, executor=executor, workers=workers,
+                            estimate_accuracy=False, progress=False)
         first = time.perf_counter() - start
         assert report.exit_code == 0 and len(report.designed) == 16, report.summary()
         start = time.perf_counter()
-        resolved, again = prepare(SCENE, catalogue, executor=executor, workers=workers, progress=False)
+        resolved, again = prepare(solver.load_scene(SCENE), catalogue, executor=executor, workers=workers,
+                                  progress=False)
         second = time.perf_counter() - start
         assert again.designed == [] and len(again.reused) == 16
         start = time.perf_counter()
