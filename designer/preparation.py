@@ -390,8 +390,6 @@ def _prepare_nonlinear(scene, designs: list[Design], catalogue, label: str, buil
     try:
         model = build_model(resolve(scene, {r.segment: r.key for r in linear.segments}, catalogue), entries)
         estimate = estimate_ranges(model, progress=_estimate_progress(progress))
-        _say(progress, f"range estimate: {len(estimate.actuations)} actuations solved with linear entries in "
-                       f"{estimate.seconds:.2g} s")
     except ConvergenceError as error:
         warnings.append(f"no range estimate ({error}): the nonlinear entries are sampled over the default range")
     choices = _sampling_choices([d for d in designs if d.index in nonlinear], rows, estimate, catalogue, entries)

@@ -329,7 +329,7 @@ def choose_sampling(estimate: SegmentRange, *, compliance, rest_translation, rad
     K, _, _ = linear_terms(compliance, rest_translation)
     c = np.diag(np.linalg.inv(K))
     length = float(np.linalg.norm(rest_translation))
-    needed = _needed_caps(estimate, c, length)
+    needed = {name: float(value) for name, value in _needed_caps(estimate, c, length).items()}
     warnings = []
     values, sources = {}, {}
     limits = {"bending": MAX_ANGLE, "twist": MAX_ANGLE, "axial": MAX_AXIAL}
@@ -357,7 +357,7 @@ def choose_sampling(estimate: SegmentRange, *, compliance, rest_translation, rad
         asked = needed.get(name)
         if value is not None and asked is not None and value < asked:
             warnings.append(f"the scene's setting sampling.{name} = {value!r} is below what the scene asks "
-                            f"({asked!r}): states beyond it leave the fitted range")
+                            f"({asked:.4g}): states beyond it leave the fitted range")
         values[name], sources[name] = value, "scene setting"
     settings = {name: value for name, value in values.items() if value != getattr(defaults, name)}
     settings.update(user)
