@@ -83,3 +83,11 @@ def test_the_estimate_covers_the_actuations_between_the_corners():
     # one section-1 tendon alone at its 20 N bound bends the base link with τ r = 0.16 N m in the
     # straight trunk (0.18 N m solved: the bent trunk and gravity add); the estimate includes it
     assert exact.load_upper[2] >= 20.0 * 0.008
+
+
+def test_progress_is_reported_after_each_actuation():
+    model = solver.build_model(solver.load_scene("gallery:cantilever"))          # no actuator: 2 solves
+    calls = []
+    estimate = estimate_ranges(model, progress=lambda done, total, s: calls.append((done, total, s)))
+    assert [c[:2] for c in calls] == [(k + 1, len(estimate.actuations)) for k in range(len(estimate.actuations))]
+    assert all(b[2] >= a[2] >= 0.0 for a, b in zip(calls, calls[1:])) and estimate.seconds >= calls[-1][2]
