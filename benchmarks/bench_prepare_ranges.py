@@ -169,13 +169,16 @@ def markdown(results: dict) -> str:
         r = results["pressure"]
         out += [f"## Pressure box: {r['slices']} CBHA-like slices, one chamber bounded at {r['bound']:.3g} Pa", "",
                 f"{r['dofs']} DoFs per slice; load average {r['loadavg']}. Prepared (scene bound) vs default "
-                "(up to 90 % of the inflation limit point) entries against the full nonlinear FE trunk.", "",
+                "(up to 90 % of the inflation limit point) entries against the full nonlinear FE trunk. "
+                f"Prepared: {r['prepared_s']:.0f} s in all (the entry's sampling serial in one sweep worker); "
+                f"default: {r['default_s']:.0f} s (sampling on {WORKERS} local workers).", "",
                 "| entry | pressures sampled to (Pa) | limit point | held-out load | held-out volume | solves | "
                 "sampling s |", "|---|---|---|---|---|---|---|"]
         for name in ("prepared", "default"):
             e = r[name]
             held = e["held_out"]
-            out.append(f"| {name} | {max(e['pressure_upper']):.4g} | {e['limit_pressure']} | "
+            limit = "none met" if e["limit_pressure"] is None else f"{e['limit_pressure']:.4g}"
+            out.append(f"| {name} | {max(e['pressure_upper']):.4g} | {limit} | "
                        f"{100 * held.get('load_max', float('nan')):.2f} % | "
                        f"{100 * held.get('volume_max', float('nan')):.2f} % | {e['solves']} | {e['sampling_s']:.0f} |")
         out += ["", "| bar | entry | tip % of length | tip angle | volume growth | left range |",
