@@ -422,11 +422,12 @@ def _sampling_choices(designs: list[Design], rows: dict, estimate, catalogue, en
             radius = family_of(first.family).outer_radius(rows[first.index].parameters)
             user = first.options.get("sampling")
             if estimate is None:
-                choice = _default_choice(user, entry.n_cavities, np.linalg.norm(entry.rest_translation) / radius)
+                choice = _default_choice(user, entry.n_cavities, _material(first),
+                                         np.linalg.norm(entry.rest_translation) / radius)
             else:
                 choice = choose_sampling(union(estimate.segments[d.index] for d in members),
                                          compliance=entry.compliance, rest_translation=entry.rest_translation,
-                                         radius=radius, user=user)
+                                         radius=radius, material=_material(first), user=user)
             choices.update({d.index: choice for d in members})
     return choices
 
@@ -436,12 +437,12 @@ def _in_order(linear_rows, nonlinear: set, nonlinear_rows) -> tuple:
     return tuple(sorted(rows, key=lambda r: r.segment))
 
 
-def _default_choice(user: dict | None, cavities: int, slenderness: float):
+def _default_choice(user: dict | None, cavities: int, material: str, slenderness: float):
     """The choice when no range could be estimated: the scene's settings, the defaults otherwise."""
     from vertebra.designer.energy_sampling import SamplingSettings
     from vertebra.designer.scene_range import RANGE_SETTINGS, SamplingChoice
 
-    settings = SamplingSettings.from_dict(user)
+    settings = SamplingSettings.from_dict(user).resolved(cavities, material)
     user = dict(user or {})
     return SamplingChoice(user, {n: getattr(settings, n) for n in RANGE_SETTINGS},
                           {n: "scene setting" if n in user else "default" for n in RANGE_SETTINGS},

@@ -316,15 +316,19 @@ def _needed_caps(estimate: SegmentRange, compliance: np.ndarray, length: float) 
             "shear": lateral_force * compliance[0] / length, "axial": axial_force * compliance[2] / length}
 
 
-def choose_sampling(estimate: SegmentRange, *, compliance, rest_translation, radius: float,
+def choose_sampling(estimate: SegmentRange, *, compliance, rest_translation, radius: float, material: str,
                     user: dict | None = None) -> SamplingChoice:
-    """The sampling settings of a nonlinear entry whose sampled box covers ``estimate`` (module
-    docstring): ``compliance`` and ``rest_translation`` of the segment's linear entry, its
-    outer ``radius``; ``user``: the settings the scene gives (they win)."""
-    from vertebra.designer.energy_sampling import SamplingSettings
+    """The sampling settings of a nonlinear entry of ``material`` whose sampled box covers
+    ``estimate`` (module docstring): ``compliance`` and ``rest_translation`` of the segment's
+    linear entry, its outer ``radius``; ``user``: the settings the scene gives (they win). The
+    outer-fibre strain of a material that softens in compression (St Venant–Kirchhoff) is not
+    raised above its default (:data:`~vertebra.designer.energy_sampling.SOFTENING_STRAIN`:
+    fits sampled beyond it near the compressive limit point fail); the report warns instead."""
+    from vertebra.designer.energy_sampling import SOFTENING_STRAIN, SamplingSettings
     from vertebra.store.energy import linear_terms
 
-    defaults = SamplingSettings()
+    cavities = np.shape(compliance)[0] - 6
+    defaults = SamplingSettings().resolved(cavities, material)
     user = dict(user or {})
     K, _, _ = linear_terms(compliance, rest_translation)
     c = np.diag(np.linalg.inv(K))
@@ -348,6 +352,12 @@ def choose_sampling(estimate: SegmentRange, *, compliance, rest_translation, rad
     # the outer-fibre strain also caps the angles (· L/r): raise it to let the angles reach their caps
     needed["strain"] = max(min(needed["bending"], MAX_ANGLE), min(needed["twist"], MAX_ANGLE)) * radius / length
     rounded = round_ratio(needed["strain"]) if needed["strain"] > 0 else 0.0
+    if material in SOFTENING_STRAIN and rounded > SOFTENING_STRAIN[material]:
+        warnings.append(f"the scene asks for strain {needed['strain']:.3g} (outer fibre), beyond the "
+                        f"{SOFTENING_STRAIN[material]:.3g} a {material} entry is sampled to (it softens in "
+                        f"compression towards a limit point): clamped, angles above "
+                        f"{math.degrees(SOFTENING_STRAIN[material] * length / radius):.3g}° leave its range")
+        rounded = SOFTENING_STRAIN[material]
     values["strain"], sources["strain"] = ((rounded, "scene estimate") if rounded > defaults.strain
                                            else (defaults.strain, "default"))
     values["pressure"], sources["pressure"], needed["pressure"] = _pressure(estimate, warnings)
@@ -362,7 +372,7 @@ def choose_sampling(estimate: SegmentRange, *, compliance, rest_translation, rad
     settings = {name: value for name, value in values.items() if value != getattr(defaults, name)}
     settings.update(user)
     SamplingSettings.from_dict(settings)                        # the result must be valid settings
-    return SamplingChoice(settings, values, sources, needed, tuple(warnings), cavities=np.shape(compliance)[0] - 6,
+    return SamplingChoice(settings, values, sources, needed, tuple(warnings), cavities=cavities,
                           slenderness=length / radius)
 
 

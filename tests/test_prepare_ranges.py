@@ -45,10 +45,13 @@ def estimate(strain, load, pressures=None):
     return SegmentRange(0, sign * strain, strain, sign * load, load, pressures or {})
 
 
-def choose(range_, user=None):
+DEFAULTS = SamplingSettings().resolved(0, "neo_hookean")
+
+
+def choose(range_, user=None, material="neo_hookean"):
     entry = linear_rod()
     return choose_sampling(range_, compliance=entry.compliance, rest_translation=entry.rest_translation,
-                           radius=ROD["radius"], user=user)
+                           radius=ROD["radius"], material=material, user=user)
 
 
 # ------------------------------------------------------------------ the choice of settings
@@ -68,12 +71,12 @@ def test_the_sampled_box_covers_the_estimate(seed):
     entry = linear_rod()
     K, _, _ = linear_terms(entry.compliance, entry.rest_translation)
     length, radius = ROD["length"], ROD["radius"]
-    default_box, default_caps = load_box(K, length, radius, SamplingSettings())
+    default_box, default_caps = load_box(K, length, radius, DEFAULTS)
     rng = np.random.default_rng(seed)
     strain = default_caps * rng.uniform(0.0, 3.0, 4) * (rng.random(4) < 0.7)
     load = default_box.group_bounds() * rng.uniform(0.0, 3.0, 4) * (rng.random(4) < 0.7)
     choice = choose(estimate(strain, load))
-    settings = SamplingSettings.from_dict(choice.settings)
+    settings = SamplingSettings.from_dict(choice.settings).resolved(0, "neo_hookean")
     box, caps = load_box(K, length, radius, settings)
     clamped = {w.split()[4] for w in choice.warnings}                # "the scene asks for NAME ..."
     assert all("clamped" in w for w in choice.warnings)
@@ -83,8 +86,8 @@ def test_the_sampled_box_covers_the_estimate(seed):
         assert box.group_bounds()[g] >= load[g] * (1 - 1e-12), (name, box, load)
         assert caps[g] >= strain[g] * (1 - 1e-12), (name, caps, strain)
     for name in ("bending", "twist", "strain", "shear", "axial"):
-        assert choice.values[name] >= getattr(SamplingSettings(), name)             # never below the defaults
-        assert (choice.sources[name] == "default") == (choice.values[name] == getattr(SamplingSettings(), name))
+        assert choice.values[name] >= getattr(DEFAULTS, name)                       # never below the defaults
+        assert (choice.sources[name] == "default") == (choice.values[name] == getattr(DEFAULTS, name))
     for name in ("bending", "twist"):
         if choice.sources[name] == "scene estimate":
             assert choice.values[name] / ANGLE_STEP == pytest.approx(round(choice.values[name] / ANGLE_STEP), abs=1e-9)
@@ -93,7 +96,7 @@ def test_the_sampled_box_covers_the_estimate(seed):
 def test_inside_the_defaults_the_settings_and_the_key_are_the_defaults():
     entry = linear_rod()
     K, _, _ = linear_terms(entry.compliance, entry.rest_translation)
-    box, caps = load_box(K, ROD["length"], ROD["radius"], SamplingSettings())
+    box, caps = load_box(K, ROD["length"], ROD["radius"], DEFAULTS)
     choice = choose(estimate(0.5 * caps, 0.5 * box.group_bounds()))
     assert choice.settings == {} and set(choice.sources.values()) == {"default"} and choice.warnings == ()
 
@@ -113,6 +116,13 @@ def test_small_changes_of_the_estimate_keep_the_settings_and_beyond_pi_is_clampe
     beyond = choose(estimate([0, 0, 4.0, 0], [0, 0, 0, 0]))
     assert beyond.values["bending"] == pytest.approx(MAX_ANGLE) and "clamped" in beyond.warnings[0]
     SamplingSettings.from_dict(beyond.settings)
+    # St Venant-Kirchhoff softens towards a compressive limit point: its outer-fibre strain stays at
+    # its default (0.25), the bending the scene asks beyond it is a warning; neo-Hooke raises it
+    bent = estimate([0, 0, 1.8, 0], [0, 0, 0, 0])                      # 1.8 rad at L/r = 4: fibre strain 0.45
+    svk, neo = choose(bent, material="svk"), choose(bent)
+    assert svk.values["strain"] == 0.25 and svk.sources["strain"] == "default" and "svk" in svk.warnings[0]
+    assert neo.values["strain"] == 0.45 and neo.sources["strain"] == "scene estimate" and neo.warnings == ()
+    assert choose(estimate([0, 0, 1.2, 0], [0, 0, 0, 0])).values["strain"] == 0.4       # 0.3 < the default 0.4
 
 
 def test_pressures_come_from_the_chambers():
