@@ -124,8 +124,8 @@ def markdown(result: dict) -> str:
            "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in result["cases"]:
         if "estimate" not in r:
-            out.append(f"| {r['family']} | {r['nu']} | P{r['order']} | {r['dofs']} | – | – | – | {r['true_error']:.3g} | "
-                       f"{r['method']} | – | – | {r['design_s']:.2f} | {r['with_estimate_s']:.2f} |")
+            out.append(f"| {r['family']} | {r['nu']} | P{r['order']} | {r['dofs']} | – | – | – | "
+                       f"{r['true_error']:.3g} | {r['method']} | – | – | {r['design_s']:.2f} | {r['with_estimate_s']:.2f} |")
             continue
         flag = "" if 0.5 <= r["ratio"] <= 2 else " ✗"
         ratio = f"{r['size_ratio']:.2f}" if "size_ratio" in r else "–"

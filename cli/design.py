@@ -32,7 +32,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--name", default=None, help="entry name (default FAMILY-<key prefix>)")
     parser.add_argument("--export-mesh", metavar="FILE.vtu", default=None, help="also write the mesh (.vtu or .vtk)")
     parser.add_argument("--json", action="store_true", help="print the entry as JSON on stdout")
-    parser.add_argument("--no-accuracy", action="store_true", help="skip the accuracy estimate (coarser meshes, or order 2 for order 1)")
+    parser.add_argument("--no-accuracy", action="store_true",
+                        help="skip the accuracy estimate (a coarser mesh; order 2 on the same mesh for order 1)")
     parser.add_argument("--linear-solver", choices=("auto", "direct", "amg"), default="auto")
     parser.add_argument("--max-elements", type=int, default=None, metavar="N",
                         help="refuse meshes estimated above N tetrahedra before meshing "

@@ -215,7 +215,8 @@ def estimate_by_richardson(solve, compliance: np.ndarray, mesh, progress=None) -
         if ratio < MIN_SIZE_RATIO:
             failures.append(f"h = {h_coarse:.4g} m gives elements only {ratio:.3g} times larger (mean edge length)")
             continue
-        return {"method": "richardson", "extrapolated_compliance": richardson(compliance, coarse, ratio, CONVERGENCE_ORDER),
+        extrapolated = richardson(compliance, coarse, ratio, CONVERGENCE_ORDER)
+        return {"method": "richardson", "extrapolated_compliance": extrapolated,
                 "convergence_order": CONVERGENCE_ORDER, "coarse_mesh_size": h_coarse,
                 "coarse_dofs": int(fe_coarse.n_dofs), "size_ratio": ratio,
                 "basis": f"Richardson extrapolation from h = {h_coarse:.4g} m, size ratio {ratio:.3g}"}
@@ -269,7 +270,7 @@ def estimate_accuracy_of(family, parameters: dict, compliance: np.ndarray, mesh,
 
 def estimated_error(accuracy: dict) -> float | None:
     """The estimated relative error an ``entry.accuracy`` records (None if it records none): the
-    Richardson estimate, or for older entries the change against a refined mesh."""
+    estimate (Richardson or raised order), or for older entries the change against a refined mesh."""
     value = accuracy.get("relative_error", accuracy.get("relative_change"))
     return float(value) if isinstance(value, (int, float)) else None
 
