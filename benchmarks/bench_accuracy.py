@@ -2,18 +2,20 @@
 
 For every family (rod, tube, bellows, pneumatic, tapered pneumatic), element order 1 and 2 and
 ν = 0.3, 0.45, 0.49, at the family's default mesh size: the compliance C_h, the estimate that
-``design_segment`` stores (Richardson extrapolation from one coarser mesh,
-``designer.segment.estimate_accuracy_of``) and the true error against a much finer second-order
-mesh (h/3; h/2.5 for the thin-walled bellows). Errors are relative compliance errors over all
-loads (``designer.segment.relative_error``). Also where each entry sits between the bounds the
-store checks (``store.soundness``).
+``design_segment`` stores (``designer.segment.estimate_accuracy_of``: second order on the same
+mesh for order 1, Richardson extrapolation from a coarser mesh for order 2) and the true error
+against a much finer second-order mesh (h/3; h/2.5 for the thin-walled bellows). Errors are
+relative compliance errors over all loads (``designer.segment.relative_error``). Also where each
+entry sits between the bounds the store checks (``store.soundness``).
 
 Then the acceptance case: ``design_segment`` of a ~50,000-DoF second-order rod with its
-estimate, timed (≤ 10 s), and its estimate against a reference at h/1.9 (~350,000 DoFs).
+estimate, timed (≤ 10 s; wall and CPU time, with the load average), and its estimate against a
+reference at h/1.9 (~260,000 DoFs).
 
-Results: benchmarks/results/accuracy.json and .md.
+Results: benchmarks/results/accuracy.json and .md (only when every case ran).
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_accuracy.py [--quick]
+        [--families bellows,pneumatic] [--nus 0.45,0.49] [--orders 1] [--no-large]
 """
 
 from __future__ import annotations
@@ -63,16 +65,22 @@ def case(family: str, nu: float, order: int, reference) -> dict:
     h = fam.default_mesh_size(canonical_parameters(fam, p))
     t0 = time.perf_counter()
     C, fe, mesh, _, t = solve_segment(family, p, mesh_size=h, order=order)
-    accuracy = estimate_accuracy_of(family, p, C, mesh_size=h, order=order, elements=mesh.tets.shape[0])
+    accuracy = estimate_accuracy_of(family, p, C, mesh)
     total = time.perf_counter() - t0
     true = relative_error(C, reference)
     row = {"family": family, "nu": nu, "order": order, "mesh_size": h, "dofs": int(fe.n_dofs),
            "design_s": t["total_s"], "with_estimate_s": total, "true_error": true, "method": accuracy["method"]}
-    if accuracy["method"] == "richardson":
+    if "relative_error" in accuracy:
         row.update(estimate=accuracy["relative_error"], ratio=accuracy["relative_error"] / true,
-                   coarse_dofs=accuracy["coarse_dofs"], size_ratio=accuracy["size_ratio"],
-                   extrapolated_error=relative_error(reference, np.array(accuracy["extrapolated_compliance"])))
+                   estimate_dofs=estimate_dofs(accuracy), basis=accuracy["basis"],
+                   extrapolated_error=relative_error(reference, np.array(accuracy["extrapolated_compliance"])),
+                   **{k: accuracy[k] for k in ("size_ratio", "convergence_order") if k in accuracy})
     return row
+
+
+def estimate_dofs(accuracy: dict) -> int:
+    """DoFs of the estimate's solve: on the coarser mesh, or with the raised order."""
+    return accuracy.get("coarse_dofs", accuracy.get("raised_dofs"))
 
 
 def bounds_row(family: str, nu: float, order: int) -> dict:
@@ -86,16 +94,18 @@ def bounds_row(family: str, nu: float, order: int) -> dict:
 
 
 def large_case() -> dict:
-    t0 = time.perf_counter()
+    load = os.getloadavg()
+    t0, c0 = time.perf_counter(), time.process_time()
     entry = design_segment("rod", LARGE, mesh_size=LARGE_H, order=2)
-    total = time.perf_counter() - t0
-    log(f"large: {entry.mesh['dofs']} DoFs, {total:.2f} s with estimate; reference at h/1.9")
+    total, cpu = time.perf_counter() - t0, time.process_time() - c0
+    log(f"large: {entry.mesh['dofs']} DoFs, {total:.2f} s ({cpu:.2f} s CPU) with estimate; reference at h/1.9")
     reference, fe_ref, *_ = solve_segment("rod", LARGE, mesh_size=LARGE_H / 1.9, order=2, max_elements=1_000_000)
     true = relative_error(entry.compliance, reference)
     acc = entry.accuracy
-    return {"mesh_size": LARGE_H, "dofs": entry.mesh["dofs"], "total_s": total,
+    return {"mesh_size": LARGE_H, "dofs": entry.mesh["dofs"], "total_s": total, "cpu_s": cpu, "loadavg": load,
             "design_s": total - entry.timings["accuracy_s"], "accuracy_s": entry.timings["accuracy_s"],
-            "coarse_dofs": acc["coarse_dofs"], "estimate": acc["relative_error"], "true_error": true,
+            "estimate_dofs": estimate_dofs(acc), "basis": acc["basis"], "estimate": acc["relative_error"],
+            "true_error": true,
             "ratio": acc["relative_error"] / true, "reference_dofs": int(fe_ref.n_dofs),
             "extrapolated_error": relative_error(reference, np.array(acc["extrapolated_compliance"]))}
 
@@ -104,30 +114,37 @@ def markdown(result: dict) -> str:
     out = [f"# Accuracy estimate of designed entries ({result['date']}, {result['host']})", "",
            f"Python {result['python']}, one BLAS thread; machine shared (load average {result['loadavg_start'][0]:.1f} "
            f"→ {result['loadavg_end'][0]:.1f}). Error = largest relative compliance error over all loads, "
-           "max_w |wᵀ(C_ref − C_h)w| / wᵀC_h w. Estimate = Richardson extrapolation from one coarser mesh "
-           "(p = 1 for order 1, 2 for order 2, effective size ratio from the element counts). Truth = "
-           "second-order reference at h/3 (bellows h/2.5).", "",
+           "max_w |wᵀ(C_ref − C_h)w| / wᵀC_h w. Estimate: order 1 — the second-order compliance on the same "
+           "mesh; order 2 — Richardson extrapolation from a mesh coarser by 1.5 (fallbacks 2, 1.25), p = 2, "
+           "size ratio r from the mean edge lengths gmsh achieved. Truth = second-order reference at h/3 "
+           "(bellows h/2.5).", "",
            "## Default mesh size, every family, order and ν", "",
-           "| family | ν | order | DoFs | coarse DoFs | true error | estimate | estimate / truth | error of the extrapolated value | design s | with estimate s |",
-           "|---|---|---|---|---|---|---|---|---|---|---|"]
+           "| family | ν | order | DoFs | estimate DoFs | r | p | true error | estimate | estimate / truth | "
+           "error of the better value | design s | with estimate s |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in result["cases"]:
-        if r["method"] != "richardson":
-            out.append(f"| {r['family']} | {r['nu']} | P{r['order']} | {r['dofs']} | – | {r['true_error']:.3g} | "
-                       f"{r['method']} | – | – | {r['design_s']:.2f} | {r['with_estimate_s']:.2f} |")
+        if "estimate" not in r:
+            out.append(f"| {r['family']} | {r['nu']} | P{r['order']} | {r['dofs']} | – | – | – | "
+                       f"{r['true_error']:.3g} | {r['method']} | – | – | {r['design_s']:.2f} | {r['with_estimate_s']:.2f} |")
             continue
         flag = "" if 0.5 <= r["ratio"] <= 2 else " ✗"
-        out.append(f"| {r['family']} | {r['nu']} | P{r['order']} | {r['dofs']} | {r['coarse_dofs']} | "
-                   f"{r['true_error']:.3g} | {r['estimate']:.3g} | **{r['ratio']:.2f}**{flag} | "
+        ratio = f"{r['size_ratio']:.2f}" if "size_ratio" in r else "–"
+        order = f"{r['convergence_order']:g}" if "convergence_order" in r else "order 2"
+        out.append(f"| {r['family']} | {r['nu']} | P{r['order']} | {r['dofs']} | {r['estimate_dofs']} | {ratio} | "
+                   f"{order} | {r['true_error']:.3g} | {r['estimate']:.3g} | **{r['ratio']:.2f}**{flag} | "
                    f"{r['extrapolated_error']:.3g} | {r['design_s']:.2f} | {r['with_estimate_s']:.2f} |")
     ratios = [r["ratio"] for r in result["cases"] if "ratio" in r]
     inside = sum(0.5 <= x <= 2 for x in ratios)
     out += ["", f"Within a factor 2 of the truth: {inside} of {len(ratios)} cases "
             f"(estimate / truth from {min(ratios):.2f} to {max(ratios):.2f}).", ""]
+    if "large" not in result:
+        return "\n".join(out)
     big = result["large"]
     out += ["## ~50,000-DoF second-order rod (acceptance: ≤ 10 s with the estimate, within a factor 2)", "",
             f"`design_segment('rod', R = 10 mm, L = 40 mm, ν = 0.3, h = {1000 * big['mesh_size']:.3g} mm, order 2)`: "
-            f"{big['dofs']} DoFs, **{big['total_s']:.2f} s** in all ({big['design_s']:.2f} s design, "
-            f"{big['accuracy_s']:.2f} s estimate on {big['coarse_dofs']} DoFs). Estimated error {big['estimate']:.3g}, "
+            f"{big['dofs']} DoFs, **{big['total_s']:.2f} s** in all, {big['cpu_s']:.2f} s CPU, load average "
+            f"{big['loadavg'][0]:.1f} ({big['design_s']:.2f} s design, {big['accuracy_s']:.2f} s estimate on "
+            f"{big['estimate_dofs']} DoFs: {big['basis']}). Estimated error {big['estimate']:.3g}, "
             f"true error {big['true_error']:.3g} against {big['reference_dofs']} DoFs: estimate / truth "
             f"**{big['ratio']:.2f}**; the extrapolated compliance is {big['extrapolated_error']:.3g} from the "
             "reference.", "",
@@ -145,9 +162,17 @@ def markdown(result: dict) -> str:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="rod and pneumatic at ν = 0.3 only; nothing saved")
+    parser.add_argument("--families", help="comma-separated subset of the families; nothing saved")
+    parser.add_argument("--nus", help="comma-separated subset of ν (0.3, 0.45, 0.49); nothing saved")
+    parser.add_argument("--orders", help="comma-separated subset of the orders (1, 2); nothing saved")
+    parser.add_argument("--no-large", action="store_true", help="skip the ~50k-DoF rod; nothing saved")
     args = parser.parse_args(argv)
     families = ["rod", "pneumatic"] if args.quick else list(FAMILIES)
     nus = [0.3] if args.quick else [0.3, 0.45, 0.49]
+    families = args.families.split(",") if args.families else families
+    nus = [float(x) for x in args.nus.split(",")] if args.nus else nus
+    orders = [int(x) for x in args.orders.split(",")] if args.orders else [1, 2]
+    partial = args.quick or args.families or args.nus or args.orders or args.no_large
     result = {"date": datetime.now(timezone.utc).replace(microsecond=0).isoformat(), "host": platform.node(),
               "python": platform.python_version(), "loadavg_start": os.getloadavg(), "cases": [], "bounds": []}
     warnings.simplefilter("ignore")                 # order-1 locking warnings: measured here, not the point
@@ -159,17 +184,19 @@ def main(argv=None) -> int:
             log(f"{family} ν = {nu}: reference at h/{REFINE.get(family, 3)}")
             reference, *_ = solve_segment(family, p, mesh_size=h / REFINE.get(family, 3), order=2,
                                           max_elements=1_000_000)
-            for order in (1, 2):
+            for order in orders:
                 row = case(family, nu, order, reference)
-                log(f"  P{order}: true {row['true_error']:.3g}, estimate {row.get('estimate', float('nan')):.3g}")
+                log(f"  P{order}: true {row['true_error']:.3g}, estimate {row.get('estimate', float('nan')):.3g}"
+                    f" ({row.get('basis', row['method'])})")
                 result["cases"].append(row)
-                if nu in (0.3, 0.49):
+                if nu in (0.3, 0.49) and not partial:
                     result["bounds"].append(bounds_row(family, nu, order))
-    result["large"] = large_case()
+    if not args.no_large:
+        result["large"] = large_case()
     result["loadavg_end"] = os.getloadavg()
     text = markdown(result)
     print(text)
-    if not args.quick:
+    if not partial:
         RESULTS.mkdir(parents=True, exist_ok=True)
         (RESULTS / "accuracy.json").write_text(json.dumps(result, indent=1) + "\n")
         (RESULTS / "accuracy.md").write_text(text + "\n")

@@ -87,6 +87,14 @@ class MeshData:
     mesh_s: float = 0.0
     groups: list = field(default_factory=list)
 
+    def mean_edge_length(self) -> float:
+        """The element size gmsh achieved: the mean over tetrahedra of their mean edge length
+        (corner to corner). Unlike (volume / elements)^(1/3) it measures flat elements in a thin
+        wall by their in-wall size, which is what refining the mesh there reduces."""
+        corners = self.nodes[self.tets[:, :4]]                          # (n, 4, 3)
+        i, j = np.triu_indices(4, k=1)
+        return float(np.linalg.norm(corners[:, i] - corners[:, j], axis=2).mean())
+
     def __post_init__(self):
         if self.nodes.ndim != 2 or self.nodes.shape[1] != 3:
             raise ValueError(f"nodes: shape {self.nodes.shape}, expected (n, 3)")

@@ -27,7 +27,7 @@ from vertebra.store.entry import SegmentEntry, content_key
 from vertebra.store.errors import GeometryError
 
 #: bump when a change in designer/ changes the numbers of an entry (part of the key)
-ALGORITHM_VERSION = "designer-3"   # 3: accuracy by Richardson extrapolation from a coarser mesh
+ALGORITHM_VERSION = "designer-4"   # 4: P1 accuracy by raising the order; Richardson size ratio by edge lengths
 #: bump when a change in the nonlinear FE, the sampling or the fit changes a nonlinear entry's ψ
 NONLINEAR_VERSION = "nonlinear-1"
 #: the materials of ``design_segment``: ``linear`` (small strain, the condensation alone) and the
@@ -35,15 +35,17 @@ NONLINEAR_VERSION = "nonlinear-1"
 LINEAR = "linear"
 #: layout of the key payload
 KEY_SCHEMA = 1
-#: the accuracy estimate solves the segment again on a mesh this much COARSER (cheap: ~1/3.4 of
+#: the Richardson estimate solves the segment again on a mesh this much COARSER (cheap: ~1/3.4 of
 #: the elements); the next ratios serve when gmsh cannot mesh that size or the mesh is not
 #: coarser (small features fix the element size)
 COARSENING = (1.5, 2.0, 1.25)
-#: a coarse mesh must have this many times fewer elements to be used (ratio of mean sizes 1.08)
-MIN_ELEMENT_RATIO = 1.08 ** 3
-#: exponent p of the compliance error, error ≈ A h^p, per element order, used to extrapolate
-#: (measured on every family, ν up to 0.49: benchmarks/bench_accuracy.py, docs/designer.md)
-CONVERGENCE_ORDER = {1: 1.0, 2: 2.0}
+#: a coarser mesh must have elements this much larger (mean edge length) to be used
+MIN_SIZE_RATIO = 1.08
+#: exponent p of the compliance error of second-order tetrahedra, error ≈ A h^p, used to
+#: extrapolate (measured on every family, ν up to 0.49: benchmarks/bench_accuracy.py, docs/designer.md)
+CONVERGENCE_ORDER = 2.0
+#: element order whose compliance on the SAME mesh measures the error of a first-order one
+RAISED_ORDER = 2
 #: Poisson ratio above which P1 tetrahedra lock (measured: ν = 0.499 P1 lateral 1.24 vs P2 2.89)
 LOCKING_POISSON = 0.45
 
@@ -194,50 +196,81 @@ def solve_segment(family, parameters: dict, *, mesh_size=None, order: int = 2, l
     return compliance, fe, mesh_data, cond, timings
 
 
-def estimate_accuracy_of(family, parameters: dict, compliance: np.ndarray, *, mesh_size: float, order: int,
-                         elements: int, linear_solver: str = "auto", amg_threshold: int | None = None,
-                         progress=None, max_elements: int | None = None) -> dict:
-    """The ``entry.accuracy`` of a compliance computed at ``mesh_size`` on a mesh of ``elements``
-    tetrahedra: Richardson extrapolation from one coarser mesh (``COARSENING``) with the order's
-    ``CONVERGENCE_ORDER``. The mesh-size ratio used is the effective one, (elements / coarse
-    elements)^(1/3): gmsh keeps elements small at small features whatever the requested size.
-
-    Returns ``{"method": "richardson", "relative_error": estimated error of the stored compliance
-    (:func:`relative_error`), "relative_error_C" (6×6 block), "extrapolated_compliance",
-    "convergence_order", "coarse_mesh_size", "coarse_dofs", "size_ratio", "coarse_total_s"}``, or
-    ``{"method": "unavailable", "reason": …}`` when no usable coarser mesh could be made.
-    """
-    exponent = CONVERGENCE_ORDER[order]
+def estimate_by_richardson(solve, compliance: np.ndarray, mesh, progress=None) -> dict:
+    """Richardson extrapolation from one coarser mesh (``COARSENING``) with ``CONVERGENCE_ORDER``.
+    The size ratio is the one gmsh achieved, measured by mean edge lengths
+    (:meth:`MeshData.mean_edge_length`): where a thin wall fixes the elements' thickness, coarsening
+    makes them larger in the wall only, which an element count (∝ h⁻² there, not h⁻³) understates."""
     failures = []
+    size = mesh.mean_edge_length()
     for factor in COARSENING:
-        h_coarse = mesh_size * factor
+        h_coarse = mesh.mesh_size * factor
         _say(progress, f"accuracy estimate: solving on a coarser mesh (h = {h_coarse:.4g} m)")
         try:
-            coarse, fe_coarse, mesh_coarse, _, t_coarse = solve_segment(
-                family, parameters, mesh_size=h_coarse, order=order, linear_solver=linear_solver,
-                amg_threshold=amg_threshold, progress=None, max_elements=max_elements)
+            coarse, fe_coarse, mesh_coarse, _, _ = solve(mesh_size=h_coarse)
         except GeometryError as error:
             failures.append(f"h = {h_coarse:.4g} m: {error}")
             continue
-        count = mesh_coarse.tets.shape[0]
-        if elements < MIN_ELEMENT_RATIO * count:
-            failures.append(f"h = {h_coarse:.4g} m gives {count} elements, not fewer enough than {elements}")
+        ratio = mesh_coarse.mean_edge_length() / size
+        if ratio < MIN_SIZE_RATIO:
+            failures.append(f"h = {h_coarse:.4g} m gives elements only {ratio:.3g} times larger (mean edge length)")
             continue
-        ratio = (elements / count) ** (1.0 / 3.0)
-        extrapolated = richardson(compliance, coarse, ratio, exponent)
-        error = relative_error(compliance, extrapolated)
-        _say(progress, f"accuracy estimate: relative compliance error {error:.3g} (Richardson, p = {exponent:g})")
-        return {"method": "richardson", "relative_error": error,
-                "relative_error_C": relative_error(compliance[:6, :6], extrapolated[:6, :6]),
-                "extrapolated_compliance": extrapolated.tolist(), "convergence_order": exponent,
-                "coarse_mesh_size": h_coarse, "coarse_dofs": int(fe_coarse.n_dofs), "size_ratio": ratio,
-                "coarse_total_s": t_coarse["total_s"]}
+        extrapolated = richardson(compliance, coarse, ratio, CONVERGENCE_ORDER)
+        return {"method": "richardson", "extrapolated_compliance": extrapolated,
+                "convergence_order": CONVERGENCE_ORDER, "coarse_mesh_size": h_coarse,
+                "coarse_dofs": int(fe_coarse.n_dofs), "size_ratio": ratio,
+                "basis": f"Richardson extrapolation from h = {h_coarse:.4g} m, size ratio {ratio:.3g}"}
     return {"method": "unavailable", "reason": "; ".join(failures)}
+
+
+def estimate_by_order_raising(solve, compliance: np.ndarray, mesh, progress=None) -> dict:
+    """The compliance of ``RAISED_ORDER`` elements on the same mesh (gmsh meshes deterministically:
+    the same tetrahedra, with edge nodes on the curved geometry) as the better value. First-order
+    tetrahedra are pre-asymptotic where they lock (ν → 0.5): a coarser, equally locked mesh does
+    not see their error, a higher order does (its own error is typically 20–50× smaller)."""
+    _say(progress, f"accuracy estimate: solving with order {RAISED_ORDER} elements on the same mesh")
+    try:
+        raised, fe, raised_mesh, _, _ = solve(mesh_size=mesh.mesh_size, order=RAISED_ORDER)
+    except GeometryError as error:
+        return {"method": "unavailable", "reason": f"order {RAISED_ORDER} on the same mesh: {error}"}
+    return {"method": "order-raising", "extrapolated_compliance": raised, "raised_order": RAISED_ORDER,
+            "raised_dofs": int(fe.n_dofs),
+            "same_mesh": bool(np.array_equal(raised_mesh.tets[:, :mesh.tets.shape[1]], mesh.tets)),
+            "basis": f"order {RAISED_ORDER} on the same mesh ({fe.n_dofs} DoFs)"}
+
+
+#: how the discretisation error of a compliance is estimated, per element order
+ACCURACY_ESTIMATORS = {1: estimate_by_order_raising, 2: estimate_by_richardson}
+
+
+def estimate_accuracy_of(family, parameters: dict, compliance: np.ndarray, mesh, *, linear_solver: str = "auto",
+                         amg_threshold: int | None = None, progress=None, max_elements: int | None = None) -> dict:
+    """The ``entry.accuracy`` of a compliance computed on ``mesh`` (``geometry.MeshData``; its
+    order picks the estimator of ``ACCURACY_ESTIMATORS``): first order by raising the order on the
+    same mesh, second order by Richardson extrapolation from a coarser mesh.
+
+    Returns ``{"method": "order-raising" | "richardson", "relative_error": estimated error of the
+    stored compliance (:func:`relative_error` against the better value), "relative_error_C" (6×6
+    block), "extrapolated_compliance": the better value, "basis": one line saying how, "estimate_s",
+    and the method's own fields}``, or ``{"method": "unavailable", "reason": …}`` when the solves it
+    needs could not be made.
+    """
+    start = time.perf_counter()
+    solve = functools.partial(solve_segment, family, parameters, order=mesh.order, linear_solver=linear_solver,
+                              amg_threshold=amg_threshold, progress=None, max_elements=max_elements)
+    accuracy = ACCURACY_ESTIMATORS[mesh.order](solve, compliance, mesh, progress)
+    if accuracy["method"] == "unavailable":
+        return accuracy
+    better = accuracy["extrapolated_compliance"]
+    error = relative_error(compliance, better)
+    _say(progress, f"accuracy estimate: relative compliance error {error:.3g} ({accuracy['basis']})")
+    return {**accuracy, "relative_error": error, "relative_error_C": relative_error(compliance[:6, :6], better[:6, :6]),
+            "extrapolated_compliance": better.tolist(), "estimate_s": time.perf_counter() - start}
 
 
 def estimated_error(accuracy: dict) -> float | None:
     """The estimated relative error an ``entry.accuracy`` records (None if it records none): the
-    Richardson estimate, or for older entries the change against a refined mesh."""
+    estimate (Richardson or raised order), or for older entries the change against a refined mesh."""
     value = accuracy.get("relative_error", accuracy.get("relative_change"))
     return float(value) if isinstance(value, (int, float)) else None
 
@@ -252,8 +285,9 @@ def design_segment(family, parameters: dict, *, mesh_size=None, order: int = 2, 
     ``progress``: optional callable receiving one-line status messages.
     ``linear_solver``: "auto" | "direct" | "amg" (auto: direct below
     ``designer.linsolve.AUTO_THRESHOLD`` interior unknowns, overridable with ``amg_threshold``).
-    ``estimate_accuracy``: also solve on a coarser mesh and store the Richardson estimate of the
-    compliance's discretisation error in ``entry.accuracy`` (:func:`estimate_accuracy_of`).
+    ``estimate_accuracy``: also estimate the compliance's discretisation error and store it in
+    ``entry.accuracy`` (:func:`estimate_accuracy_of`: second order on the same mesh for a
+    first-order entry, Richardson extrapolation from a coarser mesh for a second-order one).
     ``max_elements``: cap on the estimated tetrahedra, checked before meshing
     (``geometry.DEFAULT_MAX_ELEMENTS`` when None).
     ``material``: ``"linear"`` (the condensation alone), ``"svk"`` or ``"neo_hookean"``: the
@@ -277,7 +311,7 @@ def design_segment(family, parameters: dict, *, mesh_size=None, order: int = 2, 
     warn = []
     if order == 1 and p["poisson_ratio"] >= LOCKING_POISSON:
         message = (f"poisson_ratio = {p['poisson_ratio']} with order 1: linear tetrahedra lock as ν → 0.5 "
-                   "(compliance underestimated, and the accuracy estimate can be several times too small); "
+                   "(the compliance is underestimated, by what the accuracy estimate records); "
                    "use order 2")
         warnings.warn(message, LockingWarning, stacklevel=2)
         _say(progress, f"warning: {message}")
@@ -285,13 +319,12 @@ def design_segment(family, parameters: dict, *, mesh_size=None, order: int = 2, 
     compliance, fe, mesh_data, cond, timings = solve_segment(
         fam, p, mesh_size=h, order=order, linear_solver=linear_solver, amg_threshold=amg_threshold,
         progress=progress, max_elements=max_elements)
-    accuracy = {"method": "none"}
+    accuracy, estimate_start = {"method": "none"}, time.perf_counter()
     if estimate_accuracy:
-        accuracy = estimate_accuracy_of(fam, p, compliance, mesh_size=h, order=order,
-                                        elements=mesh_data.tets.shape[0], linear_solver=linear_solver,
+        accuracy = estimate_accuracy_of(fam, p, compliance, mesh_data, linear_solver=linear_solver,
                                         amg_threshold=amg_threshold, progress=progress, max_elements=max_elements)
     accuracy["warnings"] = warn
-    timings["accuracy_s"] = accuracy.get("coarse_total_s", 0.0)
+    timings["accuracy_s"] = time.perf_counter() - estimate_start if estimate_accuracy else 0.0
     timings["total_s"] = time.perf_counter() - start       # everything, accuracy estimate included
     n = fe.n_cavities
     date = datetime.datetime.now(datetime.timezone.utc).replace(microsecond=0).isoformat()

@@ -1,17 +1,23 @@
-"""The accuracy estimate stored with a designed entry: Richardson extrapolation from a coarser mesh.
+"""The accuracy estimate stored with a designed entry: Richardson extrapolation from a coarser mesh
+(second order), the second-order compliance on the same mesh (first order).
 
 The full validation (every family, orders 1 and 2, ν up to 0.49, against references three times
-finer) is benchmarks/bench_accuracy.py; here the mechanism on one coarse case.
+finer) is benchmarks/bench_accuracy.py; here the mechanism on coarse cases.
 """
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
-from vertebra.designer.segment import design_segment, estimated_error, relative_error, richardson, solve_segment
+from vertebra.designer.segment import (LockingWarning, design_segment, estimated_error, relative_error, richardson,
+                                       solve_segment)
 
 ROD = {"radius": 0.01, "length": 0.04, "youngs_modulus": 1e6, "poisson_ratio": 0.3}
+PNEUMATIC = {"outer_radius": 0.02, "chamber_radius": 0.005, "chamber_offset": 0.011, "length": 0.02,
+             "youngs_modulus": 1e6, "poisson_ratio": 0.49}
 
 
 def test_richardson_recovers_a_power_law_exactly():
@@ -44,12 +50,36 @@ def test_estimate_on_a_coarse_rod_against_a_finer_mesh():
     acc = entry.accuracy
     assert acc["method"] == "richardson" and acc["convergence_order"] == 2.0
     assert acc["coarse_dofs"] < entry.mesh["dofs"] and acc["size_ratio"] > 1.08
+    assert acc["basis"].startswith("Richardson")
     assert entry.timings["accuracy_s"] > 0 and estimated_error(acc) == acc["relative_error"]
     fine, *_ = solve_segment("rod", ROD, mesh_size=entry.mesh["mesh_size"] / 2, order=2)
     measured = relative_error(entry.compliance, fine)
     extrapolated = np.array(acc["extrapolated_compliance"])
     assert relative_error(fine, extrapolated) < relative_error(fine, entry.compliance)
     assert 0.5 < acc["relative_error"] / measured < 2.0, (acc["relative_error"], measured)
+
+
+def test_first_order_estimate_sees_locking():
+    """First-order chambered segment at ν = 0.49 on a coarse mesh (10 mm, 672 DoFs): linear
+    tetrahedra lock, the compliance is more than ten times too small (true error ~12). The estimate
+    is the second-order compliance on the same mesh; it is within a factor 2 of the error against a
+    second-order mesh twice finer (whose own error, ~0.1, is under 1 % of the one measured). A
+    coarser first-order mesh, as locked as the design's, saw a quarter of the error
+    (benchmarks/bench_accuracy.py)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LockingWarning)
+        entry = design_segment("pneumatic", PNEUMATIC, mesh_size=0.01, order=1)
+    acc = entry.accuracy
+    assert acc["method"] == "order-raising" and acc["raised_order"] == 2 and acc["same_mesh"]
+    assert acc["raised_dofs"] > entry.mesh["dofs"] and any("lock" in w for w in acc["warnings"])
+    reference, *_ = solve_segment("pneumatic", PNEUMATIC, mesh_size=0.005, order=2)
+    measured = relative_error(entry.compliance, reference)
+    assert measured > 3.0, measured                       # the case is deep in locking
+    assert 0.5 < acc["relative_error"] / measured < 2.0, (acc["relative_error"], measured)
+    # relative to the reference the first-order compliance is 0.92 off (it is 13× too stiff), the
+    # second-order one on the same mesh 0.12
+    better = np.array(acc["extrapolated_compliance"])
+    assert relative_error(reference, better) < 0.25 * relative_error(reference, entry.compliance)
 
 
 def test_older_entries_keep_their_refined_mesh_estimate():
