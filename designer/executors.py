@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import os
 import socket
+import sys
 from collections import deque
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Iterator, Protocol, runtime_checkable
@@ -241,8 +242,7 @@ class LocalExecutor:
                     if not alone:
                         suspects.append(item)
                         continue
-                    result = Crash("WorkerCrashed", "the worker process died while running this task alone "
-                                   "(segmentation fault, out-of-memory kill or exit in native code)")
+                    result = Crash("WorkerCrashed", self._crash_message())
                 except Exception as error:  # noqa: BLE001 - e.g. an unpicklable argument or result
                     result = Crash.from_exception(error)
                 yield item, result
@@ -251,11 +251,24 @@ class LocalExecutor:
                 for future, (item, alone) in list(in_flight.items()):
                     in_flight.pop(future)
                     if alone:
-                        yield item, Crash("WorkerCrashed", "the worker process died while running this task alone")
+                        yield item, Crash("WorkerCrashed", self._crash_message())
                     else:
                         suspects.append(item)
                 self._pool.shutdown(wait=False, cancel_futures=True)
                 pool = self._new_pool()
+
+    def _crash_message(self) -> str:
+        """Why a worker that ran a task alone may have died. Worker processes started by
+        ``spawn``/``forkserver`` import the main script again: a script that designs at import
+        time (no ``if __name__ == "__main__":``) makes every worker fail while it starts."""
+        message = ("the worker process died while running this task alone (segmentation fault, "
+                   "out-of-memory kill or exit in native code")
+        main = sys.modules.get("__main__")
+        if self.start_method != "fork" and getattr(main, "__file__", None) and getattr(main, "__spec__", None) is None:
+            message += (f"; or, since workers are started with {self.start_method!r}, the script "
+                        f"{main.__file__} runs this at import time: put its work under "
+                        "`if __name__ == \"__main__\":`")
+        return message + ")"
 
     def describe(self) -> dict:
         return {"name": self.name, "workers": self.workers, "start_method": self.start_method}

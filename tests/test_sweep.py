@@ -548,3 +548,19 @@ def test_a_stored_key_other_than_the_planned_one_is_a_failure(tmp_path):
     assert (failure.stage, failure.error_type) == ("store", "KeyMismatch") and report.exit_code == 1
     stored = stored_keys(tmp_path / "cat.jsonl")
     assert stored == [content_key({"other": 0})] and planned in failure.message and stored[0] in failure.message
+
+
+def test_a_script_without_a_main_guard_is_told_why_its_workers_die(tmp_path):
+    # spawned workers import the main script again; one that starts a pool at import time makes
+    # every worker fail while it starts: the crash says so instead of only "segmentation fault"
+    import subprocess
+    import sys
+
+    script = tmp_path / "unguarded.py"
+    script.write_text("import math\n"
+                      "from vertebra.designer.executors import make_executor\n"
+                      "with make_executor('local', workers=1) as pool:\n"
+                      "    for _, result in pool.map_unordered(math.sqrt, [4.0]):\n"
+                      "        print(getattr(result, 'message', result))\n")
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert "if __name__ == \"__main__\":" in out.stdout, out.stdout + out.stderr[-2000:]
