@@ -52,25 +52,21 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vertebra.solver.energy import LoadCase, evaluate, out_of_range, tangent
-from vertebra.solver.state import State, retract, strain_change
+from vertebra.solver import globalise
+from vertebra.solver.globalise import NEUTRAL
+from vertebra.solver.representable import (COLLAPSE_LIMIT, FOLD_LIMIT, TURN_LIMIT, Unrepresentable,
+                                           largest_turn, segment_of, turn_message)
+from vertebra.solver.state import State, strain_change
 from vertebra.store.errors import ConvergenceError
 
 RESOLUTION = 1e-13     # corrections below this fraction of the extent (and radians) are rounding
 MAX_TURN = 1.0         # rad: the largest change of a link's rotation in one step
 MAX_STRETCH = 0.5      # the largest change of a link's translation strain in one step, per length
-TURN_LIMIT = 0.9 * math.pi    # a link turning further cannot be represented (the log's branch cut is at π)
-COLLAPSE_LIMIT = 1e-6  # a cable piece shorter than this fraction of its rest length: its holes meet
-FOLD_LIMIT = 0.1       # a link shorter than this fraction of its rest length has folded through itself
-REPRESENTED_TURN = math.pi / 3   # rotation per link the constant-strain links represent well
 SHIFT_START = 1e-10    # μ tried first when the tangent is not positive definite
 SHIFT_FLOOR = 1e-9     # μ below this is dropped (pure Newton)
 SHIFT_CEILING = 1e12   # μ beyond this leaves steps below rounding: the stage has failed
-ARMIJO = 1e-4
 BEND_SHIFT = 1e-2      # μ from which a negative-curvature step is weighed against the shifted one
-ROUNDING = 1e-12       # energy changes below this fraction of the energy are rounding
-SEARCH_FLOOR = 1e-3    # smallest step fraction of the line search
 TRUSTED_RESIDUAL = 1e-3   # a positive definite tangent this close to equilibrium stays so at it
-NEUTRAL = 1e-9        # curvature above −NEUTRAL·D is neutral (a symmetry of the loads), not unstable
 ESCAPES = 3            # negative-curvature steps allowed per stage
 SQRT3 = math.sqrt(3.0)
 STRETCHING = 1e-3      # a step changing a translation strain by more than this share of the shortest link
@@ -105,15 +101,6 @@ class StaticResult:
                 f"residual={self.residual:.3g}, load_steps={self.load_steps}, tip=[{tip}] m{outside})")
 
 
-class Unrepresentable(Exception):
-    """Raised inside a stage at a state the links or the cable routing cannot represent (the
-    message says why; ``state`` is that state)."""
-
-    def __init__(self, message: str, state: State | None = None):
-        super().__init__(message)
-        self.state = state
-
-
 def residual_weights(trunk) -> np.ndarray:
     """Per-DoF weights of the residual measure: 1 for forces, 1/L for moments."""
     return np.array([1.0] * 3 + [1.0 / trunk.frames.length_scale] * 3)
@@ -146,12 +133,6 @@ def reference_force(trunk, actuation: np.ndarray, memo) -> float:
         load = memo.load_case(actuation, 1.0)
         return _force_scale(trunk, evaluate(trunk, trunk.rest_state, load, memo).gradient)
     return memo.reference_force(actuation, compute)
-
-
-def largest_turn(xi: np.ndarray) -> float:
-    """The largest rotation (rad) of the links of strains ``ξ``."""
-    phi = xi[:, 3:]
-    return math.sqrt(float(np.einsum("ij,ij->i", phi, phi).max(initial=0.0)))
 
 
 class _Stage:
@@ -224,7 +205,7 @@ class _Stage:
         record = state.carried_strains()
         self.turn = math.sqrt(record.chain.largest_turn2) if record is not None else largest_turn(xi)
         if self.turn > TURN_LIMIT:
-            raise Unrepresentable(_turn_message(self.trunk, xi, self.load.scale, self.linear), state)
+            raise Unrepresentable(turn_message(self.trunk, xi, self.load.scale, self.linear), state)
         pieces = ev.pieces
         if pieces is not None:
             ratio = pieces.length / self.trunk.rest_piece_lengths
@@ -245,80 +226,15 @@ class _Stage:
         axial = np.einsum("ij,ij->i", xi[:, :3], self.axis)
         if float(axial.min()) < FOLD_LIMIT:
             k = int(np.argmin(axial))
-            segment, _ = _segment_of(self.trunk, k)
+            segment, _ = segment_of(self.trunk, k)
             raise Unrepresentable(
                 f"link {k} (segment {segment}) is compressed to {axial[k]:.2g} of its length at load factor "
                 f"{self.load.scale:.3g}: it folds through itself, which a link cannot represent "
                 "(the load crushes the segment)", state)
 
 
-def _segment_of(trunk, link: int) -> tuple[int, int]:
-    """(segment index, links per repetition) of a link."""
-    start = 0
-    for index, segment in enumerate(trunk.scene.segments):
-        end = start + segment.count * segment.elements
-        if link < end:
-            return index, segment.elements
-        start = end
-    raise IndexError(link)
-
-
-def _turn_message(trunk, xi: np.ndarray, scale: float, linear: np.ndarray | None) -> str:
-    """Which link turns towards π, and how many links per repetition its segment would need to
-    turn at most :data:`REPRESENTED_TURN` each. The rotation a repetition needs is estimated as
-    the larger of what it turns here (extrapolated from the load factor reached to the full
-    load) and what it turns in the linear response to the full load (``linear``, per link)."""
-    turns = np.linalg.norm(xi[:, 3:] - trunk.links.rest[:, 3:], axis=1) / max(scale, 1e-12)
-    if linear is not None:
-        turns = np.maximum(turns, linear)
-    k = int(np.argmax(np.linalg.norm(xi[:, 3:], axis=1)))
-    segment, elements = _segment_of(trunk, k)
-    start = sum(s.count * s.elements for s in trunk.scene.segments[:segment])
-    count = trunk.scene.segments[segment].count
-    needed = turns[start:start + count * elements].reshape(count, elements).sum(1).max()
-    links = max(elements + 1, math.ceil(needed / REPRESENTED_TURN))
-    return (f"link {k} (segment {segment}) turns {math.degrees(float(np.linalg.norm(xi[k, 3:]))):.0f}° at load "
-            f"factor {scale:.3g}: the deformation cannot be represented with {elements} link(s) per repetition "
-            f"(a link's rotation must stay below 180°); a repetition of the segment turns about "
-            f"{math.degrees(needed):.0f}°, so it needs at least {links} links per repetition "
-            f"(elements = {links}) to turn ≤ {math.degrees(REPRESENTED_TURN):.0f}° per link")
-
-
 def _raise_shift(shift: float, factor: float) -> float:
     return max(SHIFT_START, factor * shift)
-
-
-def _negative_curvature(factor, shift: float, scale: np.ndarray, n: int):
-    """A direction ``v`` of most negative curvature of the tangent ``H`` in the D-metric
-    (``vᵀDv = 1``) and its curvature ``vᵀHv``, by inverse iteration with the factor of the
-    positive definite ``H + μD``; None when the curvature is not negative."""
-    v = np.random.default_rng(n).standard_normal(n)      # a deterministic start
-    curvature = 0.0
-    for _ in range(8):
-        w = factor.solve(scale * v)
-        norm = math.sqrt(float(w @ (scale * w)))
-        if not (norm > 0.0 and math.isfinite(norm)):
-            return None
-        curvature = float(w @ (scale * v)) / (norm * norm) - shift     # wᵀHw / wᵀDw
-        v = w / norm
-    return (v, curvature) if curvature < -NEUTRAL else None
-
-
-def _bend(stage: _Stage, ev, r: np.ndarray, factor, shift: float, scale: np.ndarray):
-    """The step along the tangent's direction of most negative curvature (:func:`_negative_curvature`),
-    turned downhill and stretched to the strain-space caps: (dq, strain change, r·dq, dqᵀH dq,
-    predicted decrease), or None when the curvature is not negative."""
-    found = _negative_curvature(factor, shift, scale, r.size)
-    if found is None:
-        return None
-    v, curvature = found
-    if float(r @ v) < 0.0:
-        v = -v
-    change = strain_change(v, ev.links)
-    limit = stage.step_limit(v, change, ev)
-    dq, change, curvature = limit * v, limit * change, curvature * limit * limit
-    rp = float(r @ dq)
-    return dq, change, rp, curvature, rp - 0.5 * curvature
 
 
 def _newton(stage: _Stage, state: State):
@@ -393,14 +309,14 @@ def _newton(stage: _Stage, state: State):
                 # indefinite tangent (a saddle) is left, and how a column compressed far beyond
                 # its buckling load buckles (where the shift that makes the tangent positive
                 # definite leaves only a short, gradient-like step)
-                bend = _bend(stage, ev, r, factor, shift, scale)
+                bend = globalise.bend(stage, ev, r, factor, shift, scale)
                 if bend is None and converged:
                     return True, state, residual        # the curvature is not negative: stable
                 if bend is not None and (dq is None or bend[-1] > alpha * rp - 0.5 * alpha * alpha * curvature):
                     dq, change, rp, curvature, _ = bend
                     alpha, kind = 1.0, "curvature"
                     escapes += converged
-            step = _line_search(stage, state, ev, residual, dq, change, alpha, rp, curvature, moments)
+            step = globalise.line_search(stage, state, ev, residual, dq, change, alpha, rp, curvature, moments)
             if step is not None:
                 break
             if kind == "curvature" and converged:
@@ -423,38 +339,6 @@ def _newton(stage: _Stage, state: State):
             raise ConvergenceError(f"non-finite forces appeared after a Newton step at load factor {load.scale:.3g}")
         stage.represented(state, ev)
         r = -ev.gradient[1:].reshape(-1)
-
-
-def _line_search(stage: _Stage, state: State, ev, residual: float, dq, change, alpha: float, rp: float,
-                 curvature: float, moments):
-    """Backtracking from ``alpha`` along ``dq``: the first fraction that lowers the energy (the
-    merit, with dead moments) by an Armijo share of the quadratic model's prediction ``α r·p −
-    ½α² pᵀHp`` — or, where the prediction is below the energy's rounding, that does not raise
-    the residual. Returns (state, evaluation, α, decrease, prediction, quality) with quality the
-    ratio of actual to predicted decrease of the first (full) trial (1 below rounding, 0 when
-    it was cut back), or None."""
-    trunk, memo, load = stage.trunk, stage.memo, stage.load
-    noise = ROUNDING * abs(ev.energy)
-    quality = None
-    while alpha >= SEARCH_FLOOR:
-        trial = retract(state, alpha * dq, ev.links, alpha * change)
-        ev_trial = evaluate(trunk, trial, load, memo)
-        predicted = alpha * rp - 0.5 * alpha * alpha * curvature
-        decrease = ev.energy - ev_trial.energy
-        if moments is not None:
-            decrease += alpha * float(moments @ dq.reshape(-1, 6)[:, 3:].reshape(-1))
-        if predicted <= noise:       # the energy cannot judge this step: the residual does
-            good = stage.norm(ev_trial) <= residual
-            ratio = 1.0
-        else:
-            good = decrease >= ARMIJO * predicted - noise
-            ratio = decrease / predicted
-        if quality is None:
-            quality = ratio if good else 0.0
-        if good:
-            return trial, ev_trial, alpha, decrease, predicted, quality
-        alpha *= 0.5
-    return None
 
 
 def solve(trunk, memo, actuation: np.ndarray, initial: State | None, *, tolerance: float,

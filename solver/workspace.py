@@ -42,11 +42,11 @@ from typing import Callable
 
 import numpy as np
 
+from vertebra.solver.hull import Hull, convex_hull
+from vertebra.solver.workspace_order import ORDERINGS, SolveOrder, response_coordinates
 from vertebra.store.errors import ConvergenceError, OptionError, SceneError
 
 SAMPLERS = ("sobol", "halton")
-NEIGHBOURS = 10          # k of the nearest-neighbour graph the spanning tree is taken from
-RESPONSE_RANK = 1e-6     # response directions below this fraction of the largest are dropped
 
 # what a forward solve may raise when a sample's equilibrium cannot be found: recorded, not raised
 SOLVE_FAILURES = (ConvergenceError, FloatingPointError, ValueError, np.linalg.LinAlgError)
@@ -93,170 +93,7 @@ def sample_actuations(model, n_samples: int, *, method: str = "sobol", seed: int
     return lower + sample_unit(n_samples, lower.size, method=method, seed=seed) * (upper - lower)
 
 
-# ---------------------------------------------------------------------------- solve order
-def response_coordinates(model, actuations: np.ndarray) -> np.ndarray:
-    """Coordinates of each actuation in the trunk's linear response at rest, ``K⁻¹ B λ``
-    (translations m, rotations × trunk length), on its principal directions: Euclidean
-    distances there approximate how far apart two samples' equilibria are."""
-    actuations = np.asarray(actuations, float)
-    lower = np.asarray(model.actuator_bounds[0], float)
-    lower = np.where(np.isfinite(lower), lower, 0.0)         # given actuations need no finite box
-    lin = model.linearise(model.rest_state, lower)
-    response = lin.solve(lin.actuator_forces)                         # (n_dof, n_act)
-    response = response.reshape(-1, 6, response.shape[1])
-    response[:, 3:] *= model.length_scale
-    _, s, vt = np.linalg.svd(response.reshape(-1, response.shape[2]), full_matrices=False)
-    keep = s > RESPONSE_RANK * s[0] if s.size and s[0] > 0 else np.zeros(s.size, bool)
-    if not np.any(keep):
-        return np.zeros((len(actuations), 1))
-    return (actuations - lower) @ (vt[keep].T * s[keep])
-
-
-@dataclass(frozen=True)
-class SolveOrder:
-    """The order to solve the samples in, and whose equilibrium each one starts from
-    (``parent[i] = -1``: from rest)."""
-
-    order: np.ndarray
-    parent: np.ndarray
-
-    def __post_init__(self):
-        n = self.parent.size
-        if self.order.shape != (n,) or not np.array_equal(np.sort(self.order), np.arange(n)):
-            raise ValueError("order must be a permutation of the samples")
-        position = np.empty(n, int)
-        position[self.order] = np.arange(n)
-        has = self.parent >= 0
-        if np.any(position[self.parent[has]] >= position[has]):
-            raise ValueError("every sample's parent must be solved before it")
-
-
-def _squared_norms(coordinates: np.ndarray) -> np.ndarray:
-    return np.einsum("ij,ij->i", coordinates, coordinates)
-
-
-def order_sampled(coordinates: np.ndarray) -> SolveOrder:
-    """The order the sequence drew the samples in, each from the previous one."""
-    n = len(coordinates)
-    return SolveOrder(np.arange(n), np.arange(n) - 1)
-
-
-def order_chain(coordinates: np.ndarray) -> SolveOrder:
-    """Greedy nearest-neighbour chain from the least deformed sample (k-d tree queries
-    widened until an unvisited neighbour appears)."""
-    from scipy.spatial import cKDTree
-
-    n = len(coordinates)
-    tree = cKDTree(coordinates)
-    visited = np.zeros(n, bool)
-    order = np.empty(n, int)
-    current = int(np.argmin(_squared_norms(coordinates)))
-    for i in range(n):
-        order[i] = current
-        visited[current] = True
-        if i == n - 1:
-            break
-        k = NEIGHBOURS
-        while True:
-            _, near = tree.query(coordinates[current], k=min(k, n))
-            near = np.atleast_1d(near)
-            free = near[~visited[near]]
-            if free.size:
-                current = int(free[0])
-                break
-            k *= 4        # k ≥ n returns every sample, unvisited ones included
-    parent = np.empty(n, int)
-    parent[order[0]] = -1
-    parent[order[1:]] = order[:-1]
-    return SolveOrder(order, parent)
-
-
-def order_tree(coordinates: np.ndarray) -> SolveOrder:
-    """Depth-first visit of the minimum spanning tree of the k-nearest-neighbour graph from
-    the least deformed sample; each sample's parent is its tree neighbour on the way from
-    that root. Pieces the graph leaves disconnected start from rest."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components, depth_first_order, minimum_spanning_tree
-    from scipy.spatial import cKDTree
-
-    n = len(coordinates)
-    if n == 1:
-        return SolveOrder(np.zeros(1, int), np.full(1, -1))
-    k = min(NEIGHBOURS, n - 1)
-    distance, near = cKDTree(coordinates).query(coordinates, k=k + 1)
-    rows = np.repeat(np.arange(n), k)
-    # coincident samples are still neighbours: a zero weight would read as "no edge"
-    weights = np.maximum(distance[:, 1:].ravel(), np.finfo(float).tiny)
-    graph = coo_matrix((weights, (rows, near[:, 1:].ravel())), shape=(n, n)).tocsr()
-    tree = minimum_spanning_tree(graph.maximum(graph.T))
-    tree = tree.maximum(tree.T)
-    _, label = connected_components(tree, directed=False)
-    squared = _squared_norms(coordinates)
-    order, parent = [], np.full(n, -1)
-    for component in np.unique(label):
-        members = np.flatnonzero(label == component)
-        root = int(members[np.argmin(squared[members])])
-        visit, predecessor = depth_first_order(tree, root, directed=False)
-        order.append(visit)
-        parent[visit[1:]] = predecessor[visit[1:]]
-    return SolveOrder(np.concatenate(order), parent)
-
-
-ORDERINGS: dict[str, Callable[[np.ndarray], SolveOrder]] = {
-    "tree": order_tree,
-    "chain": order_chain,
-    "sampled": order_sampled,
-}
-
-
 # ---------------------------------------------------------------------------- results
-@dataclass(frozen=True)
-class Hull:
-    """Convex hull of a point cloud in its affine span: ``dimension`` 3 gives ``volume`` (m³)
-    and ``area`` (surface, m²); 2 (a planar cloud) gives ``area`` (m²) and no volume; 1 or 0
-    neither. ``simplices`` index the cloud's points (triangles in 3D, edges in 2D)."""
-
-    dimension: int
-    volume: float | None
-    area: float | None
-    simplices: np.ndarray
-    vertices: np.ndarray
-
-
-def affine_dimension(points: np.ndarray, *, tolerance: float = 1e-9) -> int:
-    """Dimension of the affine span of ``points``: singular values of the centred cloud above
-    ``tolerance`` × its extent × √(number of points) count."""
-    if len(points) < 2:
-        return 0
-    centred = points - points.mean(0)
-    s = np.linalg.svd(centred, compute_uv=False)
-    scale = max(float(np.ptp(points, axis=0).max()), np.finfo(float).tiny)
-    return int(np.sum(s > tolerance * scale * math.sqrt(len(points))))
-
-
-def convex_hull(points: np.ndarray) -> Hull:
-    """Convex hull of a 3D point cloud; of a planar cloud, taken in its plane."""
-    from scipy.spatial import ConvexHull, QhullError
-
-    points = np.asarray(points, float)
-    dimension = affine_dimension(points)
-    if dimension == 3:
-        try:
-            hull = ConvexHull(points)
-            return Hull(3, float(hull.volume), float(hull.area), hull.simplices, hull.vertices)
-        except QhullError:        # nearly flat beyond what the rank test caught
-            dimension = 2
-    if dimension == 2:
-        centred = points - points.mean(0)
-        basis = np.linalg.svd(centred, full_matrices=False)[2][:2]
-        try:
-            hull = ConvexHull(centred @ basis.T)
-            return Hull(2, None, float(hull.volume), hull.simplices, hull.vertices)   # 2D: volume = area
-        except QhullError:
-            dimension = 1
-    return Hull(dimension, None, None, np.zeros((0, 3), int), np.zeros(0, int))
-
-
 @dataclass(frozen=True)
 class EffectorCloud:
     """The converged samples of one effector: world points (m), or unit directions for an

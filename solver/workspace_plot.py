@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from vertebra.solver.workspace import Workspace, convex_hull
+from vertebra.solver.hull import convex_hull
+from vertebra.solver.workspace import Workspace
 from vertebra.store.errors import OptionError
 
 PROJECTIONS = (("x", "y", 0, 1), ("x", "z", 0, 2), ("y", "z", 1, 2))

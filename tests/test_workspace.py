@@ -11,7 +11,8 @@ import pytest
 
 from vertebra import solver
 from vertebra.solver import gallery
-from vertebra.solver.workspace import (ORDERINGS, SolveOrder, affine_dimension, convex_hull, response_coordinates,
+from vertebra.solver.hull import affine_dimension, convex_hull
+from vertebra.solver.workspace import (ORDERINGS, SolveOrder, response_coordinates,
                                        sample_actuations, sample_workspace, write_points)
 from vertebra.store.errors import OptionError, SceneError
 

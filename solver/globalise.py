@@ -1,0 +1,84 @@
+"""The globalisation steps of the forward solve beyond the shifted Newton step: a direction of
+negative curvature of an indefinite tangent (to leave saddles and maxima) and the backtracking
+line search on the energy (or, with dead moments, an energy-like merit). The stage they act on is
+:mod:`vertebra.solver.newton`'s.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from vertebra.solver.energy import evaluate
+from vertebra.solver.state import retract, strain_change
+
+NEUTRAL = 1e-9        # curvature above −NEUTRAL·D is neutral (a symmetry of the loads), not unstable
+ARMIJO = 1e-4
+ROUNDING = 1e-12       # energy changes below this fraction of the energy are rounding
+SEARCH_FLOOR = 1e-3    # smallest step fraction of the line search
+
+
+def negative_curvature(factor, shift: float, scale: np.ndarray, n: int):
+    """A direction ``v`` of most negative curvature of the tangent ``H`` in the D-metric
+    (``vᵀDv = 1``) and its curvature ``vᵀHv``, by inverse iteration with the factor of the
+    positive definite ``H + μD``; None when the curvature is not negative."""
+    v = np.random.default_rng(n).standard_normal(n)      # a deterministic start
+    curvature = 0.0
+    for _ in range(8):
+        w = factor.solve(scale * v)
+        norm = math.sqrt(float(w @ (scale * w)))
+        if not (norm > 0.0 and math.isfinite(norm)):
+            return None
+        curvature = float(w @ (scale * v)) / (norm * norm) - shift     # wᵀHw / wᵀDw
+        v = w / norm
+    return (v, curvature) if curvature < -NEUTRAL else None
+
+
+def bend(stage, ev, r: np.ndarray, factor, shift: float, scale: np.ndarray):
+    """The step along the tangent's direction of most negative curvature (:func:`negative_curvature`),
+    turned downhill and stretched to the strain-space caps: (dq, strain change, r·dq, dqᵀH dq,
+    predicted decrease), or None when the curvature is not negative."""
+    found = negative_curvature(factor, shift, scale, r.size)
+    if found is None:
+        return None
+    v, curvature = found
+    if float(r @ v) < 0.0:
+        v = -v
+    change = strain_change(v, ev.links)
+    limit = stage.step_limit(v, change, ev)
+    dq, change, curvature = limit * v, limit * change, curvature * limit * limit
+    rp = float(r @ dq)
+    return dq, change, rp, curvature, rp - 0.5 * curvature
+
+
+def line_search(stage, state, ev, residual: float, dq, change, alpha: float, rp: float,
+                 curvature: float, moments):
+    """Backtracking from ``alpha`` along ``dq``: the first fraction that lowers the energy (the
+    merit, with dead moments) by an Armijo share of the quadratic model's prediction ``α r·p −
+    ½α² pᵀHp`` — or, where the prediction is below the energy's rounding, that does not raise
+    the residual. Returns (state, evaluation, α, decrease, prediction, quality) with quality the
+    ratio of actual to predicted decrease of the first (full) trial (1 below rounding, 0 when
+    it was cut back), or None."""
+    trunk, memo, load = stage.trunk, stage.memo, stage.load
+    noise = ROUNDING * abs(ev.energy)
+    quality = None
+    while alpha >= SEARCH_FLOOR:
+        trial = retract(state, alpha * dq, ev.links, alpha * change)
+        ev_trial = evaluate(trunk, trial, load, memo)
+        predicted = alpha * rp - 0.5 * alpha * alpha * curvature
+        decrease = ev.energy - ev_trial.energy
+        if moments is not None:
+            decrease += alpha * float(moments @ dq.reshape(-1, 6)[:, 3:].reshape(-1))
+        if predicted <= noise:       # the energy cannot judge this step: the residual does
+            good = stage.norm(ev_trial) <= residual
+            ratio = 1.0
+        else:
+            good = decrease >= ARMIJO * predicted - noise
+            ratio = decrease / predicted
+        if quality is None:
+            quality = ratio if good else 0.0
+        if good:
+            return trial, ev_trial, alpha, decrease, predicted, quality
+        alpha *= 0.5
+    return None
