@@ -150,10 +150,15 @@ def run_ticks(model, trajectory) -> dict:
     lower, upper = model.actuator_bounds
     change = model.actuator_max_change
     errors, times, equilibria, bounds, changes, statuses = [], [], 0, 0, 0, {}
+    # the control loop runs alone (as on a robot: nothing solves between its ticks); every tick
+    # is settled to the equilibrium its actuation reaches afterwards, to check it
+    run = []
     for target in trajectory:
         previous = controller.actuation
         step, seconds = cpu(lambda: controller.step(target))
         times.append(seconds)
+        run.append((previous, step))
+    for previous, step in run:
         statuses[step.status] = statuses.get(step.status, 0) + 1
         bounds += int(np.any(step.actuation < lower) or np.any(step.actuation > upper))
         changes += int(np.any(np.abs(step.actuation - previous) > change * (1 + 1e-12)))
