@@ -12,6 +12,7 @@ Progress and logs go to stderr; ``--json`` prints one JSON document on stdout.
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 
@@ -146,7 +147,8 @@ def run(args) -> int:
                                         name=args.name, linear_solver=args.linear_solver,
                                         estimate_accuracy=not args.no_accuracy, progress=_log,
                                         max_elements=args.max_elements, material=args.material, sampling=sampling,
-                                        executor=args.executor, workers=args.workers, scheduler=args.scheduler)
+                                        executor=args.executor, workers=args.workers, scheduler=args.scheduler,
+                                        estimate_alongside=(os.cpu_count() or 1) > 1)
         stored = catalogue.add_entry(args.catalogue, entry)
         _log(f"added {entry.name!r} (key {stored}) to {args.catalogue} in {time.perf_counter() - start:.2f} s"
              + ("" if stored.merge_deferred is None else

@@ -196,6 +196,79 @@ def solve_segment(family, parameters: dict, *, mesh_size=None, order: int = 2, l
     return compliance, fe, mesh_data, cond, timings
 
 
+@dataclasses.dataclass(frozen=True)
+class Solved:
+    """What an accuracy estimator uses of a solve (small and picklable: it may come from a
+    worker process)."""
+
+    compliance: np.ndarray
+    dofs: int
+    mean_edge_length: float
+    tets: np.ndarray
+
+
+def solved_summary(family, parameters: dict, **options) -> Solved:
+    """:func:`solve_segment`, summarised for an accuracy estimator."""
+    compliance, fe, mesh_data, _, _ = solve_segment(family, parameters, **options)
+    return Solved(compliance, int(fe.n_dofs), float(mesh_data.mean_edge_length()), mesh_data.tets)
+
+
+def _solved_in_worker(family, parameters: dict, options: dict):
+    """:func:`solved_summary` in a worker process (one BLAS thread); a GeometryError comes back
+    as its message (``("geometry", message)``), a result as ``("ok", Solved)``."""
+    from vertebra.designer.threads import pin_blas_threads
+
+    pin_blas_threads(1)
+    try:
+        return "ok", solved_summary(family, parameters, **options)
+    except GeometryError as error:
+        return "geometry", str(error)
+
+
+class EstimateSolves:
+    """The solves of an accuracy estimate (``solve(mesh_size=…, order=…)`` → :class:`Solved`),
+    the first of them possibly started early in a worker process (:meth:`start_early`) so that
+    it runs on the other core while the design solves its own mesh."""
+
+    def __init__(self, family, parameters: dict, *, order: int, **options):
+        self.family, self.parameters, self.order, self.options = family, parameters, order, options
+        self._early = None          # ((mesh_size, order), future, pool)
+
+    @staticmethod
+    def first(order: int, mesh_size: float) -> tuple[float, int]:
+        """(mesh size, order) of the first solve the estimator of ``order`` asks for."""
+        return (mesh_size, RAISED_ORDER) if order == 1 else (mesh_size * COARSENING[0], order)
+
+    def start_early(self, mesh_size: float) -> None:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        args = self.first(self.order, mesh_size)
+        pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"))
+        options = {**self.options, "mesh_size": args[0], "order": args[1]}
+        self._early = (args, pool.submit(_solved_in_worker, self.family.name, self.parameters, options), pool)
+
+    def __call__(self, *, mesh_size: float, order: int | None = None) -> Solved:
+        order = self.order if order is None else order
+        if self._early is not None and self._early[0] == (mesh_size, order):
+            _, future, pool = self._early
+            self._early = None
+            try:
+                status, value = future.result()
+            finally:
+                pool.shutdown()
+            if status == "geometry":
+                raise GeometryError(value)
+            return value
+        return solved_summary(self.family, self.parameters, mesh_size=mesh_size, order=order, **self.options)
+
+    def close(self) -> None:
+        """Stop an early solve nobody asked for."""
+        if self._early is not None:
+            self._early[2].shutdown(wait=False, cancel_futures=True)
+            self._early = None
+
+
 def estimate_by_richardson(solve, compliance: np.ndarray, mesh, progress=None) -> dict:
     """Richardson extrapolation from one coarser mesh (``COARSENING``) with ``CONVERGENCE_ORDER``.
     The size ratio is the one gmsh achieved, measured by mean edge lengths
@@ -207,18 +280,18 @@ def estimate_by_richardson(solve, compliance: np.ndarray, mesh, progress=None) -
         h_coarse = mesh.mesh_size * factor
         _say(progress, f"accuracy estimate: solving on a coarser mesh (h = {h_coarse:.4g} m)")
         try:
-            coarse, fe_coarse, mesh_coarse, _, _ = solve(mesh_size=h_coarse)
+            solved = solve(mesh_size=h_coarse)
         except GeometryError as error:
             failures.append(f"h = {h_coarse:.4g} m: {error}")
             continue
-        ratio = mesh_coarse.mean_edge_length() / size
+        coarse, ratio = solved.compliance, solved.mean_edge_length / size
         if ratio < MIN_SIZE_RATIO:
             failures.append(f"h = {h_coarse:.4g} m gives elements only {ratio:.3g} times larger (mean edge length)")
             continue
         extrapolated = richardson(compliance, coarse, ratio, CONVERGENCE_ORDER)
         return {"method": "richardson", "extrapolated_compliance": extrapolated,
                 "convergence_order": CONVERGENCE_ORDER, "coarse_mesh_size": h_coarse,
-                "coarse_dofs": int(fe_coarse.n_dofs), "size_ratio": ratio,
+                "coarse_dofs": solved.dofs, "size_ratio": ratio,
                 "basis": f"Richardson extrapolation from h = {h_coarse:.4g} m, size ratio {ratio:.3g}"}
     return {"method": "unavailable", "reason": "; ".join(failures)}
 
@@ -230,13 +303,13 @@ def estimate_by_order_raising(solve, compliance: np.ndarray, mesh, progress=None
     not see their error, a higher order does (its own error is typically 20–50× smaller)."""
     _say(progress, f"accuracy estimate: solving with order {RAISED_ORDER} elements on the same mesh")
     try:
-        raised, fe, raised_mesh, _, _ = solve(mesh_size=mesh.mesh_size, order=RAISED_ORDER)
+        raised = solve(mesh_size=mesh.mesh_size, order=RAISED_ORDER)
     except GeometryError as error:
         return {"method": "unavailable", "reason": f"order {RAISED_ORDER} on the same mesh: {error}"}
-    return {"method": "order-raising", "extrapolated_compliance": raised, "raised_order": RAISED_ORDER,
-            "raised_dofs": int(fe.n_dofs),
-            "same_mesh": bool(np.array_equal(raised_mesh.tets[:, :mesh.tets.shape[1]], mesh.tets)),
-            "basis": f"order {RAISED_ORDER} on the same mesh ({fe.n_dofs} DoFs)"}
+    return {"method": "order-raising", "extrapolated_compliance": raised.compliance, "raised_order": RAISED_ORDER,
+            "raised_dofs": raised.dofs,
+            "same_mesh": bool(np.array_equal(raised.tets[:, :mesh.tets.shape[1]], mesh.tets)),
+            "basis": f"order {RAISED_ORDER} on the same mesh ({raised.dofs} DoFs)"}
 
 
 #: how the discretisation error of a compliance is estimated, per element order
@@ -244,7 +317,8 @@ ACCURACY_ESTIMATORS = {1: estimate_by_order_raising, 2: estimate_by_richardson}
 
 
 def estimate_accuracy_of(family, parameters: dict, compliance: np.ndarray, mesh, *, linear_solver: str = "auto",
-                         amg_threshold: int | None = None, progress=None, max_elements: int | None = None) -> dict:
+                         amg_threshold: int | None = None, progress=None, max_elements: int | None = None,
+                         solves: EstimateSolves | None = None) -> dict:
     """The ``entry.accuracy`` of a compliance computed on ``mesh`` (``geometry.MeshData``; its
     order picks the estimator of ``ACCURACY_ESTIMATORS``): first order by raising the order on the
     same mesh, second order by Richardson extrapolation from a coarser mesh.
@@ -253,12 +327,16 @@ def estimate_accuracy_of(family, parameters: dict, compliance: np.ndarray, mesh,
     stored compliance (:func:`relative_error` against the better value), "relative_error_C" (6×6
     block), "extrapolated_compliance": the better value, "basis": one line saying how, "estimate_s",
     and the method's own fields}``, or ``{"method": "unavailable", "reason": …}`` when the solves it
-    needs could not be made.
+    needs could not be made. ``solves``: the :class:`EstimateSolves` to use (one started early).
     """
     start = time.perf_counter()
-    solve = functools.partial(solve_segment, family, parameters, order=mesh.order, linear_solver=linear_solver,
-                              amg_threshold=amg_threshold, progress=None, max_elements=max_elements)
-    accuracy = ACCURACY_ESTIMATORS[mesh.order](solve, compliance, mesh, progress)
+    if solves is None:
+        solves = EstimateSolves(family_of(family), parameters, order=mesh.order, linear_solver=linear_solver,
+                                amg_threshold=amg_threshold, progress=None, max_elements=max_elements)
+    try:
+        accuracy = ACCURACY_ESTIMATORS[mesh.order](solves, compliance, mesh, progress)
+    finally:
+        solves.close()
     if accuracy["method"] == "unavailable":
         return accuracy
     better = accuracy["extrapolated_compliance"]
@@ -279,7 +357,7 @@ def design_segment(family, parameters: dict, *, mesh_size=None, order: int = 2, 
                    linear_solver: str = "auto", estimate_accuracy: bool = True, progress=None,
                    amg_threshold: int | None = None, max_elements: int | None = None, material: str = LINEAR,
                    sampling=None, executor: str = "serial", workers: int | None = None,
-                   scheduler: str | None = None) -> SegmentEntry:
+                   scheduler: str | None = None, estimate_alongside: bool = False) -> SegmentEntry:
     """Condensed catalogue entry of one segment (docs/catalogue.md).
 
     ``progress``: optional callable receiving one-line status messages.
@@ -290,6 +368,9 @@ def design_segment(family, parameters: dict, *, mesh_size=None, order: int = 2, 
     first-order entry, Richardson extrapolation from a coarser mesh for a second-order one).
     ``max_elements``: cap on the estimated tetrahedra, checked before meshing
     (``geometry.DEFAULT_MAX_ELEMENTS`` when None).
+    ``estimate_alongside``: start the estimate's first solve in a worker process before the
+    design's own, so that the two run on two cores (for a design running alone, as
+    ``vertebra design`` does; a sweep's workers keep the cores busy already).
     ``material``: ``"linear"`` (the condensation alone), ``"svk"`` or ``"neo_hookean"``: the
     segment's energy ψ(s, p) is then sampled with its nonlinear FE on the same mesh and fitted
     (``entry.energy``, designer.nonlinear_condensation) with ``sampling`` settings
@@ -316,13 +397,23 @@ def design_segment(family, parameters: dict, *, mesh_size=None, order: int = 2, 
         warnings.warn(message, LockingWarning, stacklevel=2)
         _say(progress, f"warning: {message}")
         warn.append(message)
-    compliance, fe, mesh_data, cond, timings = solve_segment(
-        fam, p, mesh_size=h, order=order, linear_solver=linear_solver, amg_threshold=amg_threshold,
-        progress=progress, max_elements=max_elements)
+    solves = None
+    if estimate_accuracy:
+        solves = EstimateSolves(fam, p, order=order, linear_solver=linear_solver, amg_threshold=amg_threshold,
+                                progress=None, max_elements=max_elements)
+        if estimate_alongside:
+            solves.start_early(h)
+    try:
+        compliance, fe, mesh_data, cond, timings = solve_segment(
+            fam, p, mesh_size=h, order=order, linear_solver=linear_solver, amg_threshold=amg_threshold,
+            progress=progress, max_elements=max_elements)
+    except BaseException:
+        if solves is not None:
+            solves.close()
+        raise
     accuracy, estimate_start = {"method": "none"}, time.perf_counter()
     if estimate_accuracy:
-        accuracy = estimate_accuracy_of(fam, p, compliance, mesh_data, linear_solver=linear_solver,
-                                        amg_threshold=amg_threshold, progress=progress, max_elements=max_elements)
+        accuracy = estimate_accuracy_of(fam, p, compliance, mesh_data, progress=progress, solves=solves)
     accuracy["warnings"] = warn
     timings["accuracy_s"] = time.perf_counter() - estimate_start if estimate_accuracy else 0.0
     timings["total_s"] = time.perf_counter() - start       # everything, accuracy estimate included

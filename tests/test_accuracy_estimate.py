@@ -85,3 +85,15 @@ def test_first_order_estimate_sees_locking():
 def test_older_entries_keep_their_refined_mesh_estimate():
     older = {"method": "refined mesh h/1.5", "relative_change": 0.012, "warnings": []}
     assert estimated_error(older) == 0.012 and estimated_error({"method": "none"}) is None
+
+
+@pytest.mark.parametrize("order", [1, 2])
+def test_an_estimate_started_alongside_the_design_is_the_same_estimate(order):
+    # ``estimate_alongside`` only moves the estimate's first solve to a worker process that runs
+    # while the design solves its own mesh: the same meshes, the same solves, the same numbers
+    serial = design_segment("rod", ROD, order=order).accuracy
+    alongside = design_segment("rod", ROD, order=order, estimate_alongside=True).accuracy
+    assert alongside["method"] == serial["method"] == ("order-raising" if order == 1 else "richardson")
+    assert alongside["basis"] == serial["basis"]
+    assert np.array_equal(alongside["extrapolated_compliance"], serial["extrapolated_compliance"])
+    assert alongside["relative_error"] == serial["relative_error"]
