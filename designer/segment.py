@@ -173,9 +173,11 @@ def _say(progress, message: str) -> None:
 
 
 def solve_segment(family, parameters: dict, *, mesh_size=None, order: int = 2, linear_solver: str = "auto",
-                  amg_threshold: int | None = None, progress=None, max_elements: int | None = None):
+                  amg_threshold: int | None = None, progress=None, max_elements: int | None = None,
+                  meshed=None):
     """Mesh, assemble and condense. Returns ``(compliance, fe, mesh_data, condensation, timings)``.
-    ``max_elements``: cap on the estimated tetrahedra (default ``geometry.DEFAULT_MAX_ELEMENTS``)."""
+    ``max_elements``: cap on the estimated tetrahedra (default ``geometry.DEFAULT_MAX_ELEMENTS``).
+    ``meshed``: called with the mesh once it exists (before assembly)."""
     from vertebra.designer.fem import build_fe, condense
     from vertebra.designer.geometry import DEFAULT_MAX_ELEMENTS, mesh_segment
 
@@ -186,6 +188,8 @@ def solve_segment(family, parameters: dict, *, mesh_size=None, order: int = 2, l
     _say(progress, f"{fam.name}: meshing (h = {h:.4g} m, order {order})")
     mesh_data = mesh_segment(fam, p, h, order, max_elements=max_elements or DEFAULT_MAX_ELEMENTS,
                              progress=progress)
+    if meshed is not None:
+        meshed(mesh_data)
     _say(progress, f"{fam.name}: {mesh_data.tets.shape[0]} tetrahedra, {3 * mesh_data.nodes.shape[0]} DoFs; assembling")
     fe = build_fe(mesh_data, p["youngs_modulus"], p["poisson_ratio"], p["density"], fam.n_cavities(p), fam.length(p))
     _say(progress, f"{fam.name}: condensing ({linear_solver} linear solver)")
@@ -263,10 +267,16 @@ class EstimateSolves:
         return solved_summary(self.family, self.parameters, mesh_size=mesh_size, order=order, **self.options)
 
     def close(self) -> None:
-        """Stop an early solve nobody asked for."""
+        """Stop an early solve nobody asked for (its worker process is terminated: the design
+        failed, or the estimate did not need it)."""
         if self._early is not None:
-            self._early[2].shutdown(wait=False, cancel_futures=True)
+            pool = self._early[2]
             self._early = None
+            # ProcessPoolExecutor has no public "terminate": its worker processes are in
+            # ``_processes`` (CPython 3.8-3.13)
+            for process in list((getattr(pool, "_processes", None) or {}).values()):
+                process.terminate()
+            pool.shutdown(wait=True, cancel_futures=True)
 
 
 def estimate_by_richardson(solve, compliance: np.ndarray, mesh, progress=None) -> dict:
@@ -368,8 +378,8 @@ def design_segment(family, parameters: dict, *, mesh_size=None, order: int = 2, 
     first-order entry, Richardson extrapolation from a coarser mesh for a second-order one).
     ``max_elements``: cap on the estimated tetrahedra, checked before meshing
     (``geometry.DEFAULT_MAX_ELEMENTS`` when None).
-    ``estimate_alongside``: start the estimate's first solve in a worker process before the
-    design's own, so that the two run on two cores (for a design running alone, as
+    ``estimate_alongside``: start the estimate's first solve in a worker process once the
+    design's mesh exists, so that the two solves run on two cores (for a design running alone, as
     ``vertebra design`` does; a sweep's workers keep the cores busy already).
     ``material``: ``"linear"`` (the condensation alone), ``"svk"`` or ``"neo_hookean"``: the
     segment's energy ψ(s, p) is then sampled with its nonlinear FE on the same mesh and fitted
@@ -401,12 +411,11 @@ def design_segment(family, parameters: dict, *, mesh_size=None, order: int = 2, 
     if estimate_accuracy:
         solves = EstimateSolves(fam, p, order=order, linear_solver=linear_solver, amg_threshold=amg_threshold,
                                 progress=None, max_elements=max_elements)
-        if estimate_alongside:
-            solves.start_early(h)
-    try:
+    try:     # (alongside: the estimate starts once the design's own mesh exists; a refused mesh starts nothing)
         compliance, fe, mesh_data, cond, timings = solve_segment(
             fam, p, mesh_size=h, order=order, linear_solver=linear_solver, amg_threshold=amg_threshold,
-            progress=progress, max_elements=max_elements)
+            progress=progress, max_elements=max_elements,
+            meshed=(lambda _: solves.start_early(h)) if estimate_accuracy and estimate_alongside else None)
     except BaseException:
         if solves is not None:
             solves.close()
