@@ -148,6 +148,15 @@ class SerialExecutor:
         return {"name": self.name, "workers": 1}
 
 
+def terminate_pool(pool) -> None:
+    """Stop a ``concurrent.futures.ProcessPoolExecutor`` now: its worker processes are
+    terminated (there is no public "terminate": they are in ``_processes``, CPython 3.8-3.13)
+    and pending work is cancelled."""
+    for process in list((getattr(pool, "_processes", None) or {}).values()):
+        process.terminate()
+    pool.shutdown(wait=True, cancel_futures=True)
+
+
 @register_executor("local")
 class LocalExecutor:
     """A process pool on this machine (``concurrent.futures.ProcessPoolExecutor``).
@@ -203,11 +212,9 @@ class LocalExecutor:
         if self._pool is None:
             return
         if terminate:
-            # ProcessPoolExecutor has no public "terminate": its worker processes
-            # are in ``_processes`` (CPython 3.8-3.13).
-            for process in list((getattr(self._pool, "_processes", None) or {}).values()):
-                process.terminate()
-        self._pool.shutdown(wait=not terminate, cancel_futures=True)
+            terminate_pool(self._pool)
+        else:
+            self._pool.shutdown(wait=True, cancel_futures=True)
         self._pool = None
 
     def map_unordered(self, function, items):

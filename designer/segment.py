@@ -270,13 +270,10 @@ class EstimateSolves:
         """Stop an early solve nobody asked for (its worker process is terminated: the design
         failed, or the estimate did not need it)."""
         if self._early is not None:
-            pool = self._early[2]
+            from vertebra.designer.executors import terminate_pool
+
+            terminate_pool(self._early[2])
             self._early = None
-            # ProcessPoolExecutor has no public "terminate": its worker processes are in
-            # ``_processes`` (CPython 3.8-3.13)
-            for process in list((getattr(pool, "_processes", None) or {}).values()):
-                process.terminate()
-            pool.shutdown(wait=True, cancel_futures=True)
 
 
 def estimate_by_richardson(solve, compliance: np.ndarray, mesh, progress=None) -> dict:
