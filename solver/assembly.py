@@ -69,16 +69,21 @@ class BandAssembler:
         its own (consecutive vertebrae), each pair's summed tangent is written once per block
         (per-pair path); otherwise one gather-sum-scatter adds pieces that share a block."""
         first = np.flatnonzero(np.r_[a.size > 0, (a[1:] != a[:-1]) | (b[1:] != b[:-1])])
-        self._pair_starts, self._pair_a, self._pair_b = first, a[first], b[first]
-        self._pair_free = self._pair_a > 0
-        self._pair_offset = (self._pair_b - self._pair_a)[self._pair_free]
-        chains = np.unique(self._pair_a).size == first.size and np.unique(self._pair_b).size == first.size
-        self.cable_scatter = None if chains else self.cable_scatter_map(a, b)
+        self.pair_a, self.pair_b = a[first], b[first]
+        self._pair_free = self.pair_a > 0
+        self._pair_offset = (self.pair_b - self.pair_a)[self._pair_free]
+        # the pieces of each pair, padded with a.size (no piece): CablePieces.tangent's groups
+        counts = np.diff(np.r_[first, a.size])
+        width = int(counts.max(initial=0))
+        slot = np.arange(width)
+        self.cable_groups = np.where(slot < counts[:, None], first[:, None] + slot, a.size)
+        chains = np.unique(self.pair_a).size == first.size and np.unique(self.pair_b).size == first.size
+        self.cable_scatter = None if chains else self.cable_scatter_map(self.pair_a, self.pair_b)
 
     def cable_scatter_map(self, a: np.ndarray, b: np.ndarray):
-        """Where the 144 tangent entries of each piece go in the flat block storage, sorted by
-        destination so that one ``add.reduceat`` sums the pieces that share a block: (source
-        indices, segment starts, unique destinations)."""
+        """Where the 144 tangent entries of each pair of frames ``a`` → ``b`` go in the flat block
+        storage, sorted by destination so that one ``add.reduceat`` sums the pairs that share a
+        block: (source indices, segment starts, unique destinations)."""
         n_offsets = self.span + 1
         n_band = self.n_blocks * n_offsets
         piece = np.arange(a.size)
@@ -133,12 +138,12 @@ class BandAssembler:
         return blocks[0, :, 0]
 
     def add_cables(self, blocks: np.ndarray, H: np.ndarray) -> None:
-        """Add the pieces' tangents ``H`` (m, 12, 12; sorted like the pieces) to the block bands."""
+        """Add the cables' tangents ``H`` (pairs, 12, 12), summed over the pieces of each pair of
+        frames (``CablePieces.tangent`` with :attr:`cable_groups`), to the block bands."""
         lower, upper = blocks[0], blocks[1]
         if self.cable_scatter is None:
-            H = np.add.reduceat(H, self._pair_starts, axis=0)     # pieces between the same frames
-            free, fa = self._pair_free, self._pair_a[self._pair_free] - 1
-            lower[self._pair_b - 1, 0] += H[:, 6:, 6:]
+            free, fa = self._pair_free, self.pair_a[self._pair_free] - 1
+            lower[self.pair_b - 1, 0] += H[:, 6:, 6:]
             lower[fa, 0] += H[free, :6, :6]
             lower[fa, self._pair_offset] += H[free, 6:, :6]
             upper[fa, self._pair_offset] += H[free, :6, 6:]

@@ -21,7 +21,43 @@ _C_TABLE = np.zeros((6, 12, 3))
 _C_TABLE[:3, 3:6] = -HAT_TABLE.reshape(3, 3, 3)        # −ŝ_a
 _C_TABLE[3:, 9:] = HAT_TABLE.reshape(3, 3, 3)          # ŝ_b
 _C_TABLE = _C_TABLE.reshape(6, 36)
-_EYE3 = np.eye(3)
+
+
+def _group_table() -> np.ndarray:
+    """(70, 144): the part ``Σ t (C Cᵀ + (−û ŝ_a on dφ_a) + (û ŝ_b on dφ_b)) |d|`` of a group's
+    tangent (:meth:`CablePieces.tangent`) from the moments ``Σ t x yᵀ`` with ``x = [1, s_a, s_b]``,
+    ``y = [1, s_a, s_b, d]`` and ``t = τ/|d|``. Blocks (x_a, φ_a, x_b, φ_b) of ``C Cᵀ``:
+    ``[[I, −ŝ_a, −I, ŝ_b], [ŝ_a, |s_a|²I − s_a s_aᵀ, −ŝ_a, s_b s_aᵀ − (s_a·s_b)I], …]`` (symmetric),
+    and ``û ŝ = s uᵀ − (u·s) I`` with ``τ u = t d``."""
+    hat = HAT_TABLE.reshape(3, 3, 3)          # hat[k] = ê_k^
+    table = np.zeros((7, 10, 12, 12))
+    eye = np.eye(3)
+    block = [slice(3 * i, 3 * i + 3) for i in range(4)]
+    a, b, d = (1, 2, 3), (4, 5, 6), (7, 8, 9)      # rows/columns of s_a, s_b, d among the moments
+    for i, j, sign in ((0, 0, 1), (0, 2, -1), (2, 0, -1), (2, 2, 1)):
+        table[0, 0, block[i], block[j]] += sign * eye
+    for k in range(3):
+        for i, j, sign in ((0, 1, -1), (1, 0, 1), (1, 2, -1), (2, 1, 1)):     # ±ŝ_a
+            table[0, a[k], block[i], block[j]] += sign * hat[k]
+        for i, j, sign in ((0, 3, 1), (3, 0, -1), (2, 3, -1), (3, 2, 1)):     # ±ŝ_b
+            table[0, b[k], block[i], block[j]] += sign * hat[k]
+        for l in range(3):
+            table[a[k], a[l], 3 + k, 3 + l] -= 1.0           # −s_a s_aᵀ
+            table[b[k], b[l], 9 + k, 9 + l] -= 1.0           # −s_b s_bᵀ
+            table[b[k], a[l], 3 + k, 9 + l] += 1.0           # s_b s_aᵀ on (φ_a, φ_b)
+            table[a[k], b[l], 9 + k, 3 + l] += 1.0           # s_a s_bᵀ on (φ_b, φ_a)
+            table[a[k], d[l], 3 + k, 3 + l] -= 1.0           # −τ s_a uᵀ
+            table[b[k], d[l], 9 + k, 9 + l] += 1.0           # τ s_b uᵀ
+        table[a[k], a[k], block[1], block[1]] += eye         # |s_a|² I
+        table[b[k], b[k], block[3], block[3]] += eye         # |s_b|² I
+        table[a[k], b[k], block[1], block[3]] -= eye         # −(s_a·s_b) I
+        table[a[k], b[k], block[3], block[1]] -= eye
+        table[a[k], d[k], block[1], block[1]] += eye         # τ (u·s_a) I
+        table[b[k], d[k], block[3], block[3]] -= eye         # −τ (u·s_b) I
+    return table.reshape(70, 144)
+
+
+_GROUP_TABLE = _group_table()
 
 
 @dataclass
@@ -38,6 +74,8 @@ class CablePieces:
     u: np.ndarray          # (m, 3)
     length: np.ndarray     # (m,)
     unit: np.ndarray       # (m, 12) gradient of the length
+    offsets: np.ndarray    # (m, 6) [s_a, s_b]
+    d: np.ndarray          # (m, 3) P_b − P_a
 
     @classmethod
     def of(cls, Ra, xa, Rb, xb, hole_a, hole_b) -> "CablePieces":
@@ -49,19 +87,37 @@ class CablePieces:
     def of_pairs(cls, R, x, holes) -> "CablePieces":
         """From the rotations (2m, 3, 3), positions (2m, 3) and hole offsets (2m, 3, 1) of the two
         ends of every piece, interleaved (a₀, b₀, a₁, b₁, …)."""
-        offsets, d, length = _spans(R, x, holes)
+        return cls.of_spans(*_spans(R, x, holes))
+
+    @classmethod
+    def of_spans(cls, offsets, d, length) -> "CablePieces":
+        """From the pieces' hole offsets ``[s_a, s_b]`` (m, 6), spans (m, 3) and lengths (m,)
+        (:meth:`CableRouting.spans`)."""
         u = d / length[:, None]
         C = (offsets @ _C_TABLE).reshape(-1, 12, 3) + _C_CONST
-        return cls(C, u, length, (C @ u[:, :, None])[:, :, 0])
+        return cls(C, u, length, (C @ u[:, :, None])[:, :, 0], offsets, d)
 
-    def tangent(self, tension: np.ndarray) -> np.ndarray:
-        """Tangent (m, 12, 12) of ``τ |d|`` per piece."""
-        u, C = self.u, self.C
-        t = (tension / self.length)[:, None, None]
-        H = (C @ (t * _EYE3 - t * (u[:, :, None] * u[:, None, :]))) @ C.mT
-        U = (u @ HAT_TABLE).reshape(-1, 3, 3) * tension[:, None, None]
-        H[:, 3:6, 3:6] += U @ C[:, 3:6]                      # −τ û ŝ_a
-        H[:, 9:, 9:] += U @ C[:, 9:]                         # +τ û ŝ_b
+    def tangent(self, tension: np.ndarray, groups: np.ndarray | None = None) -> np.ndarray:
+        """Tangent (g, 12, 12) of ``Σ τ |d|`` over each group of pieces that join the same two
+        frames: ``groups`` (g, k) holds piece indices, padded with m (no piece); default: every
+        piece alone. With ``t = τ/|d|`` and ``g = C u`` a piece's tangent is
+        ``t C Cᵀ − t g gᵀ − τ û ŝ_a (on dφ_a) + τ û ŝ_b (on dφ_b)``: every term but ``t g gᵀ`` is
+        linear in the moments ``t x yᵀ`` (:func:`_group_table`), so a group's tangent comes from
+        the sums of the moments and of ``t g gᵀ`` over its pieces — one batched product."""
+        m = self.length.shape[0]
+        if groups is None:
+            groups = np.arange(m)[:, None]
+        t = np.zeros(m + 1)
+        np.divide(tension, self.length, out=t[:m])
+        Y = np.zeros((m + 1, 22))                             # [1, s_a, s_b, d, g]; row m: no piece
+        Y[:m, 0] = 1.0
+        Y[:m, 1:7] = self.offsets
+        Y[:m, 7:10] = self.d
+        Y[:m, 10:] = self.unit
+        grouped = Y.take(groups, 0)                           # (g, k, 22)
+        moments = grouped.mT @ (grouped * t.take(groups)[:, :, None])
+        H = (moments[:, :7, :10].reshape(-1, 70) @ _GROUP_TABLE).reshape(-1, 12, 12)
+        H -= moments[:, 10:, 10:]
         return H
 
 
@@ -129,9 +185,11 @@ class CableRouting:
         """Kinematics of every piece at frame ``positions`` (N, 3) and ``rotations`` (N, 3, 3)."""
         return CablePieces.of_pairs(rotations.take(self.ends, 0), positions.take(self.ends, 0), self.holes)
 
-    def piece_lengths(self, positions: np.ndarray, rotations: np.ndarray) -> np.ndarray:
-        """Length of every piece (m,) at frame ``positions`` and ``rotations`` (no kinematics)."""
-        return _spans(rotations.take(self.ends, 0), positions.take(self.ends, 0), self.holes)[2]
+    def spans(self, positions: np.ndarray, rotations: np.ndarray) -> tuple:
+        """Hole offsets ``[s_a, s_b]`` (m, 6), spans ``d = P_b − P_a`` (m, 3) and lengths (m,) of
+        the pieces at frame ``positions`` and ``rotations``: their lengths without the kinematics
+        (:meth:`CablePieces.of_spans` completes them)."""
+        return _spans(rotations.take(self.ends, 0), positions.take(self.ends, 0), self.holes)
 
     def lengths(self, pieces: CablePieces) -> np.ndarray:
         """Length of each cable (sum of its pieces)."""

@@ -91,7 +91,10 @@ def evaluate(trunk, state, load: LoadCase, memo) -> Evaluation:
         rotations = qmatrix(state.quaternions)
     else:
         rotations = None
-    total, w, kept = link_response(trunk, links.xi, load.link_loads)
+    parts = memo.potential_parts(record, load)
+    if parts is None:
+        parts = _potential_parts(trunk, x, rotations, links.xi, load)
+    total, w, kept = parts.response
     g_links = links.gradient(w)
     grad = np.zeros((x.shape[0], 6))
     grad[:-1] = g_links[:, :6]
@@ -99,13 +102,12 @@ def evaluate(trunk, state, load: LoadCase, memo) -> Evaluation:
 
     pieces = None
     if load.piece_tension is not None:
-        pieces = trunk.cables.pieces(x, rotations)
+        pieces = CablePieces.of_spans(*parts.spans)
         grad += trunk.cables.frame_forces(pieces, load.piece_tension)
         total += float(load.piece_tension @ pieces.length)
 
-    lever = None
+    lever = parts.lever
     if load.weight is not None:
-        lever = (rotations @ trunk.frames.moment[:, :, None])[:, :, 0]   # R s: first moment in world axes
         grad[:, :3] -= load.frame_weight
         grad[:, 3:] -= lever @ load.weight_hat                 # moment (R s) × m g at the frame
         total += _weight_potential(trunk, x, lever, load)
@@ -120,19 +122,38 @@ def evaluate(trunk, state, load: LoadCase, memo) -> Evaluation:
 def potential(trunk, state, load: LoadCase, memo) -> float:
     """The total potential at ``state`` under ``load`` without its gradient (the same terms as
     :func:`evaluate`): what judging a step needs. A state that carries its strains needs no
-    link kinematics; one given by its poses is evaluated in full."""
+    link kinematics; one given by its poses is evaluated in full. What it computes on the way
+    (:class:`PotentialParts`) is kept in ``memo`` for an evaluation of the same state and load
+    (a control tick judges the state that the next tick linearises)."""
     record = state.carried_strains()
     if record is None:
         return evaluate(trunk, state, load, memo).energy
-    x, rotations = state.positions, record.chain.rotations
-    total = link_response(trunk, record.xi, load.link_loads)[0]
-    if load.piece_tension is not None:
-        total += float(load.piece_tension @ trunk.cables.piece_lengths(x, rotations))
-    if load.weight is not None:
-        total += _weight_potential(trunk, x, (rotations @ trunk.frames.moment[:, :, None])[:, :, 0], load)
+    x = state.positions
+    parts = _potential_parts(trunk, x, record.chain.rotations, record.xi, load)
+    memo.keep_potential_parts(record, load, parts)
+    total = parts.response[0]
+    if parts.spans is not None:
+        total += float(load.piece_tension @ parts.spans[2])
+    if parts.lever is not None:
+        total += _weight_potential(trunk, x, parts.lever, load)
     if load.dead is not None:
         total -= float(np.vdot(load.dead_forces, x))
     return total
+
+
+@dataclass(slots=True)
+class PotentialParts:
+    """What the potential at a state computes on the way that its gradient needs too."""
+
+    response: tuple                 # link_response(): (Σ ψ, w, kept)
+    spans: tuple | None             # the cable pieces' CableRouting.spans() (None: all slack)
+    lever: np.ndarray | None        # (n_frames, 3) R s, the first mass moments in world axes (gravity)
+
+
+def _potential_parts(trunk, x: np.ndarray, rotations, xi: np.ndarray, load: LoadCase) -> PotentialParts:
+    spans = trunk.cables.spans(x, rotations) if load.piece_tension is not None else None
+    lever = (rotations @ trunk.frames.moment[:, :, None])[:, :, 0] if load.weight is not None else None
+    return PotentialParts(link_response(trunk, xi, load.link_loads), spans, lever)
 
 
 def _weight_potential(trunk, x: np.ndarray, lever: np.ndarray, load: LoadCase) -> float:
@@ -224,7 +245,7 @@ def tangent(trunk, ev: Evaluation, memo) -> Tangent:
     assembler = trunk.assembler
     storage, blocks = assembler.new_storage()
     if ev.pieces is not None:
-        assembler.add_cables(blocks, ev.pieces.tangent(ev.load.piece_tension))
+        assembler.add_cables(blocks, ev.pieces.tangent(ev.load.piece_tension, assembler.cable_groups))
     if ev.lever is not None:
         assembler.diagonal(blocks)[:, 3:, 3:] -= ev.load.weight_hat @ hat(ev.lever[1:])   # −ĝ l̂: the arm turns
     return Tangent(assembler, flat, storage)

@@ -6,6 +6,9 @@
   are not remembered.
 * The links' tangent at the unstressed rest state and its diagonal, the stiffness scale of
   every DoF (model constants).
+* What the potential at the last composed state judged computed on the way (link responses,
+  cable spans, mass moments), keyed by its strain record and load case: the evaluation of that
+  state under that load (the next control tick's) reuses them.
 * The load cases of the last two (actuation, load factor) and the reference force of the last
   actuation: repeated solves and linearisations at one actuation compute them once, a control
   tick's two actuations (linearised at one, stepped to the other) alternate without rebuilding,
@@ -36,6 +39,7 @@ class Memo:
         self._loads = [(None, None, None), (None, None, None)]   # the last two, most recent first
         self._reference = (None, None)
         self._link_loads = (None, None)
+        self._potential = (None, None, None)
 
     def links(self, state, record) -> Links:
         """Link kinematics of ``state`` (``record``: its carried strains or None)."""
@@ -51,6 +55,17 @@ class Memo:
             links = record.kinematics()
             self._last = (record, links)
         return links
+
+    def keep_potential_parts(self, record, load, parts) -> None:
+        """Keep what the potential at the state of strain ``record`` under ``load`` computed."""
+        self._potential = (record, load, parts)
+
+    def potential_parts(self, record, load):
+        """What the potential computed at the state of ``record`` under ``load``, else None."""
+        kept_record, kept_load, parts = self._potential
+        if record is None or record is not kept_record or load is not kept_load:
+            return None
+        return parts
 
     def unstressed_tangent(self, compute) -> np.ndarray:
         """The links' tangent at the unstressed rest state (``compute()`` the first time)."""

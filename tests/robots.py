@@ -145,7 +145,7 @@ def representable(scene: dict) -> Check:
     trunk = reference.trunk
     shortest = 1.0
     if trunk.actuators.n_cables:
-        lengths = trunk.cables.piece_lengths(state.positions, qmatrix(state.quaternions))
+        lengths = trunk.cables.spans(state.positions, qmatrix(state.quaternions))[2]
         shortest = float(np.min(lengths / trunk.rest_piece_lengths))
     return Check(True, float(turns.max()), float(_relative_turns(state.quaternions).sum()), shortest,
                  state.positions[-1].copy())

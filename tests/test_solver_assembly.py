@@ -26,14 +26,30 @@ def _tensioned(name, seed):
 @pytest.mark.parametrize("name", ["paper_3v_4t", "paper_5v_16t", "tendon_two_section"])
 def test_cable_tangent_summed_per_pair_equals_the_general_scatter(name):
     model, actuation, state = _tensioned(name, 3)
-    assembler, cables = model.trunk.assembler, model.trunk.cables
+    assembler = model.trunk.assembler
     assert assembler.cable_scatter is None        # consecutive vertebrae: the per-pair path is used
     grouped = tangent(model.trunk, model.evaluate(state, actuation), model.memo).extra.copy()  # cables, gravity
-    assembler.cable_scatter = assembler.cable_scatter_map(cables.piece_a, cables.piece_b)   # the general path
+    assembler.cable_scatter = assembler.cable_scatter_map(assembler.pair_a, assembler.pair_b)   # the general path
     general = tangent(model.trunk, model.evaluate(state, actuation), model.memo).extra
     # the same sums in another order: rounding only (measured ≤ 1.7e-16 of the largest entry)
     assert np.abs(grouped - general).max() <= 1e-14 * np.abs(general).max()
     assert np.abs(general).max() > 0
+
+
+@pytest.mark.parametrize("name", ["paper_3v_4t", "paper_5v_16t", "tendon_two_section"])
+def test_grouped_cable_tangent_is_the_sum_of_the_pieces(name):
+    model, actuation, state = _tensioned(name, 4)
+    assembler, ev = model.trunk.assembler, model.evaluate(state, actuation)
+    tension = ev.load.piece_tension
+    alone = ev.pieces.tangent(tension)                               # (m, 12, 12), one per piece
+    grouped = ev.pieces.tangent(tension, assembler.cable_groups)     # (pairs, 12, 12)
+    assert grouped.shape == (assembler.pair_a.size, 12, 12)
+    m = tension.size
+    for pair, pieces in enumerate(assembler.cable_groups):
+        pieces = pieces[pieces < m]
+        assert pieces.size and (model.trunk.cables.piece_a[pieces] == assembler.pair_a[pair]).all()
+        expected = alone[pieces].sum(0)
+        assert np.abs(grouped[pair] - expected).max() <= 1e-14 * np.abs(expected).max()
 
 
 def _column(force_ratio, links=20):
