@@ -180,7 +180,7 @@ def evaluation_pieces(model, state, act, reps, budget_s=None):
     matrix, t_tan = timed(lambda: tangent(trunk, model.evaluate(state, act), memo), reps, budget_s=budget_s)
     ev, t_grad = timed(lambda: model.evaluate(state, act), reps, budget_s=budget_s)
     # a fresh Tangent per call: a tangent keeps its band once gathered
-    _, t_band = timed(lambda: type(matrix)(matrix.assembler, matrix.links, matrix.extra).symmetric_band(), reps,
+    _, t_band = timed(lambda: type(matrix)(matrix.assembler, matrix.terms).symmetric_band(), reps,
                       budget_s=budget_s)
     return matrix, -ev.gradient[1:].reshape(-1), {"tangent": t_tan, "gradient": t_grad, "band": t_band}
 

@@ -2,22 +2,25 @@
 
 The tangent couples only frames joined by a link (block offset 1) or by a cable piece (offset
 = links per repetition), so it is block-banded with 6×6 blocks over the free frames. Its terms
-arrive in two forms:
+are written side by side in one flat array, the *terms* (:meth:`BandAssembler.new_terms`):
 
-* the links' 12×12 tangents side by side (``n_links·144`` values and one trailing zero that
-  the gathers point to where a band entry gets nothing);
-* everything else (cables, gravity) as *block bands*: ``lower[c, s] = A[c+s, c]`` and
-  ``upper[c, s] = A[c, c+s]`` stacked in one flat *storage* (with a trailing zero).
+* the links' 12×12 tangents, one per link;
+* the cables' 12×12 tangents, summed over the pieces that join the same two frames (one per
+  pair of frames, :attr:`BandAssembler.cable_groups`);
+* the turning of the weight's lever arms, a 3×3 block on the rotations of each free frame
+  (when the trunk has gravity);
+* one trailing zero.
 
-:class:`BandAssembler` holds the maps, computed once per model, that take them to LAPACK band
-storage — the lower band of the symmetric part for ``dpbtrf``, the general band for
-``dgbtrf`` — without any dense or general sparse global matrix. :class:`Tangent` is one
-tangent in these forms and factorises it (:mod:`vertebra.solver.banded`).
+:class:`BandAssembler` holds the maps, computed once per model, that take the terms to LAPACK
+band storage — the lower band of the symmetric part for ``dpbtrf`` in one gather and one
+segmented sum, and the *block bands* (``lower[c, s] = A[c+s, c]``, ``upper[c, s] = A[c, c+s]``,
+stacked in one flat *storage* with a trailing zero) from which the general band for ``dgbtrf``
+is gathered — without any dense or general sparse global matrix. :class:`Tangent` is one
+tangent's terms and factorises it (:mod:`vertebra.solver.banded`).
 """
 
 from __future__ import annotations
 
-import functools
 import numpy as np
 
 from vertebra.solver.banded import BandedFactor, factor_cholesky, factor_lu
@@ -28,10 +31,12 @@ _NO_PIECES = np.zeros(0, int)
 
 class BandAssembler:
     """Index maps from the tangent's terms to LAPACK band storage for ``n_blocks`` free frames
-    whose couplings reach ``span`` blocks, and cable pieces joining frames ``piece_a`` →
-    ``piece_b`` (frame 0 is the clamped base, block k is frame k + 1)."""
+    whose couplings reach ``span`` blocks, cable pieces joining frames ``piece_a`` → ``piece_b``
+    (sorted by a, then b) and, with ``gravity``, the weight's blocks (frame 0 is the clamped
+    base, block k is frame k + 1, link k joins frames k and k + 1)."""
 
-    def __init__(self, n_blocks: int, span: int, piece_a: np.ndarray = _NO_PIECES, piece_b: np.ndarray = _NO_PIECES):
+    def __init__(self, n_blocks: int, span: int, piece_a: np.ndarray = _NO_PIECES, piece_b: np.ndarray = _NO_PIECES,
+                 gravity: bool = False):
         if np.any(piece_b - piece_a > span):
             raise ValueError(f"cable pieces couple frames up to {int(np.max(piece_b - piece_a))} apart; span is {span}")
         self.n_blocks = nb = n_blocks
@@ -39,7 +44,7 @@ class BandAssembler:
         self.n = n = 6 * nb
         self.kd = kd = min(6 * (span + 1) - 1, max(n - 1, 0))
         self.block_shape = (nb, span + 1, 6, 6)
-        per_band = nb * (span + 1) * 36
+        self._per_band = per_band = nb * (span + 1) * 36
         self.storage_size = 2 * per_band + 1
         c, s, a, b = np.meshgrid(np.arange(nb), np.arange(span + 1), np.arange(6), np.arange(6), indexing="ij")
         block_flat = np.ravel_multi_index((c, s, a, b), self.block_shape)
@@ -58,72 +63,111 @@ class BandAssembler:
         I, J, a, b = i // 6, j // 6, i % 6, j % 6
         s = I - J
         inside = (i < n) & (s <= span)
-        flat = lambda band, c, off, r, col: band * per_band + ((c * (span + 1) + off) * 6 + r) * 6 + col  # noqa: E731
         zero = self.storage_size - 1
-        self._sym_ij = np.where(inside, flat(0, J, s, a, b), zero).ravel()                    # lower[J, s, a, b]
-        self._sym_ji = np.where(inside, np.where(s == 0, flat(0, J, 0, b, a), flat(1, J, s, b, a)), zero).ravel()
-        self._cable_maps(piece_a, piece_b)
+        sym_ij = np.where(inside, self._flat(0, J, s, a, b), zero).ravel()                    # lower[J, s, a, b]
+        sym_ji = np.where(inside, np.where(s == 0, self._flat(0, J, 0, b, a), self._flat(1, J, s, b, a)), zero).ravel()
+        self._sym_ij, self._sym_ji = sym_ij, sym_ji
+        # cable pieces: the pairs of frames they join, and the pieces of each pair padded with
+        # piece_a.size (no piece), CablePieces.tangent's groups
+        first = np.flatnonzero(np.r_[piece_a.size > 0, (piece_a[1:] != piece_a[:-1]) | (piece_b[1:] != piece_b[:-1])])
+        self.pair_a, self.pair_b = piece_a[first], piece_b[first]
+        counts = np.diff(np.r_[first, piece_a.size])
+        slot = np.arange(int(counts.max(initial=0)))
+        self.cable_groups = np.where(slot < counts[:, None], first[:, None] + slot, piece_a.size)
+        # the terms: links, cable pairs, weight blocks, a zero
+        self.n_pairs = first.size
+        self._cable_start = nb * 144
+        self._weight_start = self._cable_start + self.n_pairs * 144
+        self.gravity = gravity
+        self.terms_size = self._weight_start + (nb * 9 if gravity else 0) + 1
+        destination = self._term_destinations()
+        self._storage_gather, self._band_gather = self._gathers(destination, sym_ij, sym_ji)
 
-    def _cable_maps(self, a: np.ndarray, b: np.ndarray) -> None:
-        """Pieces join frames a → b (sorted by a, then b). When every pair of frames has frames of
-        its own (consecutive vertebrae), each pair's summed tangent is written once per block
-        (per-pair path); otherwise one gather-sum-scatter adds pieces that share a block."""
-        first = np.flatnonzero(np.r_[a.size > 0, (a[1:] != a[:-1]) | (b[1:] != b[:-1])])
-        self.pair_a, self.pair_b = a[first], b[first]
-        self._pair_free = self.pair_a > 0
-        self._pair_offset = (self.pair_b - self.pair_a)[self._pair_free]
-        # the pieces of each pair, padded with a.size (no piece): CablePieces.tangent's groups
-        counts = np.diff(np.r_[first, a.size])
-        width = int(counts.max(initial=0))
-        slot = np.arange(width)
-        self.cable_groups = np.where(slot < counts[:, None], first[:, None] + slot, a.size)
-        chains = np.unique(self.pair_a).size == first.size and np.unique(self.pair_b).size == first.size
-        self.cable_scatter = None if chains else self.cable_scatter_map(self.pair_a, self.pair_b)
+    def _flat(self, band, c, offset, r, col):
+        """Index in the flat storage of ``[lower, upper][band][c, offset, r, col]``."""
+        return band * self._per_band + ((c * (self.span + 1) + offset) * 6 + r) * 6 + col
 
-    def cable_scatter_map(self, a: np.ndarray, b: np.ndarray):
-        """Where the 144 tangent entries of each pair of frames ``a`` → ``b`` go in the flat block
-        storage, sorted by destination so that one ``add.reduceat`` sums the pairs that share a
-        block: (source indices, segment starts, unique destinations)."""
-        n_offsets = self.span + 1
-        n_band = self.n_blocks * n_offsets
-        piece = np.arange(a.size)
-        free = a > 0
-        # (pieces, row block, column block, destination block) for bb, aa, ba, ab
-        parts = [(piece, 1, 1, (b - 1) * n_offsets),
-                 (piece[free], 0, 0, (a[free] - 1) * n_offsets),
-                 (piece[free], 1, 0, (a[free] - 1) * n_offsets + (b - a)[free]),
-                 (piece[free], 0, 1, n_band + (a[free] - 1) * n_offsets + (b - a)[free])]
+    def _term_destinations(self) -> np.ndarray:
+        """Where each entry of the terms goes in the flat storage (−1: nowhere)."""
+        nb = self.n_blocks
+        destination = np.full(self.terms_size, -1)
         r, c = np.meshgrid(np.arange(6), np.arange(6), indexing="ij")
-        src, dst = [], []
-        for p, rb, cb, block in parts:
-            src.append((p[:, None] * 144 + (6 * rb + r.ravel()) * 12 + 6 * cb + c.ravel()).ravel())
-            dst.append((block[:, None] * 36 + r.ravel() * 6 + c.ravel()).ravel())
-        src, dst = np.concatenate(src), np.concatenate(dst)
-        order = np.argsort(dst, kind="stable")
-        src, dst = src[order], dst[order]
-        starts = np.flatnonzero(np.r_[dst.size > 0, dst[1:] != dst[:-1]])
-        return src, starts, dst[starts]
+        r, c = r.ravel(), c.ravel()
 
-    @functools.cached_property
-    def _link_terms(self) -> tuple:
-        """Indices into the links' tangents side by side (plus the trailing zero) of the four terms
-        of every entry in the first min(kd, 11) + 1 rows of the lower symmetric band: on the
-        diagonal block of free frame J the end-b block of link J and the end-a block of link
-        J + 1, below it the (b, a) block of link J + 1, and the transposed partners."""
-        nb, n = self.n_blocks, self.n
-        d, j = np.meshgrid(np.arange(min(self.kd, 11) + 1), np.arange(n), indexing="ij")   # links: 2 blocks
-        i = j + d
-        I, J, a, b = i // 6, j // 6, i % 6, j % 6
-        zero = nb * 144
-        entry = lambda link, r, c: link * 144 + r * 12 + c    # noqa: E731
-        diagonal = (i < n) & (I == J)
-        below = (i < n) & (I == J + 1)
-        nxt = diagonal & (J + 1 < nb)
-        return tuple(x.ravel() for x in (
-            np.where(diagonal, entry(J, 6 + a, 6 + b), np.where(below, entry(J + 1, 6 + a, b), zero)),
-            np.where(diagonal, entry(J, 6 + b, 6 + a), np.where(below, entry(J + 1, b, 6 + a), zero)),
-            np.where(nxt, entry(J + 1, a, b), zero),
-            np.where(nxt, entry(J + 1, b, a), zero)))
+        def place(start, k, a_block, b_block, free, offset):
+            """12×12 terms number ``k`` (from ``start``) coupling blocks ``a_block`` → ``b_block``
+            (``free``: a is a free frame) ``offset`` apart."""
+            base = start + k[:, None] * 144
+            destination[base + (6 + r) * 12 + 6 + c] = self._flat(0, b_block[:, None], 0, r, c)
+            base, a_block, offset = base[free], a_block[free][:, None], offset[free][:, None]
+            destination[base + r * 12 + c] = self._flat(0, a_block, 0, r, c)
+            destination[base + (6 + r) * 12 + c] = self._flat(0, a_block, offset, r, c)
+            destination[base + r * 12 + 6 + c] = self._flat(1, a_block, offset, r, c)
+
+        links = np.arange(nb)
+        place(0, links, links - 1, links, links > 0, np.ones(nb, int))
+        pairs = np.arange(self.n_pairs)
+        place(self._cable_start, pairs, self.pair_a - 1, self.pair_b - 1, self.pair_a > 0, self.pair_b - self.pair_a)
+        if self.gravity:
+            r3, c3 = np.meshgrid(np.arange(3), np.arange(3), indexing="ij")
+            destination[self._weight_start + links[:, None] * 9 + (r3 * 3 + c3).ravel()] = \
+                self._flat(0, links[:, None], 0, 3 + r3.ravel(), 3 + c3.ravel())
+        return destination
+
+    def _gathers(self, destination: np.ndarray, sym_ij: np.ndarray, sym_ji: np.ndarray) -> tuple:
+        """(indices into the terms, segment starts) whose ``add.reduceat`` gives every storage
+        entry, and every entry of the symmetric band (twice: ``A[i, j] + A[j, i]``). Each segment
+        ends with the terms' zero, so that none is empty."""
+        positions = self.storage_size - 1
+        zero = self.terms_size - 1
+        source = np.flatnonzero(destination >= 0)
+        order = np.argsort(destination[source], kind="stable")
+        source, target = source[order], destination[source][order]
+        count = np.bincount(target, minlength=positions + 1)        # position `positions`: outside, none
+        first = np.cumsum(count) - count
+
+        def gather(*where):
+            counts = [count[p] for p in where]
+            length = sum(counts) + 1
+            starts = np.cumsum(length) - length
+            indices = np.full(int(length.sum()), zero)
+            at = starts.copy()
+            for p, k in zip(where, counts):
+                entry = np.repeat(np.arange(p.size), k)
+                rank = np.arange(int(k.sum())) - np.repeat(np.cumsum(k) - k, k)
+                indices[at[entry] + rank] = source[first[p[entry]] + rank]
+                at += k
+            return indices, starts
+
+        return gather(np.arange(positions)), gather(sym_ij, sym_ji)
+
+    # ------------------------------------------------------------------ terms
+    def new_terms(self) -> tuple:
+        """Uninitialised terms (their trailing zero set) and the views to fill: the links'
+        tangents (n_blocks, 12, 12), the cable pairs' (n_pairs, 12, 12) and the weight's blocks
+        (n_blocks, 3, 3; None without gravity)."""
+        nb = self.n_blocks
+        terms = np.empty(self.terms_size)
+        terms[-1] = 0.0
+        links = terms[:self._cable_start].reshape(nb, 12, 12)
+        cables = terms[self._cable_start:self._weight_start].reshape(self.n_pairs, 12, 12)
+        weight = terms[self._weight_start:-1].reshape(nb, 3, 3) if self.gravity else None
+        return terms, links, cables, weight
+
+    def storage_of(self, terms: np.ndarray) -> np.ndarray:
+        """Flat block storage (with its trailing zero) of the tangent whose terms are ``terms``."""
+        indices, starts = self._storage_gather
+        storage = np.empty(self.storage_size)
+        np.add.reduceat(terms.take(indices), starts, out=storage[:-1])
+        storage[-1] = 0.0
+        return storage
+
+    def symmetric_band_of(self, terms: np.ndarray) -> np.ndarray:
+        """Lower band (kd + 1, n) of the symmetric part of the tangent whose terms are ``terms``."""
+        indices, starts = self._band_gather
+        band = np.add.reduceat(terms.take(indices), starts)
+        band *= 0.5
+        return band.reshape(self.kd + 1, self.n)
 
     # ------------------------------------------------------------------ block storage
     def new_storage(self):
@@ -136,41 +180,6 @@ class BandAssembler:
     def diagonal(blocks: np.ndarray) -> np.ndarray:
         """The diagonal blocks (n_blocks, 6, 6) of free frames 1 … N−1 in a block-band view."""
         return blocks[0, :, 0]
-
-    def add_cables(self, blocks: np.ndarray, H: np.ndarray) -> None:
-        """Add the cables' tangents ``H`` (pairs, 12, 12), summed over the pieces of each pair of
-        frames (``CablePieces.tangent`` with :attr:`cable_groups`), to the block bands."""
-        lower, upper = blocks[0], blocks[1]
-        if self.cable_scatter is None:
-            free, fa = self._pair_free, self.pair_a[self._pair_free] - 1
-            lower[self.pair_b - 1, 0] += H[:, 6:, 6:]
-            lower[fa, 0] += H[free, :6, :6]
-            lower[fa, self._pair_offset] += H[free, 6:, :6]
-            upper[fa, self._pair_offset] += H[free, :6, 6:]
-        else:
-            source, starts, target = self.cable_scatter
-            blocks.reshape(-1)[target] += np.add.reduceat(H.reshape(-1).take(source), starts)
-
-    def add_links(self, blocks: np.ndarray, link_tangents: np.ndarray) -> None:
-        """Add the links' tangents (the flat side-by-side form) to the block bands."""
-        lower, upper = blocks[0], blocks[1]
-        H = link_tangents[:-1].reshape(self.n_blocks, 12, 12)
-        lower[:, 0] += H[:, 6:, 6:]
-        lower[:-1, 0] += H[1:, :6, :6]
-        lower[:-1, 1] += H[1:, 6:, :6]
-        upper[:-1, 1] += H[1:, :6, 6:]
-
-    # ------------------------------------------------------------------ LAPACK storage
-    def symmetric_from_links(self, link_tangents: np.ndarray) -> np.ndarray:
-        """The first min(kd, 11) + 1 rows of the lower band of the symmetric part of the links'
-        tangents (links couple neighbouring frames only; wider bands come from cables)."""
-        t1, t2, t3, t4 = self._link_terms
-        ab = link_tangents.take(t1)
-        ab += link_tangents.take(t2)
-        ab += link_tangents.take(t3)
-        ab += link_tangents.take(t4)
-        ab *= 0.5
-        return ab.reshape(-1, self.n)
 
     def symmetric_from_storage(self, storage: np.ndarray) -> np.ndarray:
         """Lower band of the symmetric part ½(A + Aᵀ) of the blocks held in ``storage``."""
@@ -189,26 +198,21 @@ class BandAssembler:
 
 
 class Tangent:
-    """The tangent stiffness at one state: the links' tangents side by side (with the trailing
-    zero) and, when cables or gravity act, their blocks in flat block storage. Its full block
-    storage (LU and shifted LU factors) and the lower band of its symmetric part are assembled
-    on first need and kept."""
+    """The tangent stiffness at one state: its terms side by side (:meth:`BandAssembler.new_terms`).
+    The lower band of its symmetric part and its full block storage (LU and shifted LU factors)
+    are assembled on first need and kept."""
 
-    __slots__ = ("assembler", "links", "extra", "_storage", "_band")
+    __slots__ = ("assembler", "terms", "_storage", "_band")
 
-    def __init__(self, assembler: BandAssembler, links: np.ndarray, extra: np.ndarray | None):
-        self.assembler, self.links, self.extra = assembler, links, extra
+    def __init__(self, assembler: BandAssembler, terms: np.ndarray):
+        self.assembler, self.terms = assembler, terms
         self._storage = None
         self._band = None
 
     def storage(self) -> np.ndarray:
         """Flat block storage of the whole tangent (read it through ``new_storage``'s view shape)."""
         if self._storage is None:
-            storage, blocks = self.assembler.new_storage()
-            if self.extra is not None:
-                storage[:] = self.extra
-            self.assembler.add_links(blocks, self.links)
-            self._storage = storage
+            self._storage = self.assembler.storage_of(self.terms)
         return self._storage
 
     def blocks(self) -> np.ndarray:
@@ -218,15 +222,7 @@ class Tangent:
     def symmetric_band(self) -> np.ndarray:
         """LAPACK lower band of the tangent's symmetric part (kept: do not modify it)."""
         if self._band is None:
-            assembler = self.assembler
-            links = assembler.symmetric_from_links(self.links)
-            if links.shape[0] == assembler.kd + 1 and self.extra is None:
-                band = links
-            else:
-                band = (assembler.symmetric_from_storage(self.extra) if self.extra is not None
-                        else np.zeros((assembler.kd + 1, assembler.n)))
-                band[:links.shape[0]] += links
-            self._band = band
+            self._band = self.assembler.symmetric_band_of(self.terms)
         return self._band
 
     def diagonal(self) -> np.ndarray:

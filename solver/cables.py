@@ -97,13 +97,14 @@ class CablePieces:
         C = (offsets @ _C_TABLE).reshape(-1, 12, 3) + _C_CONST
         return cls(C, u, length, (C @ u[:, :, None])[:, :, 0], offsets, d)
 
-    def tangent(self, tension: np.ndarray, groups: np.ndarray | None = None) -> np.ndarray:
+    def tangent(self, tension: np.ndarray, groups: np.ndarray | None = None, out: np.ndarray | None = None) -> np.ndarray:
         """Tangent (g, 12, 12) of ``Σ τ |d|`` over each group of pieces that join the same two
         frames: ``groups`` (g, k) holds piece indices, padded with m (no piece); default: every
         piece alone. With ``t = τ/|d|`` and ``g = C u`` a piece's tangent is
         ``t C Cᵀ − t g gᵀ − τ û ŝ_a (on dφ_a) + τ û ŝ_b (on dφ_b)``: every term but ``t g gᵀ`` is
         linear in the moments ``t x yᵀ`` (:func:`_group_table`), so a group's tangent comes from
-        the sums of the moments and of ``t g gᵀ`` over its pieces — one batched product."""
+        the sums of the moments and of ``t g gᵀ`` over its pieces — one batched product.
+        ``out``: a C-contiguous (g, 12, 12) array to write into."""
         m = self.length.shape[0]
         if groups is None:
             groups = np.arange(m)[:, None]
@@ -116,9 +117,11 @@ class CablePieces:
         Y[:m, 10:] = self.unit
         grouped = Y.take(groups, 0)                           # (g, k, 22)
         moments = grouped.mT @ (grouped * t.take(groups)[:, :, None])
-        H = (moments[:, :7, :10].reshape(-1, 70) @ _GROUP_TABLE).reshape(-1, 12, 12)
-        H -= moments[:, 10:, 10:]
-        return H
+        if out is None:
+            out = np.empty((groups.shape[0], 12, 12))
+        np.matmul(moments[:, :7, :10].reshape(-1, 70), _GROUP_TABLE, out=out.reshape(-1, 144))
+        out -= moments[:, 10:, 10:]
+        return out
 
 
 def _spans(R, x, holes):

@@ -228,24 +228,22 @@ def link_tangents(trunk, ev: Evaluation, out: np.ndarray) -> np.ndarray:
 
 
 def tangent(trunk, ev: Evaluation, memo) -> Tangent:
-    """Tangent of the potential at the state of ``ev``: the links' tangents side by side (their
-    symmetric band is gathered straight from them) and, when cables or gravity act, their
-    blocks in block storage. At the unstressed rest state the links' part is a model constant
-    (``memo``)."""
-    n = ev.links.xi.shape[0]
-    flat = np.empty(n * 144 + 1)
-    flat[-1] = 0.0                                           # what the band gathers read as zero
-    out = flat[:-1].reshape(n, 12, 12)
-    if ev.at_rest and not ev.w.any() and not ev.load.pressures.any():
-        out[:] = memo.unstressed_tangent(lambda: link_tangents(trunk, ev, np.empty((n, 12, 12))))
-    else:
-        link_tangents(trunk, ev, out)
-    if ev.pieces is None and ev.lever is None:
-        return Tangent(trunk.assembler, flat, None)
+    """Tangent of the potential at the state of ``ev``: its terms side by side — the links',
+    the cables' (summed per pair of frames) and the weight's — from which the assembler gathers
+    the bands. At the unstressed rest state the links' part is a model constant (``memo``)."""
     assembler = trunk.assembler
-    storage, blocks = assembler.new_storage()
+    terms, links, cables, weight = assembler.new_terms()
+    if ev.at_rest and not ev.w.any() and not ev.load.pressures.any():
+        links[:] = memo.unstressed_tangent(lambda: link_tangents(trunk, ev, np.empty(links.shape)))
+    else:
+        link_tangents(trunk, ev, links)
     if ev.pieces is not None:
-        assembler.add_cables(blocks, ev.pieces.tangent(ev.load.piece_tension, assembler.cable_groups))
-    if ev.lever is not None:
-        assembler.diagonal(blocks)[:, 3:, 3:] -= ev.load.weight_hat @ hat(ev.lever[1:])   # −ĝ l̂: the arm turns
-    return Tangent(assembler, flat, storage)
+        ev.pieces.tangent(ev.load.piece_tension, assembler.cable_groups, out=cables)
+    else:
+        cables[:] = 0.0
+    if weight is not None:
+        if ev.lever is not None:
+            np.matmul(-ev.load.weight_hat, hat(ev.lever[1:]), out=weight)     # −ĝ l̂: the arm turns
+        else:
+            weight[:] = 0.0
+    return Tangent(assembler, terms)

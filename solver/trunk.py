@@ -161,9 +161,10 @@ def compile_trunk(scene, entries: dict) -> Trunk:
     cables = CableRouting.of(scene.cables, frames.vertebra, frames.count)
     rest_state = compose(frames.base_quaternion, frames.base_position, links.rest)
     rest_pieces = cables.pieces(rest_state.positions, qmatrix(rest_state.quaternions))
-    return Trunk(scene, frames, links, cables, _actuators(scene, rest_volumes), _loads(scene, frames),
-                 _effectors(scene, frames), BandAssembler(frames.count - 1, cables.span, cables.piece_a, cables.piece_b),
-                 rest_state, cables.lengths(rest_pieces), rest_pieces.length)
+    loads = _loads(scene, frames)
+    assembler = BandAssembler(frames.count - 1, cables.span, cables.piece_a, cables.piece_b, loads.has_gravity)
+    return Trunk(scene, frames, links, cables, _actuators(scene, rest_volumes), loads, _effectors(scene, frames),
+                 assembler, rest_state, cables.lengths(rest_pieces), rest_pieces.length)
 
 
 def _compile_links(scene, entries):

@@ -1,6 +1,6 @@
-"""Tangent assembly paths (vertebra.solver.assembly): the per-pair cable sum against the general
-gather-sum-scatter, the symmetric band gathered from the link tangents against the block
-assembly, and the stability check on the assembled tangent."""
+"""Tangent assembly (vertebra.solver.assembly): the bands gathered from the terms against a dense
+assembly written out term by term, the cable tangent summed per pair of frames against the
+pieces', and the stability check on the assembled tangent."""
 
 import math
 
@@ -23,17 +23,75 @@ def _tensioned(name, seed):
     return model, actuation, model.solve(actuation).state
 
 
-@pytest.mark.parametrize("name", ["paper_3v_4t", "paper_5v_16t", "tendon_two_section"])
-def test_cable_tangent_summed_per_pair_equals_the_general_scatter(name):
+def _dense(assembler, terms):
+    """The tangent (free frames only) written out from its terms, one term at a time."""
+    nb, n = assembler.n_blocks, assembler.n
+    full = np.zeros((n + 6, n + 6))            # frame 0 (the clamped base) included, dropped below
+    _, links, cables, weight = assembler.new_terms()
+    links[:], cables[:] = (terms[:links.size].reshape(links.shape),
+                           terms[links.size:links.size + cables.size].reshape(cables.shape))
+    for k in range(nb):
+        dofs = np.r_[6 * k:6 * k + 12]
+        full[np.ix_(dofs, dofs)] += links[k]
+    for p, (a, b) in enumerate(zip(assembler.pair_a, assembler.pair_b)):
+        dofs = np.r_[6 * a:6 * a + 6, 6 * b:6 * b + 6]
+        full[np.ix_(dofs, dofs)] += cables[p]
+    if weight is not None:
+        weight[:] = terms[links.size + cables.size:-1].reshape(weight.shape)
+        for j in range(nb):
+            full[6 * (j + 1) + 3:6 * (j + 1) + 6, 6 * (j + 1) + 3:6 * (j + 1) + 6] += weight[j]
+    return full[6:, 6:]
+
+
+@pytest.mark.parametrize("name", ["paper_3v_4t", "paper_5v_16t", "tendon_two_section", "polymer_5v_16t",
+                                  "cantilever"])
+def test_bands_gathered_from_the_terms_equal_the_dense_assembly(name):
     model, actuation, state = _tensioned(name, 3)
     assembler = model.trunk.assembler
-    assert assembler.cable_scatter is None        # consecutive vertebrae: the per-pair path is used
-    grouped = tangent(model.trunk, model.evaluate(state, actuation), model.memo).extra.copy()  # cables, gravity
-    assembler.cable_scatter = assembler.cable_scatter_map(assembler.pair_a, assembler.pair_b)   # the general path
-    general = tangent(model.trunk, model.evaluate(state, actuation), model.memo).extra
-    # the same sums in another order: rounding only (measured ≤ 1.7e-16 of the largest entry)
-    assert np.abs(grouped - general).max() <= 1e-14 * np.abs(general).max()
-    assert np.abs(general).max() > 0
+    # away from equilibrium, where the turning lever arms make the tangent unsymmetric
+    moved = model.step(state, 1e-2 * model.length_scale * np.random.default_rng(5).normal(size=model.n_dof))
+    matrix = tangent(model.trunk, model.evaluate(moved, actuation), model.memo)
+    dense = _dense(assembler, matrix.terms)
+    scale = np.abs(dense).max()
+    assert scale > 0 and np.abs(dense - dense.T).max() > 1e-9 * scale    # (≫ rounding)
+    kd, n = assembler.kd, assembler.n
+    symmetric = 0.5 * (dense + dense.T)
+    band = matrix.symmetric_band()
+    for d in range(kd + 1):
+        assert np.abs(band[d, :n - d] - np.diagonal(symmetric, -d)).max() <= 1e-15 * scale
+        assert not band[d, n - d:].any()
+    assert (np.abs(np.subtract.outer(np.arange(n), np.arange(n))) <= kd)[dense != 0].all()  # inside the band
+    general = assembler.general_band(matrix.blocks())
+    for d in range(-kd, kd + 1):                             # ab[2kd + i − j, j] = A[i, j]
+        j = np.arange(max(0, -d), min(n, n - d))
+        assert np.abs(general[2 * kd + d, j] - dense[j + d, j]).max() <= 1e-15 * scale
+
+
+@pytest.mark.parametrize("gravity", [False, True])
+def test_bands_of_overlapping_pairs_and_random_terms_equal_the_dense_assembly(gravity):
+    # pairs of frames that share frames and blocks (any routing, not only consecutive vertebrae)
+    from vertebra.solver.assembly import BandAssembler
+
+    rng = np.random.default_rng(11)
+    n_blocks, span = 9, 3
+    a = rng.integers(0, n_blocks, 40)
+    b = np.minimum(a + rng.integers(1, span + 1, 40), n_blocks)
+    order = np.lexsort((b, a))
+    assembler = BandAssembler(n_blocks, span, a[order], b[order], gravity)
+    assert assembler.n_pairs < 40 and np.unique(assembler.pair_a).size < assembler.n_pairs
+    terms = rng.normal(size=assembler.terms_size)
+    terms[-1] = 0.0
+    dense = _dense(assembler, terms)
+    kd, n = assembler.kd, assembler.n
+    symmetric = 0.5 * (dense + dense.T)
+    band = assembler.symmetric_band_of(terms)
+    for d in range(kd + 1):
+        assert np.abs(band[d, :n - d] - np.diagonal(symmetric, -d)).max() <= 1e-14
+    storage = assembler.storage_of(terms)
+    general = assembler.general_band(storage[:-1].reshape((2,) + assembler.block_shape))
+    for d in range(-kd, kd + 1):
+        j = np.arange(max(0, -d), min(n, n - d))
+        assert np.abs(general[2 * kd + d, j] - dense[j + d, j]).max() <= 1e-14
 
 
 @pytest.mark.parametrize("name", ["paper_3v_4t", "paper_5v_16t", "tendon_two_section"])
