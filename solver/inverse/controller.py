@@ -176,7 +176,7 @@ class InverseController:
         timings["total_s"] = time.perf_counter() - t_start
         return InverseStep(
             actuation=self.actuation.copy(), state=self.state, targets=targets.copy(), positions=positions,
-            errors=errors, displacements=displacements, reached=all(e <= tolerance for e in errors.tolist()),
+            errors=errors, displacements=displacements, reached=float(np.maximum.reduce(errors)) <= tolerance,
             equilibrium=equilibrium, iterations=iterations, qp=sol, timings=timings, status=status,
             out_of_range=self.model.out_of_range(self.state, self.actuation))
 
