@@ -13,7 +13,7 @@ are written side by side in one flat array, the *terms* (:meth:`BandAssembler.ne
 
 :class:`BandAssembler` holds the maps, computed once per model, that take the terms to LAPACK
 band storage — the lower band of the symmetric part for ``dpbtrf`` in one gather and one
-segmented sum, and the *block bands* (``lower[c, s] = A[c+s, c]``, ``upper[c, s] = A[c, c+s]``,
+sum, and the *block bands* (``lower[c, s] = A[c+s, c]``, ``upper[c, s] = A[c, c+s]``,
 stacked in one flat *storage* with a trailing zero) from which the general band for ``dgbtrf``
 is gathered — without any dense or general sparse global matrix. :class:`Tangent` is one
 tangent's terms and factorises it (:mod:`vertebra.solver.banded`).
@@ -115,9 +115,9 @@ class BandAssembler:
         return destination
 
     def _gathers(self, destination: np.ndarray, sym_ij: np.ndarray, sym_ji: np.ndarray) -> tuple:
-        """(indices into the terms, segment starts) whose ``add.reduceat`` gives every storage
-        entry, and every entry of the symmetric band (twice: ``A[i, j] + A[j, i]``). Each segment
-        ends with the terms' zero, so that none is empty."""
+        """Indices (k, entries) into the terms whose sum over the first axis gives every storage
+        entry, and every entry of the symmetric band (twice: ``A[i, j] + A[j, i]``); ``k`` is the
+        most terms any entry gathers, and the shorter columns point to the terms' zero."""
         positions = self.storage_size - 1
         zero = self.terms_size - 1
         source = np.flatnonzero(destination >= 0)
@@ -128,16 +128,14 @@ class BandAssembler:
 
         def gather(*where):
             counts = [count[p] for p in where]
-            length = sum(counts) + 1
-            starts = np.cumsum(length) - length
-            indices = np.full(int(length.sum()), zero)
-            at = starts.copy()
+            indices = np.full((max(1, int(sum(counts).max(initial=0))), where[0].size), zero)
+            at = np.zeros(where[0].size, int)
             for p, k in zip(where, counts):
                 entry = np.repeat(np.arange(p.size), k)
                 rank = np.arange(int(k.sum())) - np.repeat(np.cumsum(k) - k, k)
-                indices[at[entry] + rank] = source[first[p[entry]] + rank]
+                indices[at[entry] + rank, entry] = source[first[p[entry]] + rank]
                 at += k
-            return indices, starts
+            return indices
 
         return gather(np.arange(positions)), gather(sym_ij, sym_ji)
 
@@ -156,16 +154,14 @@ class BandAssembler:
 
     def storage_of(self, terms: np.ndarray) -> np.ndarray:
         """Flat block storage (with its trailing zero) of the tangent whose terms are ``terms``."""
-        indices, starts = self._storage_gather
         storage = np.empty(self.storage_size)
-        np.add.reduceat(terms.take(indices), starts, out=storage[:-1])
+        np.add.reduce(terms.take(self._storage_gather), axis=0, out=storage[:-1])
         storage[-1] = 0.0
         return storage
 
     def symmetric_band_of(self, terms: np.ndarray) -> np.ndarray:
         """Lower band (kd + 1, n) of the symmetric part of the tangent whose terms are ``terms``."""
-        indices, starts = self._band_gather
-        band = np.add.reduceat(terms.take(indices), starts)
+        band = np.add.reduce(terms.take(self._band_gather), axis=0)
         band *= 0.5
         return band.reshape(self.kd + 1, self.n)
 
