@@ -121,8 +121,9 @@ class BandAssembler:
         positions = self.storage_size - 1
         zero = self.terms_size - 1
         source = np.flatnonzero(destination >= 0)
-        order = np.argsort(destination[source], kind="stable")
-        source, target = source[order], destination[source][order]
+        target = destination[source]
+        order = np.argsort(target, kind="stable")
+        source, target = source[order], target[order]
         count = np.bincount(target, minlength=positions + 1)        # position `positions`: outside, none
         first = np.cumsum(count) - count
 
@@ -141,16 +142,19 @@ class BandAssembler:
 
     # ------------------------------------------------------------------ terms
     def new_terms(self) -> tuple:
-        """Uninitialised terms (their trailing zero set) and the views to fill: the links'
-        tangents (n_blocks, 12, 12), the cable pairs' (n_pairs, 12, 12) and the weight's blocks
-        (n_blocks, 3, 3; None without gravity)."""
-        nb = self.n_blocks
+        """Uninitialised terms (their trailing zero set) and the views to fill (:meth:`views`)."""
         terms = np.empty(self.terms_size)
         terms[-1] = 0.0
+        return (terms,) + self.views(terms)
+
+    def views(self, terms: np.ndarray) -> tuple:
+        """The parts of ``terms``: the links' tangents (n_blocks, 12, 12), the cable pairs'
+        (n_pairs, 12, 12) and the weight's blocks (n_blocks, 3, 3; None without gravity)."""
+        nb = self.n_blocks
         links = terms[:self._cable_start].reshape(nb, 12, 12)
         cables = terms[self._cable_start:self._weight_start].reshape(self.n_pairs, 12, 12)
         weight = terms[self._weight_start:-1].reshape(nb, 3, 3) if self.gravity else None
-        return terms, links, cables, weight
+        return links, cables, weight
 
     def storage_of(self, terms: np.ndarray) -> np.ndarray:
         """Flat block storage (with its trailing zero) of the tangent whose terms are ``terms``."""

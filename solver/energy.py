@@ -94,7 +94,7 @@ def evaluate(trunk, state, load: LoadCase, memo) -> Evaluation:
     parts = memo.potential_parts(record, load)
     if parts is None:
         parts = _potential_parts(trunk, x, rotations, links.xi, load)
-    total, w, kept = parts.response
+    _, w, kept = parts.response
     g_links = links.gradient(w)
     grad = np.zeros((x.shape[0], 6))
     grad[:-1] = g_links[:, :6]
@@ -104,18 +104,15 @@ def evaluate(trunk, state, load: LoadCase, memo) -> Evaluation:
     if load.piece_tension is not None:
         pieces = CablePieces.of_spans(*parts.spans)
         grad += trunk.cables.frame_forces(pieces, load.piece_tension)
-        total += float(load.piece_tension @ pieces.length)
 
     lever = parts.lever
     if load.weight is not None:
         grad[:, :3] -= load.frame_weight
         grad[:, 3:] -= lever @ load.weight_hat                 # moment (R s) × m g at the frame
-        total += _weight_potential(trunk, x, lever, load)
 
     if load.dead is not None:
         grad -= load.dead
-        total -= float(np.vdot(load.dead_forces, x))
-    return Evaluation(total, grad, links, w, kept, g_links, pieces, lever, load,
+    return Evaluation(_total(trunk, x, parts, load), grad, links, w, kept, g_links, pieces, lever, load,
                       record is not None and record is trunk.rest_state.strains)
 
 
@@ -131,14 +128,7 @@ def potential(trunk, state, load: LoadCase, memo) -> float:
     x = state.positions
     parts = _potential_parts(trunk, x, record.chain.rotations, record.xi, load)
     memo.keep_potential_parts(record, load, parts)
-    total = parts.response[0]
-    if parts.spans is not None:
-        total += float(load.piece_tension @ parts.spans[2])
-    if parts.lever is not None:
-        total += _weight_potential(trunk, x, parts.lever, load)
-    if load.dead is not None:
-        total -= float(np.vdot(load.dead_forces, x))
-    return total
+    return _total(trunk, x, parts, load)
 
 
 @dataclass(slots=True)
@@ -156,9 +146,17 @@ def _potential_parts(trunk, x: np.ndarray, rotations, xi: np.ndarray, load: Load
     return PotentialParts(link_response(trunk, xi, load.link_loads), spans, lever)
 
 
-def _weight_potential(trunk, x: np.ndarray, lever: np.ndarray, load: LoadCase) -> float:
-    """``−Σ m g · (x + R s)`` with the first mass moments ``lever = R s`` in world axes."""
-    return -float((trunk.frames.mass @ x + lever.sum(0)) @ load.weight)
+def _total(trunk, x: np.ndarray, parts: PotentialParts, load: LoadCase) -> float:
+    """The total potential (dead moments excluded) at positions ``x`` from its ``parts``: the
+    links' energies, the cables' ``τ L``, the weight's ``−Σ m g · (x + R s)`` and ``−F · x``."""
+    total = parts.response[0]
+    if parts.spans is not None:
+        total += float(load.piece_tension @ parts.spans[2])
+    if parts.lever is not None:
+        total -= float((trunk.frames.mass @ x + parts.lever.sum(0)) @ load.weight)
+    if load.dead is not None:
+        total -= float(np.vdot(load.dead_forces, x))
+    return total
 
 
 def link_response(trunk, xi: np.ndarray, link_loads: tuple) -> tuple[float, np.ndarray, tuple]:
@@ -241,9 +239,6 @@ def tangent(trunk, ev: Evaluation, memo) -> Tangent:
         ev.pieces.tangent(ev.load.piece_tension, assembler.cable_groups, out=cables)
     else:
         cables[:] = 0.0
-    if weight is not None:
-        if ev.lever is not None:
-            np.matmul(-ev.load.weight_hat, hat(ev.lever[1:]), out=weight)     # −ĝ l̂: the arm turns
-        else:
-            weight[:] = 0.0
+    if weight is not None:                                  # (gravity: the lever arms were evaluated)
+        np.matmul(-ev.load.weight_hat, hat(ev.lever[1:]), out=weight)        # −ĝ l̂: the arm turns
     return Tangent(assembler, terms)

@@ -185,8 +185,6 @@ class TrunkModel:
         """Where the links' states at ``state`` under ``actuation`` leave the range their energies
         were fitted on (:class:`~vertebra.solver.kinds.RangeExcess`, in link order; empty when
         inside, or when no link energy is a fit): what a solve reports in ``out_of_range``."""
-        if not self.trunk.links.fitted:
-            return ()
         return out_of_range(self.trunk, state, lambda: self.memo.load_case(self.actuation(actuation), 1.0),
                             self.memo)
 

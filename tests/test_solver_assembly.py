@@ -27,9 +27,7 @@ def _dense(assembler, terms):
     """The tangent (free frames only) written out from its terms, one term at a time."""
     nb, n = assembler.n_blocks, assembler.n
     full = np.zeros((n + 6, n + 6))            # frame 0 (the clamped base) included, dropped below
-    _, links, cables, weight = assembler.new_terms()
-    links[:], cables[:] = (terms[:links.size].reshape(links.shape),
-                           terms[links.size:links.size + cables.size].reshape(cables.shape))
+    links, cables, weight = assembler.views(terms)
     for k in range(nb):
         dofs = np.r_[6 * k:6 * k + 12]
         full[np.ix_(dofs, dofs)] += links[k]
@@ -37,7 +35,6 @@ def _dense(assembler, terms):
         dofs = np.r_[6 * a:6 * a + 6, 6 * b:6 * b + 6]
         full[np.ix_(dofs, dofs)] += cables[p]
     if weight is not None:
-        weight[:] = terms[links.size + cables.size:-1].reshape(weight.shape)
         for j in range(nb):
             full[6 * (j + 1) + 3:6 * (j + 1) + 6, 6 * (j + 1) + 3:6 * (j + 1) + 6] += weight[j]
     return full[6:, 6:]

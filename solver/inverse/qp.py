@@ -104,15 +104,13 @@ def quadratic_form(problem: ConstraintProblem, displacement_bounds=None, *, scal
         d = np.maximum(d, floor)
     s = float(np.add.reduce(diagonal / d)) / n  # the mean of Hᵢᵢ/dᵢ
     rho = space.regularisation * (s if s > 0 else 1.0)
-    if problem.damping:
-        # Levenberg–Marquardt damping of the change from λ0: ½ δ s Σ dᵢ (λᵢ − λ0ᵢ)²
-        damping = problem.damping * (s if s > 0 else 1.0)
-        diagonal += (rho + damping) * d  # P = H + (ρ + δ s) diag(d), symmetric by construction (Wᵀ diag(w) W)
+    # Levenberg–Marquardt damping of the change from λ0, when asked: ½ δ s Σ dᵢ (λᵢ − λ0ᵢ)²
+    damping = problem.damping * (s if s > 0 else 1.0)
+    diagonal += (rho + damping) * d  # P = H + (ρ + δ s) diag(d), symmetric by construction (Wᵀ diag(w) W)
+    if damping:
         pull = (damping * d) * problem.lambda0
         q = q - pull
         c += 0.5 * float(pull @ problem.lambda0)
-    else:
-        diagonal += rho * d  # P = H + ρ diag(d), symmetric by construction (Wᵀ diag(w) W)
     dlo, dhi = (space.displacement_lower, space.displacement_upper) if displacement_bounds is None \
         else displacement_bounds
     rows = space.rows
