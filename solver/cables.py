@@ -128,10 +128,10 @@ def _spans(R, x, holes):
     """Hole offsets ``[s_a, s_b]`` (m, 6), spans ``d = P_b − P_a`` (m, 3) and lengths (m,) of the
     pieces whose ends have rotations ``R`` (2m, 3, 3), positions ``x`` (2m, 3) and hole offsets
     ``holes`` (2m, 3, 1), interleaved."""
-    offsets = np.einsum("nij,nj->ni", R, holes[:, :, 0])
-    ends = (x + offsets).reshape(-1, 2, 3)
-    d = ends[:, 1] - ends[:, 0]
-    return offsets.reshape(-1, 6), d, np.sqrt(np.einsum("ij,ij->i", d, d))
+    offsets = (R @ holes).reshape(-1, 3)
+    ends = x + offsets
+    d = ends[1::2] - ends[::2]
+    return offsets.reshape(-1, 6), d, np.sqrt(np.add.reduce(d * d, 1))
 
 
 def incidence(rows: np.ndarray, n_rows: int):

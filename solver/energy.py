@@ -153,7 +153,7 @@ def _total(trunk, x: np.ndarray, parts: PotentialParts, load: LoadCase) -> float
     if parts.spans is not None:
         total += float(load.piece_tension @ parts.spans[2])
     if parts.lever is not None:
-        total -= float((trunk.frames.mass @ x + parts.lever.sum(0)) @ load.weight)
+        total -= float((trunk.frames.mass @ x + np.add.reduce(parts.lever)) @ load.weight)
     if load.dead is not None:
         total -= float(np.vdot(load.dead_forces, x))
     return total

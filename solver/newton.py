@@ -187,9 +187,9 @@ class _Stage:
             # root in α of |d|² + 2α d·Δd + α²|Δd|² = ¼|d|², where there is one
             moves = np.zeros((self.trunk.frames.count, 6))
             moves[1:] = dq.reshape(-1, 6)
-            delta = np.einsum("mij,mi->mj", pieces.C, moves[self.trunk.cables.ends].reshape(-1, 12))
-            along = np.einsum("mj,mj->m", pieces.u, delta) * pieces.length        # d·Δd
-            squared = np.einsum("mj,mj->m", delta, delta)                        # |Δd|²
+            delta = (moves[self.trunk.cables.ends].reshape(-1, 1, 12) @ pieces.C)[:, 0]
+            along = np.add.reduce(pieces.d * delta, 1)                          # d·Δd
+            squared = np.add.reduce(delta * delta, 1)                           # |Δd|²
             discriminant = along * along - 0.75 * squared * pieces.length ** 2
             closing = (along < 0.0) & (discriminant > 0.0)
             if closing.any():
@@ -223,7 +223,7 @@ class _Stage:
 
     def _folded(self, state: State, xi: np.ndarray) -> None:
         """Raise :class:`Unrepresentable` when a link is compressed below :data:`FOLD_LIMIT`."""
-        axial = np.einsum("ij,ij->i", xi[:, :3], self.axis)
+        axial = np.add.reduce(xi[:, :3] * self.axis, 1)
         if float(axial.min()) < FOLD_LIMIT:
             k = int(np.argmin(axial))
             segment, _ = segment_of(self.trunk, k)

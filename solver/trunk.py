@@ -10,6 +10,7 @@ offsets kept, so gravity also makes moments).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, fields
 
 import numpy as np
@@ -75,7 +76,7 @@ class LinkSet(_Frozen):
     def count(self) -> int:
         return self.rest.shape[0]
 
-    @property
+    @functools.cached_property
     def fitted(self) -> bool:
         """Is any link energy fitted on a range (can a state leave it)?"""
         return any(energy.fitted for energy in self.energies)

@@ -57,11 +57,11 @@ class TrustRegion:
         """Targets (n_eff, 3) moved towards ``positions`` so that none lies farther than a
         radius (``rotation`` for axis effectors, ``translation`` for points)."""
         gap = targets - positions
-        squared = np.einsum("ij,ij->i", gap, gap)
-        if float(squared.max()) <= min(self.translation, self.rotation) ** 2:
+        flat = gap.reshape(-1)
+        if float(flat @ flat) <= min(self.translation, self.rotation) ** 2:   # (every gap is shorter)
             return targets
         radius = np.where(is_axis, self.rotation, self.translation)
-        distance = np.sqrt(squared)
+        distance = np.sqrt(np.add.reduce(gap * gap, 1))
         if (distance <= radius).all():
             return targets
         factor = np.minimum(1.0, radius / np.maximum(distance, 1e-300))
@@ -69,7 +69,7 @@ class TrustRegion:
 
     def fraction(self, dq: np.ndarray) -> float:
         """The largest ``α ≤ 1`` with ``α·dq`` within the radii (``dq``: ``[dx; dφ]`` per frame)."""
-        squared = (dq * dq).reshape(-1, 2, 3).sum(2).max(0).tolist()    # largest |dx|², |dφ|²
+        squared = np.maximum.reduce(np.add.reduce((dq * dq).reshape(-1, 2, 3), 2)).tolist()  # largest |dx|², |dφ|²
         return min(1.0, self.translation / max(math.sqrt(squared[0]), 1e-300),
                    self.rotation / max(math.sqrt(squared[1]), 1e-300))
 
