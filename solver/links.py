@@ -5,10 +5,10 @@ an energy ``ψ(ξ, p)`` (its *kind* says which: :mod:`vertebra.solver.kinds`). E
 depends on the energy only through ``w = ∂ψ/∂ξ`` (the strain-space force) and the material
 tangent ``M = ∂²ψ/∂ξ²``:
 
-* gradient on the frames: ``g = Zw y`` with ``y = J_l⁻ᵀ w`` (``J_l⁻¹`` from
+* gradient on the frames: ``g = Zw y = Gᵀ w`` with ``y = J_l⁻ᵀ w`` (``J_l⁻¹`` from
   :mod:`vertebra.solver.lie`); ``Zw`` maps strain-space forces to the 12 forces/moments on
-  ``[a; b]`` (world axes);
-* tangent: ``Zw (∂y/∂ξ) J_l⁻¹ Zwᵀ`` plus the geometric stiffness of the lever arms, where,
+  ``[a; b]`` (world axes) and ``G = J_l⁻¹ Zwᵀ = ∂ξ/∂[q_a; q_b]`` is the strain's Jacobian;
+* tangent: ``Zw (∂y/∂ξ) G`` plus the geometric stiffness of the lever arms, where,
   because ``ad`` is linear in its argument (``ad(δ)ᵀu = Λ(u)δ``,
   ``Λ(u) = [[0, û_f], [û_f, û_m]]``), the product rule gives — no complex step, no finite
   difference::
@@ -93,6 +93,7 @@ class Links:
     Jl_inv: np.ndarray     # (n, 6, 6) inverse left Jacobian
     coef: np.ndarray       # (n, 31) lie.coefficients() of the strains
     span: np.ndarray       # (n, 3) x_b − x_a, world
+    G: np.ndarray          # (n, 6, 12) J_l⁻¹ Zwᵀ = ∂ξ/∂[q_a; q_b], the strain's Jacobian (world chart)
 
     @classmethod
     def of(cls, qa, xa, qb, xb) -> "Links":
@@ -125,8 +126,9 @@ class Links:
         features = np.empty((n, 18))                   # [R_a, ŝ R_a] with s = x_b − x_a
         features[:, :9] = Ra.reshape(n, 9)
         np.matmul((span @ HAT_TABLE).reshape(n, 3, 3), Ra, out=features[:, 9:].reshape(n, 3, 3))
-        return cls((features @ _ZW_TABLE).reshape(n, 12, 6), xi, flat.reshape(n, 5, 6, 6),
-                   left_jacobian_inverse(coef, flat), coef, span)
+        Zw = (features @ _ZW_TABLE).reshape(n, 12, 6)
+        Jl_inv = left_jacobian_inverse(coef, flat)
+        return cls(Zw, xi, flat.reshape(n, 5, 6, 6), Jl_inv, coef, span, Jl_inv @ Zw.mT)
 
     def transport(self, w: np.ndarray) -> np.ndarray:
         """``J_l⁻ᵀ w`` for ``w`` of shape (n, 6) or (n, m, 6)."""
@@ -134,9 +136,11 @@ class Links:
             return (w[:, None, :] @ self.Jl_inv)[:, 0]
         return w @ self.Jl_inv
 
-    def strain_change(self, zeta: np.ndarray) -> np.ndarray:
-        """``J_l⁻¹ ζ``: change of the strain under a left twist ``ζ`` in ``a``'s axes."""
-        return (self.Jl_inv @ zeta[:, :, None])[:, :, 0]
+    def strain_change(self, dq: np.ndarray) -> np.ndarray:
+        """``G [dq_a; dq_b] = J_l⁻¹ ζ``: the linearised change (n, 6) of the strains under frame
+        increments ``dq = [dx; dφ]`` (world axes, all n + 1 frames, (n + 1, 6))."""
+        pairs = np.concatenate([dq[:-1], dq[1:]], 1)
+        return (self.G @ pairs[:, :, None])[:, :, 0]
 
     def generalised_force(self, y: np.ndarray) -> np.ndarray:
         """Generalised force (…, 12) on ``[a, b]`` (world axes) of strain-space forces ``y``,
@@ -146,23 +150,17 @@ class Links:
         return (self.Zw @ y.mT).mT
 
     def gradient(self, w: np.ndarray) -> np.ndarray:
-        """Gradient on ``[a, b]`` of link energies with ``∂ψ/∂ξ = w``: ``Zw J_l⁻ᵀ w``, (n, 12) for
-        ``w`` (n, 6) or (n, m, 12) for (n, m, 6)."""
+        """Gradient on ``[a, b]`` of link energies with ``∂ψ/∂ξ = w``: ``Gᵀ w = Zw J_l⁻ᵀ w``, (n, 12)
+        for ``w`` (n, 6) or (n, m, 12) for (n, m, 6)."""
         if w.ndim == 2:
-            return (self.Zw @ (w[:, None, :] @ self.Jl_inv).mT)[:, :, 0]
-        return self.generalised_force(self.transport(w))
-
-    def zeta(self, dq: np.ndarray) -> np.ndarray:
-        """Left twists ζ (n, 6) in ``a``'s axes of frame increments ``dq = [dx; dφ]`` (world
-        axes, all n + 1 frames, (n + 1, 6)): ``ζ = Zwᵀ [dq_a; dq_b]``."""
-        pairs = np.concatenate([dq[:-1], dq[1:]], 1)
-        return (self.Zw.mT @ pairs[:, :, None])[:, :, 0]
+            return (w[:, None, :] @ self.G)[:, 0]
+        return w @ self.G
 
 
 def link_tangent(links: Links, w: np.ndarray, material: np.ndarray, gradient: np.ndarray, out=None):
     """Exact tangent (n, 12, 12) of the links' energies at the state of ``links``, from
     ``w = ∂ψ/∂ξ`` (n, 6), the material tangent ``∂²ψ/∂ξ²`` (n, 6, 6) and the links' gradient
-    (:meth:`Links.gradient`): ``Zw (∂y/∂ξ) J_l⁻¹ Zwᵀ`` plus the geometric stiffness of the lever
+    (:meth:`Links.gradient`): ``Zw (∂y/∂ξ) G`` plus the geometric stiffness of the lever
     arms (:func:`_geometric_table`); the formula is in the module docstring. ``out``: an
     (n, 12, 12) array to write into."""
     n = links.xi.shape[0]
@@ -173,7 +171,7 @@ def link_tangent(links: Links, w: np.ndarray, material: np.ndarray, gradient: np
     D = links.Apow[:, :4].reshape(n, 24, 6).mT @ (V[:, :4] @ _LAMBDA_TABLE).reshape(n, 24, 6)
     D += links.Jl_inv.mT @ material
     D[:, :, 3:] += V[:, 4, :, None] * links.xi[:, None, 3:]
-    H = np.matmul(links.Zw @ (D @ links.Jl_inv), links.Zw.mT, out=out)
+    H = np.matmul(links.Zw, D @ links.G, out=out)
     features = np.empty((n, 21))                # [g (12), span ⊗ f_b (9)]
     features[:, :12] = gradient
     np.multiply(links.span[:, :, None], gradient[:, None, 6:9], out=features[:, 12:].reshape(n, 3, 3))

@@ -109,7 +109,7 @@ def residual_weights(trunk) -> np.ndarray:
 def residual_norm(residual: np.ndarray, reference: float, weights: np.ndarray) -> float:
     """max(|force|, |moment| / length scale) / reference over the frames (``weights``:
     :func:`residual_weights`)."""
-    return float(np.abs(residual.reshape(-1, 6) * weights).max() / reference)
+    return float(np.maximum.reduce(np.abs(residual.reshape(-1, 6) * weights), None)) / reference
 
 
 def _force_scale(trunk, gradient: np.ndarray) -> float:
@@ -165,8 +165,8 @@ class _Stage:
         """Is every translation of ``α·dq`` below 1e-13 of the extent and every rotation below
         1e-13 rad?"""
         weights = self._resolution
-        weights[:3] = 1.0 / (self.trunk.frames.length_scale + float(np.abs(state.positions).max()))
-        return alpha * float(np.abs(dq.reshape(-1, 6) * weights).max()) <= RESOLUTION
+        weights[:3] = 1.0 / (self.trunk.frames.length_scale + float(np.maximum.reduce(np.abs(state.positions), None)))
+        return alpha * float(np.maximum.reduce(np.abs(dq.reshape(-1, 6) * weights), None)) <= RESOLUTION
 
     def step_limit(self, dq: np.ndarray, change: np.ndarray, ev) -> float:
         """The largest multiple of a step (frame increments ``dq``, strain change ``change``) that
@@ -176,11 +176,11 @@ class _Stage:
         holes moved to first order; a piece may swing round, but its holes never pass through
         each other): a state approaches what it cannot represent only gradually, never by
         overshooting."""
-        largest = np.abs(change).max(0).tolist()               # per component, over the links
+        largest = np.maximum.reduce(np.abs(change).reshape(-1, 2, 3), (0, 2)).tolist()   # |ρ|, |φ| components
         room = min(MAX_TURN, 0.5 * (math.pi - self.turn))
-        stretch = SQRT3 * max(largest[:3])
+        stretch = SQRT3 * largest[0]
         self.stretching |= stretch > STRETCHING * self.shortest
-        limit = min(room / max(SQRT3 * max(largest[3:]), 1e-300), MAX_STRETCH * self.shortest / max(stretch, 1e-300))
+        limit = min(room / max(SQRT3 * largest[1], 1e-300), MAX_STRETCH * self.shortest / max(stretch, 1e-300))
         pieces = ev.pieces
         if pieces is not None:
             # |d + α Δd| ≥ ½ |d| for every piece (Δd = Cᵀ dq its linearised change): the first
@@ -292,7 +292,8 @@ def _newton(stage: _Stage, state: State):
                 change = strain_change(dq, ev.links)
                 if stage.linear is None and ev.at_rest and not shift:
                     # the linear response from rest: what the load asks of each link, to first order
-                    stage.linear = np.linalg.norm(change[:, 3:], axis=1) / load.scale
+                    turns = change[:, 3:]
+                    stage.linear = np.sqrt(np.add.reduce(turns * turns, 1)) / load.scale
                 alpha = min(1.0, stage.step_limit(dq, change, ev))
                 if stage.below_resolution(state, dq, alpha):
                     # the correction is below the floating-point resolution of the poses: the

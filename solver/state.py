@@ -94,7 +94,7 @@ def strain_change(dq: np.ndarray, links: Links) -> np.ndarray:
     ``dq`` (``[dx; dφ]`` of every free frame, world axes; ``links``: the state's kinematics)."""
     d = np.zeros((links.xi.shape[0] + 1, 6))
     d[1:] = np.asarray(dq).reshape(-1, 6)
-    return links.strain_change(links.zeta(d))
+    return links.strain_change(d)
 
 
 def retract(state: State, dq: np.ndarray, links: Links, change: np.ndarray | None = None) -> State:
