@@ -64,8 +64,8 @@ def line_search(stage, state, ev, residual: float, dq, change, alpha: float, rp:
     noise = ROUNDING * abs(ev.energy)
     quality = None
     while alpha >= SEARCH_FLOOR:
-        trial = retract(state, dq, ev.links, change) if alpha == 1.0 else \
-            retract(state, alpha * dq, ev.links, alpha * change)
+        step, strains = (dq, change) if alpha == 1.0 else (alpha * dq, alpha * change)
+        trial = retract(state, step, ev.links, strains)
         ev_trial = evaluate(trunk, trial, load, memo)
         predicted = alpha * rp - 0.5 * alpha * alpha * curvature
         decrease = ev.energy - ev_trial.energy

@@ -165,7 +165,8 @@ class _Stage:
         """Is every translation of ``α·dq`` below 1e-13 of the extent and every rotation below
         1e-13 rad?"""
         weights = self._resolution
-        weights[:3] = 1.0 / (self.trunk.frames.length_scale + float(np.maximum.reduce(np.abs(state.positions), None)))
+        extent = self.trunk.frames.length_scale + float(np.maximum.reduce(np.abs(state.positions), None))
+        weights[:3] = 1.0 / extent
         return alpha * float(np.maximum.reduce(np.abs(dq.reshape(-1, 6) * weights), None)) <= RESOLUTION
 
     def step_limit(self, dq: np.ndarray, change: np.ndarray, ev) -> float:
@@ -176,7 +177,7 @@ class _Stage:
         holes moved to first order; a piece may swing round, but its holes never pass through
         each other): a state approaches what it cannot represent only gradually, never by
         overshooting."""
-        largest = np.maximum.reduce(np.abs(change).reshape(-1, 2, 3), (0, 2)).tolist()   # |ρ|, |φ| components
+        largest = np.maximum.reduce(np.abs(change).reshape(-1, 2, 3), (0, 2)).tolist()   # of a ρ, a φ component
         room = min(MAX_TURN, 0.5 * (math.pi - self.turn))
         stretch = SQRT3 * largest[0]
         self.stretching |= stretch > STRETCHING * self.shortest
