@@ -150,7 +150,6 @@ class _Stage:
         self.shift = shift                    # μ, carried from stage to stage
         self.weights = residual_weights(trunk)
         self.symmetric = not trunk.loads.has_dead_moments
-        self._resolution = np.ones(6)         # per-DoF scale of a correction (translations: 1/extent)
         self.axis, self.shortest = memo.link_axes()   # the axial stretch of a link is ρ · axis
         self.turn = 0.0                       # largest link rotation of the current state
         self.stretching = True                # the last step may have changed a link's length
@@ -164,10 +163,9 @@ class _Stage:
     def below_resolution(self, state: State, dq: np.ndarray, alpha: float = 1.0) -> bool:
         """Is every translation of ``α·dq`` below 1e-13 of the extent and every rotation below
         1e-13 rad?"""
-        weights = self._resolution
         extent = self.trunk.frames.length_scale + float(np.maximum.reduce(np.abs(state.positions), None))
-        weights[:3] = 1.0 / extent
-        return alpha * float(np.maximum.reduce(np.abs(dq.reshape(-1, 6) * weights), None)) <= RESOLUTION
+        largest = np.maximum.reduce(np.abs(dq).reshape(-1, 6)).tolist()     # per component, over the frames
+        return alpha * max(max(largest[:3]) / extent, max(largest[3:])) <= RESOLUTION
 
     def step_limit(self, dq: np.ndarray, change: np.ndarray, ev) -> float:
         """The largest multiple of a step (frame increments ``dq``, strain change ``change``) that
@@ -177,11 +175,11 @@ class _Stage:
         holes moved to first order; a piece may swing round, but its holes never pass through
         each other): a state approaches what it cannot represent only gradually, never by
         overshooting."""
-        largest = np.maximum.reduce(np.abs(change).reshape(-1, 2, 3), (0, 2)).tolist()   # of a ρ, a φ component
+        largest = np.maximum.reduce(np.abs(change)).tolist()   # per component, over the links
         room = min(MAX_TURN, 0.5 * (math.pi - self.turn))
-        stretch = SQRT3 * largest[0]
+        stretch = SQRT3 * max(largest[:3])
         self.stretching |= stretch > STRETCHING * self.shortest
-        limit = min(room / max(SQRT3 * largest[1], 1e-300), MAX_STRETCH * self.shortest / max(stretch, 1e-300))
+        limit = min(room / max(SQRT3 * max(largest[3:]), 1e-300), MAX_STRETCH * self.shortest / max(stretch, 1e-300))
         pieces = ev.pieces
         if pieces is not None:
             # |d + α Δd| ≥ ½ |d| for every piece (Δd = Cᵀ dq its linearised change): the first
