@@ -72,7 +72,7 @@ def chain_poses(q0: np.ndarray, x0: np.ndarray, xi: np.ndarray) -> Chain:
     N = n + 1
     rho, phi = xi[:, :3], xi[:, 3:]
     theta2 = (phi[:, None, :] @ phi[:, :, None])[:, 0, 0]
-    largest = float(theta2.max()) if n else 0.0
+    largest = float(np.maximum.reduce(theta2)) if n else 0.0
     if not largest < math.inf:                   # NaN, or a rotation whose square overflows
         raise ConvergenceError("non-finite values appeared in the retraction (a step of non-finite or "
                                "overflowing size)")

@@ -281,7 +281,7 @@ class InverseController:
                 # what the linear model promises at λ for the real targets (a bound may keep it
                 # above the current error)
                 gap = projection.problem.predict(lam)[0].reshape(-1, 3) + (aim - targets)
-                predicted = float(np.sqrt(np.einsum("ij,ij->i", gap, gap)).max())
+                predicted = math.sqrt(float(np.maximum.reduce(np.add.reduce(gap * gap, 1))))
                 if self._settle(lam, self._stepped(state_old, alpha * dq), state_old, timings):
                     new_error = float(np.max(_errors(self.model.effector_positions(self.state), targets)))
                     # how much of the promised improvement came (not judged below the tolerance:
