@@ -42,7 +42,7 @@ def huge_attribute(directory: Path, megabytes: int = 300) -> dict:
     import h5py
 
     from vertebra.store import catalogue
-    from vertebra.store.errors import CatalogueError
+    from vertebra.core.errors import CatalogueError
 
     valid = corruption.build_catalogue(directory)
     path = directory / "huge.h5"

@@ -273,7 +273,7 @@ def run_ccx(case, threads: int, symmetric_xz: bool = False, cached_only: bool = 
 
 
 def run_project(case, quadrature: str = "project") -> dict:
-    from vertebra.store.errors import ConvergenceError
+    from vertebra.core.errors import ConvergenceError
     start = time.perf_counter()
     trunk = project_trunk(case, quadrature)
     build_s = time.perf_counter() - start

@@ -179,7 +179,7 @@ def chain_errors(entry, cases, n):
 def section_kernel(results, quick):
     from vertebra.designer.energy_fit import invariant_basis, symmetry_group
     from vertebra.designer.families import AXISYMMETRIC, FAMILIES
-    from vertebra.solver.lie import qexp
+    from vertebra.core.lie import qexp
     from vertebra.solver.links import Links, link_tangent
     from vertebra.store.energy import EnergyFit, EnergyModel, EnergyRange
 

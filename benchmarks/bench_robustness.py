@@ -53,7 +53,7 @@ from vertebra.solver.gallery import load  # noqa: E402
 from vertebra.solver.gallery.targets import circle  # noqa: E402
 from vertebra.solver.inverse import InverseController, InverseSettings  # noqa: E402
 from vertebra.solver.newton import is_stable  # noqa: E402
-from vertebra.store.errors import ConvergenceError  # noqa: E402
+from vertebra.core.errors import ConvergenceError  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 JUMP = np.array([[0.04, 0.02, 0.13]])

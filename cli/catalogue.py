@@ -92,7 +92,7 @@ def _show(args) -> int:
 def _verify(args) -> int:
     from vertebra.store import catalogue
 
-    from vertebra.store.errors import CatalogueError
+    from vertebra.core.errors import CatalogueError
 
     problems = catalogue.verify(args.file)
     try:

@@ -17,7 +17,7 @@ import sys
 import time
 
 from vertebra.cli.outputs import output_file
-from vertebra.store.errors import OptionError
+from vertebra.core.errors import OptionError
 
 MESH_SUFFIXES = (".vtu", ".vtk")
 
@@ -70,7 +70,7 @@ def parse_values(values: list[str]) -> dict:
 
 def parse_sampling(values: list[str]) -> dict:
     """``--sampling NAME=VALUE`` strings to settings (numbers, true/false, none)."""
-    from vertebra.store.errors import OptionError
+    from vertebra.core.errors import OptionError
 
     out = {}
     for item in values:

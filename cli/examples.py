@@ -38,7 +38,7 @@ def example_files() -> list[tuple[str, object]]:
 
 
 def run(args) -> int:
-    from vertebra.store.errors import OptionError
+    from vertebra.core.errors import OptionError
 
     files = example_files()
     if args.list:

@@ -14,7 +14,7 @@ import os
 import sys
 
 from vertebra import __version__
-from vertebra.store.errors import CatalogueError, GeometryError, InputError, VertebraError
+from vertebra.core.errors import CatalogueError, GeometryError, InputError, VertebraError
 
 # name -> (module, one-line help). Adding a subcommand touches this table and its module.
 SUBCOMMANDS = {

@@ -29,7 +29,7 @@ def run(args) -> int:
     from vertebra import solver
     from vertebra.solver.paraview import trunk_polydata, write_vtp
     from vertebra.solver.report import plot_static, static_report, write_frames
-    from vertebra.store.errors import ConvergenceError
+    from vertebra.core.errors import ConvergenceError
 
     plot = output_file(args.plot, "--plot", PICTURE_SUFFIXES)
     vtk = output_file(args.vtk, "--vtk", VTK_SUFFIXES)

@@ -54,7 +54,7 @@ def _with_tip_effector(scene):
 def run(args) -> int:
     from vertebra import __version__, solver
     from vertebra.solver.workspace import sample_workspace, write_points
-    from vertebra.store.errors import OptionError
+    from vertebra.core.errors import OptionError
 
     plot = output_file(args.plot, "--plot", PICTURE_SUFFIXES)
     points = output_file(args.points, "--points", POINT_SUFFIXES)

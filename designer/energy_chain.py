@@ -25,7 +25,7 @@ from typing import Protocol
 import numpy as np
 
 from vertebra.designer.energy_fit import inverse_left_jacobian, pose_of_strain
-from vertebra.store.errors import ConvergenceError
+from vertebra.core.errors import ConvergenceError
 
 
 class SegmentEnergy(Protocol):

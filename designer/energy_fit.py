@@ -30,7 +30,7 @@ import numpy as np
 
 from vertebra.designer.families import SegmentSymmetry
 from vertebra.store.energy import Monomials, monomial_exponents
-from vertebra.store.errors import GeometryError
+from vertebra.core.errors import GeometryError
 
 #: step of the differences for E(g) (rad or m·scale); fourth-order stencil
 _DIFFERENCE_STEP = 1e-3

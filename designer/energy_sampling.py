@@ -36,7 +36,7 @@ import numpy as np
 
 from vertebra.designer.energy_fit import Samples, strain_derivatives, pose_of_strain
 from vertebra.store.energy import group_coordinates
-from vertebra.store.errors import ConvergenceError, OptionError
+from vertebra.core.errors import ConvergenceError, OptionError
 
 
 class PoseSolver(Protocol):

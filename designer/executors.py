@@ -38,7 +38,7 @@ from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Iterator, Protocol, runtime_checkable
 
 from vertebra.designer.threads import THREAD_VARIABLES, blas_threads, pin_blas_threads, thread_environment
-from vertebra.store.errors import OptionError
+from vertebra.core.errors import OptionError
 
 START_METHODS = ("spawn", "forkserver")
 

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vertebra.store.errors import GeometryError
+from vertebra.core.errors import GeometryError
 
 
 def skew(v) -> np.ndarray:

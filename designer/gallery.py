@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from vertebra.designer.segment import estimated_error
 from vertebra.designer.vertebra import vertebra_properties
-from vertebra.store.errors import VertebraError
+from vertebra.core.errors import VertebraError
 
 #: geometry of the two sections (bottom -> top), SI units
 CBHA_SECTIONS = (

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vertebra.store.errors import GeometryError
+from vertebra.core.errors import GeometryError
 
 # gmsh tetra10 node order -> scikit-fem/VTK order (edges (0,1),(1,2),(0,2),(0,3),(1,3),(2,3))
 _GMSH_TET10_TO_SKFEM = [0, 1, 2, 3, 4, 5, 6, 7, 9, 8]

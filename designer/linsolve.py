@@ -25,7 +25,7 @@ from typing import Protocol
 
 import numpy as np
 
-from vertebra.store.errors import ConvergenceError, VertebraError
+from vertebra.core.errors import ConvergenceError, VertebraError
 
 AUTO_THRESHOLD = 12_000     # interior unknowns; measured crossover ~14k (P2 rod), direct 7.8 s at 20k (pneumatic): benchmarks/results/designer.md
 AMG_RTOL = 1e-8             # relative residual of each PCG solve (compliance error ~1e-9, far below discretisation)

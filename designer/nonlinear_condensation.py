@@ -21,7 +21,7 @@ from vertebra.designer.energy_fit import (SegmentSymmetry, Samples, convexity, f
 from vertebra.designer.energy_sampling import (LoadBox, PathTask, PressureTask, SamplingSettings, load_box,
                                                path_endpoints, run_paths, run_pressure_ramp)
 from vertebra.store.energy import EnergyFit, EnergyRange, group_coordinates, linear_terms
-from vertebra.store.errors import ConvergenceError
+from vertebra.core.errors import ConvergenceError
 
 #: margin added around the sampled poses when stating the range (fraction of each group's width)
 POSE_MARGIN = 0.02

@@ -44,7 +44,7 @@ from vertebra.designer.sweep.run import run_plan
 from vertebra.designer.sweep.spec import DESIGN_OPTIONS, design_options
 from vertebra.designer.sweep.store import CatalogueStore, SweepStore
 from vertebra.designer.sweep.tasks import Batch, FiniteElementDesigner, SegmentDesigner, Task
-from vertebra.store.errors import ConvergenceError, OptionError, SceneError
+from vertebra.core.errors import ConvergenceError, OptionError, SceneError
 
 if TYPE_CHECKING:       # the designer reads scenes as data; it never imports the solver at run time
     from vertebra.solver.scene import Scene

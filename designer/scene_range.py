@@ -59,7 +59,7 @@ from typing import Callable
 
 import numpy as np
 
-from vertebra.store.errors import ConvergenceError
+from vertebra.core.errors import ConvergenceError
 
 #: factor by which the strain and load extremes are enlarged about zero (covers the response
 #: between corners and the constitutive difference of nonlinear entries under loads)

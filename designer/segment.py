@@ -24,7 +24,7 @@ import numpy as np
 from vertebra import __version__
 from vertebra.designer.families import FAMILIES, Family
 from vertebra.store.entry import SegmentEntry, content_key
-from vertebra.store.errors import GeometryError
+from vertebra.core.errors import GeometryError
 
 #: bump when a change in designer/ changes the numbers of an entry (part of the key)
 ALGORITHM_VERSION = "designer-4"   # 4: P1 accuracy by raising the order; Richardson size ratio by edge lengths
@@ -103,7 +103,7 @@ def result_versions() -> dict:
 
 def check_material(material: str) -> str:
     from vertebra.designer.nonlinear.materials import MATERIALS
-    from vertebra.store.errors import OptionError
+    from vertebra.core.errors import OptionError
 
     if material != LINEAR and material not in MATERIALS:
         raise OptionError(f"unknown material {material!r} (known: {', '.join(sorted(set(MATERIALS) | {LINEAR}))})",

@@ -5,10 +5,10 @@ partial result) and the input errors (:class:`InputError` and its kinds, each na
 field and reason), all :class:`VertebraError`.
 """
 
-from vertebra.solver.lie import pose_matrix
+from vertebra.core.lie import pose_matrix
 from vertebra.solver.model import Linearisation, State, StaticResult, TrunkModel, build_model
 from vertebra.solver.scene import Scene, load_scene, parse_scene
-from vertebra.store.errors import (CatalogueError, ConvergenceError, InputError, OptionError, SceneError,
+from vertebra.core.errors import (CatalogueError, ConvergenceError, InputError, OptionError, SceneError,
                                    SpecError, TrajectoryError, VertebraError)
 
 __all__ = ["CatalogueError", "ConvergenceError", "InputError", "Linearisation", "OptionError", "Scene",

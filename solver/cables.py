@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vertebra.solver.lie import HAT_TABLE, qrotate
+from vertebra.core.lie import HAT_TABLE, qrotate
 
 _C_CONST = np.zeros((12, 3))
 _C_CONST[:3], _C_CONST[6:9] = -np.eye(3), np.eye(3)

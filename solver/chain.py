@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vertebra.solver.lie import (
+from vertebra.core.lie import (
     EXP_SERIES_LIMIT,
     EXP_TABLE,
     L_TABLE,
@@ -25,7 +25,7 @@ from vertebra.solver.lie import (
     powers,
     terms,
 )
-from vertebra.store.errors import ConvergenceError
+from vertebra.core.errors import ConvergenceError
 
 CARRY_ANGLE = 0.99 * math.pi     # largest link rotation whose strain a composed state carries
 _CHAIN_TABLE = np.concatenate([SERIES, EXP_TABLE], 1)     # link coefficients and exp coefficients

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vertebra.store.errors import ConvergenceError
+from vertebra.core.errors import ConvergenceError
 
 
 @dataclass(frozen=True)

@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from vertebra.solver.lie import qrotate
+from vertebra.core.lie import qrotate
 
 DEFAULT_RADIUS = 0.02      # backbone radius as a fraction of the trunk length when nothing says it
 DISC_OVER_HOLES = 1.2      # vertebra disc radius over the largest cable hole radius

@@ -18,7 +18,7 @@ import numpy as np
 
 from vertebra.solver.assembly import Tangent
 from vertebra.solver.cables import CablePieces
-from vertebra.solver.lie import hat, qmatrix
+from vertebra.core.lie import hat, qmatrix
 from vertebra.solver.links import Links, link_tangent
 
 

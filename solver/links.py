@@ -6,7 +6,7 @@ depends on the energy only through ``w = ∂ψ/∂ξ`` (the strain-space force) 
 tangent ``M = ∂²ψ/∂ξ²``:
 
 * gradient on the frames: ``g = Zw y = Gᵀ w`` with ``y = J_l⁻ᵀ w`` (``J_l⁻¹`` from
-  :mod:`vertebra.solver.lie`); ``Zw`` maps strain-space forces to the 12 forces/moments on
+  :mod:`vertebra.core.lie`); ``Zw`` maps strain-space forces to the 12 forces/moments on
   ``[a; b]`` (world axes) and ``G = J_l⁻¹ Zwᵀ = ∂ξ/∂[q_a; q_b]`` is the strain's Jacobian;
 * tangent: ``Zw (∂y/∂ξ) G`` plus the geometric stiffness of the lever arms, where,
   because ``ad`` is linear in its argument (``ad(δ)ᵀu = Λ(u)δ``,
@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vertebra.solver.lie import (
+from vertebra.core.lie import (
     HAT_TABLE,
     L_TABLE,
     R_TABLE,

@@ -26,7 +26,7 @@ from vertebra.solver.newton import StaticResult
 from vertebra.solver.outputs import Linearisation
 from vertebra.solver.state import State, StrainRecord, retract
 from vertebra.solver.trunk import Trunk, compile_trunk
-from vertebra.store.errors import CatalogueError, OptionError
+from vertebra.core.errors import CatalogueError, OptionError
 
 __all__ = ["Linearisation", "State", "StaticResult", "StrainRecord", "TrunkModel", "build_model"]
 

@@ -57,7 +57,7 @@ from vertebra.solver.globalise import NEUTRAL
 from vertebra.solver.representable import (COLLAPSE_LIMIT, FOLD_LIMIT, TURN_LIMIT, Unrepresentable,
                                            largest_turn, segment_of, turn_message)
 from vertebra.solver.state import State, strain_change
-from vertebra.store.errors import ConvergenceError
+from vertebra.core.errors import ConvergenceError
 
 RESOLUTION = 1e-13     # corrections below this fraction of the extent (and radians) are rounding
 MAX_TURN = 1.0         # rad: the largest change of a link's rotation in one step

@@ -9,8 +9,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from vertebra.solver.energy import chamber_forces, evaluate, tangent, volume_growth
-from vertebra.solver.lie import hat, qmatrix, qrotate
-from vertebra.store.errors import ConvergenceError
+from vertebra.core.lie import hat, qmatrix, qrotate
+from vertebra.core.errors import ConvergenceError
 
 LINEARISATION_SHIFTS = (0.0, 1e-8, 1e-6, 1e-4)   # μ tried when the tangent at a state is singular
 

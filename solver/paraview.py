@@ -22,7 +22,7 @@ import numpy as np
 
 from vertebra import __version__
 from vertebra.solver import display
-from vertebra.solver.lie import qmatrix
+from vertebra.core.lie import qmatrix
 
 # parts of the trunk, by the value of the cell array "part" (their names go to field data)
 PARTS = ("backbone", "cable", "vertebra", "effector", "target")

@@ -19,7 +19,7 @@ import numpy as np
 from vertebra.solver.segments import (DESIGN_MATERIALS, SEGMENT_TYPES, DesignSpec, SegmentSpec, VertebraSpec,
                                       parse_segment)
 from vertebra.solver.tables import Table
-from vertebra.store.errors import SceneError
+from vertebra.core.errors import SceneError
 
 __all__ = ["CableSpec", "ChamberSpec", "DESIGN_MATERIALS", "DesignSpec", "EffectorSpec", "LoadSpec", "SEGMENT_TYPES",
            "Scene", "SegmentSpec", "SolverSettings", "VertebraSpec", "gallery_names", "gallery_path", "load_scene",

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 from vertebra.solver.beam import Section
 from vertebra.solver.tables import Table
-from vertebra.store.errors import SceneError
+from vertebra.core.errors import SceneError
 
 #: materials a design segment may ask for: small-strain linear elasticity,
 #: St Venant–Kirchhoff and the compressible neo-Hooke form of Abaqus and CalculiX

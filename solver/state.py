@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vertebra.solver.chain import Chain, chain_poses
-from vertebra.solver.lie import pose_matrix
+from vertebra.core.lie import pose_matrix
 from vertebra.solver.links import Links
 
 
@@ -50,7 +50,7 @@ class State:
 
     def transforms(self) -> np.ndarray:
         """The pose of every frame as a 4×4 homogeneous transform ``(n_frames, 4, 4)``
-        (:func:`vertebra.solver.lie.pose_matrix`)."""
+        (:func:`vertebra.core.lie.pose_matrix`)."""
         return pose_matrix(self.positions, self.quaternions)
 
     def carried_strains(self) -> StrainRecord | None:

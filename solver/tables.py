@@ -11,7 +11,7 @@ from __future__ import annotations
 import difflib
 import math
 
-from vertebra.store.errors import SceneError
+from vertebra.core.errors import SceneError
 
 MAX_MAGNITUDE = 1e100        # larger inputs are mistakes (and overflow in l³, r⁴)
 MIN_MAGNITUDE = 1e-100       # smaller positive sizes and moduli underflow (in l², r⁴) to zero

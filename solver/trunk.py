@@ -18,9 +18,9 @@ import numpy as np
 from vertebra.solver.assembly import BandAssembler
 from vertebra.solver.cables import CableRouting
 from vertebra.solver.kinds import CompiledLinks, kind_for
-from vertebra.solver.lie import hat, qmatrix, se3_log
+from vertebra.core.lie import hat, qmatrix, se3_log
 from vertebra.solver.state import State, compose
-from vertebra.store.errors import SceneError
+from vertebra.core.errors import SceneError
 
 
 def _read_only(value):

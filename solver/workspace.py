@@ -44,7 +44,7 @@ import numpy as np
 
 from vertebra.solver.hull import Hull, convex_hull
 from vertebra.solver.workspace_order import ORDERINGS, SolveOrder, response_coordinates
-from vertebra.store.errors import ConvergenceError, OptionError, SceneError
+from vertebra.core.errors import ConvergenceError, OptionError, SceneError
 
 SAMPLERS = ("sobol", "halton")
 

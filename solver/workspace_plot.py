@@ -11,7 +11,7 @@ import numpy as np
 
 from vertebra.solver.hull import convex_hull
 from vertebra.solver.workspace import Workspace
-from vertebra.store.errors import OptionError
+from vertebra.core.errors import OptionError
 
 PROJECTIONS = (("x", "y", 0, 1), ("x", "z", 0, 2), ("y", "z", 1, 2))
 

@@ -1,7 +1,7 @@
 """The HDF5 catalogue of condensed segments: entry types, schema, safe writing."""
 
 from vertebra.store.entry import SegmentEntry, canonical_json, content_key
-from vertebra.store.errors import (CatalogueError, ConvergenceError, GeometryError, InputError, OptionError, SceneError,
+from vertebra.core.errors import (CatalogueError, ConvergenceError, GeometryError, InputError, OptionError, SceneError,
                                    SpecError, TrajectoryError, VertebraError)
 
 __all__ = [

@@ -18,7 +18,7 @@ import numpy as np
 
 from vertebra.store.energy import EnergyFit
 from vertebra.store.entry import SegmentEntry, canonical_json
-from vertebra.store.errors import CatalogueError
+from vertebra.core.errors import CatalogueError
 from vertebra.store.h5read import walk
 from vertebra.store.schema import (ARRAY_FIELDS, DICT_FIELDS, SCHEMA_VERSION, EncodedEntry, check_key,
                                    differing_fields, entry_group, entry_keys, read_entry, read_index)

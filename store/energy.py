@@ -57,7 +57,7 @@ from functools import cached_property
 
 import numpy as np
 
-from vertebra.store.errors import CatalogueError
+from vertebra.core.errors import CatalogueError
 
 #: name of the stored form (the ``representation`` attribute)
 REPRESENTATION = "scaled-monomials"

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from vertebra.store.energy import EnergyFit
-from vertebra.store.errors import CatalogueError
+from vertebra.core.errors import CatalogueError
 from vertebra.store.soundness import soundness_problems
 
 SYMMETRY_TOLERANCE = 1e-8

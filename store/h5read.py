@@ -26,7 +26,7 @@ import os
 
 import numpy as np
 
-from vertebra.store.errors import CatalogueError
+from vertebra.core.errors import CatalogueError
 
 #: what h5py and the OS raise on a damaged file (HDF5's error stack mapped by h5py)
 H5_ERRORS = (OSError, KeyError, ValueError, TypeError, RuntimeError, UnicodeError, IndexError,

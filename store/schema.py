@@ -40,7 +40,7 @@ import numpy as np
 from vertebra.store import energy as energy_schema
 from vertebra.store.entry import SegmentEntry, canonical_json
 from vertebra.store import h5read
-from vertebra.store.errors import CatalogueError
+from vertebra.core.errors import CatalogueError
 
 FORMAT = "vertebra-catalogue"
 SCHEMA_VERSION = 2

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vertebra.store.errors import CatalogueError
+from vertebra.core.errors import CatalogueError
 from vertebra.store.h5read import H5_ERRORS
 from vertebra.store.schema import (ENERGY_SCHEMA_VERSION, EncodedEntry, append_index, check_file, differing_fields,
                                    entry_group, init_file, read_entry, read_index, stamp_version, write_entry)

@@ -122,7 +122,7 @@ def _cli(argv) -> tuple[str, int, str, str]:
 def _digests(path) -> dict | None:
     """content digest per key of every entry (None if the catalogue does not open)."""
     from vertebra.store import catalogue
-    from vertebra.store.errors import CatalogueError
+    from vertebra.core.errors import CatalogueError
     from vertebra.store.schema import EncodedEntry
 
     try:

@@ -26,7 +26,7 @@ from vertebra.designer.energy_fit import FitResult, pose_derivatives
 from vertebra.solver.beam import Section, timoshenko_compliance
 from vertebra.store.energy import linear_terms, rest_strain_map
 from vertebra.store.entry import SegmentEntry
-from vertebra.store.errors import ConvergenceError
+from vertebra.core.errors import ConvergenceError
 
 
 def rod_entry(length=0.04, radius=0.01, youngs_modulus=1e6, poisson_ratio=0.3, cavities=0,
@@ -126,7 +126,7 @@ class OracleSegment:
 
     def solve(self, R, t, pressures=None, initial=None):
         from scipy.spatial.transform import Rotation
-        from vertebra.solver.lie import se3_log
+        from vertebra.core.lie import se3_log
 
         m = self.n_cavities
         p = np.zeros(m) if pressures is None else np.asarray(pressures, float).reshape(m)

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vertebra import solver
-from vertebra.solver.lie import qlog, qmatrix, qmul
+from vertebra.core.lie import qlog, qmatrix, qmul
 
 TURN = math.radians(60.0)      # largest rotation of a link in a representable equilibrium
 TURNS = 3.0 * math.pi          # largest total rotation (1.5 turns)

@@ -18,7 +18,7 @@ import pytest
 from vertebra import __version__ as vertebra_version
 from vertebra.store import catalogue, schema, shards
 from vertebra.store.entry import SegmentEntry
-from vertebra.store.errors import CatalogueError
+from vertebra.core.errors import CatalogueError
 
 ROOT = Path(__file__).resolve().parents[1]
 

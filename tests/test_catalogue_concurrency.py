@@ -15,7 +15,7 @@ import time
 import pytest
 
 from vertebra.store import catalogue, shards
-from vertebra.store.errors import CatalogueError
+from vertebra.core.errors import CatalogueError
 from test_catalogue import assert_same_entry, make_entry
 
 CTX = multiprocessing.get_context("fork")

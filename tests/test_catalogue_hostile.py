@@ -23,7 +23,7 @@ import pytest
 import corruption
 from vertebra.store import catalogue, schema, shards
 from vertebra.store.entry import SegmentEntry
-from vertebra.store.errors import CatalogueError
+from vertebra.core.errors import CatalogueError
 from test_catalogue import make_entry
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -14,7 +14,7 @@ from vertebra.cli.main import BROKEN_PIPE, main
 from vertebra.cli.outputs import output_file, shown
 from vertebra.solver import gallery
 from vertebra.solver.scene import scene_toml
-from vertebra.store.errors import OptionError
+from vertebra.core.errors import OptionError
 
 
 @pytest.mark.parametrize("argv, option", [

@@ -7,7 +7,7 @@ import pytest
 from vertebra.designer.families import FAMILIES
 from vertebra.designer.families.pneumatic import chamber_centres
 from vertebra.designer.vertebra import vertebra_properties
-from vertebra.store.errors import GeometryError
+from vertebra.core.errors import GeometryError
 
 PNEUMATIC = {"outer_radius": 0.02, "length": 0.01, "chamber_radius": 0.004, "chamber_offset": 0.01,
              "youngs_modulus": 1e6, "poisson_ratio": 0.45}

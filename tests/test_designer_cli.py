@@ -75,7 +75,7 @@ def test_design_bad_options_are_option_errors_and_exit_2(argv, field, capsys):
     # Command-line mistakes are OptionErrors naming the option (before any meshing);
     # cli.main alone turns them into exit code 2 and a one-line message.
     from vertebra.cli.main import build_parser, main
-    from vertebra.store.errors import OptionError
+    from vertebra.core.errors import OptionError
 
     args = build_parser().parse_args(argv)
     with pytest.raises(OptionError) as info:

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from vertebra import designer
-from vertebra.store.errors import GeometryError
+from vertebra.core.errors import GeometryError
 
 MATERIAL = dict(youngs_modulus=1e6, poisson_ratio=0.45)
 VALID = {

@@ -262,7 +262,7 @@ def test_bellows_and_tube_entries():
 
 
 def test_gmsh_failure_becomes_geometry_error():
-    from vertebra.store.errors import GeometryError
+    from vertebra.core.errors import GeometryError
     # mesh size far above the 1.5 mm wall: gmsh's tetrahedralisation fails; the user gets a
     # GeometryError (CLI exit 2) naming the mesh size, not a bare gmsh exception
     with pytest.raises(GeometryError, match="mesh_size = 0.004"):

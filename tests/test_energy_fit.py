@@ -23,7 +23,7 @@ THREE = SegmentSymmetry(order=3, mirror=True, mirror_angle=0.3, end_flip=True,
 def test_pose_chart_derivatives_match_differences_of_the_composed_log():
     """wrench and tangent of ψ(log(exp(ζ^) T) − ξ₀) at ζ = 0, by central differences in ζ (step 1e-5:
     errors ~1e-9 relative), equal pose_derivatives; strain_derivatives inverts it to round-off."""
-    from vertebra.solver.lie import qmul, qrotate, se3_exp, se3_log
+    from vertebra.core.lie import qmul, qrotate, se3_exp, se3_log
 
     rng = np.random.default_rng(0)
     d0 = np.array([0.0, 0.0, 0.04])
@@ -209,7 +209,7 @@ def test_designer_se3_matches_the_runtime():
     agree with the runtime's (solver.lie) to 1e-12 from 1e-9 rad to 3 rad, across the
     series threshold."""
     from vertebra.designer.energy_fit import inverse_left_jacobian, se3_exp
-    from vertebra.solver import lie as rotations
+    from vertebra.core import lie as rotations
 
     rng = np.random.default_rng(5)
     for angle in (1e-9, 1e-4, 9.9e-3, 1.01e-2, 0.3, 1.5, 3.0):

@@ -10,7 +10,7 @@ import pytest
 from vertebra.store import catalogue, schema
 from vertebra.store.energy import (EnergyFit, EnergyModel, EnergyRange, linear_terms, monomial_exponents,
                                    rest_strain_map)
-from vertebra.store.errors import CatalogueError
+from vertebra.core.errors import CatalogueError
 from energy_oracle import rod_entry
 
 

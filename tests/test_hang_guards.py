@@ -14,7 +14,7 @@ import pytest
 
 from vertebra import designer
 from vertebra.designer.geometry import mesh_segment
-from vertebra.store.errors import GeometryError, SceneError
+from vertebra.core.errors import GeometryError, SceneError
 
 ROD = {"radius": 0.01, "length": 0.04, "youngs_modulus": 1e6, "poisson_ratio": 0.3}
 DEADLINE_S = 120

@@ -17,7 +17,7 @@ from vertebra.cli import main as cli_main
 from vertebra import solver
 from vertebra.solver.gallery import load, path
 from vertebra.solver.inverse.trajectory import Trajectory, read_trajectory, write_trajectory
-from vertebra.store.errors import TrajectoryError
+from vertebra.core.errors import TrajectoryError
 
 
 @pytest.fixture
@@ -148,7 +148,7 @@ def test_orientation_target_for_a_vertebra_axis(tmp_path, vertebra):
     import tomllib
 
     from vertebra.solver.inverse import invert
-    from vertebra.solver.lie import qrotate
+    from vertebra.core.lie import qrotate
     from vertebra.solver.scene import scene_toml
 
     data = tomllib.loads(path("tendon_two_section").read_text())

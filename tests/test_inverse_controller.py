@@ -16,7 +16,7 @@ from vertebra.solver.gallery import load
 from vertebra.solver.gallery.targets import reachable_loop
 from vertebra.solver.inverse import ConstraintSpace
 from vertebra.solver.inverse.controller import InverseController, InverseSettings
-from vertebra.store.errors import ConvergenceError, OptionError, SceneError
+from vertebra.core.errors import ConvergenceError, OptionError, SceneError
 
 
 def _model(name, **replace):

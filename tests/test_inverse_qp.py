@@ -19,7 +19,7 @@ from vertebra.solver.inverse import (
     solve_constraint_problem,
 )
 from vertebra.solver.inverse.problems import synthetic_problem
-from vertebra.store.errors import ConvergenceError, OptionError
+from vertebra.core.errors import ConvergenceError, OptionError
 
 # The default exact backend (active set: exact to round-off) and one interior-point
 # solver through qpsolvers (accurate to its gap tolerance, ~1e-7 relative in effort).

@@ -13,7 +13,7 @@ from vertebra import designer
 from vertebra.designer.energy_chain import FittedEnergy, PointLoad, solve_chain
 from vertebra.designer.nonlinear_condensation import FamilySolid
 from vertebra.store import catalogue
-from vertebra.store.errors import OptionError, SpecError
+from vertebra.core.errors import OptionError, SpecError
 
 from fitted_energies import ROD, nonlinear_rod
 from fitted_energies import ROD_MESH as MESH

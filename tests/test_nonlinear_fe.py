@@ -19,7 +19,7 @@ from vertebra.designer.nonlinear import (MATERIALS, NonlinearSegment, NonlinearT
                                          get_material)
 from vertebra.designer.nonlinear.framed import Pose
 from vertebra.designer.nonlinear.rotations import ad_se3, exp_se3, exp_so3, skew
-from vertebra.store.errors import ConvergenceError
+from vertebra.core.errors import ConvergenceError
 
 E = 1.0e6
 PNEUMATIC = dict(outer_radius=0.012, chamber_radius=0.003, chamber_offset=0.0065, chambers=2, length=0.015,

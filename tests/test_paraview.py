@@ -15,7 +15,7 @@ from vertebra.cli.main import main
 from vertebra.solver import gallery
 from vertebra.solver.gallery.targets import pose_circle
 from vertebra.solver.inverse.trajectory import Trajectory, write_trajectory
-from vertebra.solver.lie import qmatrix
+from vertebra.core.lie import qmatrix
 from vertebra.solver.paraview import PARTS, trunk_polydata, write_vtp
 from vertebra.solver.report import FRAME_COLUMNS
 from test_inverse_controller import pneumatic_entry

@@ -21,7 +21,7 @@ from vertebra.designer.preparation import design_tasks, scene_designs
 from vertebra.designer.sweep import DESIGN_OPTIONS, FiniteElementDesigner, parse_spec, plan_sweep
 from vertebra.solver.scene import scene_toml
 from vertebra.store import catalogue
-from vertebra.store.errors import SceneError
+from vertebra.core.errors import SceneError
 
 MATERIAL = {"length": 0.02, "youngs_modulus": 1.0e6, "poisson_ratio": 0.3}
 FAST = {"executor": "serial", "estimate_accuracy": False, "progress": False}

@@ -22,7 +22,7 @@ import pytest
 
 from vertebra import solver
 from vertebra.solver.inverse import invert
-from vertebra.solver.lie import qrotate
+from vertebra.core.lie import qrotate
 
 CABLE_MOMENT = 0.15   # largest cable moment, in units of EI/L of the softest segment
 

@@ -23,7 +23,7 @@ import pytest
 from vertebra import solver
 from vertebra.cli.main import main as cli_main
 from vertebra.solver.scene import scene_toml
-from vertebra.store.errors import SceneError, VertebraError
+from vertebra.core.errors import SceneError, VertebraError
 
 ROOT = Path(__file__).resolve().parents[1]
 GALLERY = sorted(glob.glob(str(ROOT / "solver" / "gallery" / "*.toml")))

@@ -16,7 +16,7 @@ from vertebra.solver.gallery.targets import circle
 from vertebra.solver.inverse import InverseController, InverseSettings
 from vertebra.solver.inverse.trust import LARGEST, ROTATION, TRANSLATION
 from vertebra.solver.newton import is_stable
-from vertebra.store.errors import ConvergenceError
+from vertebra.core.errors import ConvergenceError
 
 JUMP = np.array([[0.04, 0.02, 0.13]])      # 4.9 cm from the polymer robot's rest tip
 
@@ -203,7 +203,7 @@ def test_the_trust_radii_start_from_the_robot_size():
 
 
 def test_per_tick_changes_come_from_the_scene_or_a_quarter_of_the_range():
-    from vertebra.store.errors import SceneError
+    from vertebra.core.errors import SceneError
     base = {"segment": [{"type": "beam", "count": 2, "elements": 2, "length": 0.03, "youngs_modulus": 2e9,
                          "poisson_ratio": 0.35, "section": {"shape": "circle", "radius": 1e-3}}]}
     cables = [{"name": "given", "radius": 0.01, "to": 2, "max_tension": 30.0, "max_tension_change": 2.0},

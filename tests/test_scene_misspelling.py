@@ -5,7 +5,7 @@ import pytest
 
 from vertebra import solver
 from vertebra.cli.main import main
-from vertebra.store.errors import SceneError
+from vertebra.core.errors import SceneError
 
 BEAM = {"type": "beam", "count": 2, "length": 0.02, "youngs_modulus": 54e9, "poisson_ratio": 0.3,
         "section": {"shape": "circle", "radius": 7e-4}}

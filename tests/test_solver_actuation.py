@@ -7,7 +7,7 @@ import pytest
 
 from vertebra import solver
 from vertebra.store import SegmentEntry
-from vertebra.store.errors import SceneError
+from vertebra.core.errors import SceneError
 
 RNG = np.random.default_rng(7)
 

@@ -8,8 +8,8 @@ import pytest
 
 from vertebra import solver
 from vertebra.solver import gallery
-from vertebra.solver.lie import qrotate
-from vertebra.store import errors
+from vertebra.core.lie import qrotate
+from vertebra.core import errors
 
 
 @pytest.fixture(scope="module")

@@ -11,7 +11,7 @@ from vertebra import solver
 from vertebra.solver.analytic import column_tip_angle
 from vertebra.solver.energy import tangent
 from vertebra.solver.gallery import load
-from vertebra.solver.lie import qlog
+from vertebra.core.lie import qlog
 from vertebra.solver.newton import is_stable
 from vertebra.solver.state import compose
 

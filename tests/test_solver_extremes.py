@@ -8,7 +8,7 @@ import pytest
 
 from vertebra import solver
 from vertebra.solver.analytic import elastica_tip
-from vertebra.store.errors import ConvergenceError
+from vertebra.core.errors import ConvergenceError
 
 
 def cantilever(elements, length, youngs, radius, force=(0, 0, 0), moment=(0, 0, 0), nu=0.3):

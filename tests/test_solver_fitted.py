@@ -27,11 +27,11 @@ from test_solver_actuation import synthetic_entry
 from vertebra import solver
 from vertebra.solver.kinds import RangeExcess
 from vertebra.solver.kinds.fitted import FittedEnergy
-from vertebra.solver.lie import qexp, qmul, qrotate, se3_exp
+from vertebra.core.lie import qexp, qmul, qrotate, se3_exp
 from vertebra.solver.links import Links, link_tangent
 from vertebra.solver.report import static_report
 from vertebra.store.energy import fold_map, linear_terms
-from vertebra.store.errors import ConvergenceError
+from vertebra.core.errors import ConvergenceError
 
 SLICE = synthetic_entry()                       # 2 cavities, 30 mm, soft rod-like compliance
 FITTED = with_energy(SLICE, strength=0.3)

@@ -15,9 +15,9 @@ from test_solver_actuation import synthetic_entry
 from vertebra import solver
 from vertebra.solver import kinds
 from vertebra.solver.kinds.quadratic import QuadraticEnergy, QuadraticKind
-from vertebra.solver.lie import qexp
+from vertebra.core.lie import qexp
 from vertebra.store import SegmentEntry
-from vertebra.store.errors import SceneError
+from vertebra.core.errors import SceneError
 
 
 def _mixed_scene(fitted=False):

@@ -1,4 +1,4 @@
-"""Rotations and the SE(3) logarithm of the runtime (vertebra.solver.lie) against finite
+"""Rotations and the SE(3) logarithm of the runtime (vertebra.core.lie) against finite
 differences and Barfoot's formulas, the complex-step reference against finite differences, the
 closed-form cable kernel against it, and banded solves against dense ones."""
 
@@ -10,7 +10,7 @@ from reference.complex_step import cable_gradient, link_gradient, pair_tangent
 from vertebra.solver.assembly import BandAssembler
 from vertebra.solver.banded import factor_cholesky, factor_lu
 from vertebra.solver.cables import CablePieces
-from vertebra.solver.lie import qexp, qlog, qmatrix, qmul, qrotate, se3_exp, se3_log
+from vertebra.core.lie import qexp, qlog, qmatrix, qmul, qrotate, se3_exp, se3_log
 
 RNG = np.random.default_rng(20261122)
 

@@ -1,4 +1,4 @@
-"""The runtime's link kernel (vertebra.solver.lie, .links, .chain) against independent references:
+"""The runtime's link kernel (vertebra.core.lie, .links, .chain) against independent references:
 Barfoot's SE(3) log/exp and the complex-step link tangent (tests/reference/complex_step.py),
 finite differences along the solver's chart, a Bernoulli-number series, and the model's strain
 carrying.
@@ -16,8 +16,8 @@ import pytest
 from reference.complex_step import link_gradient, pair_tangent, qrotate, se3_exp, se3_log
 from vertebra import solver
 from vertebra.solver.chain import CARRY_ANGLE, chain_poses
-from vertebra.solver.lie import SERIES, coefficients, hat, qconj, qexp, qmatrix, qmul
-from vertebra.solver.lie import powers as _powers
+from vertebra.core.lie import SERIES, coefficients, hat, qconj, qexp, qmatrix, qmul
+from vertebra.core.lie import powers as _powers
 from vertebra.solver.links import Links, link_tangent
 from vertebra.solver.model import State
 

@@ -8,8 +8,8 @@ import pytest
 from vertebra import solver
 from vertebra.solver.analytic import arc_tip, cantilever_deflection_uniform_load, elastica_tip
 from vertebra.solver.beam import Section, timoshenko_compliance
-from vertebra.solver.lie import qlog
-from vertebra.store.errors import ConvergenceError
+from vertebra.core.lie import qlog
+from vertebra.core.errors import ConvergenceError
 
 E, NU, RADIUS, LENGTH = 200e9, 0.3, 1e-3, 0.5
 EI = E * math.pi * RADIUS ** 4 / 4
@@ -104,7 +104,7 @@ def test_pure_end_moment_gives_a_circular_arc_including_a_full_coil(turns):
 
 def test_objectivity_moving_the_base_moves_the_solution_rigidly():
     # same robot with a rotated and translated base, loads and gravity rotated with it
-    from vertebra.solver.lie import qexp, qmatrix
+    from vertebra.core.lie import qexp, qmatrix
     q = qexp(np.array([0.3, -1.1, 0.7]))
     R = qmatrix(q)
     offset = np.array([0.2, -0.4, 1.3])

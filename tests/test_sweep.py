@@ -19,7 +19,7 @@ from vertebra.designer.executors import EXECUTORS, Crash, make_executor
 from vertebra.designer.sweep import (CatalogueStore, expand, failure_log_path, latin_hypercube_unit, load_spec,
                                      parse_spec, plan_sweep, run_sweep)
 from vertebra.store.entry import SegmentEntry, content_key
-from vertebra.store.errors import CatalogueError, GeometryError, OptionError, SpecError
+from vertebra.core.errors import CatalogueError, GeometryError, OptionError, SpecError
 
 # --------------------------------------------------------------------------- fake designer and store
 

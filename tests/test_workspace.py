@@ -14,7 +14,7 @@ from vertebra.solver import gallery
 from vertebra.solver.hull import affine_dimension, convex_hull
 from vertebra.solver.workspace import (ORDERINGS, SolveOrder, response_coordinates,
                                        sample_actuations, sample_workspace, write_points)
-from vertebra.store.errors import OptionError, SceneError
+from vertebra.core.errors import OptionError, SceneError
 
 
 @pytest.fixture(scope="module")

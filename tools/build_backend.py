@@ -21,7 +21,7 @@ from setuptools.build_meta import (  # noqa: F401  (re-exported hooks)
     prepare_metadata_for_build_editable,
 )
 
-SHIPPED = ("pyproject.toml", "README.md", "MANIFEST.in", "tools", "__init__.py", "__main__.py", "cli", "designer", "solver", "store",
+SHIPPED = ("pyproject.toml", "README.md", "MANIFEST.in", "tools", "__init__.py", "__main__.py", "cli", "core", "designer", "solver", "store",
            "examples")
 
 

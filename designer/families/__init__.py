@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from vertebra.store.errors import GeometryError
+from vertebra.core.errors import GeometryError
 
 FAMILIES: dict[str, "Family"] = {}
 

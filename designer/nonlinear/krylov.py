@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vertebra.designer.linsolve import AMG, Direct
-from vertebra.store.errors import ConvergenceError, VertebraError
+from vertebra.core.errors import ConvergenceError, VertebraError
 
 #: interior unknowns above which "auto" uses AMG: a reused SuperLU factor beat AMG-CG per pose by 1.6× at
 #: 10k DoFs and 2.5× at 20k (P2 rod, benchmarks/results/nonlinear_fe.md); higher than the linear

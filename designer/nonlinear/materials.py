@@ -35,7 +35,7 @@ from typing import Protocol
 
 import numpy as np
 
-from vertebra.store.errors import OptionError
+from vertebra.core.errors import OptionError
 
 _I = np.eye(3)
 _I4 = _I[:, None, :, None] * _I[None, :, None, :]          # δ_ik δ_JL as [i, J, k, L]

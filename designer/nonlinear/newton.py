@@ -27,7 +27,7 @@ from typing import Protocol
 
 import numpy as np
 
-from vertebra.store.errors import ConvergenceError
+from vertebra.core.errors import ConvergenceError
 
 
 @dataclass(frozen=True)

@@ -45,7 +45,7 @@ from vertebra.designer.nonlinear.framed import FramedSolid, Pose
 from vertebra.designer.nonlinear.krylov import ReusedFactorSolver
 from vertebra.designer.nonlinear.newton import NewtonSettings, Step, march
 from vertebra.designer.nonlinear.rotations import exp_se3, exp_so3, log_se3, log_so3, skew
-from vertebra.store.errors import OptionError
+from vertebra.core.errors import OptionError
 
 
 @dataclass(frozen=True)

@@ -38,7 +38,7 @@ from vertebra.designer.nonlinear.framed import Pose
 from vertebra.designer.nonlinear.krylov import ReusedFactorSolver
 from vertebra.designer.nonlinear.newton import NewtonSettings, Step, march
 from vertebra.designer.nonlinear.rotations import exp_so3_minus_identity, log_so3, quaternion_from_matrix, skew
-from vertebra.store.errors import OptionError
+from vertebra.core.errors import OptionError
 
 
 @dataclass

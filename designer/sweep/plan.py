@@ -17,7 +17,7 @@ from vertebra.designer.sweep.report import TaskFailure
 from vertebra.designer.sweep.spec import SweepSpec
 from vertebra.designer.sweep.store import CatalogueStore, SweepStore
 from vertebra.designer.sweep.tasks import Batch, FiniteElementDesigner, SegmentDesigner, Task, sweep_batch
-from vertebra.store.errors import CatalogueError, SpecError, VertebraError
+from vertebra.core.errors import CatalogueError, SpecError, VertebraError
 
 #: what a designer may raise for one task's parameters; the task fails, the sweep goes on
 TASK_ERRORS = (VertebraError, ValueError, TypeError, KeyError)

@@ -13,7 +13,7 @@ import math
 from dataclasses import dataclass
 from typing import Any, Callable
 
-from vertebra.store.errors import SpecError
+from vertebra.core.errors import SpecError
 
 LHS_FIELDS = ("ranges", "samples", "seed", "log", "integer")
 LHS_DIGITS = 6                        # significant digits kept of each Latin-hypercube value

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from vertebra.designer.sweep.samplers import SAMPLERS, is_number
-from vertebra.store.errors import SpecError
+from vertebra.core.errors import SpecError
 
 
 class Invalid(ValueError):
@@ -52,7 +52,7 @@ def _flag(value):
 
 def _material(value):
     from vertebra.designer.segment import check_material
-    from vertebra.store.errors import OptionError
+    from vertebra.core.errors import OptionError
 
     try:
         return check_material(value) if isinstance(value, str) else _text(value)
@@ -63,7 +63,7 @@ def _material(value):
 def _sampling(value):
     """Nonlinear sampling and fit settings: a table of ``SamplingSettings`` fields (checked)."""
     from vertebra.designer.segment import sampling_settings
-    from vertebra.store.errors import OptionError
+    from vertebra.core.errors import OptionError
 
     if value is None:
         return None

@@ -13,7 +13,7 @@ from typing import Protocol, runtime_checkable
 
 from vertebra.store import catalogue
 from vertebra.store.entry import SegmentEntry
-from vertebra.store.errors import CatalogueError
+from vertebra.core.errors import CatalogueError
 
 
 @runtime_checkable

@@ -21,7 +21,7 @@ from vertebra.designer.segment import canonical_parameters, design_segment, entr
 from vertebra.designer.sweep.samplers import SAMPLERS
 from vertebra.designer.sweep.spec import SweepSpec, keyed_options
 from vertebra.store.entry import SegmentEntry
-from vertebra.store.errors import SpecError
+from vertebra.core.errors import SpecError
 
 
 @dataclass(frozen=True)

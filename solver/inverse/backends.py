@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Callable, ClassVar, Protocol
 
 import numpy as np
 
-from vertebra.store.errors import OptionError
+from vertebra.core.errors import OptionError
 
 if TYPE_CHECKING:
     from vertebra.solver.inverse.qp import QuadraticForm

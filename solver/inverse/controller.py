@@ -42,7 +42,7 @@ from vertebra.solver.inverse.backends import DEFAULT_BACKEND, get_backend
 from vertebra.solver.inverse.qp import ConstraintSolution, solve_constraint_problem
 from vertebra.solver.inverse.space import DEFAULT_REGULARISATION, ConstraintSpace
 from vertebra.solver.inverse.trust import GOOD, TrustRegion
-from vertebra.store.errors import ConvergenceError, OptionError, SceneError
+from vertebra.core.errors import ConvergenceError, OptionError, SceneError
 
 __all__ = ["InverseSettings", "InverseStep", "InverseController", "invert", "MODES", "DEFAULT_TOLERANCE"]
 

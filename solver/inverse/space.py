@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vertebra.store.errors import ConvergenceError, OptionError
+from vertebra.core.errors import ConvergenceError, OptionError
 
 __all__ = ["ConstraintSpace", "ConstraintProblem", "Projection", "DEFAULT_REGULARISATION"]
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vertebra.store.errors import SceneError, TrajectoryError
+from vertebra.core.errors import SceneError, TrajectoryError
 
 __all__ = ["Trajectory", "scene_trajectory", "read_trajectory", "write_trajectory"]
 

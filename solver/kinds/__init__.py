@@ -32,7 +32,7 @@ from typing import Any, ClassVar, Protocol, Sequence
 
 import numpy as np
 
-from vertebra.store.errors import SceneError
+from vertebra.core.errors import SceneError
 
 
 @dataclass(frozen=True)

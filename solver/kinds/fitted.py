@@ -42,7 +42,7 @@ import numpy as np
 from vertebra.solver.kinds import CompiledLinks, LinkSource, RangeExcess, register
 from vertebra.solver.kinds.entry import entry_link
 from vertebra.store.energy import EnergyModel, EnergyValues, FixedPressures
-from vertebra.store.errors import ConvergenceError
+from vertebra.core.errors import ConvergenceError
 
 
 @dataclass(frozen=True)

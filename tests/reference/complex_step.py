@@ -1,5 +1,5 @@
 """Complex-step reference of the link and cable potentials: an implementation independent of the
-runtime kernels (:mod:`vertebra.solver.lie`, :mod:`vertebra.solver.links`,
+runtime kernels (:mod:`vertebra.core.lie`, :mod:`vertebra.solver.links`,
 :class:`vertebra.solver.cables.CablePieces`), written with complex-analytic operations only (no
 ``abs``, ``conj`` or ``arctan2`` on the data) and element-by-element formulas instead of the
 runtime's tables.

@@ -36,7 +36,7 @@ import math
 
 import numpy as np
 
-from vertebra.store.errors import ConvergenceError
+from vertebra.core.errors import ConvergenceError
 from scipy.special import zeta
 
 # ----------------------------------------------------------------------------- tables

@@ -1,7 +1,6 @@
-"""Domain exceptions shared by every vertebra package.
+"""Domain exceptions shared by every vertebra package (the kernel layer: no other import).
 
-They live in ``store`` because it is the lowest layer (``designer`` and ``solver``
-both depend on it); libraries raise them, only ``cli`` turns them into exit codes.
+Libraries raise them; only ``cli`` turns them into exit codes.
 
 Errors by meaning:
 
