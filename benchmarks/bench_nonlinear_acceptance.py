@@ -47,6 +47,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from nonlinear_cases import BAR, CASES, n_cavities, project_trunk, scaled_loads, trunk_loads  # noqa: E402
 from vertebra import __version__, solver  # noqa: E402
+from vertebra.core import lie  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 CCX = RESULTS / "ccx_crosscheck.json"
@@ -173,7 +174,7 @@ def run_case(case, path: Path) -> dict:
             result = model.solve(raise_on_failure=False)
             seconds = time.process_time() - start
             tip = result.state.positions[-1]
-            R = solver.lie.qmatrix(result.state.quaternions[-1:])[0]
+            R = lie.qmatrix(result.state.quaternions[-1:])[0]
             out = {"converged": bool(result.converged), "solve_cpu_s": seconds,
                    "tip_error_pct": 100 * float(np.linalg.norm(tip - fe.positions[-1])) / length,
                    "tip_rotation_error_deg": rotation_angle_deg(R @ R_fe.T),

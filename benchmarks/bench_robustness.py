@@ -93,7 +93,7 @@ def bench_forward(n_seeds: int) -> dict:
                "total_turns": check.total_turn / (2 * math.pi), "shortest_piece": check.shortest_piece,
                "message": result.message}
         if result.converged:
-            row["stable"] = bool(is_stable(model.trunk, model.evaluate(result.state), model.memo))
+            row["stable"] = bool(is_stable(model.trunk, model.evaluate(result.state)))
             row["tip_vs_reference"] = float(np.linalg.norm(result.state.positions[-1] - check.tip) / model.length_scale)
         rows.append(row)
         print(f"  forward seed {seed}: {'ok' if row['converged'] else 'FAILED'} {row['iterations']} it "

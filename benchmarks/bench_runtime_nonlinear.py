@@ -47,7 +47,8 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from vertebra import solver  # noqa: E402
+from vertebra import solver
+from vertebra.core import lie  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 ROD = dict(radius=0.01, length=0.04, youngs_modulus=1e6, poisson_ratio=0.3)
@@ -111,7 +112,7 @@ def linear_of(entry):
 
 
 def tip_angle(state) -> float:
-    return math.degrees(float(np.linalg.norm(solver.lie.qlog(state.quaternions[-1]))))
+    return math.degrees(float(np.linalg.norm(lie.qlog(state.quaternions[-1]))))
 
 
 # ------------------------------------------------------------------ speed
@@ -129,10 +130,11 @@ def evaluation_us(model, state, repeats: int) -> float:
     """CPU time of the links' part of one Newton evaluation at ``state``: the link energies'
     response and material tangent (what the energy class is asked per iteration)."""
     from vertebra.solver.energy import link_response
+    from vertebra.solver.state import kinematics
 
     trunk_ = model.trunk
-    load = model.memo.load_case(model.default_actuation, 1.0)
-    xi = model.memo.links(state, state.carried_strains()).xi
+    load = model.loads(model.default_actuation, 1.0)
+    xi = kinematics(state).xi
     energies = trunk_.links.energies
 
     def once():

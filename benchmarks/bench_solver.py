@@ -176,8 +176,8 @@ def evaluation_pieces(model, state, act, reps, budget_s=None):
     """Timings of one Newton iteration's pieces at ``state``: gradient (``evaluate``), gradient and
     tangent, the tangent's symmetric band; returns (tangent, rhs, timings)."""
     from vertebra.solver.energy import tangent
-    trunk, memo = model.trunk, model.memo
-    matrix, t_tan = timed(lambda: tangent(trunk, model.evaluate(state, act), memo), reps, budget_s=budget_s)
+    trunk = model.trunk
+    matrix, t_tan = timed(lambda: tangent(trunk, model.evaluate(state, act)), reps, budget_s=budget_s)
     ev, t_grad = timed(lambda: model.evaluate(state, act), reps, budget_s=budget_s)
     # a fresh Tangent per call: a tangent keeps its band once gathered
     _, t_band = timed(lambda: type(matrix)(matrix.assembler, matrix.terms).symmetric_band(), reps,

@@ -56,7 +56,8 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from bench_runtime_nonlinear import linear_of, loadavg, log  # noqa: E402  (this folder)
-from vertebra import solver  # noqa: E402
+from vertebra import solver
+from vertebra.core import lie  # noqa: E402
 from vertebra.solver import analytic  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
@@ -208,7 +209,7 @@ def angle_of(rotation) -> float:
 
 
 def rotation_angle(quaternion) -> float:
-    return math.degrees(float(np.linalg.norm(solver.lie.qlog(quaternion))))
+    return math.degrees(float(np.linalg.norm(lie.qlog(quaternion))))
 
 
 # ------------------------------------------------------------------ runtime trunks

@@ -6,8 +6,13 @@ moments are not conservative in 3D and enter the gradient only (as ``−M``). Th
 taken along the solver's chart (``x + dx``, ``exp(dφ) R``, world axes), so the residual of
 equilibrium is ``−gradient`` on the free frames.
 
-:func:`evaluate` computes only what the scene uses (no cables → no cable terms, and so on) and
-keeps, in its :class:`Evaluation`, what :func:`tangent` reuses.
+Everything here is a function of its arguments: :func:`evaluate` returns an :class:`Evaluation`
+that carries what :func:`tangent` (and a later evaluation of the same state) reuses — the
+kinematics, the link responses, the cable spans. Nothing is remembered elsewhere: a caller that
+wants reuse hands back the evaluation (or the :class:`Trial` of :func:`potential`) it holds as
+``previous``. Model constants (the unstressed tangent, the stiffness scale) are computed once by
+:func:`rest_constants`. :func:`evaluate` computes only what the scene uses (no cables → no cable
+terms, and so on).
 """
 
 from __future__ import annotations
@@ -25,7 +30,7 @@ from vertebra.solver.links import Links, link_tangent
 @dataclass(slots=True)
 class LoadCase:
     """What an actuation and a load factor make of the loads (computed once per Newton stage;
-    not modified once made)."""
+    not modified once made, except that the forward solve fills in ``reference`` once)."""
 
     actuation: np.ndarray
     scale: float
@@ -37,6 +42,7 @@ class LoadCase:
     frame_weight: np.ndarray | None       # (n_frames, 3) m g
     dead: np.ndarray | None               # (n_frames, 6) scaled dead loads
     dead_forces: np.ndarray | None        # (n_frames, 3), contiguous
+    reference: float | None = None        # the forward solve's force scale (newton.reference_force)
 
     @classmethod
     def of(cls, trunk, actuation: np.ndarray, scale: float, previous: "LoadCase | None" = None) -> "LoadCase":
@@ -63,6 +69,38 @@ class LoadCase:
                    dead, dead_forces)
 
 
+class LoadCases:
+    """The load cases of the last two (actuation, load factor) pairs asked for, most recent
+    first: repeated solves and linearisations at one actuation make theirs once, a control
+    tick's two actuations (linearised at one, stepped to the other) alternate without remaking
+    them, and a new actuation at the same load factor keeps the weight and dead loads."""
+
+    def __init__(self, trunk):
+        self._trunk = trunk
+        self._kept = [(None, None, None), (None, None, None)]
+
+    def __call__(self, actuation: np.ndarray, scale: float = 1.0) -> LoadCase:
+        """The load case of ``actuation`` at load factor ``scale``."""
+        key = actuation.tobytes()
+        kept = self._kept
+        for k, (last_key, last_scale, load) in enumerate(kept):
+            if last_key == key and last_scale == scale:
+                if k:
+                    kept.reverse()
+                return load
+        load = LoadCase.of(self._trunk, actuation, scale, kept[0][2])
+        kept[1], kept[0] = kept[0], (key, scale, load)
+        return load
+
+    def link_loads(self, pressures: np.ndarray) -> tuple:
+        """What the link energies prepared of the chamber ``pressures`` (a kept load case's when
+        one has these pressures)."""
+        for _, _, load in self._kept:
+            if load is not None and np.array_equal(load.pressures, pressures):
+                return load.link_loads
+        return tuple(e.prepare(pressures) for e in self._trunk.links.energies)
+
+
 @dataclass(slots=True)
 class Evaluation:
     """Potential and gradient at a state, with what the tangent reuses."""
@@ -77,21 +115,48 @@ class Evaluation:
     lever: np.ndarray | None      # (n_frames, 3) R s, the first mass moments in world axes (gravity)
     load: LoadCase
     at_rest: bool                 # evaluated at the trunk's rest state
+    record: object = None         # the StrainRecord of the state (None: evaluated from its poses)
+    parts: "PotentialParts | None" = None
 
 
-def evaluate(trunk, state, load: LoadCase, memo) -> Evaluation:
-    """Potential and gradient at ``state`` under ``load``; ``memo``
-    (:class:`~vertebra.solver.memo.Memo`) supplies the link kinematics it already knows."""
+@dataclass(slots=True)
+class Trial:
+    """The potential at a state without its gradient (:func:`potential`), with what it computed
+    on the way: an :func:`evaluate` of the same state under the same load case, handed this as
+    ``previous``, reuses it (a control tick judges the state that the next tick linearises)."""
+
+    energy: float
+    record: object                # the StrainRecord of the state
+    load: LoadCase
+    parts: "PotentialParts"
+
+
+@dataclass(frozen=True, slots=True)
+class RestConstants:
+    """What the unstressed rest state gives once per trunk (:func:`rest_constants`)."""
+
+    link_tangent: np.ndarray      # (n_links, 12, 12) the links' tangent at the unstressed rest state
+    stiffness: np.ndarray         # (n_dof,) its diagonal: the stiffness of every DoF in its own units
+    axis: np.ndarray              # (n_links, 3) ρ₀/|ρ₀|²: a link's axial stretch is ρ · axis
+    shortest: float               # the shortest |ρ₀|
+
+
+def evaluate(trunk, state, load: LoadCase, previous: "Evaluation | Trial | None" = None) -> Evaluation:
+    """Potential and gradient at ``state`` under ``load``. ``previous``: an evaluation (or trial)
+    the caller holds; what it computed for the same state (kinematics) and load (link
+    responses, cable spans, lever arms) is reused."""
     x = state.positions
     record = state.carried_strains()
-    links = memo.links(state, record)
     if record is not None:
+        links = record.links
         rotations = record.chain.rotations
-    elif load.piece_tension is not None or load.weight is not None:
-        rotations = qmatrix(state.quaternions)
     else:
-        rotations = None
-    parts = memo.potential_parts(record, load)
+        q = state.quaternions
+        links = Links.of(q[:-1], x[:-1], q[1:], x[1:])
+        rotations = qmatrix(q) if load.piece_tension is not None or load.weight is not None else None
+    parts = None
+    if previous is not None and record is not None and previous.record is record and previous.load is load:
+        parts = previous.parts
     if parts is None:
         parts = _potential_parts(trunk, x, rotations, links.xi, load)
     _, w, kept = parts.response
@@ -113,22 +178,21 @@ def evaluate(trunk, state, load: LoadCase, memo) -> Evaluation:
     if load.dead is not None:
         grad -= load.dead
     return Evaluation(_total(trunk, x, parts, load), grad, links, w, kept, g_links, pieces, lever, load,
-                      record is not None and record is trunk.rest_state.strains)
+                      record is not None and record is trunk.rest_state.strains, record, parts)
 
 
-def potential(trunk, state, load: LoadCase, memo) -> float:
+def potential(trunk, state, load: LoadCase) -> "Trial | Evaluation":
     """The total potential at ``state`` under ``load`` without its gradient (the same terms as
     :func:`evaluate`): what judging a step needs. A state that carries its strains needs no
-    link kinematics; one given by its poses is evaluated in full. What it computes on the way
-    (:class:`PotentialParts`) is kept in ``memo`` for an evaluation of the same state and load
-    (a control tick judges the state that the next tick linearises)."""
+    link kinematics: the :class:`Trial` returned keeps what it computed for an evaluation of
+    the same state and load; a state given by its poses is evaluated in full. Either way
+    ``.energy`` is the potential."""
     record = state.carried_strains()
     if record is None:
-        return evaluate(trunk, state, load, memo).energy
+        return evaluate(trunk, state, load)
     x = state.positions
     parts = _potential_parts(trunk, x, record.chain.rotations, record.xi, load)
-    memo.keep_potential_parts(record, load, parts)
-    return _total(trunk, x, parts, load)
+    return Trial(_total(trunk, x, parts, load), record, load, parts)
 
 
 @dataclass(slots=True)
@@ -176,15 +240,10 @@ def link_response(trunk, xi: np.ndarray, link_loads: tuple) -> tuple[float, np.n
     return total, w, tuple(kept)
 
 
-def out_of_range(trunk, state, load_case, memo) -> tuple:
-    """Every quantity of the links' states at ``state`` that lies outside the range its energy
-    was fitted on (:class:`~vertebra.solver.kinds.RangeExcess`, link order), under the load case
-    ``load_case()`` makes (called only when some link energy is fitted)."""
-    if not trunk.links.fitted:
-        return ()
-    load = load_case()
-    record = state.carried_strains()
-    xi = record.xi if record is not None else memo.links(state, None).xi
+def out_of_range(trunk, xi: np.ndarray, load: LoadCase) -> tuple:
+    """Every quantity of the link strains ``xi`` under ``load`` that lies outside the range its
+    energy was fitted on (:class:`~vertebra.solver.kinds.RangeExcess`, link order); empty when
+    no link energy is fitted."""
     found = []
     for energy, prepared in zip(trunk.links.energies, load.link_loads):
         found.extend(energy.out_of_range(xi[energy.links], prepared))
@@ -225,14 +284,15 @@ def link_tangents(trunk, ev: Evaluation, out: np.ndarray) -> np.ndarray:
     return link_tangent(ev.links, ev.w, material, ev.link_gradient, out=out)
 
 
-def tangent(trunk, ev: Evaluation, memo) -> Tangent:
+def tangent(trunk, ev: Evaluation) -> Tangent:
     """Tangent of the potential at the state of ``ev``: its terms side by side — the links',
     the cables' (summed per pair of frames) and the weight's — from which the assembler gathers
-    the bands. At the unstressed rest state the links' part is a model constant (``memo``)."""
+    the bands. At the unstressed rest state the links' part is a model constant
+    (``trunk.rest.link_tangent``)."""
     assembler = trunk.assembler
     terms, links, cables, weight = assembler.new_terms()
     if ev.at_rest and not ev.w.any() and not ev.load.pressures.any():
-        links[:] = memo.unstressed_tangent(lambda: link_tangents(trunk, ev, np.empty(links.shape)))
+        links[:] = trunk.rest.link_tangent
     else:
         link_tangents(trunk, ev, links)
     if ev.pieces is not None:
@@ -242,3 +302,27 @@ def tangent(trunk, ev: Evaluation, memo) -> Tangent:
     if weight is not None:                                  # (gravity: the lever arms were evaluated)
         np.matmul(-ev.load.weight_hat, hat(ev.lever[1:]), out=weight)        # −ĝ l̂: the arm turns
     return Tangent(assembler, terms)
+
+
+def rest_constants(trunk) -> RestConstants:
+    """The links' tangent at the unstressed rest state, its diagonal (the stiffness scale of
+    every DoF: positive, every free frame has a link) and the links' rest axes."""
+    unloaded = LoadCase.of(trunk, np.zeros(trunk.actuators.default.size), 0.0)
+    ev = evaluate(trunk, trunk.rest_state, unloaded)
+    link_tangent = link_tangents(trunk, ev, np.empty((trunk.links.count, 12, 12)))
+    stiffness = Tangent(trunk.assembler, _links_only_terms(trunk.assembler, link_tangent)).diagonal().copy()
+    rest = trunk.links.rest[:, :3]
+    squared = np.einsum("ij,ij->i", rest, rest)
+    axis = rest / squared[:, None]
+    for array in (link_tangent, stiffness, axis):
+        array.flags.writeable = False
+    return RestConstants(link_tangent, stiffness, axis, float(np.sqrt(squared.min())))
+
+
+def _links_only_terms(assembler, link_tangent: np.ndarray) -> np.ndarray:
+    terms, links, cables, weight = assembler.new_terms()
+    links[:] = link_tangent
+    cables[:] = 0.0
+    if weight is not None:
+        weight[:] = 0.0
+    return terms

@@ -60,13 +60,13 @@ def line_search(stage, state, ev, residual: float, dq, change, alpha: float, rp:
     the residual. Returns (state, evaluation, α, decrease, prediction, quality) with quality the
     ratio of actual to predicted decrease of the first (full) trial (1 below rounding, 0 when
     it was cut back), or None."""
-    trunk, memo, load = stage.trunk, stage.memo, stage.load
+    trunk, load = stage.trunk, stage.load
     noise = ROUNDING * abs(ev.energy)
     quality = None
     while alpha >= SEARCH_FLOOR:
         step, strains = (dq, change) if alpha == 1.0 else (alpha * dq, alpha * change)
         trial = retract(state, step, ev.links, strains)
-        ev_trial = evaluate(trunk, trial, load, memo)
+        ev_trial = evaluate(trunk, trial, load)
         predicted = alpha * rp - 0.5 * alpha * alpha * curvature
         decrease = ev.energy - ev_trial.energy
         if moments is not None:

@@ -9,7 +9,7 @@ then runs many times without re-parsing or re-allocating the structure. The mode
 * :mod:`~vertebra.solver.assembly` / :mod:`~vertebra.solver.banded` — band storage and factors;
 * :mod:`~vertebra.solver.newton` — the forward solve;
 * :mod:`~vertebra.solver.outputs` — effectors, actuator displacements, the linearisation;
-* :mod:`~vertebra.solver.memo` — what the model remembers between calls.
+* :class:`~vertebra.solver.energy.LoadCases` — the load cases of the last two actuations asked for.
 """
 
 from __future__ import annotations
@@ -20,11 +20,10 @@ from collections.abc import Mapping
 import numpy as np
 
 from vertebra.solver import newton, outputs
-from vertebra.solver.energy import Evaluation, evaluate, out_of_range, potential
-from vertebra.solver.memo import Memo
+from vertebra.solver.energy import Evaluation, LoadCases, Trial, evaluate, out_of_range, potential
 from vertebra.solver.newton import StaticResult
 from vertebra.solver.outputs import Linearisation
-from vertebra.solver.state import State, StrainRecord, retract
+from vertebra.solver.state import State, StrainRecord, kinematics, retract
 from vertebra.solver.trunk import Trunk, compile_trunk
 from vertebra.core.errors import CatalogueError, OptionError
 
@@ -61,7 +60,7 @@ class TrunkModel:
 
     def __init__(self, scene, entries: dict):
         self.trunk: Trunk = compile_trunk(scene, entries)
-        self.memo = Memo(self.trunk)
+        self.loads = LoadCases(self.trunk)      # the load cases of the last two actuations asked for
         self.entries: dict = dict(entries)      # the catalogue entries compiled, by name
 
     scene = property(lambda self: self.trunk.scene, doc="the scene the model was compiled from")
@@ -133,60 +132,67 @@ class TrunkModel:
         failure."""
         settings = self.scene.solver
         return newton.solve(
-            self.trunk, self.memo, self.actuation(actuation), initial,
+            self.trunk, self.loads, self.actuation(actuation), initial,
             tolerance=settings.tolerance if tolerance is None else tolerance,
             max_iterations=settings.max_iterations if max_iterations is None else max_iterations,
             load_steps=settings.load_steps if load_steps is None else load_steps,
             raise_on_failure=raise_on_failure)
 
-    def evaluate(self, state: State, actuation=None, *, scale: float = 1.0) -> Evaluation:
+    def evaluate(self, state: State, actuation=None, *, scale: float = 1.0, previous=None) -> Evaluation:
         """Total potential and gradient at ``state`` under ``scale`` × the actuation and loads
-        (:func:`vertebra.solver.energy.evaluate`)."""
+        (:func:`vertebra.solver.energy.evaluate`; ``previous``: an evaluation or :meth:`trial`
+        of the same state to reuse)."""
         actuation = self.actuation(actuation)
-        load = self.memo.load_case(actuation, scale)
-        return evaluate(self.trunk, state, load, self.memo)
+        return evaluate(self.trunk, state, self.loads(actuation, scale), previous)
 
     def potential(self, state: State, actuation=None) -> float:
         """Total potential at ``state`` under the actuation and loads, without its gradient
         (:func:`vertebra.solver.energy.potential`)."""
-        return potential(self.trunk, state, self.memo.load_case(self.actuation(actuation), 1.0), self.memo)
+        return self.trial(state, actuation).energy
+
+    def trial(self, state: State, actuation=None) -> "Trial | Evaluation":
+        """The potential at ``state`` (``.energy``) with what it computed on the way: hand it as
+        ``previous`` to :meth:`linearise` or :meth:`evaluate` of the same state and actuation."""
+        return potential(self.trunk, state, self.loads(self.actuation(actuation), 1.0))
 
     def residual_norm(self, residual: np.ndarray, actuation=None) -> float:
         """The solver's convergence measure of an out-of-balance force ``residual`` (n_dof,):
         max(|force|, |moment| / length) over the frames relative to the rest pose's
         out-of-balance load under ``actuation``."""
         actuation = self.actuation(actuation)
-        reference = newton.reference_force(self.trunk, actuation, self.memo)
+        reference = newton.reference_force(self.trunk, self.loads(actuation, 1.0))
         return newton.residual_norm(residual, reference, newton.residual_weights(self.trunk))
 
     def step(self, state: State, dq: np.ndarray) -> State:
         """The state moved by ``dq`` (``[dx; dφ]`` per free frame, world axes; n_dof values) with
         the strain-space retraction (:func:`vertebra.solver.state.retract`)."""
-        return retract(state, dq, self.memo.links(state, state.carried_strains()))
+        return retract(state, dq, kinematics(state))
 
     # ------------------------------------------------------------------ outputs
-    def linearise(self, state: State, actuation=None) -> Linearisation:
-        """Tangent stiffness factor, actuator and effector Jacobians at ``state``."""
-        return outputs.linearise(self.trunk, state, self.actuation(actuation), self.memo)
+    def linearise(self, state: State, actuation=None, *, previous=None) -> Linearisation:
+        """Tangent stiffness factor, actuator and effector Jacobians at ``state`` (``previous``:
+        an evaluation or :meth:`trial` of the same state and actuation to reuse)."""
+        return outputs.linearise(self.trunk, state, self.actuation(actuation), self.loads, previous)
 
     def cable_lengths(self, state: State, pieces=None) -> np.ndarray:
         return outputs.cable_lengths(self.trunk, state, pieces)
 
     def chamber_volume_growth(self, state: State, pressures: np.ndarray, links=None) -> np.ndarray:
         """ΔV_j of every chamber under ``pressures`` (reciprocity gives the Gᵀ row)."""
-        return outputs.chamber_volume_growth(self.trunk, state, pressures, self.memo, links)
+        return outputs.chamber_volume_growth(self.trunk, state, pressures, self.loads, links)
 
     def actuator_displacements(self, state: State, actuation=None, *, links=None, pieces=None) -> np.ndarray:
         """Cable strokes ``L − L0``, then chamber volume growths."""
-        return outputs.actuator_displacements(self.trunk, state, self.actuation(actuation), self.memo,
+        return outputs.actuator_displacements(self.trunk, state, self.actuation(actuation), self.loads,
                                               links=links, pieces=pieces)
 
     def out_of_range(self, state: State, actuation=None) -> tuple:
         """Where the links' states at ``state`` under ``actuation`` leave the range their energies
         were fitted on (:class:`~vertebra.solver.kinds.RangeExcess`, in link order; empty when
         inside, or when no link energy is a fit): what a solve reports in ``out_of_range``."""
-        return out_of_range(self.trunk, state, lambda: self.memo.load_case(self.actuation(actuation), 1.0),
-                            self.memo)
+        if not self.trunk.links.fitted:
+            return ()
+        return out_of_range(self.trunk, kinematics(state).xi, self.loads(self.actuation(actuation), 1.0))
 
     def effector_positions(self, state: State) -> np.ndarray:
         """World position of each point effector; world unit direction of each axis effector."""

@@ -51,12 +51,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vertebra.solver.energy import LoadCase, evaluate, out_of_range, tangent
+from vertebra.solver.energy import LoadCase, LoadCases, evaluate, out_of_range, tangent
 from vertebra.solver import globalise
 from vertebra.solver.globalise import NEUTRAL
 from vertebra.solver.representable import (COLLAPSE_LIMIT, FOLD_LIMIT, TURN_LIMIT, Unrepresentable,
                                            largest_turn, segment_of, turn_message)
-from vertebra.solver.state import State, strain_change
+from vertebra.solver.state import State, kinematics, strain_change
 from vertebra.core.errors import ConvergenceError
 
 RESOLUTION = 1e-13     # corrections below this fraction of the extent (and radians) are rounding
@@ -118,31 +118,31 @@ def _force_scale(trunk, gradient: np.ndarray) -> float:
                np.max(np.abs(free[:, 3:]), initial=0.0) / trunk.frames.length_scale)
 
 
-def is_stable(trunk, ev, memo, matrix=None) -> bool:
+def is_stable(trunk, ev, matrix=None) -> bool:
     """Is the equilibrium of ``ev`` stable: is its tangent (``matrix`` when already assembled)
     positive definite, up to neutral directions (``H + 1e-9·|diag H|`` is)? Only decidable for conservative loads (dead moments make the tangent
     unsymmetric): then assumed so."""
     if trunk.loads.has_dead_moments:
         return True
-    return (matrix or tangent(trunk, ev, memo)).factor(NEUTRAL, definite=True)[0] is not None
+    return (matrix or tangent(trunk, ev)).factor(NEUTRAL, definite=True)[0] is not None
 
 
-def reference_force(trunk, actuation: np.ndarray, memo) -> float:
-    """Force scale of the problem: the out-of-balance load at the rest pose under the full load."""
-    def compute():
-        load = memo.load_case(actuation, 1.0)
-        return _force_scale(trunk, evaluate(trunk, trunk.rest_state, load, memo).gradient)
-    return memo.reference_force(actuation, compute)
+def reference_force(trunk, load: LoadCase) -> float:
+    """Force scale of the problem: the out-of-balance load at the rest pose under ``load`` (the
+    full load), computed once per load case."""
+    if load.reference is None:
+        load.reference = _force_scale(trunk, evaluate(trunk, trunk.rest_state, load).gradient)
+    return load.reference
 
 
 class _Stage:
     """One Newton run at a fixed load factor: its inputs and what it found."""
 
-    def __init__(self, trunk, memo, load: LoadCase, tolerance: float, max_iterations: int, reference: float,
+    def __init__(self, trunk, load: LoadCase, tolerance: float, max_iterations: int, reference: float,
                  history: list, kinds: set, shift: float, linear: np.ndarray | None = None):
         self.iterations = 0
         self.linear = linear                  # the links' rotations in the linear response to the full load
-        self.trunk, self.memo, self.load = trunk, memo, load
+        self.trunk, self.load = trunk, load
         self.tolerance, self.max_iterations = tolerance, max_iterations
         self.reference = reference            # force scale at this load factor
         self.history = history
@@ -150,7 +150,7 @@ class _Stage:
         self.shift = shift                    # μ, carried from stage to stage
         self.weights = residual_weights(trunk)
         self.symmetric = not trunk.loads.has_dead_moments
-        self.axis, self.shortest = memo.link_axes()   # the axial stretch of a link is ρ · axis
+        self.axis, self.shortest = trunk.rest.axis, trunk.rest.shortest   # a link's axial stretch is ρ · axis
         self.turn = 0.0                       # largest link rotation of the current state
         self.stretching = True                # the last step may have changed a link's length
 
@@ -158,7 +158,7 @@ class _Stage:
         return residual_norm(ev.gradient[1:], self.reference, self.weights)
 
     def stable(self, ev, matrix=None) -> bool:
-        return is_stable(self.trunk, ev, self.memo, matrix)
+        return is_stable(self.trunk, ev, matrix)
 
     def below_resolution(self, state: State, dq: np.ndarray, alpha: float = 1.0) -> bool:
         """Is every translation of ``α·dq`` below 1e-13 of the extent and every rotation below
@@ -166,6 +166,40 @@ class _Stage:
         extent = self.trunk.frames.length_scale + float(np.maximum.reduce(np.abs(state.positions), None))
         largest = np.maximum.reduce(np.abs(dq).reshape(-1, 6)).tolist()     # per component, over the frames
         return alpha * max(max(largest[:3]) / extent, max(largest[3:])) <= RESOLUTION
+
+    def at_resolution(self, state: State, ev, matrix, r: np.ndarray, dq: np.ndarray | None, kind: str,
+                      residual: float) -> str:
+        """The verdict on a state whose Newton step fell below the resolution of its poses:
+        "rounding-limited" (in balance to rounding), "stalled" or "unstable". Only the undamped,
+        uncapped Newton correction ``dq`` (None: the step taken was damped or capped; it is then
+        computed from the unshifted factor) being below resolution says the residual is
+        rounding, and the residual must then be what a correction at the resolution explains:
+        at most ``|K|`` times it (:meth:`rounding_floor`), or the tolerance."""
+        if dq is None:
+            factor, kind = matrix.factor(0.0, symmetric=self.symmetric, definite=self.symmetric)
+            if factor is None:
+                return "stalled"
+            dq = factor.solve(r)
+            if not self.below_resolution(state, dq):
+                return "stalled"
+        if residual > max(self.tolerance, self.rounding_floor(state, matrix)):
+            return "stalled"
+        if not (kind == "cholesky" or self.stable(ev, matrix)):
+            return "unstable"
+        return "rounding-limited"
+
+    def rounding_floor(self, state: State, matrix) -> float:
+        """The scaled residual that a correction at the resolution of the poses (:data:`RESOLUTION`
+        of the extent, and radians) can leave: ``|K| δ`` in the residual's norm."""
+        extent = self.trunk.frames.length_scale + float(np.maximum.reduce(np.abs(state.positions), None))
+        band = np.abs(matrix.symmetric_band())
+        n = band.shape[1]
+        delta = np.tile(np.array([extent] * 3 + [1.0] * 3) * RESOLUTION, n // 6)
+        bound = band[0] * delta
+        for k in range(1, band.shape[0]):              # row j + k, column j of the lower band, and its mirror
+            bound[k:] += band[k, :n - k] * delta[:n - k]
+            bound[:n - k] += band[k, :n - k] * delta[k:]
+        return 2.0 * residual_norm(bound, self.reference, self.weights)
 
     def step_limit(self, dq: np.ndarray, change: np.ndarray, ev) -> float:
         """The largest multiple of a step (frame increments ``dq``, strain change ``change``) that
@@ -239,9 +273,9 @@ def _raise_shift(shift: float, factor: float) -> float:
 def _newton(stage: _Stage, state: State):
     """Newton iterations at a fixed load factor (module docstring). Returns (ok, state, residual);
     the iterations taken are counted in ``stage.iterations``."""
-    trunk, memo, load, kinds = stage.trunk, stage.memo, stage.load, stage.kinds
+    trunk, load, kinds = stage.trunk, stage.load, stage.kinds
     symmetric = stage.symmetric
-    ev = evaluate(trunk, state, load, memo)
+    ev = evaluate(trunk, state, load)
     residual = stage.norm(ev)
     if not math.isfinite(residual + ev.energy):
         raise ConvergenceError(f"non-finite values appeared in the evaluation of the start state (the initial "
@@ -266,7 +300,7 @@ def _newton(stage: _Stage, state: State):
             return False, state, residual
         stage.iterations += 1
         stage.stretching = False
-        matrix = tangent(trunk, ev, memo)
+        matrix = tangent(trunk, ev)
         shift = stage.shift
         scale = None
         indefinite = False       # a factor of this tangent failed: it is not positive definite
@@ -274,7 +308,7 @@ def _newton(stage: _Stage, state: State):
             if shift > SHIFT_CEILING:
                 return False, state, residual
             if shift and scale is None:
-                scale = np.maximum(np.abs(matrix.diagonal()), memo.stiffness_scale())
+                scale = np.maximum(np.abs(matrix.diagonal()), trunk.rest.stiffness)
             factor, kind = matrix.factor(shift, symmetric=symmetric, scale=scale, definite=symmetric)
             if factor is None:
                 indefinite = True
@@ -295,13 +329,15 @@ def _newton(stage: _Stage, state: State):
                     stage.linear = np.sqrt(np.add.reduce(turns * turns, 1)) / load.scale
                 alpha = min(1.0, stage.step_limit(dq, change, ev))
                 if stage.below_resolution(state, dq, alpha):
-                    # the correction is below the floating-point resolution of the poses: the
-                    # residual left is rounding, not error; stop here and report it as it is
-                    if not (kind == "cholesky" or stage.stable(ev, matrix)):
-                        kinds.add("unstable")
+                    # the step is below the floating-point resolution of the poses: either the
+                    # residual left is rounding (stop here and report it as it is), or the
+                    # damping or a cap made the step short and the solve has stalled
+                    verdict = stage.at_resolution(state, ev, matrix, r, dq if not shift and alpha == 1.0 else None,
+                                                  kind, residual)
+                    kinds.add(verdict)
+                    if verdict != "rounding-limited":
                         return False, state, residual
                     kinds.add(kind)
-                    kinds.add("rounding-limited")
                     return True, state, residual
             if converged or (indefinite and shift >= BEND_SHIFT):
                 # a negative-curvature step (as far as the strain-space caps allow) where it
@@ -341,13 +377,15 @@ def _newton(stage: _Stage, state: State):
         r = -ev.gradient[1:].reshape(-1)
 
 
-def solve(trunk, memo, actuation: np.ndarray, initial: State | None, *, tolerance: float,
+def solve(trunk, loads: LoadCases, actuation: np.ndarray, initial: State | None, *, tolerance: float,
           max_iterations: int, load_steps: int, raise_on_failure: bool = True) -> StaticResult:
     """Equilibrium under ``actuation`` from ``initial`` (a warm start; None: the rest state, with
-    the load stepped in ``load_steps`` stages). Raises :class:`ConvergenceError` (carrying the
-    partial result) on failure unless ``raise_on_failure`` is False."""
+    the load stepped in ``load_steps`` stages); ``loads`` makes (and keeps) the load cases.
+    Raises :class:`ConvergenceError` (carrying the partial result) on failure unless
+    ``raise_on_failure`` is False."""
     start = time.perf_counter()
-    reference = reference_force(trunk, actuation, memo)
+    full = loads(actuation, 1.0)
+    reference = reference_force(trunk, full)
     if not math.isfinite(reference):
         raise ConvergenceError("non-finite values appeared in the actuation or the loads (the out-of-balance "
                                "force at rest is not finite)")
@@ -356,11 +394,10 @@ def solve(trunk, memo, actuation: np.ndarray, initial: State | None, *, toleranc
     if reference == 0.0:
         # nothing loads the rest pose: the start is the answer when it is in balance, else its
         # own out-of-balance force sets the scale
-        load = memo.load_case(actuation, 1.0)
-        gradient = evaluate(trunk, state, load, memo).gradient
+        gradient = evaluate(trunk, state, full).gradient
         if not np.any(gradient[1:]):
             return StaticResult(True, 0, 0.0, state, actuation, [0.0], 1, "none",
-                                {"solve_s": time.perf_counter() - start}, largest_turn=_turn(trunk, state, memo))
+                                {"solve_s": time.perf_counter() - start}, largest_turn=_turn(state))
         reference = _force_scale(trunk, gradient)
 
     scale, increment = 0.0, 1.0 / load_steps
@@ -374,8 +411,8 @@ def solve(trunk, memo, actuation: np.ndarray, initial: State | None, *, toleranc
     message = ""
     while True:
         target = min(1.0, scale + increment)
-        load = memo.load_case(actuation, target)
-        stage = _Stage(trunk, memo, load, tolerance if target >= 1.0 else max(tolerance, 1e-6),
+        load = loads(actuation, target)
+        stage = _Stage(trunk, load, tolerance if target >= 1.0 else max(tolerance, 1e-6),
                        min(max_iterations, BUDGET * max_iterations - iterations),
                        reference * max(target, 1e-300), history, kinds, shift, linear)
         try:
@@ -410,25 +447,30 @@ def solve(trunk, memo, actuation: np.ndarray, initial: State | None, *, toleranc
                 break
     limited = "rounding-limited" in kinds
     saddles = "unstable" in kinds
-    kinds -= {"rounding-limited", "unstable"}
+    stalled = "stalled" in kinds
+    kinds -= {"rounding-limited", "unstable", "stalled"}
     final = last_good if converged else state_new
     if not converged and not message:
         message = (f"Newton did not converge: scaled residual {residual:.3g} > {tolerance:g} after {iterations} "
                    f"iterations and {stages} load stages (reached load factor {scale:.4g})"
                    + ("; equilibria found on the way were unstable (indefinite tangent) and refused"
-                      if saddles else ""))
-    excess = out_of_range(trunk, final, lambda: memo.load_case(actuation, 1.0 if converged else load.scale), memo)
+                      if saddles else "")
+                   + ("; the steps fell below the floating-point resolution of the poses while the residual was "
+                      "still above what rounding explains (no step lowered the energy: it may overflow or the "
+                      "loads are beyond what the trunk can carry)" if stalled else ""))
+    excess = (out_of_range(trunk, kinematics(final).xi, loads(actuation, 1.0 if converged else load.scale))
+              if trunk.links.fitted else ())
     result = StaticResult(converged, iterations, float(residual), final, actuation, history, stages,
                           "+".join(sorted(kinds)) or "none", {"solve_s": time.perf_counter() - start},
-                          rounding_limited=limited and converged, largest_turn=_turn(trunk, final, memo),
+                          rounding_limited=limited and converged, largest_turn=_turn(final),
                           message=message, out_of_range=excess)
     if not converged and raise_on_failure:
         raise ConvergenceError(message, result)
     return result
 
 
-def _turn(trunk, state: State, memo) -> float:
+def _turn(state: State) -> float:
     record = state.carried_strains()
     if record is not None:
         return math.sqrt(record.chain.largest_turn2)
-    return largest_turn(memo.links(state, None).xi)
+    return largest_turn(kinematics(state).xi)

@@ -8,7 +8,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vertebra.solver.energy import chamber_forces, evaluate, tangent, volume_growth
+from vertebra.solver.energy import LoadCases, chamber_forces, evaluate, tangent, volume_growth
+from vertebra.solver.state import kinematics
 from vertebra.core.lie import hat, qmatrix, qrotate
 from vertebra.core.errors import ConvergenceError
 
@@ -56,33 +57,37 @@ def cable_lengths(trunk, state, pieces=None) -> np.ndarray:
     return trunk.cables.lengths(pieces)
 
 
-def chamber_volume_growth(trunk, state, pressures: np.ndarray, memo, links=None) -> np.ndarray:
-    """Volume growth of every chamber, ``−∂ψ/∂p`` summed over the links it covers."""
+def chamber_volume_growth(trunk, state, pressures: np.ndarray, loads: LoadCases, links=None) -> np.ndarray:
+    """Volume growth of every chamber, ``−∂ψ/∂p`` summed over the links it covers (``loads``:
+    the model's load cases, whose link energies may have prepared these pressures)."""
     if not trunk.actuators.n_chambers:
         return np.zeros(0)
     if links is None:
-        links = memo.links(state, state.carried_strains())
+        links = kinematics(state)
     pressures = np.asarray(pressures, float)
-    return volume_growth(trunk, links, pressures, memo.link_loads(pressures))
+    return volume_growth(trunk, links, pressures, loads.link_loads(pressures))
 
 
-def actuator_displacements(trunk, state, actuation: np.ndarray, memo, *, links=None, pieces=None) -> np.ndarray:
+def actuator_displacements(trunk, state, actuation: np.ndarray, loads: LoadCases, *, links=None,
+                           pieces=None) -> np.ndarray:
     """Cable strokes ``L − L0``, then chamber volume growths."""
     strokes = cable_lengths(trunk, state, pieces) - trunk.rest_cable_lengths
     if not trunk.actuators.n_chambers:
         return strokes
-    growth = chamber_volume_growth(trunk, state, actuation[trunk.actuators.n_cables:], memo, links)
+    growth = chamber_volume_growth(trunk, state, actuation[trunk.actuators.n_cables:], loads, links)
     return np.concatenate([strokes, growth])
 
 
-def linearise(trunk, state, actuation: np.ndarray, memo) -> Linearisation:
-    """Tangent stiffness factor, actuator and effector Jacobians at ``state`` under ``actuation``."""
-    load = memo.load_case(actuation, 1.0)
-    ev = evaluate(trunk, state, load, memo)
+def linearise(trunk, state, actuation: np.ndarray, loads: LoadCases, previous=None) -> Linearisation:
+    """Tangent stiffness factor, actuator and effector Jacobians at ``state`` under ``actuation``
+    (``previous``: an evaluation or trial the caller holds, reused where it is of the same state
+    and load case)."""
+    load = loads(actuation, 1.0)
+    ev = evaluate(trunk, state, load, previous)
     if not math.isfinite(ev.energy):
         raise ConvergenceError("non-finite values appeared in the linearisation (the state or the actuation "
                                "is not finite)")
-    matrix = tangent(trunk, ev, memo)
+    matrix = tangent(trunk, ev)
     for shift in LINEARISATION_SHIFTS:
         factor, _ = matrix.factor(shift, symmetric=not trunk.loads.has_dead_moments)
         if factor is not None:
@@ -117,5 +122,5 @@ def linearise(trunk, state, actuation: np.ndarray, memo) -> Linearisation:
         actuator_jacobian=jac[:, 1:].reshape(n_act, n_dof),
         effector_jacobian=Je[:, 1:].reshape(3 * len(effectors.names), n_dof),
         effector_positions=positions,
-        actuator_displacements=actuator_displacements(trunk, state, actuation, memo, links=links, pieces=pieces),
+        actuator_displacements=actuator_displacements(trunk, state, actuation, loads, links=links, pieces=pieces),
         energy=ev.energy)

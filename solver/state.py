@@ -10,6 +10,7 @@ copy whose poses no longer match the record is evaluated from its poses.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -27,8 +28,10 @@ class StrainRecord:
     positions: np.ndarray
     quaternions: np.ndarray
 
-    def kinematics(self) -> Links:
-        """Link kinematics from the strains and the chain's products (no logarithms)."""
+    @cached_property
+    def links(self) -> Links:
+        """Link kinematics from the strains and the chain's products (no logarithms), computed
+        when first asked for (the record's arrays are read-only: it cannot go stale)."""
         return Links.of_strains(self.chain.rotations[:-1], self.xi, self.positions[1:] - self.positions[:-1],
                                 self.chain.link_coefficients)
 
@@ -84,7 +87,7 @@ def kinematics(state: State) -> Links:
     """Link kinematics of a state: from the strains it carries, else from its poses."""
     record = state.carried_strains()
     if record is not None:
-        return record.kinematics()
+        return record.links
     q, x = state.quaternions, state.positions
     return Links.of(q[:-1], x[:-1], q[1:], x[1:])
 

@@ -17,6 +17,7 @@ import numpy as np
 
 from vertebra.solver.assembly import BandAssembler
 from vertebra.solver.cables import CableRouting
+from vertebra.solver.energy import RestConstants, rest_constants
 from vertebra.solver.kinds import CompiledLinks, kind_for
 from vertebra.core.lie import hat, qmatrix, se3_log
 from vertebra.solver.state import State, compose
@@ -142,6 +143,7 @@ class Trunk:
     rest_state: State
     rest_cable_lengths: np.ndarray
     rest_piece_lengths: np.ndarray     # (m,) length of every cable piece at rest
+    rest: RestConstants | None = None  # what the unstressed rest state gives (set by compile_trunk)
 
     def __post_init__(self):
         if self.links.count != self.frames.count - 1:
@@ -164,8 +166,10 @@ def compile_trunk(scene, entries: dict) -> Trunk:
     rest_pieces = cables.pieces(rest_state.positions, qmatrix(rest_state.quaternions))
     loads = _loads(scene, frames)
     assembler = BandAssembler(frames.count - 1, cables.span, cables.piece_a, cables.piece_b, loads.has_gravity)
-    return Trunk(scene, frames, links, cables, _actuators(scene, rest_volumes), loads, _effectors(scene, frames),
-                 assembler, rest_state, cables.lengths(rest_pieces), rest_pieces.length)
+    trunk = Trunk(scene, frames, links, cables, _actuators(scene, rest_volumes), loads, _effectors(scene, frames),
+                  assembler, rest_state, cables.lengths(rest_pieces), rest_pieces.length)
+    object.__setattr__(trunk, "rest", rest_constants(trunk))      # (needs the trunk it belongs to)
+    return trunk
 
 
 def _compile_links(scene, entries):

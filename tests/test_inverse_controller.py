@@ -276,8 +276,8 @@ def test_a_diverged_linearisation_is_a_convergence_failure_naming_the_array(monk
     real = model.linearise
     for field, array in (("effector_jacobian", "W_ea"), ("effector_positions", "delta_e_free"),
                          ("actuator_displacements", "delta_a_free"), ("actuator_jacobian", "W_aa")):
-        def broken(state, actuation=None, field=field):
-            lin = real(state, actuation)
+        def broken(state, actuation=None, *, previous=None, field=field):
+            lin = real(state, actuation, previous=previous)
             bad = getattr(lin, field).copy()
             bad.reshape(-1)[0] = np.nan
             return dataclasses.replace(lin, **{field: bad})

@@ -5,6 +5,7 @@ represent. The larger run is ``benchmarks/bench_robustness.py`` (docs/robustness
 from __future__ import annotations
 
 import math
+import types
 
 import numpy as np
 import pytest
@@ -48,7 +49,7 @@ def test_a_representable_random_robot_converges_to_a_stable_equilibrium(seed):
     lin = model.linearise(result.state, result.actuation)
     assert model.residual_norm(lin.residual, result.actuation) <= model.scene.solver.tolerance or \
         result.rounding_limited
-    assert is_stable(model.trunk, model.evaluate(result.state), model.memo)
+    assert is_stable(model.trunk, model.evaluate(result.state))
     assert np.isfinite(result.state.positions).all()
 
 
@@ -162,7 +163,9 @@ def test_a_tick_that_its_prediction_fails_is_not_applied(monkeypatch):
     model = polymer(True)
     controller = InverseController(model, InverseSettings(mode="tick"))
     state, actuation, scale = controller.state, controller.actuation.copy(), controller.trust.scale
-    monkeypatch.setattr(model, "potential", lambda s, a=None: 1e6)
+    jump = types.SimpleNamespace(energy=1e6)
+    monkeypatch.setattr(model, "potential", lambda s, a=None: jump.energy)
+    monkeypatch.setattr(model, "trial", lambda s, a=None: jump)
     step = controller.step(JUMP)
     assert step.status == "not applied" and step.fraction == 0.0
     assert controller.state is state and np.array_equal(controller.actuation, actuation)
@@ -213,3 +216,29 @@ def test_per_tick_changes_come_from_the_scene_or_a_quarter_of_the_range():
     assert model.actuator_max_change.tolist() == [2.0, 7.0, math.inf]
     with pytest.raises(SceneError, match="max_tension_change"):
         build(dict(base, cable=[dict(cables[0], max_tension_change=-1.0)]))
+
+
+def test_a_solve_whose_steps_stall_below_resolution_is_not_converged(monkeypatch):
+    # Trial energies that overflow make every line search fail: the damping grows until the
+    # step is below the resolution of the poses, with the trunk still at rest under its load
+    # (residual 1). That is a stalled solve, never a converged one: `converged` always means the
+    # residual test holds (the tolerance, or what rounding of the poses explains).
+    from vertebra.solver import globalise
+
+    model = build({"segment": [{"type": "beam", "elements": 10, "length": 0.5, "youngs_modulus": 200e9,
+                                "poisson_ratio": 0.3, "section": {"shape": "circle", "radius": 1e-3}}],
+                   "load": [{"vertebra": -1, "force": [0.5, 0.0, 0.0]}]})
+    assert model.solve().converged
+    real = globalise.evaluate
+
+    def overflowing(trunk, state, load, previous=None):
+        ev = real(trunk, state, load, previous)
+        ev.energy = math.inf
+        return ev
+
+    monkeypatch.setattr(globalise, "evaluate", overflowing)
+    result = model.solve(raise_on_failure=False)
+    assert not result.converged and not result.rounding_limited
+    assert "floating-point resolution" in result.message
+    with pytest.raises(ConvergenceError, match="floating-point resolution"):
+        model.solve()

@@ -47,7 +47,7 @@ def test_bands_gathered_from_the_terms_equal_the_dense_assembly(name):
     assembler = model.trunk.assembler
     # away from equilibrium, where the turning lever arms make the tangent unsymmetric
     moved = model.step(state, 1e-2 * model.length_scale * np.random.default_rng(5).normal(size=model.n_dof))
-    matrix = tangent(model.trunk, model.evaluate(moved, actuation), model.memo)
+    matrix = tangent(model.trunk, model.evaluate(moved, actuation))
     dense = _dense(assembler, matrix.terms)
     scale = np.abs(dense).max()
     assert scale > 0 and np.abs(dense - dense.T).max() > 1e-9 * scale    # (≫ rounding)
@@ -134,7 +134,7 @@ def test_stability_check_sees_the_buckling_load(ratio, stable):
     ev = model.evaluate(straight)
     # an equilibrium to rounding (the out-of-balance force relative to the load)
     assert np.abs(ev.gradient[1:]).max() <= 1e-9 * P
-    assert is_stable(model.trunk, ev, model.memo) is stable
+    assert is_stable(model.trunk, ev) is stable
 
 
 @pytest.mark.parametrize("ratio", [0.5, 1.1, 2.0, 4.0])
@@ -145,7 +145,7 @@ def test_the_solve_returns_the_stable_column_straight_or_buckled(ratio):
     # relative with 20 links (the rest is extensibility and shear); 1e-4 bounds it.
     model = _column(ratio)
     result = model.solve()
-    assert result.converged and is_stable(model.trunk, model.evaluate(result.state), model.memo)
+    assert result.converged and is_stable(model.trunk, model.evaluate(result.state))
     tip = float(np.linalg.norm(qlog(result.state.quaternions[-1:])))
     if ratio < 1.0:
         assert np.abs(result.state.positions[:, :2]).max() == 0.0

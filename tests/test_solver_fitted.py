@@ -25,12 +25,13 @@ from fitted_energies import ROD, ROD_MESH, nonlinear_rod, with_energy
 from reference.complex_step import pair_tangent, polynomial_link_gradient
 from test_solver_actuation import synthetic_entry
 from vertebra import solver
+from vertebra.core import lie
 from vertebra.solver.kinds import RangeExcess
 from vertebra.solver.kinds.fitted import FittedEnergy
 from vertebra.core.lie import qexp, qmul, qrotate, se3_exp
 from vertebra.solver.links import Links, link_tangent
 from vertebra.solver.report import static_report
-from vertebra.store.energy import fold_map, linear_terms
+from vertebra.core.energy import fold_map, linear_terms
 from vertebra.core.errors import ConvergenceError
 
 SLICE = synthetic_entry()                       # 2 cavities, 30 mm, soft rod-like compliance
@@ -154,7 +155,7 @@ def test_a_turned_and_moved_trunk_finds_the_turned_equilibrium():
                     solver_settings=settings, base={"position": shift.tolist(), "quaternion": turn.tolist()})
     a, b = first.solve(), second.solve()
     assert a.converged and b.converged
-    bend = np.degrees(np.linalg.norm(solver.lie.qlog(a.state.quaternions[-1])))
+    bend = np.degrees(np.linalg.norm(lie.qlog(a.state.quaternions[-1])))
     assert bend > 20.0                                   # a nonlinear state, not the rest pose
     assert np.abs(qrotate(turn, a.state.positions) + shift - b.state.positions).max() <= 1e-12 * first.length_scale
 
@@ -242,7 +243,7 @@ def test_pressurised_chain_equals_the_yardstick_chain_of_the_same_energies():
     growth = model.chamber_volume_growth(result.state, actuation)
     expected = [sum(v[0] for v in chain.volume_growth), sum(v[1] for v in chain.volume_growth[1:3])]  # c1: 2–3
     assert growth == pytest.approx(expected, rel=1e-9)
-    assert np.degrees(np.linalg.norm(solver.lie.qlog(result.state.quaternions[-1]))) > 15.0
+    assert np.degrees(np.linalg.norm(lie.qlog(result.state.quaternions[-1]))) > 15.0
 
 
 def _narrow(entry, bending):
@@ -348,7 +349,7 @@ def test_chain_of_nonlinear_entries_against_the_full_nonlinear_fe(rod, case):
     chain = solve_chain([ChainEnergy(rod)] * count, [PointLoad(k, tuple(f)) for k, f in forces.items()])
     length = count * ROD["length"]
     tip = nonlinear.state.positions[-1]
-    angle = np.degrees(np.linalg.norm(solver.lie.qlog(nonlinear.state.quaternions[-1])))
+    angle = np.degrees(np.linalg.norm(lie.qlog(nonlinear.state.quaternions[-1])))
     assert reference.converged and nonlinear.converged and 35.0 < angle < 80.0
     assert np.linalg.norm(tip - chain.tip_position) <= 1e-9 * length
     assert np.linalg.norm(tip - reference.positions[-1]) <= 1e-3 * length

@@ -145,6 +145,7 @@ class InverseController:
         self.equilibrium = False
         self.trust = TrustRegion.of_model(model)
         self._moments = (model.trunk.loads.dead[1:, 3:].reshape(-1) if model.has_dead_moments else None)
+        self._judged = None     # the trial of the last state applied (its next linearisation reuses it)
 
     # ------------------------------------------------------------------ pieces
     def _linearised_step(self, targets, timings, box=None, damping=None):
@@ -154,7 +155,7 @@ class InverseController:
         its target, else none); adds to ``timings``. Returns the linearisation, the projection,
         the QP solution and the aim."""
         t0 = time.perf_counter()
-        lin = self.model.linearise(self.state, self.actuation)
+        lin = self.model.linearise(self.state, self.actuation, previous=self._judged)
         t1 = time.perf_counter()
         aim = self.trust.aim(lin.effector_positions, targets, self.model.effector_is_axis)
         if damping is None:
@@ -232,7 +233,8 @@ class InverseController:
                 else:      # the potential is linear in the tensions: E_λ(q) = E_λ0(q) + (λ − λ0)·L(q)
                     before = lin.energy + alpha * d_energy
                 trial = model.step(state0, alpha * dq)
-                after = model.potential(trial, lam)
+                judged = model.trial(trial, lam)
+                after = judged.energy
             except ConvergenceError:
                 before = after = math.nan
             if self._moments is not None:
@@ -241,7 +243,7 @@ class InverseController:
             noise = 1e-12 * abs(before)
             quality = decrease / predicted if predicted > noise else (1.0 if decrease >= -noise else 0.0)
             if quality >= ACCEPT:        # (False for NaN)
-                self.state, self.actuation = trial, lam
+                self.state, self.actuation, self._judged = trial, lam, judged
                 self.trust.update(quality, cut)
                 return alpha
             alpha *= 0.25
