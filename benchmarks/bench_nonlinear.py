@@ -4,7 +4,7 @@ Sections (all by default; name some to run only those):
 
 ``kernel``
     Runtime cost of a link's share of a Newton iteration for 20 links: the quadratic links'
-    force and tangent against ``store.energy.EnergyModel.evaluate`` plus the same tangent
+    force and tangent against ``core.energy.EnergyModel.evaluate`` plus the same tangent
     algebra (rod degree 4/6/8, CBHA-like slice with 3 chambers), in interleaved rounds
     (median of ratios; the machine is shared).
 ``rod``
@@ -96,7 +96,7 @@ def refit(entry, result, symmetry, *, degree, paths=None, pressure_degree=None, 
     """The entry with its energy refitted from a subset of the samples (the first ``paths``
     Halton paths and every box axis; the held-out paths stay held out)."""
     from vertebra.designer.energy_fit import fit_energy, fit_errors, symmetry_group
-    from vertebra.store.energy import EnergyFit, linear_terms
+    from vertebra.core.energy import EnergyFit, linear_terms
 
     samples, held = result.samples, result.held_out
     n_axes = 5 + (2 if entry.n_cavities > 1 else entry.n_cavities)
@@ -181,7 +181,7 @@ def section_kernel(results, quick):
     from vertebra.designer.families import AXISYMMETRIC, FAMILIES
     from vertebra.core.lie import qexp
     from vertebra.solver.links import Links, link_tangent
-    from vertebra.store.energy import EnergyFit, EnergyModel, EnergyRange
+    from vertebra.core.energy import EnergyFit, EnergyModel, EnergyRange
 
     rng = np.random.default_rng(0)
     n = 20

@@ -24,6 +24,7 @@ from typing import Protocol
 
 import numpy as np
 
+from vertebra.core.energy import EnergyFit, EnergyModel, EnergyRange, linear_terms
 from vertebra.designer.energy_fit import inverse_left_jacobian, pose_of_strain
 from vertebra.core.errors import ConvergenceError
 
@@ -37,11 +38,9 @@ class SegmentEnergy(Protocol):
 
 
 class FittedEnergy:
-    """ψ of a nonlinear catalogue entry (store.energy), or of a linear one (ψ_lin alone)."""
+    """ψ of a nonlinear catalogue entry (core.energy), or of a linear one (ψ_lin alone)."""
 
     def __init__(self, entry, linear_only: bool = False):
-        from vertebra.store.energy import EnergyFit, EnergyModel, EnergyRange, linear_terms
-
         self.rest_translation = np.asarray(entry.rest_translation, dtype=float)
         self.n_cavities = entry.n_cavities
         fit = entry.energy

@@ -5,7 +5,7 @@ its cavities at prescribed pressures: the load conjugate to the pose (a wrench),
 the cavity volume growths and their derivatives. :func:`strain_derivatives` turns the
 FE's pose chart (a left perturbation ``exp(ζ^) T`` of frame b, in a's axes) into the strain
 chart of ψ (``s = log(T_a⁻¹T_b) − ξ₀``). :func:`fit_energy` then solves one linear least
-squares problem for ψ_nl (store.energy): gradients (loads and volume growths) and Hessians
+squares problem for ψ_nl (core.energy): gradients (loads and volume growths) and Hessians
 (tangents) of ψ matched in scaled variables, the linear part fixed (so the Hessian at rest is
 the linear compliance's, exactly), over a basis of polynomials invariant under the
 segment's symmetry group (:func:`symmetry_group`, :func:`invariant_basis`). Symmetry makes
@@ -29,7 +29,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vertebra.designer.families import SegmentSymmetry
-from vertebra.store.energy import Monomials, monomial_exponents
+from vertebra.core.energy import (EnergyFit, EnergyModel, EnergyRange, Monomials, fold_map, group_coordinates,
+                                  monomial_exponents)
 from vertebra.core.errors import GeometryError
 
 #: step of the differences for E(g) (rad or m·scale); fourth-order stencil
@@ -360,7 +361,7 @@ class Samples:
 
 
 def linear_derivatives(z: np.ndarray, K: np.ndarray, S: np.ndarray, V: np.ndarray):
-    """Gradient (n, nv) and Hessian (nv, nv) of ψ_lin at ``z = [s; p]`` (store.energy's linear part)."""
+    """Gradient (n, nv) and Hessian (nv, nv) of ψ_lin at ``z = [s; p]`` (core.energy's linear part)."""
     m = S.shape[1]
     s, p = z[:, :6], z[:, 6:]
     e = s - p @ S.T
@@ -420,7 +421,7 @@ class FitResult:
     unknowns: int                    # invariant basis size
     errors: dict                     # held-out (and training) errors, see :func:`fit_errors`
     settings: dict = field(default_factory=dict)
-    fold: float | None = None        # fold pressure of the map w(p) (store.energy), None: w = p
+    fold: float | None = None        # fold pressure of the map w(p) (core.energy), None: w = p
 
 
 def fit_energy(samples: Samples, linear: tuple, *, degree: int, pressure_degree: int, group: list[np.ndarray],
@@ -430,7 +431,7 @@ def fit_energy(samples: Samples, linear: tuple, *, degree: int, pressure_degree:
     Hessians of ψ in the scaled variables ``u = [s; w(p)] / scales``, with ψ_lin fixed.
     ``linear``: ``(K, S, V)``; ``group``: :func:`symmetry_group`; ``held_out``: boolean mask of
     samples kept out of the fit and used for its error; ``fold``: pressure of the fold map
-    ``w(p)`` (store.energy) or None for ``w = p``."""
+    ``w(p)`` (core.energy) or None for ``w = p``."""
     K, S, V = linear
     m = samples.n_cavities
     nv = 6 + m
@@ -441,7 +442,6 @@ def fit_energy(samples: Samples, linear: tuple, *, degree: int, pressure_degree:
     g_lin, H_lin = linear_derivatives(z, K, S, V)
     g_nl, H_nl = train.full_gradient() - g_lin, train.full_hessian() - H_lin
     if fold is not None and m:                      # ψ_nl's derivatives in w(p) instead of p
-        from vertebra.store.energy import fold_map
         w, w1, w2 = fold_map(z[:, 6:], fold)
         z = np.concatenate([z[:, :6], w], axis=1)
         H_nl[:, 6:, 6:] -= (g_nl[:, 6:] * w2 / w1)[:, :, None] * np.eye(m)
@@ -479,8 +479,6 @@ def fit_energy(samples: Samples, linear: tuple, *, degree: int, pressure_degree:
 
 def evaluate_fit(result: FitResult, linear: tuple, z: np.ndarray):
     """(gradient (n, nv), Hessian (n, nv, nv)) of the fitted ψ at ``z = [s; p]``."""
-    from vertebra.store.energy import EnergyFit, EnergyModel, EnergyRange
-
     m = z.shape[1] - 6
     wide = np.full(4, 1e300)
     top = np.full(m, 1e300 if result.fold is None else result.fold * (1 - 1e-15))
@@ -505,8 +503,6 @@ def fit_errors(result: FitResult, linear: tuple, samples: Samples, load_bounds: 
     * ``tangent``: relative Frobenius error of ∂²ψ/∂s² in the scaled variables.
 
     Reported as ``{"<name>_max", "<name>_rms"}`` plus ``linear_load_max`` and ``samples``."""
-    from vertebra.store.energy import group_coordinates
-
     K, S, V = linear
     z = samples.variables()
     grad, H = evaluate_fit(result, linear, z)

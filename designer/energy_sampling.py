@@ -35,7 +35,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from vertebra.designer.energy_fit import Samples, strain_derivatives, pose_of_strain
-from vertebra.store.energy import group_coordinates
+from vertebra.core.energy import group_coordinates
 from vertebra.core.errors import ConvergenceError, OptionError
 
 

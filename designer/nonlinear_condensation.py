@@ -4,7 +4,7 @@
 compliance on the same mesh) is known: the pressure ramp to the inflation limit point (for
 segments with cavities), the loading paths through an executor, the range, the fit and its
 held-out error (:mod:`designer.energy_sampling`, :mod:`designer.energy_fit`). The result is
-the :class:`store.energy.EnergyFit` a nonlinear catalogue entry carries.
+the :class:`core.energy.EnergyFit` a nonlinear catalogue entry carries.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from vertebra.designer.energy_fit import (SegmentSymmetry, Samples, convexity, f
                                           symmetry_group)
 from vertebra.designer.energy_sampling import (LoadBox, PathTask, PressureTask, SamplingSettings, load_box,
                                                path_endpoints, run_paths, run_pressure_ramp)
-from vertebra.store.energy import EnergyFit, EnergyRange, group_coordinates, linear_terms
+from vertebra.core.energy import EnergyFit, EnergyRange, group_coordinates, linear_terms
 from vertebra.core.errors import ConvergenceError
 
 #: margin added around the sampled poses when stating the range (fraction of each group's width)

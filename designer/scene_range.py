@@ -59,6 +59,7 @@ from typing import Callable
 
 import numpy as np
 
+from vertebra.core.energy import linear_terms
 from vertebra.core.errors import ConvergenceError
 
 #: factor by which the strain and load extremes are enlarged about zero (covers the response
@@ -325,7 +326,6 @@ def choose_sampling(estimate: SegmentRange, *, compliance, rest_translation, rad
     raised above its default (:data:`~vertebra.designer.energy_sampling.SOFTENING_STRAIN`:
     fits sampled beyond it near the compressive limit point fail); the report warns instead."""
     from vertebra.designer.energy_sampling import SOFTENING_STRAIN, SamplingSettings
-    from vertebra.store.energy import linear_terms
 
     cavities = np.shape(compliance)[0] - 6
     defaults = SamplingSettings().resolved(cavities, material)
@@ -395,7 +395,7 @@ def _pressure(estimate: SegmentRange, warnings: list) -> tuple:
 
 def uncovered(estimate: SegmentRange, fitted) -> list[str]:
     """Where the estimated range ``estimate`` leaves an entry's fitted range ``fitted``
-    (:class:`~vertebra.store.energy.EnergyRange`), one sentence each (an unbounded pressure
+    (:class:`~vertebra.core.energy.EnergyRange`), one sentence each (an unbounded pressure
     is covered up to the inflation limit, where the runtime stops)."""
     out = []
     for kind, lower, upper, f_lower, f_upper in (

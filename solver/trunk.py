@@ -19,7 +19,8 @@ from vertebra.solver.assembly import BandAssembler
 from vertebra.solver.cables import CableRouting
 from vertebra.solver.energy import RestConstants, rest_constants
 from vertebra.solver.kinds import CompiledLinks, kind_for
-from vertebra.core.lie import hat, qmatrix, se3_log
+from vertebra.core.energy import rest_strain
+from vertebra.core.lie import qmatrix
 from vertebra.solver.state import State, compose
 from vertebra.core.errors import SceneError
 
@@ -187,13 +188,10 @@ def _compile_links(scene, entries):
     source_of_link = np.concatenate(source_of_link)
     vertebra_of_link = np.concatenate(vertebra_of_link)
     n = source_of_link.size
-    # the stress-free strain of each source and A = ∂ξ/∂δ: δ = [Δx; Δθ] of b in a's axes, ζ = [Δx − Δθ × d0; Δθ]
+    # the stress-free strain of each source and A = ∂ξ/∂δ (δ = [Δx; Δθ] of b in a's axes)
     q0 = np.array([s.rest_quaternion for s in sources])
     d0 = np.array([s.rest_translation for s in sources])
-    rest, Jl_inv = se3_log(q0, d0)
-    shift = np.broadcast_to(np.eye(6), (len(sources), 6, 6)).copy()
-    shift[:, :3, 3:] = hat(d0)
-    strain_map = Jl_inv @ shift
+    rest, strain_map = rest_strain(d0, q0)
 
     cavity = np.full((n, len(chambers)), -1)
     rest_volumes = np.zeros(len(chambers))

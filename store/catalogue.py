@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vertebra.store.energy import EnergyFit
+from vertebra.core.energy import EnergyFit
 from vertebra.store.entry import SegmentEntry, canonical_json
 from vertebra.core.errors import CatalogueError
 from vertebra.store.h5read import walk

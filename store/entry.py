@@ -7,7 +7,7 @@ rotation vector, in a's axes); cavity volume growths]`` with frame ``a`` clamped
 (paper eq. 2 for the 6×6 block ``C``).
 
 A nonlinear entry (catalogue schema v2) also carries ``energy``: its segment's energy
-ψ(s, p) over end poses and pressures (:mod:`store.energy`), whose Hessian at rest is the
+ψ(s, p) over end poses and pressures (:mod:`vertebra.core.energy`), whose Hessian at rest is the
 inverse of this compliance.
 """
 
@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from vertebra.store.energy import EnergyFit
+from vertebra.core.energy import EnergyFit
 from vertebra.core.errors import CatalogueError
 from vertebra.store.soundness import soundness_problems
 
@@ -73,7 +73,7 @@ class SegmentEntry:
     accuracy: dict = field(default_factory=dict)    # e.g. {"relative_change": 1e-3, "method": "..."}
     timings: dict = field(default_factory=dict)     # mesh_s, assemble_s, solve_s, total_s
     provenance: dict = field(default_factory=dict)  # versions, date, host
-    energy: EnergyFit | None = None                 # nonlinear segments: ψ(s, p) (schema v2, store.energy)
+    energy: EnergyFit | None = None                 # nonlinear segments: ψ(s, p) (schema v2, core.energy)
 
     def __post_init__(self):
         n = np.asarray(self.cavity_volumes).reshape(-1).size

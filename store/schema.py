@@ -12,11 +12,13 @@ Layout::
         center_of_mass    float64 (3,)
         rest_translation  float64 (3,)
         rest_quaternion   float64 (4,)
-        attrs: name, family (fixed-length UTF-8 strings), mass (float64),
-               parameters, mesh, accuracy, timings, provenance (canonical JSON,
-               fixed-length UTF-8 strings), checksum, content ("sha256:<hex>")
-        energy/           optional (schema v2): ψ(s, p) of a nonlinear segment, see
-                          ``store.energy.write_group``; covered by the checksum
+        attrs: name, family (fixed-length UTF-8 strings), mass (float64) and
+               mass_units ("kg"), parameters, mesh, accuracy, timings, provenance
+               (canonical JSON, fixed-length UTF-8 strings), checksum, content
+               ("sha256:<hex>")
+        energy/           optional (schema v2): ψ(s, p) of a nonlinear segment
+                          (:mod:`vertebra.core.energy`), see :func:`write_energy`;
+                          covered by the checksum
 
 A version-1 file is a version-2 file without energy groups: it reads unchanged. A file
 is stamped 2 once it holds an entry with an energy group.
@@ -37,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from vertebra.store import energy as energy_schema
+from vertebra.core.energy import GROUPS, MAX_TERMS, EnergyFit, EnergyRange, rest_strain
 from vertebra.store.entry import SegmentEntry, canonical_json
 from vertebra.store import h5read
 from vertebra.core.errors import CatalogueError
@@ -70,6 +72,10 @@ DATASET_ATTRIBUTES = {
     "index": ("none", "one canonical JSON row per entry: key, name, family, parameters, n_cavities, mass, "
                       "checksum, content"),
 }
+
+#: ``<name>_units`` attributes beside the numeric attributes of an entry group (an HDF5 attribute
+#: has no attributes of its own); readers do not need them
+ENTRY_ATTRIBUTE_UNITS = {"mass": "kg"}
 
 MAX_JSON_BYTES = 1 << 20       # one metadata attribute or one index row
 MAX_TEXT_CHARS = 256           # names and families
@@ -266,12 +272,13 @@ def write_entry(entries_group, enc: EncodedEntry) -> None:
     group.attrs["name"] = _fixed_string(enc.name)
     group.attrs["family"] = _fixed_string(enc.family)
     group.attrs["mass"] = np.float64(enc.mass)
+    _attribute_units(group, ENTRY_ATTRIBUTE_UNITS)
     for field in DICT_FIELDS:
         group.attrs[field] = _fixed_string(canonical_json(enc.dicts[field]))
     group.attrs["checksum"] = _fixed_string(enc.checksum)
     group.attrs["content"] = _fixed_string(enc.content)
     if enc.entry.energy is not None:
-        energy_schema.write_group(group, enc.entry.energy)
+        write_energy(group, enc.entry.energy, enc.entry.rest_translation)
         stamp_version(group.file, ENERGY_SCHEMA_VERSION)
 
 
@@ -304,12 +311,12 @@ def read_entry(group, key: str, what: str) -> SegmentEntry:
         dicts[field] = value
     stored_checksum, _ = read_stored_digests(group, what, path)
     energy = None
-    energy_group = h5read.child(group, energy_schema.GROUP, what, path, "group", required=False)
+    energy_group = h5read.child(group, ENERGY_GROUP, what, path, "group", required=False)
     if energy_group is not None:
         try:
-            energy = energy_schema.read_group(group, f"{what}: {path}")
+            energy = read_energy(group, what, path, arrays["rest_translation"])
         except (OSError, KeyError, ValueError, TypeError, RuntimeError) as error:
-            raise h5read.failure(what, f"{path}/{energy_schema.GROUP}", f"unreadable ({error})") from None
+            raise h5read.failure(what, f"{path}/{ENERGY_GROUP}", f"unreadable ({error})") from None
     try:
         checksum, _ = digests(key, name, family, mass, arrays, dicts, energy)
     except (ValueError, TypeError) as error:
@@ -321,6 +328,162 @@ def read_entry(group, key: str, what: str) -> SegmentEntry:
         return SegmentEntry(key=key, name=name, family=family, mass=mass, **arrays, **dicts, energy=energy)
     except CatalogueError as error:
         raise CatalogueError(f"{what}: entry {key}: {error}") from None
+
+
+# ---------------------------------------------------------------- the energy group (schema v2)
+
+ENERGY_GROUP = "energy"
+_ENERGY_DATASETS = {"exponents": "<i8", "coefficients": "<f8", "scales": "<f8"}
+_BOUND_UNITS = {"pose": "[m, m, rad, rad]", "load": "[N, N, N m, N m]", "pressure": "Pa"}
+_BOUNDED = {"pose": "the strain s", "load": "the load d psi / d s (the wrench conjugate to s)",
+            "pressure": "each cavity pressure"}
+_GROUP_TEXT = "[" + ", ".join(f"{name} {coordinate}" for name, coordinate in
+                              zip(GROUPS, ("|rho_xy|", "rho_z", "|phi_xy|", "phi_z"))) + "]"
+#: ``units`` and ``description`` of the datasets of ``<entry>/energy`` (paths inside the group).
+#: ``exponents``, ``coefficients`` and ``scales`` are the energy; the others restate, for readers
+#: with HDF5 tools only, what the entry's checksummed fields fix: ``rest_strain`` and
+#: ``strain_map`` follow from ``rest_translation``, ``range/*`` from the JSON attribute ``range``.
+ENERGY_DATASET_ATTRIBUTES = {
+    "exponents": ("1", "exponents of the monomials of psi_nl in u = [s; w(p)] / scales, one row per term"),
+    "coefficients": ("J", "coefficient of each monomial of psi_nl"),
+    "scales": ("[m, m, m, rad, rad, rad, Pa...]", "scales of the variables [s; w(p)] (u = [s; w(p)] / scales)"),
+    "rest_strain": ("[m, m, m, rad, rad, rad]",
+                    "rest strain xi0 = log_SE3(T0) = [rho0; phi0] of the rest pose T0 of frame b in frame a "
+                    "(rest_translation, rest_quaternion); the energy's strain is s = xi - xi0"),
+    "strain_map": ("[[1, m/rad], [rad/m, 1]]",
+                   "A = d xi / d delta at rest: the strain change per displacement delta = [dx; dtheta] of "
+                   "frame b (the rows of ../compliance); psi_lin has K = inv(A C A^T), S = A G; units by block "
+                   "(rows rho, phi; columns dx, dtheta)"),
+    **{f"range/{kind}_{side}": (_BOUND_UNITS[kind], f"{side} bounds of {_BOUNDED[kind]} where psi was sampled"
+                                + ("" if kind == "pressure" else f", in the group coordinates {_GROUP_TEXT}"))
+       for kind in ("pose", "load", "pressure") for side in ("lower", "upper")},
+    "range/limit_pressure": ("Pa", "the inflation limit point met while sampling, above every sampled pressure "
+                                   "(absent: none was met)"),
+}
+#: text attributes of ``<entry>/energy`` that say what it holds (readers do not need them)
+ENERGY_TEXT = {
+    "strain": "s = xi - xi0: xi = log_SE3(T_a^-1 T_b) = [rho; phi] the relative pose of the top frame b in the "
+              "bottom frame a as a twist (translation rho in m, then rotation vector phi in rad, in a's axes), "
+              "xi0 = rest_strain; p = the cavity pressures (Pa)",
+    "definition": "psi(s, p) = 1/2 (s - S p)^T K (s - S p) - 1/2 p^T V p + sum_k coefficients[k] "
+                  "prod_j u_j^exponents[k, j] (J), u = [s; w(p)] / scales; w(p) = p, or 2 P (1 - sqrt(1 - p/P)) "
+                  "when fold_pressure = P is not null; K = inv(A C A^T), S = A G with A = strain_map and "
+                  "[[C, G], [G^T, V]] = ../compliance; d psi / d s is the load on the strain, -d psi / d p the "
+                  "cavity volume growth (m^3)",
+}
+#: ``<name>_units`` beside the energy group's numeric attributes
+ENERGY_ATTRIBUTE_UNITS = {"fold_pressure": "Pa"}
+#: the JSON attributes of the energy group and the text one
+_ENERGY_ATTRIBUTES = ("representation", "range", "fit_error", "material", "sampling", "fold_pressure")
+
+
+def write_energy(entry_group, fit: EnergyFit, rest_translation: np.ndarray) -> None:
+    """Create ``<entry>/energy``: datasets ``exponents`` (int64 (m, 6+n)), ``coefficients``
+    (float64 (m,)), ``scales`` (float64 (6+n,)); attributes ``representation`` (text) and
+    ``range``, ``fit_error``, ``material``, ``sampling``, ``fold_pressure`` (JSON; fixed-length
+    UTF-8). Beside them, for readers with HDF5 tools only: the strain's definition and ψ's form
+    (text attributes ``strain`` and ``definition``), ``rest_strain`` (6,) and ``strain_map``
+    (6, 6), the range's bounds as datasets with units (``range/``), ``fold_pressure_units``."""
+    group = entry_group.create_group(ENERGY_GROUP)
+    for name, dtype in _ENERGY_DATASETS.items():
+        dataset = group.create_dataset(name, data=np.ascontiguousarray(getattr(fit, name), dtype=dtype))
+        _describe(dataset, name, ENERGY_DATASET_ATTRIBUTES)
+    for name, value in fit.attributes().items():
+        group.attrs[name] = _fixed_string(value if isinstance(value, str) else canonical_json(value))
+    _attribute_units(group, ENERGY_ATTRIBUTE_UNITS)
+    for name, text in ENERGY_TEXT.items():
+        group.attrs[name] = _fixed_string(text)
+    for name, data in _derived_energy_arrays(fit, rest_translation).items():
+        _describe(group.create_dataset(name, data=data), name, ENERGY_DATASET_ATTRIBUTES)
+
+
+def _derived_energy_arrays(fit: EnergyFit, rest_translation: np.ndarray) -> dict:
+    """The datasets of the energy group that restate the entry's checksummed fields."""
+    xi0, A = rest_strain(np.asarray(rest_translation, dtype=float))
+    out = {"rest_strain": xi0, "strain_map": A}
+    bounds = fit.range
+    for kind in ("pose", "load", "pressure"):
+        for side in ("lower", "upper"):
+            out[f"range/{kind}_{side}"] = getattr(bounds, f"{kind}_{side}")
+    if bounds.limit_pressure is not None:
+        out["range/limit_pressure"] = np.float64(bounds.limit_pressure)
+    return {name: np.ascontiguousarray(value, dtype="<f8") for name, value in out.items()}
+
+
+def read_energy(entry_group, what: str, path: str, rest_translation: np.ndarray) -> EnergyFit:
+    """Read and validate ``<entry>/energy`` (dtypes, shapes and sizes checked before reading).
+    The datasets that restate other fields (``rest_strain``, ``strain_map``, ``range/``) are
+    optional (files written before them read the same) and, when present, must agree with them.
+    ``what`` names the file, ``path`` the entry group."""
+    import h5py
+
+    label = f"{what}: {path}"
+    group = entry_group[ENERGY_GROUP]
+    if not isinstance(group, h5py.Group):
+        raise CatalogueError(f"{label}: '{ENERGY_GROUP}' is not a group")
+    arrays = {}
+    for name, dtype in _ENERGY_DATASETS.items():
+        ds = group.get(name)
+        if not isinstance(ds, h5py.Dataset):
+            raise CatalogueError(f"{label}: energy dataset {name!r} missing")
+        kind = "iu" if dtype == "<i8" else "f"
+        if ds.dtype.kind not in kind or ds.dtype.itemsize != 8 or ds.ndim > 2 \
+                or any(n > MAX_TERMS for n in ds.shape):
+            raise CatalogueError(f"{label}: energy dataset {name!r} has dtype {ds.dtype} and shape {ds.shape}")
+        arrays[name] = np.asarray(ds[()], dtype=dtype)
+    attrs = {}
+    for name in _ENERGY_ATTRIBUTES:
+        if name not in group.attrs:
+            raise CatalogueError(f"{label}: energy attribute {name!r} missing")
+        value = group.attrs[name]
+        if isinstance(value, np.ndarray) and value.shape == ():
+            value = value[()]
+        if isinstance(value, bytes):
+            if len(value) > MAX_JSON_BYTES:
+                raise CatalogueError(f"{label}: energy attribute {name!r} larger than {MAX_JSON_BYTES} bytes")
+            value = value.decode("utf-8", errors="strict")
+        if not isinstance(value, str):
+            raise CatalogueError(f"{label}: energy attribute {name!r} is not a string")
+        if name == "representation":
+            attrs[name] = value
+            continue
+        try:
+            attrs[name] = json.loads(value, parse_constant=_reject_constant)
+        except ValueError as error:
+            raise CatalogueError(f"{label}: energy attribute {name!r}: invalid JSON ({error})") from None
+    try:
+        fit = EnergyFit(exponents=arrays["exponents"], coefficients=arrays["coefficients"],
+                        scales=arrays["scales"], range=EnergyRange.from_dict(attrs["range"]),
+                        fit_error=attrs["fit_error"], material=attrs["material"], sampling=attrs["sampling"],
+                        fold_pressure=attrs["fold_pressure"], representation=attrs["representation"])
+    except CatalogueError as error:
+        raise CatalogueError(f"{label}: {error}") from None
+    _check_derived_energy_arrays(group, fit, rest_translation, what, f"{path}/{ENERGY_GROUP}")
+    return fit
+
+
+def _check_derived_energy_arrays(group, fit: EnergyFit, rest_translation: np.ndarray, what: str, path: str) -> None:
+    """The restating datasets present in ``group`` hold what the entry's fields give (``range/``
+    bit for bit; ``rest_strain`` and ``strain_map`` to 1e-12 of their largest element: the log
+    of a pure translation is exact up to its series' last digit)."""
+    expected = _derived_energy_arrays(fit, rest_translation)
+    bounds_group = h5read.child(group, "range", what, path, "group", required=False)
+    for name, value in expected.items():
+        folder, _, leaf = name.rpartition("/")
+        parent = group if not folder else bounds_group
+        if parent is None or h5read.link_kind(parent, leaf, what, f"{path}/{folder}".rstrip("/")) is None:
+            if folder and parent is not None:
+                raise h5read.failure(what, f"{path}/{name}", "missing (the other range bounds are stored)")
+            continue
+        stored = h5read.read_float_dataset(parent, leaf, what, f"{path}/{folder}".rstrip("/"), max_side=64)
+        exact = name.startswith("range/")
+        tolerance = 0.0 if exact else 1e-12 * max(1.0, float(np.abs(value).max()))
+        if stored.shape != value.shape or not np.all(np.abs(stored - value) <= tolerance):
+            raise h5read.failure(what, f"{path}/{name}", "disagrees with the entry's fields it restates "
+                                                          f"(stored {stored.tolist()}, expected {value.tolist()})")
+    if bounds_group is not None and fit.range.limit_pressure is None \
+            and h5read.link_kind(bounds_group, "limit_pressure", what, f"{path}/range") is not None:
+        raise h5read.failure(what, f"{path}/range/limit_pressure", "stored, but the range has no limit pressure")
 
 
 def differing_fields(a: SegmentEntry, b: SegmentEntry) -> list[str]:
@@ -357,11 +520,17 @@ def init_file(f) -> None:
     f.create_group("entries")
 
 
-def _describe(dataset, field: str) -> None:
+def _describe(dataset, field: str, attributes: dict = DATASET_ATTRIBUTES) -> None:
     """Attach the ``units`` and ``description`` attributes (fixed-length UTF-8) of ``field``."""
-    units, description = DATASET_ATTRIBUTES[field]
+    units, description = attributes[field]
     dataset.attrs["units"] = _fixed_string(units)
     dataset.attrs["description"] = _fixed_string(description)
+
+
+def _attribute_units(obj, units: dict) -> None:
+    """Attach ``<name>_units`` (fixed-length UTF-8) beside each numeric attribute ``<name>``."""
+    for name, unit in units.items():
+        obj.attrs[f"{name}_units"] = _fixed_string(unit)
 
 
 def check_file(f, what: str) -> None:

@@ -24,7 +24,7 @@ import numpy as np
 
 from vertebra.designer.energy_fit import FitResult, pose_derivatives
 from vertebra.solver.beam import Section, timoshenko_compliance
-from vertebra.store.energy import linear_terms, rest_strain_map
+from vertebra.core.energy import EnergyFit, EnergyModel, EnergyRange, linear_terms, rest_strain
 from vertebra.store.entry import SegmentEntry
 from vertebra.core.errors import ConvergenceError
 
@@ -90,8 +90,6 @@ class OracleSegment:
 
     def terms(self, s, p):
         """(ψ (n,), gradient (n, 6+m), Hessian (n, 6+m, 6+m)) in the strain chart."""
-        from vertebra.store.energy import EnergyFit, EnergyModel, EnergyRange
-
         linear = linear_terms(self.entry.compliance, self.entry.rest_translation)
         m = self.n_cavities
         poly = self.polynomial
@@ -134,7 +132,7 @@ class OracleSegment:
             raise ConvergenceError(f"oracle: pressure {p.max():.4g} beyond the limit point {self.p_limit:.4g}")
         x, y, zq, w = Rotation.from_matrix(np.asarray(R)).as_quat()
         xi, _ = se3_log(np.array([[w, x, y, zq]]), np.asarray(t, float)[None])
-        xi0, _ = rest_strain_map(self.entry.rest_translation)
+        xi0, _ = rest_strain(self.entry.rest_translation)
         s = xi - xi0
         g, H = self.derivatives(s, p[None])
         wrench, tangent, mixed = pose_derivatives(s, self.entry.rest_translation, g[:, :6], H[:, :6, :6],

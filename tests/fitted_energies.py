@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from vertebra.store.energy import EnergyFit, EnergyRange, linear_terms, monomial_exponents
+from vertebra.core.energy import EnergyFit, EnergyRange, linear_terms, monomial_exponents
 
 
 ROD = {"radius": 0.01, "length": 0.04, "youngs_modulus": 1e6, "poisson_ratio": 0.3}

@@ -13,7 +13,7 @@ from vertebra.designer.energy_fit import (FitResult, Samples, evaluate_fit, fit_
 from vertebra.designer.energy_sampling import SamplingSettings
 from vertebra.designer.families import AXISYMMETRIC, FAMILIES, SegmentSymmetry
 from vertebra.designer.nonlinear_condensation import condense_energy
-from vertebra.store.energy import Monomials, linear_terms
+from vertebra.core.energy import Monomials, linear_terms
 from energy_oracle import OracleEnergy, OracleSpec, rod_entry
 
 THREE = SegmentSymmetry(order=3, mirror=True, mirror_angle=0.3, end_flip=True,

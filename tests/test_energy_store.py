@@ -1,15 +1,17 @@
-"""The energy of nonlinear entries (store.energy, catalogue schema v2): kernel, seam, range, storage."""
+"""The energy of nonlinear entries (core.energy, catalogue schema v2): kernel, linear part, range, storage."""
 
 import dataclasses
 import json
+import shutil
 
 import h5py
 import numpy as np
 import pytest
 
 from vertebra.store import catalogue, schema
-from vertebra.store.energy import (EnergyFit, EnergyModel, EnergyRange, linear_terms, monomial_exponents,
-                                   rest_strain_map)
+from vertebra.core.energy import (EnergyFit, EnergyModel, EnergyRange, linear_terms, monomial_exponents,
+                                  rest_strain)
+from vertebra.core.lie import qexp, qmul, se3_log
 from vertebra.core.errors import CatalogueError
 from energy_oracle import rod_entry
 
@@ -81,22 +83,50 @@ def test_hessian_at_rest_is_the_linear_compliance_exactly(m, fold):
     assert entry.energy.check(entry.compliance, entry.rest_translation) == []
 
 
-def test_linear_terms_are_the_runtime_link_stiffness():
-    """ψ_lin is the energy the runtime builds from a linear entry: same K_ξ = inv(A C Aᵀ) and
-    pressure map A G as the linear-entry link kind (one link per entry), to round-off."""
-    from vertebra import solver
+@pytest.mark.parametrize("turned", [False, True])
+def test_strain_map_is_the_derivative_of_the_log_at_rest(turned):
+    """A = ∂ξ/∂δ: moving b by δ = [Δx; Δθ] in a's axes (Δθ a rotation vector applied on the left of
+    the rest rotation) moves ξ = log_SE3(T_a⁻¹ T_b) by A δ. Central differences with steps 1e-6:
+    truncation ~1e-12, round-off ~1e-10 of the entries (≤ 1 in size); 1e-8 separates a wrong
+    column (≥ 1e-3) from rounding. At the identity rotation A is [[I, ½ d̂₀], [0, I]] exactly."""
+    d0 = np.array([0.003, -0.002, 0.04])
+    q0 = qexp(np.array([0.2, -0.4, 0.3])) if turned else np.array([1.0, 0.0, 0.0, 0.0])
+    xi0, A = rest_strain(d0, q0)
+    assert np.allclose(xi0, se3_log(q0, d0)[0], rtol=0, atol=1e-15)
+    h = 1e-6
+    columns = []
+    for j in range(6):
+        delta = np.zeros(6)
+        delta[j] = h
+        moved = [se3_log(_rotated(q0, sign * delta[3:]), d0 + sign * delta[:3])[0] for sign in (1.0, -1.0)]
+        columns.append((moved[0] - moved[1]) / (2 * h))
+    assert np.allclose(np.array(columns).T, A, rtol=0, atol=1e-8)
+    if not turned:
+        closed = np.eye(6)
+        closed[:3, 3:] = 0.5 * np.array([[0.0, -d0[2], d0[1]], [d0[2], 0.0, -d0[0]], [-d0[1], d0[0], 0.0]])
+        assert np.array_equal(A, closed)
 
-    entry = dataclasses.replace(rod_entry(cavities=2), name="e", key="k")
-    scene = solver.parse_scene({"catalogue": {"path": "unused.h5"},
-                                "segment": [{"type": "entry", "entry": "e", "count": 1}],
-                                "chamber": [{"name": "c", "cavity": 1, "from": 1, "to": 1, "pressure": 0.0}]})
-    model = solver.build_model(scene, entries={"e": entry})
+
+def _rotated(q, phi):
+    return qmul(qexp(phi), q)
+
+
+def test_linear_part_reproduces_the_compliance():
+    """ψ_lin is the linear condensation in the strain: the displacement δ of b under a wrench f
+    and pressures p, δ = C f + G p, is the strain A δ where ∂ψ_lin/∂s balances the strain-space
+    force A⁻ᵀ f (the wrench's work f·δ is the load's work on s), and −∂ψ_lin/∂p is the volume
+    growth Gᵀ f + V p (to round-off: 1e-12 of the largest term)."""
+    entry = rod_entry(cavities=2)
     K, S, V = linear_terms(entry.compliance, entry.rest_translation)
-    quadratic = model.trunk.links.energies[0]               # the linear-entry link kind's energy
-    assert np.allclose(quadratic.stiffness[0], K, rtol=1e-12, atol=1e-12 * np.abs(K).max())
-    assert np.allclose(quadratic.pressure_strain[0][:, 0], S[:, 1], rtol=1e-12, atol=1e-14)
-    xi0, _ = rest_strain_map(entry.rest_translation)
-    assert np.allclose(model.link_rest[0], xi0, atol=1e-15)
+    _, A = rest_strain(entry.rest_translation)
+    f, p = np.array([0.3, -0.2, 1.0, 0.004, 0.01, -0.002]), np.array([2e4, 5e3])
+    delta = entry.C @ f + entry.G @ p
+    s = A @ delta
+    load = K @ (s - S @ p)
+    assert np.allclose(load, np.linalg.solve(A.T, f), rtol=0, atol=1e-12 * np.abs(load).max())
+    growth = S.T @ K @ (s - S @ p) + V @ p
+    expected = entry.G.T @ f + entry.V @ p
+    assert np.allclose(growth, expected, rtol=0, atol=1e-12 * np.abs(expected).max())
 
 
 def test_range_excess_is_rotation_invariant_and_bounded():
@@ -176,3 +206,55 @@ def test_verify_reports_an_energy_inconsistent_with_its_entry(tmp_path):
     catalogue.add_entry(path, entry)
     problems = catalogue.verify(path)
     assert len(problems) == 1 and "does not contain the rest state" in problems[0]
+
+
+def test_the_energy_group_describes_itself_to_a_reader_with_h5py_only(tmp_path):
+    """What a colleague with h5py alone needs is in the file beside the JSON: the strain's and ψ's
+    definitions as text, ξ₀ and A = ∂ξ/∂δ, the range's bounds as datasets, units on every dataset
+    and beside every numeric attribute. ψ_lin rebuilt from those datasets alone is the kernel's
+    (same formula, same numbers: to round-off). A file without them (as written before they
+    existed) reads and verifies the same; a restating dataset that disagrees is refused."""
+    path = tmp_path / "cat.h5"
+    entry = dataclasses.replace(_entry(2, fold=1.6e5), key="nl0", name="nl")
+    catalogue.add_entry(path, entry)
+    with h5py.File(path, "r") as f:
+        group = f["entries/nl0"]
+        energy = group["energy"]
+        assert group.attrs["mass_units"].decode() == "kg"
+        assert energy.attrs["fold_pressure_units"].decode() == "Pa"
+        assert "log_SE3(T_a^-1 T_b)" in energy.attrs["strain"].decode()
+        assert "inv(A C A^T)" in energy.attrs["definition"].decode()
+        datasets = {}
+        energy.visititems(lambda name, obj: datasets.__setitem__(name, obj) if isinstance(obj, h5py.Dataset) else None)
+        assert set(datasets) == set(schema.ENERGY_DATASET_ATTRIBUTES) - {"range/limit_pressure"}
+        for name, dataset in datasets.items():
+            units, description = schema.ENERGY_DATASET_ATTRIBUTES[name]
+            assert dataset.attrs["units"].decode() == units and dataset.attrs["description"].decode() == description
+        assert datasets["range/load_upper"].attrs["units"].decode() == "[N, N, N m, N m]"
+        A, xi0 = energy["strain_map"][()], energy["rest_strain"][()]
+        compliance = group["compliance"][()]
+        C, G = compliance[:6, :6], compliance[:6, 6:]
+        K = np.linalg.inv(A @ C @ A.T)
+        assert np.array_equal(energy["range/pressure_upper"][()], entry.energy.range.pressure_upper)
+    K_kernel, S_kernel, _ = linear_terms(entry.compliance, entry.rest_translation)
+    assert np.allclose(K, K_kernel, rtol=0, atol=1e-12 * np.abs(K).max())
+    assert np.allclose(A @ G, S_kernel, rtol=0, atol=1e-12 * np.abs(S_kernel).max())
+    assert np.array_equal(xi0, np.r_[entry.rest_translation, 0.0, 0.0, 0.0])
+
+    bare = tmp_path / "bare.h5"
+    shutil.copy(path, bare)
+    with h5py.File(bare, "r+") as f:                   # as written before the restating objects existed
+        energy = f["entries/nl0/energy"]
+        for name in ("strain_map", "rest_strain", "range"):
+            del energy[name]
+        for name in ("strain", "definition", "fold_pressure_units"):
+            del energy.attrs[name]
+        del f["entries/nl0"].attrs["mass_units"]
+    assert catalogue.verify(bare) == []
+    with catalogue.open_catalogue(bare) as cat:
+        assert cat.load("nl").energy == entry.energy
+
+    with h5py.File(path, "r+") as f:
+        f["entries/nl0/energy/range/pose_upper"][1] += 1e-3
+    problems = catalogue.verify(path)
+    assert len(problems) == 1 and "range/pose_upper" in problems[0] and "disagrees" in problems[0]

@@ -23,7 +23,7 @@ from vertebra.designer.scene_range import (ANGLE_STEP, MAX_ANGLE, SegmentRange, 
                                            choose_sampling, round_angle, round_ratio)
 from vertebra.solver.scene import scene_toml
 from vertebra.store import catalogue
-from vertebra.store.energy import linear_terms
+from vertebra.core.energy import linear_terms
 from vertebra.core.errors import OptionError, SceneError
 
 from fitted_energies import ROD, ROD_MESH, ROD_SAMPLING, nonlinear_rod

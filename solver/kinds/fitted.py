@@ -2,7 +2,7 @@
 
 An entry designed with a nonlinear material stores its segment's energy ``ψ(s, p)`` as a
 function of the strain ``s = ξ − ξ₀`` of its end frames and of its cavity pressures ``p``
-(:mod:`vertebra.store.energy`; docs/nonlinear-condensation.md): because the vertebrae are rigid, that energy is the
+(:mod:`vertebra.core.energy`; docs/nonlinear-condensation.md): because the vertebrae are rigid, that energy is the
 segment's whole response, and a chain of such links is the full nonlinear model of the trunk up
 to the fit. Each repetition of the segment makes one link that stores ψ itself:
 
@@ -11,7 +11,7 @@ to the fit. Each repetition of the segment makes one link that stores ψ itself:
 where ``M`` (cavities × chambers, 0/1) says which chamber pressurises which cavity of the link
 (chambers map onto cavities as for quadratic links: a cavity served by two chambers carries the
 sum of their pressures). The entry's rest rotation is the identity, so ``ξ₀ = [d₀; 0]`` is the
-fit's rest strain. The kernel (:class:`~vertebra.store.energy.EnergyModel`, one call per distinct
+fit's rest strain. The kernel (:class:`~vertebra.core.energy.EnergyModel`, one call per distinct
 entry and evaluation, batched over its links) gives every derivative the runtime consumes:
 
 * ``w = ∂ψ/∂s`` and the material tangent ``∂²ψ/∂s²`` (kept from the same call: ``response``
@@ -39,16 +39,16 @@ from typing import ClassVar
 
 import numpy as np
 
+from vertebra.core.energy import EnergyModel, EnergyValues, FixedPressures
+from vertebra.core.errors import ConvergenceError
 from vertebra.solver.kinds import CompiledLinks, LinkSource, RangeExcess, register
 from vertebra.solver.kinds.entry import entry_link
-from vertebra.store.energy import EnergyModel, EnergyValues, FixedPressures
-from vertebra.core.errors import ConvergenceError
 
 
 @dataclass(frozen=True)
 class FittedEntry:
     """What a link of a nonlinear entry keeps of the entry: its name and key, and its compiled
-    energy (:class:`~vertebra.store.energy.EnergyModel`, built once per entry)."""
+    energy (:class:`~vertebra.core.energy.EnergyModel`, built once per entry)."""
 
     name: str
     key: str
@@ -110,7 +110,7 @@ class FittedEnergy:
 
     def prepare(self, pressures: np.ndarray) -> tuple:
         """Every group's energy at its links' cavity pressures (one
-        :class:`~vertebra.store.energy.FixedPressures` per group). Pressures at or beyond an
+        :class:`~vertebra.core.energy.FixedPressures` per group). Pressures at or beyond an
         entry's inflation limit point raise ConvergenceError."""
         if not pressures.size or not np.any(pressures):
             return tuple(group.entry.model.at(None) for group in self.groups)

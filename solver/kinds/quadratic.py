@@ -9,7 +9,9 @@ where ``A = ∂ξ/∂δ`` at rest maps the displacement ``δ = [Δx; Δθ]`` of 
 the strain (so the linearisation at rest reproduces ``C`` exactly), and a pressure shifts the
 rest strain by ``A G p`` (the rest-pose shift ``G p`` of a pressurised entry). Hence ``w = K e``, the
 material tangent is ``K``, the chamber forces are ``K A G`` and the volume growth is
-``−∂ψ/∂p = (A G)ᵀ K e + V p`` (Maxwell–Betti reciprocity gives the ``Gᵀ`` row).
+``−∂ψ/∂p = (A G)ᵀ K e + V p`` (Maxwell–Betti reciprocity gives the ``Gᵀ`` row). ``K``, ``A G`` and
+``V`` are the linear part of a segment's energy (:func:`vertebra.core.energy.linear_part`), the
+same as a fitted energy's ψ_lin.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from typing import Callable, ClassVar
 
 import numpy as np
 
+from vertebra.core.energy import linear_part
 from vertebra.solver.kinds import CompiledLinks, LinkSource, RangeExcess
 
 
@@ -48,12 +51,12 @@ class QuadraticEnergy:
         of = compiled.source_of_link[links]
         mine = np.unique(of).tolist()            # the sources of other kinds are theirs to compile
         K = np.empty((len(compiled.sources), 6, 6))
+        parts = {}
         for s in mine:
-            C, A = compiled.sources[s].parameters.C, compiled.strain_map[s]
-            with np.errstate(all="ignore"):
-                K_s = np.linalg.inv(A @ C @ A.T)
-            K[s] = 0.5 * (K_s + K_s.T)
-            if not (np.all(np.isfinite(K[s])) and np.all(np.isfinite(C)) and np.all(np.diag(K[s]) > 0)):
+            blocks = compiled.sources[s].parameters
+            parts[s] = linear_part(blocks.C, blocks.G, blocks.V, compiled.strain_map[s])
+            K[s] = parts[s].stiffness
+            if not (parts[s].positive and np.all(np.isfinite(blocks.C))):
                 raise compiled.error(s, "length, section and moduli give a compliance that is not finite and "
                                         "positive in double precision")
         cavity = compiled.cavity[links]
@@ -61,12 +64,11 @@ class QuadraticEnergy:
         P = np.zeros((n, 6, m))
         V = np.zeros((m, m))
         if m:
-            AG = {s: compiled.strain_map[s] @ compiled.sources[s].parameters.G for s in mine}
             for k in np.flatnonzero((cavity >= 0).any(1)):
-                source = compiled.sources[of[k]].parameters
+                part = parts[of[k]]
                 served = np.flatnonzero(cavity[k] >= 0)
-                P[k][:, served] = AG[of[k]][:, cavity[k, served]]
-                V[np.ix_(served, served)] += source.V[np.ix_(cavity[k, served], cavity[k, served])]
+                P[k][:, served] = part.pressure_map[:, cavity[k, served]]
+                V[np.ix_(served, served)] += part.volume_compliance[np.ix_(cavity[k, served], cavity[k, served])]
         stiffness = K[of]
         return cls(links, compiled.rest[of], stiffness, P, np.einsum("nij,njk->nki", stiffness, P), V)
 

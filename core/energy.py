@@ -1,7 +1,9 @@
-"""The energy of a nonlinear segment, ψ(s, p): the optional part of a catalogue entry (schema v2).
+"""The fitted energy of a segment, ψ(s, p): its definition, its linear part and its evaluation kernel.
 
 Because the vertebrae are rigid, a segment's whole response is fixed by the relative pose of
-its end frames and its cavity pressures. A nonlinear entry stores that response as an energy.
+its end frames and its cavity pressures. A nonlinear catalogue entry (schema v2) stores that
+response as an energy; the runtime's links evaluate it (``solver/kinds/fitted.py``), the
+designer fits it (``designer/energy_fit.py``) and the catalogue stores it (``store/schema.py``).
 
 Variables::
 
@@ -13,16 +15,17 @@ with ``ξ₀ = [d₀; 0]`` the rest strain (rest translation ``d₀``, rest rota
 Form::
 
     ψ(s, p) = ψ_lin(s, p) + ψ_nl(s, p)
-    ψ_lin   = ½ (s − S p)ᵀ K (s − S p) − ½ pᵀ V p          (:func:`linear_terms`)
+    ψ_lin   = ½ (s − S p)ᵀ K (s − S p) − ½ pᵀ V p          (:func:`linear_part`)
     ψ_nl    = Σ_α c_α u^α,   u = [s; w(p)] / scales,   every |α| ≥ 3   (w(p) = p but near a fold)
 
-``ψ_lin`` is exactly the energy the runtime builds from the entry's linear compliance
-``[[C, G], [Gᵀ, V]]``: ``K = inv(A C Aᵀ)`` and ``S = A G`` with ``A = ∂ξ/∂δ`` at rest (the log's
-translation includes half the lever arm, so ``K`` is not ``inv(C)``). ``ψ_nl`` has no term of
-total degree below three in ``(s, p)``, so the Hessian of ψ at rest IS the linear one and
-small-load results do not change. Derivatives: ``∂ψ/∂s`` is the generalised force of the
-segment on its strain (the wrench conjugate to ``s``), ``ΔV = −∂ψ/∂p`` the cavity volume growth
-relative to the rest volumes.
+The linear part is the linear condensation ``[[C, G], [Gᵀ, V]]`` written in the strain:
+``K = inv(A C Aᵀ)`` and ``S = A G`` with ``A = ∂ξ/∂δ`` at rest (:func:`rest_strain`; the log's
+translation includes half the lever arm, so ``K`` is not ``inv(C)``). It is the whole energy of
+a quadratic link (``solver/kinds/quadratic.py``) and the part of ψ a fit never changes: ``ψ_nl``
+has no term of total degree below three in ``(s, p)``, so the Hessian of ψ at rest IS the
+linear one and small-load results do not change. Derivatives: ``∂ψ/∂s`` is the generalised
+force of the segment on its strain (the wrench conjugate to ``s``), ``ΔV = −∂ψ/∂p`` the cavity
+volume growth relative to the rest volumes.
 
 Pressures near an inflation limit point. A chamber that balloons has a limit point ``P`` in
 pressure where its volume growth behaves like ``V_P − a√(P − p)`` (a fold): no polynomial in
@@ -43,7 +46,7 @@ that were never sampled; the loads a segment carries are what the sampling bound
 The evaluation kernel :class:`EnergyModel` is what the runtime calls once per Newton
 iteration for all links of one entry: a monomial table built degree by degree (one gather
 and one product per degree) and three matrix products give ψ, its gradient and Hessian
-for every link at once. numpy only: the runtime imports this module.
+for every link at once.
 """
 
 from __future__ import annotations
@@ -54,10 +57,12 @@ import json
 import math
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import NamedTuple
 
 import numpy as np
 
 from vertebra.core.errors import CatalogueError
+from vertebra.core.lie import hat, se3_log
 
 #: name of the stored form (the ``representation`` attribute)
 REPRESENTATION = "scaled-monomials"
@@ -364,28 +369,63 @@ class EnergyFit:
 
 # ------------------------------------------------------------------------ linear part
 
-def rest_strain_map(rest_translation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(ξ₀, A)`` of a rest pose with the identity rotation and translation ``d₀``:
-    ``ξ₀ = [d₀; 0]`` and ``A = ∂ξ/∂δ = [[I, ½ d̂₀], [0, I]]`` (δ = [Δx; Δθ] of b in a's axes).
-    For a pure translation ``ad(ξ₀)² = 0``, so ``J_l⁻¹(ξ₀) = I − ½ ad(ξ₀)`` and with the lever
-    shift ``[[I, d̂₀], [0, I]]`` the log's translation carries half the lever arm."""
-    d = np.asarray(rest_translation, dtype=float).reshape(3)
-    A = np.eye(6)
-    A[:3, 3:] = 0.5 * np.array([[0.0, -d[2], d[1]], [d[2], 0.0, -d[0]], [-d[1], d[0], 0.0]])
-    return np.concatenate([d, np.zeros(3)]), A
+#: the identity rotation as a unit quaternion [w, x, y, z]
+IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 
 
-def linear_terms(compliance: np.ndarray, rest_translation: np.ndarray):
-    """``(K, S, V)`` of ψ_lin from an entry's compliance ``[[C, G], [Gᵀ, V]]``: ``K = inv(A C Aᵀ)``
-    (symmetrised), ``S = A G``, ``V``."""
+def rest_strain(rest_translation: np.ndarray, rest_quaternion: np.ndarray | None = None):
+    """``(ξ₀, A)`` of rest poses of ``b`` in ``a`` (translations ``d₀`` (..., 3), rotations (..., 4);
+    None: the identity): the rest strain ``ξ₀ = log_SE3(T₀)`` (..., 6) and ``A = ∂ξ/∂δ`` at rest
+    (..., 6, 6), the map from the displacement ``δ = [Δx; Δθ]`` of ``b`` in ``a``'s axes (the
+    compliance's rows) to the strain. A left perturbation ``ζ = [Δx − Δθ × d₀; Δθ]`` moves the
+    strain by ``J_l⁻¹(ξ₀) ζ``, so ``A = J_l⁻¹(ξ₀) [[I, d̂₀], [0, I]]``; at the identity rotation
+    ``A = [[I, ½ d̂₀], [0, I]]`` (the log's translation carries half the lever arm)."""
+    d = np.asarray(rest_translation, dtype=float)
+    q = np.broadcast_to(IDENTITY, d.shape[:-1] + (4,)) if rest_quaternion is None else \
+        np.asarray(rest_quaternion, dtype=float)
+    rest, Jl_inv = se3_log(q, d)
+    shift = np.broadcast_to(np.eye(6), d.shape[:-1] + (6, 6)).copy()
+    shift[..., :3, 3:] = hat(d)
+    return rest, Jl_inv @ shift
+
+
+class LinearPart(NamedTuple):
+    """ψ_lin of a segment: ``K`` (6, 6) J per unit strain², ``S`` (6, n) strain per Pa, ``V``
+    (n, n) m³/Pa (module docstring). ``K`` is NaN when ``A C Aᵀ`` is singular."""
+
+    stiffness: np.ndarray
+    pressure_map: np.ndarray
+    volume_compliance: np.ndarray
+
+    @property
+    def positive(self) -> bool:
+        """Is ``K`` finite with a positive diagonal?"""
+        K = self.stiffness
+        return bool(np.all(np.isfinite(K)) and np.all(np.diag(K) > 0))
+
+
+def linear_part(C: np.ndarray, G: np.ndarray, V: np.ndarray, strain_map: np.ndarray) -> LinearPart:
+    """ψ_lin from the compliance blocks ``[[C, G], [Gᵀ, V]]`` and ``A = ∂ξ/∂δ`` at rest
+    (:func:`rest_strain`): ``K = inv(A C Aᵀ)`` (symmetrised), ``S = A G``, ``V``."""
+    A = strain_map
+    with np.errstate(all="ignore"):
+        try:
+            K = np.linalg.inv(A @ C @ A.T)
+        except np.linalg.LinAlgError:
+            K = np.full((6, 6), np.nan)
+    return LinearPart(0.5 * (K + K.T), A @ G, V)
+
+
+def linear_terms(compliance: np.ndarray, rest_translation: np.ndarray) -> LinearPart:
+    """ψ_lin of a catalogue entry (identity rest rotation) from its compliance ``[[C, G], [Gᵀ, V]]``
+    and rest translation: :func:`linear_part` at :func:`rest_strain`. CatalogueError when the
+    6×6 compliance is singular."""
     compliance = np.asarray(compliance, dtype=float)
-    _, A = rest_strain_map(rest_translation)
-    C, G, V = compliance[:6, :6], compliance[:6, 6:], compliance[6:, 6:]
-    try:
-        K = np.linalg.inv(A @ C @ A.T)
-    except np.linalg.LinAlgError:
-        raise CatalogueError("energy: the entry's 6×6 compliance is singular") from None
-    return 0.5 * (K + K.T), A @ G, V
+    _, A = rest_strain(rest_translation)
+    part = linear_part(compliance[:6, :6], compliance[:6, 6:], compliance[6:, 6:], A)
+    if not np.all(np.isfinite(part.stiffness)):
+        raise CatalogueError("energy: the entry's 6×6 compliance is singular")
+    return part
 
 
 # ------------------------------------------------------------------------ kernel
@@ -755,84 +795,3 @@ class Monomials:
         for lo, hi, parents, variables in self.blocks:
             np.multiply(np.take(mon, parents, axis=0), np.take(u_t, variables, axis=0), out=mon[lo:hi])
         return mon
-
-
-# ------------------------------------------------------------------------ HDF5
-
-GROUP = "energy"
-_DATASETS = {"exponents": "<i8", "coefficients": "<f8", "scales": "<f8"}
-#: ``units`` and ``description`` attributes of the datasets (for readers with other tools)
-_DATASET_ATTRIBUTES = {
-    "exponents": ("1", "exponents of the monomials of psi_nl in u = [s; w(p)] / scales, one row per term"),
-    "coefficients": ("J", "coefficient of each monomial of psi_nl"),
-    "scales": ("[m, m, m, rad, rad, rad, Pa...]", "scales of the variables [s; w(p)] (u = [s; w(p)] / scales)"),
-}
-MAX_JSON_BYTES = 1 << 20
-
-
-def write_group(entry_group, fit: EnergyFit) -> None:
-    """Create ``<entry>/energy``: datasets ``exponents`` (int64 (m, 6+n)), ``coefficients``
-    (float64 (m,)), ``scales`` (float64 (6+n,)); attributes ``representation`` (text) and
-    ``range``, ``fit_error``, ``material``, ``sampling``, ``fold_pressure`` (JSON; fixed-length UTF-8)."""
-    import h5py
-
-    group = entry_group.create_group(GROUP)
-    for name, dtype in _DATASETS.items():
-        dataset = group.create_dataset(name, data=np.ascontiguousarray(getattr(fit, name), dtype=dtype))
-        for attribute, text in zip(("units", "description"), _DATASET_ATTRIBUTES[name]):
-            dataset.attrs[attribute] = np.array(text.encode(), dtype=h5py.string_dtype("utf-8", len(text.encode())))
-    for name, value in fit.attributes().items():
-        text = value if isinstance(value, str) else json.dumps(value, sort_keys=True, separators=(",", ":"),
-                                                               allow_nan=False)
-        data = text.encode("utf-8")
-        group.attrs[name] = np.array(data, dtype=h5py.string_dtype("utf-8", max(len(data), 1)))
-
-
-def read_group(entry_group, what: str) -> EnergyFit:
-    """Read and validate ``<entry>/energy`` (dtypes, shapes and sizes checked before reading)."""
-    import h5py
-
-    group = entry_group[GROUP]
-    if not isinstance(group, h5py.Group):
-        raise CatalogueError(f"{what}: '{GROUP}' is not a group")
-    arrays = {}
-    for name, dtype in _DATASETS.items():
-        ds = group.get(name)
-        if not isinstance(ds, h5py.Dataset):
-            raise CatalogueError(f"{what}: energy dataset {name!r} missing")
-        kind = "iu" if dtype == "<i8" else "f"
-        if ds.dtype.kind not in kind or ds.dtype.itemsize != 8 or ds.ndim > 2 \
-                or any(n > MAX_TERMS for n in ds.shape):
-            raise CatalogueError(f"{what}: energy dataset {name!r} has dtype {ds.dtype} and shape {ds.shape}")
-        arrays[name] = np.asarray(ds[()], dtype=dtype)
-    attrs = {}
-    for name in ("representation", "range", "fit_error", "material", "sampling", "fold_pressure"):
-        if name not in group.attrs:
-            raise CatalogueError(f"{what}: energy attribute {name!r} missing")
-        value = group.attrs[name]
-        if isinstance(value, np.ndarray) and value.shape == ():
-            value = value[()]
-        if isinstance(value, bytes):
-            if len(value) > MAX_JSON_BYTES:
-                raise CatalogueError(f"{what}: energy attribute {name!r} larger than {MAX_JSON_BYTES} bytes")
-            value = value.decode("utf-8", errors="strict")
-        if not isinstance(value, str):
-            raise CatalogueError(f"{what}: energy attribute {name!r} is not a string")
-        if name == "representation":
-            attrs[name] = value
-            continue
-        try:
-            attrs[name] = json.loads(value, parse_constant=_reject_constant)
-        except ValueError as error:
-            raise CatalogueError(f"{what}: energy attribute {name!r}: invalid JSON ({error})") from None
-    try:
-        return EnergyFit(exponents=arrays["exponents"], coefficients=arrays["coefficients"],
-                         scales=arrays["scales"], range=EnergyRange.from_dict(attrs["range"]),
-                         fit_error=attrs["fit_error"], material=attrs["material"], sampling=attrs["sampling"],
-                         fold_pressure=attrs["fold_pressure"], representation=attrs["representation"])
-    except CatalogueError as error:
-        raise CatalogueError(f"{what}: {error}") from None
-
-
-def _reject_constant(constant):
-    raise ValueError(f"{constant} is not allowed")
