@@ -407,7 +407,7 @@ def _derived_energy_arrays(fit: EnergyFit, rest_translation: np.ndarray) -> dict
             out[f"range/{kind}_{side}"] = getattr(bounds, f"{kind}_{side}")
     if bounds.limit_pressure is not None:
         out["range/limit_pressure"] = np.float64(bounds.limit_pressure)
-    return {name: np.ascontiguousarray(value, dtype="<f8") for name, value in out.items()}
+    return {name: np.array(value, dtype="<f8") for name, value in out.items()}     # a copy, 0-d kept 0-d
 
 
 def read_energy(entry_group, what: str, path: str, rest_translation: np.ndarray) -> EnergyFit:

@@ -236,6 +236,7 @@ def test_the_energy_group_describes_itself_to_a_reader_with_h5py_only(tmp_path):
         C, G = compliance[:6, :6], compliance[:6, 6:]
         K = np.linalg.inv(A @ C @ A.T)
         assert np.array_equal(energy["range/pressure_upper"][()], entry.energy.range.pressure_upper)
+        assert "limit_pressure" not in energy["range"]                  # no limit point met while sampling
     K_kernel, S_kernel, _ = linear_terms(entry.compliance, entry.rest_translation)
     assert np.allclose(K, K_kernel, rtol=0, atol=1e-12 * np.abs(K).max())
     assert np.allclose(A @ G, S_kernel, rtol=0, atol=1e-12 * np.abs(S_kernel).max())
@@ -254,6 +255,12 @@ def test_the_energy_group_describes_itself_to_a_reader_with_h5py_only(tmp_path):
     with catalogue.open_catalogue(bare) as cat:
         assert cat.load("nl").energy == entry.energy
 
+    limited = dataclasses.replace(entry, key="nl1", name="nl-limited", energy=dataclasses.replace(
+        entry.energy, range=dataclasses.replace(entry.energy.range, limit_pressure=1.5e5)))
+    catalogue.add_entry(path, limited)
+    with h5py.File(path, "r") as f:
+        stored = f["entries/nl1/energy/range/limit_pressure"]
+        assert stored.shape == () and stored[()] == 1.5e5 and stored.attrs["units"].decode() == "Pa"
     with h5py.File(path, "r+") as f:
         f["entries/nl0/energy/range/pose_upper"][1] += 1e-3
     problems = catalogue.verify(path)
