@@ -2,10 +2,10 @@
 
 For every family (rod, tube, bellows, pneumatic, tapered pneumatic), element order 1 and 2 and
 ν = 0.3, 0.45, 0.49, at the family's default mesh size: the compliance C_h, the estimate that
-``design_segment`` stores (``designer.segment.estimate_accuracy_of``: second order on the same
+``design_segment`` stores (``designer.linear.estimate_accuracy_of``: second order on the same
 mesh for order 1, Richardson extrapolation from a coarser mesh for order 2) and the true error
 against a much finer second-order mesh (h/3; h/2.5 for the thin-walled bellows). Errors are
-relative compliance errors over all loads (``designer.segment.relative_error``). Also where each
+relative compliance errors over all loads (``designer.accuracy.relative_error``). Also where each
 entry sits between the bounds the store checks (``store.soundness``).
 
 Then the acceptance case: ``design_segment`` of a ~50,000-DoF second-order rod with its
@@ -35,8 +35,10 @@ for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import numpy as np  # noqa: E402
 
-from vertebra.designer.segment import (canonical_parameters, design_segment, estimate_accuracy_of,  # noqa: E402
-                                       family_of, relative_error, solve_segment)
+from vertebra.designer.accuracy import relative_error  # noqa: E402
+from vertebra.designer.families import canonical_parameters, family_of  # noqa: E402
+from vertebra.designer.linear import estimate_accuracy_of, solve_segment  # noqa: E402
+from vertebra.designer.segment import design_segment  # noqa: E402
 from vertebra.store.soundness import bound_ratios  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"

@@ -24,7 +24,9 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from vertebra.designer.linsolve import AUTO_THRESHOLD
-from vertebra.designer.segment import compliance_change, design_segment, solve_segment
+from vertebra.designer.accuracy import compliance_change
+from vertebra.designer.linear import solve_segment
+from vertebra.designer.segment import design_segment
 from vertebra.designer.threads import pin_blas_threads
 
 RESULTS = Path(__file__).resolve().parent / "results"

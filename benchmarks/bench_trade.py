@@ -154,7 +154,7 @@ _SOLIDS: dict = {}
 def fe_segment(family: str, parameters: dict, mesh_size: float, order: int):
     """The nonlinear FE of one segment (built once per process)."""
     from vertebra.designer.nonlinear_condensation import FamilySolid
-    from vertebra.designer.segment import canonical_parameters, family_of
+    from vertebra.designer.families import canonical_parameters, family_of
 
     spec = FamilySolid(family, json.dumps(canonical_parameters(family_of(family), parameters), sort_keys=True),
                        mesh_size, order, MATERIAL)

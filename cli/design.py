@@ -94,6 +94,25 @@ def parse_sampling(values: list[str]) -> dict:
     return out
 
 
+def entry_document(entry) -> dict:
+    """The JSON document (docs/json.md) of ``vertebra design --json`` (with ``material``, and for a
+    nonlinear entry an ``energy`` summary: degree, terms, fit error, range, sampling, timings)."""
+    document = {"key": entry.key, "name": entry.name, "compliance": entry.compliance.tolist(),
+                "cavity_volumes": entry.cavity_volumes.tolist(), "mass": entry.mass,
+                "dofs": int(entry.mesh.get("dofs", 0)), "accuracy": dict(entry.accuracy),
+                "material": "linear" if entry.energy is None else entry.energy.material.get("model"),
+                "timing": {k: float(entry.timings.get(k, 0.0)) for k in ("mesh_s", "assemble_s", "solve_s", "total_s")}}
+    if entry.energy is not None:
+        energy = entry.energy
+        document["energy"] = {"degree": energy.degree, "terms": int(energy.coefficients.size),
+                              "fit_error": energy.fit_error, "range": energy.range.to_dict(),
+                              "fold_pressure": energy.fold_pressure, "material": energy.material,
+                              "sampling": {k: energy.sampling[k] for k in ("samples", "solves", "paths", "held_out_paths")
+                                           if k in energy.sampling}}
+        document["timing"].update({k: float(entry.timings[k]) for k in ("sampling_s", "fit_s") if k in entry.timings})
+    return document
+
+
 def _log(message: str) -> None:
     print(f"vertebra design: {message}", file=sys.stderr, flush=True)
 
@@ -117,7 +136,7 @@ def _run_vertebra(args, values) -> int:
 
 def run(args) -> int:
     from vertebra import designer
-    from vertebra.designer.segment import entry_document, export_mesh
+    from vertebra.designer.geometry import export_mesh
 
     values = parse_values(args.values)
     if args.family == "vertebra":

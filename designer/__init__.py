@@ -11,13 +11,15 @@ Public API::
                                                        #    design what a scene's design segments miss, nonlinear
                                                        #    ones sampled over the scene's range (docs/prepare.md)
 
-Heavy imports (gmsh, scikit-fem, pyamg, meshio) happen inside the functions; ``prepare``
-(which uses the runtime's scenes) is imported on first use, so sweep workers do not load the
-runtime.
+Heavy imports (gmsh, scikit-fem, pyamg, meshio) happen inside the functions; ``prepare`` reads
+the runtime's scenes as data (the designer never imports the solver).
 """
 
-from vertebra.designer.families import FAMILIES, Family, Parameter, register_family
-from vertebra.designer.segment import canonical_parameters, design_segment, entry_key, resolve_mesh_size
+from vertebra.designer.families import (FAMILIES, Family, Parameter, canonical_parameters, register_family,
+                                        resolve_mesh_size)
+from vertebra.designer.keys import entry_key
+from vertebra.designer.preparation import PrepareReport, prepare
+from vertebra.designer.segment import design_segment
 from vertebra.designer.vertebra import VERTEBRA_PARAMETERS, vertebra_properties, vertebra_snippet
 
 __all__ = [
@@ -26,11 +28,3 @@ __all__ = [
     "VERTEBRA_PARAMETERS", "vertebra_properties", "vertebra_snippet",
     "PrepareReport", "prepare",
 ]
-
-
-def __getattr__(name):
-    """``prepare`` and ``PrepareReport`` from :mod:`vertebra.designer.preparation`, imported on first use."""
-    if name in ("prepare", "PrepareReport"):
-        from vertebra.designer import preparation
-        return getattr(preparation, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

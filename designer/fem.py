@@ -34,6 +34,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vertebra.core.errors import GeometryError
+from vertebra.designer.linsolve import get_solver
+from vertebra.designer.surface import Surface
 
 
 def skew(v) -> np.ndarray:
@@ -156,8 +158,6 @@ def build_fe(mesh_data, youngs_modulus: float, poisson_ratio: float, density: fl
     from skfem import Basis, ElementTetP1, ElementTetP2, Functional, MeshTet1, MeshTet2, asm
     from skfem.models.elasticity import lame_parameters
 
-    from vertebra.designer.surface import Surface
-
     start = time.perf_counter()
     order = mesh_data.order
     mesh_cls, element = (MeshTet1, ElementTetP1()) if order == 1 else (MeshTet2, ElementTetP2())
@@ -276,8 +276,6 @@ def condense(fe: SegmentFE, frames=("top",), linear_solver: str = "auto", amg_th
     ``frames=("top",)`` gives the clamped-a compliance; ``("bottom", "top")`` the
     free-free 12×12 frame stiffness (with its six rigid-body modes).
     """
-    from vertebra.designer.linsolve import get_solver
-
     start = time.perf_counter()
     interior = fe.interior()
     K = fe.K

@@ -12,9 +12,11 @@ chamber spans the eight segments of its section (pressure 0–1.5 bar).
 
 from __future__ import annotations
 
-from vertebra.designer.segment import estimated_error
+from vertebra.designer.accuracy import estimated_error
+from vertebra.designer.preparation import Design, prepare_designs
 from vertebra.designer.vertebra import vertebra_properties
 from vertebra.core.errors import VertebraError
+from vertebra.store.catalogue import open_catalogue
 
 #: geometry of the two sections (bottom -> top), SI units
 CBHA_SECTIONS = (
@@ -114,9 +116,6 @@ def cbha_catalogue(path, *, coarse: bool = True, estimate_accuracy: bool = True,
     dict naming the entries by key}``. ``scene_catalogue`` is the catalogue path written in the
     scene (default: ``path`` as given); ``pressures`` maps chamber names (``s1c0`` …) to Pa;
     ``progress`` shows the progress bar on stderr."""
-    from vertebra.designer.preparation import Design, prepare_designs
-    from vertebra.store import catalogue
-
     designs = [Design(i, s["family"], s["parameters"], {"mesh_size": s["mesh_size"], "order": s["order"]})
                for i, s in enumerate(cbha_design_scene(coarse)["segment"])]
     report = prepare_designs(designs, path, source="designer.gallery.cbha_design_scene", label="prepare CBHA slices",
@@ -126,7 +125,7 @@ def cbha_catalogue(path, *, coarse: bool = True, estimate_accuracy: bool = True,
         raise VertebraError("designing the CBHA slices failed:\n" + report.summary())
     seconds = {outcome.key: outcome.seconds for outcome in report.run.completed}
     rows = []
-    with catalogue.open_catalogue(path) as cat:
+    with open_catalogue(path) as cat:
         for item, prepared in zip(cbha_slices(coarse), report.segments):
             entry = cat.load(prepared.key)
             rows.append({k: item[k] for k in ("name", "section", "slice")}

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vertebra.core.errors import GeometryError
+from vertebra.designer.families import canonical_parameters, family_of, resolve_mesh_size
 
 # gmsh tetra10 node order -> scikit-fem/VTK order (edges (0,1),(1,2),(0,2),(0,3),(1,3),(2,3))
 _GMSH_TET10_TO_SKFEM = [0, 1, 2, 3, 4, 5, 6, 7, 9, 8]
@@ -260,3 +261,26 @@ def _extract(gmsh, order: int, groups: dict) -> MeshData:
         facets[name] = triangles
     return MeshData(nodes=nodes, tets=tets.astype(np.int64), n_vertices=int(vertices.size),
                     facets=facets, order=order, mesh_size=0.0, gmsh_version="", groups=sorted(groups))
+
+
+def export_mesh(family, parameters: dict, path: str, *, mesh_size=None, order: int = 2,
+                max_elements: int | None = None) -> dict:
+    """Write the segment mesh to a file meshio can write (e.g. .vtu): the tetrahedra (cell
+    data ``group`` = 0) and the boundary triangles of every physical group (``group`` = 1, 2, …).
+    Returns the legend ``{group name: id}``. gmsh meshes deterministically (fixed seed and
+    options), so this is the mesh ``design_segment`` used for the same settings."""
+    import meshio
+
+    fam = family_of(family)
+    p = canonical_parameters(fam, parameters)
+    data = mesh_segment(fam, p, resolve_mesh_size(fam, p, mesh_size), order,
+                        max_elements=max_elements or DEFAULT_MAX_ELEMENTS)
+    legend = {"volume": 0} | {name: i + 1 for i, name in enumerate(sorted(data.facets))}
+    # scikit-fem, VTK and meshio share the tetra10 node order; triangle6 too (corners, then edges)
+    cells = [("tetra10" if order == 2 else "tetra", data.tets)]
+    groups = [np.zeros(len(data.tets), dtype=np.int32)]
+    for name in sorted(data.facets):
+        cells.append(("triangle6" if order == 2 else "triangle", data.facets[name]))
+        groups.append(np.full(len(data.facets[name]), legend[name], dtype=np.int32))
+    meshio.write(path, meshio.Mesh(data.nodes, cells, cell_data={"group": groups}))
+    return legend

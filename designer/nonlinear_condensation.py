@@ -12,7 +12,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -20,8 +20,14 @@ from vertebra.designer.energy_fit import (SegmentSymmetry, Samples, convexity, f
                                           symmetry_group)
 from vertebra.designer.energy_sampling import (LoadBox, PathTask, PressureTask, SamplingSettings, load_box,
                                                path_endpoints, run_paths, run_pressure_ramp)
+from vertebra.designer.executors import Crash, make_executor
+from vertebra.designer.keys import NONLINEAR_VERSION, SegmentDesign
+from vertebra.designer.linear import LinearCondenser
+from vertebra.designer.nonlinear import NonlinearSegment
+from vertebra.designer.threads import pin_blas_threads
 from vertebra.core.energy import EnergyFit, EnergyRange, group_coordinates, linear_terms
 from vertebra.core.errors import ConvergenceError
+from vertebra.store.entry import SegmentEntry
 
 #: margin added around the sampled poses when stating the range (fraction of each group's width)
 POSE_MARGIN = 0.02
@@ -60,9 +66,6 @@ class FamilySolid:
                            self.linear_solver])
 
     def build(self):
-        from vertebra.designer.nonlinear import NonlinearSegment
-        from vertebra.designer.threads import pin_blas_threads
-
         pin_blas_threads(1)
         return NonlinearSegment.from_family(self.family, json.loads(self.parameters), self.material,
                                             mesh_size=self.mesh_size, order=self.order,
@@ -82,8 +85,6 @@ class Condensed:
 def _results(executor, function, items):
     """The results of ``function`` over ``items`` through ``executor``, as they complete; a
     worker that crashed is an error (the sampling has no use for part of its paths)."""
-    from vertebra.designer.executors import Crash
-
     for _, result in executor.map_unordered(function, items):
         if isinstance(result, Crash):
             raise ConvergenceError(f"nonlinear sampling: a worker failed: {result.error_type}: {result.message}")
@@ -158,8 +159,6 @@ def condense_energy(entry, spec, *, radius: float, youngs_modulus: float, symmet
                     workers: int | None = None, scheduler: str | None = None, progress=None) -> Condensed:
     """Sample and fit the energy of the segment of the linear ``entry`` (same mesh) with the
     nonlinear FE described by ``spec`` (:class:`designer.energy_sampling.ModelSpec`)."""
-    from vertebra.designer.executors import make_executor
-
     m = entry.n_cavities
     settings = (settings or SamplingSettings()).resolved(m, material["model"])
     start = time.perf_counter()
@@ -236,3 +235,35 @@ def condense_energy(entry, spec, *, radius: float, youngs_modulus: float, symmet
                        range=energy_range, fit_error=errors, material=material, sampling=sampling, fold_pressure=fold)
     timings["total_s"] = time.perf_counter() - start
     return Condensed(energy=energy, samples=samples, held_out=held_out, timings=timings)
+
+
+@dataclass(frozen=True)
+class NonlinearCondenser:
+    """The condenser of a hyperelastic material (:data:`designer.nonlinear.MATERIALS`): the
+    ``linear`` condenser's entry of the design (its compliance on the same mesh), with the
+    energy :func:`condense_energy` samples and fits with the design's sampling settings, the FE
+    solves running on ``executor`` (``serial``, ``local`` with ``workers``, ``dask`` with
+    ``scheduler``)."""
+
+    linear: LinearCondenser
+    executor: str = "serial"
+    workers: int | None = None
+    scheduler: str | None = None
+
+    def condense(self, design: SegmentDesign, progress=None) -> SegmentEntry:
+        entry = self.linear.condense(design, progress)
+        fam, p = design.family, design.parameters
+        _say(progress, f"{fam.name}: nonlinear condensation with the {design.material} material")
+        spec = FamilySolid(family=fam.name, parameters=json.dumps(p, sort_keys=True), mesh_size=design.mesh_size,
+                           order=design.order, material=design.material, linear_solver=self.linear.linear_solver)
+        condensed = condense_energy(entry, spec, radius=fam.outer_radius(p), youngs_modulus=p["youngs_modulus"],
+                                    symmetry=fam.symmetry(p), material=material_constants(design.material, p),
+                                    settings=design.sampling, executor=self.executor, workers=self.workers,
+                                    scheduler=self.scheduler, progress=progress)
+        timings = dict(entry.timings)
+        timings.update({k: v for k, v in condensed.timings.items() if k != "total_s"})
+        timings["total_s"] = time.perf_counter() - design.started
+        provenance = {**entry.provenance,
+                      "nonlinear": {"executor": self.executor, "workers": self.workers, "version": NONLINEAR_VERSION}}
+        return replace(entry, energy=condensed.energy, timings={k: float(v) for k, v in timings.items()},
+                       provenance=provenance)

@@ -38,6 +38,11 @@ from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
+from vertebra import __version__
+from vertebra.designer.energy_sampling import SamplingSettings
+from vertebra.designer.families import family_of
+from vertebra.designer.scene_range import (RANGE_SETTINGS, SamplingChoice, choose_sampling, estimate_ranges, uncovered,
+                                           union)
 from vertebra.designer.sweep.plan import plan_batch
 from vertebra.designer.sweep.report import SweepReport
 from vertebra.designer.sweep.run import run_plan
@@ -45,6 +50,7 @@ from vertebra.designer.sweep.spec import DESIGN_OPTIONS, design_options
 from vertebra.designer.sweep.store import CatalogueStore, SweepStore
 from vertebra.designer.sweep.tasks import Batch, FiniteElementDesigner, SegmentDesigner, Task
 from vertebra.core.errors import ConvergenceError, OptionError, SceneError
+from vertebra.store.catalogue import open_catalogue
 
 if TYPE_CHECKING:       # the designer reads scenes as data; it never imports the solver at run time
     from vertebra.solver.scene import Scene
@@ -139,8 +145,6 @@ class PrepareReport:
         return 130 if 130 in codes else max(codes, default=0)
 
     def to_json(self) -> dict:
-        from vertebra import __version__
-
         failures = [{"segment": f.index, "key": f.task.key, "stage": f.stage, "error_type": f.error_type,
                      "message": f.message} for r in self.runs for f in r.failures]
         run = self.run or self.linear_run
@@ -367,8 +371,6 @@ def _estimate_progress(progress: bool, every_s: float = 2.0):
 def _prepare_nonlinear(scene, designs: list[Design], catalogue, label: str, build_model,
                        options: dict) -> PrepareReport:
     """The two stages of a scene with nonlinear design segments (module docstring)."""
-    from vertebra.designer.scene_range import estimate_ranges
-
     progress, dry_run = options.get("progress", True), options.get("dry_run", False)
     designer = options.get("designer", FiniteElementDesigner())
     nonlinear = {d.index for d in designs if _material(d) != LINEAR}
@@ -408,9 +410,6 @@ def _sampling_choices(designs: list[Design], rows: dict, estimate, catalogue, en
     """Per nonlinear design segment, its SamplingChoice: one per design (segments that share a
     linear counterpart, material and scene settings share the entry), from the union of their
     estimated ranges, or the defaults and scene settings when there is no estimate."""
-    from vertebra.designer.scene_range import choose_sampling, union
-    from vertebra.designer.segment import family_of
-
     groups: dict = {}
     for d in designs:
         user = repr(sorted(d.options.get("sampling", {}).items()))
@@ -439,9 +438,6 @@ def _in_order(linear_rows, nonlinear: set, nonlinear_rows) -> tuple:
 
 def _default_choice(user: dict | None, cavities: int, material: str, slenderness: float):
     """The choice when no range could be estimated: the scene's settings, the defaults otherwise."""
-    from vertebra.designer.energy_sampling import SamplingSettings
-    from vertebra.designer.scene_range import RANGE_SETTINGS, SamplingChoice
-
     settings = SamplingSettings.from_dict(user).resolved(cavities, material)
     user = dict(user or {})
     return SamplingChoice(user, {n: getattr(settings, n) for n in RANGE_SETTINGS},
@@ -476,8 +472,6 @@ def _entries(catalogue, memory: dict):
             if key in memory:
                 return memory[key]
             if not opened:
-                from vertebra.store.catalogue import open_catalogue
-
                 opened.append(stack.enter_context(open_catalogue(catalogue)))
             return opened[0].load(key)
         yield load
@@ -487,8 +481,6 @@ def _coverage(rows, estimate, catalogue) -> dict:
     """Per nonlinear segment whose entry is in the catalogue: where the scene's estimated range
     leaves the range the entry was actually fitted on (paths stopped early, pressures clamped
     below an inflation limit point, settings the scene gave)."""
-    from vertebra.designer.scene_range import uncovered
-
     ready = [r for r in rows if r.status in ("reused", "designed")]
     if estimate is None or not ready:
         return {}

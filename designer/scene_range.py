@@ -61,6 +61,7 @@ import numpy as np
 
 from vertebra.core.energy import linear_terms
 from vertebra.core.errors import ConvergenceError
+from vertebra.designer.energy_sampling import SOFTENING_STRAIN, SamplingSettings
 
 #: factor by which the strain and load extremes are enlarged about zero (covers the response
 #: between corners and the constitutive difference of nonlinear entries under loads)
@@ -325,8 +326,6 @@ def choose_sampling(estimate: SegmentRange, *, compliance, rest_translation, rad
     outer-fibre strain of a material that softens in compression (St Venant–Kirchhoff) is not
     raised above its default (:data:`~vertebra.designer.energy_sampling.SOFTENING_STRAIN`:
     fits sampled beyond it near the compressive limit point fail); the report warns instead."""
-    from vertebra.designer.energy_sampling import SOFTENING_STRAIN, SamplingSettings
-
     cavities = np.shape(compliance)[0] - 6
     defaults = SamplingSettings().resolved(cavities, material)
     user = dict(user or {})

@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from vertebra.designer.families import Family, Parameter, require
+from vertebra.designer.families.base import Family, Parameter, require
 
 VERTEBRA_PARAMETERS = (
     Parameter("radius", "disc radius", unit="m"),

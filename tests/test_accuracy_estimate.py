@@ -12,8 +12,9 @@ import warnings
 import numpy as np
 import pytest
 
-from vertebra.designer.segment import (LockingWarning, design_segment, estimated_error, relative_error, richardson,
-                                       solve_segment)
+from vertebra.designer.accuracy import estimated_error, relative_error, richardson
+from vertebra.designer.linear import LockingWarning, solve_segment
+from vertebra.designer.segment import design_segment
 
 ROD = {"radius": 0.01, "length": 0.04, "youngs_modulus": 1e6, "poisson_ratio": 0.3}
 PNEUMATIC = {"outer_radius": 0.02, "chamber_radius": 0.005, "chamber_offset": 0.011, "length": 0.02,

@@ -15,7 +15,10 @@ import pytest
 from vertebra.designer.fem import build_fe, condense, displacement_field
 from vertebra.designer.geometry import mesh_segment
 from vertebra.designer.reference import transport
-from vertebra.designer.segment import LockingWarning, canonical_parameters, compliance_change, design_segment, solve_segment
+from vertebra.designer.accuracy import compliance_change
+from vertebra.designer.families import canonical_parameters
+from vertebra.designer.linear import LockingWarning, solve_segment
+from vertebra.designer.segment import design_segment
 
 E, NU = 1.0e6, 0.3
 PNEUMATIC = dict(outer_radius=0.02, chamber_radius=0.005, chamber_offset=0.011, length=0.02,
@@ -298,7 +301,7 @@ def test_meshing_leaves_a_closed_pipe_an_error_not_a_kill():
         "import os\n"
         "from vertebra.designer import FAMILIES\n"
         "from vertebra.designer.geometry import mesh_segment\n"
-        "from vertebra.designer.segment import canonical_parameters\n"
+        "from vertebra.designer.families import canonical_parameters\n"
         "fam = FAMILIES['rod']\n"
         "p = canonical_parameters(fam, dict(radius=0.005, length=0.02, youngs_modulus=1e6, poisson_ratio=0.3))\n"
         "mesh_segment(fam, p, 0.01, 1)\n"

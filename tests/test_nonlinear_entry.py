@@ -28,7 +28,7 @@ def rod_entry():
 def test_keys_linear_unchanged_nonlinear_distinct():
     """A linear entry's key does not depend on whether nonlinear materials exist; the material and
     every sampling setting enter a nonlinear entry's key."""
-    from vertebra.designer.segment import key_payload
+    from vertebra.designer.keys import key_payload
     from vertebra.store.entry import content_key
 
     linear = designer.entry_key("rod", ROD, mesh_size=MESH)

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import math
 
-from vertebra.designer.families import (MATERIAL, Family, Parameter, SegmentSymmetry, check_material, register_family,
-                                       require)
+from vertebra.designer.families.base import (MATERIAL, Family, Parameter, SegmentSymmetry, check_material, register_family,
+                                             require)
 
 
 @register_family

@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import math
 
-from vertebra.designer.families import (MATERIAL, Family, Parameter, SegmentSymmetry, check_material, nearest,
-                                       register_family, require)
+from vertebra.designer.families.base import (MATERIAL, Family, Parameter, SegmentSymmetry, check_material, nearest,
+                                             register_family, require)
 
 CHAMBER_PARAMETERS = (
     Parameter("chambers", "number of sealed chambers", default=3, integer=True),

@@ -3,7 +3,7 @@ chamber offset change linearly from the bottom (z = 0) to the top (z = length)."
 
 from __future__ import annotations
 
-from vertebra.designer.families import MATERIAL, Family, Parameter, register_family
+from vertebra.designer.families.base import MATERIAL, Family, Parameter, register_family
 from vertebra.designer.families.pneumatic import (CHAMBER_PARAMETERS, build_chambered, chamber_symmetry, check_chambers,
                                                   classify_chambered)
 

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from vertebra.designer.families import (AXISYMMETRIC, MATERIAL, Family, Parameter, check_material, register_family,
-                                       require)
+from vertebra.designer.families.base import (AXISYMMETRIC, MATERIAL, Family, Parameter, check_material, register_family,
+                                             require)
 
 
 @register_family

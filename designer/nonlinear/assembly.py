@@ -39,6 +39,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from vertebra.designer.fem import SegmentFE, vector_element_dofs
+from vertebra.designer.nonlinear.materials import jacobian_minus_one
+from vertebra.designer.surface import triangle_rule, triangle_shape
 
 #: quadrature degree on wall triangles: x·(x_ξ × x_η) has degree 4 on 6-node triangles
 WALL_RULE_DEGREE = 4
@@ -127,7 +129,6 @@ class CavityWall:
 
     @classmethod
     def build(cls, surface, node_dofs: np.ndarray, pattern: SparsePattern) -> "CavityWall":
-        from vertebra.designer.surface import triangle_rule, triangle_shape
         points, weights = triangle_rule(WALL_RULE_DEGREE)
         k = surface.nodes.shape[1]
         N, dN = triangle_shape(points, k)
@@ -225,7 +226,6 @@ class SolidModel:
         H = self.gradient_field(u)
         W, P, A = self.material.evaluate(H, tangent=order >= 2) if order >= 1 else (self.material.energy(H), None, None)
         energy = float(np.einsum("eq,eq->", self.dx, W))
-        from vertebra.designer.nonlinear.materials import jacobian_minus_one
         min_jacobian = 1.0 + float(np.min(jacobian_minus_one(H)))
         pressures = np.zeros(self.n_cavities) if pressures is None else np.asarray(pressures, dtype=float)
         walls = [wall.volume(u, order) for wall in self.walls]

@@ -41,9 +41,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from vertebra.designer.families import canonical_parameters, family_of, resolve_mesh_size
+from vertebra.designer.fem import build_fe, rigid_body_modes
+from vertebra.designer.geometry import mesh_segment
+from vertebra.designer.nonlinear.assembly import SolidModel
 from vertebra.designer.nonlinear.framed import FramedSolid, Pose
 from vertebra.designer.nonlinear.krylov import ReusedFactorSolver
 from vertebra.designer.nonlinear.newton import NewtonSettings, Step, march
+from vertebra.designer.nonlinear.materials import get_material
 from vertebra.designer.nonlinear.rotations import exp_se3, exp_so3, log_se3, log_so3, skew
 from vertebra.core.errors import OptionError
 
@@ -117,7 +122,6 @@ class NonlinearSegment:
 
     def __init__(self, framed: FramedSolid, settings: SegmentSettings | None = None, linear_solver: str = "auto",
                  amg_threshold: int | None = None):
-        from vertebra.designer.fem import rigid_body_modes
         self.framed = framed
         self.settings = settings or SegmentSettings()
         fe = framed.fe
@@ -134,8 +138,6 @@ class NonlinearSegment:
               amg_threshold: int | None = None) -> "NonlinearSegment":
         """From a mesh (:class:`vertebra.designer.geometry.MeshData`) and a material
         (:func:`.materials.get_material`)."""
-        from vertebra.designer.fem import build_fe
-        from vertebra.designer.nonlinear.assembly import SolidModel
         fe = build_fe(mesh_data, material.youngs_modulus, material.poisson_ratio, density, n_cavities, length)
         segment = cls(FramedSolid(SolidModel(fe, material)), settings, linear_solver, amg_threshold)
         segment.mesh_data = mesh_data
@@ -146,9 +148,6 @@ class NonlinearSegment:
                     order: int = 2, **kwargs) -> "NonlinearSegment":
         """Mesh a designer family (``designer.FAMILIES``) and build the model; the material constants
         are the family's ``youngs_modulus``, ``poisson_ratio`` and ``density``."""
-        from vertebra.designer.geometry import mesh_segment
-        from vertebra.designer.nonlinear.materials import get_material
-        from vertebra.designer.segment import canonical_parameters, family_of, resolve_mesh_size
         fam = family_of(family)
         p = canonical_parameters(fam, parameters)
         mesh = mesh_segment(fam, p, resolve_mesh_size(fam, p, mesh_size), order)
