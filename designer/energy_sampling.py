@@ -35,6 +35,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from vertebra.designer.energy_fit import Samples, strain_derivatives, pose_of_strain
+from vertebra.designer.executors import worker_info
 from vertebra.core.energy import group_coordinates
 from vertebra.core.errors import ConvergenceError, OptionError
 
@@ -284,8 +285,6 @@ def response_samples(s: np.ndarray, p: np.ndarray, responses: list, rest_transla
 
 def run_paths(task: PathTask) -> PathOutcome:
     """Follow the task's loading paths (see the module docstring); one FE solve per step."""
-    from vertebra.designer.executors import worker_info
-
     start = time.perf_counter()
     model = worker_model(task.spec)
     m = len(task.rest_volumes)

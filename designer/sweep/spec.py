@@ -16,8 +16,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
+from vertebra.core.errors import OptionError, SpecError
+from vertebra.designer.keys import check_material, sampling_settings
 from vertebra.designer.sweep.samplers import SAMPLERS, is_number
-from vertebra.core.errors import SpecError
 
 
 class Invalid(ValueError):
@@ -51,9 +52,6 @@ def _flag(value):
 
 
 def _material(value):
-    from vertebra.designer.segment import check_material
-    from vertebra.core.errors import OptionError
-
     try:
         return check_material(value) if isinstance(value, str) else _text(value)
     except OptionError as error:
@@ -62,9 +60,6 @@ def _material(value):
 
 def _sampling(value):
     """Nonlinear sampling and fit settings: a table of ``SamplingSettings`` fields (checked)."""
-    from vertebra.designer.segment import sampling_settings
-    from vertebra.core.errors import OptionError
-
     if value is None:
         return None
     if not isinstance(value, dict):

@@ -16,8 +16,9 @@ from dataclasses import dataclass, field
 from functools import partial
 from typing import Callable, Collection, Protocol, runtime_checkable
 
-from vertebra.designer.families import FAMILIES
-from vertebra.designer.segment import canonical_parameters, design_segment, entry_key
+from vertebra.designer.families import FAMILIES, canonical_parameters
+from vertebra.designer.keys import entry_key
+from vertebra.designer.segment import design_segment
 from vertebra.designer.sweep.samplers import SAMPLERS
 from vertebra.designer.sweep.spec import SweepSpec, keyed_options
 from vertebra.store.entry import SegmentEntry
