@@ -390,8 +390,9 @@ def rest_strain(rest_translation: np.ndarray, rest_quaternion: np.ndarray | None
 
 
 class LinearPart(NamedTuple):
-    """ψ_lin of a segment: ``K`` (6, 6) J per unit strain², ``S`` (6, n) strain per Pa, ``V``
-    (n, n) m³/Pa (module docstring). ``K`` is NaN when ``A C Aᵀ`` is singular."""
+    """ψ_lin of a segment (module docstring): the stiffness ``K`` (6, 6) in the strain (by block
+    N/m, N/rad, N m/rad), the strain per unit pressure ``S`` (6, n) (m/Pa, rad/Pa) and the volume
+    compliance ``V`` (n, n) (m³/Pa). ``K`` is NaN when ``A C Aᵀ`` is singular."""
 
     stiffness: np.ndarray
     pressure_map: np.ndarray
