@@ -73,9 +73,17 @@ DATASET_ATTRIBUTES = {
                       "checksum, content"),
 }
 
-#: ``<name>_units`` attributes beside the numeric attributes of an entry group (an HDF5 attribute
-#: has no attributes of its own); readers do not need them
-ENTRY_ATTRIBUTE_UNITS = {"mass": "kg"}
+#: ``<name>_units`` attributes beside the attributes of an entry group that hold quantities (an
+#: HDF5 attribute has no attributes of its own; for a JSON object, the rule its values follow);
+#: readers do not need them
+ENTRY_ATTRIBUTE_UNITS = {
+    "mass": "kg",
+    "parameters": "SI (m, Pa, kg/m^3); ratios and counts 1; a name ending in _deg is an angle in degrees",
+    "mesh": "mesh_size m; counts and order 1",
+    "accuracy": "relative errors and ratios 1; sizes m; compliances as the dataset compliance; names ending "
+                "in _s: s",
+    "timings": "s",
+}
 
 MAX_JSON_BYTES = 1 << 20       # one metadata attribute or one index row
 MAX_TEXT_CHARS = 256           # names and families
@@ -371,8 +379,14 @@ ENERGY_TEXT = {
                   "[[C, G], [G^T, V]] = ../compliance; d psi / d s is the load on the strain, -d psi / d p the "
                   "cavity volume growth (m^3)",
 }
-#: ``<name>_units`` beside the energy group's numeric attributes
-ENERGY_ATTRIBUTE_UNITS = {"fold_pressure": "Pa"}
+#: ``<name>_units`` beside the energy group's attributes that hold quantities
+ENERGY_ATTRIBUTE_UNITS = {
+    "fold_pressure": "Pa",
+    "range": "as the datasets range/*: pose [m, m, rad, rad], load [N, N, N m, N m], pressure Pa",
+    "fit_error": "1 (fractions of the load bounds and of the largest volume growth; relative errors)",
+    "material": "moduli and C10 Pa; poisson_ratio 1; D1 1/Pa",
+    "sampling": "SI (m, rad, N, N m, Pa, s); shear and axial as fractions of the length; counts 1",
+}
 #: the JSON attributes of the energy group and the text one
 _ENERGY_ATTRIBUTES = ("representation", "range", "fit_error", "material", "sampling", "fold_pressure")
 

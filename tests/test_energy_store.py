@@ -222,6 +222,10 @@ def test_the_energy_group_describes_itself_to_a_reader_with_h5py_only(tmp_path):
         energy = group["energy"]
         assert group.attrs["mass_units"].decode() == "kg"
         assert energy.attrs["fold_pressure_units"].decode() == "Pa"
+        for obj, text in ((group, ("name", "family", "provenance", "checksum", "content")),
+                          (energy, ("representation", "strain", "definition"))):
+            quantities = [name for name in obj.attrs if not name.endswith("_units") and name not in text]
+            assert quantities and all(f"{name}_units" in obj.attrs for name in quantities), quantities
         assert "log_SE3(T_a^-1 T_b)" in energy.attrs["strain"].decode()
         assert "inv(A C A^T)" in energy.attrs["definition"].decode()
         datasets = {}
@@ -248,9 +252,10 @@ def test_the_energy_group_describes_itself_to_a_reader_with_h5py_only(tmp_path):
         energy = f["entries/nl0/energy"]
         for name in ("strain_map", "rest_strain", "range"):
             del energy[name]
-        for name in ("strain", "definition", "fold_pressure_units"):
+        for name in ("strain", "definition") + tuple(f"{n}_units" for n in schema.ENERGY_ATTRIBUTE_UNITS):
             del energy.attrs[name]
-        del f["entries/nl0"].attrs["mass_units"]
+        for name in schema.ENTRY_ATTRIBUTE_UNITS:
+            del f["entries/nl0"].attrs[f"{name}_units"]
     assert catalogue.verify(bare) == []
     with catalogue.open_catalogue(bare) as cat:
         assert cat.load("nl").energy == entry.energy
