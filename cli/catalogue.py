@@ -10,10 +10,11 @@ from __future__ import annotations
 import json
 import sys
 
+from vertebra.cli.documents import print_document
+from vertebra.core.errors import CatalogueError
+
 
 def _print_json(data) -> None:
-    from vertebra.cli.documents import print_document
-
     print_document(data)
 
 
@@ -52,6 +53,7 @@ def _table(rows: list[dict], wide: bool, pending=frozenset()) -> None:
 
 
 def _ls(args) -> int:
+    # lazy: the parser imports every subcommand module; the libraries load for the command that runs
     from vertebra.store import catalogue
 
     with catalogue.open_catalogue(args.file) as cat:
@@ -68,6 +70,7 @@ def _ls(args) -> int:
 def _show(args) -> int:
     import numpy as np
 
+    # lazy: the parser imports every subcommand module; the libraries load for the command that runs
     from vertebra.store import catalogue
 
     with catalogue.open_catalogue(args.file) as cat:
@@ -90,9 +93,8 @@ def _show(args) -> int:
 
 
 def _verify(args) -> int:
+    # lazy: the parser imports every subcommand module; the libraries load for the command that runs
     from vertebra.store import catalogue
-
-    from vertebra.core.errors import CatalogueError
 
     problems = catalogue.verify(args.file)
     try:
@@ -111,6 +113,7 @@ def _verify(args) -> int:
 
 
 def _merge(args) -> int:
+    # lazy: the parser imports every subcommand module; the libraries load for the command that runs
     from vertebra.store import catalogue
 
     report = catalogue.merge(args.out, args.inputs)
@@ -127,6 +130,7 @@ def _merge(args) -> int:
 
 
 def _query(args) -> int:
+    # lazy: the parser imports every subcommand module; the libraries load for the command that runs
     from vertebra.store import catalogue
 
     rows = catalogue.query(args.file, args.where or [])
@@ -139,6 +143,7 @@ def _query(args) -> int:
 
 
 def _export(args) -> int:
+    # lazy: the parser imports every subcommand module; the libraries load for the command that runs
     from vertebra.store import catalogue
 
     if args.format == "json" and args.out is None:
@@ -152,6 +157,7 @@ def _export(args) -> int:
 
 
 def _rm(args) -> int:
+    # lazy: the parser imports every subcommand module; the libraries load for the command that runs
     from vertebra.store import catalogue
 
     key = catalogue.remove(args.file, args.key)
@@ -160,6 +166,7 @@ def _rm(args) -> int:
 
 
 def _consolidate(args) -> int:
+    # lazy: the parser imports every subcommand module; the libraries load for the command that runs
     from vertebra.store import catalogue
 
     report = catalogue.consolidate(args.file)

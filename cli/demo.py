@@ -20,6 +20,8 @@ import sys
 import time
 from pathlib import Path
 
+from vertebra.cli.main import main
+
 
 def add_arguments(parser):
     parser.add_argument("--out", default="demo-output", help="directory for pictures, catalogue and JSON")
@@ -32,7 +34,6 @@ def _banner(text: str):
 
 def _command(argv, stdout_path: Path | None = None) -> int:
     """Run one ``vertebra`` subcommand; its stdout goes to ``stdout_path`` when given."""
-    from vertebra.cli.main import main
     print("$ vertebra " + " ".join(argv), flush=True)
     if stdout_path is None:
         return main(argv)
@@ -48,6 +49,7 @@ def _command(argv, stdout_path: Path | None = None) -> int:
 def run(args) -> int:
     import numpy as np
 
+    # lazy: the parser imports every subcommand module; the libraries load for the command that runs
     from vertebra.solver.gallery.targets import circle, pose_circle
     from vertebra.solver.inverse.trajectory import Trajectory, write_trajectory
     out = Path(args.out)
@@ -65,6 +67,7 @@ def run(args) -> int:
     # the scene's catalogue (gmsh + scikit-fem, condensed), simulate --prepare then reuses them all
     import tomllib
 
+    # lazy: the parser imports every subcommand module; the libraries load for the command that runs
     from vertebra.solver import gallery
     from vertebra.solver.scene import scene_toml
     catalogue_path = out / "cbha.h5"
@@ -89,6 +92,7 @@ def run(args) -> int:
     _banner("3/3 inverse: 16-tendon robot tracks a circle; pneumatic trunk reaches a target")
     # a tip circle the axisymmetric robot can reach: the tip under one pulled tendon (4 N on the
     # last one, terminated at the tip) rotated about the axis
+    # lazy: the parser imports every subcommand module; the libraries load for the command that runs
     from vertebra import solver
     tendon_robot = solver.build_model(solver.load_scene("gallery:paper_5v_16t"))
     pulled = np.zeros(len(tendon_robot.actuator_names))
@@ -125,6 +129,7 @@ def run(args) -> int:
           f"tip error {reach['effectors']['tip']['error']:.2e} m")
     # and a tip trajectory: a horizontal circle of 3 cm radius 5 mm above the rest tip (the
     # chambers only extend the trunk, pressures ≥ 0: below that height the circle is out of reach)
+    # lazy: the parser imports every subcommand module; the libraries load for the command that runs
     from vertebra.designer import prepare
     trunk = solver.build_model(prepare(solver.load_scene(target_scene), progress=False)[0])     # every entry is there: reused
     rest_tip = trunk.effector_positions(trunk.rest_state)[0]

@@ -16,6 +16,8 @@ import os
 import sys
 import time
 
+from vertebra.cli.documents import print_document
+from vertebra.cli.main import main as vertebra
 from vertebra.cli.outputs import output_file
 from vertebra.core.errors import OptionError
 
@@ -70,8 +72,6 @@ def parse_values(values: list[str]) -> dict:
 
 def parse_sampling(values: list[str]) -> dict:
     """``--sampling NAME=VALUE`` strings to settings (numbers, true/false, none)."""
-    from vertebra.core.errors import OptionError
-
     out = {}
     for item in values:
         name, sep, text = item.partition("=")
@@ -118,12 +118,11 @@ def _log(message: str) -> None:
 
 
 def _print_json(document) -> None:
-    from vertebra.cli.documents import print_document
-
     print_document(document)
 
 
 def _run_vertebra(args, values) -> int:
+    # lazy: the parser imports every subcommand module; the libraries load for the command that runs
     from vertebra.designer.vertebra import vertebra_properties, vertebra_snippet
 
     props = vertebra_properties(values)
@@ -135,6 +134,7 @@ def _run_vertebra(args, values) -> int:
 
 
 def run(args) -> int:
+    # lazy: the parser imports every subcommand module; the libraries load for the command that runs
     from vertebra import designer
     from vertebra.designer.geometry import export_mesh
 
@@ -154,6 +154,7 @@ def run(args) -> int:
     key = designer.entry_key(family, parameters, mesh_size=args.mesh_size, order=args.order, material=args.material,
                              sampling=sampling)
 
+    # lazy: the parser imports every subcommand module; the libraries load for the command that runs
     from vertebra.store import catalogue
 
     start = time.perf_counter()
@@ -216,7 +217,6 @@ def run(args) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Stand-alone entry (``python -m cli.design``): ``vertebra design`` with the same exit codes."""
-    from vertebra.cli.main import main as vertebra
     return vertebra(["design", *(sys.argv[1:] if argv is None else argv)])
 
 

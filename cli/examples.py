@@ -12,6 +12,8 @@ import sys
 from importlib import resources
 from pathlib import Path
 
+from vertebra.core.errors import OptionError
+
 SHIPPED_SUFFIXES = (".py", ".csv", ".toml", ".md")
 
 
@@ -38,8 +40,6 @@ def example_files() -> list[tuple[str, object]]:
 
 
 def run(args) -> int:
-    from vertebra.core.errors import OptionError
-
     files = example_files()
     if args.list:
         for name, _ in files:

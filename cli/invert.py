@@ -44,6 +44,7 @@ def _log(message: str) -> None:
 
 
 def run(args) -> int:
+    # lazy: the parser imports every subcommand module; the libraries load for the command that runs
     from vertebra import solver
     from vertebra.solver.inverse import InverseController, InverseSettings
     from vertebra.solver.inverse.trajectory import read_trajectory, scene_trajectory
@@ -79,6 +80,7 @@ def run(args) -> int:
         plot_inverse(model, steps, trajectory.times if trajectory.timed else None, path=str(plot),
                      tolerance=settings.tolerance)
     if vtk is not None:
+        # lazy: the parser imports every subcommand module; the libraries load for the command that runs
         from vertebra.solver.paraview import trunk_polydata, write_pvd
 
         series = [(t, trunk_polydata(model, step.state, step.actuation, step.targets, time=t))

@@ -40,6 +40,7 @@ def add_arguments(parser) -> None:
 
 
 def _prepare(args, *, dry_run: bool = False, progress: bool = True):
+    # lazy: the parser imports every subcommand module; the libraries load for the command that runs
     from vertebra import solver
     from vertebra.designer import prepare
 
@@ -56,6 +57,7 @@ def prepared_scene(args):
     ``(scene, exit code)``: a non-zero code means a design failed and the command must stop."""
     import dataclasses
 
+    # lazy: the parser imports every subcommand module; the libraries load for the command that runs
     from vertebra import solver
 
     if args.prepare:

@@ -8,6 +8,7 @@ import sys
 
 from vertebra.cli.outputs import PICTURE_SUFFIXES, output_file, range_warnings, shown
 from vertebra.cli.prepare import add_preparation, prepared_scene
+from vertebra.core.errors import ConvergenceError
 
 VTK_SUFFIXES = (".vtp",)
 FRAME_SUFFIXES = (".csv",)
@@ -26,10 +27,10 @@ def add_arguments(parser):
 
 
 def run(args) -> int:
+    # lazy: the parser imports every subcommand module; the libraries load for the command that runs
     from vertebra import solver
     from vertebra.solver.paraview import trunk_polydata, write_vtp
     from vertebra.solver.report import plot_static, static_report, write_frames
-    from vertebra.core.errors import ConvergenceError
 
     plot = output_file(args.plot, "--plot", PICTURE_SUFFIXES)
     vtk = output_file(args.vtk, "--vtk", VTK_SUFFIXES)

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import sys
 
+from vertebra.cli.documents import print_document
+
 
 def add_executor_arguments(parser) -> None:
     """Where entries are designed: the options of every command that designs (sweep, prepare)."""
@@ -32,6 +34,7 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
+    # lazy: the parser imports every subcommand module; the libraries load for the command that runs
     from vertebra.designer.sweep import run_sweep
 
     executor = "dask" if args.scheduler else args.executor
@@ -39,8 +42,6 @@ def run(args) -> int:
                        scheduler=args.scheduler, start_method=args.start_method,
                        progress=not args.no_progress, dry_run=args.dry_run)
     if args.json:
-        from vertebra.cli.documents import print_document
-
         print_document(report.to_json(), indent=1)
     else:
         print(report.summary())

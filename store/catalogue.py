@@ -21,7 +21,8 @@ from vertebra.store.entry import SegmentEntry, canonical_json
 from vertebra.core.errors import CatalogueError
 from vertebra.store.h5read import walk
 from vertebra.store.schema import (ARRAY_FIELDS, DICT_FIELDS, SCHEMA_VERSION, EncodedEntry, check_key,
-                                   differing_fields, entry_group, entry_keys, read_entry, read_index)
+                                   differing_fields, entry_group, entry_keys, parse_json, read_entry, read_index,
+                                   read_stored_digests)
 from vertebra.store.shards import (CONFLICT_SUFFIX, LOCK_TIMEOUT_S, Conflict, LockTimeout, MergeReport,
                                    _publish, _temp_path, _unlink_quietly, disk_error, guard_os_errors, list_shards,
                                    open_checked,
@@ -187,8 +188,6 @@ def _lookup(path: Path, keys: list[str]) -> dict:
     """key -> (content digest or its 16-hex-digit prefix, file holding it) for the keys
     already in the catalogue file or in a committed shard. Reads no entry data and opens
     no single-entry shard (their names carry key and content digest)."""
-    from vertebra.store.schema import read_stored_digests
-
     found = {}
     if path.exists():
         with open_checked(path) as f:
@@ -615,8 +614,6 @@ def export(path, key: str, fmt: str, out=None) -> Path:
 
 def entry_from_npz(file) -> SegmentEntry:
     """Read an entry exported with ``export(..., "npz")`` (allow_pickle=False)."""
-    from vertebra.store.schema import parse_json
-
     with np.load(file, allow_pickle=False) as z:
         kwargs = {f: z[f] for f in ARRAY_FIELDS}
         kwargs.update(key=str(z["key"]), name=str(z["name"]), family=str(z["family"]), mass=float(z["mass"]))
