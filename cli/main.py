@@ -57,6 +57,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    # lazy: importing designer.threads loads the designer package; the parser and --help do without it
     from vertebra.designer.threads import pin_blas_threads
 
     pin_blas_threads()      # one BLAS/OpenMP thread per process (designer/threads.py says why)

@@ -42,6 +42,7 @@ def _with_tip_effector(scene):
     """The scene with an effector ``tip`` at the last vertebra's origin when it has none."""
     import dataclasses
 
+    # lazy: the parser imports every subcommand module; the libraries load for the command that runs
     from vertebra.solver.scene import EffectorSpec
 
     if scene.effectors:
@@ -52,6 +53,7 @@ def _with_tip_effector(scene):
 
 
 def run(args) -> int:
+    # lazy: the parser imports every subcommand module; the libraries load for the command that runs
     from vertebra import __version__, solver
     from vertebra.solver.workspace import sample_workspace, write_points
     from vertebra.core.errors import OptionError
@@ -80,6 +82,7 @@ def run(args) -> int:
         write_points(workspace, points)
         print(f"wrote {points}", file=sys.stderr)
     if plot is not None:
+        # lazy: the parser imports every subcommand module; the libraries load for the command that runs
         from vertebra.solver.workspace_plot import plot_workspace
 
         plot_workspace(workspace, plot, rest=model.effector_positions(model.rest_state),
