@@ -19,7 +19,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from vertebra.solver import newton, outputs
+from vertebra.solver import compliance, newton, outputs
 from vertebra.solver.energy import Evaluation, LoadCases, Trial, evaluate, out_of_range, potential
 from vertebra.solver.newton import StaticResult
 from vertebra.solver.outputs import Linearisation
@@ -201,6 +201,4 @@ class TrunkModel:
     def effector_compliance(self, state: State, actuation=None):
         """Cartesian compliance of every effector at the equilibrium ``state`` under ``actuation``
         (``Je K⁻¹ Jeᵀ`` from the banded factor; :func:`vertebra.solver.compliance.effector_compliance`)."""
-        from vertebra.solver.compliance import effector_compliance
-
-        return effector_compliance(self, state, actuation)
+        return compliance.effector_compliance(self, state, actuation)
