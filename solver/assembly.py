@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from vertebra.solver.banded import BandedFactor, factor_cholesky, factor_lu
+from vertebra.solver.banded import BandedFactor, LowRankFactor, factor_cholesky, factor_lu
 
 
 _NO_PIECES = np.zeros(0, int)
@@ -202,10 +202,11 @@ class Tangent:
     The lower band of its symmetric part and its full block storage (LU and shifted LU factors)
     are assembled on first need and kept."""
 
-    __slots__ = ("assembler", "terms", "_storage", "_band")
+    __slots__ = ("assembler", "terms", "low_rank", "_storage", "_band")
 
-    def __init__(self, assembler: BandAssembler, terms: np.ndarray):
+    def __init__(self, assembler: BandAssembler, terms: np.ndarray, low_rank: tuple | None = None):
         self.assembler, self.terms = assembler, terms
+        self.low_rank = low_rank      # (U (n, r), d (r,)): a dense term U diag(d) Uᵀ beside the band, or None
         self._storage = None
         self._band = None
 
@@ -226,8 +227,11 @@ class Tangent:
         return self._band
 
     def diagonal(self) -> np.ndarray:
-        """The tangent's diagonal (n,)."""
-        return self.symmetric_band()[0]
+        """The tangent's diagonal (n,), the dense term's included."""
+        if self.low_rank is None:
+            return self.symmetric_band()[0]
+        U, d = self.low_rank
+        return self.symmetric_band()[0] + (U * U) @ d
 
     def factor(self, shift: float = 0.0, *, symmetric: bool = True, scale: np.ndarray | None = None,
                definite: bool = False) -> tuple[BandedFactor | None, str]:
@@ -236,7 +240,25 @@ class Tangent:
         loads) and positive definite, banded LU otherwise (never with ``definite``: a symmetric
         matrix that is not positive definite then gives no factor). Returns the factor (None
         when singular, or indefinite with ``definite``) and its kind: "cholesky", "shifted"
-        (Cholesky of the shifted matrix), "lu" or "shifted-lu"."""
+        (Cholesky of the shifted matrix), "lu" or "shifted-lu". With a dense term beside the
+        band the factor is the band's, updated (:class:`~vertebra.solver.banded.LowRankFactor`):
+        the band alone decides definiteness (the dense term is positive semi-definite)."""
+        factor, kind = self._band_factor(shift, symmetric, scale, definite)
+        if self.low_rank is None:
+            return factor, kind
+        if factor is not None:
+            return LowRankFactor.of(factor, *self.low_rank), kind
+        if not (symmetric and definite):
+            return None, None
+        # the band is not positive definite; the whole may be (the tendons' term is semi-definite)
+        band = self.symmetric_band()
+        if shift:
+            band = band.copy()
+            band[0] += shift * (np.abs(self.diagonal()) + 1e-300 if scale is None else scale)
+        factor = LowRankFactor.definite(band, *self.low_rank)
+        return (factor, ("shifted" if shift else "cholesky")) if factor is not None else (None, None)
+
+    def _band_factor(self, shift, symmetric, scale, definite):
         assembler = self.assembler
         if shift and scale is None:
             scale = np.abs(self.diagonal()) + 1e-300

@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg import eig_banded, lu_factor, lu_solve
 from scipy.linalg.lapack import dgbtrf, dgbtrs, dpbtrf, dpbtrs
 
 
@@ -51,3 +52,62 @@ def factor_lu(ab_general: np.ndarray, kd: int) -> BandedFactor | None:
     if info != 0:
         return None
     return BandedFactor("lu", lu, kd, piv)
+
+
+@dataclass
+class LowRankFactor:
+    """The factor of ``A + U diag(d) Uᵀ`` from the factor of the band ``A``, with ``U`` (n, r)
+    dense and ``d`` (r,) positive (Sherman–Morrison–Woodbury): stroke-driven tendons couple every
+    frame they pass through, a rank-one term each, which a band cannot hold. Built with ``r``
+    band solves; each solve is one band solve and two (n, r) products."""
+
+    band: BandedFactor
+    U: np.ndarray           # (n, r)
+    Z: np.ndarray           # (n, r) A⁻¹ U
+    capacitance: tuple      # LU of diag(1/d) + Uᵀ A⁻¹ U (r × r)
+
+    @classmethod
+    def of(cls, band: BandedFactor, U: np.ndarray, d: np.ndarray) -> "LowRankFactor":
+        Z = band.solve(U)
+        return cls(band, U, Z, lu_factor(np.diag(1.0 / d) + U.T @ Z, check_finite=False))
+
+    @classmethod
+    def definite(cls, lower: np.ndarray, U: np.ndarray, d: np.ndarray) -> "LowRankFactor | None":
+        """The factor of ``A + U diag(d) Uᵀ`` when that is positive definite although the symmetric
+        band ``A`` (its lower band) is not — tendons that hold a trunk their tension compresses
+        beyond what its links alone carry — else None. The band is factored by LU; by
+        Haynsworth's inertia additivity on ``[[A, U], [Uᵀ, −D⁻¹]]`` the whole has no
+        non-positive eigenvalue exactly when ``A`` has as many negative eigenvalues as the
+        capacitance ``D⁻¹ + Uᵀ A⁻¹ U`` (and neither is singular)."""
+        band = factor_lu(general_band_of_symmetric(lower), lower.shape[0] - 1)
+        if band is None:
+            return None
+        eigenvalues = eig_banded(lower, lower=True, eigvals_only=True, select="v", select_range=(-np.inf, 0.0),
+                                 check_finite=False)
+        Z = band.solve(U)
+        capacitance = np.diag(1.0 / d) + U.T @ Z
+        inner = np.linalg.eigvalsh(0.5 * (capacitance + capacitance.T))
+        if np.any(inner == 0.0) or eigenvalues.size != int(np.count_nonzero(inner < 0.0)):
+            return None
+        return cls(band, U, Z, lu_factor(capacitance, check_finite=False))
+
+    @property
+    def kind(self) -> str:
+        return self.band.kind
+
+    def solve(self, rhs: np.ndarray, *, overwrite: bool = False) -> np.ndarray:
+        """``(A + U diag(d) Uᵀ)⁻¹ rhs`` for ``rhs`` of shape (n,) or (n, k)."""
+        y = self.band.solve(rhs, overwrite=overwrite)
+        return y - self.Z @ lu_solve(self.capacitance, self.U.T @ y, check_finite=False)
+
+
+def general_band_of_symmetric(lower: np.ndarray) -> np.ndarray:
+    """LAPACK's general band storage (``ab[2kd + i − j, j] = A[i, j]``, ``3kd + 1`` rows, for
+    ``dgbtrf``) of the symmetric matrix whose lower band is ``lower`` (``lower[d, j] = A[j + d, j]``)."""
+    kd1, n = lower.shape
+    kd = kd1 - 1
+    ab = np.zeros((3 * kd + 1, n))
+    for d in range(kd1):
+        ab[2 * kd + d, :n - d] = lower[d, :n - d]          # A[j + d, j]
+        ab[2 * kd - d, d:] = lower[d, :n - d]              # A[j, j + d]
+    return ab

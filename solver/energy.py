@@ -36,7 +36,8 @@ class LoadCase:
     scale: float
     pressures: np.ndarray                 # scaled chamber pressures
     link_loads: tuple                     # what each link energy prepared of the pressures
-    piece_tension: np.ndarray | None      # tension of every cable piece (None: all slack)
+    piece_tension: np.ndarray | None      # tension of every piece of a tension-driven cable (None: all slack)
+    tendons: "Tendons | None"             # the stroke-driven tendons (None: there are none)
     weight: np.ndarray | None             # scaled gravity vector
     weight_hat: np.ndarray | None
     frame_weight: np.ndarray | None       # (n_frames, 3) m g
@@ -48,14 +49,19 @@ class LoadCase:
     def of(cls, trunk, actuation: np.ndarray, scale: float, previous: "LoadCase | None" = None) -> "LoadCase":
         """The load case of ``actuation`` at load factor ``scale``; the weight and dead loads of a
         ``previous`` case at the same factor are taken as they are."""
-        n_cables = trunk.actuators.n_cables
+        actuators = trunk.actuators
+        n_cables = actuators.n_cables
         tensions = scale * actuation[:n_cables]
         pressures = scale * actuation[n_cables:]
         link_loads = tuple(e.prepare(pressures) for e in trunk.links.energies)
+        tendons = None
+        if n_cables and actuators.stroke_driven.any():
+            tendons = Tendons.of(trunk, tensions, scale)       # (the stroke-driven values are strokes)
+            tensions = np.where(actuators.stroke_driven, 0.0, tensions)
         piece_tension = tensions[trunk.cables.owner] if n_cables and np.any(tensions) else None
         if previous is not None and previous.scale == scale:
-            return cls(actuation, scale, pressures, link_loads, piece_tension, previous.weight, previous.weight_hat,
-                       previous.frame_weight, previous.dead, previous.dead_forces)
+            return cls(actuation, scale, pressures, link_loads, piece_tension, tendons, previous.weight,
+                       previous.weight_hat, previous.frame_weight, previous.dead, previous.dead_forces)
         loads = trunk.loads
         weight = weight_hat = frame_weight = dead = dead_forces = None
         if loads.has_gravity:
@@ -65,8 +71,40 @@ class LoadCase:
         if loads.has_dead_forces or loads.has_dead_moments:
             dead = scale * loads.dead
             dead_forces = np.ascontiguousarray(dead[:, :3])
-        return cls(actuation, scale, pressures, link_loads, piece_tension, weight, weight_hat, frame_weight,
+        return cls(actuation, scale, pressures, link_loads, piece_tension, tendons, weight, weight_hat, frame_weight,
                    dead, dead_forces)
+
+    @property
+    def cables(self) -> bool:
+        """Are the cables evaluated (some tension-driven cable pulls, or there are tendons)?"""
+        return self.piece_tension is not None or self.tendons is not None
+
+
+@dataclass(frozen=True, slots=True)
+class Tendons:
+    """The stroke-driven tendons of a load case. A tendon's elongation is
+    ``e = L(q) − L₀ + s + T₀/k`` (``L``: its length through the holes, ``s``: the servo's stroke,
+    ``T₀``: its pretension at zero stroke, ``k``: its spring rate) and its tension ``k·max(0, e)``:
+    its potential ``½ k max(0, e)²`` is C¹ with a kink in its curvature where it goes slack, which
+    the Newton iteration meets with the one-sided tangent and a line search on the energy."""
+
+    cables: np.ndarray        # (t,) cable index of each tendon
+    stiffness: np.ndarray     # (t,) k, N/m
+    rest: np.ndarray          # (t,) L₀, the rest lengths
+    shift: np.ndarray         # (t,) s + T₀/k at the load factor (the elongation at rest)
+
+    @classmethod
+    def of(cls, trunk, values: np.ndarray, scale: float) -> "Tendons":
+        """From the cables' values at load factor ``scale`` (``values``: already scaled; the
+        tendons' are strokes), the pretension scaled alike."""
+        actuators = trunk.actuators
+        cables = actuators.tendons
+        k = actuators.cable_stiffness[cables]
+        return cls(cables, k, trunk.rest_cable_lengths[cables],
+                   values[cables] + scale * actuators.pretension[cables] / k)
+
+    def elongation(self, cable_lengths: np.ndarray) -> np.ndarray:
+        return cable_lengths[self.cables] - self.rest + self.shift
 
 
 class LoadCases:
@@ -166,9 +204,9 @@ def evaluate(trunk, state, load: LoadCase, previous: "Evaluation | Trial | None"
     grad[1:] += g_links[:, 6:]
 
     pieces = None
-    if load.piece_tension is not None:
+    if load.cables:
         pieces = CablePieces.of_spans(*parts.spans)
-        grad += trunk.cables.frame_forces(pieces, load.piece_tension)
+        grad += trunk.cables.frame_forces(pieces, parts.piece_tension)
 
     lever = parts.lever
     if load.weight is not None:
@@ -202,20 +240,34 @@ class PotentialParts:
     response: tuple                 # link_response(): (Σ ψ, w, kept)
     spans: tuple | None             # the cable pieces' CableRouting.spans() (None: all slack)
     lever: np.ndarray | None        # (n_frames, 3) R s, the first mass moments in world axes (gravity)
+    piece_tension: np.ndarray | None = None   # tension of every piece, the tendons' included
+    elongation: np.ndarray | None = None      # (t,) the tendons' elongation e (tension k·max(0, e))
 
 
 def _potential_parts(trunk, x: np.ndarray, rotations, xi: np.ndarray, load: LoadCase) -> PotentialParts:
-    spans = trunk.cables.spans(x, rotations) if load.piece_tension is not None else None
+    spans = trunk.cables.spans(x, rotations) if load.cables else None
     lever = (rotations @ trunk.frames.moment[:, :, None])[:, :, 0] if load.weight is not None else None
-    return PotentialParts(link_response(trunk, xi, load.link_loads), spans, lever)
+    parts = PotentialParts(link_response(trunk, xi, load.link_loads), spans, lever, load.piece_tension)
+    tendons = load.tendons
+    if tendons is not None:
+        cables = trunk.cables
+        parts.elongation = tendons.elongation(np.bincount(cables.owner, spans[2], minlength=cables.n_cables))
+        tension = np.zeros(cables.n_cables)
+        tension[tendons.cables] = tendons.stiffness * np.maximum(parts.elongation, 0.0)
+        pieces = tension[cables.owner]
+        parts.piece_tension = pieces if load.piece_tension is None else pieces + load.piece_tension
+    return parts
 
 
 def _total(trunk, x: np.ndarray, parts: PotentialParts, load: LoadCase) -> float:
     """The total potential (dead moments excluded) at positions ``x`` from its ``parts``: the
     links' energies, the cables' ``τ L``, the weight's ``−Σ m g · (x + R s)`` and ``−F · x``."""
     total = parts.response[0]
-    if parts.spans is not None:
+    if load.piece_tension is not None:
         total += float(load.piece_tension @ parts.spans[2])
+    if parts.elongation is not None:
+        taut = np.maximum(parts.elongation, 0.0)
+        total += 0.5 * float(load.tendons.stiffness @ (taut * taut))
     if parts.lever is not None:
         total -= float((trunk.frames.mass @ x + np.add.reduce(parts.lever)) @ load.weight)
     if load.dead is not None:
@@ -296,12 +348,38 @@ def tangent(trunk, ev: Evaluation) -> Tangent:
     else:
         link_tangents(trunk, ev, links)
     if ev.pieces is not None:
-        ev.pieces.tangent(ev.load.piece_tension, assembler.cable_groups, out=cables)
+        ev.pieces.tangent(ev.parts.piece_tension, assembler.cable_groups, out=cables)
     else:
         cables[:] = 0.0
     if weight is not None:                                  # (gravity: the lever arms were evaluated)
         np.matmul(-ev.load.weight_hat, hat(ev.lever[1:]), out=weight)        # −ĝ l̂: the arm turns
-    return Tangent(assembler, terms)
+    return Tangent(assembler, terms, tendon_stiffness(trunk, ev))
+
+
+def tendon_stiffness(trunk, ev: Evaluation) -> tuple | None:
+    """The taut tendons' ``k ∂L/∂q (∂L/∂q)ᵀ`` as ``(U, d)``: the columns ``∂L/∂q`` over the free
+    frames (n_dof, r) and the spring rates (r,); None when every tendon is slack (or there are
+    none)."""
+    tendons = ev.load.tendons
+    if tendons is None:
+        return None
+    taut = ev.parts.elongation > 0.0
+    if not taut.any():
+        return None
+    jacobian = trunk.cables.jacobian(ev.pieces)[tendons.cables[taut], 1:]
+    return np.ascontiguousarray(jacobian.reshape(-1, trunk.n_dof).T), tendons.stiffness[taut]
+
+
+def cable_tensions(trunk, ev: Evaluation) -> np.ndarray:
+    """The tension of every cable at the state of ``ev`` (the tendons' from their elongation)."""
+    n_cables = trunk.actuators.n_cables
+    tensions = ev.load.scale * ev.load.actuation[:n_cables]
+    tendons = ev.load.tendons
+    if tendons is None:
+        return tensions
+    tensions = tensions.copy()
+    tensions[tendons.cables] = tendons.stiffness * np.maximum(ev.parts.elongation, 0.0)
+    return tensions
 
 
 def rest_constants(trunk) -> RestConstants:

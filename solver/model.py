@@ -20,7 +20,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from vertebra.solver import compliance, newton, outputs
-from vertebra.solver.energy import Evaluation, LoadCases, Trial, evaluate, out_of_range, potential
+from vertebra.solver.energy import Evaluation, LoadCases, Trial, cable_tensions, evaluate, out_of_range, potential
 from vertebra.solver.newton import StaticResult
 from vertebra.solver.outputs import Linearisation
 from vertebra.solver.state import State, StrainRecord, kinematics, retract
@@ -75,6 +75,8 @@ class TrunkModel:
     link_rest = _forward("links", "rest", "rest strains ξ₀ of the links (n_links, 6)")
     n_cables = _forward("actuators", "n_cables", "cables (the first actuators)")
     n_chambers = _forward("actuators", "n_chambers", "chambers (the actuators after the cables)")
+    n_tendons = property(lambda self: int(self.trunk.actuators.stroke_driven.sum()),
+                         doc="stroke-driven cables (tendons whose value is a servo stroke)")
     actuator_names = property(lambda self: list(self.trunk.actuators.names), doc="cable then chamber names")
     default_actuation = _forward("actuators", "default", "the scene's tensions and pressures")
     actuator_bounds = _forward("actuators", "bounds", "(lower, upper) bounds on the actuation")
@@ -173,6 +175,14 @@ class TrunkModel:
         """Tangent stiffness factor, actuator and effector Jacobians at ``state`` (``previous``:
         an evaluation or :meth:`trial` of the same state and actuation to reuse)."""
         return outputs.linearise(self.trunk, state, self.actuation(actuation), self.loads, previous)
+
+    def cable_tensions(self, state: State, actuation=None) -> np.ndarray:
+        """The tension of every cable at ``state`` under ``actuation``: a tension-driven cable's
+        value, a stroke-driven tendon's ``k·max(0, e)`` from its elongation there."""
+        actuation = self.actuation(actuation)
+        if not self.n_tendons:
+            return actuation[:self.n_cables].copy()
+        return cable_tensions(self.trunk, self.evaluate(state, actuation))
 
     def cable_lengths(self, state: State, pieces=None) -> np.ndarray:
         return outputs.cable_lengths(self.trunk, state, pieces)

@@ -199,6 +199,9 @@ class _Stage:
         for k in range(1, band.shape[0]):              # row j + k, column j of the lower band, and its mirror
             bound[k:] += band[k, :n - k] * delta[:n - k]
             bound[:n - k] += band[k, :n - k] * delta[k:]
+        if matrix.low_rank is not None:                # the tendons' dense term |U| diag(d) |U|ᵀ δ
+            U, d = matrix.low_rank
+            bound += np.abs(U) @ (d * (np.abs(U).T @ delta))
         return 2.0 * residual_norm(bound, self.reference, self.weights)
 
     def step_limit(self, dq: np.ndarray, change: np.ndarray, ev) -> float:

@@ -104,6 +104,9 @@ def linearise(trunk, state, actuation: np.ndarray, loads: LoadCases, previous=No
             pieces = trunk.cables.pieces(state.positions, qmatrix(state.quaternions))
         jac[:n_cables] = trunk.cables.jacobian(pieces)
     forces = -jac                                     # cable: −τ ∂L/∂q
+    tendons = ev.load.tendons
+    if tendons is not None:                           # tendon: −k ∂L/∂q per unit stroke while taut
+        forces[tendons.cables] *= (tendons.stiffness * (ev.parts.elongation > 0.0))[:, None, None]
     if n_chambers:
         g = links.gradient(chamber_forces(trunk, ev))  # (n_links, chamber, 12)
         chamber_jac = np.zeros((n_chambers, n_frames, 6))

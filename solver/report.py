@@ -42,9 +42,7 @@ def static_report(model: TrunkModel, result: StaticResult) -> dict:
                                 else {"position": [float(v) for v in effectors[k]]}),
                              "compliance": compliance.get(name)}
                       for k, name in enumerate(model.effector_names)},
-        "cables": {cable.name: {"tension": float(actuation[k]), "length": float(lengths[k]),
-                                "stroke": float(lengths[k] - model.rest_cable_lengths[k])}
-                   for k, cable in enumerate(model.scene.cables)},
+        "cables": cables_report(model, state, actuation, lengths),
         "chambers": {chamber.name: {"pressure": float(actuation[model.n_cables + k]),
                                     "volume_growth": float(volume[k]),
                                     "rest_volume": float(model.chamber_rest_volumes[k])}
@@ -55,6 +53,24 @@ def static_report(model: TrunkModel, result: StaticResult) -> dict:
                         "frames": int(model.n_frames), "residual_history": [float(r) for r in result.residual_history],
                         "out_of_range": [excess.to_dict() for excess in result.out_of_range]},
     }
+
+
+def cables_report(model: TrunkModel, state, actuation: np.ndarray, lengths: np.ndarray | None = None) -> dict:
+    """Every cable's tension (a stroke-driven tendon's from its elongation at ``state``), length and
+    stroke ``L − L0`` (the change of its path through the holes); a stroke-driven tendon also
+    its servo stroke (its command) and whether it is slack."""
+    if lengths is None:
+        lengths = model.cable_lengths(state)
+    tensions = model.cable_tensions(state, actuation)
+    stroke_driven = model.trunk.actuators.stroke_driven
+    out = {}
+    for k, cable in enumerate(model.scene.cables):
+        row = {"tension": float(tensions[k]), "length": float(lengths[k]),
+               "stroke": float(lengths[k] - model.rest_cable_lengths[k])}
+        if stroke_driven[k]:
+            row.update(servo_stroke=float(actuation[k]), slack=bool(tensions[k] == 0.0))
+        out[cable.name] = row
+    return out
 
 
 def inverse_report(model: TrunkModel, steps: list, times, *, scene: str, mode: str, backend: str,
@@ -88,7 +104,10 @@ def _inverse_step(model: TrunkModel, t, step) -> dict:
     active = step.qp.diagnostics() if step.qp is not None else None
     return {
         "t": float(t),
-        "cables": {names[j]: {"tension": float(actuation[j]), "stroke": float(displacements[j])} for j in range(nc)},
+        "cables": ({names[j]: {"tension": float(actuation[j]), "stroke": float(displacements[j])} for j in range(nc)}
+                   if not model.n_tendons else
+                   {name: {k: v for k, v in row.items() if k != "length"}
+                    for name, row in cables_report(model, step.state, actuation).items()}),
         "chambers": {names[j]: {"pressure": float(actuation[j]), "volume_growth": float(displacements[j])}
                      for j in range(nc, len(names))},
         # an axis effector reports its world direction (unit vector) and a dimensionless error

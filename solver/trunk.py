@@ -96,6 +96,14 @@ class Actuators(_Frozen):
     displacement_bounds: tuple    # (lower, upper) on strokes and volume growths
     chamber_rest_volumes: np.ndarray
     max_change: np.ndarray        # largest change of each actuator per control tick (inf: none)
+    stroke_driven: np.ndarray     # (n_cables,) bool: the cable's value is a servo stroke (m), not a tension
+    cable_stiffness: np.ndarray   # (n_cables,) N/m spring rate of the stroke-driven tendons (0: tension-driven)
+    pretension: np.ndarray        # (n_cables,) N of the stroke-driven tendons at zero stroke, at rest
+
+    @property
+    def tendons(self) -> np.ndarray:
+        """Indices of the stroke-driven cables."""
+        return np.flatnonzero(self.stroke_driven)
 
     def validate(self):
         if self.default.shape != (self.n_cables + self.n_chambers,):
@@ -167,8 +175,9 @@ def compile_trunk(scene, entries: dict) -> Trunk:
     rest_pieces = cables.pieces(rest_state.positions, qmatrix(rest_state.quaternions))
     loads = _loads(scene, frames)
     assembler = BandAssembler(frames.count - 1, cables.span, cables.piece_a, cables.piece_b, loads.has_gravity)
-    trunk = Trunk(scene, frames, links, cables, _actuators(scene, rest_volumes), loads, _effectors(scene, frames),
-                  assembler, rest_state, cables.lengths(rest_pieces), rest_pieces.length)
+    rest_lengths = cables.lengths(rest_pieces)
+    trunk = Trunk(scene, frames, links, cables, _actuators(scene, rest_volumes, rest_lengths), loads,
+                  _effectors(scene, frames), assembler, rest_state, rest_lengths, rest_pieces.length)
     object.__setattr__(trunk, "rest", rest_constants(trunk))      # (needs the trunk it belongs to)
     return trunk
 
@@ -240,19 +249,34 @@ def _compile_links(scene, entries):
 CHANGE_FRACTION = 0.25    # default per-tick change of an actuator: this fraction of its range
 
 
-def _actuators(scene, rest_volumes) -> Actuators:
+def _actuators(scene, rest_volumes, rest_lengths: np.ndarray) -> Actuators:
+    """Cables then chambers. A tension-driven cable's value is its tension (bounded by
+    ``min/max_tension``, its stroke by ``min/max_stroke``); a stroke-driven tendon's value is its
+    servo stroke (bounded by ``min/max_stroke``; its tension follows from the state)."""
     cables, chambers = scene.cables, scene.chambers
-    lower = np.array([c.min_tension for c in cables] + [c.min_pressure for c in chambers], float)
-    upper = np.array([c.max_tension for c in cables] + [c.max_pressure for c in chambers], float)
-    given = [c.max_tension_change for c in cables] + [c.max_pressure_change for c in chambers]
+    by_stroke = [c.stroke_driven for c in cables]
+    lower = np.array([c.min_stroke if s else c.min_tension for c, s in zip(cables, by_stroke)]
+                     + [c.min_pressure for c in chambers], float)
+    upper = np.array([c.max_stroke if s else c.max_tension for c, s in zip(cables, by_stroke)]
+                     + [c.max_pressure for c in chambers], float)
+    given = ([c.max_stroke_change if s else c.max_tension_change for c, s in zip(cables, by_stroke)]
+             + [c.max_pressure_change for c in chambers])
     derived = CHANGE_FRACTION * (upper - lower)            # inf when a bound is
     max_change = np.array([d if g is None else g for g, d in zip(given, derived)], float)
+    free = ~np.array(by_stroke, bool)
+    stiffness = np.array([0.0 if not s else c.stiffness if c.stiffness is not None
+                          else c.axial_stiffness / (length + c.free_length)
+                          for c, s, length in zip(cables, by_stroke, rest_lengths)], float)
     return Actuators(
         tuple(c.name for c in cables) + tuple(c.name for c in chambers), len(cables), len(chambers),
-        np.array([c.tension for c in cables] + [c.pressure for c in chambers], float), (lower, upper),
-        (np.array([c.min_stroke for c in cables] + [c.min_volume_growth for c in chambers], float),
-         np.array([c.max_stroke for c in cables] + [c.max_volume_growth for c in chambers], float)),
-        rest_volumes, max_change)
+        np.array([c.stroke if s else c.tension for c, s in zip(cables, by_stroke)] + [c.pressure for c in chambers],
+                 float), (lower, upper),
+        (np.array([c.min_stroke if f else -np.inf for c, f in zip(cables, free)]
+                  + [c.min_volume_growth for c in chambers], float),
+         np.array([c.max_stroke if f else np.inf for c, f in zip(cables, free)]
+                  + [c.max_volume_growth for c in chambers], float)),
+        rest_volumes, max_change, np.array(by_stroke, bool).reshape(-1), stiffness,
+        np.array([c.pretension for c in cables], float).reshape(-1))
 
 
 def _loads(scene, frames: Frames) -> Loads:

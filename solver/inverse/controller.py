@@ -228,9 +228,9 @@ class InverseController:
             # r_λ = r + B(λ − λ0) and K dq = r + B d_lam
             predicted = alpha * (1.0 - 0.5 * alpha) * r_dq + 0.5 * alpha * alpha * b_dq
             try:     # (a pressure beyond a chamber's inflation limit point has no potential: not applied)
-                if model.n_chambers:
+                if model.n_chambers or model.n_tendons:
                     before = model.potential(state0, lam)
-                else:      # the potential is linear in the tensions: E_λ(q) = E_λ0(q) + (λ − λ0)·L(q)
+                else:      # the potential is linear in tension-driven cables' tensions: E_λ(q) = E_λ0(q) + (λ − λ0)·L(q)
                     before = lin.energy + alpha * d_energy
                 trial = model.step(state0, alpha * dq)
                 judged = model.trial(trial, lam)
