@@ -7,7 +7,8 @@ Layers (each may import the ones listed, and itself)::
     core      numpy/scipy only: nothing of vertebra
     store     core
     solver    core, store
-    designer  core, store, solver (``designer.preparation`` resolves a runtime scene's design segments)
+    designer  core, store (it reads the runtime's scenes as data: its one import of the solver,
+              ``Scene`` in ``designer.preparation``, is for type checkers alone)
     cli       anything; nothing imports cli
 """
 
@@ -25,7 +26,7 @@ ALLOWED = {
     "core": set(),
     "store": {"core"},
     "solver": {"core", "store"},
-    "designer": {"core", "store", "solver"},
+    "designer": {"core", "store"},
     "cli": {"core", "store", "solver", "designer"},
 }
 LAZY_MARK = "# lazy:"
