@@ -397,7 +397,8 @@ def write_energy(entry_group, fit: EnergyFit, rest_translation: np.ndarray) -> N
     ``range``, ``fit_error``, ``material``, ``sampling``, ``fold_pressure`` (JSON; fixed-length
     UTF-8). Beside them, for readers with HDF5 tools only: the strain's definition and ψ's form
     (text attributes ``strain`` and ``definition``), ``rest_strain`` (6,) and ``strain_map``
-    (6, 6), the range's bounds as datasets with units (``range/``), ``fold_pressure_units``."""
+    (6, 6), the range's bounds as datasets with units (``range/``), ``<name>_units`` beside the
+    attributes that hold quantities."""
     group = entry_group.create_group(ENERGY_GROUP)
     for name, dtype in _ENERGY_DATASETS.items():
         dataset = group.create_dataset(name, data=np.ascontiguousarray(getattr(fit, name), dtype=dtype))
@@ -477,27 +478,24 @@ def read_energy(entry_group, what: str, path: str, rest_translation: np.ndarray)
 
 
 def _check_derived_energy_arrays(group, fit: EnergyFit, rest_translation: np.ndarray, what: str, path: str) -> None:
-    """The restating datasets present in ``group`` hold what the entry's fields give (``range/``
-    bit for bit; ``rest_strain`` and ``strain_map`` to 1e-12 of their largest element: the log
-    of a pure translation is exact up to its series' last digit)."""
-    expected = _derived_energy_arrays(fit, rest_translation)
-    bounds_group = h5read.child(group, "range", what, path, "group", required=False)
-    for name, value in expected.items():
-        folder, _, leaf = name.rpartition("/")
-        parent = group if not folder else bounds_group
-        if parent is None or h5read.link_kind(parent, leaf, what, f"{path}/{folder}".rstrip("/")) is None:
-            if folder and parent is not None:
-                raise h5read.failure(what, f"{path}/{name}", "missing (the other range bounds are stored)")
-            continue
-        stored = h5read.read_float_dataset(parent, leaf, what, f"{path}/{folder}".rstrip("/"), max_side=64)
-        exact = name.startswith("range/")
-        tolerance = 0.0 if exact else 1e-12 * max(1.0, float(np.abs(value).max()))
+    """The restating datasets present in ``group`` hold what the entry's fields give: ``range/``
+    bit for bit (all six bounds, and ``limit_pressure`` exactly when the range has one);
+    ``rest_strain`` and ``strain_map`` to 1e-12 of their largest element (the log of a pure
+    translation is exact up to its series' last digit)."""
+    bounds = h5read.child(group, "range", what, path, "group", required=False)
+    stored_limit = bounds is not None and h5read.link_kind(bounds, "limit_pressure", what, f"{path}/range") is not None
+    if stored_limit and fit.range.limit_pressure is None:
+        raise h5read.failure(what, f"{path}/range/limit_pressure", "stored, but the range has no limit pressure")
+    for name, value in _derived_energy_arrays(fit, rest_translation).items():
+        in_range = name.startswith("range/")
+        parent, where, leaf = (bounds, f"{path}/range", name[len("range/"):]) if in_range else (group, path, name)
+        if parent is None or (not in_range and h5read.link_kind(group, name, what, path) is None):
+            continue                                  # written before the restating datasets existed
+        stored = h5read.read_float_dataset(parent, leaf, what, where, max_side=MAX_ARRAY_SIDE)
+        tolerance = 0.0 if in_range else 1e-12 * max(1.0, float(np.abs(value).max()))
         if stored.shape != value.shape or not np.all(np.abs(stored - value) <= tolerance):
             raise h5read.failure(what, f"{path}/{name}", "disagrees with the entry's fields it restates "
                                                           f"(stored {stored.tolist()}, expected {value.tolist()})")
-    if bounds_group is not None and fit.range.limit_pressure is None \
-            and h5read.link_kind(bounds_group, "limit_pressure", what, f"{path}/range") is not None:
-        raise h5read.failure(what, f"{path}/range/limit_pressure", "stored, but the range has no limit pressure")
 
 
 def differing_fields(a: SegmentEntry, b: SegmentEntry) -> list[str]:
