@@ -11,7 +11,8 @@ import json
 import sys
 
 from vertebra.cli.documents import print_document
-from vertebra.core.errors import CatalogueError
+from vertebra.core.errors import CatalogueError, OptionError
+from vertebra.core.inputs import MAX_DEPTH
 
 
 def _print_json(data) -> None:
@@ -129,10 +130,29 @@ def _merge(args) -> int:
     return 1 if report.conflicts else 0
 
 
+MAX_CONDITION = 1000      # characters of one --where condition
+
+
+def _check_condition(condition: str) -> None:
+    """Refuse a ``--where`` condition longer than :data:`MAX_CONDITION` characters or whose
+    value nests lists or objects more than ``MAX_DEPTH`` deep (the JSON reader's recursion)."""
+    if len(condition) > MAX_CONDITION:
+        raise OptionError(f"at most {MAX_CONDITION} characters; got {len(condition):,}", field="--where")
+    depth = deepest = 0
+    for character in condition:
+        depth += (character in "[{") - (character in "]}")
+        deepest = max(deepest, depth)
+    if deepest > MAX_DEPTH:
+        raise OptionError(f"{condition[:40]!r}…: a value nested at most {MAX_DEPTH} deep; got {deepest}",
+                          field="--where")
+
+
 def _query(args) -> int:
     # lazy: the parser imports every subcommand module; the libraries load for the command that runs
     from vertebra.store import catalogue
 
+    for condition in args.where or []:
+        _check_condition(condition)
     rows = catalogue.query(args.file, args.where or [])
     if args.json:
         _print_json([{k: r[k] for k in ("key", "name", "family", "parameters")} for r in rows])

@@ -14,7 +14,7 @@ import os
 import sys
 
 from vertebra import __version__
-from vertebra.core.errors import CatalogueError, GeometryError, InputError, VertebraError
+from vertebra.core.errors import CatalogueError, GeometryError, InputError, PlausibilityWarning, VertebraError
 
 # name -> (module, one-line help). Adding a subcommand touches this table and its module.
 SUBCOMMANDS = {
@@ -54,9 +54,22 @@ def build_parser() -> argparse.ArgumentParser:
         p.set_defaults(_run=module.run)
     return parser
 
+def _one_line_warnings(command: str) -> None:
+    """Print each Python warning as one line on stderr, ``vertebra COMMAND: warning: …``."""
+    import warnings
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        kind = "" if issubclass(category, (PlausibilityWarning, UserWarning)) else f"{category.__name__}: "
+        text = " ".join(str(message).split())
+        print(f"vertebra {command}: warning: {kind}{text}", file=sys.stderr if file is None else file)
+
+    warnings.showwarning = show
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    _one_line_warnings(args.command)
     # lazy: importing designer.threads loads the designer package; the parser and --help do without it
     from vertebra.designer.threads import pin_blas_threads
 
@@ -80,6 +93,10 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as error:            # a disk fault outside the catalogue (plots, meshes, exports)
         where = f"{error.filename}: " if error.filename else ""
         print(f"vertebra {args.command}: error: {where}{error.strerror or error}", file=sys.stderr)
+        return 2
+    except MemoryError:                 # inputs are bounded where they are read; this is the last guard
+        print(f"vertebra {args.command}: error: out of memory: the input asks for more than this machine has",
+              file=sys.stderr)
         return 2
 
 if __name__ == "__main__":

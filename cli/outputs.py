@@ -20,6 +20,8 @@ def output_file(value: str | None, option: str, suffixes: tuple[str, ...] | None
     any), in an existing, writable directory, not a directory itself. ``None`` passes through."""
     if value is None:
         return None
+    if "\x00" in value:
+        raise OptionError(f"{value!r}: a file name cannot contain a NUL byte", field=option)
     path = Path(value)
     if suffixes is not None and path.suffix.lower() not in suffixes:
         got = f"extension {path.suffix!r}" if path.suffix else "no extension"

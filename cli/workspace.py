@@ -18,6 +18,7 @@ from vertebra.cli.outputs import PICTURE_SUFFIXES, output_file
 from vertebra.cli.prepare import add_preparation, prepared_scene
 
 POINT_SUFFIXES = (".csv", ".npz")
+MAX_PROCESSES = 256       # --processes (and --workers: cli/sweep.py)
 
 
 def add_arguments(parser) -> None:
@@ -55,17 +56,21 @@ def _with_tip_effector(scene):
 def run(args) -> int:
     # lazy: the parser imports every subcommand module; the libraries load for the command that runs
     from vertebra import __version__, solver
-    from vertebra.solver.workspace import sample_workspace, write_points
+    from vertebra.solver.workspace import MAX_SAMPLES, sample_workspace, write_points
     from vertebra.core.errors import OptionError
 
     plot = output_file(args.plot, "--plot", PICTURE_SUFFIXES)
     points = output_file(args.points, "--points", POINT_SUFFIXES)
-    if args.samples < 1:
-        raise OptionError(f"must be at least 1, got {args.samples}", field="--samples")
-    if args.processes < 1:
-        raise OptionError(f"must be at least 1, got {args.processes}", field="--processes")
-    if args.tolerance is not None and not args.tolerance > 0:
-        raise OptionError(f"must be positive, got {args.tolerance}", field="--tolerance")
+    if not 1 <= args.samples <= MAX_SAMPLES:
+        raise OptionError(f"must be from 1 to {MAX_SAMPLES:,} (at most {MAX_SAMPLES:,}); got {args.samples:,}",
+                          field="--samples")
+    if not 0 <= args.seed < 2**63:
+        raise OptionError(f"must be a whole number from 0 to 2**63 - 1, got {args.seed}", field="--seed")
+    if not 1 <= args.processes <= MAX_PROCESSES:
+        raise OptionError(f"must be from 1 to {MAX_PROCESSES} (at most {MAX_PROCESSES}); got {args.processes}",
+                          field="--processes")
+    if args.tolerance is not None and not 0 < args.tolerance < float("inf"):
+        raise OptionError(f"must be a positive number, got {args.tolerance}", field="--tolerance")
     scene, code = prepared_scene(args)
     if code:
         return code

@@ -69,3 +69,9 @@ class ConvergenceError(VertebraError):
     def __init__(self, message: str, result=None):
         super().__init__(message)
         self.result = result
+
+
+class PlausibilityWarning(UserWarning):
+    """An input that is valid but implausible, most likely a unit slip (a pressure of 1.5 Pa, a
+    Young's modulus of 5 Pa, a mesh size larger than the part): the message names the field,
+    the value and the likely intended unit. The command line prints it as one line."""

@@ -85,6 +85,11 @@ STRAIN = 0.4
 SOFTENING_STRAIN = {"svk": 0.25}
 
 
+#: the largest counts a sampling may ask for (each path is a chain of nonlinear FE solves: the
+#: defaults are 18-30 paths of 6-10 steps)
+SAMPLING_LIMITS = {"paths": 1000, "steps": 100, "held_out": 1000}
+
+
 @dataclass(frozen=True)
 class SamplingSettings:
     """How a nonlinear entry is sampled and fitted (all part of its content key)."""
@@ -106,6 +111,16 @@ class SamplingSettings:
     seed: int = 0
 
     def __post_init__(self):
+        for name, limit in SAMPLING_LIMITS.items():     # counts that size the sampling's arrays
+            value = getattr(self, name)
+            if isinstance(value, int) and not isinstance(value, bool) and value > limit:
+                raise OptionError(f"at most {limit:,}; got {value:,}", field=f"sampling.{name}")
+        numbers = [name for name in ("bending", "twist", "strain", "shear", "axial", "pressure", "limit_fraction",
+                                     "hessian_weight") if getattr(self, name) is not None]
+        for name in numbers:
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise OptionError(f"expected a finite number, got {value!r}", field=f"sampling.{name}")
         checks = {
             "degree": isinstance(self.degree, int) and 3 <= self.degree <= 10,
             "pressure_degree": self.pressure_degree is None or (isinstance(self.pressure_degree, int)
@@ -122,7 +137,7 @@ class SamplingSettings:
             "pressure": self.pressure is None or self.pressure > 0,
             "limit_fraction": 0 < self.limit_fraction < 1,
             "hessian_weight": self.hessian_weight >= 0,
-            "seed": isinstance(self.seed, int),
+            "seed": isinstance(self.seed, int) and 0 <= self.seed < 2**63,
         }
         bad = [name for name, ok in checks.items() if not ok]
         if bad:

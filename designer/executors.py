@@ -98,6 +98,9 @@ def register_executor(name: str):
     return decorate
 
 
+MAX_WORKERS = 1024      # worker processes of one executor (a local pool starts them all)
+
+
 def make_executor(name: str, *, workers: int | None = None, scheduler: str | None = None,
                   start_method: str = "spawn") -> Executor:
     """Build a registered executor; bad settings raise OptionError naming the option."""
@@ -108,6 +111,8 @@ def make_executor(name: str, *, workers: int | None = None, scheduler: str | Non
                           field="executor") from None
     if workers is not None and (not isinstance(workers, int) or isinstance(workers, bool) or workers < 1):
         raise OptionError(f"expected a positive integer, got {workers!r}", field="workers")
+    if workers is not None and workers > MAX_WORKERS:
+        raise OptionError(f"at most {MAX_WORKERS}; got {workers:,}", field="workers")
     return cls(workers=workers, scheduler=scheduler, start_method=start_method)
 
 

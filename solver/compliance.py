@@ -27,6 +27,8 @@ import numpy as np
 
 from vertebra.core.errors import ConvergenceError
 
+CHUNK_VALUES = 2**22        # numbers of K⁻¹ Jᵀ held at once (32 MiB)
+
 
 @dataclass(frozen=True)
 class EffectorCompliance:
@@ -76,10 +78,16 @@ def effector_compliance(model, state, actuation=None, *, linearisation=None) -> 
     J = effector_wrench_jacobian(model, state, lin)
     if n_eff == 0:
         return EffectorCompliance((), np.zeros((0, 6, 6)))
-    KJ = lin.solve(J.T)                                           # K⁻¹ Jᵀ, (n_dof, 6 n_eff)
-    blocks = (J @ KJ).reshape(n_eff, 6, n_eff, 6)
-    full = blocks[np.arange(n_eff), :, np.arange(n_eff), :]      # the diagonal blocks
-    return EffectorCompliance(tuple(model.effector_names), np.ascontiguousarray(full))
+    # only the diagonal blocks J_k K⁻¹ J_kᵀ are wanted: solve for a chunk of effectors at a time,
+    # so that K⁻¹ Jᵀ never holds more than CHUNK_VALUES numbers (not the (6 n_eff)² product)
+    chunk = max(1, CHUNK_VALUES // (6 * model.n_dof))
+    rows = J.reshape(n_eff, 6, model.n_dof)
+    full = np.empty((n_eff, 6, 6))
+    for start in range(0, n_eff, chunk):
+        part = rows[start:start + chunk]
+        KJ = lin.solve(part.reshape(-1, model.n_dof).T)            # K⁻¹ Jᵀ, (n_dof, 6 · chunk)
+        full[start:start + chunk] = part @ KJ.T.reshape(len(part), 6, model.n_dof).transpose(0, 2, 1)
+    return EffectorCompliance(tuple(model.effector_names), full)
 
 
 def compliance_report(model, result) -> dict:

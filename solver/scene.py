@@ -10,7 +10,6 @@ tables are read by :mod:`vertebra.solver.segments` (beams, catalogue entries, de
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -20,6 +19,7 @@ from vertebra.solver.segments import (DESIGN_MATERIALS, SEGMENT_TYPES, DesignSpe
                                       parse_segment)
 from vertebra.solver.tables import Table
 from vertebra.core.errors import SceneError
+from vertebra.core.inputs import check_depth, load_toml
 
 __all__ = ["CableSpec", "ChamberSpec", "DESIGN_MATERIALS", "DesignSpec", "EffectorSpec", "LoadSpec", "SEGMENT_TYPES",
            "Scene", "SegmentSpec", "SolverSettings", "VertebraSpec", "gallery_names", "gallery_path", "load_scene",
@@ -141,21 +141,13 @@ def load_scene(path) -> Scene:
     if str(path).startswith("gallery:"):
         path = gallery_path(str(path).split(":", 1)[1])
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise SceneError("file not found", file=str(path))
-    except OSError as error:
-        raise SceneError(f"cannot read: {error.strerror}", file=str(path))
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as error:
-        raise SceneError(f"not valid TOML: {error}", file=str(path))
+    data = load_toml(path, SceneError)      # bounded: size, encoding, nesting (core/inputs.py)
     return parse_scene(data, source=str(path), base_dir=path.parent)
 
 
 def parse_scene(data: dict, source: str = "<dict>", base_dir=".") -> Scene:
     """Validate a scene given as a dictionary (the parsed TOML)."""
+    check_depth(data, SceneError, source=source)
     top = Table(data, "", source)
     scene_name = top.string("name", "")
     version = top.number("version", 1, integer=True)

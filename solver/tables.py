@@ -115,7 +115,9 @@ class Table:
             return default
         value = self.raw(key)
         if not isinstance(value, str) or not value:
-            raise self.error(key, f"expected a non-empty string, got {value!r}")
+            raise self.error(key, f"expected a non-empty string, got {value!r}"[:200])
+        if "\x00" in value:
+            raise self.error(key, "a string cannot contain a NUL character")
         if choices and value not in choices:
             raise self.error(key, f"must be one of {', '.join(choices)}, got {value!r}")
         return value

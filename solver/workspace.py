@@ -47,6 +47,7 @@ from vertebra.solver.workspace_order import ORDERINGS, SolveOrder, response_coor
 from vertebra.core.errors import ConvergenceError, OptionError, SceneError
 
 SAMPLERS = ("sobol", "halton")
+MAX_SAMPLES = 1_000_000   # samples of one workspace (~7 minutes of solves at 0.4 ms each)
 
 # what a forward solve may raise when a sample's equilibrium cannot be found: recorded, not raised
 SOLVE_FAILURES = (ConvergenceError, FloatingPointError, ValueError, np.linalg.LinAlgError)
@@ -76,8 +77,13 @@ def sample_unit(n_samples: int, dimension: int, *, method: str = "sobol", seed: 
 
     if method not in SAMPLERS:
         raise OptionError(f"unknown sampler {method!r}; choose one of {', '.join(SAMPLERS)}", field="method")
-    if n_samples < 1:
-        raise OptionError(f"need at least one sample, got {n_samples}", field="samples")
+    if isinstance(n_samples, bool) or not isinstance(n_samples, (int, np.integer)) or n_samples < 1:
+        raise OptionError(f"need at least one sample (a whole number), got {n_samples!r}", field="samples")
+    if n_samples > MAX_SAMPLES:
+        raise OptionError(f"at most {MAX_SAMPLES:,} samples; got {n_samples:,}", field="samples")
+    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))
+                             or not 0 <= seed < 2**63):
+        raise OptionError(f"expected a whole number from 0 to 2**63 - 1, got {seed!r}", field="seed")
     if method == "halton":
         return qmc.Halton(dimension, seed=seed).random(n_samples)
     # a prefix of a scrambled Sobol sequence is still low-discrepancy; only its balance

@@ -17,6 +17,8 @@ from vertebra.core.errors import SpecError
 
 LHS_FIELDS = ("ranges", "samples", "seed", "log", "integer")
 LHS_DIGITS = 6                        # significant digits kept of each Latin-hypercube value
+MAX_LHS_DIMENSIONS = 64               # parameters one Latin hypercube varies (a family has at most ~15)
+MAX_TASKS = 10_000                    # tasks of one sweep (planning keys them all before any meshing: ~3 s)
 
 
 def is_number(value) -> bool:
@@ -28,6 +30,25 @@ def _is_count(value, minimum: int) -> bool:
     return isinstance(value, int) and not isinstance(value, bool) and value >= minimum
 
 
+def check_value(value, source: str, where: str) -> None:
+    """A parameter value a sweep may set: a string, a bool, a finite number, or a table or list
+    of them (NaN and infinity are refused: they make no geometry and no JSON)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        raise SpecError(f"expected a finite number, got {value!r}", file=source, field=where)
+    if isinstance(value, dict):
+        for key, item in value.items():
+            check_value(item, source, f"{where}.{key}")
+    elif isinstance(value, list):
+        for i, item in enumerate(value):
+            check_value(item, source, f"{where}[{i}]")
+
+
+def check_task_count(count: int, source: str, where: str) -> None:
+    if count > MAX_TASKS:
+        raise SpecError(f"the sweep would have {count:,} tasks; at most {MAX_TASKS:,} (split it into several "
+                        "sweeps into the same catalogue)", file=source, field=where)
+
+
 # --------------------------------------------------------------------------- [grid]
 
 def parse_grid(table, source: str) -> dict:
@@ -35,8 +56,10 @@ def parse_grid(table, source: str) -> dict:
         raise SpecError("expected a table of parameter = [values, ...]", file=source, field="grid")
     for parameter, values in table.items():
         if not isinstance(values, list) or not values:
-            raise SpecError(f"expected a non-empty list of values, got {values!r}",
+            raise SpecError(f"expected a non-empty list of values, got {values!r}"[:200],
                             file=source, field=f"grid.{parameter}")
+        check_value(values, source, f"grid.{parameter}")
+    check_task_count(math.prod(len(values) for values in table.values()), source, "grid")
     return {parameter: list(values) for parameter, values in table.items()}
 
 
@@ -58,10 +81,12 @@ def parse_list(table, source: str) -> list[dict]:
         table = table.get("sets")
     if not isinstance(table, list) or not table:
         raise SpecError("expected a non-empty list of parameter tables", file=source, field="list")
+    check_task_count(len(table), source, "list")
     for i, item in enumerate(table):
         if not isinstance(item, dict) or not item:
-            raise SpecError(f"expected a non-empty table of parameters, got {item!r}",
+            raise SpecError(f"expected a non-empty table of parameters, got {item!r}"[:200],
                             file=source, field=f"list[{i}]")
+        check_value(item, source, f"list[{i}]")
     return [dict(item) for item in table]
 
 
@@ -119,9 +144,13 @@ def parse_lhs(table, source: str) -> LatinHypercube:
                       if required == "seed" else "required")
             raise SpecError(reason, file=source, field=f"lhs.{required}")
     ranges = _parse_ranges(table["ranges"], source)
+    if len(ranges) > MAX_LHS_DIMENSIONS:
+        raise SpecError(f"at most {MAX_LHS_DIMENSIONS} parameters; got {len(ranges)}", file=source,
+                        field="lhs.ranges")
     samples, seed = table["samples"], table["seed"]
     if not _is_count(samples, 1):
         raise SpecError(f"expected a positive integer, got {samples!r}", file=source, field="lhs.samples")
+    check_task_count(samples, source, "lhs.samples")
     if not _is_count(seed, 0):
         raise SpecError(f"expected a non-negative integer, got {seed!r}", file=source, field="lhs.seed")
     log = _parse_names(table, "log", ranges, source)

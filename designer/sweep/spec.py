@@ -11,14 +11,15 @@ designed before the spec is valid.
 
 from __future__ import annotations
 
+import re
 import string
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Callable
 
 from vertebra.core.errors import OptionError, SpecError
+from vertebra.core.inputs import check_depth, load_toml
 from vertebra.designer.keys import check_material, sampling_settings
-from vertebra.designer.sweep.samplers import SAMPLERS, is_number
+from vertebra.designer.sweep.samplers import SAMPLERS, check_value, is_number
 
 
 class Invalid(ValueError):
@@ -67,7 +68,7 @@ def _sampling(value):
     try:
         sampling_settings(value)
     except OptionError as error:
-        raise Invalid(f"{error.field}: {error.reason}") from None
+        raise Invalid(f"{error.field.removeprefix('sampling.')}: {error.reason}") from None
     return dict(value)
 
 
@@ -154,15 +155,71 @@ def _parse_options(data: dict, source: str) -> dict:
     return design_options(given, lambda name, reason: SpecError(reason, file=source, field=name))
 
 
+MAX_NAME_TEMPLATE = 200     # characters of a name template, and of a name it makes
+MAX_FIELD_WIDTH = 40        # width and precision of one field of a name template
+_FORMAT_SPEC = re.compile(r"^(?:.?[<>=^])?[+ -]?z?#?0?(\d*)[_,]?(?:\.(\d+))?[a-zA-Z%]?$")
+
+
+class NameFormatter(string.Formatter):
+    """``str.format`` restricted to what an entry name needs: plain field names (no attribute
+    or index access: ``{radius.__class__}`` is refused), no nested fields in a format spec,
+    widths and precisions of at most :data:`MAX_FIELD_WIDTH` and names of at most
+    :data:`MAX_NAME_TEMPLATE` characters. Each refusal is a ``ValueError`` saying why."""
+
+    def check(self, template: str) -> None:
+        """Raise ValueError when ``template`` is not a name template this formatter fills."""
+        if len(template) > MAX_NAME_TEMPLATE:
+            raise ValueError(f"at most {MAX_NAME_TEMPLATE} characters; got {len(template)}")
+        for _, field_name, spec, conversion in self.parse(template):
+            if field_name is None:
+                continue
+            self._check_name(field_name)
+            if conversion not in (None, "r", "s", "a"):
+                raise ValueError(f"unknown conversion !{conversion}")
+            self._check_spec(field_name, spec)
+
+    @staticmethod
+    def _check_name(field_name: str) -> None:
+        if not field_name.isidentifier():
+            raise ValueError(f"field {{{field_name}}}: a name template takes plain names ({{index}}, "
+                             "{family} or a parameter), not positions, attributes or indices")
+
+    @staticmethod
+    def _check_spec(field_name: str, spec: str) -> None:
+        if "{" in spec or "}" in spec:
+            raise ValueError(f"field {{{field_name}}}: nested fields in a format spec are not supported")
+        match = _FORMAT_SPEC.match(spec)
+        if match is None:
+            raise ValueError(f"field {{{field_name}}}: bad format spec {spec!r}")
+        for number in match.groups():
+            if number and int(number) > MAX_FIELD_WIDTH:
+                raise ValueError(f"field {{{field_name}}}: width or precision at most {MAX_FIELD_WIDTH}; "
+                                 f"got {int(number):,}")
+
+    def get_field(self, field_name, args, kwargs):
+        self._check_name(field_name)
+        return self.get_value(field_name, args, kwargs), field_name
+
+    def format_field(self, value, format_spec):
+        self._check_spec("?", format_spec)
+        return super().format_field(value, format_spec)
+
+    def fill(self, template: str, **values) -> str:
+        name = self.format(template, **values)
+        if len(name) > MAX_NAME_TEMPLATE:
+            raise ValueError(f"the name has {len(name)} characters; at most {MAX_NAME_TEMPLATE}")
+        return name
+
+
 def _parse_name(name, source: str) -> str | None:
     if name is None:
         return None
     if not isinstance(name, str) or not name:
         raise SpecError("expected a non-empty string template", file=source, field="name")
     try:
-        list(string.Formatter().parse(name))
+        NameFormatter().check(name)
     except ValueError as error:
-        raise SpecError(f"bad template {name!r}: {error}", file=source, field="name") from None
+        raise SpecError(f"bad template {name[:60]!r}: {error}", file=source, field="name") from None
     return name
 
 
@@ -170,6 +227,7 @@ def parse_spec(data: dict, source: str = "<dict>") -> SweepSpec:
     """Validate a sweep spec dictionary; SpecError names the file and the field."""
     if not isinstance(data, dict):
         raise SpecError("a sweep spec is a table", file=source)
+    check_depth(data, SpecError, source=source)
     known = set(SPEC_FIELDS) | {o.name for o in DESIGN_OPTIONS} | set(SAMPLERS)
     for name in data:
         if name not in known:
@@ -180,6 +238,7 @@ def parse_spec(data: dict, source: str = "<dict>") -> SweepSpec:
     parameters = data.get("parameters", {})
     if not isinstance(parameters, dict):
         raise SpecError("expected a table of fixed parameters", file=source, field="parameters")
+    check_value(parameters, source, "parameters")
     sampler, design = _parse_sampler(data, parameters, source)
     options = _parse_options(data, source)
     description = data.get("description", "")
@@ -190,15 +249,5 @@ def parse_spec(data: dict, source: str = "<dict>") -> SweepSpec:
 
 
 def load_spec(path) -> SweepSpec:
-    """Read and validate a sweep spec TOML file."""
-    import tomllib
-
-    path = Path(path)
-    try:
-        with path.open("rb") as handle:
-            data = tomllib.load(handle)
-    except FileNotFoundError:
-        raise SpecError("file not found", file=str(path)) from None
-    except tomllib.TOMLDecodeError as error:
-        raise SpecError(f"not valid TOML: {error}", file=str(path)) from None
-    return parse_spec(data, source=str(path))
+    """Read and validate a sweep spec TOML file (bounded in size and nesting: core/inputs.py)."""
+    return parse_spec(load_toml(path, SpecError), source=str(path))

@@ -20,7 +20,7 @@ from vertebra.designer.families import FAMILIES, canonical_parameters
 from vertebra.designer.keys import entry_key
 from vertebra.designer.segment import design_segment
 from vertebra.designer.sweep.samplers import SAMPLERS
-from vertebra.designer.sweep.spec import SweepSpec, keyed_options
+from vertebra.designer.sweep.spec import NameFormatter, SweepSpec, keyed_options
 from vertebra.store.entry import SegmentEntry
 from vertebra.core.errors import SpecError
 
@@ -57,7 +57,7 @@ def format_name(spec: SweepSpec, task: Task) -> str | None:
     if spec.name is None:
         return None
     try:
-        return spec.name.format(index=task.index, family=task.family, **task.parameters)
+        return NameFormatter().fill(spec.name, index=task.index, family=task.family, **task.parameters)
     except (KeyError, IndexError, ValueError, AttributeError, TypeError) as error:
         raise SpecError(f"template {spec.name!r} cannot be filled for task {task.index}: "
                         f"{type(error).__name__}: {error}", file=spec.source, field="name") from None

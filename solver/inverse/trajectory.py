@@ -9,6 +9,7 @@ paths (circles, reachable loops) are in ``solver.gallery.targets``.
 from __future__ import annotations
 
 import csv
+import io
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,8 +17,10 @@ from pathlib import Path
 import numpy as np
 
 from vertebra.core.errors import SceneError, TrajectoryError
+from vertebra.core.inputs import read_text
 
 __all__ = ["Trajectory", "scene_trajectory", "read_trajectory", "write_trajectory"]
+MAX_TRAJECTORY_BYTES = 64 * 2**20       # a CSV of ~1 million steps of one effector
 
 
 @dataclass(frozen=True)
@@ -60,13 +63,11 @@ def read_trajectory(path, effector_names, default_targets=None) -> Trajectory:
     names = list(effector_names)
     defaults = (np.full((len(names), 3), np.nan) if default_targets is None
                 else np.asarray(default_targets, dtype=float).reshape(len(names), 3))
+    text = read_text(path, TrajectoryError, limit=MAX_TRAJECTORY_BYTES)
     try:
-        with open(path, newline="") as fh:
-            reader = csv.reader(fh)
-            rows = [(reader.line_num, r) for r in reader if r and any(c.strip() for c in r)]
-    except FileNotFoundError:
-        raise TrajectoryError("file not found", file=path) from None
-    except (OSError, UnicodeDecodeError, csv.Error) as error:
+        reader = csv.reader(io.StringIO(text, newline=""))
+        rows = [(reader.line_num, r) for r in reader if r and any(c.strip() for c in r)]
+    except csv.Error as error:
         raise TrajectoryError(f"cannot read CSV: {error}", file=path) from None
     if not rows:
         raise TrajectoryError("empty file: expected a header row and at least one step", file=path)
