@@ -144,7 +144,7 @@ class OracleSegment:
 
 
 class OracleEnergy:
-    """The oracle's ψ as a chain segment (designer.energy_chain.SegmentEnergy): the true chain."""
+    """The oracle's ψ as a chain segment (reference.energy_chain.SegmentEnergy): the true chain."""
 
     def __init__(self, oracle: OracleSegment):
         self.oracle = oracle

@@ -16,11 +16,13 @@ import math
 import numpy as np
 import pytest
 
+from vertebra import solver
 from vertebra.designer import FAMILIES, canonical_parameters
 from vertebra.designer.fem import build_fe, condense
 from vertebra.designer.geometry import mesh_segment
-from vertebra.designer.reference import chain_condensed_solve, chain_fe_solve
 from vertebra.store.entry import SegmentEntry
+
+from reference.fe_chain import chain_condensed_solve, chain_fe_solve
 
 E = 1.0e6
 SEGMENTS = [  # bottom to top: three different segments with cavities
@@ -84,15 +86,7 @@ def _scene(entries, force, moment, pressures):
     }
 
 
-def _runtime():
-    solver = pytest.importorskip("solver")
-    if not hasattr(solver, "build_model"):
-        pytest.skip("runtime solver (solver.build_model) not available yet")
-    return solver
-
-
 def test_runtime_solver_linearised_equals_full_fe_model(chain):
-    solver = _runtime()
     fes, entries, full = chain
     scene = solver.parse_scene(_scene(entries, TIP_WRENCH[:3], TIP_WRENCH[3:], PRESSURES))
     model = solver.build_model(scene, entries={e.name: e for e in entries})
@@ -112,7 +106,6 @@ def test_runtime_solver_linearised_equals_full_fe_model(chain):
 
 
 def test_runtime_solver_newton_with_small_load_equals_full_fe_model(chain):
-    solver = _runtime()
     fes, entries, full = chain
     # scale the load so that rotations are ~1e-8 rad: geometric nonlinearity (relative ~ rotation)
     # is then far below the 1e-6 tolerance; the FE reference scales linearly

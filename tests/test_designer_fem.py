@@ -12,13 +12,14 @@ import warnings
 import numpy as np
 import pytest
 
-from vertebra.designer.fem import build_fe, condense, displacement_field
-from vertebra.designer.geometry import mesh_segment
-from vertebra.designer.reference import transport
 from vertebra.designer.accuracy import compliance_change
 from vertebra.designer.families import canonical_parameters
+from vertebra.designer.fem import build_fe, condense, displacement_field
+from vertebra.designer.geometry import mesh_segment
 from vertebra.designer.linear import LockingWarning, solve_segment
 from vertebra.designer.segment import design_segment
+
+from reference.fe_chain import transport
 
 E, NU = 1.0e6, 0.3
 PNEUMATIC = dict(outer_radius=0.02, chamber_radius=0.005, chamber_offset=0.011, length=0.02,

@@ -7,7 +7,6 @@ import math
 import numpy as np
 import pytest
 
-from vertebra.designer.energy_chain import FittedEnergy, PointLoad, solve_chain
 from vertebra.designer.energy_fit import (FitResult, Samples, evaluate_fit, fit_energy, fit_errors,
                                           invariant_basis, pose_derivatives, strain_derivatives, symmetry_group)
 from vertebra.designer.energy_sampling import SamplingSettings
@@ -15,6 +14,7 @@ from vertebra.designer.families import AXISYMMETRIC, FAMILIES, SegmentSymmetry
 from vertebra.designer.nonlinear_condensation import condense_energy
 from vertebra.core.energy import Monomials, linear_terms
 from energy_oracle import OracleEnergy, OracleSpec, rod_entry
+from reference.energy_chain import EntryEnergy, PointLoad, solve_chain
 
 THREE = SegmentSymmetry(order=3, mirror=True, mirror_angle=0.3, end_flip=True,
                         cavity_angles=tuple(0.3 + 2 * math.pi * k / 3 for k in range(3)))
@@ -153,8 +153,8 @@ def test_fitted_chain_matches_the_chain_of_the_true_energy(rod_fits):
 
     loads = [PointLoad(-1, (2.0, 1.0, -0.5), (0.015, 0.0, 0.0))]
     reference = solve_chain([OracleEnergy(truth)] * 2, loads)
-    fitted = solve_chain([FittedEnergy(nonlinear)] * 2, loads)
-    linear = solve_chain([FittedEnergy(nonlinear, linear_only=True)] * 2, loads)
+    fitted = solve_chain([EntryEnergy(nonlinear)] * 2, loads)
+    linear = solve_chain([EntryEnergy(nonlinear, linear_only=True)] * 2, loads)
     length = 2 * entry.rest_translation[2]
     assert 30 < np.degrees(reference.tip_angle()) < 80
     assert np.linalg.norm(fitted.tip_position - reference.tip_position) < 2e-4 * length
@@ -198,7 +198,7 @@ def test_linear_chain_equals_the_runtime_solver_with_linear_entries():
                                 "load": [{"vertebra": -1, "force": force, "moment": [0, 0, 0]}]})
     model = solver.build_model(scene, entries={e.name: e for e in entries})
     result = model.solve()
-    chain = solve_chain([FittedEnergy(e) for e in entries], [PointLoad(-1, tuple(force))])
+    chain = solve_chain([EntryEnergy(e) for e in entries], [PointLoad(-1, tuple(force))])
     tip = result.state.positions[model.vertebra_frames[-1]]
     assert np.degrees(chain.tip_angle()) > 45
     assert np.linalg.norm(chain.tip_position - tip) < 1e-12 * 0.12

@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 from vertebra import designer
-from vertebra.designer.energy_chain import FittedEnergy, PointLoad, solve_chain
 from vertebra.designer.nonlinear_condensation import FamilySolid
 from vertebra.store import catalogue
 from vertebra.core.errors import OptionError, SpecError
@@ -18,6 +17,7 @@ from vertebra.core.errors import OptionError, SpecError
 from fitted_energies import ROD, nonlinear_rod
 from fitted_energies import ROD_MESH as MESH
 from fitted_energies import ROD_SAMPLING as SAMPLING
+from reference.energy_chain import EntryEnergy, PointLoad, solve_chain
 
 
 @pytest.fixture(scope="module")
@@ -77,8 +77,8 @@ def test_fitted_chain_against_the_full_nonlinear_trunk(rod_entry):
     forces = {1: np.array([0.0, 1.5, 0.0]), 2: np.array([2.0, 0.0, -0.5])}
     reference = NonlinearTrunk([segment, segment]).solve(TrunkLoads(forces=forces))
     loads = [PointLoad(k, tuple(f)) for k, f in forces.items()]
-    fitted = solve_chain([FittedEnergy(rod_entry)] * 2, loads)
-    linear = solve_chain([FittedEnergy(rod_entry, linear_only=True)] * 2, loads)
+    fitted = solve_chain([EntryEnergy(rod_entry)] * 2, loads)
+    linear = solve_chain([EntryEnergy(rod_entry, linear_only=True)] * 2, loads)
     length = 2 * ROD["length"]
     assert reference.converged and 35 < np.degrees(fitted.tip_angle()) < 70
     fit_error = np.linalg.norm(fitted.tip_position - reference.positions[-1]) / length

@@ -256,7 +256,7 @@ def chain():
 
 
 def test_trunk_small_load_limit_equals_the_linear_full_fe_chain(chain):
-    from vertebra.designer.reference import chain_fe_solve
+    from reference.fe_chain import chain_fe_solve
     wrench = np.array([0.02, -0.01, 0.05, 1e-4, 2e-4, -1e-4])
     pressures = [np.array([2e3, 0.0]), np.array([0.0, 1.5e3, 0.0])]
     linear = chain_fe_solve([s.framed.fe for s in chain], wrench, pressures)
@@ -305,8 +305,7 @@ def test_trunk_under_dead_moment_and_gravity_converges_quadratically(chain):
 # ---- closed forms and the thick-walled tube -----------------------------------------------------
 
 def test_one_dimensional_references_reduce_to_known_solutions():
-    from vertebra.designer.nonlinear.references import (lame_plane_strain_radial, neo_hookean_tube_plane_strain,
-                                                        planar_elastica_tip)
+    from reference.closed_form import lame_plane_strain_radial, neo_hookean_tube_plane_strain, planar_elastica_tip
     a, b = 0.005, 0.01
     R, r = neo_hookean_tube_plane_strain(10.0, a, b, E, 0.45)
     lame = lame_plane_strain_radial(np.array([a, b]), 10.0, a, b, E, 0.45)
@@ -324,7 +323,7 @@ def test_thick_walled_tube_inflates_like_the_finite_strain_plane_strain_solution
     28 %. At mid-length the FE radial displacements follow the plane-strain neo-Hookean solution
     (within 4 %: the clamped ends still act at 3 b, and one P2 element spans the wall) while the
     linear (Lamé) answer is 30 % smaller."""
-    from vertebra.designer.nonlinear.references import lame_plane_strain_radial, neo_hookean_tube_plane_strain
+    from reference.closed_form import lame_plane_strain_radial, neo_hookean_tube_plane_strain
     a, b, nu, h = 0.005, 0.01, 0.45, 0.004
     L = 6 * b
     seg = _segment("pneumatic", dict(outer_radius=b, chamber_radius=a, chamber_offset=0.0, chambers=1, length=L,

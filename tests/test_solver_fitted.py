@@ -225,11 +225,10 @@ def test_chamber_jacobian_and_volume_growth_match_differences_of_forward_solves(
 
 
 def test_pressurised_chain_equals_the_yardstick_chain_of_the_same_energies():
-    # the runtime (frames, links, chambers → cavities, banded Newton) against designer.energy_chain
+    # the runtime (frames, links, chambers → cavities, banded Newton) against tests/reference/energy_chain.py
     # (strains as unknowns, dense Newton, no runtime code), the same fitted energies: tip pose and
     # volume growth to solver tolerance (measured ≤ 4e-15 of the length, ≤ 1e-11 relative)
-    from vertebra.designer.energy_chain import FittedEnergy as ChainEnergy
-    from vertebra.designer.energy_chain import PointLoad, solve_chain
+    from reference.energy_chain import EntryEnergy, PointLoad, solve_chain
 
     force = [2.0, -3.0, 0.5]
     model = _model(FITTED, chambers=CHAMBERS, loads=({"vertebra": -1, "force": force},),
@@ -237,7 +236,7 @@ def test_pressurised_chain_equals_the_yardstick_chain_of_the_same_energies():
     actuation = np.array([8e4, 3e4])
     result = model.solve(actuation)
     cavities = [np.array([8e4, 0.0]), np.array([8e4, 3e4]), np.array([8e4, 3e4]), np.array([8e4, 0.0])]
-    chain = solve_chain([ChainEnergy(FITTED)] * 4, [PointLoad(-1, tuple(force))], pressures=cavities,
+    chain = solve_chain([EntryEnergy(FITTED)] * 4, [PointLoad(-1, tuple(force))], pressures=cavities,
                         tolerance=1e-14)
     assert np.abs(result.state.positions[model.vertebra_frames] - chain.positions).max() <= 1e-12 * model.length_scale
     growth = model.chamber_volume_growth(result.state, actuation)
@@ -331,8 +330,7 @@ def test_chain_of_nonlinear_entries_against_the_full_nonlinear_fe(rod, case):
     the planar case's ~60°); the linear entries are ≥ 0.3 % off (measured 0.54 % and 1.2 %), so
     the test tells the two apart. The runtime equals the fit's yardstick chain to solver
     tolerance (the same energies: 1e-9 of the length)."""
-    from vertebra.designer.energy_chain import FittedEnergy as ChainEnergy
-    from vertebra.designer.energy_chain import PointLoad, solve_chain
+    from reference.energy_chain import EntryEnergy, PointLoad, solve_chain
     from vertebra.designer.nonlinear.trunk import NonlinearTrunk, TrunkLoads
     from vertebra.designer.nonlinear_condensation import FamilySolid
 
@@ -346,7 +344,7 @@ def test_chain_of_nonlinear_entries_against_the_full_nonlinear_fe(rod, case):
     linear = _model(dataclasses.replace(rod, energy=None), count=count, loads=loads).solve()
     segment = FamilySolid("rod", json.dumps(rod.parameters, sort_keys=True), ROD_MESH, 2, "neo_hookean").build()
     reference = NonlinearTrunk([segment] * count).solve(TrunkLoads(forces={k: np.array(f) for k, f in forces.items()}))
-    chain = solve_chain([ChainEnergy(rod)] * count, [PointLoad(k, tuple(f)) for k, f in forces.items()])
+    chain = solve_chain([EntryEnergy(rod)] * count, [PointLoad(k, tuple(f)) for k, f in forces.items()])
     length = count * ROD["length"]
     tip = nonlinear.state.positions[-1]
     angle = np.degrees(np.linalg.norm(lie.qlog(nonlinear.state.quaternions[-1])))

@@ -1,5 +1,6 @@
-"""Reference models for verification: a full FE model of a chain of
-segments joined by rigid vertebrae, and the same chain built from condensed compliances.
+"""Reference models for verification (tests and benchmarks; not part of the installed package): a
+full FE model of a chain of segments joined by rigid vertebrae, and the same chain built from
+condensed compliances.
 
 Both are linear. The full model is ONE assembled FE system: the interior DoFs of
 every segment plus one shared 6-DoF frame per vertebra (frame 0 clamped); each

@@ -1,12 +1,12 @@
 """Closed forms and one-dimensional references for validating the nonlinear FE models.
 
 Independent of the FE discretisation: tests and benchmarks compare the 3-D models
-with these.
+with these (not part of the installed package).
 
 * :func:`lame_plane_strain_radial` — Lamé's thick-walled cylinder under internal
   pressure, plane strain, small strain.
 * :func:`neo_hookean_tube_plane_strain` — the same cylinder at finite strain for
-  the compressible neo-Hooke law of :mod:`.materials` (Abaqus/CalculiX form),
+  the compressible neo-Hooke law of :mod:`vertebra.designer.nonlinear.materials` (Abaqus/CalculiX form),
   plane strain (axial stretch 1), follower pressure on the deformed bore: the
   radial equilibrium ``d/dR (R P_rr) = P_θθ`` in the reference configuration with
   ``P_rr(A) = −p r(A)/A`` (Cauchy ``σ_rr = −p`` on the deformed bore) and

@@ -1,5 +1,5 @@
 """A chain of segments given by their energies ψ_i(s_i, p_i), solved by Newton — a check of fitted
-energies, for tests and benchmarks only.
+energies (tests and benchmarks; not part of the installed package).
 
 The runtime solver (its ``nonlinear-entry`` link kind) is the product; this chain is an
 independent yardstick for it: the strains are the unknowns, Newton is dense and none of
@@ -37,8 +37,9 @@ class SegmentEnergy(Protocol):
         """``(ψ, ∂ψ/∂s (6,), ∂²ψ/∂s² (6, 6), ΔV (m,))`` at strain ``s`` and pressures ``p``."""
 
 
-class FittedEnergy:
-    """ψ of a nonlinear catalogue entry (core.energy), or of a linear one (ψ_lin alone)."""
+class EntryEnergy:
+    """A :class:`SegmentEnergy` from a catalogue entry: the ψ it carries (core.energy), or for a
+    linear entry (or with ``linear_only``) ψ_lin alone."""
 
     def __init__(self, entry, linear_only: bool = False):
         self.rest_translation = np.asarray(entry.rest_translation, dtype=float)
