@@ -6,7 +6,7 @@ vertebrae tying the segments' end faces, dead loads, gravity and follower chambe
 (decks: ``benchmarks/ccx``; cases: ``benchmarks/nonlinear_cases.py``).
 
 1. Linear regime: CalculiX without NLGEOM against the project's linear full-FE chain
-   (``designer.reference.chain_fe_solve``), for a tip wrench and a chamber pressure, once with the
+   (``tests/reference/fe_chain.py``: ``chain_fe_solve``), for a tip wrench and a chamber pressure, once with the
    project's own quadrature and once with CalculiX's (4-point volume, 3-point face rules) — the
    latter is the same discrete problem, so it must agree to the 7 digits CalculiX prints.
 2. Large deformation: every case of ``nonlinear_cases.CASES`` at each load level, CalculiX against
@@ -40,6 +40,7 @@ for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))     # the verification references live with the tests
 
 from ccx.deck import Material  # noqa: E402
 from ccx.run import Loading, ccx_available, ccx_version, rotation_matrix, solve  # noqa: E402
@@ -98,7 +99,7 @@ def linear_check(threads: int, cached_only: bool = False) -> dict:
     from vertebra.designer import FAMILIES, canonical_parameters
     from vertebra.designer.fem import build_fe
     from vertebra.designer.geometry import mesh_segment
-    from vertebra.designer.reference import chain_fe_solve
+    from reference.fe_chain import chain_fe_solve
 
     meshes, lengths, ncav, params = [], [], [], []
     for family, p, h in LINEAR_SEGMENTS:

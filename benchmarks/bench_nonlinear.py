@@ -48,6 +48,8 @@ for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import numpy as np  # noqa: E402
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))     # the verification references live with the tests
+
 RESULTS = Path(__file__).resolve().parent / "results"
 DOCS = Path(__file__).resolve().parent.parent / "docs"
 ROD = dict(radius=0.01, length=0.04, youngs_modulus=1e6, poisson_ratio=0.3)
@@ -154,7 +156,7 @@ def trunk_cases(segment, entry, n, kind, levels, *, reference_cache):
 
 def chain_errors(entry, cases, n):
     """Tip errors (fraction of the trunk length) of the fitted and the linear entry on ``cases``."""
-    from vertebra.designer.energy_chain import FittedEnergy, PointLoad, solve_chain
+    from reference.energy_chain import EntryEnergy, PointLoad, solve_chain
 
     length = n * float(entry.rest_translation[2])
     rows = []
@@ -163,7 +165,7 @@ def chain_errors(entry, cases, n):
         row = {"angle_deg": case["angle"], "level": case["level"]}
         for name, linear_only in (("fit", False), ("linear", True)):
             try:
-                chain = solve_chain([FittedEnergy(entry, linear_only=linear_only)] * n, loads, steps=4)
+                chain = solve_chain([EntryEnergy(entry, linear_only=linear_only)] * n, loads, steps=4)
                 row[name] = float(np.linalg.norm(chain.tip_position - case["tip"]) / length)
                 if not linear_only:
                     row["left_range"] = bool(chain.left_range)
@@ -301,7 +303,7 @@ def section_family(results, quick):
 
 
 def section_pneumatic(results, quick):
-    from vertebra.designer.energy_chain import FittedEnergy, solve_chain
+    from reference.energy_chain import EntryEnergy, solve_chain
     from vertebra.designer.nonlinear.trunk import NonlinearTrunk, TrunkLoads
 
     log("pneumatic: CBHA-like slice")
@@ -324,7 +326,7 @@ def section_pneumatic(results, quick):
         volume = float(sum(v[0] for v in ref.volume_growth))
         row = {"pressure": p, "angle_deg": angle, "volume_growth": volume}
         for name, linear_only in (("fit", False), ("linear", True)):
-            chain = solve_chain([FittedEnergy(entry, linear_only=linear_only)] * n, [], pressures=pressures, steps=4)
+            chain = solve_chain([EntryEnergy(entry, linear_only=linear_only)] * n, [], pressures=pressures, steps=4)
             chain_angle = math.degrees(math.acos(np.clip(chain.tip_rotation[2, 2], -1, 1)))
             row[name] = {"tip": float(np.linalg.norm(chain.tip_position - ref.positions[-1]) / length),
                          "angle": chain_angle / angle - 1,

@@ -27,6 +27,7 @@ import os
 import platform
 import socket
 import statistics
+import sys
 import time
 from datetime import datetime, timezone
 from pathlib import Path
@@ -37,10 +38,11 @@ for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import numpy as np  # noqa: E402
 
 from vertebra.designer.nonlinear import NonlinearSegment, NonlinearTrunk, TrunkLoads  # noqa: E402
-from vertebra.designer.nonlinear.references import (lame_plane_strain_radial,  # noqa: E402
-                                                    neo_hookean_tube_plane_strain, planar_elastica_tip)
 from vertebra.designer.nonlinear.rotations import exp_se3  # noqa: E402
 from vertebra.designer.threads import pin_blas_threads  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))     # the verification references live with the tests
+from reference.closed_form import lame_plane_strain_radial, neo_hookean_tube_plane_strain, planar_elastica_tip  # noqa: E402,I001
 
 RESULTS = Path(__file__).resolve().parent / "results"
 E = 1.0e6

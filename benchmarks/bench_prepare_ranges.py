@@ -7,7 +7,7 @@ entry's pressures up to that bound; the default entry samples up to 90 % of the 
 point. Both are compared with the full nonlinear FE trunk of the same meshes (rigid vertebrae,
 follower pressure) at 0.25 / 0.5 / 1.0 bar — tip error in % of trunk length, tip angle and
 chamber volume growth relative errors — and their held-out fit errors and costs are reported.
-The chains are evaluated with ``designer.energy_chain`` (the runtime's independent yardstick).
+The chains are evaluated with ``tests/reference/energy_chain.py`` (the runtime's independent yardstick).
 
 ``twist``: the coarse twisted-rod scene of ``tests/test_prepare_ranges.py`` with the default
 sampling density: the runtime with the prepared entry and with the default-range entry at the
@@ -37,6 +37,8 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))     # the verification references live with the tests
+
 RESULTS = Path(__file__).resolve().parent / "results"
 CBHA = dict(outer_radius=0.04, chamber_radius=0.01, chamber_offset=0.0215, length=0.03, chambers=3,
             youngs_modulus=5e5, poisson_ratio=0.45)
@@ -63,13 +65,13 @@ def pneumatic_scene(catalogue: str) -> dict:
 
 
 def _trunk_errors(entry, references) -> list[dict]:
-    from vertebra.designer.energy_chain import FittedEnergy, solve_chain
+    from reference.energy_chain import EntryEnergy, solve_chain
 
     rows = []
     length = SLICES * CBHA["length"]
     for p, ref in references:
         pressures = [np.array([p, 0.0, 0.0])] * SLICES
-        chain = solve_chain([FittedEnergy(entry)] * SLICES, [], pressures=pressures, steps=4)
+        chain = solve_chain([EntryEnergy(entry)] * SLICES, [], pressures=pressures, steps=4)
         angle = math.degrees(math.acos(np.clip(chain.tip_rotation[2, 2], -1, 1)))
         rows.append({"pressure": p, "tip": float(np.linalg.norm(chain.tip_position - ref["position"]) / length),
                      "angle": angle / ref["angle_deg"] - 1,
