@@ -47,6 +47,19 @@ class CableSpec:
     min_stroke: float = -math.inf
     max_stroke: float = math.inf
     max_tension_change: float | None = None     # N per control tick (None: derived from the bounds)
+    # a tendon driven by a servo stroke (``stroke`` given) instead of a tension: it stretches with
+    # the spring rate ``stiffness`` (N/m; or ``axial_stiffness`` EA over its rest length plus
+    # ``free_length``), carries ``pretension`` at zero stroke and goes slack (never pushes)
+    stroke: float | None = None                 # m pulled in by the servo (None: tension-driven)
+    stiffness: float | None = None              # N/m
+    axial_stiffness: float | None = None        # N (EA)
+    free_length: float = 0.0                    # m of tendon outside the robot (servo to base hole)
+    pretension: float = 0.0                     # N at zero stroke with the trunk at rest
+    max_stroke_change: float | None = None      # m per control tick (None: derived from the bounds)
+
+    @property
+    def stroke_driven(self) -> bool:
+        return self.stroke is not None
 
 
 @dataclass(frozen=True)
@@ -229,7 +242,8 @@ def parse_scene(data: dict, source: str = "<dict>", base_dir=".") -> Scene:
         angle, tension = math.radians(t.number("angle_deg", 0.0)), t.number("tension", 0.0)
         cables.append(CableSpec(name, radius, angle, first, last, tension, *_bounds(t, "tension"),
                                 *_bounds(t, "stroke", -math.inf),
-                                t.number("max_tension_change", None, positive=True, unbounded=True)))
+                                t.number("max_tension_change", None, positive=True, unbounded=True),
+                                **_tendon(t)))
         t.done()
 
     chambers = []
@@ -265,6 +279,33 @@ def parse_scene(data: dict, source: str = "<dict>", base_dir=".") -> Scene:
     return Scene(segments=segments, name=scene_name, solver=settings, gravity=gravity, base_position=base_position,
                  base_quaternion=base_quaternion, catalogue=catalogue, cables=tuple(cables),
                  chambers=tuple(chambers), loads=tuple(loads), effectors=tuple(effectors), source=source)
+
+
+def _tendon(t: Table) -> dict:
+    """The fields of a stroke-driven cable (empty for a tension-driven one): ``stroke`` with
+    either ``stiffness`` (N/m) or ``axial_stiffness`` (EA, N; with ``free_length``), and
+    ``pretension``, ``max_stroke_change``."""
+    tendon_fields = ("stiffness", "axial_stiffness", "free_length", "pretension", "max_stroke_change")
+    if t.number("stroke", None) is None:
+        given = [key for key in tendon_fields if t.number(key, None, unbounded=True) is not None]
+        if given:
+            raise t.error(given[0], "applies to a stroke-driven cable only: give its servo `stroke` (m) "
+                                    "instead of a `tension`")
+        return {}
+    if t.number("tension", None) is not None:
+        raise t.error("tension", "a cable is driven either by a `tension` or by a `stroke`, not both")
+    stiffness = t.number("stiffness", None, positive=True)
+    axial = t.number("axial_stiffness", None, positive=True)
+    if (stiffness is None) == (axial is None):
+        raise t.error("stiffness", "a stroke-driven cable needs exactly one of `stiffness` (spring rate, N/m) "
+                                   "and `axial_stiffness` (EA, N)")
+    free_length = t.number("free_length", 0.0, nonneg=True)
+    if stiffness is not None and t.number("free_length", None) is not None:
+        raise t.error("free_length", "sets the tendon's length for `axial_stiffness`; with `stiffness` "
+                                     "(the spring rate itself) it has no meaning")
+    return {"stroke": t.number("stroke"), "stiffness": stiffness, "axial_stiffness": axial,
+            "free_length": free_length, "pretension": t.number("pretension", 0.0, nonneg=True),
+            "max_stroke_change": t.number("max_stroke_change", None, positive=True, unbounded=True)}
 
 
 def _bounds(t: Table, quantity: str, lowest: float = 0.0) -> tuple[float, float]:
