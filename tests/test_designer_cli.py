@@ -95,7 +95,6 @@ def test_design_vertebra_prints_scene_snippet():
 
 
 def test_four_simultaneous_design_processes_on_one_catalogue(tmp_path):
-    pytest.importorskip("vertebra.store.catalogue", reason="store/catalogue.py (catalogue engineer) not available yet")
     catalogue = str(tmp_path / "shared.h5")
     radii = ["0.008", "0.009", "0.010", "0.011"]
     processes = [subprocess.Popen(_command("design", "rod", "--set", f"radius={r}", "--set", "length=0.03",

@@ -10,9 +10,8 @@ import numpy as np
 import pytest
 
 from vertebra import solver
+from vertebra.designer.gallery import cbha_catalogue
 from vertebra.solver.inverse import invert
-
-cbha_catalogue = pytest.importorskip("vertebra.designer.gallery").cbha_catalogue
 
 
 @pytest.fixture(scope="module")

@@ -15,6 +15,7 @@ Layers (each may import the ones listed, and itself)::
 from __future__ import annotations
 
 import ast
+import os
 import pathlib
 
 import pytest
@@ -227,3 +228,14 @@ def test_every_subpackage_is_shipped():
     assert on_disk - listed == set()
     product = {name for name in listed if name.split(".")[1:2] != ["examples"]}
     assert product - on_disk == set()
+
+
+def test_the_folders_are_not_importable_as_bare_packages():
+    """The tests see vertebra's modules only as ``vertebra.*`` (under ``python -m pytest`` as under
+    ``pytest``: conftest.py takes the repository root off ``sys.path``); a bare ``solver`` or
+    ``designer`` would be a second copy of the package."""
+    import importlib.util
+
+    for name in SUBPACKAGES:
+        spec = importlib.util.find_spec(name)
+        assert spec is None or not str(spec.origin or "").startswith(str(ROOT) + os.sep), (name, spec.origin)

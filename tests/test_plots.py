@@ -3,6 +3,7 @@ distinguish many actuators, draw bounds and the tracking error, and show only wh
 
 from __future__ import annotations
 
+import matplotlib
 import numpy as np
 import pytest
 
@@ -10,8 +11,6 @@ from vertebra import solver
 from vertebra.solver import gallery, plots
 from vertebra.solver.inverse import InverseController, InverseSettings
 from test_inverse_controller import pneumatic_entry
-
-matplotlib = pytest.importorskip("matplotlib")
 
 
 @pytest.fixture(scope="module")

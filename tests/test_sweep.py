@@ -18,6 +18,7 @@ import pytest
 from vertebra.designer.executors import EXECUTORS, Crash, make_executor
 from vertebra.designer.sweep import (CatalogueStore, expand, failure_log_path, latin_hypercube_unit, load_spec,
                                      parse_spec, plan_sweep, run_sweep)
+from vertebra.store import catalogue
 from vertebra.store.entry import SegmentEntry, content_key
 from vertebra.core.errors import CatalogueError, GeometryError, OptionError, SpecError
 
@@ -424,20 +425,10 @@ def test_dask_executor_connects_to_a_running_scheduler(tmp_path):
     assert sorted(stored_keys(tmp_path / "cat.jsonl")) == sorted(o.key for o in report.completed)
 
 
-def _real_store():
-    try:
-        from vertebra.store import catalogue
-    except ImportError:
-        return None
-    return catalogue if hasattr(catalogue, "add_entry") and hasattr(catalogue, "has_entry") else None
-
-
-@pytest.mark.skipif(_real_store() is None, reason="vertebra.store.catalogue.add_entry not available yet")
 def test_workers_fill_the_real_hdf5_catalogue_and_resume_skips(tmp_path):
     # Fake (cheap) job, real store: two spawned workers write their own entries
     # concurrently with catalogue.add_entry; the catalogue verifies, every entry
     # round-trips, and a re-run finds everything via catalogue.has_entry.
-    catalogue = _real_store()
     designer = FakeDesigner(known=None)
     path = tmp_path / "cat.h5"
     spec = parse_spec(spec_dict(grid={"radius": [0.01, 0.02, 0.03], "length": [0.04, 0.05]}, name="f-{index}"))

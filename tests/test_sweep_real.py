@@ -17,16 +17,7 @@ import pytest
 from vertebra import designer
 from vertebra.cli import main as cli_main
 from vertebra.designer.sweep import failure_log_path, load_spec, plan_sweep, run_sweep
-
-try:
-    from vertebra.store import catalogue
-except ImportError:  # pragma: no cover - the store lands separately
-    catalogue = None
-
-pytestmark = pytest.mark.skipif(
-    not (hasattr(designer, "design_segment") and hasattr(designer, "entry_key")
-         and catalogue is not None and hasattr(catalogue, "add_entry")),
-    reason="vertebra.designer.design_segment / store.catalogue.add_entry not available yet")
+from vertebra.store import catalogue
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples" / "sweeps"
 
@@ -52,13 +43,7 @@ radius = {RADII}
 
 
 def main(argv):
-    """``vertebra ARGV`` in process (cli.main imports every subcommand module)."""
-    try:
-        cli_main.build_parser()
-    except ModuleNotFoundError as error:
-        if error.name != "vertebra.cli.sweep" and (error.name or "").startswith("vertebra.cli."):
-            pytest.skip(f"vertebra.cli.main cannot build its parser yet: {error.name} missing")
-        raise
+    """``vertebra ARGV`` in process."""
     return cli_main.main(argv)
 
 
