@@ -53,7 +53,9 @@ def _prepare(args, *, dry_run: bool = False, progress: bool = True):
 
 def prepared_scene(args):
     """The scene a command reads: with ``--prepare``, its missing entries designed first (the
-    summary on stderr); with ``--catalogue``, reading its entries from that file. Returns
+    summary on stderr); without, its design segments resolved to the entries the catalogue
+    already holds (an earlier ``vertebra prepare``); with ``--catalogue``, reading its entries
+    from that file. Returns
     ``(scene, exit code)``: a non-zero code means a design failed and the command must stop."""
     import dataclasses
 
@@ -67,6 +69,11 @@ def prepared_scene(args):
     scene = solver.load_scene(args.scene)
     if args.catalogue is not None:
         scene = dataclasses.replace(scene, catalogue=args.catalogue)
+    if scene.design_segments:           # the entries an earlier `vertebra prepare` designed
+        # lazy: the designer (gmsh, scikit-fem) loads only for a scene of design segments
+        from vertebra.designer.preparation import resolve_prepared
+
+        scene = resolve_prepared(scene, build_model=solver.build_model)
     return scene, 0
 
 

@@ -339,6 +339,30 @@ def prepare(scene: "Scene", catalogue=None, *, build_model: Callable | None = No
     return resolve(scene, keys, catalogue), report
 
 
+def resolve_prepared(scene: "Scene", catalogue=None, *, build_model: Callable | None = None) -> "Scene":
+    """The scene with each design segment whose entry ``catalogue`` (default: the scene's)
+    already holds resolved to it — what :func:`prepare` returns after designing, without
+    designing anything: the content keys come from the same plan (a dry run). A nonlinear
+    design segment is keyed by the range its linear counterparts' model spans, so it resolves
+    only when every linear counterpart is in the catalogue too and ``build_model`` is given;
+    segments whose entry is missing stay unresolved (``Scene.check_resolved`` names them)."""
+    catalogue = catalogue if catalogue is not None else scene.catalogue
+    if not scene.design_segments or catalogue is None or not os.path.isfile(str(catalogue)):
+        return scene if catalogue is None else dataclasses.replace(scene, catalogue=str(catalogue))
+    designs = scene_designs(scene)
+    quiet = {"progress": False, "dry_run": True, "executor": "serial"}
+    if any(_material(d) != LINEAR for d in designs):
+        counterparts = prepare_designs([linear_counterpart(d) for d in designs], catalogue, source=scene.source,
+                                       **quiet)
+        if build_model is None or any(row.status != "reused" for row in counterparts.segments):
+            designs = [d for d in designs if _material(d) == LINEAR]
+            scene_keys = {row.segment: row.key for row in counterparts.segments
+                          if row.status == "reused" and row.segment in {d.index for d in designs}}
+            return resolve(scene, scene_keys, catalogue)
+    resolved, report = prepare(scene, catalogue, build_model=build_model, **quiet)
+    return resolved
+
+
 def _material(design: Design) -> str:
     return design.options.get("material", LINEAR)
 

@@ -250,7 +250,7 @@ def test_prepare_command_dry_run_and_catalogue_option(tmp_path, capsys):
     assert main(["simulate", str(path), "--prepare", "--catalogue", str(other), "--executor", "serial",
                  "--no-accuracy"]) == 0
     assert other.exists()
-    assert main(["simulate", str(path), "--catalogue", str(other)]) == 2        # still needs --prepare to resolve
+    assert main(["simulate", str(path), "--catalogue", str(other)]) == 0        # resolves from what prepare designed
     assert main(["invert", str(path), "--prepare", "--catalogue", str(other), "--json"]) in (0, 1)
     captured = capsys.readouterr()
     assert "1 reused, 0 designed" in captured.err and json.loads(captured.out.splitlines()[-1])["steps"]
