@@ -8,6 +8,7 @@ A cable runs from the hole of vertebra ``from − 1`` through the holes of verte
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -134,6 +135,12 @@ def _spans(R, x, holes):
     return offsets.reshape(-1, 6), d, np.sqrt(np.add.reduce(d * d, 1))
 
 
+def hole_offsets(radius: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """Hole offsets (n, 3) in a vertebra's frame at distance ``radius`` from the axis and ``angle``
+    about local +z from local +x."""
+    return np.stack([radius * np.cos(angle), radius * np.sin(angle), np.zeros_like(radius)], 1)
+
+
 def incidence(rows: np.ndarray, n_rows: int):
     """(n_rows, len(rows)) matrix with a 1 at (rows[k], k): ``E @ v`` sums the rows of ``v`` into
     their targets. Dense while small (one BLAS call), sparse beyond."""
@@ -166,7 +173,7 @@ class CableRouting:
         """From the scene's cables and the frame index of each vertebra."""
         pa, pb, ha, owner = [], [], [], []
         for c, cable in enumerate(cables):
-            hole = cable.radius * np.array([math.cos(cable.angle), math.sin(cable.angle), 0.0])
+            hole = hole_offsets(np.array([cable.radius]), np.array([cable.angle]))[0]
             route = [vertebra_frames[v] for v in range(cable.first - 1, cable.last + 1)]
             for f_a, f_b in zip(route[:-1], route[1:]):
                 pa.append(f_a), pb.append(f_b), ha.append(hole), owner.append(c)
@@ -178,6 +185,13 @@ class CableRouting:
         return cls(len(cables), n_frames, a, b, hole, hole.copy(), owner, ends,
                    np.stack([hole, hole], 1).reshape(-1, 3, 1), incidence(ends, n_frames),
                    incidence(np.repeat(owner, 2) * n_frames + ends, len(cables) * n_frames))
+
+    def with_holes(self, radius: np.ndarray, angle: np.ndarray) -> "CableRouting":
+        """The routing with every cable's holes at distance ``radius`` (n_cables,) from the axis and
+        at ``angle`` (n_cables,) about local +z from local +x, in every vertebra it passes."""
+        holes = hole_offsets(radius, angle)[self.owner]
+        return dataclasses.replace(self, hole_a=holes, hole_b=holes.copy(),
+                                   holes=np.stack([holes, holes], 1).reshape(-1, 3, 1))
 
     @property
     def span(self) -> int:

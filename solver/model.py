@@ -23,6 +23,7 @@ from vertebra.solver import compliance, newton, outputs
 from vertebra.solver.energy import Evaluation, LoadCases, Trial, cable_tensions, evaluate, out_of_range, potential
 from vertebra.solver.newton import StaticResult
 from vertebra.solver.outputs import Linearisation
+from vertebra.solver.parameters import Parameters, parameters_of, reparameterise
 from vertebra.solver.state import State, StrainRecord, kinematics, retract
 from vertebra.solver.trunk import Trunk, compile_trunk
 from vertebra.core.errors import CatalogueError, OptionError
@@ -59,7 +60,9 @@ class TrunkModel:
     """A compiled trunk. Build with :func:`build_model`."""
 
     def __init__(self, scene, entries: dict):
-        self.trunk: Trunk = compile_trunk(scene, entries)
+        self.compiled: Trunk = compile_trunk(scene, entries)
+        self.trunk: Trunk = self.compiled       # the compiled trunk under the current parameters
+        self.parameters: Parameters = Parameters.of_trunk(self.compiled)
         self.loads = LoadCases(self.trunk)      # the load cases of the last two actuations asked for
         self.entries: dict = dict(entries)      # the catalogue entries compiled, by name
 
@@ -124,6 +127,24 @@ class TrunkModel:
             raise OptionError(f"{actuation.size} values for {default.size} actuators "
                               f"({', '.join(self.actuator_names)})", field="actuation")
         return actuation
+
+    # ------------------------------------------------------------------ parameters
+    def with_parameters(self, parameters: Parameters | None = None, **changes) -> Parameters:
+        """Parameters: ``parameters`` (default: the current ones) with ``changes`` by name (see
+        :func:`~vertebra.solver.parameters.parameters_of`: ``gravity``, ``dead``,
+        ``cable_stiffness``, ``pretension``, ``stiffness_scale``, ``hole_radius``, ``hole_angle``)."""
+        return parameters_of(self.compiled, parameters or self.parameters, changes)
+
+    def set_parameters(self, parameters: Parameters | None = None, **changes) -> Parameters:
+        """Change loads and parameters between solves without compiling the scene again
+        (:meth:`with_parameters`; :func:`~vertebra.solver.parameters.reparameterise`). Returns the
+        parameters now in force. States solved before stay valid start states."""
+        parameters = self.with_parameters(parameters, **changes)
+        if parameters is not self.parameters:
+            self.trunk = reparameterise(self.compiled, parameters)
+            self.parameters = parameters
+            self.loads = LoadCases(self.trunk)
+        return parameters
 
     # ------------------------------------------------------------------ solve
     def solve(self, actuation=None, initial: State | None = None, *, tolerance=None,

@@ -11,6 +11,7 @@ offsets kept, so gravity also makes moments).
 from __future__ import annotations
 
 import functools
+import dataclasses
 from dataclasses import dataclass, fields
 
 import numpy as np
@@ -68,6 +69,7 @@ class LinkSet(_Frozen):
     rest_quaternion: np.ndarray   # (n, 4) rest rotation of b in a
     rest_translation: np.ndarray  # (n, 3) rest translation d0 of b in a
     energies: tuple               # LinkEnergy batches covering the links once
+    segment: np.ndarray           # (n,) the scene segment of each link
 
     def validate(self):
         covered = np.sort(np.concatenate([e.links for e in self.energies])) if self.energies else np.zeros(0, int)
@@ -153,6 +155,7 @@ class Trunk:
     rest_cable_lengths: np.ndarray
     rest_piece_lengths: np.ndarray     # (m,) length of every cable piece at rest
     rest: RestConstants | None = None  # what the unstressed rest state gives (set by compile_trunk)
+    compiled: "Trunk | None" = None    # the trunk compiled from the scene (None: this is it); see parameters.py
 
     def __post_init__(self):
         if self.links.count != self.frames.count - 1:
@@ -180,6 +183,26 @@ def compile_trunk(scene, entries: dict) -> Trunk:
                   _effectors(scene, frames), assembler, rest_state, rest_lengths, rest_pieces.length)
     object.__setattr__(trunk, "rest", rest_constants(trunk))      # (needs the trunk it belongs to)
     return trunk
+
+
+def reassemble(trunk: Trunk, changes: dict) -> Trunk:
+    """``trunk`` with some parts replaced (:func:`~vertebra.solver.parameters.reparameterise`):
+    what depends on them is made again — the cables' rest lengths (new holes), the band layout
+    (gravity appearing or gone), the rest constants (scaled link energies)."""
+    compiled = trunk.compiled or trunk
+    cables = changes.get("cables", trunk.cables)
+    if "cables" in changes:
+        pieces = cables.pieces(trunk.rest_state.positions, qmatrix(trunk.rest_state.quaternions))
+        changes["rest_cable_lengths"] = cables.lengths(pieces)
+        changes["rest_piece_lengths"] = pieces.length
+    loads = changes.get("loads", trunk.loads)
+    if loads.has_gravity != trunk.assembler.gravity:
+        changes["assembler"] = BandAssembler(trunk.frames.count - 1, cables.span, cables.piece_a, cables.piece_b,
+                                             loads.has_gravity)
+    new = dataclasses.replace(trunk, compiled=compiled, **changes)
+    if "links" in changes or "assembler" in changes:
+        object.__setattr__(new, "rest", rest_constants(new))
+    return new
 
 
 def _compile_links(scene, entries):
@@ -223,7 +246,7 @@ def _compile_links(scene, entries):
     for energy in dict.fromkeys(kind.energy for kind in kinds):
         made = [s for s, kind in enumerate(kinds) if kind.energy is energy]
         energies.append(energy.compile(np.flatnonzero(np.isin(source_of_link, made)), compiled))
-    links = LinkSet(rest[source_of_link], q0[source_of_link], d0[source_of_link], tuple(energies))
+    links = LinkSet(rest[source_of_link], q0[source_of_link], d0[source_of_link], tuple(energies), source_of_link)
 
     # masses: each link's on its end frames by the lever rule along its axis, then the vertebrae's
     mass = np.array([s.mass for s in sources])

@@ -32,7 +32,7 @@ from typing import Any, ClassVar, Protocol, Sequence
 
 import numpy as np
 
-from vertebra.core.errors import SceneError
+from vertebra.core.errors import OptionError, SceneError
 
 
 @dataclass(frozen=True)
@@ -112,6 +112,9 @@ class LinkEnergy(Protocol):
     @classmethod
     def compile(cls, links: np.ndarray, compiled: CompiledLinks) -> "LinkEnergy": ...
 
+    def scaled(self, scale: np.ndarray) -> "LinkEnergy":
+        """The same links with each energy multiplied by ``scale`` (n,): a stiffness scale."""
+
     def prepare(self, pressures: np.ndarray) -> Any: ...
 
     def response(self, xi: np.ndarray, prepared: Any) -> tuple[float, np.ndarray, Any]:
@@ -146,6 +149,14 @@ class LinkKind(Protocol):
 
 _KINDS: dict[str, LinkKind] = {}
 _DISCOVERED = False
+
+
+def refuse_scaled_cavities(scale: np.ndarray, has_cavity: np.ndarray) -> None:
+    """A stiffness scale applies to links without cavities only: a scaled material changes a
+    cavity's pressure response too, which a scale of ψ alone does not capture."""
+    if np.any(has_cavity & (scale != 1.0)):
+        raise OptionError("a stiffness scale applies to segments without cavities only (a chamber's pressure "
+                          "response would need its own scale)", field="stiffness_scale")
 
 
 def register(kind: LinkKind) -> LinkKind:

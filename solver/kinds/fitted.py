@@ -41,7 +41,7 @@ import numpy as np
 
 from vertebra.core.energy import EnergyModel, EnergyValues, FixedPressures
 from vertebra.core.errors import ConvergenceError
-from vertebra.solver.kinds import CompiledLinks, LinkSource, RangeExcess, register
+from vertebra.solver.kinds import CompiledLinks, LinkSource, RangeExcess, refuse_scaled_cavities, register
 from vertebra.solver.kinds.entry import entry_link
 
 
@@ -86,6 +86,7 @@ class FittedEnergy:
     fitted: ClassVar[bool] = True
     groups: tuple               # _Group per distinct entry
     n_chambers: int
+    scale: np.ndarray | None = None   # (n,) multiplies each link's ψ (a stiffness scale); None: 1
 
     @classmethod
     def compile(cls, links: np.ndarray, compiled: CompiledLinks) -> "FittedEnergy":
@@ -107,6 +108,15 @@ class FittedEnergy:
             groups.append(_Group(rows, entry, links[rows], of[rows], compiled.vertebra[links[rows]], incidence,
                                  _limit_pressure(entry.model)))
         return cls(links, compiled.rest[of], tuple(groups), n_chambers)
+
+    def scaled(self, scale: np.ndarray) -> "FittedEnergy":
+        """The links with their energies multiplied by ``scale`` (n,) — a stiffness scale of their
+        material (links with cavities refused, as for quadratic links)."""
+        has_cavity = np.zeros(self.links.size, bool)
+        for group in self.groups:
+            has_cavity[group.rows] = group.incidence.shape[1] > 0
+        refuse_scaled_cavities(scale, has_cavity)
+        return dataclasses.replace(self, scale=None if np.all(scale == 1.0) else scale)
 
     def prepare(self, pressures: np.ndarray) -> tuple:
         """Every group's energy at its links' cavity pressures (one
@@ -134,24 +144,32 @@ class FittedEnergy:
 
     def response(self, xi: np.ndarray, prepared: tuple) -> tuple[float, np.ndarray, tuple]:
         """ψ, ``w = ∂ψ/∂s`` and (kept for the tangent) ``∂²ψ/∂s²``: the strain derivatives only."""
+        scale = self.scale
         if len(self.groups) == 1:
             values = prepared[0].evaluate(xi - self.rest, derivatives=0, check_range=False)
-            return float(values.energy.sum()), values.gradient, (values,)
+            if scale is None:
+                return float(values.energy.sum()), values.gradient, (values,)
+            return float(scale @ values.energy), scale[:, None] * values.gradient, (values,)
         total, w, kept = 0.0, np.empty_like(xi), []
         for group, fixed in zip(self.groups, prepared):
             values = self._evaluate(group, xi, fixed, derivatives=0, check_range=False)
-            total += float(values.energy.sum())
-            w[group.rows] = values.gradient
+            if scale is None:
+                total += float(values.energy.sum())
+                w[group.rows] = values.gradient
+            else:
+                total += float(scale[group.rows] @ values.energy)
+                w[group.rows] = scale[group.rows, None] * values.gradient
             kept.append(values)
         return total, w, tuple(kept)
 
     def material_tangent(self, xi: np.ndarray, prepared: tuple, kept: tuple) -> np.ndarray:
         if len(self.groups) == 1:
-            return kept[0].hessian
-        out = np.empty((xi.shape[0], 6, 6))
-        for group, values in zip(self.groups, kept):
-            out[group.rows] = values.hessian
-        return out
+            hessian = kept[0].hessian
+        else:
+            hessian = np.empty((xi.shape[0], 6, 6))
+            for group, values in zip(self.groups, kept):
+                hessian[group.rows] = values.hessian
+        return hessian if self.scale is None else self.scale[:, None, None] * hessian
 
     def chamber_forces(self, xi: np.ndarray, prepared: tuple, kept: tuple) -> np.ndarray:
         """``−∂²ψ/∂s∂p · M`` per link (n, chambers, 6)."""

@@ -16,13 +16,14 @@ same as a fitted energy's ψ_lin.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Callable, ClassVar
 
 import numpy as np
 
 from vertebra.core.energy import linear_part
-from vertebra.solver.kinds import CompiledLinks, LinkSource, RangeExcess
+from vertebra.solver.kinds import CompiledLinks, LinkSource, RangeExcess, refuse_scaled_cavities
 
 
 @dataclass(frozen=True)
@@ -71,6 +72,13 @@ class QuadraticEnergy:
                 V[np.ix_(served, served)] += part.volume_compliance[np.ix_(cavity[k, served], cavity[k, served])]
         stiffness = K[of]
         return cls(links, compiled.rest[of], stiffness, P, np.einsum("nij,njk->nki", stiffness, P), V)
+
+    def scaled(self, scale: np.ndarray) -> "QuadraticEnergy":
+        """The links with their energies multiplied by ``scale`` (n,) — a stiffness scale of their
+        material. Links with cavities are refused (a scaled material changes their pressure
+        response too, which a scale of ψ alone does not capture)."""
+        refuse_scaled_cavities(scale, self.pressure_strain.any(axis=(1, 2)))
+        return dataclasses.replace(self, stiffness=self.stiffness * scale[:, None, None])
 
     def prepare(self, pressures: np.ndarray) -> tuple[np.ndarray, float]:
         """The rest strains under ``pressures`` (``ξ₀ + A G p``) and the pressure-only energy
