@@ -25,6 +25,14 @@ small angles need no special branch and a batch of links costs one matrix produc
   and ``(1 − cos θ)/θ²``, ``(θ − sin θ)/θ³`` (the translation ``V ρ``), alternating series used
   up to θ = 4 rad and closed forms beyond.
 
+Two forms of the same functions, batched over leading axes: the runtime's (quaternions ``q``
+and translations, :func:`qexp`, :func:`qlog`, :func:`se3_exp`, :func:`se3_log` and the kernels
+they are made of) and the matrix form the designer works in (rotation matrices ``R``:
+:func:`so3_exp`, :func:`so3_expm1`, :func:`so3_log`, :func:`se3_exp_matrix`,
+:func:`se3_log_matrix`, :func:`qfrom_matrix`), the latter written with the former's series. Also
+:func:`hat`, :func:`ad` and the inverse left Jacobian of a twist
+(:func:`se3_left_jacobian_inverse`).
+
 Functions issue as few numpy calls as possible (index tables and small constant matrices
 instead of element-by-element formulas): for trunks of tens of frames the cost is the number
 of numpy calls, not the arithmetic.
@@ -65,6 +73,25 @@ def _rotation_matrix_table() -> np.ndarray:
 
 
 R_TABLE = _rotation_matrix_table()
+
+
+def _quaternion_table() -> np.ndarray:
+    """(10, 16): ``([1, R.ravel()] @ T).reshape(4, 4)`` has rows ``4 q_i q`` (i = w, x, y, z) for
+    the unit quaternion q of a rotation matrix R; row i is accurate when ``q_i`` is the largest."""
+    T = np.zeros((10, 4, 4))
+    entry = 1 + np.arange(9).reshape(3, 3)                                 # row of R[i, j] in T
+    T[0] = np.eye(4)                                                       # 4q_i² = 1 ± R₀₀ ± R₁₁ ± R₂₂
+    for i, signs in enumerate(((1, 1, 1), (1, -1, -1), (-1, 1, -1), (-1, -1, 1))):
+        T[entry.diagonal(), i, i] = signs
+    # 4wx = R₂₁ − R₁₂, 4wy = R₀₂ − R₂₀, 4wz = R₁₀ − R₀₁; 4xy = R₀₁ + R₁₀, 4xz = R₀₂ + R₂₀, 4yz = R₁₂ + R₂₁
+    for (a, b), (i, j), sign in (((0, 1), (2, 1), -1.0), ((0, 2), (0, 2), -1.0), ((0, 3), (1, 0), -1.0),
+                                 ((1, 2), (0, 1), 1.0), ((1, 3), (0, 2), 1.0), ((2, 3), (1, 2), 1.0)):
+        T[entry[i, j], a, b] = T[entry[i, j], b, a] = 1.0
+        T[entry[j, i], a, b] = T[entry[j, i], b, a] = sign
+    return T.reshape(10, 16)
+
+
+Q_TABLE = _quaternion_table()
 L_TABLE = np.zeros((4, 16))          # L(q).ravel() = q @ L_TABLE, with p ⊗ q = L(p) q
 L_TABLE[_QL_INDEX, np.arange(16)] = _QL_SIGN
 
@@ -187,6 +214,22 @@ def qmatrix(q: np.ndarray) -> np.ndarray:
     return (outer @ R_TABLE).reshape(q.shape[:-1] + (3, 3))
 
 
+def qfrom_matrix(R) -> np.ndarray:
+    """Unit quaternions ``(..., 4)`` with ``w ≥ 0`` of rotation matrices ``(..., 3, 3)`` (the
+    inverse of :func:`qmatrix`): of the four rows ``4 q_i q`` (:data:`Q_TABLE`), the one of the
+    largest ``4 q_i²``, normalised (Shepperd's method: no cancellation at any angle)."""
+    R = np.asarray(R, dtype=float)
+    flat = np.empty((R.size // 9, 10))
+    flat[:, 0] = 1.0
+    flat[:, 1:] = R.reshape(-1, 9)
+    rows = (flat @ Q_TABLE).reshape(-1, 4, 4)
+    n = rows.shape[0]
+    pivot = rows[:, [0, 1, 2, 3], [0, 1, 2, 3]].argmax(1)
+    q = rows[np.arange(n), pivot]
+    q *= np.copysign(1.0 / np.sqrt((q * q).sum(1)), q[:, 0])[:, None]
+    return q.reshape(R.shape[:-2] + (4,))
+
+
 def pose_matrix(position: np.ndarray, quaternion: np.ndarray) -> np.ndarray:
     """Homogeneous transforms ``(..., 4, 4)`` of poses (positions ``(..., 3)``, unit quaternions
     ``(..., 4)`` [w, x, y, z]): ``[[R, p], [0, 1]]`` maps a point in the frame to the world."""
@@ -220,7 +263,32 @@ def qlog(q: np.ndarray) -> np.ndarray:
     return (np.copysign(angle, w) / np.maximum(s, 1e-300))[..., None] * v
 
 
+# ----------------------------------------------------------------------------- SO(3), matrix form
+def so3_exp(phi) -> np.ndarray:
+    """Rotation matrices ``exp(φ^)`` ``(..., 3, 3)`` of rotation vectors ``(..., 3)``."""
+    return qmatrix(qexp(np.asarray(phi, dtype=float)))
+
+
+def so3_expm1(phi) -> np.ndarray:
+    """``exp(φ^) − I`` ``(..., 3, 3)`` without the cancellation of ``so3_exp(φ) − I`` at small
+    angles: ``2w v^ + 2 v^v^`` of the quaternion ``[w, v] = qexp(φ)``."""
+    q = qexp(np.asarray(phi, dtype=float))
+    V = hat(q[..., 1:])
+    return 2.0 * (q[..., 0, None, None] * V + V @ V)
+
+
+def so3_log(R) -> np.ndarray:
+    """Rotation vectors ``(..., 3)``, angle in [0, π], of rotation matrices ``(..., 3, 3)``."""
+    return qlog(qfrom_matrix(R))
+
+
 # ----------------------------------------------------------------------------- SE(3)
+def ad(xi) -> np.ndarray:
+    """``ad(ξ) = [[φ^, ρ^], [0, φ^]]`` ``(..., 6, 6)`` of twists ``ξ = [ρ; φ]`` ``(..., 6)``."""
+    xi = np.asarray(xi, dtype=float)
+    return (xi.reshape(-1, 6) @ AD_TABLE).reshape(xi.shape[:-1] + (6, 6))
+
+
 def log_translation(phi: np.ndarray, p: np.ndarray, coef: np.ndarray) -> np.ndarray:
     """``ρ = J⁻¹(φ) p`` (n, 3) with ``J⁻¹ = I − ½Φ + cΦ²`` and ``c = coef[:, 0]``."""
     Phi = (phi @ HAT_TABLE).reshape(-1, 3, 3)
@@ -274,3 +342,30 @@ def se3_exp(xi: np.ndarray):
     c = exp_coefficients((phi * phi).sum(1))
     q = np.concatenate([c[:, :1], c[:, 1:2] * phi], 1)
     return q.reshape(shape + (4,)), exp_translation(c, phi, flat[:, :3]).reshape(shape + (3,))
+
+
+def se3_left_jacobian_inverse(xi) -> np.ndarray:
+    """``J_l⁻¹(ξ)`` ``(..., 6, 6)`` of twists ``(..., 6)`` whose angles are at most π (every
+    logarithm's): ``log(exp(ζ^) exp(ξ^)) = ξ + J_l⁻¹ζ + O(ζ²)``."""
+    xi = np.asarray(xi, dtype=float)
+    flat = xi.reshape(-1, 6)
+    phi = flat[:, 3:]
+    Jl_inv = left_jacobian_inverse(coefficients((phi * phi).sum(1)), ad_powers(flat))
+    return Jl_inv.reshape(xi.shape[:-1] + (6, 6))
+
+
+def se3_exp_matrix(xi):
+    """Rotation matrices ``(..., 3, 3)`` and translations ``(..., 3)`` of ``exp(ξ^)`` for twists
+    ``(..., 6)``: the transform ``x ↦ R x + t``."""
+    q, t = se3_exp(np.asarray(xi, dtype=float))
+    return qmatrix(q), t
+
+
+def se3_log_matrix(R, t) -> np.ndarray:
+    """Twists ``ξ = [ρ; φ]`` ``(..., 6)`` of the transforms ``x ↦ R x + t`` (rotation matrices
+    ``(..., 3, 3)``, translations ``(..., 3)``; angles in [0, π])."""
+    R, t = np.asarray(R, dtype=float), np.asarray(t, dtype=float)
+    phi = so3_log(R).reshape(-1, 3)
+    coef = coefficients((phi * phi).sum(1))
+    xi = np.concatenate([log_translation(phi, t.reshape(-1, 3), coef), phi], 1)
+    return xi.reshape(R.shape[:-2] + (6,))

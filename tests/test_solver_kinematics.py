@@ -1,16 +1,20 @@
 """Rotations and the SE(3) logarithm of the runtime (vertebra.core.lie) against finite
-differences and Barfoot's formulas, the complex-step reference against finite differences, the
-closed-form cable kernel against it, and banded solves against dense ones."""
+differences and Barfoot's formulas, its matrix form against the matrix exponential, the
+complex-step reference against finite differences, the closed-form cable kernel against it, and
+banded solves against dense ones."""
 
 import numpy as np
 import pytest
+from scipy.linalg import expm
+from scipy.spatial.transform import Rotation
 
 import reference.complex_step as reference
 from reference.complex_step import cable_gradient, link_gradient, pair_tangent
 from vertebra.solver.assembly import BandAssembler
 from vertebra.solver.banded import factor_cholesky, factor_lu
 from vertebra.solver.cables import CablePieces
-from vertebra.core.lie import qexp, qlog, qmatrix, qmul, qrotate, se3_exp, se3_log
+from vertebra.core.lie import (ad, hat, qexp, qfrom_matrix, qlog, qmatrix, qmul, qrotate, se3_exp, se3_exp_matrix,
+                               se3_left_jacobian_inverse, se3_log, se3_log_matrix, so3_exp, so3_expm1, so3_log)
 
 RNG = np.random.default_rng(20261122)
 
@@ -67,6 +71,85 @@ def test_se3_log_inverse_jacobian_matches_finite_differences(angle):
         minus = se3_log(qmul(qm, q), qrotate(qm, p) + pm)[0]
         numeric[:, k] = (plus - minus) / (2 * h)
     assert np.abs(numeric - Jinv).max() < 1e-8
+
+
+def _twist_matrix(xi):
+    """The 4×4 matrix ``ξ^ = [[φ^, ρ], [0, 0]]`` of a twist."""
+    out = np.zeros((4, 4))
+    out[:3, :3], out[:3, 3] = hat(xi[3:]), xi[:3]
+    return out
+
+
+@pytest.mark.parametrize("angle", [0.0, 1e-9, 1e-4, 0.1, 1.0, 2.5, 3.1])
+def test_matrix_form_equals_the_matrix_exponential_and_inverts(angle):
+    # R, t of exp(ξ^) against scipy's expm of the 4×4 matrix (Padé: ~1e-15 here); the logarithms
+    # invert the exponentials to rounding; expm1 keeps its relative accuracy at small angles
+    rng = np.random.default_rng([20261204, int(angle * 1e6)])
+    axes = rng.normal(size=(5, 3))
+    phi = angle * axes / np.linalg.norm(axes, axis=1, keepdims=True)
+    xi = np.concatenate([rng.normal(size=(5, 3)), phi], 1)
+    R, t = se3_exp_matrix(xi)
+    assert R.shape == (5, 3, 3) and t.shape == (5, 3)
+    for k in range(5):
+        T = expm(_twist_matrix(xi[k]))
+        assert np.abs(R[k] - T[:3, :3]).max() <= 1e-14 and np.abs(t[k] - T[:3, 3]).max() <= 1e-14
+    assert np.abs(so3_exp(phi) - R).max() <= 1e-15
+    # orthogonal to a few ulps (the determinant's LU adds its own)
+    assert np.abs(R @ R.mT - np.eye(3)).max() <= 2e-15 and np.abs(np.linalg.det(R) - 1.0).max() <= 4e-15
+    assert np.abs(se3_log_matrix(R, t) - xi).max() <= 1e-14 * np.abs(xi).max()
+    assert np.abs(so3_log(R) - phi).max() <= 1e-14
+    # exp(φ^) − I = Σ φ^ᵏ/k!: accurate relative to its size, not to 1
+    small = so3_expm1(phi)
+    assert np.abs(small - (R - np.eye(3))).max() <= 1e-15
+    if angle <= 1e-4:
+        P = hat(phi)
+        P2 = P @ P
+        series = P + P2 / 2.0 + P2 @ P / 6.0 + P2 @ P2 / 24.0        # next term θ⁵/120: < 1e-22
+        assert np.abs(small - series).max() <= 1e-15 * max(np.abs(series).max(), 1e-300)
+    # one transform alone gives the batch's numbers
+    R0, t0 = se3_exp_matrix(xi[0])
+    assert R0.shape == (3, 3) and t0.shape == (3,) and np.abs(R0 - R[0]).max() <= 1e-15
+
+
+@pytest.mark.parametrize("axis", range(3))
+@pytest.mark.parametrize("angle", [1e-7, 1.0, np.pi - 1e-3, np.pi])
+def test_quaternion_of_a_rotation_matrix_at_every_pivot(axis, angle):
+    # near π about x, y, z the largest quaternion component is x, y, z (each pivot of the
+    # method); scipy's from_matrix is the independent reference (both with w ≥ 0)
+    rng = np.random.default_rng([axis, int(angle * 1e6)])
+    direction = np.eye(3)[axis] + 0.05 * rng.normal(size=3)
+    phi = angle * direction / np.linalg.norm(direction)
+    R = Rotation.from_rotvec(phi).as_matrix()
+    q = qfrom_matrix(R)
+    x, y, z, w = Rotation.from_matrix(R).as_quat()
+    expected = np.array([w, x, y, z]) * (1.0 if w >= 0 else -1.0)
+    assert q[0] >= 0 and np.abs(q - expected).max() <= 1e-15
+    assert np.abs(qmatrix(q) - R).max() <= 1e-15
+
+
+def test_ad_is_the_commutator_and_the_twist_jacobian_matches_differences():
+    # ad(ξ₁) ξ₂ is the twist of [ξ₁^, ξ₂^]; J_l⁻¹(ξ) = ∂ log(exp(ζ^) exp(ξ^))/∂ζ at ζ = 0 by central
+    # differences of the matrix-form exp and log (h = 1e-6: ~1e-9 accurate)
+    rng = np.random.default_rng(20261205)
+    xi1, xi2 = rng.normal(size=(2, 6))
+    A, B = _twist_matrix(xi1), _twist_matrix(xi2)
+    C = A @ B - B @ A
+    commutator = np.concatenate([C[:3, 3], [C[2, 1], C[0, 2], C[1, 0]]])
+    assert np.abs(ad(xi1) @ xi2 - commutator).max() <= 1e-14 * np.abs(commutator).max()
+    assert ad(rng.normal(size=(2, 3, 6))).shape == (2, 3, 6, 6)
+    xi = np.concatenate([rng.normal(size=3), 2.0 * rng.normal(size=3) / np.sqrt(3)])
+    R, t = se3_exp_matrix(xi)
+    h = 1e-6
+    numeric = np.zeros((6, 6))
+    for k in range(6):
+        ends = []
+        for sign in (1, -1):
+            Rz, tz = se3_exp_matrix(sign * h * np.eye(6)[k])
+            ends.append(se3_log_matrix(Rz @ R, Rz @ t + tz))
+        numeric[:, k] = (ends[0] - ends[1]) / (2 * h)
+    Jl_inv = se3_left_jacobian_inverse(xi)
+    assert Jl_inv.shape == (6, 6) and np.abs(numeric - Jl_inv).max() < 1e-8
+    assert se3_left_jacobian_inverse(np.tile(xi, (2, 3, 1))).shape == (2, 3, 6, 6)
 
 
 def _random_pair(n, straight=False):
