@@ -19,6 +19,7 @@ import time
 from vertebra.cli.documents import print_document
 from vertebra.cli.main import main as vertebra
 from vertebra.cli.outputs import output_file
+from vertebra.core import plausibility
 from vertebra.core.errors import OptionError
 
 MESH_SUFFIXES = (".vtu", ".vtk")
@@ -150,6 +151,7 @@ def run(args) -> int:
         raise OptionError(f"unknown family {args.family!r} (known: {', '.join(sorted(designer.FAMILIES))}, vertebra)",
                           field="FAMILY")
     parameters = designer.canonical_parameters(family, values)          # GeometryError before meshing
+    plausibility.design(parameters, args.mesh_size, parameters_field="", mesh_field="--mesh-size")
     sampling = parse_sampling(args.sampling) if args.material != "linear" else None
     key = designer.entry_key(family, parameters, mesh_size=args.mesh_size, order=args.order, material=args.material,
                              sampling=sampling)

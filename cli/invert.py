@@ -48,6 +48,7 @@ def run(args) -> int:
     from vertebra import solver
     from vertebra.solver.inverse import InverseController, InverseSettings
     from vertebra.solver.inverse.trajectory import read_trajectory, scene_trajectory
+    from vertebra.solver.plausible import trajectory_warnings
     from vertebra.solver.report import inverse_report, plot_inverse
 
     plot = output_file(args.plot, "--plot", PICTURE_SUFFIXES)
@@ -63,6 +64,8 @@ def run(args) -> int:
     controller = InverseController(model, settings, actuation=model.default_actuation)
     trajectory = (read_trajectory(args.trajectory, model.effector_names, model.effector_targets)
                   if args.trajectory else scene_trajectory(model))
+    if args.trajectory:
+        trajectory_warnings(model, trajectory.targets, args.trajectory)     # a trajectory in mm
 
     def progress(i, step):
         if step.equilibrium_failure:

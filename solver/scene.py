@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from vertebra.solver.plausible import scene_warnings
 from vertebra.solver.segments import (DESIGN_MATERIALS, SEGMENT_TYPES, DesignSpec, SegmentSpec, VertebraSpec,
                                       parse_segment)
 from vertebra.solver.tables import Table
@@ -276,9 +277,11 @@ def parse_scene(data: dict, source: str = "<dict>", base_dir=".") -> Scene:
                                       weight=t.number("weight", 1.0, positive=True), axis=axis))
         t.done()
     top.done()
-    return Scene(segments=segments, name=scene_name, solver=settings, gravity=gravity, base_position=base_position,
+    scene = Scene(segments=segments, name=scene_name, solver=settings, gravity=gravity, base_position=base_position,
                  base_quaternion=base_quaternion, catalogue=catalogue, cables=tuple(cables),
                  chambers=tuple(chambers), loads=tuple(loads), effectors=tuple(effectors), source=source)
+    scene_warnings(scene)           # unit slips (a pressure of 1.5 Pa): warnings, not errors
+    return scene
 
 
 def _tendon(t: Table) -> dict:

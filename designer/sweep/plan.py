@@ -17,6 +17,7 @@ from vertebra.designer.sweep.report import TaskFailure
 from vertebra.designer.sweep.spec import SweepSpec
 from vertebra.designer.sweep.store import CatalogueStore, SweepStore
 from vertebra.designer.sweep.tasks import Batch, FiniteElementDesigner, SegmentDesigner, Task, sweep_batch
+from vertebra.core import plausibility
 from vertebra.core.errors import CatalogueError, SpecError, VertebraError
 
 #: what a designer may raise for one task's parameters; the task fails, the sweep goes on
@@ -57,6 +58,9 @@ def _plan_task(batch: Batch, designer: SegmentDesigner, raw: Task) -> Task | Tas
         task = replace(task, parameters=dict(designer.canonical(task.family, task.parameters)))
     except TASK_ERRORS as error:
         return TaskFailure.of(task, "validate", error)
+    if batch.origin == "sweep":          # a scene's designs were checked when it was read
+        plausibility.design(task.parameters, task.options.get("mesh_size"), batch.source,
+                            parameters_field=f"task {task.index}: parameters", mesh_field="mesh_size")
     if batch.names is not None:
         task = replace(task, name=batch.names(task))
     try:
