@@ -14,34 +14,33 @@ reference at h/1.9 (~260,000 DoFs).
 
 Results: benchmarks/results/accuracy.json and .md (only when every case ran).
 
-    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_accuracy.py [--quick]
+    OMP_NUM_THREADS=1 .venv/bin/python -m benchmarks.bench_accuracy [--quick]
         [--families bellows,pneumatic] [--nus 0.45,0.49] [--orders 1] [--no-large]
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import sys
 import time
 import warnings
 from datetime import datetime, timezone
-from pathlib import Path
 
 for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_name, "1")
 
 import numpy as np  # noqa: E402
 
+from benchmarks import render  # noqa: E402
+from benchmarks.common import log  # noqa: E402
 from vertebra.designer.accuracy import relative_error  # noqa: E402
 from vertebra.designer.families import canonical_parameters, family_of  # noqa: E402
 from vertebra.designer.linear import estimate_accuracy_of, solve_segment  # noqa: E402
 from vertebra.designer.segment import design_segment  # noqa: E402
 from vertebra.store.soundness import bound_ratios  # noqa: E402
 
-RESULTS = Path(__file__).resolve().parent / "results"
 E = 1.0e6
 FAMILIES = {
     "rod": dict(radius=0.01, length=0.04),
@@ -56,9 +55,6 @@ REFINE = {"bellows": 2.5}          # the reference mesh is h / REFINE (default 3
 LARGE = dict(FAMILIES["rod"], youngs_modulus=E, poisson_ratio=0.3)
 LARGE_H = 0.0019                   # ~45,600 second-order DoFs
 
-
-def log(message: str) -> None:
-    print(message, file=sys.stderr, flush=True)
 
 
 def case(family: str, nu: float, order: int, reference) -> dict:
@@ -112,55 +108,6 @@ def large_case() -> dict:
             "extrapolated_error": relative_error(reference, np.array(acc["extrapolated_compliance"]))}
 
 
-def markdown(result: dict) -> str:
-    out = [f"# Accuracy estimate of designed entries ({result['date']}, {result['host']})", "",
-           f"Python {result['python']}, one BLAS thread; machine shared (load average {result['loadavg_start'][0]:.1f} "
-           f"→ {result['loadavg_end'][0]:.1f}). Error = largest relative compliance error over all loads, "
-           "max_w |wᵀ(C_ref − C_h)w| / wᵀC_h w. Estimate: order 1 — the second-order compliance on the same "
-           "mesh; order 2 — Richardson extrapolation from a mesh coarser by 1.5 (fallbacks 2, 1.25), p = 2, "
-           "size ratio r from the mean edge lengths gmsh achieved. Truth = second-order reference at h/3 "
-           "(bellows h/2.5).", "",
-           "## Default mesh size, every family, order and ν", "",
-           "| family | ν | order | DoFs | estimate DoFs | r | p | true error | estimate | estimate / truth | "
-           "error of the better value | design s | with estimate s |",
-           "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    for r in result["cases"]:
-        if "estimate" not in r:
-            out.append(f"| {r['family']} | {r['nu']} | P{r['order']} | {r['dofs']} | – | – | – | "
-                       f"{r['true_error']:.3g} | {r['method']} | – | – | {r['design_s']:.2f} | {r['with_estimate_s']:.2f} |")
-            continue
-        flag = "" if 0.5 <= r["ratio"] <= 2 else " ✗"
-        ratio = f"{r['size_ratio']:.2f}" if "size_ratio" in r else "–"
-        order = f"{r['convergence_order']:g}" if "convergence_order" in r else "order 2"
-        out.append(f"| {r['family']} | {r['nu']} | P{r['order']} | {r['dofs']} | {r['estimate_dofs']} | {ratio} | "
-                   f"{order} | {r['true_error']:.3g} | {r['estimate']:.3g} | **{r['ratio']:.2f}**{flag} | "
-                   f"{r['extrapolated_error']:.3g} | {r['design_s']:.2f} | {r['with_estimate_s']:.2f} |")
-    ratios = [r["ratio"] for r in result["cases"] if "ratio" in r]
-    inside = sum(0.5 <= x <= 2 for x in ratios)
-    out += ["", f"Within a factor 2 of the truth: {inside} of {len(ratios)} cases "
-            f"(estimate / truth from {min(ratios):.2f} to {max(ratios):.2f}).", ""]
-    if "large" not in result:
-        return "\n".join(out)
-    big = result["large"]
-    out += ["## ~50,000-DoF second-order rod (acceptance: ≤ 10 s with the estimate, within a factor 2)", "",
-            f"`design_segment('rod', R = 10 mm, L = 40 mm, ν = 0.3, h = {1000 * big['mesh_size']:.3g} mm, order 2)`: "
-            f"{big['dofs']} DoFs, **{big['total_s']:.2f} s** in all, {big['cpu_s']:.2f} s CPU, load average "
-            f"{big['loadavg'][0]:.1f} ({big['design_s']:.2f} s design, {big['accuracy_s']:.2f} s estimate on "
-            f"{big['estimate_dofs']} DoFs: {big['basis']}). Estimated error {big['estimate']:.3g}, "
-            f"true error {big['true_error']:.3g} against {big['reference_dofs']} DoFs: estimate / truth "
-            f"**{big['ratio']:.2f}**; the extrapolated compliance is {big['extrapolated_error']:.3g} from the "
-            "reference.", "",
-            "## Where designed entries sit between the store's bounds", "",
-            "C_ii / lower bound (must stay above 1/100) and C_ii / upper bound (must stay below 10), "
-            "smallest and largest over the six diagonal entries; default meshes, density 1000 kg/m³.", "",
-            "| family | ν | order | min C/lower | max C/upper | upper bound |", "|---|---|---|---|---|---|"]
-    for r in result["bounds"]:
-        out.append(f"| {r['family']} | {r['nu']} | P{r['order']} | {r['lower_min']:.3g} | {r['upper_max']:.3g} | "
-                   f"{r['upper_method']} |")
-    out += ["", "Produced by `benchmarks/bench_accuracy.py`."]
-    return "\n".join(out)
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="rod and pneumatic at ν = 0.3 only; nothing saved")
@@ -196,12 +143,10 @@ def main(argv=None) -> int:
     if not args.no_large:
         result["large"] = large_case()
     result["loadavg_end"] = os.getloadavg()
-    text = markdown(result)
+    text = render.markdown("accuracy", result)
     print(text)
     if not partial:
-        RESULTS.mkdir(parents=True, exist_ok=True)
-        (RESULTS / "accuracy.json").write_text(json.dumps(result, indent=1) + "\n")
-        (RESULTS / "accuracy.md").write_text(text + "\n")
+        render.write("accuracy", result)
     return 0
 
 

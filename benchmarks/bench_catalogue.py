@@ -14,13 +14,14 @@ Measured (wall clock, one process unless stated, entries with one cavity: 7×7 c
 The machine is shared (2 cores, other engineers' jobs): the load average is recorded.
 Results: benchmarks/results/catalogue.json and catalogue.md.
 
-    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_catalogue.py [--entries 10000]
+    OMP_NUM_THREADS=1 .venv/bin/python -m benchmarks.bench_catalogue [--entries 10000]
+
+The asv benchmarks ``speed/catalogue.py`` time the same operations on 1,000 entries per commit.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import statistics
@@ -31,40 +32,16 @@ import time
 from datetime import datetime, timezone
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-
-import numpy as np  # noqa: E402
-
-from vertebra.store import catalogue  # noqa: E402
-from vertebra.store.entry import SegmentEntry, content_key  # noqa: E402
-
-RESULTS = ROOT / "benchmarks" / "results"
-
-
-def make_entry(i: int, seed: int = 0) -> SegmentEntry:
-    rng = np.random.default_rng([seed, i])
-    a = rng.normal(size=(7, 7))
-    return SegmentEntry(
-        key=content_key({"seed": seed, "i": i}), name=f"bellows-{seed}-{i}", family="bellows",
-        parameters={"outer_radius": 0.01 + 1e-6 * i, "length": 0.04, "wall_thickness": 0.001,
-                    "convolutions": 4, "youngs_modulus": 1.2e6, "poisson_ratio": 0.45},
-        compliance=a @ a.T + 7 * np.eye(7), cavity_volumes=[1e-6 * (1 + rng.random())],
-        mass=0.01, center_of_mass=[0.0, 0.0, 0.02],
-        mesh={"order": 2, "size": 0.002, "elements": 12000 + i, "dofs": 60000 + i},
-        accuracy={"relative_change": 1e-3, "method": "refined mesh h/2"},
-        timings={"mesh_s": 1.2, "assemble_s": 3.4, "solve_s": 5.6, "total_s": 10.2},
-        provenance={"vertebra": "0.1.0", "gmsh": "4.15.2", "scikit-fem": "12.0.2", "host": "bench",
-                    "date": "2026-11-22T00:00:00Z"})
+from benchmarks import render
+from benchmarks.common import timed as _timed
+from benchmarks.speed.catalogue import make_entry
+from vertebra.store import catalogue
 
 
 def timed(fn, repeat=1):
-    times = []
-    result = None
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        result = fn()
-        times.append(time.perf_counter() - t0)
-    return result, times
+    """(last result, wall times of ``repeat`` calls), the first call timed too."""
+    out, t = _timed(fn, repeat, warmup=0, samples=True)
+    return out, t["times_s"]
 
 
 def ms(times):
@@ -172,7 +149,7 @@ def main(argv=None) -> int:
                 f"median of 7, max {max(t) * 1e3:.1f} ms")
         cold = []
         for _ in range(3):
-            out = subprocess.run([sys.executable, "-c", COLD.format(root=str(ROOT), path=str(big), ref=name)],
+            out = subprocess.run([sys.executable, "-c", COLD.format(path=str(big), ref=name)],
                                  capture_output=True, text=True, check=True).stdout.split()
             cold.append((float(out[0]), float(out[1])))
         result["fresh_process_open_s"] = [c[0] for c in cold]
@@ -210,16 +187,8 @@ def main(argv=None) -> int:
         row("merge the same inputs again (all skipped)", f"{t[0]:.2f} s")
 
     result["loadavg_end"] = os.getloadavg()
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "catalogue.json").write_text(json.dumps(result, indent=1) + "\n")
-    md = ["# Catalogue store benchmark", "",
-          f"{result['date']} on {result['host']} (2 shared cores), Python {result['python']}, "
-          f"load average {result['loadavg_start'][0]:.1f} → {result['loadavg_end'][0]:.1f}. "
-          "Entries have one cavity (7×7 compliance) and realistic metadata.", "",
-          "| measurement | value | note |", "|---|---:|---|"]
-    md += [f"| {a} | {b} | {c} |" for a, b, c in rows]
-    md += ["", "Produced by `benchmarks/bench_catalogue.py`."]
-    (RESULTS / "catalogue.md").write_text("\n".join(md) + "\n")
+    result["rows"] = rows
+    render.write("catalogue", result)
     return 0
 
 

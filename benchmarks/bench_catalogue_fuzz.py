@@ -11,14 +11,13 @@
 
 Results: benchmarks/results/catalogue_fuzz.json and .md.
 
-    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_catalogue_fuzz.py [--cases 1000]
+    OMP_NUM_THREADS=1 .venv/bin/python -m benchmarks.bench_catalogue_fuzz [--cases 1000]
 """
 
 from __future__ import annotations
 
 import argparse
 import collections
-import json
 import os
 import platform
 import shutil
@@ -28,11 +27,8 @@ import time
 from datetime import datetime, timezone
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "benchmarks" / "results"
-sys.path.insert(0, str(ROOT / "tests"))
-
-import corruption  # noqa: E402
+from benchmarks import render
+from tests import corruption  # noqa: E402
 
 COMMANDS = ("verify", "ls", "show", "simulate")
 BAD = ("traceback", "hang", "unsound")
@@ -72,33 +68,6 @@ def huge_attribute(directory: Path, megabytes: int = 300) -> dict:
     return out
 
 
-def markdown(result: dict) -> str:
-    counts, kinds = result["counts"], result["by_kind"]
-    lines = ["# Hostile catalogues: seeded corruption fuzz", "",
-             f"{result['date']} on {result['host']} (2 shared cores), Python {result['python']}; load average "
-             f"{result['loadavg_start'][0]:.1f} → {result['loadavg_end'][0]:.1f}.", "",
-             f"{result['cases']} seeded corruptions (seeds {result['seeds'][0]}…{result['seeds'][1]}) of a "
-             f"{result['catalogue_bytes']}-byte catalogue of {len(corruption.SPECS)} designed entries "
-             "(rod, tube, bellows, pneumatic; 0–3 cavities), each through four commands in a forked child "
-             f"with a {result['deadline_s']:.0f} s deadline. Slowest case {result['max_case_s']:.2f} s "
-             f"(all four commands); whole run {result['run_s']:.0f} s.", "",
-             "| command | ok | refused | exit 1 | traceback | hang | unsound |", "|---|---:|---:|---:|---:|---:|---:|"]
-    for command in COMMANDS:
-        c = counts.get(command, {})
-        lines.append(f"| {command} | {c.get('ok', 0)} | {c.get('refused', 0)} | {c.get('exit-1', 0)} | "
-                     f"{c.get('traceback', 0)} | {c.get('hang', 0)} | {c.get('unsound', 0)} |")
-    lines += ["", "By corruption kind (verify):", "", "| kind | cases | refused by verify | file unchanged |",
-              "|---|---:|---:|---:|"]
-    for kind, row in kinds.items():
-        lines.append(f"| {kind} | {row['cases']} | {row['refused']} | {row['unchanged']} |")
-    huge = result["huge_attribute"]
-    lines += ["", f"## A {huge['megabytes']} MB variable-length attribute", "",
-              f"h5py reads it in {huge['h5py_read_s']:.2f} s; `verify` refuses the file in {huge['verify_s']:.3f} s "
-              f"and `load` the entry in {huge['load_s']:.3f} s, without reading it:", "",
-              f"> {huge['verify_problem']}", "", "Produced by `benchmarks/bench_catalogue_fuzz.py`."]
-    return "\n".join(lines)
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cases", type=int, default=1000)
@@ -126,11 +95,8 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory() as d:
         result["huge_attribute"] = huge_attribute(Path(d))
     result["loadavg_end"] = os.getloadavg()
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "catalogue_fuzz.json").write_text(json.dumps(result, indent=1) + "\n")
-    text = markdown(result)
-    (RESULTS / "catalogue_fuzz.md").write_text(text + "\n")
-    print(text)
+    render.write("catalogue_fuzz", result)
+    print(render.markdown("catalogue_fuzz", result))
     bad = sum(counts.get(c, {}).get(b, 0) for c in COMMANDS for b in BAD)
     return 1 if bad or result["failures"] else 0
 

@@ -7,13 +7,12 @@ rod rows also give the axial and lateral compliance over the closed forms. Then 
 AMG solve time (the ``auto`` threshold) and the time to condense a ~50,000-DoF segment
 (acceptance: ≤ 10 s). Prints a table, writes benchmarks/results/designer.json and .md.
 
-    python benchmarks/bench_designer.py [--quick]          (BLAS pinned to one thread inside)
+    python -m benchmarks.bench_designer [--quick]          (BLAS pinned to one thread inside)
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import platform
@@ -21,15 +20,14 @@ import socket
 import sys
 import time
 from datetime import datetime, timezone
-from pathlib import Path
 
-from vertebra.designer.linsolve import AUTO_THRESHOLD
+from benchmarks import render  # noqa: E402
+from benchmarks.common import RESULTS  # noqa: E402
 from vertebra.designer.accuracy import compliance_change
 from vertebra.designer.linear import solve_segment
 from vertebra.designer.segment import design_segment
 from vertebra.designer.threads import pin_blas_threads
 
-RESULTS = Path(__file__).resolve().parent / "results"
 E, NU = 1.0e6, 0.3
 ROD = dict(radius=0.01, length=0.04, youngs_modulus=E, poisson_ratio=NU)
 PNEUMATIC = dict(outer_radius=0.02, chamber_radius=0.005, chamber_offset=0.011, length=0.02,
@@ -86,49 +84,6 @@ def crossover(sizes, log):
     return rows
 
 
-def markdown(result) -> str:
-    out = [f"# Designer benchmark ({result['date']}, {result['host']})", "",
-           f"Python {result['python']}, one BLAS thread; machine shared (load average at start "
-           f"{result['load_average']}). Error = scale-free compliance difference to the reference "
-           "(finest) mesh, max |ΔC_ij| / sqrt(C_ii C_jj).", ""]
-    for title, key in (("Rod R = 10 mm, L = 40 mm, E = 1 MPa, ν = 0.3", "rod"),
-                       ("Pneumatic segment, 3 chambers, ν = 0.45", "pneumatic")):
-        out += [f"## {title}", "",
-                "| order | h (mm) | DoFs | solver | mesh s | assemble s | solve s | total s | error |"
-                + (" axial / L/EA | lateral / Timoshenko |" if key == "rod" else ""),
-                "|---|---|---|---|---|---|---|---|---|" + ("---|---|" if key == "rod" else "")]
-        for r in result[key]:
-            line = (f"| P{r['order']}{' (ref)' if r.get('reference') else ''} | {1000 * r['mesh_size']:.3g} | "
-                    f"{r['dofs']} | {r['solver']} | {r['mesh_s']:.2f} | {r['assemble_s']:.2f} | {r['solve_s']:.2f} | "
-                    f"{r['total_s']:.2f} | {r['error']:.2e} |")
-            if key == "rod":
-                line += f" {r['axial_over_closed_form']:.4f} | {r['lateral_over_timoshenko']:.4f} |"
-            out.append(line)
-        out.append("")
-    out += ["## Direct (SuperLU) vs AMG-PCG solve time", "",
-            f"`auto` switches to AMG at {AUTO_THRESHOLD} interior unknowns.", "",
-            "| order | h (mm) | interior DoFs | direct solve s | AMG solve s | PCG iterations |", "|---|---|---|---|---|---|"]
-    cross = result["crossover"]
-    for d, a in zip(cross[::2], cross[1::2]):
-        out.append(f"| P{d['order']} | {1000 * d['mesh_size']:.3g} | {d['interior_dofs']} | {d['solve_s']:.2f} | "
-                   f"{a['solve_s']:.2f} | {a.get('pcg_iterations', '-')} |")
-    out += ["", "## Condensing ~50,000-DoF segments (acceptance ≤ 10 s)", "",
-            "| segment | order | h (mm) | DoFs | solver | PCG iterations | mesh s | assemble s | solve s | total s | ≤ 10 s |",
-            "|---|---|---|---|---|---|---|---|---|---|---|"]
-    pneumatic_ref = next(r for r in result["pneumatic"] if r.get("reference"))
-    for label, big in (("rod", result["large"]), ("pneumatic (3 cavities, ν = 0.45)", pneumatic_ref)):
-        out.append(f"| {label} | P{big['order']} | {1000 * big['mesh_size']:.3g} | {big['dofs']} | {big['solver']} | "
-                   f"{big.get('pcg_iterations', '-')} | {big['mesh_s']:.2f} | {big['assemble_s']:.2f} | "
-                   f"{big['solve_s']:.2f} | **{big['total_s']:.2f}** | {'yes' if big['total_s'] <= 10 else 'NO'} |")
-    out.append("")
-    acc = result["accuracy_cost"]
-    out += ["## Cost of the per-entry accuracy estimate", "",
-            f"Default pneumatic segment (P2, default mesh size): design without estimate {acc['without_s']:.2f} s, "
-            f"with estimate (Richardson from a second solve on 1.5 h) {acc['with_s']:.2f} s; estimated "
-            f"relative error {acc['relative_error']:.3g}.", ""]
-    return "\n".join(out)
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer, coarser meshes (smoke run)")
@@ -168,12 +123,10 @@ def main(argv=None) -> int:
     result["accuracy_cost"] = {"without_s": without, "with_s": time.perf_counter() - t0,
                                "relative_error": entry.accuracy["relative_error"]}
     result["benchmark_s"] = time.perf_counter() - start
-    text = markdown(result)
+    text = render.markdown("designer", result)
     print(text)
     if not args.quick:
-        RESULTS.mkdir(parents=True, exist_ok=True)
-        (RESULTS / "designer.json").write_text(json.dumps(result, indent=1, default=float) + "\n")
-        (RESULTS / "designer.md").write_text(text)
+        render.write("designer", result)
         log(f"written {RESULTS / 'designer.json'} and designer.md")
     return 0
 

@@ -11,7 +11,7 @@ Rows:
 3. the speed/accuracy knob "one linearise–QP step per tick vs converged": per-step cost and
    effector error of the equilibrium under the commanded actuation along a reachable loop.
 
-Run: ``.venv/bin/python benchmarks/bench_inverse.py [--quick]``; writes
+Run: ``.venv/bin/python -m benchmarks.bench_inverse [--quick]``; writes
 ``benchmarks/results/inverse.json`` and ``benchmarks/results/inverse.md``.
 """
 
@@ -19,43 +19,30 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import os
 import platform
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
+from benchmarks import render
+from benchmarks.common import timed
+from vertebra import solver
+from vertebra.solver.gallery import load
+from vertebra.solver.gallery.targets import reachable_loop
+from vertebra.solver.inverse import ConstraintSpace, InverseController, InverseSettings
+from vertebra.solver.inverse.qp import solve_constraint_problem
 
-from vertebra import solver  # noqa: E402
-from vertebra.solver.gallery import load  # noqa: E402
-from vertebra.solver.gallery.targets import reachable_loop  # noqa: E402
-from vertebra.solver.inverse import ConstraintSpace, InverseController, InverseSettings  # noqa: E402
-from vertebra.solver.inverse.qp import solve_constraint_problem  # noqa: E402
-
-RESULTS = Path(__file__).resolve().parent / "results"
 PAPER = {"paper_3v_4t": "~5 ms (W ~2 ms)", "paper_3v_8t": "~5 ms (W ~2 ms)",
          "paper_5v_16t": "~13 ms (W ~9 ms)"}
 
 
 def median_time(fn, repeats):
-    """Median CPU time of this thread (``time.thread_time``): on 2 cores shared by several
-    jobs, wall-clock medians measure the scheduler, not the code (wall medians were ~3×
-    the CPU time at load 4.6). ``WALL`` collects wall-clock medians for the record."""
-    fn()
-    cpu, wall = [], []
-    for _ in range(repeats):
-        c0, w0 = time.thread_time(), time.perf_counter()
-        fn()
-        cpu.append(time.thread_time() - c0)
-        wall.append(time.perf_counter() - w0)
-    WALL.append(float(np.median(wall)))
-    return float(np.median(cpu))
-
-
-WALL: list = []
+    """(median CPU time of this thread, median wall time) of ``fn`` over ``repeats`` calls: on 2
+    cores shared by several jobs, wall-clock medians measure the scheduler, not the code (wall
+    medians were ~3× the CPU time at load 4.6); the wall medians are kept for the record."""
+    _, t = timed(fn, repeats)
+    return t["thread_median_s"], t["median_s"]
 
 
 def breakdown(model, repeats, actuation=None):
@@ -68,10 +55,10 @@ def breakdown(model, repeats, actuation=None):
     projection = space.project(lin, targets, lam)
     sol = solve_constraint_problem(projection.problem)
     dq = projection.state_change(sol.actuation)
-    t_lin = median_time(lambda: model.linearise(state, lam), repeats)
-    t_w = median_time(lambda: space.project(lin, targets, lam), repeats)
-    t_qp = median_time(lambda: solve_constraint_problem(projection.problem), repeats)
-    t_step = median_time(lambda: model.step(state, dq), repeats)
+    t_lin, _ = median_time(lambda: model.linearise(state, lam), repeats)
+    t_w, _ = median_time(lambda: space.project(lin, targets, lam), repeats)
+    t_qp, _ = median_time(lambda: solve_constraint_problem(projection.problem), repeats)
+    t_step, _ = median_time(lambda: model.step(state, dq), repeats)
     controller = InverseController(model, InverseSettings(mode="tick"), actuation=lam, state=state)
     parts = []
 
@@ -79,8 +66,7 @@ def breakdown(model, repeats, actuation=None):
         controller.state, controller.actuation = state, lam
         parts.append(controller.step(targets).timings)
 
-    t_tick = median_time(tick, repeats)
-    wall_tick = WALL[-1]
+    t_tick, wall_tick = median_time(tick, repeats)
     inside = {key: float(np.median([p.get(key, 0.0) for p in parts]))
               for key in ("linearise_s", "W_s", "qp_s", "step_s", "total_s")}
     return dict(wall_tick_s=wall_tick, frames=int(model.n_frames), actuators=n_act, effectors=len(model.effector_names),
@@ -173,54 +159,13 @@ def main(argv=None):
         actuators.append(breakdown(model, repeats))
     modes = modes_table(13 if args.quick else 37)
 
-    ms = lambda v: f"{v * 1e3:.3f}"  # noqa: E731
     host = (f"host: {platform.node()} · {platform.processor() or platform.machine()} · python "
             f"{platform.python_version()} · OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS')} · "
             f"load average {os.getloadavg()[0]:.1f} (2 cores shared)")
-    head = ("| frames | actuators | effectors | linearise ms | W ms | QP ms | step ms | tick ms (CPU) | tick wall ms "
-            "| inside the tick: linearise / W / QP / step / total ms |")
-    sep = "|---|---|---|---|---|---|---|---|---|---|"
-    fmt = lambda r: (f"| {r['frames']} | {r['actuators']} | {r['effectors']} | {ms(r['linearise_s'])} | "  # noqa: E731
-                     f"{ms(r['W_s'])} | {ms(r['qp_s'])} | {ms(r['step_s'])} | {ms(r['tick_s'])} | "
-                     f"{ms(r['wall_tick_s'])} | " + " / ".join(ms(r['in_tick'][k]) for k in
-                                                             ("linearise_s", "W_s", "qp_s", "step_s", "total_s")) + " |")
-    lines = ["# Inverse step timings (median CPU time of the thread; see median_time)", "", host, "",
-             "Columns linearise … step time each piece alone through its public function (W: "
-             "`ConstraintSpace.project`); 'tick' is `InverseController.step` in tick mode, and "
-             "'inside the tick' the medians of its own `timings` (wall clock).", "",
-             "## Gallery robots (3 interleaved rounds, median of the rounds)", "",
-             "| scene " + head + " paper |", "|---" + sep + "---|"]
-    for r in scenes:
-        lines.append(f"| {r['scene']} " + fmt(r) + f" {r['paper']} |")
-    lines += ["", "## Growing frames (paper_5v_16t, links per segment)", "", "| links/segment " + head,
-              "|---" + sep]
-    for r in frames:
-        lines.append(f"| {r['elements_per_segment']} " + fmt(r))
-    lines += ["", "## Growing vertebrae (paper_5v_16t with k× the vertebrae, tendons running k× as far: "
-              "same band width)", "", "| k " + head, "|---" + sep]
-    for r in vertebrae:
-        lines.append(f"| {r['factor']} " + fmt(r))
-    lines += ["", "Growth exponents against frames (log–log fit over k = "
-              f"{vertebrae[0]['factor']}…{vertebrae[-1]['factor']}): W alone {exponents['W_s']:.2f}, "
-              f"W inside the tick {exponents['W_in_tick']:.2f}, linearise {exponents['linearise_s']:.2f}, "
-              f"whole tick {exponents['tick_s']:.2f}."]
-    lines += ["", "## Growing actuators (paper_5v_16t, tendons)", "", head, sep]
-    for r in actuators:
-        lines.append(fmt(r))
-    lines += ["", "## One step per tick vs converged (paper_5v_16t along a reachable loop)", "",
-              "| effectors | mode | median step ms | max step ms | median error m | max error m | target spacing m |",
-              "|---|---|---|---|---|---|---|"]
-    for r in modes:
-        lines.append(f"| {r['effectors']} | {r['mode']} | {ms(r['median_step_s'])} | {ms(r['max_step_s'])} | "
-                     f"{r['median_error_m']:.2e} | {r['max_error_m']:.2e} | {r['loop_step_m']:.2e} |")
-    text = "\n".join(lines)
-    print(text)
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "inverse.json").write_text(json.dumps(
-        {"scenes": scenes, "frames": frames, "vertebrae": vertebrae, "vertebrae_exponents": exponents,
-         "actuators": actuators, "modes": modes,
-         "quick": args.quick, "host": host}, indent=1))
-    (RESULTS / "inverse.md").write_text(text + "\n")
+    document = {"scenes": scenes, "frames": frames, "vertebrae": vertebrae, "vertebrae_exponents": exponents,
+                "actuators": actuators, "modes": modes, "quick": args.quick, "host": host}
+    print(render.markdown("inverse", document))
+    render.write("inverse", document)
 
 
 if __name__ == "__main__":

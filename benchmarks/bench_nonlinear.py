@@ -26,7 +26,7 @@ Sections (all by default; name some to run only those):
 
 Writes benchmarks/results/nonlinear.json and .md and docs/nonlinear-fit-error-vs-cost.png.
 
-    OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 python benchmarks/bench_nonlinear.py [SECTION ...] [--quick]
+    OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 python -m benchmarks.bench_nonlinear [SECTION ...] [--quick]
 """
 
 from __future__ import annotations
@@ -41,24 +41,19 @@ import socket
 import sys
 import time
 from datetime import datetime, timezone
-from pathlib import Path
 
 for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_name, "1")
 
 import numpy as np  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))     # the verification references live with the tests
+from benchmarks import render  # noqa: E402
+from benchmarks.common import RESULTS, log  # noqa: E402
 
-RESULTS = Path(__file__).resolve().parent / "results"
-DOCS = Path(__file__).resolve().parent.parent / "docs"
 ROD = dict(radius=0.01, length=0.04, youngs_modulus=1e6, poisson_ratio=0.3)
 CBHA = dict(outer_radius=0.04, chamber_radius=0.01, chamber_offset=0.0215, length=0.03, chambers=3,
             youngs_modulus=5e5, poisson_ratio=0.45)
 
-
-def log(message: str) -> None:
-    print(message, file=sys.stderr, flush=True)
 
 
 def _load_results() -> dict:
@@ -69,8 +64,7 @@ def _load_results() -> dict:
 def _save(results: dict) -> None:
     results["machine"] = {"host": socket.gethostname(), "python": platform.python_version(),
                           "date": datetime.now(timezone.utc).replace(microsecond=0).isoformat()}
-    (RESULTS / "nonlinear.json").write_text(json.dumps(results, indent=1))
-    (RESULTS / "nonlinear.md").write_text(markdown(results))
+    render.write("nonlinear", results, draw=False)
 
 
 # ------------------------------------------------------------------ building blocks
@@ -156,7 +150,7 @@ def trunk_cases(segment, entry, n, kind, levels, *, reference_cache):
 
 def chain_errors(entry, cases, n):
     """Tip errors (fraction of the trunk length) of the fitted and the linear entry on ``cases``."""
-    from reference.energy_chain import EntryEnergy, PointLoad, solve_chain
+    from tests.reference.energy_chain import EntryEnergy, PointLoad, solve_chain
 
     length = n * float(entry.rest_translation[2])
     rows = []
@@ -303,7 +297,7 @@ def section_family(results, quick):
 
 
 def section_pneumatic(results, quick):
-    from reference.energy_chain import EntryEnergy, solve_chain
+    from tests.reference.energy_chain import EntryEnergy, solve_chain
     from vertebra.designer.nonlinear.trunk import NonlinearTrunk, TrunkLoads
 
     log("pneumatic: CBHA-like slice")
@@ -345,107 +339,6 @@ def section_pneumatic(results, quick):
 
 # ------------------------------------------------------------------ report
 
-def _series(cases: list) -> tuple[str, str, str]:
-    """Table cells of a load series: angles, fitted and linear tip errors in % (`*`: out of range)."""
-    angles = "/".join(f"{c['angle_deg']:.0f}" for c in cases)
-    fit = "/".join("–" if c["fit"] is None else f"{100 * c['fit']:.3f}" + ("*" if c.get("left_range") else "")
-                   for c in cases)
-    lin = "/".join("–" if c["linear"] is None else f"{100 * c['linear']:.2f}" for c in cases)
-    return angles, fit, lin
-
-
-def markdown(results: dict) -> str:
-    out = ["# Nonlinear condensation: cost and accuracy of fitted segment energies", "",
-           "Produced by `benchmarks/bench_nonlinear.py` (see docs/nonlinear-condensation.md). Errors against "
-           "the full nonlinear FE of the same trunk (same meshes, rigid vertebrae): tip position in % of the "
-           "trunk length; the fit alone (the chain of fitted energies solved to round-off).", ""]
-    if "kernel" in results:
-        k = results["kernel"]
-        out += [f"## Runtime kernel ({k['links']} links per call, median of interleaved rounds)", "",
-                "| energy | terms | monomials | links with ψ µs | quadratic links µs | ratio |", "|---|---|---|---|---|---|"]
-        out += [f"| {r['case']} | {r['terms']} | {r['monomials']} | {r['energy_us']:.0f} | {r['linear_us']:.0f} | "
-                f"{r['ratio']:.2f} |" for r in k["rows"]]
-        out.append("")
-    if "rod" in results:
-        r = results["rod"]
-        c = r["cost"]
-        out += ["## Neo-Hookean rod (R 10 mm, L 40 mm, E 1 MPa, ν 0.3)", "",
-                f"Cost of one entry at {c['dofs']} DoFs on 2 workers: linear entry {c['linear_entry_s']:.0f} s, "
-                f"sampling {c['sampling_s']:.0f} s ({c['solves']} FE solves), fit {c['fit_s']:.1f} s, total "
-                f"{c['total_s']:.0f} s. Held-out load error {c['held_out']['load_max']:.2%} of the range "
-                f"(linear entry {c['held_out']['linear_load_max']:.1%}).", "",
-                "| degree | paths | unknowns | held-out load max | trunk | angles ° | fit tip % | linear tip % |",
-                "|---|---|---|---|---|---|---|---|"]
-        for row in r["study"]:
-            for trunk, cases in row["trunks"].items():
-                angles, fit, lin = _series(cases)
-                out.append(f"| {row['degree']} | {row['paths']} | {row['unknowns']} | "
-                           f"{row['held_out']['load_max']:.2%} | {trunk} | {angles} | {fit} | {lin} |")
-        out += ["", "`*`: the state left the fitted range (reported by the kernel).", ""]
-    if "family" in results:
-        out += ["## Rods and tubes, both materials (default sampling)", "",
-                "| family | L/R | material | DoFs | segments | held-out load max | loads | angles ° | fit tip % | linear tip % |",
-                "|---|---|---|---|---|---|---|---|---|---|"]
-        for row in results["family"]:
-            p = row["parameters"]
-            ratio = p["length"] / p.get("radius", p.get("outer_radius"))
-            for kind, cases in row["trunks"].items():
-                angles, fit, lin = _series(cases)
-                out.append(f"| {row['family']} | {ratio:g} | {row['material']} | {row['dofs']} | {row['segments']} | "
-                           f"{row['held_out']['load_max']:.2%} | {kind} | {angles} | {fit} | {lin} |")
-        out.append("")
-    if "pneumatic" in results:
-        r = results["pneumatic"]
-        out += ["## CBHA-like pneumatic slices (4 stacked, one chamber pressurised)", "",
-                f"{r['dofs']} DoFs per slice, {r['unknowns']} unknowns ({r['terms']} terms), {r['solves']} FE solves "
-                f"in {r['sampling_s']:.0f} s; pressures sampled to {max(r['pressure_upper']):.4g} Pa; limit point "
-                f"{r['limit_pressure']}; fold pressure {r['fold_pressure']}. Held-out: load "
-                f"{r['held_out']['load_max']:.2%}, volume {r['held_out'].get('volume_max', float('nan')):.2%} of the range.",
-                "", "| bar | tip angle ° | fit: tip % | angle | volume | linear: tip % | angle | volume |",
-                "|---|---|---|---|---|---|---|---|"]
-        for row in r["rows"]:
-            f, lin = row["fit"], row["linear"]
-            out.append(f"| {row['pressure'] / 1e5:.2f} | {row['angle_deg']:.1f} | {100 * f['tip']:.3f} | "
-                       f"{100 * f['angle']:+.2f} % | {100 * f['volume']:+.2f} % | {100 * lin['tip']:.2f} | "
-                       f"{100 * lin['angle']:+.1f} % | {100 * lin['volume']:+.1f} % |")
-        out.append("")
-    return "\n".join(out) + "\n"
-
-
-def picture(results: dict) -> None:
-    if "rod" not in results:
-        return
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
-    study = results["rod"]["study"]
-    for degree, marker in ((4, "o"), (6, "s"), (8, "^")):
-        rows = [r for r in study if r["degree"] == degree]
-        solves = [r["training_samples"] for r in rows]
-        inside = [max((c["fit"] or np.nan) for t in r["trunks"].values() for c in t if not c.get("left_range"))
-                  * 100 for r in rows]
-        every = [max((c["fit"] or np.nan) for t in r["trunks"].values() for c in t) * 100 for r in rows]
-        held = [r["held_out"]["load_max"] * 100 for r in rows]
-        line, = axes[0].semilogy(solves, inside, marker=marker, label=f"degree {degree}")
-        axes[0].semilogy(solves, every, marker=marker, ls=":", color=line.get_color(), alpha=0.6)
-        axes[1].semilogy(solves, held, marker=marker, label=f"degree {degree}")
-    linear = max(c["linear"] for r in study for t in r["trunks"].values() for c in t
-                 if c["linear"] and not c.get("left_range"))
-    axes[0].axhline(linear * 100, color="k", ls="--", label="linear entries (in range)")
-    axes[0].set_ylim(top=linear * 100 * 1.6)
-    axes[0].set(xlabel="FE samples in the fit (sampling cost)", ylabel="worst tip error, % of trunk length",
-                title="Rod trunks, 2 and 4 segments (dotted: with states out of range)")
-    axes[1].set(xlabel="FE samples in the fit", ylabel="held-out load error, % of range",
-                title="Held-out fit error")
-    for ax in axes:
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend()
-    fig.tight_layout()
-    fig.savefig(DOCS / "nonlinear-fit-error-vs-cost.png", dpi=110)
-
-
 SECTIONS = {"kernel": section_kernel, "rod": section_rod, "family": section_family, "pneumatic": section_pneumatic}
 
 
@@ -465,8 +358,8 @@ def main(argv=None) -> int:
         SECTIONS[name](results, args.quick)
         log(f"section {name}: {time.perf_counter() - start:.0f} s")
         _save(results)
-    picture(results)
-    print(markdown(results))
+    render.pictures("nonlinear", results)
+    print(render.markdown("nonlinear", results))
     return 0
 
 

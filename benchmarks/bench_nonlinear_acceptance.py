@@ -20,7 +20,7 @@ torsion, axial load and gravity, and four CBHA-like pneumatic slices to 1.5 bar)
 Acceptance checked: tip within 0.1 % of the trunk length up to 50° of tip rotation and 0.2 % up
 to 90°; pneumatic: tip within 0.2 %, bending angle and volume growth within 1 %.
 
-Run: ``.venv/bin/python benchmarks/bench_nonlinear_acceptance.py [--cases NAME …] [--entries DIR]``;
+Run: ``.venv/bin/python -m benchmarks.bench_nonlinear_acceptance [--cases NAME …] [--entries DIR]``;
 writes ``benchmarks/results/nonlinear_acceptance.md/.json``.
 """
 
@@ -43,20 +43,17 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+from benchmarks import render  # noqa: E402
+from benchmarks.common import RESULTS, log  # noqa: E402
 
-from nonlinear_cases import BAR, CASES, n_cavities, project_trunk, scaled_loads, trunk_loads  # noqa: E402
+from benchmarks.nonlinear_cases import BAR, CASES, n_cavities, project_trunk, scaled_loads, trunk_loads  # noqa: E402
 from vertebra import __version__, solver  # noqa: E402
 from vertebra.core import lie  # noqa: E402
 
-RESULTS = Path(__file__).resolve().parent / "results"
 CCX = RESULTS / "ccx_crosscheck.json"
 MAX_PRESSURE = 1.5 * BAR          # the pneumatic acceptance range: 0-1.5 bar
 LIMITS = ((50.0, 0.1), (90.0, 0.2))    # (tip rotation up to, tip error allowed in % of length)
 
-
-def log(message: str) -> None:
-    print(message, file=sys.stderr, flush=True)
 
 
 def sampling_of(case, spec) -> dict:
@@ -219,58 +216,6 @@ def verdict(rows: list, pneumatic: bool) -> dict:
     return {"met": not failures, "failures": failures}
 
 
-def markdown(document: dict) -> str:
-    meta = document["meta"]
-    lines = [
-        "# Large deformation: trunks of nonlinear entries against the full nonlinear FE", "",
-        f"`benchmarks/bench_nonlinear_acceptance.py` · {meta['date']} · host {meta['host']} (load average "
-        f"{meta['load']:.1f}) · vertebra {meta['version']}. Cases: `benchmarks/nonlinear_cases.py` "
-        "(docs/nonlinear-reference.md). Reference: the project's full nonlinear FE trunk on the same meshes; "
-        "CalculiX column where the cross-check ran that level.", "",
-        "Errors of the runtime solver with the designed nonlinear entries (and, for comparison, with the "
-        "same entries' linear condensation): tip position in % of the trunk length, tip rotation; for "
-        "the pneumatic case the bending angle and the pressurised chamber's volume growth (relative). "
-        "`range`: quantities reported outside the fitted range.", "",
-        "| case | level | FE tip rotation | nonlinear tip % L | vs CalculiX % L | rotation Δ ° | bend Δ % | "
-        "volume Δ % | range | linear tip % L | bend Δ % | volume Δ % | ms nonlinear / linear |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
-    ]
-
-    def fmt(value, spec):
-        return "" if value is None else format(value, spec)
-
-    for case in document["cases"]:
-        for row in case["rows"]:
-            if "nonlinear" not in row:
-                lines.append(f"| {case['name']} | {row['level']} {case['level_unit']} | full FE stopped: "
-                             f"{row.get('fe_failed', '')[:80]} |||||||||||")
-                continue
-            nl, li = row["nonlinear"], row["linear"]
-            lines.append(
-                f"| {case['name']} | {row['level']} {case['level_unit']} | {row['fe_tip_rotation_deg']:.1f}° | "
-                f"**{nl['tip_error_pct']:.4f}**{'' if nl['converged'] else ' (not converged)'} | "
-                f"{fmt(nl.get('tip_error_vs_ccx_pct'), '.4f')} | {nl['tip_rotation_error_deg']:.4f} | "
-                f"{fmt(nl.get('bend_error_pct'), '+.2f')} | {fmt(nl.get('volume_error_pct'), '+.2f')} | "
-                f"{nl['out_of_range']} | {li['tip_error_pct']:.3f} | {fmt(li.get('bend_error_pct'), '+.1f')} | "
-                f"{fmt(li.get('volume_error_pct'), '+.1f')} | {1e3 * nl['solve_cpu_s']:.1f} / "
-                f"{1e3 * li['solve_cpu_s']:.1f} |")
-    lines += ["", "## Verdicts (≤ 0.1 % of length to 50°, ≤ 0.2 % to 90°; pneumatic tip ≤ 0.2 %, bend and "
-              "volume ≤ 1 %)", "", "| case | segments | material | tags | met | failures |", "|---|---|---|---|---|---|"]
-    for case in document["cases"]:
-        v = case["verdict"]
-        lines.append(f"| {case['name']} | {case['segments']} | {case['material']} | {', '.join(case['tags'])} | "
-                     f"{'yes' if v['met'] else '**no**'} | {'; '.join(v['failures'])} |")
-    lines += ["", "## Entries", "", "| case | entry | DoFs | terms | held-out load error | design s |",
-              "|---|---|---|---|---|---|"]
-    for case in document["cases"]:
-        for name, e in case["entries"].items():
-            held = e["held_out"]
-            held_text = ", ".join(f"{k} {v:.3g}" for k, v in held.items() if isinstance(v, (int, float)))
-            lines.append(f"| {case['name']} | {name} | {e['dofs']} | {e['terms']} | {held_text} | "
-                         f"{e['seconds']:.0f}{' (read back)' if e['seconds'] == 0 else ''} |")
-    return "\n".join(lines) + "\n"
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cases", nargs="*", default=list(CASES), choices=list(CASES))
@@ -285,9 +230,8 @@ def main(argv=None) -> int:
                          "load": os.getloadavg()[0]}, "cases": []}
     for name in args.cases:
         document["cases"].append(run_case(CASES[name], path))
-        (args.out / "nonlinear_acceptance.json").write_text(json.dumps(document, indent=1))
-        (args.out / "nonlinear_acceptance.md").write_text(markdown(document))
-    print(markdown(document))
+        render.write("nonlinear_acceptance", document, args.out)
+    print(render.markdown("nonlinear_acceptance", document))
     return 0 if all(c["verdict"]["met"] for c in document["cases"]) else 1
 
 

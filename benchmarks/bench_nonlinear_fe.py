@@ -15,7 +15,7 @@
 Prints a table, writes benchmarks/results/nonlinear_fe.json and .md. The machine's load
 average is recorded with the numbers (other jobs share these 2 cores).
 
-    OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 python benchmarks/bench_nonlinear_fe.py [--quick]
+    OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 python -m benchmarks.bench_nonlinear_fe [--quick]
 """
 
 from __future__ import annotations
@@ -27,32 +27,27 @@ import os
 import platform
 import socket
 import statistics
-import sys
 import time
 from datetime import datetime, timezone
-from pathlib import Path
 
 for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_name, "1")
 
 import numpy as np  # noqa: E402
 
+from benchmarks import render  # noqa: E402
+from benchmarks.common import RESULTS, log  # noqa: E402
 from vertebra.designer.nonlinear import NonlinearSegment, NonlinearTrunk, TrunkLoads  # noqa: E402
-from vertebra.designer.nonlinear.rotations import exp_se3  # noqa: E402
+from vertebra.core.lie import se3_exp_matrix as exp_se3  # noqa: E402
 from vertebra.designer.threads import pin_blas_threads  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))     # the verification references live with the tests
-from reference.closed_form import lame_plane_strain_radial, neo_hookean_tube_plane_strain, planar_elastica_tip  # noqa: E402,I001
+from tests.reference.closed_form import lame_plane_strain_radial, neo_hookean_tube_plane_strain, planar_elastica_tip  # noqa: E402,I001
 
-RESULTS = Path(__file__).resolve().parent / "results"
 E = 1.0e6
 ROD = dict(radius=0.01, length=0.02, youngs_modulus=E, poisson_ratio=0.45)
 PNEUMATIC = dict(outer_radius=0.02, chamber_radius=0.005, chamber_offset=0.011, chambers=3, length=0.02,
                  youngs_modulus=E, poisson_ratio=0.45)
 
-
-def log(message):
-    print(message, flush=True)
 
 
 def pose(L, bend, twist=0.0, stretch=0.0):
@@ -240,53 +235,8 @@ def main(argv=None):
             f"{row['elastica_tip_rotation_deg']:.2f}° ({row['solve_s']:.1f} s)")
     results["machine"]["load_average_end"] = os.getloadavg()
     results["sections_rerun"] = sorted(sections)
-    RESULTS.mkdir(exist_ok=True)
-    (RESULTS / f"{name}.json").write_text(json.dumps(results, indent=1))
-    (RESULTS / f"{name}.md").write_text(markdown(results))
+    render.write("nonlinear_fe", results, stem=name)
     log(f"wrote {RESULTS / (name + '.json')} and .md")
-
-
-def markdown(results) -> str:
-    lines = [f"# Nonlinear FE benchmark ({results['date']}, load average {results['machine']['load_average_start'][0]:.1f}"
-             f" → {results['machine']['load_average_end'][0]:.1f} on 2 cores)", "",
-             *([f"Sections rerun then: {', '.join(results['sections_rerun'])}; the others are from the run of "
-                f"{results['kept_from']['date']} (load average {results['kept_from']['machine']['load_average_start'][0]:.1f}).",
-                ""] if "kept_from" in results else []),
-             "## Segment pose solve (neo-Hookean, E = 1 MPa, ν = 0.45)", "",
-             "| family | order | h (mm) | solver | DoFs | cold bend (rad) | cold (s) | s/pose (median) | Newton/pose | factorizations/pose | Krylov/pose |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
-    for r in results["pose_cost"]:
-        lines.append(f"| {r['family']} | P{r['order']} | {1e3 * r['mesh_size']:.2g} | {r['linear_solver']} | {r['dofs']} | "
-                     f"{r['bend_rad']} | {r['cold_s']:.2f} | {r['pose_s_median']:.2f} | {r['newton_per_pose']:.1f} | "
-                     f"{r['factorizations_per_pose']:.2f} | {r['krylov_per_pose']:.1f} |")
-    lines += ["", "## Trunk (rod segments, dead tip force PL²/EI = 1.5)", "",
-              "| segments | h (mm) | DoFs | solve (s) | Newton | load steps | factorizations | tip rotation (°) |",
-              "|---|---|---|---|---|---|---|---|"]
-    for r in results["trunk_cost"]:
-        lines.append(f"| {r['segments']} | {1e3 * r['mesh_size']:.2g} | {r['dofs']} | {r['solve_s']:.1f} | {r['iterations']} | "
-                     f"{r['load_steps']} | {r['factorizations']} | {r['tip_rotation_deg']:.1f} |")
-    lines += ["", "## Thick-walled tube, clamped ends, L = 6 b (a = 5 mm, b = 10 mm): radial displacement at mid-length (mm)", "",
-              "| p (kPa) | inner FE | inner NH plane strain | FE/NH − 1 | inner Lamé | outer FE | outer NH plane strain | FE/NH − 1 | outer Lamé |",
-              "|---|---|---|---|---|---|---|---|---|"]
-    for r in results["tube"]:
-        lines.append(f"| {r['pressure_Pa'] / 1e3:g} | {r['inner_u_fe_mm']:.4f} | {r['inner_u_nh_mm']:.4f} | "
-                     f"{r['inner_u_fe_mm'] / r['inner_u_nh_mm'] - 1:+.2%} | {r['inner_u_lame_mm']:.4f} | "
-                     f"{r['outer_u_fe_mm']:.4f} | {r['outer_u_nh_mm']:.4f} | "
-                     f"{r['outer_u_fe_mm'] / r['outer_u_nh_mm'] - 1:+.2%} | {r['outer_u_lame_mm']:.4f} |")
-    lines += ["", "## Rod (L/R = 8) bent to a constant curvature: moment / (EIθ/L)", "", "| θ (rad) | ratio |", "|---|---|"]
-    lines += [f"| {r['theta_rad']} | {r['moment_over_EI_theta_over_L']:.4f} |" for r in results["rod_bending"]]
-    lines += ["", "## Slender trunk (6 rod segments of L/R = 4, 24 R in all) vs the planar elastica", "",
-              "Against the elastica with EI, and with the FE trunk's own small-load bending stiffness (rigid "
-              "vertebrae every 4 R and shear make it differ from EI): the second column isolates the "
-              "geometric nonlinearity.", "",
-              "| PL²/EI | DoFs | EI_FE / EI | tip error (% of L), EI | tip error (% of L), EI_FE | tip rotation FE (°) | elastica EI / EI_FE (°) | solve (s) |",
-              "|---|---|---|---|---|---|---|---|"]
-    lines += [f"| {r['force_ratio']} | {r['dofs']} | {r.get('EI_fe_over_EI', float('nan')):.4f} | "
-              f"{r['tip_error_percent_of_L']:.3f} | {r.get('tip_error_fe_stiffness_percent_of_L', float('nan')):.3f} | "
-              f"{r['fe_tip_rotation_deg']:.2f} | {r['elastica_tip_rotation_deg']:.2f} / "
-              f"{r.get('elastica_fe_stiffness_tip_rotation_deg', float('nan')):.2f} | {r['solve_s']:.1f} |"
-              for r in results["elastica"]]
-    return "\n".join(lines) + "\n"
 
 
 if __name__ == "__main__":

@@ -13,35 +13,30 @@ On ``gallery:cbha_design`` (16 coarse P2 ``tapered_pneumatic`` slices, no accura
 The machine is shared (2 cores, other work running): the load average is recorded next to the
 numbers. Results: benchmarks/results/prepare.json and .md.
 
-    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_prepare.py
+    OMP_NUM_THREADS=1 .venv/bin/python -m benchmarks.bench_prepare
 """
 
 from __future__ import annotations
 
-import json
 import os
 import platform
 import tempfile
 import time
-from datetime import datetime, timezone
 from pathlib import Path
 
+from benchmarks import render
+from benchmarks.common import loadavg, now
 from vertebra import solver
 from vertebra.designer import prepare
 from vertebra.designer.scene_range import estimate_ranges
 
-RESULTS = Path(__file__).resolve().parent / "results"
 SCENE = "gallery:cbha_design"
-
-
-def loadavg() -> float:
-    return round(os.getloadavg()[0], 2)
 
 
 def first_and_second_run(executor: str, workers: int) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         catalogue = Path(tmp) / "cbha.h5"
-        load = loadavg()
+        load = loadavg()[0]
         start = time.perf_counter()
         _, report = prepare(solver.load_scene(SCENE), catalogue, executor=executor, workers=workers,
                             estimate_accuracy=False, progress=False)
@@ -55,27 +50,15 @@ def first_and_second_run(executor: str, workers: int) -> dict:
         start = time.perf_counter()
         estimate = estimate_ranges(solver.build_model(resolved))
         ranges = time.perf_counter() - start
-    return {"executor": executor, "workers": workers, "loadavg": load, "first_s": first,
+    return {"date": now(), "host": platform.node(), "cpus": os.cpu_count(), "executor": executor, "workers": workers, "loadavg": load, "first_s": first,
             "entries_per_minute": 60.0 * 16 / first, "second_s": second, "ranges_s": ranges,
             "range_solves": len(estimate.actuations), "range_failed": len(estimate.failed)}
 
 
 def main() -> int:
     rows = [first_and_second_run("serial", 1), first_and_second_run("local", 2)]
-    lines = ["# vertebra prepare on gallery:cbha_design (16 coarse P2 slices, no accuracy estimate)", "",
-             f"{datetime.now(timezone.utc).isoformat(timespec='seconds')}, {platform.node()}, "
-             f"{os.cpu_count()} CPUs", "",
-             "| executor | workers | load | first run s | entries/min | second run s | range estimate s (solves) |",
-             "|---|---|---|---|---|---|---|"]
-    for r in rows:
-        lines.append(f"| {r['executor']} | {r['workers']} | {r['loadavg']} | {r['first_s']:.1f} | "
-                     f"{r['entries_per_minute']:.1f} | {r['second_s']:.2f} | {r['ranges_s']:.2f} "
-                     f"({r['range_solves']}, {r['range_failed']} failed) |")
-    text = "\n".join(lines) + "\n"
-    print(text)
-    RESULTS.mkdir(exist_ok=True)
-    (RESULTS / "prepare.md").write_text(text)
-    (RESULTS / "prepare.json").write_text(json.dumps(rows, indent=1) + "\n")
+    print(render.markdown("prepare", rows))
+    render.write("prepare", rows)
     return 0
 
 

@@ -15,7 +15,7 @@ actuation corners (out-of-range reports).
 
 Results: benchmarks/results/prepare_ranges.json and .md (the machine is shared: load recorded).
 
-    OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_prepare_ranges.py [SECTION ...]
+    OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 .venv/bin/python -m benchmarks.bench_prepare_ranges [SECTION ...]
 """
 
 from __future__ import annotations
@@ -29,7 +29,6 @@ import argparse  # noqa: E402
 import json  # noqa: E402
 import math  # noqa: E402
 import platform  # noqa: E402
-import sys  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 from datetime import datetime, timezone  # noqa: E402
@@ -37,9 +36,9 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))     # the verification references live with the tests
+from benchmarks import render  # noqa: E402
+from benchmarks.common import RESULTS, loadavg, log  # noqa: E402
 
-RESULTS = Path(__file__).resolve().parent / "results"
 CBHA = dict(outer_radius=0.04, chamber_radius=0.01, chamber_offset=0.0215, length=0.03, chambers=3,
             youngs_modulus=5e5, poisson_ratio=0.45)
 SLICES = 4
@@ -47,13 +46,6 @@ BOUND = 1.0e5                     # Pa: the scene's chamber bound
 LEVELS = (0.25e5, 0.5e5, 1.0e5)
 WORKERS = 2
 
-
-def log(message: str) -> None:
-    print(message, file=sys.stderr, flush=True)
-
-
-def loadavg() -> float:
-    return round(os.getloadavg()[0], 2)
 
 
 def pneumatic_scene(catalogue: str) -> dict:
@@ -65,7 +57,7 @@ def pneumatic_scene(catalogue: str) -> dict:
 
 
 def _trunk_errors(entry, references) -> list[dict]:
-    from reference.energy_chain import EntryEnergy, solve_chain
+    from tests.reference.energy_chain import EntryEnergy, solve_chain
 
     rows = []
     length = SLICES * CBHA["length"]
@@ -85,7 +77,7 @@ def section_pressure(results: dict) -> None:
     from vertebra.designer.nonlinear.trunk import NonlinearTrunk, TrunkLoads
     from vertebra.designer.nonlinear_condensation import FamilySolid
 
-    out = {"loadavg": loadavg(), "slices": SLICES, "bound": BOUND}
+    out = {"loadavg": loadavg()[0], "slices": SLICES, "bound": BOUND}
     with tempfile.TemporaryDirectory() as tmp:
         scene = solver.parse_scene(pneumatic_scene(str(Path(tmp) / "cbha.h5")), base_dir=tmp)
         start = time.perf_counter()
@@ -134,7 +126,7 @@ def section_twist(results: dict) -> None:
 
     rod = {"radius": 0.01, "length": 0.04, "youngs_modulus": 1e6, "poisson_ratio": 0.3}
     segment = {"type": "design", "family": "rod", "parameters": rod, "mesh_size": 0.008, "material": "neo_hookean"}
-    out = {"loadavg": loadavg()}
+    out = {"loadavg": loadavg()[0]}
     with tempfile.TemporaryDirectory() as tmp:
         data = {"name": "twisted rods", "catalogue": {"path": str(Path(tmp) / "rods.h5")},
                 "segment": [segment, segment],
@@ -163,46 +155,6 @@ def section_twist(results: dict) -> None:
     results["twist"] = out
 
 
-def markdown(results: dict) -> str:
-    out = ["# Nonlinear entries prepared for a scene's range", "",
-           "Produced by `benchmarks/bench_prepare_ranges.py` (see docs/prepare.md, \"Ranges of nonlinear "
-           f"entries\"). Machine: {results['machine']['host']}, shared 2 cores, {results['machine']['date']}.", ""]
-    if "pressure" in results:
-        r = results["pressure"]
-        out += [f"## Pressure box: {r['slices']} CBHA-like slices, one chamber bounded at {r['bound']:.3g} Pa", "",
-                f"{r['dofs']} DoFs per slice; load average {r['loadavg']}. Prepared (scene bound) vs default "
-                "(up to 90 % of the inflation limit point) entries against the full nonlinear FE trunk. "
-                f"Prepared: {r['prepared_s']:.0f} s in all (the entry's sampling serial in one sweep worker); "
-                f"default: {r['default_s']:.0f} s (sampling on {WORKERS} local workers).", "",
-                "| entry | pressures sampled to (Pa) | limit point | held-out load | held-out volume | solves | "
-                "sampling s |", "|---|---|---|---|---|---|---|"]
-        for name in ("prepared", "default"):
-            e = r[name]
-            held = e["held_out"]
-            limit = "none met" if e["limit_pressure"] is None else f"{e['limit_pressure']:.4g}"
-            out.append(f"| {name} | {max(e['pressure_upper']):.4g} | {limit} | "
-                       f"{100 * held.get('load_max', float('nan')):.2f} % | "
-                       f"{100 * held.get('volume_max', float('nan')):.2f} % | {e['solves']} | {e['sampling_s']:.0f} |")
-        out += ["", "| bar | entry | tip % of length | tip angle | volume growth | left range |",
-                "|---|---|---|---|---|---|"]
-        for k, level in enumerate(LEVELS):
-            for name in ("prepared", "default"):
-                row = r[name]["rows"][k]
-                out.append(f"| {level / 1e5:.2f} | {name} | {100 * row['tip']:.4f} | {100 * row['angle']:+.2f} % | "
-                           f"{100 * row['volume']:+.2f} % | {row['left_range']} |")
-        out.append("")
-    if "twist" in results:
-        r = results["twist"]
-        out += ["## Twisted rods (0.1 N m tip twist, cable up to 6 N), default sampling density", "",
-                f"prepare {r['prepared_s']:.1f} s; settings {r['settings']['settings']}; load average {r['loadavg']}.",
-                "", "| actuation | prepared entry: out of range | default-range entry: out of range |", "|---|---|---|"]
-        for a, b in zip(r["prepared"], r["default"]):
-            out.append(f"| {a['actuation']} | {', '.join(a['out_of_range']) or 'none'} | "
-                       f"{', '.join(b['out_of_range']) or 'none'} |")
-        out.append("")
-    return "\n".join(out)
-
-
 SECTIONS = {"twist": section_twist, "pressure": section_pressure}
 
 
@@ -220,8 +172,7 @@ def main(argv=None) -> int:
         SECTIONS[name](results)
         results["machine"] = {"host": platform.node(), "python": platform.python_version(),
                               "date": datetime.now(timezone.utc).replace(microsecond=0).isoformat()}
-        path.write_text(json.dumps(results, indent=1, default=float))
-        (RESULTS / "prepare_ranges.md").write_text(markdown(results))
+        render.write("prepare_ranges", results)
     return 0
 
 

@@ -11,30 +11,24 @@ Rows:
 * ε: reachable-target bias (predicted effector error / free gap) and smoothness of
   16-tendon efforts along a circle (max step / median step).
 
-Run: ``.venv/bin/python benchmarks/bench_qp.py [--quick]``; writes
+Run: ``.venv/bin/python -m benchmarks.bench_qp [--quick]``; writes
 ``benchmarks/results/qp.json`` and ``benchmarks/results/qp.md``.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
-import sys
-import time
-from pathlib import Path
 
 import numpy as np
 
-
-from vertebra.solver.gallery.targets import circle  # noqa: E402
-from vertebra.solver.inverse import (ConstraintProblem, ConstraintSpace, available_backends,  # noqa: E402
+from benchmarks import render
+from benchmarks.common import timed
+from vertebra.solver.gallery.targets import circle
+from vertebra.solver.inverse import (ConstraintProblem, ConstraintSpace, available_backends,
                                      solve_constraint_problem)
-from vertebra.solver.inverse.problems import synthetic_problem  # noqa: E402
-
-RESULTS = Path(__file__).resolve().parent / "results"
-
+from vertebra.solver.inverse.problems import synthetic_problem
 
 def problem_for(case, seed, eps=None):
     W_ea, de, W_aa, _ = synthetic_problem(seed, case["n_act"], case["n_rows"], reach=case["reach"])
@@ -48,13 +42,9 @@ def problem_for(case, seed, eps=None):
 
 
 def time_backend(problem, backend, repeats):
-    solve_constraint_problem(problem, backend)  # warm-up (lazy imports)
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        sol = solve_constraint_problem(problem, backend)
-        times.append(time.perf_counter() - t0)
-    return sol, float(np.median(times))
+    """The solution and the median wall time of ``repeats`` solves (after one: lazy imports)."""
+    sol, t = timed(lambda: solve_constraint_problem(problem, backend), repeats)
+    return sol, t["median_s"]
 
 
 def backend_table(quick):
@@ -123,39 +113,10 @@ def main(argv=None):
     rows = backend_table(args.quick)
     eps_rows = epsilon_table(args.quick)
 
-    # summary per backend and case size
-    summary = {}
-    for r in rows:
-        key = (r["backend"], r["n_act"], r["n_rows"], r["stroke"])
-        s = summary.setdefault(key, dict(times=[], err=[], obj=[], viol=[], fail=0))
-        s["times"].append(r["time_s"])
-        s["err"].append(r["effort_error"])
-        s["obj"].append(r["objective_rel"])
-        s["viol"].append(r["bound_violation"])
-        s["fail"] += not r["converged"]
-    lines = ["# QP backends (synthetic constraint-space problems)", "",
-             f"host: {platform.node()} · python {platform.python_version()} · "
-             f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS')}", "",
-             "Objective: excess over DAQP's optimum relative to ½‖δe_free‖² (> 0: worse). Effort error: max |Δλ| /"
-             " max |λ| vs DAQP — large only where the optimum is flat (redundant actuators: the"
-             " null space is decided by the 1e-8 regulariser alone).", "",
-             "| backend | actuators | rows | stroke limits | median time | max objective excess | max effort error | max bound violation | not converged |",
-             "|---|---|---|---|---|---|---|---|---|"]
-    for (backend, n_act, n_rows, stroke), s in sorted(summary.items(), key=lambda kv: (kv[0][1], kv[0][2], kv[0][3], kv[0][0])):
-        lines.append(f"| {backend} | {n_act} | {n_rows} | {stroke} | {np.median(s['times']) * 1e6:.0f} µs | "
-                     f"{max(s['obj']):.1e} | {max(s['err']):.1e} | {max(s['viol']):.1e} | {s['fail']} |")
-    lines += ["", "## Regularisation ε (16 tendons, one 3-D target; DAQP)", "",
-              "| ε | reachable bias (error / free gap) | circle: max step / median step | mean total tension |",
-              "|---|---|---|---|"]
-    for r in eps_rows:
-        lines.append(f"| {r['epsilon']:.0e} | {r['bias_max']:.1e} | {r['smoothness']:.2f}"
-                     f"{'' if r['all_converged'] else ' (some failed)'} | {r['mean_tension']:.3g} |")
-    text = "\n".join(lines)
-    print(text)
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "qp.json").write_text(json.dumps({"rows": rows, "epsilon": eps_rows,
-                                                 "quick": args.quick, "host": platform.node()}, indent=1))
-    (RESULTS / "qp.md").write_text(text + "\n")
+    document = {"rows": rows, "epsilon": eps_rows, "quick": args.quick, "host": platform.node(),
+                "python": platform.python_version(), "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS")}
+    print(render.markdown("qp", document))
+    render.write("qp", document)
 
 
 if __name__ == "__main__":

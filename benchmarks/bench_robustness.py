@@ -20,7 +20,7 @@ Sections (each a table in ``results/robustness.md`` and a key in ``results/robus
                     represent: converged or the reason, iterations, time.
 
 Times are CPU time of the thread (the machine is shared). Run:
-``OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_robustness.py [--quick]`` (``--quick``: a
+``OMP_NUM_THREADS=1 .venv/bin/python -m benchmarks.bench_robustness [--quick]`` (``--quick``: a
 smoke run into a temporary directory).
 """
 
@@ -33,7 +33,6 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
 import dataclasses  # noqa: E402
-import json  # noqa: E402
 import math  # noqa: E402
 import platform  # noqa: E402
 import sys  # noqa: E402
@@ -43,10 +42,9 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "tests"))        # the seeded robot generators live with the tests
-
-import robots  # noqa: E402
+from benchmarks import render  # noqa: E402
+from benchmarks.common import RESULTS  # noqa: E402
+from tests import robots  # noqa: E402
 
 from vertebra import solver  # noqa: E402
 from vertebra.solver.gallery import load  # noqa: E402
@@ -55,7 +53,6 @@ from vertebra.solver.inverse import InverseController, InverseSettings  # noqa: 
 from vertebra.solver.newton import is_stable  # noqa: E402
 from vertebra.core.errors import ConvergenceError  # noqa: E402
 
-RESULTS = Path(__file__).resolve().parent / "results"
 JUMP = np.array([[0.04, 0.02, 0.13]])
 
 
@@ -279,64 +276,6 @@ def bench_extremes(quick: bool) -> list:
     return rows
 
 
-# --------------------------------------------------------------------------- report
-def markdown(res: dict) -> str:
-    out = []
-    w = out.append
-    w("# Robustness at the extremes (`benchmarks/bench_robustness.py`)\n")
-    w(f"{res['date']}, {res['host']}, load average {res['loadavg']}; CPU time of the thread.\n")
-    f = res["forward"]
-    w("## 1. Random representable tendon robots, forward from rest in one load step\n")
-    w(f"{f['converged']}/{f['seeds']} converged, {f['stable']} with a positive definite tangent; "
-      f"{f['draws_per_robot']:.2f} draws per representable robot. Iterations median "
-      f"{f['iterations']['median']:.0f}, p90 {f['iterations']['p90']:.0f}, max {f['iterations']['max']:.0f}; CPU "
-      f"per solve median {f['cpu_s']['median'] * 1e3:.2f} ms, p90 {f['cpu_s']['p90'] * 1e3:.2f} ms, max "
-      f"{f['cpu_s']['max'] * 1e3:.2f} ms. Tip within 1 % of the length of the refined reference's: "
-      f"{f['tip_within_1pct_of_reference']}/{f['converged']} (median {f['tip_vs_reference']['median']:.1e} L; the "
-      "others are the mirror images of a symmetric buckling, equally stable).\n")
-    a = f["all_draws"]
-    w(f"Every draw ({a['count']}, representable or not): {a['converged']} converged ({a['representable']} "
-      f"representable, of which {a['failed_representable']} failed); failures by reason "
-      f"{a['failure_reasons']}, CPU {_fmt(a['failure_cpu_s'])}; converged solves CPU {_fmt(a['converged_cpu_s'])}.\n")
-    w("## 2. polymer_5v_16t in tick mode (every tick settled to an equilibrium)\n")
-    w("| gravity | trajectory | ticks | equilibria | bound / change violations | error after 10 ticks (max) | "
-      "first ticks (mm) | tick CPU median / p90 |")
-    w("|---|---|---|---|---|---|---|---|")
-    for r in res["polymer_tick"]:
-        w(f"| {r['gravity']} | {r['trajectory']} | {r['ticks']} | {r['equilibria']} | {r['bound_violations']} / "
-          f"{r['change_violations']} | {r['max_error_after_10_m'] * 1e3:.3f} mm | "
-          f"{', '.join(f'{e * 1e3:.2f}' for e in r['error_first_10_m'][:6])} | "
-          f"{r['tick_cpu_s']['median'] * 1e3:.3f} / {r['tick_cpu_s']['p90'] * 1e3:.3f} ms |")
-    w("\n## 3. polymer_5v_16t in converged mode\n")
-    w("| gravity | targets | reached | max error | CPU per target median / max | outer iterations median / max |")
-    w("|---|---|---|---|---|---|")
-    for r in res["polymer_converged"]:
-        w(f"| {r['gravity']} | {r['trajectory']} ({r['targets']}) | {r['reached']} | {r['max_error_m']:.1e} m | "
-          f"{r['cpu_s']['median'] * 1e3:.1f} / {r['cpu_s']['max'] * 1e3:.1f} ms | "
-          f"{r['iterations']['median']:.0f} / {r['iterations']['max']:.0f} |")
-    w("\n## 4. Random robots of a control experiment's size\n")
-    w("| seed | gravity | vertebrae | tendons | length | circle: error after 10 ticks | jump | jump: tick error "
-      "after 10 | jump converged | tick CPU median |")
-    w("|---|---|---|---|---|---|---|---|---|---|")
-    for r in res["control"]:
-        c = r["jump_converged"]
-        w(f"| {r['seed']} | {r['gravity']} | {r['vertebrae']} | {r['tendons']} | {r['length_m'] * 100:.1f} cm | "
-          f"{r['circle']['max_error_after_10_m'] * 1e3:.3f} mm | {r['jump_m'] * 100:.1f} cm | "
-          f"{r['jump_tick']['max_error_after_10_m'] * 1e3:.3f} mm | {c['status']} {c['error_m']:.0e} m "
-          f"{c['cpu_s'] * 1e3:.0f} ms | {r['circle']['tick_cpu_s']['median'] * 1e3:.3f} ms |")
-    w("\n## 5. Extremes\n")
-    w("| case | converged | iterations | CPU | largest link turn / reason |")
-    w("|---|---|---|---|---|")
-    for r in res["extremes"]:
-        detail = f"{r['largest_turn_deg']:.0f}°" if r["converged"] else r["reason"][:160]
-        w(f"| {r['case']} | {r['converged']} | {r['iterations']} | {r['cpu_s'] * 1e3:.1f} ms | {detail} |")
-    return "\n".join(out) + "\n"
-
-
-def _fmt(s: dict) -> str:
-    return "—" if not s else f"median {s['median'] * 1e3:.1f} ms, max {s['max'] * 1e3:.1f} ms"
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="smoke run into a temporary directory")
@@ -352,10 +291,8 @@ def main(argv=None) -> int:
     res["control"] = bench_control(3 if args.quick else 20)
     res["extremes"] = bench_extremes(args.quick)
     res["loadavg_end"] = [round(v, 2) for v in os.getloadavg()]
-    out.mkdir(parents=True, exist_ok=True)
     name = "robustness-quick" if args.quick else "robustness"
-    (out / f"{name}.json").write_text(json.dumps(res, indent=1, default=float) + "\n")
-    (out / f"{name}.md").write_text(markdown(res))
+    render.write("robustness", res, out, stem=name)
     print(f"wrote {out / name}.md/.json")
     return 0
 

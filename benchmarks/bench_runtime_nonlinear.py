@@ -22,7 +22,7 @@ Sections (tables in ``results/runtime_nonlinear.md``, numbers in ``results/runti
     whether the solve reported leaving the fitted range. The full study (many trunks, fine
     meshes, CalculiX) is ``bench_nonlinear.py``'s and its successors'.
 
-Run: ``OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_runtime_nonlinear.py
+Run: ``OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 .venv/bin/python -m benchmarks.bench_runtime_nonlinear
 [--quick] [--sections speed accuracy] [--entries DIR]`` (``--entries`` keeps the designed
 entries in a catalogue there, reused by later runs; default: a temporary directory).
 """
@@ -47,10 +47,11 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from benchmarks import render  # noqa: E402
+from benchmarks.common import RESULTS, loadavg, log, timed  # noqa: E402
 from vertebra import solver
 from vertebra.core import lie  # noqa: E402
 
-RESULTS = Path(__file__).resolve().parent / "results"
 ROD = dict(radius=0.01, length=0.04, youngs_modulus=1e6, poisson_ratio=0.3)
 CBHA = dict(outer_radius=0.04, chamber_radius=0.01, chamber_offset=0.0215, length=0.03, chambers=3,
             youngs_modulus=5e5, poisson_ratio=0.45)
@@ -61,16 +62,6 @@ ENTRIES = {
     "cbha-d6": ("pneumatic", CBHA, 0.015, {"degree": 6, "pressure": 1.5e5, "limit_fraction": 0.95}),
 }
 
-
-def log(message: str) -> None:
-    print(message, file=sys.stderr, flush=True)
-
-
-def loadavg() -> float:
-    try:
-        return os.getloadavg()[0]
-    except OSError:
-        return math.nan
 
 
 def designed(label: str, directory: Path):
@@ -118,12 +109,8 @@ def tip_angle(state) -> float:
 # ------------------------------------------------------------------ speed
 
 def cpu_median(model, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        start = time.process_time()
-        model.solve()
-        times.append(time.process_time() - start)
-    return float(np.median(times))
+    """Median CPU time of ``repeats`` solves from rest."""
+    return timed(model.solve, repeats, warmup=0)[1]["cpu_median_s"]
 
 
 def evaluation_us(model, state, repeats: int) -> float:
@@ -169,11 +156,11 @@ def section_speed(results: dict, entries: dict, quick: bool) -> None:
                   "linear": trunk(linear_of(entry), 20, forces=forces, pressure=pressure)}
         solved = {kind: model.solve() for kind, model in models.items()}
         medians = {kind: [] for kind in models}
-        load = [loadavg()]
+        load = [loadavg()[0]]
         for _ in range(rounds):                       # interleaved: a load change hits both
             for kind, model in models.items():
                 medians[kind].append(cpu_median(model, repeats))
-        load.append(loadavg())
+        load.append(loadavg()[0])
         row = {"case": label, "entry": name, "terms": int(entry.energy.coefficients.size),
                "degree": int(entry.energy.degree), "links": 20, "tip_angle_deg": tip_angle(solved["nonlinear"].state),
                "out_of_range": len(solved["nonlinear"].out_of_range), "loadavg": load}
@@ -309,63 +296,6 @@ def section_accuracy(results: dict, entries: dict, quick: bool) -> None:
 
 # ------------------------------------------------------------------ output
 
-def markdown(results: dict) -> str:
-    out = ["# Runtime with nonlinear catalogue entries", "",
-           f"Machine: {results['machine']['host']}, Python {results['machine']['python']}, "
-           f"{results['machine']['date']}. Produced by `benchmarks/bench_runtime_nonlinear.py`.", ""]
-    speed = results.get("speed")
-    if speed:
-        out += ["## Speed: 20-link forward solve, nonlinear vs linear entries (same trunk, same load)", "",
-                f"CPU-time medians of {speed['rounds']} interleaved rounds × {speed['repeats']} solves; "
-                "links: the link energies' response and material tangent at the equilibrium (one Newton "
-                "evaluation's link part).", "",
-                "| case | terms | tip angle | nonlinear ms (it) | linear ms (it) | ratio | per iteration | "
-                "links µs nonlinear / linear | out of range |",
-                "|---|---|---|---|---|---|---|---|---|"]
-        for r in speed["rows"]:
-            nl, li = r["nonlinear"], r["linear"]
-            out.append(f"| {r['case']} | {r['terms']} | {r['tip_angle_deg']:.0f}° | {nl['solve_ms']:.3f} "
-                       f"({nl['iterations']}) | {li['solve_ms']:.3f} ({li['iterations']}) | **{r['ratio']:.2f}×** | "
-                       f"{r['ratio_per_iteration']:.2f}× | {nl['links_evaluation_us']:.0f} / "
-                       f"{li['links_evaluation_us']:.0f} | {r['out_of_range']} |")
-        out.append("")
-    tick = results.get("tick")
-    if tick:
-        nl, li = tick["nonlinear"], tick["linear"]
-        out += [f"Control tick (tick mode), eight CBHA slices, tip on a 2 mm circle: nonlinear "
-                f"{nl['tick_ms']:.3f} ms, linear {li['tick_ms']:.3f} ms per tick (**{tick['ratio']:.2f}×**); "
-                f"largest lag after the first quarter {1e3 * nl['max_error_m']:.3f} / {1e3 * li['max_error_m']:.3f} mm.",
-                ""]
-    rods = results.get("accuracy_rods")
-    if rods:
-        out += ["## Accuracy spot check: rod trunks against the full nonlinear FE", "",
-                "Tip error in % of the trunk length (same meshes and material, rigid vertebrae); "
-                "`range`: quantities reported outside the fitted range.", "",
-                "| case | FE tip angle | nonlinear entries | range | linear entries |", "|---|---|---|---|---|"]
-        for r in rods:
-            out.append(f"| {r['case']} ×{r['level']:g} | {r['fe_tip_angle_deg']:.0f}° | "
-                       f"{r['nonlinear']['tip_error_pct']:.4f} % | {r['nonlinear']['out_of_range']} | "
-                       f"{r['linear']['tip_error_pct']:.3f} % |")
-        out.append("")
-    cbha = results.get("accuracy_cbha")
-    if cbha:
-        out += ["## Accuracy spot check: four CBHA-like slices, chamber 0 pressurised", "",
-                "| pressure | FE tip angle | nonlinear: tip | angle | volume | range | linear: tip | angle | volume |",
-                "|---|---|---|---|---|---|---|---|---|"]
-        for r in cbha:
-            nl, li = r["nonlinear"], r["linear"]
-            out.append(f"| {r['pressure'] / 1e5:.2f} bar | {r['fe_tip_angle_deg']:.1f}° | {nl['tip_error_pct']:.3f} % | "
-                       f"{nl['angle_error_pct']:+.2f} % | {nl['volume_error_pct']:+.2f} % | {nl['out_of_range']} | "
-                       f"{li['tip_error_pct']:.2f} % | {li['angle_error_pct']:+.1f} % | {li['volume_error_pct']:+.1f} % |")
-        out.append("")
-    entries = results.get("entries")
-    if entries:
-        out += ["Entries (coarse meshes): " + "; ".join(
-            f"{name}: {e['dofs']} DoFs, {e['terms']} terms, held-out load error "
-            f"{100 * e['held_out'].get('load_max', float('nan')):.2g} % of the range" for name, e in entries.items()), ""]
-    return "\n".join(out)
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="fewer rounds and cases (a smoke run)")
@@ -386,9 +316,8 @@ def main(argv=None) -> int:
         section_accuracy(results, entries, args.quick)
     out = args.out or (Path(tempfile.gettempdir()) if args.quick else RESULTS)
     name = "runtime_nonlinear-quick" if args.quick else "runtime_nonlinear"
-    (out / f"{name}.json").write_text(json.dumps(results, indent=1))
-    (out / f"{name}.md").write_text(markdown(results))
-    print(markdown(results))
+    render.write("runtime_nonlinear", results, out, stem=name)
+    print(render.markdown("runtime_nonlinear", results))
     log(f"wrote {out / name}.md/.json")
     return 0
 

@@ -22,14 +22,11 @@ The machine may be shared: every timing is a median (the minimum is kept too), t
 is recorded before and after each section, and only ratios measured in the same run should be
 compared.
 
-Run: ``OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_solver.py [--quick] [--commit REV]``
-(``--commit`` benchmarks that commit's ``solver/`` from a snapshot, whatever the working tree holds;
-``--ab REV`` compares the working tree with REV on the two speed-acceptance paths only — the 20-link
-cantilever solve and the model's part of a control tick on paper_5v_16t — through the public API,
-in processes alternating between the two, and prints the ratios);
-writes ``benchmarks/results/solver.json`` and ``benchmarks/results/solver.md``
-(``--quick`` writes ``solver-quick.*`` into ``--out`` or, by default, a temporary directory: a smoke
-run never touches the committed results).
+Run: ``OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 .venv/bin/python -m benchmarks.bench_solver [--quick]``;
+writes ``benchmarks/results/solver.json`` and ``benchmarks/results/solver.md`` (``--quick`` writes
+``solver-quick.*`` into ``--out`` or, by default, a temporary directory: a smoke run never touches
+the committed results). Per-commit speed and A/B comparisons of commits: the asv benchmarks
+(docs/benchmarks.md).
 """
 
 from __future__ import annotations
@@ -42,34 +39,26 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import argparse  # noqa: E402
 import gc  # noqa: E402
 import hashlib  # noqa: E402
-import json  # noqa: E402
 import math  # noqa: E402
 import platform  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
+import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 import scipy  # noqa: E402
 
-# BENCH_SOLVER_ROOT (set by --commit) points at a snapshot of the repository to benchmark: its
-# `vertebra/` folder holds that commit's package root, solver/ and store/, imported before the
-# installed package
-ROOT = Path(os.environ.get("BENCH_SOLVER_ROOT") or Path(__file__).resolve().parents[1])
-REPO = Path(__file__).resolve().parents[1]
-if os.environ.get("BENCH_SOLVER_ROOT"):
-    sys.path.insert(0, str(ROOT))
-
-sys.path.insert(1, str(REPO / "tests"))        # the complex-step reference lives with the tests
-
+from benchmarks import render  # noqa: E402
+from benchmarks.common import RESULTS, ROOT, loadavg, timed  # noqa: E402
+from benchmarks.render import fmt_time, sci_percent  # noqa: E402
+from tests.reference.complex_step import link_gradient, pair_tangent  # noqa: E402
 from vertebra import solver  # noqa: E402
 from vertebra.solver import analytic, gallery  # noqa: E402
 from vertebra.solver.banded import factor_cholesky, factor_lu  # noqa: E402
-# the solver's internals (newton, energy, links) are imported where a section times them: the
-# A/B mode runs on snapshots of other commits through the public API only
+from vertebra.solver.links import Links, link_tangent  # noqa: E402
 
-RESULTS = Path(__file__).resolve().parent / "results"
 # gallery scenes the runtime builds as they are (scenes of design segments need `vertebra prepare`)
 RUNTIME_SCENES = [name for name in gallery.names() if not getattr(gallery.load(name), "design_segments", ())]
 
@@ -79,13 +68,6 @@ EI = E * math.pi * RADIUS ** 4 / 4.0
 
 
 # --------------------------------------------------------------------------- helpers
-def loadavg():
-    try:
-        return [round(v, 2) for v in os.getloadavg()]
-    except OSError:
-        return None
-
-
 def rod_segment(links):
     """One beam segment, ``links`` links in one repetition (the gallery's way of writing it)."""
     return {"type": "beam", "count": 1, "length": LENGTH, "elements": int(links),
@@ -116,37 +98,6 @@ def end_moment(links, turns, tolerance=1e-9):
 def tip_xz(result):
     p = result.state.positions[-1]
     return np.array([p[0], p[2]])
-
-
-def timed(fn, repeats, warmup=1, budget_s=None):
-    """Median/min wall time of ``fn()`` over ``repeats`` calls after ``warmup`` calls (gc off).
-    With ``budget_s`` the repeat count shrinks (≥ 3) so the section stays within budget."""
-    out = None
-    t_first = None
-    for _ in range(warmup):
-        t0 = time.perf_counter()
-        out = fn()
-        t_first = time.perf_counter() - t0
-    if budget_s is not None and t_first:
-        repeats = int(max(3, min(repeats, budget_s / max(t_first, 1e-9))))
-    times, cpu = [], []
-    gc_was = gc.isenabled()
-    gc.disable()
-    try:
-        for _ in range(repeats):
-            c0 = time.process_time()
-            t0 = time.perf_counter()
-            out = fn()
-            times.append(time.perf_counter() - t0)
-            cpu.append(time.process_time() - c0)
-    finally:
-        if gc_was:
-            gc.enable()
-    times = np.array(times)
-    return out, {"median_s": float(np.median(times)), "min_s": float(times.min()),
-                 "cpu_median_s": float(np.median(cpu)),
-                 "q25_s": float(np.percentile(times, 25)), "q75_s": float(np.percentile(times, 75)),
-                 "repeats": int(repeats)}
 
 
 def count_evaluations(model, fn):
@@ -201,22 +152,7 @@ def active_actuation(model):
     return a
 
 
-def fmt_time(s):
-    if s is None or not math.isfinite(s):
-        return "—"
-    if s < 1e-3:
-        return f"{s * 1e6:.0f} µs"
-    if s < 1.0:
-        return f"{s * 1e3:.2f} ms"
-    return f"{s:.2f} s"
-
-
 def git_info():
-    snapshot = os.environ.get("BENCH_SOLVER_SNAPSHOT")
-    if snapshot:
-        return {"commit": snapshot, "solver_dirty": False, "solver_diff_sha1": None, "solver_diff_files": [],
-                "snapshot": True}
-
     def run(*args):
         try:
             return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True, timeout=20).stdout
@@ -298,8 +234,6 @@ def bench_scaling(quick):
               flush=True)
     # diagnostic: the model's closed-form link tangent (solver/links.py) against the complex-step
     # tangent of the same potential (tests/reference/complex_step.py): cost and agreement
-    from reference.complex_step import link_gradient, pair_tangent
-    from vertebra.solver.links import Links, link_tangent
     chunk_rows = []
     for links, model in models.items():
         if links not in (10, 100, 1000, 10000):
@@ -657,170 +591,6 @@ def bench_one_step(quick):
     return {"rows": rows, "tick_loops": loops, "loadavg": loadavg()}
 
 
-# --------------------------------------------------------------------------- report
-def pct(x):
-    return f"{100 * x:.2e} %"
-
-
-def markdown(res):
-    env, out = res["environment"], []
-    w = out.append
-    w("# Forward solver benchmark\n")
-    w(f"`benchmarks/bench_solver.py{' --quick' if res['quick'] else ''}` · {res['date']} · host "
-      f"{env['host']} ({env['cpus']} CPUs, shared) · python {env['python']} · numpy {env['numpy']} · "
-      f"scipy {env['scipy']} · OMP_NUM_THREADS={env['OMP_NUM_THREADS']} · commit `{env['git']['commit'][:10]}`"
-      f"{' + uncommitted solver/ changes (' + str(env['git']['solver_diff_sha1'])[:10] + ')' if env['git']['solver_dirty'] else ''}"
-      f"{' (solver/ and store/ from a clean snapshot of that commit)' if env['git'].get('snapshot') else ''}\n")
-    w(f"Load average (1/5/15 min) at start {res['loadavg_start']}, at end {res['loadavg_end']} "
-      f"on {env['cpus']} cores: absolute times are inflated by other jobs; compare ratios within this run. "
-      f"Times are medians (min in brackets where given). Total run {res['total_s']:.0f} s.\n")
-
-    w("## Acceptance\n")
-    w("| criterion | target | measured | met |")
-    w("|---|---|---|---|")
-    for a in res["acceptance"]:
-        w(f"| {a['criterion']} | {a['target']} | {a['measured']} | {'yes' if a['met'] else '**no**'} |")
-    w("")
-
-    sc = res["scaling"]
-    w("## 1. Solve time vs number of frames (cantilever, PL²/EI = 1, tol 1e-9)\n")
-    w("Solves timed in interleaved rounds over all sizes (median of the round medians; min; CPU time); "
-      "the pieces of one iteration timed separately at the converged state.\n")
-    w("| links | frames | half bw | solve (min) [CPU] | iterations | tangents + gradients | time / iteration "
-      "(wall / CPU) | tangent eval (CPU) | band assembly (CPU) | Cholesky factor+solve (CPU) | LU factor+solve (CPU) "
-      "| residual | tip err vs elastica |")
-    w("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
-    for r in sc["rows"]:
-        if "skipped" in r:
-            w(f"| {r['links']} | {r['frames']} | {r['kd']} | {r['skipped']} |||||||||")
-            continue
-        w(f"| {r['links']} | {r['frames']} | {r['kd']} | {fmt_time(r['solve']['median_s'])} "
-          f"({fmt_time(r['solve']['min_s'])}) [{fmt_time(r['solve']['cpu_median_s'])}] | {r['iterations']} | {r['evaluations_tangent']}+{r['evaluations_gradient']} | "
-          f"{fmt_time(r['per_iteration_s'])} / {fmt_time(r['per_iteration_cpu_s'])} | {fmt_time(r['tangent_eval_s'])} | {fmt_time(r['band_assembly_s'])} | "
-          f"{fmt_time(r['cholesky_factor_solve_s'])} | {fmt_time(r['lu_factor_solve_s'])} | "
-          f"{r['residual']:.1e}{' (r)' if r['rounding_limited'] else ''} | {pct(r['tip_error_vs_elastica'])} |")
-    ex = sc["exponents"]
-    if ex:
-        w(f"\nGrowth exponents (log–log least squares over {ex['range_links'][0]}–{ex['range_links'][1]} links, "
-          f"against frames): time per Newton iteration **{ex['per_iteration_s']:.3f}** "
-          f"(CPU time {ex['per_iteration_cpu_s']:.3f}, per-size minima {ex['per_iteration_min_s']:.3f}), whole solve {ex['solve_median_s']:.3f}, "
-          f"tangent evaluation {ex['tangent_eval_s']:.3f}, band assembly {ex['band_assembly_s']:.3f}, "
-          f"banded Cholesky factor+solve {ex['cholesky_factor_solve_s']:.3f}, banded LU factor+solve "
-          f"{ex['lu_factor_solve_s']:.3f}, retraction {ex['retraction_s']:.3f}.")
-        w("Local exponents (time per iteration / Cholesky factor+solve): " + ", ".join(
-            f"{a['links'][0]}→{a['links'][1]}: {a['per_iteration']:.2f} / {a['cholesky_factor_solve']:.2f}"
-            for a in sc["local_exponents"]) + ".")
-        for c in sc.get("tangent_closed_vs_complex_step", []):
-            w(f"Link tangent of {c['links']} links: closed form (solver/links.py, what the model uses, "
-              f"kinematics + forces + tangent) {fmt_time(c['closed_form_cpu_s'])} CPU; complex step of "
-              f"the same potential (the tests' reference) {fmt_time(c['complex_step_cpu_s'])} CPU; "
-              f"largest difference {c['max_relative_difference']:.1e} of the largest entry.")
-        w("(r) = stopped as rounding-limited: the Newton correction fell below the floating-point "
-          "resolution of the poses.\n")
-
-    g = res["gallery"]
-    w("## 2. Gallery scenes (≥ 20 solves after a warm-up)\n")
-    w("| scene | frames | dof | cables | chambers | wall median (min) | solver's solve_s | iterations | "
-      "load steps | factorization | tangent evals | converged | CPU median |")
-    w("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
-    for r in g["rows"]:
-        w(f"| {r['scene']} | {r['frames']} | {r['dof']} | {r['cables']} | {r['chambers']} | "
-          f"{fmt_time(r['wall']['median_s'])} ({fmt_time(r['wall']['min_s'])}) | {fmt_time(r['solver_solve_s_median'])} | "
-          f"{r['iterations']} | {r['load_steps']} | {r['factorization']} | {r['evaluations']['tangent']} | {r['converged']} | "
-          f"{fmt_time(r['wall']['cpu_median_s'])} |")
-    c = g["cantilever_20"]
-    w(f"\n20-link cantilever: **{fmt_time(c['wall']['solver_solve_s_median'])}** median of the solver's own "
-      f"timing (`timings[\"solve_s\"]`; 10–90 % {fmt_time(c['wall']['solver_solve_s_q10_q90'][0])}–"
-      f"{fmt_time(c['wall']['solver_solve_s_q10_q90'][1])}); wall median of 61 timed solves "
-      f"{fmt_time(c['wall']['median_s'])} (min {fmt_time(c['wall']['min_s'])}, "
-      f"CPU median {fmt_time(c['wall']['cpu_median_s'])}), "
-      f"{c['iterations']} iterations, {c['evaluations']['tangent']} tangent evaluations of "
-      f"{fmt_time(c['tangent_eval_s'])} each (gradient only: {fmt_time(c['gradient_eval_s'])}), banded "
-      f"Cholesky factor+solve {fmt_time(c['cholesky_factor_solve_s'])}, retraction {fmt_time(c['retraction_s'])}. "
-      f"Target ≤ 1 ms: {'met' if c['met'] else '**not met**'}.\n")
-    w("Warm-started re-solves along a trajectory of 1 % changes per tick (`initial=previous.state`):\n")
-    w("| scene | change | ticks | cold median (CPU) | cold iterations | warm median (CPU) | warm iterations | speed-up (CPU) | "
-      "max \\|warm − cold\\| position | all converged |")
-    w("|---|---|---|---|---|---|---|---|---|---|")
-    for r in g["warm"]:
-        w(f"| {r['scene']} | {r['change']} | {r['ticks']} | {fmt_time(r['cold_median_s'])} "
-          f"({fmt_time(r['cold_cpu_median_s'])}) | {r['cold_iterations_median']:.0f} | {fmt_time(r['warm_median_s'])} "
-          f"({fmt_time(r['warm_cpu_median_s'])}) | {r['warm_iterations_median']:.0f} | "
-          f"{r['speedup']:.2f}× ({r['cold_cpu_median_s'] / r['warm_cpu_median_s']:.2f}×) | {r['max_position_difference_m']:.1e} m | {r['all_converged']} |")
-    w("")
-
-    a = res["accuracy"]
-    w("## 3. Accuracy vs cost (cantilever, tol 1e-12)\n")
-    fine = a["rows"][0]["fine_links"]
-    w(f"Tip error in % of L against the inextensible elastica and against {fine} links of the same "
-      f"(extensible, shearable) model.\n")
-    w("| PL²/EI | links | vs elastica | vs " + str(fine) + " links | iterations | load steps | time (wall / CPU) |")
-    w("|---|---|---|---|---|---|---|")
-    for r in a["rows"]:
-        w(f"| {r['load_parameter']:g} | {r['links']} | {pct(r['error_vs_elastica'])} | {pct(r['error_vs_fine'])} | "
-          f"{r['iterations']} | {r['load_steps']} | {fmt_time(r['time']['median_s'])} / {fmt_time(r['time']['cpu_median_s'])} |")
-    w("\nFloor (" + str(fine) + " links vs elastica): " + ", ".join(
-        f"PL²/EI = {k}: {pct(next(r['fine_vs_elastica'] for r in a['rows'] if str(r['load_parameter']) == k))}"
-        for k in a["orders"]) + ".")
-    w("Observed order (fit of the error vs " + str(fine) + " links): " + ", ".join(
-        f"PL²/EI = {k}: {v:.2f}" for k, v in a["orders"].items()) + ".\n")
-
-    w("Floor check: the same rod made (nearly) inextensible and shear-rigid (single solve each):\n")
-    w("| PL²/EI | links | section | tip error vs elastica | converged | iterations | load steps | time |")
-    w("|---|---|---|---|---|---|---|---|")
-    for r in a["floor_check"]:
-        w(f"| {r['load_parameter']:g} | {r['links']} | {r['section']} | {pct(r['error_vs_elastica'])} | "
-          f"{r['converged']} | {r['iterations']} | {r['load_steps']} | {fmt_time(r['time_s'])} |")
-    w("")
-
-    co = res["coil"]
-    w("## 4. Pure end moment: full coil (M = 2πEI/L) and 1.25 coils\n")
-    w("| turns | links | converged | iterations | load steps | factorization | closure \\|tip − base\\|/L | "
-      "error vs arc / L | tip angle error (rad) | time (wall / CPU) |")
-    w("|---|---|---|---|---|---|---|---|---|---|")
-    for r in co["rows"]:
-        if "error" in r:
-            w(f"| {r['turns']} | {r['links']} | crash: {r['error']} ||||||||")
-            continue
-        w(f"| {r['turns']} | {r['links']} | {r['converged']} | {r['iterations']} | {r['load_steps']} | "
-          f"{r['factorization']} | {r['closure']:.1e} | {r['arc_error']:.1e} | {r['tip_angle_error_rad']:.1e} | "
-          f"{fmt_time(r['time']['median_s'])} / {fmt_time(r['time']['cpu_median_s'])} |")
-    w("")
-
-    t = res["tolerance"]
-    w(f"## 5. Newton tolerance ({t['links']} links, PL²/EI = {t['load_parameter']:g})\n")
-    w("| tolerance | iterations | final residual | tip error vs tightest / L | tip error vs elastica | time (wall / CPU) |")
-    w("|---|---|---|---|---|---|")
-    for r in t["rows"]:
-        w(f"| {r['tolerance']:.0e} | {r['iterations']} | {r['residual']:.1e}{' (r)' if r['rounding_limited'] else ''} | "
-          f"{r['error_vs_tightest']:.1e} | {pct(r['error_vs_elastica'])} | {fmt_time(r['time']['median_s'])} / {fmt_time(r['time']['cpu_median_s'])} |")
-    w("")
-
-    o = res["one_step"]
-    w("## 6. One linearised step per tick vs converged re-solve (1 % change)\n")
-    w("Step = paper eqs. 10–12: tangent and residual at the previous equilibrium's actuation λ0 plus "
-      "B(λ − λ0). In brackets: a plain Newton step with the tangent at the new actuation.\n")
-    w("| case | tip change / L | error after 1 step / L | 1 step / change | after 2 steps / L | "
-      "1 step time (wall / CPU) | converged warm re-solve (wall / CPU) | its iterations |")
-    w("|---|---|---|---|---|---|---|---|")
-    for r in o["rows"]:
-        e1 = f"{r['one_step_error_previous']:.1e}"
-        e2 = f"{r['two_steps_error_previous']:.1e}"
-        if "one_step_error_new" in r:
-            e1 += f" ({r['one_step_error_new']:.1e})"
-            e2 += f" ({r['two_steps_error_new']:.1e})"
-        rel = r["one_step_relative_previous"]
-        w(f"| {r['case']} | {r['tip_change_per_L']:.1e} | {e1} | {rel if rel is not None else float('nan'):.1e} | "
-          f"{e2} | {fmt_time(r['one_step_s'])} / {fmt_time(r['one_step_cpu_s'])} | {fmt_time(r['warm_converged_s'])} / "
-          f"{fmt_time(r['warm_converged_cpu_s'])} | {r['warm_iterations']} |")
-    w("")
-    for lp in o["tick_loops"]:
-        w(f"* One step per tick, {lp['case']}, {lp['ticks']} ticks, never converging in between: "
-          f"max tip error {lp['max_error']:.1e} L, last {lp['last_error']:.1e} L.")
-    w("")
-    return "\n".join(out)
-
-
 def acceptance(res):
     acc = []
     ex = res["scaling"]["exponents"]
@@ -839,7 +609,7 @@ def acceptance(res):
             worst = max(r["error_vs_elastica"] for r in sel)
             loads = sorted({r["load_parameter"] for r in sel})
             acc.append({"criterion": f"{n} links, tip error vs elastica, PL²/EI ∈ {loads}",
-                        "target": f"≤ {100 * target:g} % of L", "measured": pct(worst), "met": worst <= target})
+                        "target": f"≤ {100 * target:g} % of L", "measured": sci_percent(worst), "met": worst <= target})
     coil = [r for r in res["coil"]["rows"] if r.get("turns") == 1.0 and "closure" in r]
     if coil:
         worst = max(r["closure"] for r in coil)
@@ -850,144 +620,16 @@ def acceptance(res):
 
 
 
-# --------------------------------------------------------------------------- A/B against a commit
-def snapshot(commit: str) -> tuple[str, Path]:
-    """A `git archive` of ``commit``'s package root, solver/ and store/ as ``<tmp>/vertebra``."""
-    import tempfile
-    sha = subprocess.run(["git", "rev-parse", commit], cwd=REPO, capture_output=True, text=True,
-                         check=True).stdout.strip()
-    tmp = Path(tempfile.mkdtemp(prefix=f"bench_solver_{sha[:10]}_"))
-    archive = subprocess.run(["git", "archive", sha, "__init__.py", "solver", "store"], cwd=REPO,
-                             capture_output=True, check=True).stdout
-    (tmp / "vertebra").mkdir()
-    subprocess.run(["tar", "-x", "-C", str(tmp / "vertebra")], input=archive, check=True)
-    return sha, tmp
-
-
-def ab_child(repeats: int) -> dict:
-    """One process of an A/B run: public-API timings of the speed-acceptance paths (median CPU
-    time of this thread, and wall time)."""
-    def measure(fn):
-        for _ in range(max(10, repeats // 10)):
-            fn()
-        cpu, wall = [], []
-        gc.disable()
-        for _ in range(repeats):
-            c0, w0 = time.thread_time(), time.perf_counter()
-            fn()
-            cpu.append(time.thread_time() - c0)
-            wall.append(time.perf_counter() - w0)
-        gc.enable()
-        return {"cpu_s": float(np.median(cpu)), "wall_s": float(np.median(wall))}
-
-    out = {}
-    cantilever_model = solver.build_model(gallery.load("cantilever"))
-    out["cantilever_20_solve"] = measure(lambda: cantilever_model.solve())
-    # the model's part of an inverse tick (linearise, K⁻¹[r, B], retraction, effector positions),
-    # ticking on from state to state as a control loop does, with the actuation moving ±1 %
-    model = solver.build_model(gallery.load("paper_5v_16t"))
-    lam0 = active_actuation(model)
-    start = model.solve(lam0).state
-    n_act = lam0.size
-    change = 0.01 * lam0
-    loop = {"state": start, "lam": lam0, "k": 0}
-    parts = {"linearise": [], "solve_rhs": [], "step": [], "effectors": []}
-
-    def tick():
-        state, lam = loop["state"], loop["lam"]
-        t0 = time.thread_time()
-        lin = model.linearise(state, lam)
-        t1 = time.thread_time()
-        rhs = np.empty((model.n_dof, 1 + n_act), order="F")
-        rhs[:, 0] = lin.residual
-        rhs[:, 1:] = lin.actuator_forces
-        X = lin.solve(rhs)
-        t2 = time.thread_time()
-        d_lam = change if loop["k"] % 2 == 0 else -change
-        new_state = model.step(state, X[:, 0] + X[:, 1:] @ d_lam)
-        t3 = time.thread_time()
-        model.effector_positions(new_state)
-        t4 = time.thread_time()
-        for key, value in zip(parts, (t1 - t0, t2 - t1, t3 - t2, t4 - t3)):
-            parts[key].append(value)
-        loop.update(state=new_state, lam=lam + d_lam, k=loop["k"] + 1)
-
-    out["paper_5v_16t_tick_model"] = measure(tick)
-    for key, values in parts.items():
-        out[f"tick_{key}"] = {"cpu_s": float(np.median(values[-repeats:]))}
-    return out
-
-
-def ab(commit: str, rounds: int, repeats: int, out_dir: Path | None) -> int:
-    """Alternate processes on the working tree and on ``commit`` (B A B A …) and print, per path,
-    the median over rounds of each side's median and their ratio (tree / commit)."""
-    import shutil
-    sha, tmp = snapshot(commit)
-    sides = {"tree": dict(os.environ), "commit": dict(os.environ, BENCH_SOLVER_ROOT=str(tmp), BENCH_SOLVER_SNAPSHOT=sha)}
-    runs = {"tree": [], "commit": []}
-    try:
-        for r in range(rounds):
-            for side in (("commit", "tree") if r % 2 == 0 else ("tree", "commit")):
-                text = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--ab-child", str(repeats)],
-                                      env=sides[side], capture_output=True, text=True, check=True).stdout
-                runs[side].append(json.loads(text.strip().splitlines()[-1]))
-            print(f"  round {r + 1}/{rounds} done (load {loadavg()})", flush=True)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-    result = {"commit": sha, "rounds": rounds, "repeats": repeats, "date": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime()),
-              "loadavg_end": loadavg(), "paths": {}}
-    print(f"A/B: working tree vs {sha[:10]}, {rounds} rounds of {repeats} repeats, median CPU time per call")
-    for path in runs["tree"][0]:
-        tree = float(np.median([run[path]["cpu_s"] for run in runs["tree"]]))
-        base = float(np.median([run[path]["cpu_s"] for run in runs["commit"]]))
-        result["paths"][path] = {"tree_cpu_s": tree, "commit_cpu_s": base, "ratio": tree / base}
-        print(f"  {path:<28} tree {fmt_time(tree):>9}  {sha[:10]} {fmt_time(base):>9}  ratio {tree / base:.3f}")
-    if out_dir is not None:
-        out_dir.mkdir(parents=True, exist_ok=True)
-        (out_dir / "solver-ab.json").write_text(json.dumps(result, indent=1) + "\n")
-    return 0
-
-
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="fast smoke run (small sizes, few repeats)")
     ap.add_argument("--out", type=Path, default=None, help="output directory (default benchmarks/results)")
     ap.add_argument("--only", nargs="*", default=None,
                     help="sections to run (scaling gallery accuracy coil tolerance one_step)")
-    ap.add_argument("--commit", default=None,
-                    help="benchmark the solver of this commit (a `git archive` snapshot in a temporary "
-                         "directory), whatever the working tree holds")
-    ap.add_argument("--ab", metavar="REV", default=None,
-                    help="compare the working tree with REV on the acceptance paths (public API only), "
-                         "in alternating processes; prints ratios (with --out: also solver-ab.json)")
-    ap.add_argument("--rounds", type=int, default=10, help="--ab: processes per side")
-    ap.add_argument("--repeats", type=int, default=400, help="--ab: timed calls per process and path")
-    ap.add_argument("--ab-child", type=int, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
-    if args.ab_child is not None:
-        print(json.dumps(ab_child(args.ab_child)))
-        return 0
-    if args.ab:
-        return ab(args.ab, args.rounds, args.repeats, args.out)
-    if args.commit and not os.environ.get("BENCH_SOLVER_SNAPSHOT"):
-        import shutil
-        import tempfile
-        sha, tmp = snapshot(args.commit)
-        try:
-            env = dict(os.environ, BENCH_SOLVER_ROOT=str(tmp), BENCH_SOLVER_SNAPSHOT=sha)
-            rest = [a for a in (argv if argv is not None else sys.argv[1:])]
-            i = rest.index("--commit")
-            rest = rest[:i] + rest[i + 2:]
-            if args.out is None:
-                out = Path(tempfile.gettempdir()) / f"bench_solver_quick_{os.getuid()}" if args.quick else RESULTS
-                rest += ["--out", str(out)]
-            return subprocess.call([sys.executable, str(Path(__file__).resolve()), *rest], env=env)
-        finally:
-            shutil.rmtree(tmp, ignore_errors=True)
     if args.out:
         out_dir = args.out
     elif args.quick:
-        import tempfile
         out_dir = Path(tempfile.gettempdir()) / f"bench_solver_quick_{os.getuid()}"
     else:
         out_dir = RESULTS
@@ -1018,9 +660,11 @@ def main(argv=None):
         res["acceptance"] = acceptance(res)
         for a in res["acceptance"]:
             print(f"  [{'met' if a['met'] else 'NOT MET'}] {a['criterion']}: {a['measured']} (target {a['target']})")
-    (out_dir / f"{stem}.json").write_text(json.dumps(res, indent=1, default=float) + "\n")
-    if not args.only:
-        (out_dir / f"{stem}.md").write_text(markdown(res) + "\n")
+    if args.only:
+        from benchmarks.common import write_json
+        write_json(res, out_dir / f"{stem}.json")
+    else:
+        render.write("solver", res, out_dir, stem=stem)
     print(f"wrote {out_dir / (stem + '.json')} in {res['total_s']:.0f} s")
 
 

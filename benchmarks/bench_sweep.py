@@ -16,13 +16,12 @@ Three measurements, in one run:
 The machine is shared (2 cores, other work running): the load average is
 recorded next to the numbers. Results: benchmarks/results/sweep.json and .md.
 
-    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_sweep.py [--entries 6] [--mesh-size 0.004]
+    OMP_NUM_THREADS=1 .venv/bin/python -m benchmarks.bench_sweep [--entries 6] [--mesh-size 0.004]
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import sys
@@ -31,12 +30,11 @@ import time
 from datetime import datetime, timezone
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-
+from benchmarks import render
+from benchmarks.common import ROOT
 from vertebra.designer.sweep import expand, parse_spec, plan_sweep, run_sweep  # noqa: E402
 from vertebra.store.entry import SegmentEntry, content_key  # noqa: E402
 
-RESULTS = ROOT / "benchmarks" / "results"
 
 
 # ---- no-op designer and store for the overhead measurement (module level: picklable) ----
@@ -194,47 +192,6 @@ def planning_rows(tasks: int) -> list[dict]:
     return rows
 
 
-def markdown(result: dict) -> str:
-    lines = [
-        "# Sweep throughput (benchmarks/bench_sweep.py)", "",
-        f"{result['date']}, commit {result['commit']}, {result['host']}, {result['cpus']} CPUs shared with other "
-        f"work (load average at start {result['load_start']:.2f}); Python {result['python']}.", "",
-        f"## Real coarse rod entries ({result['real']['entries']} rods of radius 4-7.5 mm, length 20 mm, "
-        f"P{result['real']['order']}, no accuracy estimate, a fresh HDF5 catalogue for each run; "
-        f"best of {result['real']['repeat']} interleaved runs per row)", "",
-        "| mesh size m | DoFs (mean) | executor | workers | entries | best wall s | median wall s | entries/min (best) "
-        "| mean task s | mean task CPU s | efficiency | load before | same keys | complete runs |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
-    ]
-    for r in result["real"]["rows"]:
-        lines.append(f"| {r['mesh_size']} | {r['dofs_mean'] or 0:.0f} | {r['executor']} | {r['workers']} | "
-                     f"{r['entries']} | {r['wall_s']:.1f} | {r['median_wall_s']:.1f} | "
-                     f"{(r['entries_per_minute'] or 0):.2f} | {r['mean_task_s']:.2f} | {r['mean_task_cpu_s']:.2f} | "
-                     f"{r['efficiency']:.2f} | "
-                     f"{r['load_before']:.1f} | {r['same_keys_as_local_1']} | {r['complete_runs']}/{r['runs']} |")
-    lines += ["", "Wall time includes starting the pool or the dask LocalCluster. Efficiency = sum of worker "
-              "task seconds / (workers x wall). Mean task s is the wall time a worker spent per entry, mean task "
-              "CPU s the CPU time its process got meanwhile: when they differ, the worker waited for a core "
-              "(the 2 cores are shared with other jobs; the load average is the 1-minute one before each row).", "",
-              f"## Executor overhead (no-op job, {result['overhead'][0]['tasks']} tasks)", "",
-              "| executor | workers | start s | first result s | per task ms | shutdown s |",
-              "|---|---|---|---|---|---|"]
-    for r in result["overhead"]:
-        lines.append(f"| {r['executor']} | {r['workers']} | {r['start_s']:.2f} | {r['first_result_s']:.2f} | "
-                     f"{r['per_task_ms']:.2f} | {r['shutdown_s']:.2f} |")
-    lines += ["", "start: entering the executor (dask: LocalCluster and Client); first result: until the first "
-              "task came back (local: spawning workers and importing vertebra in them); per task: "
-              "(last - first result) / (tasks - 1), i.e. throughput cost per task once running.", "",
-              f"## Planning ({result['planning'][0]['tasks']} rod tasks, real canonical parameters and keys, "
-              "no meshing)", "",
-              "| catalogue | per task ms | total s |", "|---|---|---|"]
-    for r in result["planning"]:
-        lines.append(f"| {r['catalogue']} | {r['per_task_ms']:.3f} | {r['total_s']:.2f} |")
-    lines += ["", "Without a catalogue file the store is asked per key (committed shards only); with one, "
-              "every key is read once."]
-    return "\n".join(lines) + "\n"
-
-
 def _commit() -> str | None:
     import subprocess
 
@@ -265,11 +222,8 @@ def main(argv=None) -> int:
     result["real"] = {"entries": args.entries, "mesh_sizes": args.mesh_size, "order": args.order,
                       "repeat": args.repeat,
                       "rows": [row for h in args.mesh_size for row in real_rows(args.entries, h, args.order, args.repeat)]}
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "sweep.json").write_text(json.dumps(result, indent=1) + "\n")
-    text = markdown(result)
-    (RESULTS / "sweep.md").write_text(text)
-    print(text)
+    render.write("sweep", result)
+    print(render.markdown("sweep", result))
     return 0
 
 

@@ -55,14 +55,14 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from bench_runtime_nonlinear import linear_of, loadavg, log  # noqa: E402  (this folder)
+from benchmarks import render  # noqa: E402
+from benchmarks.bench_runtime_nonlinear import linear_of  # noqa: E402
+from benchmarks.common import DOCS, RESULTS, loadavg, log, timed  # noqa: E402
 from vertebra import solver
 from vertebra.core import lie  # noqa: E402
 from vertebra.solver import analytic  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
-RESULTS = HERE / "results"
-DOCS = HERE.parent / "docs"
 CACHE = HERE.parent / "tmp" / "cache"
 MATERIAL = "neo_hookean"
 ROD = dict(radius=0.01, length=0.04, youngs_modulus=1e6, poisson_ratio=0.3)
@@ -76,12 +76,7 @@ BAR = 1e5
 
 def cpu_median(fn, repeats: int) -> float:
     """Median CPU time of the calling thread over ``repeats`` calls of ``fn``."""
-    times = []
-    for _ in range(repeats):
-        start = time.thread_time()
-        fn()
-        times.append(time.thread_time() - start)
-    return float(np.median(times))
+    return timed(fn, repeats, warmup=0)[1]["thread_median_s"]
 
 
 def interleaved(fns: dict, rounds: int, repeats: int) -> dict:
@@ -235,11 +230,6 @@ def both(entry) -> dict:
     return {"nonlinear": entry, "linear": linear_of(entry)}
 
 
-def pct(x: float) -> str:
-    return "—" if x is None or not math.isfinite(x) else (f"{x:.4f} %" if x < 0.01 else
-                                                          f"{x:.3f} %" if x < 1 else f"{x:.2f} %")
-
-
 # ------------------------------------------------------------------ (a) mesh size and element order
 
 MESH_DESIGNS = [Design(f"rod-P{order}-h{1e3 * h:g}", "rod", ROD, h, order, {"degree": 6})
@@ -306,58 +296,6 @@ def reference_error(rows, h_ref: float) -> dict | None:
             "fit_residual_pct": float(np.abs(fitted - e).max())}
 
 
-def markdown_mesh(section) -> list:
-    rows = section["rows"]
-    angles = [lv["fe_angle_deg"] for lv in rows[0]["levels"]]
-    head = " / ".join(f"{a:.0f}°" for a in angles)
-    out = ["## (a) Mesh size and element order of the designed entry", "",
-           f"Two neo-Hookean rod segments (R 10 mm, L 40 mm, E 1 MPa, ν 0.3), dead tip force; reference: the "
-           f"full nonlinear FE on a P{section['reference']['order']} mesh of "
-           f"{1e3 * section['reference']['mesh_size']:g} mm. "
-           "Tip error in % of the trunk length at the FE tip angles "
-           f"{head}. `own-mesh FE`: the full FE on the entry's mesh (its discretisation error alone); "
-           "cost: wall time of the design on 2 workers (linear condensation / total).", "",
-           "| entry | DoFs | design s (linear / total) | held-out load | own-mesh FE | nonlinear entry "
-           "| linear entry |",
-           "|---|---|---|---|---|---|---|"]
-    for r in rows:
-        lv = r["levels"]
-        out.append(f"| P{r['order']} h {1e3 * r['mesh_size']:g} mm | {r['dofs']} | {r['cost']['linear_s']:.2f} / "
-                   f"{r['cost']['total_s']:.0f} | {100 * r['held_out_load_max']:.2f} % | "
-                   + " / ".join(f"{x['same_mesh_fe_pct']:.3f}" for x in lv) + " % | "
-                   + " / ".join(f"{x['nonlinear']['tip_error_pct']:.3f}"
-                                + ("*" if x["nonlinear"]["out_of_range"] else "") for x in lv) + " % | "
-                   + " / ".join(f"{x['linear']['tip_error_pct']:.3f}" for x in lv) + " % |")
-    out += ["", "`*`: the runtime reported states outside the fitted range.", ""]
-    est = section.get("reference_error")
-    if est:
-        out += [f"Own-mesh FE distances of the P2 meshes at {est['angle_deg']:.0f}° fit e(h) = c (h^q − h_ref^q) "
-                f"with q = {est['order']:.2f} (largest misfit {est['fit_residual_pct']:.3f} % of length): the "
-                f"reference itself is then ~{est['reference_error_pct']:.2f} % of length from the mesh-converged "
-                "answer (an estimate, not a measurement).", ""]
-    return out
-
-
-def plot_mesh(ax, section):
-    rows = section["rows"]
-    top = -1
-    for order, marker in ((1, "s"), (2, "o")):
-        sel = [r for r in rows if r["order"] == order]
-        if not sel:
-            continue
-        x = [r["cost"]["total_s"] for r in sel]
-        ax.plot(x, [r["levels"][top]["nonlinear"]["tip_error_pct"] for r in sel], marker + "-",
-                label=f"P{order} nonlinear entry")
-        ax.plot([r["cost"]["linear_s"] for r in sel], [r["levels"][top]["linear"]["tip_error_pct"] for r in sel],
-                marker + "--", mfc="none", label=f"P{order} linear entry")
-        for r, xi in zip(sel, x):
-            ax.annotate(f"{1e3 * r['mesh_size']:g} mm", (xi, r["levels"][top]["nonlinear"]["tip_error_pct"]),
-                        fontsize=7, xytext=(3, 3), textcoords="offset points")
-    angle = rows[0]["levels"][top]["fe_angle_deg"]
-    ax.set(xlabel="design cost (wall s, 2 workers)", ylabel="tip error, % of length",
-           title=f"(a) mesh size and order (2 rods, {angle:.0f}°)")
-
-
 # ------------------------------------------------------------------ (b) fit degree and sampling density
 
 def section_fit(results, cache, refs, quick):
@@ -387,35 +325,6 @@ def section_fit(results, cache, refs, quick):
                                                           for t in series if not t["left_range"])})
     results["fit"] = {"rows": rows, "source": "benchmarks/results/nonlinear.json", "date": data["machine"]["date"],
                       "dofs": cost.get("dofs"), "per_solve_s": per_solve, "workers": cost.get("workers")}
-
-
-def markdown_fit(section) -> list:
-    out = ["## (b) Fit degree and sampling density of ψ", "",
-           f"Read from `{section['source']}` ({section['date']}; rod entry at {section['dofs']} DoFs, "
-           f"{section['per_solve_s']:.2f} wall s per FE sample on {section['workers']} workers). Tip error: "
-           "largest over trunks of 2 and 4 rods, planar and 3D, while the state stays in the fitted range "
-           "(linear entries on the same cases in the last column); kernel: the links' part of one Newton "
-           "evaluation for 20 links.", "",
-           "| degree | loading paths | samples | sampling s (est.) | kernel µs | held-out load | tip error (in range) "
-           "| up to | linear entries |", "|---|---|---|---|---|---|---|---|---|"]
-    for r in section["rows"]:
-        kernel = "—" if r["kernel_us"] is None else f"{r['kernel_us']:.0f}"
-        out.append(f"| {r['degree']} | {r['paths']} | {r['samples']} | {r['sampling_s_estimate']:.0f} | {kernel} | "
-                   f"{100 * r['held_out_load_max']:.2f} % | {pct(r['tip_max_in_range_pct'])} | "
-                   f"{r['max_angle_in_range']:.0f}° | {pct(r['linear_max_in_range_pct'])} |")
-    return out + [""]
-
-
-def plot_fit(ax, section):
-    for degree, marker in ((4, "s"), (6, "o"), (8, "^")):
-        sel = sorted((r for r in section["rows"] if r["degree"] == degree), key=lambda r: r["samples"])
-        if sel:
-            ax.plot([r["sampling_s_estimate"] for r in sel], [r["tip_max_in_range_pct"] for r in sel],
-                    marker + "-", label=f"degree {degree}")
-    linear = max(r["linear_max_in_range_pct"] for r in section["rows"])
-    ax.axhline(linear, color="grey", ls=":", label="linear entries")
-    ax.set(xlabel="sampling cost (wall s, est.)", ylabel="largest tip error in range, % of length",
-           title="(b) fit degree and sampling density")
 
 
 # ------------------------------------------------------------------ (c) links per segment (analytic beams)
@@ -460,37 +369,6 @@ def section_links(results, cache, refs, quick):
     results["links"] = {"rows": rows, "rod": SLENDER, "fine_links_per_segment": LINKS_FINE}
 
 
-def markdown_links(section) -> list:
-    s = section["rod"]
-    out = ["## (c) Links per segment (analytic beams)", "",
-           f"A catalogue entry is one link between its two vertebrae by construction (`elements` must be 1); "
-           f"the knob belongs to analytic beams. Soft slender rod: {s['count']} segments of "
-           f"{1e3 * s['length']:g} mm, radius {1e3 * s['radius']:g} mm, E {s['youngs_modulus']:.0e} Pa, dead tip "
-           f"force P L²/EI = k. Tip error in % of length against the inextensible elastica (closed form; the "
-           f"extensible, shearable beam differs from it by a floor) and against {section['fine_links_per_segment']} "
-           "links per segment of the same model; CPU ms per forward solve (interleaved medians).", "",
-           "| k | tip angle | links per segment | links | vs elastica | vs fine | solve ms | iterations |",
-           "|---|---|---|---|---|---|---|---|"]
-    for r in section["rows"]:
-        out.append(f"| {r['load_parameter']:g} | {r['tip_angle_deg']:.0f}° | {r['links_per_segment']} | "
-                   f"{r['links']} | "
-                   f"{pct(r['elastica_pct'])} | {pct(r['fine_pct'])} | {r['solve_ms']:.3f} | {r['iterations']} |")
-    return out + [""]
-
-
-def plot_links(ax, section):
-    for k, marker in zip(sorted({r["load_parameter"] for r in section["rows"]}), "os^"):
-        sel = [r for r in section["rows"] if r["load_parameter"] == k]
-        line, = ax.plot([r["solve_ms"] for r in sel], [r["fine_pct"] for r in sel], marker + "-",
-                        label=f"PL²/EI = {k:g} (vs fine)")
-        ax.plot([r["solve_ms"] for r in sel], [r["elastica_pct"] for r in sel], marker + ":", mfc="none",
-                color=line.get_color(), label=f"PL²/EI = {k:g} (vs elastica)")
-        for r in sel:
-            ax.annotate(str(r["links_per_segment"]), (r["solve_ms"], r["fine_pct"]), fontsize=7,
-                        xytext=(3, 3), textcoords="offset points")
-    ax.set(xlabel="forward solve (CPU ms)", ylabel="tip error, % of length", title="(c) links per segment (beams)")
-
-
 # ------------------------------------------------------------------ (d) linear vs nonlinear entries
 
 ENTRY_DESIGN = MESH_DESIGNS[1]                    # P2, 8 mm: the rod entry of (d), (e)
@@ -532,48 +410,6 @@ def section_entries(results, cache, refs, quick):
                           "terms": int(entry.energy.coefficients.size)}
 
 
-def markdown_entries(section) -> list:
-    out = ["## (d) Linear vs nonlinear entries at increasing bending (the headline)", "",
-           f"Trunks of four neo-Hookean rod segments (entry `{section['entry']}`, {section['dofs']} DoFs, "
-           f"ψ of {section['terms']} terms), dead loads; reference: the full nonlinear FE of the same meshes. Tip "
-           "error in % of the trunk length; CPU ms per forward solve from rest (interleaved medians) with its "
-           "Newton iterations; `*`: states reported outside the fitted range.", "",
-           "| case | FE tip angle | nonlinear: tip error | ms (it) | linear: tip error | ms (it) | FE wall s |",
-           "|---|---|---|---|---|---|---|"]
-    for r in section["rows"]:
-        nl, li = r["nonlinear"], r["linear"]
-        fe = "cached" if r["fe_seconds"] is None else f"{r['fe_seconds']:.0f}"
-        out.append(f"| {r['case']} ×{r['level']:g} | {r['fe_angle_deg']:.0f}° | {pct(nl['tip_error_pct'])}"
-                   f"{'*' if nl['out_of_range'] else ''} | {nl['solve_ms']:.2f} ({nl['iterations']}) | "
-                   f"{pct(li['tip_error_pct'])} | {li['solve_ms']:.2f} ({li['iterations']}) | {fe} |")
-    return out + [""]
-
-
-def plot_entries(ax, section):
-    for case, marker in zip(sorted({r["case"] for r in section["rows"]}), "os"):
-        sel = [r for r in section["rows"] if r["case"] == case]
-        for kind, style in (("nonlinear", "-"), ("linear", "--")):
-            x = [r[kind]["solve_ms"] for r in sel]
-            y = [r[kind]["tip_error_pct"] for r in sel]
-            ax.plot(x, y, marker + style, mfc="none" if kind == "linear" else None, label=f"{case}: {kind} entries")
-            for r, xi, yi in zip(sel, x, y):
-                ax.annotate(f"{r['fe_angle_deg']:.0f}°", (xi, yi), fontsize=7, xytext=(3, 3),
-                            textcoords="offset points")
-    ax.set(xlabel="forward solve (CPU ms)", ylabel="tip error vs full nonlinear FE, % of length",
-           title="(d) linear vs nonlinear entries (labels: tip angle)")
-
-
-def plot_entries_by_angle(ax, section):
-    """The same errors against the FE tip angle (the companion of the headline panel)."""
-    for case, marker in zip(sorted({r["case"] for r in section["rows"]}), "os"):
-        sel = [r for r in section["rows"] if r["case"] == case]
-        for kind, style in (("nonlinear", "-"), ("linear", "--")):
-            ax.plot([r["fe_angle_deg"] for r in sel], [r[kind]["tip_error_pct"] for r in sel], marker + style,
-                    mfc="none" if kind == "linear" else None, label=f"{case}: {kind} entries")
-    ax.set(xlabel="tip angle of the full FE (°)", ylabel="tip error vs full nonlinear FE, % of length",
-           title="(d) the same against bending")
-
-
 # ------------------------------------------------------------------ (e) Newton tolerance
 
 TOLERANCES = (1e-2, 1e-3, 1e-4, 1e-6, 1e-8, 1e-10, 1e-12)
@@ -601,30 +437,6 @@ def section_tolerance(results, cache, refs, quick):
         log(f"  tolerance {tol:g}: {rows[-1]['iterations']} it, {rows[-1]['solve_ms']:.2f} ms, "
             f"vs tightest {rows[-1]['vs_tightest_pct']:.2g} %, vs FE {rows[-1]['vs_fe_pct']:.3g} %")
     results["tolerance"] = {"rows": rows, "case": f"{label} ×{level:g}", "fe_angle_deg": angle_of(ref["rotation"])}
-
-
-def markdown_tolerance(section) -> list:
-    out = ["## (e) Newton tolerance", "",
-           f"{section['case']} (nonlinear entries, FE tip angle {section['fe_angle_deg']:.0f}°): tip difference "
-           "to a solve at 1e-13 and tip error against the full nonlinear FE, in % of length; CPU ms per solve "
-           "from rest. The tolerance bounds the scaled residual (see the solver docs).", "",
-           "| tolerance | iterations | residual | vs tightest | vs full FE | solve ms |", "|---|---|---|---|---|---|"]
-    for r in section["rows"]:
-        out.append(f"| {r['tolerance']:g} | {r['iterations']} | {r['residual']:.1e} | {r['vs_tightest_pct']:.1e} % | "
-                   f"{pct(r['vs_fe_pct'])} | {r['solve_ms']:.2f} |")
-    return out + [""]
-
-
-def plot_tolerance(ax, section):
-    rows = section["rows"]
-    floor = 1e-12
-    x = [r["solve_ms"] for r in rows]
-    ax.plot(x, [max(r["vs_tightest_pct"], floor) for r in rows], "o-", label="vs tightest solve")
-    ax.plot(x, [r["vs_fe_pct"] for r in rows], "s--", label="vs full nonlinear FE")
-    for r, xi in zip(rows, x):
-        ax.annotate(f"{r['tolerance']:g}", (xi, max(r["vs_tightest_pct"], floor)), fontsize=7, xytext=(3, 3),
-                    textcoords="offset points")
-    ax.set(xlabel="forward solve (CPU ms)", ylabel="tip error, % of length", title="(e) Newton tolerance")
 
 
 # ------------------------------------------------------------------ shared by (f), (g), (h): the CBHA entry
@@ -685,38 +497,11 @@ def section_tick(results, cache, refs, quick):
                        "centre_pressures": {f"c{k}": p for k, p in TRACK_CENTRE.items()}}
 
 
-def markdown_tick(section) -> list:
-    out = ["## (f) Tick vs converged inverse", "",
-           f"{section['slices']} CBHA-like slices with nonlinear entries, three chambers (0–1.5 bar); the tip "
-           f"target runs once round a horizontal circle of {1e3 * section['radius_m']:g} mm radius about the tip "
-           "reached at 0.6/0.3/0.3 bar. Error: distance from the target of the equilibrium that the commanded "
-           "pressures reach (a tick's own state is a linear prediction, so every step is solved to equilibrium "
-           "after the run); time: CPU ms per step of the timed run (median of interleaved repeats).", "",
-           "| mode | targets per lap | target step | ms per step | mean error | max error |",
-           "|---|---|---|---|---|---|"]
-    for r in section["rows"]:
-        out.append(f"| {r['mode']} | {r['points_per_lap']} | {r['target_step_mm']:.2f} mm | {r['step_ms']:.2f} | "
-                   f"{1e3 * r['mean_error_mm']:.3g} µm | {1e3 * r['max_error_mm']:.3g} µm |")
-    return out + [""]
-
-
 FLOOR_UM = 1e-6     # errors below this (µm) are drawn at it: log axes
 
 
 def um(x_mm: float) -> float:
     return max(1e3 * x_mm, FLOOR_UM)
-
-
-def plot_tick(ax, section):
-    for mode, marker in (("tick", "o"), ("converged", "s")):
-        sel = [r for r in section["rows"] if r["mode"] == mode]
-        ax.plot([r["step_ms"] for r in sel], [um(r["max_error_mm"]) for r in sel], marker + "-", label=f"{mode}: max")
-        ax.plot([r["step_ms"] for r in sel], [um(r["mean_error_mm"]) for r in sel], marker + ":", mfc="none",
-                label=f"{mode}: mean")
-        for r in sel:
-            ax.annotate(f"{r['points_per_lap']}/lap", (r["step_ms"], um(r["max_error_mm"])), fontsize=7,
-                        xytext=(3, 3), textcoords="offset points")
-    ax.set(xlabel="inverse step (CPU ms)", ylabel="tracking error at equilibrium (µm)", title="(f) tick vs converged")
 
 
 # ------------------------------------------------------------------ (g) QP tolerance and regularisation
@@ -761,36 +546,6 @@ def section_qp(results, cache, refs, quick):
                                       f"{1e3 * r['max_error_mm']:.3g} µm {r['step_ms']:.2f} ms"
                                       for r in rows if r["mode"] == mode))
     results["qp"] = {"rows": rows, "targets": len(targets), "slices": TRACK_SLICES}
-
-
-def markdown_qp(section) -> list:
-    out = ["## (g) QP tolerance and regularisation of the inverse", "",
-           f"{section['slices']} CBHA slices (nonlinear entries), {section['targets']} targets round the circle "
-           "of (f). "
-           "The regularisation is swept with the exact QP (`daqp`, which has no tolerance); the QP tolerance "
-           "with the iterative Gauss–Seidel QP at the default regularisation. Error: distance of the "
-           "equilibrium reached from the target (µm); CPU ms per step.", "",
-           "| mode | QP | regularisation | QP tolerance | ms per step | mean error µm | max error µm |",
-           "|---|---|---|---|---|---|---|"]
-    for r in section["rows"]:
-        tol = "—" if r["backend"] == "daqp" else f"{r['qp_tolerance']:g}"
-        out.append(f"| {r['mode']} | {r['backend']} | {r['regularisation']:g} | {tol} | {r['step_ms']:.2f} | "
-                   f"{1e3 * r['mean_error_mm']:.3g} | {1e3 * r['max_error_mm']:.3g} |")
-    return out + [""]
-
-
-def plot_qp(ax, section):
-    groups = sorted({(r["mode"], r["backend"]) for r in section["rows"]})
-    for (mode, backend), marker in zip(groups, "os^d"):
-        sel = [r for r in section["rows"] if r["mode"] == mode and r["backend"] == backend]
-        knob = "regularisation" if backend == "daqp" else "qp_tolerance"
-        ax.plot([r["step_ms"] for r in sel], [um(r["max_error_mm"]) for r in sel], marker + "-",
-                label=f"{mode}, {backend}: {knob.replace('_', ' ')}")
-        for r in sel:
-            ax.annotate(f"{r[knob]:g}", (r["step_ms"], um(r["max_error_mm"])), fontsize=6,
-                        xytext=(3, 3), textcoords="offset points")
-    ax.set(xlabel="inverse step (CPU ms)", ylabel="max target error at equilibrium (µm)",
-           title="(g) QP regularisation and tolerance (labels)")
 
 
 # ------------------------------------------------------------------ (h) CBHA-like section, forward and inverse
@@ -862,130 +617,18 @@ def section_cbha(results, cache, refs, quick):
                        "dofs": int(entry.mesh.get("dofs", 0)), "terms": int(entry.energy.coefficients.size)}
 
 
-def markdown_cbha(section) -> list:
-    out = ["## (h) CBHA-like pneumatic section: forward and inverse, linear vs nonlinear entries", "",
-           f"{section['slices']} slices (R 40 mm, three chambers r 10 mm at 21.5 mm, L 30 mm, E 0.5 MPa, ν 0.45; "
-           f"entry {section['entry']}, {section['dofs']} DoFs, ψ of {section['terms']} terms) against the full "
-           "nonlinear FE with follower pressure on the same meshes.", "",
-           "### Forward: chamber 0 pressurised", "",
-           "Tip error in % of length; bending angle and chamber volume growth relative to the FE; CPU ms per "
-           "solve.", "",
-           "| pressure | FE angle | nonlinear: tip | angle | volume | ms | linear: tip | angle | volume | ms |",
-           "|---|---|---|---|---|---|---|---|---|---|"]
-    for r in section["forward"]:
-        if "failed" in r:
-            out.append(f"| {r['pressure_bar']:g} bar | FE failed: {r['failed']} |||||||||")
-            continue
-        nl, li = r["nonlinear"], r["linear"]
-        out.append(f"| {r['pressure_bar']:g} bar | {r['fe_angle_deg']:.1f}° | {pct(nl['tip_error_pct'])}"
-                   f"{'*' if nl['out_of_range'] else ''} | {nl['angle_error_pct']:+.2f} % | "
-                   f"{nl['volume_error_pct']:+.2f} % | "
-                   f"{nl['solve_ms']:.2f} | {pct(li['tip_error_pct'])} | {li['angle_error_pct']:+.1f} % | "
-                   f"{li['volume_error_pct']:+.1f} % | {li['solve_ms']:.2f} |")
-    out += ["", "### Inverse: chamber pressures for a target tip position, applied to the full FE", "",
-            "The target is the FE tip under the pressures of the first column (so it is reachable); each model "
-            "computes pressures (converged inverse, bounds 0–1.5 bar), which are then applied to the full "
-            "nonlinear FE. `model error`: what the model believes; `FE error`: the achieved tip's distance from "
-            "the target, in % of length.", "",
-            "| target from (bar) | offset | nonlinear: pressures (bar) | model error | FE error | ms | "
-            "linear: pressures (bar) | model error | FE error | ms |", "|---|---|---|---|---|---|---|---|---|---|"]
-    for r in section["inverse"]:
-        if "failed" in r:
-            out.append(f"| {r['pressures_bar']} | FE failed: {r['failed']} |||||||||")
-            continue
-        cells = []
-        for kind in ("nonlinear", "linear"):
-            k = r[kind]
-            fe = pct(k["fe_error_pct"]) if k["fe_error_pct"] is not None else f"FE failed ({k['fe_failed'][:40]})"
-            cells.append(f"{' / '.join(f'{x:.3f}' for x in k['pressures_bar'])} | {pct(k['model_error_pct'])} | "
-                         f"{fe} | {k['invert_ms']:.1f}")
-        out.append(f"| {' / '.join(f'{x:g}' for x in r['pressures_bar'])} | {r['target_offset_pct']:.1f} % | "
-                   + " | ".join(cells) + " |")
-    return out + [""]
-
-
-def plot_cbha(ax, section):
-    rows = [r for r in section["forward"] if "failed" not in r]
-    for kind, style in (("nonlinear", "o-"), ("linear", "s--")):
-        ax.plot([r[kind]["solve_ms"] for r in rows], [r[kind]["tip_error_pct"] for r in rows], style,
-                mfc="none" if kind == "linear" else None, label=f"forward, {kind} entries")
-        for r in rows:
-            ax.annotate(f"{r['pressure_bar']:g} bar", (r[kind]["solve_ms"], r[kind]["tip_error_pct"]), fontsize=6,
-                        xytext=(3, 3), textcoords="offset points")
-    inv = [r for r in section["inverse"] if "failed" not in r]
-    for kind, marker in (("nonlinear", "*"), ("linear", "X")):
-        sel = [r for r in inv if r[kind]["fe_error_pct"] is not None]
-        ax.plot([r[kind]["invert_ms"] for r in sel], [r[kind]["fe_error_pct"] for r in sel], marker, ms=9,
-                label=f"inverse → FE, {kind} entries")
-    ax.set(xlabel="solve / inverse (CPU ms)", ylabel="tip error vs full nonlinear FE, % of length",
-           title="(h) CBHA section, 0–1.5 bar")
-
-
 # ------------------------------------------------------------------ output
 
 SECTIONS = {
-    "mesh": (section_mesh, markdown_mesh, plot_mesh),
-    "fit": (section_fit, markdown_fit, plot_fit),
-    "links": (section_links, markdown_links, plot_links),
-    "entries": (section_entries, markdown_entries, plot_entries, plot_entries_by_angle),
-    "tolerance": (section_tolerance, markdown_tolerance, plot_tolerance),
-    "tick": (section_tick, markdown_tick, plot_tick),
-    "qp": (section_qp, markdown_qp, plot_qp),
-    "cbha": (section_cbha, markdown_cbha, plot_cbha),
+    "mesh": section_mesh,
+    "fit": section_fit,
+    "links": section_links,
+    "entries": section_entries,
+    "tolerance": section_tolerance,
+    "tick": section_tick,
+    "qp": section_qp,
+    "cbha": section_cbha,
 }
-
-
-def markdown(results: dict) -> str:
-    m = results["machine"]
-    out = ["# The speed–accuracy trade", "",
-           f"Machine: {m['host']}, Python {m['python']}, {m['date']}, load average {m['loadavg'][0]:.1f} → "
-           f"{m['loadavg'][1]:.1f}. Produced by `benchmarks/bench_trade.py`; how to read it: `docs/trade.md`. "
-           "Timings: CPU time of the thread, one BLAS thread, medians of interleaved rounds.", ""]
-    for name, (_, write, *_) in SECTIONS.items():
-        if results.get(name):
-            out += write(results[name])
-    return "\n".join(out)
-
-
-def pictures(results: dict, directory: Path) -> list:
-    """One picture per knob (error vs cost, log axes; a companion panel where a section has one)
-    and a summary of all the knobs' main panels."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    def draw(ax, plot, section, xlog=True):
-        plot(ax, section)
-        ax.set_xscale("log" if xlog else "linear")
-        ax.set_yscale("log")
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=7)
-
-    names = [name for name in SECTIONS if results.get(name)]
-    written = []
-    cols = 2
-    rows = (len(names) + cols - 1) // cols
-    summary, axes = plt.subplots(rows, cols, figsize=(6.2 * cols, 4.4 * rows), squeeze=False)
-    for ax in axes.flat[len(names):]:
-        ax.set_visible(False)
-    for name, ax in zip(names, axes.flat):
-        main_plot, *extra = SECTIONS[name][2:]
-        draw(ax, main_plot, results[name])
-        fig, panels = plt.subplots(1, 1 + len(extra), figsize=(6.4 * (1 + len(extra)), 4.6), squeeze=False)
-        draw(panels[0, 0], main_plot, results[name])
-        for ax_extra, plot in zip(panels[0, 1:], extra):
-            draw(ax_extra, plot, results[name], xlog=False)
-        fig.tight_layout()
-        path = directory / f"trade-{name}.png"
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        written.append(path)
-    summary.tight_layout()
-    path = directory / "trade.png"
-    summary.savefig(path, dpi=90)
-    plt.close(summary)
-    return written + [path]
 
 
 def main(argv=None) -> int:
@@ -1010,21 +653,19 @@ def main(argv=None) -> int:
     path = out / f"{name}.json"
     # sections run separately accumulate into one results file
     results = json.loads(path.read_text()) if path.exists() else {}
-    load = [loadavg()]
+    load = [loadavg()[0]]
     for section in args.sections:
         log(section)
         start = time.perf_counter()
-        SECTIONS[section][0](results, args.cache, refs, args.quick)
+        SECTIONS[section](results, args.cache, refs, args.quick)
         if results.get(section) is not None:
             results[section]["wall_s"] = time.perf_counter() - start
         log(f"  {section}: {time.perf_counter() - start:.0f} s")
-    load.append(loadavg())
+    load.append(loadavg()[0])
     results["machine"] = {"host": platform.node(), "python": platform.python_version(), "loadavg": load,
                           "date": datetime.now(timezone.utc).replace(microsecond=0).isoformat()}
-    path.write_text(json.dumps(results, indent=1))
-    (out / f"{name}.md").write_text(markdown(results))
-    written = pictures(results, docs)
-    log(f"wrote {out / name}.md/.json and {', '.join(str(p) for p in written)}")
+    written = render.write("trade", results, out, stem=name, pictures_to=docs)
+    log(f"wrote {', '.join(str(p) for p in written)}")
     return 0
 
 

@@ -17,7 +17,7 @@ timed at low load (``paper_5v_16t`` with 3 N on every fourth tendon, from rest, 
 ``results/solver.json``): the ratio of the two is the slowdown at the time of this run, and
 the CPU time divided by it estimates the same run on the quiet machine.
 
-Run: ``.venv/bin/python benchmarks/bench_workspace.py [--quick] [--picture FILE.png]``; writes
+Run: ``.venv/bin/python -m benchmarks.bench_workspace [--quick] [--picture FILE.png]``; writes
 ``benchmarks/results/workspace.json``, ``workspace.md`` and ``workspace_tolerance.png`` (the
 tolerance trade); ``--picture`` also draws the clouds of section 1.
 """
@@ -35,11 +35,12 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks import render
+from benchmarks.common import RESULTS, timed
 from vertebra import __version__, solver
 from vertebra.designer.threads import pin_blas_threads
 from vertebra.solver.workspace import ORDERINGS, response_coordinates, sample_actuations, sample_workspace
 
-RESULTS = Path(__file__).resolve().parent / "results"
 SCENE = "gallery:paper_5v_16t"
 TARGET_S = 10.0
 
@@ -96,12 +97,7 @@ def reference_solve_cpu_s(model, repeats: int = 41) -> float:
     tendon, solved from rest."""
     actuation = np.zeros(len(model.actuator_names))
     actuation[:model.n_cables:4] = 3.0
-    times = []
-    for _ in range(repeats + 1):
-        start = time.process_time()
-        model.solve(actuation)
-        times.append(time.process_time() - start)
-    return float(np.median(times[1:]))
+    return timed(lambda: model.solve(actuation), repeats)[1]["cpu_median_s"]
 
 
 def quiet_reference_s() -> tuple[float | None, list | None]:
@@ -120,27 +116,6 @@ def commit() -> str:
                               cwd=Path(__file__).parent).stdout.strip()
     except OSError:
         return "?"
-
-
-def tolerance_picture(rows, path):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6, 4.2))
-    cost = [r["cpu_ms_per_sample"] for r in rows]
-    error = [max(r["max_error_m"], 1e-16) for r in rows]
-    ax.semilogy(cost, error, "o-")
-    for r, c, e in zip(rows, cost, error):
-        ax.annotate(f"tol {r['tolerance']:g}", (c, e), textcoords="offset points", xytext=(5, 3), fontsize=7)
-    ax.set_xlabel("CPU time per sample [ms]")
-    ax.set_ylabel("largest effector error vs tolerance 1e-13 [m]")
-    ax.set_title("paper_5v_16t workspace: Newton tolerance, error vs cost")
-    ax.grid(True, which="both", alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 def main(argv=None) -> int:
@@ -192,65 +167,20 @@ def main(argv=None) -> int:
           + (f", {1e3 * quiet_s:.3f} ms at load {quiet_load[0]}: slowdown ×{slowdown:.2f}; serial run ≈ "
              f"{calibration['serial_cpu_s_on_quiet_machine']:.1f} s CPU on the quiet machine" if slowdown else ""))
 
-    RESULTS.mkdir(exist_ok=True)
     if args.picture:
         from vertebra.solver.workspace_plot import plot_workspace
 
         plot_workspace(workspace, args.picture, rest=model.effector_positions(model.rest_state),
                        title=f"paper_5v_16t: reachable workspace, {n_accept} Sobol samples of 16 tensions in 0–20 N")
-    tolerance_picture(tolerances, RESULTS / "workspace_tolerance.png")
     met = (serial["wall_s"] <= TARGET_S or parallel["wall_s"] <= TARGET_S) and not args.quick
     document = {"vertebra_version": __version__, "commit": commit(), "quick": args.quick,
+                "date": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime()),
                 "host": platform.node(), "cpus": os.cpu_count(), "python": platform.python_version(),
                 "numpy": np.__version__, "load_average_start": load_start, "load_average_end": load_end,
                 "target_s": TARGET_S, "acceptance": {"serial": serial, "two_workers": parallel, "met_wall": met},
                 "calibration": calibration,
                 "orders": orders, "tolerance": tolerances}
-    (RESULTS / "workspace.json").write_text(json.dumps(document, indent=1))
-
-    ms = lambda v: f"{v:.3f}"  # noqa: E731
-    lines = [
-        "# Workspace sampling benchmark", "",
-        f"`benchmarks/bench_workspace.py` · {time.strftime('%Y-%m-%d %H:%M:%S UTC', time.gmtime())} · host "
-        f"{platform.node()} ({os.cpu_count()} CPUs, shared) · python {platform.python_version()} · numpy "
-        f"{np.__version__} · commit `{document['commit']}`" + (" · **--quick**" if args.quick else ""), "",
-        f"Load average (1/5/15 min) at start {[round(v, 2) for v in load_start]}, at end "
-        f"{[round(v, 2) for v in load_end]} on {os.cpu_count()} cores: wall times are inflated by other jobs; "
-        "CPU time (`time.process_time`, worker processes included) is the figure to compare.", "",
-        f"## 1. Acceptance: {n_accept} samples of paper_5v_16t ≤ {TARGET_S:g} s", "",
-        "| workers | wall s | CPU s | samples/s (wall) | samples/s (CPU) | CPU ms/sample | order s | "
-        "Newton iterations mean (max) | iterations histogram | failures | met (wall) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|"]
-    for row in (serial, parallel):
-        lines.append(f"| {row.get('workers', 1)} | {row['wall_s']:.2f} | {row['cpu_s']:.2f} | "
-                     f"{row['samples_per_s_wall']:.0f} | {row['samples_per_s_cpu']:.0f} | "
-                     f"{ms(row['cpu_ms_per_sample'])} | {row['order_s']:.2f} | {row['iterations_mean']:.2f} "
-                     f"({row['iterations_max']}) | {row['iterations_histogram']} | {row['failures']} | "
-                     f"{'-' if args.quick else ('yes' if row['wall_s'] <= TARGET_S else 'no')} |")
-    if slowdown:
-        lines += ["", f"Slowdown at the time of this run: a reference solve (paper_5v_16t, 3 N on every fourth "
-                  f"tendon, from rest) took {1e3 * np.mean(reference_now):.3f} ms CPU against "
-                  f"{1e3 * quiet_s:.3f} ms in `results/solver.json` (load {quiet_load[0]}): ×{slowdown:.2f}. "
-                  f"Divided by it, the single-process run is ≈ {calibration['serial_cpu_s_on_quiet_machine']:.1f} s "
-                  f"CPU on the quiet machine, and two workers would take ≈ "
-                  f"{calibration['two_workers_wall_s_on_quiet_machine']:.1f} s wall on two free cores "
-                  "(estimates, not measurements)."]
-    lines += ["", f"## 2. Solve orders ({n_order} samples, same actuations)", "",
-              "Each sample starts from its parent in the order: from the Euler predictor off the parent's "
-              "equilibrium (`sample_workspace`), or from that equilibrium itself (baseline).", "",
-              "| ordering | start | Newton iterations mean (max) | CPU ms/sample | failures |", "|---|---|---|---|---|"]
-    for r in orders:
-        lines.append(f"| {r['ordering']} | {'Euler predictor' if r['predictor'] else 'parent equilibrium'} | "
-                     f"{r['iterations_mean']:.2f} ({r['iterations_max']}) | {ms(r['cpu_ms_per_sample'])} | "
-                     f"{r['failures']} |")
-    lines += ["", f"## 3. Newton tolerance ({n_tol} samples; error against solves at 1e-13)", "",
-              "| tolerance | Newton iterations mean | CPU ms/sample | median error m | max error m |",
-              "|---|---|---|---|---|"]
-    for r in tolerances:
-        lines.append(f"| {r['tolerance']:g} | {r['iterations_mean']:.2f} | {ms(r['cpu_ms_per_sample'])} | "
-                     f"{r['median_error_m']:.1e} | {r['max_error_m']:.1e} |")
-    lines += ["", "Picture: `workspace_tolerance.png` (section 3, error vs cost)."]
-    (RESULTS / "workspace.md").write_text("\n".join(lines) + "\n")
+    render.write("workspace", document)
     verdict = "not measured (--quick)" if args.quick else ("met" if met else "NOT met")
     print(f"wrote {RESULTS / 'workspace.md'}; acceptance (10,000 samples, wall ≤ {TARGET_S:g} s): {verdict}")
     return 0

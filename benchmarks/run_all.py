@@ -1,6 +1,6 @@
-"""Run every benchmark script (``benchmarks/bench_*.py``) in turn; each prints its tables and
+"""Run every study script (``benchmarks/bench_*.py``) in turn; each prints its tables and
 saves them under ``benchmarks/results/``. Usage: ``make bench`` or
-``python benchmarks/run_all.py [NAME ...]`` (e.g. ``solver inverse``)."""
+``python -m benchmarks.run_all [NAME ...]`` (e.g. ``solver inverse``) from the repository root."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from pathlib import Path
 
 from vertebra.designer.threads import pin_blas_threads
 
-HERE = Path(__file__).parent
+HERE = Path(__file__).resolve().parent
 
 
 def main(argv: list[str]) -> int:
@@ -25,7 +25,7 @@ def main(argv: list[str]) -> int:
     for script in scripts:
         print(f"\n### {script.name}", flush=True)
         start = time.perf_counter()
-        code = subprocess.call([sys.executable, str(script)], env=env, cwd=HERE.parent)
+        code = subprocess.call([sys.executable, "-m", f"benchmarks.{script.stem}"], env=env, cwd=HERE.parent)
         print(f"### {script.name}: exit {code} after {time.perf_counter() - start:.0f} s", flush=True)
         if code:
             failed.append(script.name)

@@ -12,7 +12,7 @@ import re
 
 import numpy as np
 
-from ccx.deck import MM
+from benchmarks.ccx.deck import MM
 
 _HEADER = re.compile(r"^\s*(displacements|forces)\s+\(\w+,\w+,\w+\)\s+for set\s+(\S+)\s+and time\s+(\S+)")
 

@@ -25,9 +25,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ccx.deck import ARMS, LoadLevel, write_deck
-from ccx.results import read_dat, step_results
-from ccx.volume import cavity_volume
+from benchmarks.ccx.deck import ARMS, LoadLevel, write_deck
+from benchmarks.ccx.results import read_dat, step_results
+from benchmarks.ccx.volume import cavity_volume
+from vertebra.core.lie import so3_exp as rotation_matrix  # the vertebrae's rotation vectors → matrices
 
 CACHE = Path(__file__).resolve().parent.parent / "results" / "ccx"
 
@@ -47,11 +48,6 @@ def ccx_version() -> str:
     return out.strip()[:80] or "unknown"
 
 
-def hat(v) -> np.ndarray:
-    x, y, z = v
-    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-
-
 def arm_forces(moment, rotation, arm_length: float) -> np.ndarray:
     """(4, 3) dead forces on the arm nodes ``ℓ R a_k`` (``a_k`` = +x, −x, +y, −y) carrying
     ``moment``: bending parts as forces along the vertebra's axis ``R e_z`` (like the face's
@@ -67,15 +63,6 @@ def arm_forces(moment, rotation, arm_length: float) -> np.ndarray:
 def carried_moment(forces, rotation, arm_length: float) -> np.ndarray:
     """The moment of arm forces about the frame origin with the arms turned by ``rotation``."""
     return np.cross(arm_length * ARMS @ np.asarray(rotation).T, forces).sum(axis=0)
-
-
-def rotation_matrix(w) -> np.ndarray:
-    w = np.asarray(w, float)
-    t = np.linalg.norm(w)
-    W = hat(w)
-    if t < 1e-8:
-        return np.eye(3) + W + 0.5 * W @ W
-    return np.eye(3) + np.sin(t) / t * W + (1 - np.cos(t)) / t ** 2 * W @ W
 
 
 def _environment(threads: int) -> dict:

@@ -9,6 +9,17 @@ import numpy as np
 from ._robots import TICK_SCENES, circle_targets, model_of, tick_start
 
 
+def _controller(bench, scene: str, mode: str) -> None:
+    """``bench.model``, its fixed state (``lam``, ``state``, ``targets``) and an inverse
+    controller in ``mode`` starting there."""
+    from vertebra.solver.inverse import InverseController, InverseSettings
+
+    bench.model = model_of(scene)
+    bench.lam, bench.state, bench.targets = tick_start(bench.model)
+    bench.controller = InverseController(bench.model, InverseSettings(mode=mode), actuation=bench.lam,
+                                         state=bench.state)
+
+
 class Tick:
     """``InverseController.step`` in tick mode (one linearise–project–QP–step per call).
 
@@ -20,12 +31,7 @@ class Tick:
     param_names = ["scene"]
 
     def setup(self, scene):
-        from vertebra.solver.inverse import InverseController, InverseSettings
-
-        self.model = model_of(scene)
-        self.lam, self.state, self.targets = tick_start(self.model)
-        self.controller = InverseController(self.model, InverseSettings(mode="tick"), actuation=self.lam,
-                                            state=self.state)
+        _controller(self, scene, "tick")
         self.loop = circle_targets(self.model.effector_positions(self.state), 100)
         self.k = 0
         for _ in range(20):
@@ -56,12 +62,7 @@ class Converged:
     param_names = ["scene"]
 
     def setup(self, scene):
-        from vertebra.solver.inverse import InverseController, InverseSettings
-
-        self.model = model_of(scene)
-        self.lam, self.state, self.targets = tick_start(self.model)
-        self.controller = InverseController(self.model, InverseSettings(mode="converged"), actuation=self.lam,
-                                            state=self.state)
+        _controller(self, scene, "converged")
 
     def time_step(self, scene):
         self.controller.state, self.controller.actuation = self.state, self.lam
