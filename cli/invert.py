@@ -31,8 +31,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="QP backend: daqp (default), gauss-seidel, qpsolvers:<solver>")
     parser.add_argument("--tolerance", type=float, default=None,
                         help="effector error counted as reached, m (default 1e-6 converged, 1e-3 tick)")
+    parser.add_argument("--effort", choices=("least", "penalty"), default=None,
+                        help="how redundant actuation is chosen: least (default: the best reachable error, "
+                             "then the least actuation energy keeping it) or penalty (one QP weighing the "
+                             "error against the energy by --regularisation)")
     parser.add_argument("--regularisation", type=float, default=None,
-                        help="dimensionless actuation-energy weight ε (default 1e-8)")
+                        help="with --effort penalty: the dimensionless actuation-energy weight ε (default 1e-8); "
+                             "it trades effector error for effort")
+    parser.add_argument("--max-iterations", type=int, default=None, metavar="N",
+                        help="linearise–QP–solve iterations per target in converged mode (default 30)")
     parser.add_argument("--budget", type=float, default=None, metavar="S",
                         help="time budget per target in converged mode, s (default 2): then the closest "
                              "reach so far is reported (status \"budget\", exit 1)")
@@ -50,18 +57,24 @@ def run(args) -> int:
     from vertebra.solver.inverse.trajectory import read_trajectory, scene_trajectory
     from vertebra.solver.plausible import trajectory_warnings
     from vertebra.solver.report import inverse_report, plot_inverse
+    from vertebra.core.errors import OptionError
 
     plot = output_file(args.plot, "--plot", PICTURE_SUFFIXES)
     vtk = output_file(args.vtk, "--vtk", (".pvd",))
+    if args.regularisation is not None and args.effort != "penalty":
+        raise OptionError("weighs effort against effector error in the penalty QP: give --effort penalty with it "
+                          "(the default least-effort QP does not trade accuracy for effort)", field="--regularisation")
     options = {key: value for key, value in (("backend", args.backend), ("tolerance", args.tolerance),
-                                             ("regularisation", args.regularisation), ("time_budget", args.budget))
+                                             ("regularisation", args.regularisation), ("time_budget", args.budget),
+                                             ("effort", args.effort), ("max_iterations", args.max_iterations))
                if value is not None}
     settings = InverseSettings(mode=args.mode, **options)
     scene, code = prepared_scene(args)
     if code:
         return code
     model = solver.build_model(scene)
-    controller = InverseController(model, settings, actuation=model.default_actuation)
+    # the same start as the library's: no actuation (clipped into the bounds), at its equilibrium
+    controller = InverseController(model, settings)
     trajectory = (read_trajectory(args.trajectory, model.effector_names, model.effector_targets)
                   if args.trajectory else scene_trajectory(model))
     if args.trajectory:

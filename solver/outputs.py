@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vertebra.solver.energy import LoadCases, chamber_forces, evaluate, tangent, volume_growth
+from vertebra.solver.energy import Evaluation, LoadCases, chamber_forces, evaluate, tangent, volume_growth
 from vertebra.solver.state import kinematics
 from vertebra.core.lie import hat, qmatrix, qrotate
 from vertebra.core.errors import ConvergenceError
@@ -83,7 +83,11 @@ def linearise(trunk, state, actuation: np.ndarray, loads: LoadCases, previous=No
     (``previous``: an evaluation or trial the caller holds, reused where it is of the same state
     and load case)."""
     load = loads(actuation, 1.0)
-    ev = evaluate(trunk, state, load, previous)
+    if (isinstance(previous, Evaluation) and previous.load is load and previous.record is not None
+            and previous.record is state.carried_strains()):
+        ev = previous          # (the evaluation of this very state and load: its gradient too)
+    else:
+        ev = evaluate(trunk, state, load, previous)
     if not math.isfinite(ev.energy):
         raise ConvergenceError("non-finite values appeared in the linearisation (the state or the actuation "
                                "is not finite)")

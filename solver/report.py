@@ -102,6 +102,7 @@ def _inverse_step(model: TrunkModel, t, step) -> dict:
     nc, names = model.n_cables, model.actuator_names
     actuation, displacements = step.actuation, step.displacements
     active = step.qp.diagnostics() if step.qp is not None else None
+    predicted, miss = step.predicted_errors, step.prediction_miss
     return {
         "t": float(t),
         "cables": ({names[j]: {"tension": float(actuation[j]), "stroke": float(displacements[j])} for j in range(nc)}
@@ -114,7 +115,10 @@ def _inverse_step(model: TrunkModel, t, step) -> dict:
         "effectors": {name: {"target": [float(v) for v in step.targets[k]],
                              ("direction" if model.effector_is_axis[k] else "position"):
                                  [float(v) for v in step.positions[k]],
-                             "error": float(step.errors[k])} for k, name in enumerate(model.effector_names)},
+                             "error": float(step.errors[k]),
+                             **({} if predicted is None else {"predicted_error": float(predicted[k]),
+                                                              "prediction_miss": float(miss[k])})}
+                      for k, name in enumerate(model.effector_names)},
         "reached": bool(step.reached and step.equilibrium),
         "equilibrium": bool(step.equilibrium),
         "out_of_range": [excess.to_dict() for excess in step.out_of_range],

@@ -120,7 +120,10 @@ def test_missing_trajectory_file_and_bad_options_exit_2(tmp_path, vertebra):
     for argv, where in (((path("paper_3v_4t"), "--trajectory", tmp_path / "none.csv"), "none.csv: file not found"),
                         ((path("paper_3v_4t"), "--backend", "simplex"), "backend: unknown QP backend 'simplex'"),
                         ((path("paper_3v_4t"), "--tolerance", "-1"), "tolerance: must be a positive length"),
-                        ((path("paper_3v_4t"), "--regularisation", "nan"), "regularisation: must be finite")):
+                        ((path("paper_3v_4t"), "--regularisation", "nan", "--effort", "penalty"),
+                         "regularisation: must be finite"),
+                        ((path("paper_3v_4t"), "--regularisation", "1e-3"), "give --effort penalty"),
+                        ((path("paper_3v_4t"), "--max-iterations", "0"), "max_iterations: must be ≥ 1")):
         code, out, err = vertebra(*argv)
         assert code == 2 and out == "" and where in err, err
 
@@ -169,4 +172,5 @@ def test_orientation_target_for_a_vertebra_axis(tmp_path, vertebra):
     scene_path.write_text(scene_toml(data))
     code, out, err = vertebra(scene_path, "--json")
     assert code == 0, err
-    assert set(json.loads(out)["steps"][-1]["effectors"]["tip-axis"]) == {"target", "direction", "error"}
+    assert set(json.loads(out)["steps"][-1]["effectors"]["tip-axis"]) == {"target", "direction", "error",
+                                                                         "predicted_error", "prediction_miss"}

@@ -52,6 +52,9 @@ DEFAULT_TOLERANCE = {"converged": 1e-6, "tick": 1e-3}
 ACCEPT = 0.1    # a tick is applied when the potential falls by at least this share of the prediction
 CUTS = 3        # attempts of one step (the first, then two cut back by ¼ each)
 DAMPING = 1e-4  # Levenberg–Marquardt damping of the QP (ticks, and converged steps towards far targets)
+EFFORTS = ("least", "penalty")   # how the QP resolves redundant actuation (InverseSettings.effort)
+GUARD = DEFAULT_REGULARISATION   # the least-effort QP's first stage: keeps it definite and off the near-null directions (bias ≈ 1e-8 × motion)
+MISS = 0.5      # a tick is cut back when the equilibrium is farther from its prediction than this share of its motion
 
 
 @dataclass(frozen=True)
@@ -61,8 +64,10 @@ class InverseSettings:
 
     mode: str = "converged"
     backend: str = DEFAULT_BACKEND
-    regularisation: float = DEFAULT_REGULARISATION
+    regularisation: float = DEFAULT_REGULARISATION  # the effort weight of the penalty QP (effort="penalty")
     tolerance: float | None = None
+    effort: str = "least"   # "least": best reachable error first, then the least effort; "penalty": one regularised QP
+    effort_slack: float = 1e-4  # share of ``tolerance`` per effector row the least-effort stage may give up
     max_iterations: int = 30  # outer linearise–QP–solve iterations (converged mode)
     time_budget: float = 2.0  # s per target (converged mode): then the closest reach so far
     patience: int = 3  # converged mode gives up after this many iterations without progress …
@@ -80,6 +85,10 @@ class InverseSettings:
             raise OptionError(f"must be a positive length (m), got {self.tolerance}", field="tolerance")
         if not (math.isfinite(self.regularisation) and self.regularisation >= 0):
             raise OptionError(f"must be finite and ≥ 0, got {self.regularisation}", field="regularisation")
+        if self.effort not in EFFORTS:
+            raise OptionError(f"must be one of {', '.join(EFFORTS)}, got {self.effort!r}", field="effort")
+        if not (math.isfinite(self.effort_slack) and 0 < self.effort_slack <= 1):
+            raise OptionError(f"must lie in (0, 1], got {self.effort_slack}", field="effort_slack")
         if not (self.qp_tolerance > 0):
             raise OptionError(f"must be > 0, got {self.qp_tolerance}", field="qp_tolerance")
         if self.max_iterations < 1:
@@ -113,6 +122,19 @@ class InverseStep:
     equilibrium_failure: str = ""  # why :meth:`InverseController.settled` found no equilibrium
     fraction: float = 1.0  # share of the QP's step applied (tick: 0 when the step was not applied)
     out_of_range: tuple = ()  # RangeExcess: where ``state`` leaves the range a link energy was fitted on
+    # where the step's linear model put the effectors (tick: the positions at the controller's own
+    # state, its prediction; converged: the last QP's prediction) and their errors from the targets
+    predicted_positions: np.ndarray | None = None
+    predicted_errors: np.ndarray | None = None
+
+    @property
+    def prediction_miss(self) -> np.ndarray | None:
+        """|position − predicted position| per effector (m): how far the reported state lies
+        from where the step's linear model put the effectors (0 for a tick before it is
+        :meth:`InverseController.settled`)."""
+        if self.predicted_positions is None:
+            return None
+        return _errors(self.positions, self.predicted_positions)
 
 
 def _errors(positions: np.ndarray, targets: np.ndarray) -> np.ndarray:
@@ -137,12 +159,21 @@ class InverseController:
             raise SceneError("no [[effector]] to bring to a target", file=source, field="effector")
         self.model = model
         self.settings = settings or InverseSettings()
-        self.space = ConstraintSpace.of_model(model, self.settings.regularisation)
+        least = self.settings.effort == "least"
+        self.space = ConstraintSpace.of_model(model, GUARD if least else self.settings.regularisation)
+        self._slack = self.settings.effort_slack * self.settings.tolerance if least else None
         self.backend = get_backend(self.settings.backend)
         start = np.zeros(self.space.n_actuators) if actuation is None else np.asarray(actuation, dtype=float)
         self.actuation = np.clip(start, self.space.lambda_lower, self.space.lambda_upper)
         self.state = (state or model.rest_state).copy()
         self.equilibrium = False
+        if state is None:
+            # the robot starts at rest under its start actuation: at that equilibrium (a tick's
+            # linear model is only as good as its start), from the rest pose when none is found
+            try:
+                self._equilibrate(self.actuation, self.state, {})
+            except ConvergenceError:
+                self.state, self.equilibrium = model.rest_state.copy(), False
         self.trust = TrustRegion.of_model(model)
         self._moments = (model.trunk.loads.dead[1:, 3:].reshape(-1) if model.has_dead_moments else None)
         self._judged = None     # the trial of the last state applied (its next linearisation reuses it)
@@ -162,15 +193,19 @@ class InverseController:
             damping = 0.0 if aim is targets else DAMPING
         projection = self.space.project(lin, aim, self.actuation, box, damping)
         t2 = time.perf_counter()
-        sol = solve_constraint_problem(projection.problem, self.backend, tolerance=self.settings.qp_tolerance)
+        sol = solve_constraint_problem(projection.problem, self.backend, tolerance=self.settings.qp_tolerance,
+                                       slack=self._slack)
         t3 = time.perf_counter()
         for key, value in (("linearise_s", t1 - t0), ("W_s", t2 - t1), ("qp_s", t3 - t2), ("inverse_s", t3 - t0)):
             timings[key] = timings.get(key, 0.0) + value
         return lin, projection, sol, aim
 
-    def _result(self, targets, sol, iterations, timings, t_start, equilibrium, status, displacements=None):
+    def _result(self, targets, sol, iterations, timings, t_start, equilibrium, status, displacements=None,
+                predicted=None):
         positions = self.model.effector_positions(self.state)
         errors = _errors(positions, targets)
+        if predicted is None:
+            predicted = positions
         tolerance = self.settings.tolerance
         if displacements is None:
             displacements = self.model.actuator_displacements(self.state, self.actuation)
@@ -179,7 +214,8 @@ class InverseController:
             actuation=self.actuation.copy(), state=self.state, targets=targets.copy(), positions=positions,
             errors=errors, displacements=displacements, reached=float(np.maximum.reduce(errors)) <= tolerance,
             equilibrium=equilibrium, iterations=iterations, qp=sol, timings=timings, status=status,
-            out_of_range=self.model.out_of_range(self.state, self.actuation))
+            out_of_range=self.model.out_of_range(self.state, self.actuation), predicted_positions=predicted,
+            predicted_errors=_errors(predicted, targets))
 
     # ------------------------------------------------------------------ modes
     def tick(self, targets) -> InverseStep:
@@ -207,7 +243,10 @@ class InverseController:
         """Move state and actuation by the largest share ``α`` of the linearised step towards
         ``lam_target`` that the trust region allows and whose prediction holds: the potential
         under the new actuation falls by at least :data:`ACCEPT` of the quadratic model's
-        prediction. Cut back by ¼ when it does not (twice); returns the share applied (0: none).
+        prediction, and the equilibrium under it lies within :data:`MISS` of the effectors'
+        motion (plus what is left of the start's own imbalance) from the state reached, by the
+        start's tangent: ``|Je K⁻¹ r(state)|``. Cut back by ¼ when it does not (twice); returns
+        the share applied (0: none).
         ``aimed``: the trust region moved an effector's target closer."""
         model, lam0, state0 = self.model, self.actuation, self.state
         d_lam = lam_target - lam0
@@ -218,6 +257,12 @@ class InverseController:
         r_dq = float(dq @ r)
         b_dq = float(dq @ (lin.actuator_forces @ d_lam))
         n_cables = model.n_cables
+        # the effectors' linear motion per unit α, and how far the start lies from its own
+        # equilibrium (the part of the step that corrects an imbalance left by the last tick)
+        Je = lin.effector_jacobian
+        motion = float(np.max(_errors((Je @ dq).reshape(-1, 3), 0.0)))
+        imbalance = float(np.max(_errors((Je @ projection.K_inv_r).reshape(-1, 3), 0.0)))
+        floor = 0.01 * self.settings.tolerance
         # ∂E/∂λ of the cables: their lengths L(q) = L0 + stroke
         d_energy = float(d_lam[:n_cables] @ model.rest_cable_lengths) + \
             float(d_lam[:n_cables] @ lin.actuator_displacements[:n_cables])
@@ -243,9 +288,23 @@ class InverseController:
             noise = 1e-12 * abs(before)
             quality = decrease / predicted if predicted > noise else (1.0 if decrease >= -noise else 0.0)
             if quality >= ACCEPT:        # (False for NaN)
-                self.state, self.actuation, self._judged = trial, lam, judged
-                self.trust.update(quality, cut)
-                return alpha
+                # the prediction: the equilibrium under λ lies ≈ Je K⁻¹ r(trial) from the trial state
+                # (the start's factor); a step that lands farther than MISS of its motion from it is
+                # cut back like one whose energy does not fall
+                try:
+                    judged = model.evaluate(trial, lam, previous=judged)
+                    correction = lin.solve(-judged.gradient[1:].reshape(-1))
+                    miss = float(np.max(_errors((Je @ correction).reshape(-1, 3), 0.0)))
+                except (ConvergenceError, FloatingPointError):
+                    miss = math.inf
+                allowed = MISS * alpha * motion + (1.0 - alpha) * imbalance + floor
+                # the prediction's quality: 1 when exact, ½ at the allowed miss
+                held = 1.0 - MISS * miss / allowed
+                if miss <= allowed:
+                    self.state, self.actuation, self._judged = trial, lam, judged
+                    self.trust.update(min(quality, held), cut)
+                    return alpha
+                quality = min(quality, held)
             alpha *= 0.25
             cut = True
         self.trust.update(quality if math.isfinite(quality) else 0.0, cut)
@@ -266,7 +325,7 @@ class InverseController:
         error = float(np.max(_errors(self.model.effector_positions(self.state), targets)))
         best, idle, reached_for, change = error, 0, 0, math.nan
         closest = (error, self.actuation, self.state)
-        sol, status, iterations = None, "max_iterations", 0
+        sol, status, iterations, predicted_positions = None, "max_iterations", 0, None
         for iterations in range(1, s.max_iterations + 1):
             if time.perf_counter() > deadline:
                 status, iterations = "budget", iterations - 1
@@ -292,6 +351,7 @@ class InverseController:
                     quality = ((error - new_error) / promised if promised > s.tolerance
                                else float(new_error <= error + s.tolerance))
                     if new_error <= max(error, 1.1 * predicted + s.tolerance):
+                        predicted_positions = targets + gap
                         break
                 self.actuation, self.state = lam_old, state_old
                 new_error = math.inf
@@ -330,7 +390,9 @@ class InverseController:
             status = "max_iterations"
         if status == "budget" and closest[0] < error:
             error, self.actuation, self.state = closest      # the closest reach found in the time given
-        result = self._result(targets, sol, iterations, timings, t_start, self.equilibrium, status)
+            predicted_positions = None
+        result = self._result(targets, sol, iterations, timings, t_start, self.equilibrium, status,
+                              predicted=predicted_positions)
         result.actuation_change = change
         return result
 

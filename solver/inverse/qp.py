@@ -241,9 +241,45 @@ def _no_relaxation(n: int) -> np.ndarray:
     return zeros
 
 
+def least_effort_form(problem: ConstraintProblem, first: np.ndarray, slack, displacement_bounds, *,
+                      scaled: bool = False) -> QuadraticForm:
+    """The second stage of the least-effort QP (module docstring): ``½ Σᵢ dᵢ λᵢ²`` (d the
+    actuation-energy diagonal of :func:`quadratic_form`, normalised to its largest entry) over
+    the λ box, the displacement rows and the effector rows ``|W_ea (λ − first)| ≤ slack`` (m per
+    row): the efforts that keep every effector row of the first stage's answer ``first``."""
+    space = problem.space
+    n, W = problem.n_actuators, problem.W_ea
+    d = np.abs(problem.W_aa.diagonal()) if problem.W_aa is not None else np.einsum("ij,ij->j", W, W)
+    dmax = float(np.maximum.reduce(d))
+    d = d / dmax if dmax > 0 else np.ones(n)
+    d = np.maximum(d, 1e-12)
+    reached = W @ first
+    slack = np.broadcast_to(np.asarray(slack, dtype=float), reached.shape)
+    dlo, dhi = displacement_bounds
+    rows = space.rows
+    if rows.size:
+        G = np.vstack([problem.W_aa[rows], W])
+        row_lower = np.concatenate([dlo[rows] - problem.delta_a_free[rows], reached - slack])
+        row_upper = np.concatenate([dhi[rows] - problem.delta_a_free[rows], reached + slack])
+    else:
+        G, row_lower, row_upper = W.copy(), reached - slack, reached + slack
+    P = np.diag(d)
+    lower, upper = problem.lambda_lower, problem.lambda_upper
+    if scaled:
+        scale = 1.0 / np.sqrt(d)
+        P = np.eye(n)
+        lower, upper = lower / scale, upper / scale
+        G = G * scale[None, :]
+        unit = 1.0 / np.maximum(np.abs(G).max(axis=1), 1e-300)
+        G, row_lower, row_upper = G * unit[:, None], row_lower * unit, row_upper * unit
+    else:
+        scale = np.ones(n)
+    return QuadraticForm(P, np.zeros(n), 0.0, lower, upper, G, row_lower, row_upper, rows, 0.0, d, scale)
+
+
 def solve_constraint_problem(problem: ConstraintProblem, backend: str | QPBackend = DEFAULT_BACKEND, *,
                              tolerance: float = 1e-10, absolute_tolerance: float = 0.0,
-                             max_iterations: int | None = None) -> ConstraintSolution:
+                             max_iterations: int | None = None, slack: float | None = None) -> ConstraintSolution:
     """Solve one inverse step; the answer never leaves the λ box.
 
     ``backend`` is a registered name or a :class:`~solver.inverse.backends.QPBackend`.
@@ -266,11 +302,22 @@ def solve_constraint_problem(problem: ConstraintProblem, backend: str | QPBacken
     out = solver.solve(form, start / form.scale, tolerance=tol,
                        max_iterations=solver.default_max_iterations if max_iterations is None else max_iterations)
     lam = np.minimum(np.maximum(out.actuation * form.scale, problem.lambda_lower), problem.lambda_upper)
+    iterations, status, converged = out.iterations, out.status, out.converged
+    if slack is not None and converged:
+        # second stage: the least effort among the efforts that keep the first stage's effector gaps
+        limits = (problem.space.displacement_lower, problem.space.displacement_upper) if bounds is None else bounds
+        second = least_effort_form(problem, lam, slack, limits, scaled=solver.scaled)
+        out2 = solver.solve(second, lam / second.scale, tolerance=tol,
+                            max_iterations=solver.default_max_iterations if max_iterations is None
+                            else max_iterations)
+        iterations += out2.iterations
+        if out2.converged:
+            lam = np.minimum(np.maximum(out2.actuation * second.scale, problem.lambda_lower), problem.lambda_upper)
     de, da = problem.predict(lam)
     relaxed = relaxation is not None
     return ConstraintSolution(
-        actuation=lam, delta_e=de, delta_a=da, effector_error=math.sqrt(de.dot(de)), iterations=out.iterations,
-        converged=out.converged, status="relaxed" if (relaxed and out.converged) else out.status,
+        actuation=lam, delta_e=de, delta_a=da, effector_error=math.sqrt(de.dot(de)), iterations=iterations,
+        converged=converged, status="relaxed" if (relaxed and converged) else status,
         backend=solver.name, time_s=time.perf_counter() - t0,
         displacement_relaxation=relaxation if relaxed else _no_relaxation(lam.size),
         regularisation_weight=form.regularisation_weight, problem=problem,
