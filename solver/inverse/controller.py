@@ -8,7 +8,9 @@ its QP backend. Each inverse step then
 2. **projects** the linearisation into constraint space (``space.project``: one banded solve
    ``K⁻¹[r, B]``, then ``W_ea``, ``W_aa`` and the free gaps, paper eqs. 10–12);
 3. solves the **QP** in the total actuation λ (``solve_constraint_problem``, paper eq. 13),
-   whose box is the actuator limits and whose regulariser is the actuation energy;
+   whose box is the actuator limits: by default (``effort="least"``) the best reachable
+   effector error first, then the least actuation energy among the efforts that keep it;
+   ``effort="penalty"`` weighs the error against the energy in one QP (``regularisation``);
 4. **steps** within a trust region (:class:`~solver.inverse.trust.TrustRegion`): effectors aim
    at most a radius from where they are, and the step ``(λ − λ0, dq)`` is scaled so that no
    frame moves or turns by more than the radii;
@@ -17,15 +19,19 @@ its QP backend. Each inverse step then
      per-tick changes) and ``state ← model.step(state, α·dq)``, one Newton-like update per
      control tick whose remaining imbalance the next tick's ``K⁻¹r`` corrects. The step is
      applied only when it lowers the total potential under the new actuation by at least a
-     tenth of what the linearisation predicts; otherwise it is cut back (α/4, twice), and not
-     applied at all when that fails too;
+     tenth of what the linearisation predicts and when the equilibrium under it lies within
+     half the effectors' motion of the state reached (``|Je K⁻¹ r|`` there, :data:`MISS`);
+     otherwise it is cut back (α/4, twice), and not applied at all when that fails too;
    * ``converged`` mode (static inverse): ``model.solve(λ, initial=stepped state)`` to
      equilibrium, repeated — far targets through intermediate ones — until the effectors are
      within tolerance, the error stops falling, or the iteration or time budget ends (closest
      reach so far).
 
-The radii adapt to how well each step's prediction held. Both modes warm-start from the
-previous state, actuation and QP answer along a trajectory. :meth:`InverseController.settled`
+The radii adapt to how well each step's prediction held. A controller built without a state
+starts at the equilibrium of its start actuation (none, clipped into the bounds, unless given).
+Both modes warm-start from the previous state, actuation and QP answer along a trajectory. Each
+step reports where its linear model put the effectors (``predicted_positions``,
+``predicted_errors``) beside where they are (``positions``, ``errors``). :meth:`InverseController.settled`
 reports a tick at the equilibrium its actuation reaches.
 """
 

@@ -27,6 +27,15 @@ barely feel to first order (a straight trunk's effector moves along its axis onl
 compressing it) do not take large efforts that the linearisation cannot vouch for. It is
 centred on ``λ0``, so a converged fixed point (λ = λ0) is not biased by it.
 
+**Least effort** (``slack`` given, the controller's default ``effort="least"``): the weight ``ε``
+above trades effector error for effort, so it stays tiny (1e-8, only to keep the problem
+definite and off directions the effectors barely feel). A second QP then picks, among the
+efforts that keep every effector row of the first answer within ``slack`` (m),
+``|W_ea (λ − λ₁)| ≤ slack``, the one of least actuation energy ``½ Σᵢ dᵢ λᵢ²`` (same box and
+displacement rows; :func:`least_effort_form`): redundant actuators are released instead of
+co-contracting, and the error is the first stage's. A damped first stage (a tick's) stays
+near ``λ0``; the second does not, within the tick's box.
+
 :func:`solve_constraint_problem` builds the :func:`quadratic_form` in the coordinates its
 backend asks for (``solver.inverse.backends``), solves it, clips the answer into the λ box
 and returns a :class:`ConstraintSolution`; :meth:`ConstraintSolution.diagnostics` computes the

@@ -10,8 +10,9 @@ size of the motion. A :class:`TrustRegion` bounds each step:
 * **fraction** — the step ``(λ − λ0, dq)`` is scaled by one factor ``α ≤ 1`` so that no frame
   translates by more than ``translation`` nor turns by more than ``rotation``;
 * **update** — the radii grow (×2, up to 4× their start) after a step whose quality (actual
-  over predicted improvement) was ≥ 0.75 and that the region cut, and shrink (×¼, down to
-  1/1024 of their start) after one of quality < 0.25.
+  over predicted improvement; for a tick also how close the equilibrium lies to its prediction)
+  was ≥ 0.75 and that the region cut, and shrink (×¼, down to 1/1024 of their start) after one
+  of quality < 0.25.
 
 The radii start from the robot's size: ``translation = 0.15 × length``, ``rotation = 0.25 rad``.
 """
