@@ -17,8 +17,9 @@ O(ζ²)``) and ``E(g) = ∂(J⁻ᵀ g)/∂ξ`` at fixed ``g``::
     wrench = J⁻ᵀ ∂ψ/∂s,   tangent = J⁻ᵀ (∂²ψ/∂s²) J⁻¹ + sym(E(∂ψ/∂s) J⁻¹)
 
 (the skew part of ``E J⁻¹`` is the ½ ad-term of the perturbation's own second order, which
-makes the tangent symmetric). ``E`` is taken by fourth-order central differences of the
-closed-form ``J_l⁻¹`` (error ~1e-12 relative), far below the FE's own tolerance.
+makes the tangent symmetric). ``E`` is taken by fourth-order central differences of
+``J_l⁻¹`` (:func:`vertebra.core.lie.se3_left_jacobian_inverse`; error ~1e-12 relative), far
+below the FE's own tolerance.
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from vertebra.designer.families import SegmentSymmetry
 from vertebra.core.energy import (EnergyFit, EnergyModel, EnergyRange, Monomials, fold_map, group_coordinates,
                                   monomial_exponents)
 from vertebra.core.errors import GeometryError
+from vertebra.core.lie import se3_exp_matrix, se3_left_jacobian_inverse
 
 #: step of the differences for E(g) (rad or m·scale); fourth-order stencil
 _DIFFERENCE_STEP = 1e-3
@@ -39,68 +41,11 @@ _DIFFERENCE_STEP = 1e-3
 
 # ------------------------------------------------------------------ SE(3) charts
 
-def _hat(v: np.ndarray) -> np.ndarray:
-    """(n, 3, 3) skew matrices of (n, 3) vectors."""
-    out = np.zeros(v.shape[:-1] + (3, 3))
-    out[..., 0, 1], out[..., 0, 2], out[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
-    out[..., 1, 0], out[..., 2, 0], out[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
-    return out
-
-
-#: below this rotation angle the coefficients use their Taylor series (next terms < 1e-16)
-_SERIES_ANGLE = 1e-2
-
-
-def _coefficients(theta2: np.ndarray) -> np.ndarray:
-    """(n, 6): sin θ/θ, (1 − cos θ)/θ², (θ − sin θ)/θ³, 1/θ² − (1 + cos θ)/(2θ sin θ),
-    (θ² + 2 cos θ − 2)/(2θ⁴), (2θ − 3 sin θ + θ cos θ)/(2θ⁵) (Barfoot 2017, §7.1)."""
-    small = theta2 < _SERIES_ANGLE ** 2
-    t2 = np.where(small, 1.0, theta2)
-    t = np.sqrt(t2)
-    s, c = np.sin(t), np.cos(t)
-    exact = np.stack([s / t, (1 - c) / t2, (t - s) / (t2 * t), 1 / t2 - (1 + c) / (2 * t * s),
-                      (t2 + 2 * c - 2) / (2 * t2 * t2), (2 * t - 3 * s + t * c) / (2 * t2 * t2 * t)], -1)
-    x = theta2[..., None]
-    series = np.array([[1, -1 / 6, 1 / 120], [1 / 2, -1 / 24, 1 / 720], [1 / 6, -1 / 120, 1 / 5040],
-                       [1 / 12, 1 / 720, 1 / 30240], [1 / 24, -1 / 720, 1 / 40320],
-                       [1 / 120, -1 / 2520, 1 / 120960]])
-    approx = series[:, 0] + x * (series[:, 1] + x * series[:, 2])
-    return np.where(small[..., None], approx, exact)
-
-
-def se3_exp(xi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rotation matrices (n, 3, 3) and translations (n, 3) of ``exp(ξ^)``, ``ξ = [ρ; φ]`` (n, 6)."""
-    xi = np.asarray(xi, dtype=float).reshape(-1, 6)
-    P = _hat(xi[:, 3:])
-    P2 = P @ P
-    c = _coefficients((xi[:, 3:] ** 2).sum(1))[:, :, None, None]
-    R = np.eye(3) + c[:, 0] * P + c[:, 1] * P2
-    V = np.eye(3) + c[:, 1] * P + c[:, 2] * P2
-    return R, (V @ xi[:, :3, None])[:, :, 0]
-
-
 def pose_of_strain(s: np.ndarray, rest_translation) -> tuple[np.ndarray, np.ndarray]:
     """Rotation matrices (n, 3, 3) and translations (n, 3) of ``exp(ξ₀ + s)``."""
     xi = np.asarray(s, dtype=float).reshape(-1, 6).copy()
     xi[:, :3] += np.asarray(rest_translation, dtype=float)
-    return se3_exp(xi)
-
-
-def inverse_left_jacobian(xi: np.ndarray) -> np.ndarray:
-    """``J_l⁻¹(ξ)`` (n, 6, 6) of twists (n, 6): ``log(exp(ζ^) exp(ξ^)) = ξ + J_l⁻¹ ζ + O(ζ²)``,
-    ``J_l⁻¹ = [[J⁻¹, −J⁻¹ Q J⁻¹], [0, J⁻¹]]`` with SO(3)'s ``J⁻¹`` and Barfoot's ``Q`` (2017, eq. 7.86)."""
-    xi = np.asarray(xi, dtype=float).reshape(-1, 6)
-    P, Rh = _hat(xi[:, 3:]), _hat(xi[:, :3])
-    P2 = P @ P
-    c = _coefficients((xi[:, 3:] ** 2).sum(1))[:, :, None, None]
-    Jinv = np.eye(3) - 0.5 * P + c[:, 3] * P2
-    X, Y = P @ Rh, Rh @ P
-    Z = X @ P
-    Q = 0.5 * Rh + c[:, 2] * (X + Y + Z) + c[:, 4] * (P @ X + Y @ P - 3.0 * Z) + c[:, 5] * (Z @ P + P @ Z)
-    out = np.zeros((xi.shape[0], 6, 6))
-    out[:, :3, :3] = out[:, 3:, 3:] = Jinv
-    out[:, :3, 3:] = -Jinv @ Q @ Jinv
-    return out
+    return se3_exp_matrix(xi)
 
 
 def _jacobian_derivative(xi: np.ndarray, g: np.ndarray) -> np.ndarray:
@@ -111,7 +56,7 @@ def _jacobian_derivative(xi: np.ndarray, g: np.ndarray) -> np.ndarray:
     for j in range(6):
         step = np.zeros(6)
         step[j] = h
-        values = [inverse_left_jacobian(xi + k * step).mT @ g[:, :, None] for k in (-2, -1, 1, 2)]
+        values = [se3_left_jacobian_inverse(xi + k * step).mT @ g[:, :, None] for k in (-2, -1, 1, 2)]
         out[:, :, j] = ((values[0] - 8.0 * values[1] + 8.0 * values[2] - values[3]) / (12.0 * h))[:, :, 0]
     return out
 
@@ -126,7 +71,7 @@ def strain_derivatives(s: np.ndarray, rest_translation, wrench: np.ndarray, tang
     ``wrench_pressure`` (n, 6, m) = ∂²ψ/∂ζ∂p. Returns ``(∂ψ/∂s, ∂²ψ/∂s², ∂²ψ/∂s∂p)``."""
     xi = np.asarray(s, dtype=float).copy()
     xi[:, :3] += np.asarray(rest_translation, dtype=float)
-    Ji = inverse_left_jacobian(xi)
+    Ji = se3_left_jacobian_inverse(xi)
     J = np.linalg.inv(Ji)
     g = (J.mT @ wrench[:, :, None])[:, :, 0]                       # ∂ψ/∂s = Jᵀ wrench
     E = _jacobian_derivative(xi, g)
@@ -141,7 +86,7 @@ def pose_derivatives(s: np.ndarray, rest_translation, gradient: np.ndarray, hess
     ∂²ψ/∂ζ∂p)`` from ``(∂ψ/∂s, ∂²ψ/∂s², ∂²ψ/∂s∂p)``."""
     xi = np.asarray(s, dtype=float).copy()
     xi[:, :3] += np.asarray(rest_translation, dtype=float)
-    Ji = inverse_left_jacobian(xi)
+    Ji = se3_left_jacobian_inverse(xi)
     wrench = (Ji.mT @ gradient[:, :, None])[:, :, 0]
     E = _jacobian_derivative(xi, gradient)
     tangent = _sym(Ji.mT @ hessian @ Ji) + _sym(E @ Ji)

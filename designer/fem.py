@@ -38,11 +38,6 @@ from vertebra.designer.linsolve import get_solver
 from vertebra.designer.surface import Surface
 
 
-def skew(v) -> np.ndarray:
-    x, y, z = v
-    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-
-
 def rigid_map(doflocs: np.ndarray, components: np.ndarray, centre) -> np.ndarray:
     """T (n_dofs × 6): displacement component of each DoF for frame motion ``[t; θ]`` at ``centre``:
     ``u = t + θ × (x − c)``."""

@@ -204,25 +204,6 @@ def test_linear_chain_equals_the_runtime_solver_with_linear_entries():
     assert np.linalg.norm(chain.tip_position - tip) < 1e-12 * 0.12
 
 
-def test_designer_se3_matches_the_runtime():
-    """The designer's batched SE(3) exp and inverse left Jacobian (it never imports the solver)
-    agree with the runtime's (solver.lie) to 1e-12 from 1e-9 rad to 3 rad, across the
-    series threshold."""
-    from vertebra.designer.energy_fit import inverse_left_jacobian, se3_exp
-    from vertebra.core import lie as rotations
-
-    rng = np.random.default_rng(5)
-    for angle in (1e-9, 1e-4, 9.9e-3, 1.01e-2, 0.3, 1.5, 3.0):
-        xi = rng.normal(size=(20, 6))
-        xi[:, 3:] *= angle / np.linalg.norm(xi[:, 3:], axis=1, keepdims=True)
-        xi[:, :3] *= 0.05
-        R, t = se3_exp(xi)
-        q, t_ref = rotations.se3_exp(xi)
-        assert np.abs(R - rotations.qmatrix(q)).max() < 1e-14 and np.abs(t - t_ref).max() < 1e-15
-        J_ref = rotations.se3_log(q, t_ref)[1]
-        assert np.abs(inverse_left_jacobian(xi) - J_ref).max() < 1e-12 * np.abs(J_ref).max()
-
-
 def test_automatic_sampling_settings_depend_on_material_and_cavities():
     # St Venant-Kirchhoff has a compressive limit point at the stretch 1/sqrt(3): its default box
     # stops at 25 % outer-fibre strain (40 % otherwise); an explicit setting wins, and the

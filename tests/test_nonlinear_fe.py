@@ -18,8 +18,8 @@ from vertebra.designer.geometry import mesh_segment
 from vertebra.designer.nonlinear import (MATERIALS, NonlinearSegment, NonlinearTrunk, TrunkLoads, VertebraMass,
                                          get_material)
 from vertebra.designer.nonlinear.framed import Pose
-from vertebra.designer.nonlinear.rotations import ad_se3, exp_se3, exp_so3, skew
 from vertebra.core.errors import ConvergenceError
+from vertebra.core.lie import ad, hat, se3_exp_matrix, so3_exp
 
 E = 1.0e6
 PNEUMATIC = dict(outer_radius=0.012, chamber_radius=0.003, chamber_offset=0.0065, chambers=2, length=0.015,
@@ -52,7 +52,7 @@ def pneumatic(pneumatic_mesh):
 def _left(L):
     """ζ_linear = A ζ: the linear designer moves frame b about its own origin, ours about a's."""
     A = np.eye(6)
-    A[:3, 3:] = -skew([0.0, 0.0, L])
+    A[:3, 3:] = -hat(np.array([0.0, 0.0, L]))
     return A
 
 
@@ -141,7 +141,7 @@ def test_small_load_limit_equals_the_linear_condensation(pneumatic_mesh, name):
     np.testing.assert_allclose(rest.volumes, seg.framed.fe.cavity_volumes, rtol=1e-12)
     # a tiny pose and pressure: wrench and volume growth are linear to O(1e-7) (rotation size)
     xi = 1e-7 * np.array([1.0, -0.5, 0.3, 2.0, 1.0, -1.5]) * np.array([L, L, L, 1, 1, 1])
-    R, t = exp_se3(xi)
+    R, t = se3_exp_matrix(xi)
     pressures = np.array([0.1, -0.03])
     resp = seg.solve(R, t + R @ [0.0, 0.0, L], pressures)
     wrench = A.T @ S @ A @ xi - A.T @ g @ pressures
@@ -155,7 +155,7 @@ def test_tangent_and_volume_derivatives_match_finite_differences(pneumatic):
     differences of the wrench along exp(h δ^) T_b (the left trivialisation adds ½ ad_δᵀ w), and
     dvolume_dpose against differences of the volumes."""
     L = pneumatic.length
-    R, t = exp_se3(np.array([0.0005, -0.0003, L, 0.05, 0.15, 0.08]))
+    R, t = se3_exp_matrix(np.array([0.0005, -0.0003, L, 0.05, 0.15, 0.08]))
     pressures = np.array([2e4, 0.0])
     base = pneumatic.solve(R, t, pressures)
     h = 1e-5
@@ -164,9 +164,9 @@ def test_tangent_and_volume_derivatives_match_finite_differences(pneumatic):
         delta = rng.standard_normal(6) * np.array([L, L, L, 1, 1, 1])
         out = []
         for sign in (1, -1):
-            Rd, td = exp_se3(sign * h * delta)
+            Rd, td = se3_exp_matrix(sign * h * delta)
             out.append(pneumatic.solve(Rd @ R, Rd @ t + td, pressures, initial=base.state))
-        fd_wrench = (out[0].wrench - out[1].wrench) / (2 * h) + 0.5 * ad_se3(delta).T @ base.wrench
+        fd_wrench = (out[0].wrench - out[1].wrench) / (2 * h) + 0.5 * ad(delta).T @ base.wrench
         expected = base.tangent @ delta
         # FD truncation ~(h|δ|)² relative and Newton tolerance 1e-10/h: both ≲ 1e-6
         assert np.abs(fd_wrench - expected).max() <= 1e-5 * np.abs(expected).max()
@@ -178,7 +178,7 @@ def test_tangent_and_volume_derivatives_match_finite_differences(pneumatic):
 
 def test_reciprocity_wrench_per_pressure_is_minus_volume_per_pose(pneumatic):
     L = pneumatic.length
-    R, t = exp_se3(np.array([0.0, 0.0, L, 0.1, -0.05, 0.0]))
+    R, t = se3_exp_matrix(np.array([0.0, 0.0, L, 0.1, -0.05, 0.0]))
     p0 = np.array([1.5e4, 5e3])
     base = pneumatic.solve(R, t, p0)
     h = 20.0
@@ -200,7 +200,7 @@ def test_objectivity_a_rigid_motion_creates_no_force(pneumatic):
     """Both frames and every node moved by one rigid motion (1 rad): no strain energy, the same
     cavity volumes, and the forces (the pressure loads) only rotate with the body."""
     framed = pneumatic.framed
-    Q, c = exp_so3([0.3, -0.6, 0.5]), np.array([0.01, -0.02, 0.005])
+    Q, c = so3_exp([0.3, -0.6, 0.5]), np.array([0.01, -0.02, 0.005])
     X = framed.solid.X.reshape(-1, 3)
     u = (X @ Q.T + c - X).ravel()[framed.interior]
     poses = {"bottom": Pose(Q, c), "top": Pose(Q, c + Q @ [0.0, 0.0, framed.length])}
@@ -224,7 +224,7 @@ def test_slender_rod_bent_to_a_constant_curvature_carries_EI_theta_over_L():
     R, L = 0.003, 0.024                              # L/R = 8
     seg = _segment("rod", dict(radius=R, length=L, youngs_modulus=E, poisson_ratio=0.3), 0.003)
     theta = 0.5                                      # κR = 6 % strain at the surface
-    resp = seg.solve(*exp_se3(np.array([0.0, 0.0, L, 0.0, theta, 0.0])))
+    resp = seg.solve(*se3_exp_matrix(np.array([0.0, 0.0, L, 0.0, theta, 0.0])))
     EI = E * math.pi * R ** 4 / 4
     # Euler–Bernoulli: M = EIθ/L. The rigid end faces add 1.4–1.9 % (linear FE rotation stiffness vs
     # EI/L on these meshes) and the neo-Hookean section loses ~1–2 % at 6 % strain: within 3 %
@@ -273,7 +273,7 @@ def test_trunk_small_load_limit_equals_the_linear_full_fe_chain(chain):
 
 def test_trunk_rigid_base_motion_is_objective(chain):
     """The same trunk on a rotated and shifted base, under rotated loads: the same deformation."""
-    Q, c = exp_so3([0.4, 0.2, -0.7]), np.array([0.1, 0.0, -0.3])
+    Q, c = so3_exp([0.4, 0.2, -0.7]), np.array([0.1, 0.0, -0.3])
     loads = dict(forces={-1: np.array([0.3, 0.1, -0.2])}, moments={1: np.array([0.0, 2e-3, 1e-3])},
                  pressures={1: np.array([0.0, 2e4, 0.0])})
     upright = NonlinearTrunk(chain).solve(TrunkLoads(**loads))

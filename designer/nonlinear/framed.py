@@ -29,8 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vertebra.core.lie import hat, se3_exp_matrix, se3_log_matrix
 from vertebra.designer.nonlinear.assembly import SolidModel
-from vertebra.designer.nonlinear.rotations import exp_se3_scaled_apply, log_se3, skew
 
 FACES = ("bottom", "top")
 #: outward normal of the cavity on each cap, in the frame of the face
@@ -131,9 +131,10 @@ class FramedSolid:
         the rotating face intact."""
         X = self.solid.X[self.interior].reshape(-1, 3)
         c = self.fe.faces["top"]["centre"]
-        xi = log_se3(top.R, top.t - top.R @ c)
+        xi = se3_log_matrix(top.R, top.t - top.R @ c)
         phi = np.clip(X[:, 2] / self.length, 0.0, 1.0)
-        return (exp_se3_scaled_apply(xi, phi, X) - X).ravel()
+        R, t = se3_exp_matrix(phi[:, None] * xi)
+        return ((R @ X[:, :, None])[:, :, 0] + t - X).ravel()
 
     def face_positions(self, name: str, pose: Pose) -> np.ndarray:
         """``y = R r`` of the face nodes (n, 3), relative to the frame origin."""
@@ -234,8 +235,8 @@ class FramedSolid:
             g = np.concatenate([m, np.cross(m, t)])
             tm = np.outer(t, m)
             Hc = np.zeros((6, 6))
-            Hc[:3, 3:] = -skew(m)
-            Hc[3:, :3] = skew(m)
+            Hc[:3, 3:] = -hat(m)
+            Hc[3:, :3] = hat(m)
             Hc[3:, 3:] = 0.5 * (tm + tm.T) - float(t @ m) * np.eye(3)
             third = self.cap_areas[:, j] / 3.0
             grad[6 * j:6 * j + 6] = g[:, None] * third[None, :]

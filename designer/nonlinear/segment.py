@@ -49,8 +49,8 @@ from vertebra.designer.nonlinear.framed import FramedSolid, Pose
 from vertebra.designer.nonlinear.krylov import ReusedFactorSolver
 from vertebra.designer.nonlinear.newton import NewtonSettings, Step, march
 from vertebra.designer.nonlinear.materials import get_material
-from vertebra.designer.nonlinear.rotations import exp_se3, exp_so3, log_se3, log_so3, skew
 from vertebra.core.errors import OptionError
+from vertebra.core.lie import hat, se3_exp_matrix, se3_log_matrix, so3_exp, so3_log
 
 
 @dataclass(frozen=True)
@@ -113,7 +113,7 @@ class SegmentResponse:
 def left_from_frame_origin(t: np.ndarray) -> np.ndarray:
     """``J`` with ``ζ_frame-origin = J ζ_left`` to first order: ``v_f = v + ω × t``."""
     J = np.eye(6)
-    J[:3, 3:] = -skew(t)
+    J[:3, 3:] = -hat(t)
     return J
 
 
@@ -226,8 +226,8 @@ class NonlinearSegment:
         tangent = J.T @ c["stiffness"] @ J
         Ft = np.outer(F, state.t)
         tangent[3:, 3:] += 0.5 * (Ft + Ft.T) - float(F @ state.t) * np.eye(3)
-        tangent[:3, 3:] += 0.5 * skew(F)
-        tangent[3:, :3] -= 0.5 * skew(F)
+        tangent[:3, 3:] += 0.5 * hat(F)
+        tangent[3:, :3] -= 0.5 * hat(F)
         tangent = 0.5 * (tangent + tangent.T)
         volumes = c["volumes"]
         diagnostics = {"residual": problem.residual_ratio(state, evaluation), "rtol": self.settings.newton.rtol,
@@ -254,8 +254,8 @@ class _PoseProblem:
         self.framed = segment.framed
         self.settings = segment.settings
         self.gravity = None if gravity is None else np.asarray(gravity, dtype=float).reshape(3)
-        self.xi0 = log_se3(initial.R, initial.t)
-        self.xi1 = log_se3(target.R, target.t)
+        self.xi0 = se3_log_matrix(initial.R, initial.t)
+        self.xi1 = se3_log_matrix(target.R, target.t)
         self.p0 = initial.pressures
         self.p1 = target.pressures
         self.times = {"evaluate_s": 0.0, "solve_s": 0.0}
@@ -264,10 +264,10 @@ class _PoseProblem:
 
     def first_step(self) -> float:
         s = self.settings
-        R0, t0 = exp_se3(self.xi0)
-        R1, t1 = exp_se3(self.xi1)
+        R0, t0 = se3_exp_matrix(self.xi0)
+        R1, t1 = se3_exp_matrix(self.xi1)
         E = self.segment.material.youngs_modulus
-        steps = max(np.linalg.norm(log_so3(R1 @ R0.T)) / s.max_rotation_step,
+        steps = max(np.linalg.norm(so3_log(R1 @ R0.T)) / s.max_rotation_step,
                     np.linalg.norm(t1 - t0) / (s.max_translation_step * self.segment.length),
                     float(np.max(np.abs(self.p1 - self.p0), initial=0.0)) / (s.max_pressure_step * E), 1.0)
         return 1.0 / math.ceil(steps - 1e-9)
@@ -277,7 +277,7 @@ class _PoseProblem:
         """Pose and pressures at ``s_to``; the interior predicted on top of the rigid blend of the
         frames (:meth:`FramedSolid.rigid_blend`): by the secant through the last two converged
         states of this path, or (first step) by the initial state's tangent."""
-        R, t = exp_se3(self.xi0 + s_to * (self.xi1 - self.xi0))
+        R, t = se3_exp_matrix(self.xi0 + s_to * (self.xi1 - self.xi0))
         p = self.p0 + s_to * (self.p1 - self.p0)
         blend = self.framed.rigid_blend(Pose(R, t))
         if len(self.history) == 2:
@@ -285,11 +285,11 @@ class _PoseProblem:
             return SegmentState(R, t, p, blend + w1 + (s_to - s1) / (s1 - s0) * (w1 - w0))
         u = state.u_interior.copy()
         if state.du_dpose is not None:
-            dzeta = np.concatenate([t - state.t, log_so3(R @ state.R.T)])
+            dzeta = np.concatenate([t - state.t, so3_log(R @ state.R.T)])
             blend0 = self.framed.rigid_blend(Pose(state.R, state.t))
             # the tangent's change minus the blend's first-order change, plus the blend's exact change
             eps = 1e-4 / max(np.linalg.norm(dzeta[3:]), np.linalg.norm(dzeta[:3]) / self.segment.length, 1e-300)
-            plus, minus = (self.framed.rigid_blend(Pose(exp_so3(h * dzeta[3:]) @ state.R, state.t + h * dzeta[:3]))
+            plus, minus = (self.framed.rigid_blend(Pose(so3_exp(h * dzeta[3:]) @ state.R, state.t + h * dzeta[:3]))
                            for h in (eps, -eps))
             u += (blend - blend0) + state.du_dpose @ dzeta - (plus - minus) / (2 * eps)
             if p.size:

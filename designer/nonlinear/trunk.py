@@ -37,8 +37,8 @@ import numpy as np
 from vertebra.designer.nonlinear.framed import Pose
 from vertebra.designer.nonlinear.krylov import ReusedFactorSolver
 from vertebra.designer.nonlinear.newton import NewtonSettings, Step, march
-from vertebra.designer.nonlinear.rotations import exp_so3_minus_identity, log_so3, quaternion_from_matrix, skew
 from vertebra.core.errors import OptionError
+from vertebra.core.lie import hat, qfrom_matrix, so3_expm1, so3_log
 
 
 @dataclass
@@ -123,7 +123,7 @@ class TrunkResponse:
         rot = []
         for dR, dR0, R0 in zip(self.state.dR, rest.dR, rest.R):
             M = (dR - dR0) @ R0.T
-            rot.append(log_so3(np.eye(3) + M) if np.abs(M).max() > 1e-6 else 0.5 * np.array(
+            rot.append(so3_log(np.eye(3) + M) if np.abs(M).max() > 1e-6 else 0.5 * np.array(
                 [M[2, 1] - M[1, 2], M[0, 2] - M[2, 0], M[1, 0] - M[0, 1]]))
         return np.hstack([dt, np.array(rot)])
 
@@ -177,7 +177,7 @@ class NonlinearTrunk:
                        "linear_solver": {k: sum(sv.stats[k] - s0[k] for sv, s0 in zip(self.solvers, stats0))
                                          for k in stats0[0]}}
         return TrunkResponse(
-            positions=state.t.copy(), quaternions=np.array([quaternion_from_matrix(R) for R in state.R]),
+            positions=state.t.copy(), quaternions=qfrom_matrix(state.R),
             rotations=state.R.copy(), volumes=volumes,
             volume_growth=[v - seg.framed.rest_volumes for v, seg in zip(volumes, self.segments)],
             energy=evaluation["energy"], converged=True, iterations=report.newton_iterations,
@@ -353,7 +353,7 @@ class _TrunkProblem:
         conservative = evaluation["conservative"]
         for k in range(m + 1):
             K[6 * k + 3:6 * k + 6, 6 * k + 3:6 * k + 6] += (evaluation["body_hessian"][k]
-                                                           - 0.5 * skew(conservative[k, 3:]))
+                                                           - 0.5 * hat(conservative[k, 3:]))
         rhs = self._condensed_rhs(evaluation, condensed)
         free = np.arange(6, n + 6)
         dq = np.zeros(n + 6)
@@ -387,7 +387,7 @@ class _TrunkProblem:
         R = state.R
         for k in range(1, self.trunk.n_segments + 1):
             out.dt[k] += alpha * dq[k, :3]
-            out.dR[k] += exp_so3_minus_identity(alpha * dq[k, 3:]) @ R[k]       # exp(ω)R − R_rest
+            out.dR[k] += so3_expm1(alpha * dq[k, 3:]) @ R[k]       # exp(ω)R − R_rest
         out.u = [u + alpha * d for u, d in zip(state.u, step.direction["du"])]
         return out
 

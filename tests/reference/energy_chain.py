@@ -25,7 +25,8 @@ from typing import Protocol
 import numpy as np
 
 from vertebra.core.energy import EnergyFit, EnergyModel, EnergyRange, linear_terms
-from vertebra.designer.energy_fit import inverse_left_jacobian, pose_of_strain
+from vertebra.core.lie import se3_left_jacobian_inverse as inverse_left_jacobian
+from vertebra.designer.energy_fit import pose_of_strain
 from vertebra.core.errors import ConvergenceError
 
 

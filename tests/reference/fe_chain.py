@@ -14,14 +14,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from vertebra.designer.fem import SegmentFE, face_load, skew
+from vertebra.core.lie import hat
+from vertebra.designer.fem import SegmentFE, face_load
 
 
 def transport(d) -> np.ndarray:
     """H: motion of a frame at offset ``d`` from frame a when a moves rigidly by ``[t; θ]``
     (``t_b = t + θ × d``)."""
     H = np.eye(6)
-    H[:3, 3:] = -skew(d)
+    H[:3, 3:] = -hat(np.asarray(d, dtype=float))
     return H
 
 
