@@ -52,7 +52,7 @@ def solver(res):
       f"{env['host']} ({env['cpus']} CPUs, shared) · python {env['python']} · numpy {env['numpy']} · "
       f"scipy {env['scipy']} · OMP_NUM_THREADS={env['OMP_NUM_THREADS']} · commit `{env['git']['commit'][:10]}`"
       f"{' + uncommitted solver/ changes (' + str(env['git']['solver_diff_sha1'])[:10] + ')' if env['git']['solver_dirty'] else ''}"
-      f"{' (solver/ and store/ from a clean snapshot of that commit)' if env['git'].get('snapshot') else ''}\n")
+      "\n")
     w(f"Load average (1/5/15 min) at start {res['loadavg_start']}, at end {res['loadavg_end']} "
       f"on {env['cpus']} cores: absolute times are inflated by other jobs; compare ratios within this run. "
       f"Times are medians (min in brackets where given). Total run {res['total_s']:.0f} s.\n")
