@@ -19,14 +19,14 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from vertebra.solver import compliance, newton, outputs
+from vertebra.solver import bounds, compliance, newton, outputs
 from vertebra.solver.energy import Evaluation, LoadCases, Trial, cable_tensions, evaluate, out_of_range, potential
 from vertebra.solver.newton import StaticResult
 from vertebra.solver.outputs import Linearisation
 from vertebra.solver.parameters import Parameters, parameters_of, reparameterise
 from vertebra.solver.state import State, StrainRecord, kinematics, retract
 from vertebra.solver.trunk import Trunk, compile_trunk
-from vertebra.core.errors import CatalogueError, OptionError
+from vertebra.core.errors import CatalogueError, ConvergenceError, OptionError
 
 __all__ = ["Linearisation", "State", "StaticResult", "StrainRecord", "TrunkModel", "build_model"]
 
@@ -152,14 +152,24 @@ class TrunkModel:
         """Quasi-static equilibrium (paper eq. 9) by Newton with line search and automatic load
         stepping (:mod:`~vertebra.solver.newton`). ``actuation``: see :meth:`actuation`
         (e.g. ``{"t1": 5.0}``). Raises :class:`ConvergenceError` (with the partial result) on
-        failure."""
+        failure. A negative tension on a cable is refused, other bounds are reported
+        (``result.bound_violations``, :mod:`~vertebra.solver.bounds`)."""
         settings = self.scene.solver
-        return newton.solve(
-            self.trunk, self.loads, self.actuation(actuation), initial,
-            tolerance=settings.tolerance if tolerance is None else tolerance,
-            max_iterations=settings.max_iterations if max_iterations is None else max_iterations,
-            load_steps=settings.load_steps if load_steps is None else load_steps,
-            raise_on_failure=raise_on_failure)
+        values = self.actuation(actuation)
+        bounds.check_pushing(self, values, from_scene=actuation is None)
+        try:
+            result = newton.solve(
+                self.trunk, self.loads, values, initial,
+                tolerance=settings.tolerance if tolerance is None else tolerance,
+                max_iterations=settings.max_iterations if max_iterations is None else max_iterations,
+                load_steps=settings.load_steps if load_steps is None else load_steps,
+                raise_on_failure=raise_on_failure)
+        except ConvergenceError as error:
+            if error.result is not None:
+                error.result.bound_violations = bounds.bound_violations(self, error.result.state, values)
+            raise
+        result.bound_violations = bounds.bound_violations(self, result.state, values)
+        return result
 
     def evaluate(self, state: State, actuation=None, *, scale: float = 1.0, previous=None) -> Evaluation:
         """Total potential and gradient at ``state`` under ``scale`` × the actuation and loads

@@ -93,6 +93,8 @@ class StaticResult:
     message: str = ""                # why the solve did not converge
     out_of_range: tuple = ()         # RangeExcess: where the returned state leaves the range a
                                      # link energy was fitted on (empty: inside, or no fitted energies)
+    bound_violations: tuple = ()     # BoundViolation: actuator quantities beyond the scene's bounds
+                                     # (solver.bounds; set by TrunkModel.solve)
 
     def __repr__(self) -> str:
         tip = ", ".join(f"{v:.6g}" for v in self.state.positions[-1])
