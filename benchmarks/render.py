@@ -27,9 +27,8 @@ def ms3(seconds: float) -> str:
     return f"{seconds * 1e3:.3f}"
 
 
-# ------------------------------------------------------------------ solver
-
 def fmt_time(s):
+    """Seconds in µs, ms or s, three significant-ish digits ("—" where there is no time)."""
     if s is None or not math.isfinite(s):
         return "—"
     if s < 1e-3:
@@ -39,10 +38,12 @@ def fmt_time(s):
     return f"{s:.2f} s"
 
 
-# --------------------------------------------------------------------------- report
 def sci_percent(x):
+    """A fraction as a percentage in scientific notation."""
     return f"{100 * x:.2e} %"
 
+
+# ------------------------------------------------------------------ solver
 
 def solver(res):
     env, out = res["environment"], []
@@ -687,7 +688,6 @@ def _spread(s: dict) -> str:
     return "—" if not s else f"median {s['median'] * 1e3:.1f} ms, max {s['max'] * 1e3:.1f} ms"
 
 
-# --------------------------------------------------------------------------- report
 def robustness(res: dict) -> str:
     out = []
     w = out.append
@@ -1204,28 +1204,6 @@ def trade_pictures(results: dict, directory: Path) -> list:
     return written + [path]
 
 
-# ------------------------------------------------------------------ workspace
-
-def tolerance_picture(rows, path):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6, 4.2))
-    cost = [r["cpu_ms_per_sample"] for r in rows]
-    error = [max(r["max_error_m"], 1e-16) for r in rows]
-    ax.semilogy(cost, error, "o-")
-    for r, c, e in zip(rows, cost, error):
-        ax.annotate(f"tol {r['tolerance']:g}", (c, e), textcoords="offset points", xytext=(5, 3), fontsize=7)
-    ax.set_xlabel("CPU time per sample [ms]")
-    ax.set_ylabel("largest effector error vs tolerance 1e-13 [m]")
-    ax.set_title("paper_5v_16t workspace: Newton tolerance, error vs cost")
-    ax.grid(True, which="both", alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
 # ------------------------------------------------------------------ inverse
 
 def inverse(document: dict) -> str:
@@ -1383,6 +1361,27 @@ def workspace(document: dict) -> str:
                      f"{r['median_error_m']:.1e} | {r['max_error_m']:.1e} |")
     lines += ["", "Picture: `workspace_tolerance.png` (section 3, error vs cost)."]
     return "\n".join(lines) + "\n"
+
+
+def tolerance_picture(rows, path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4.2))
+    cost = [r["cpu_ms_per_sample"] for r in rows]
+    error = [max(r["max_error_m"], 1e-16) for r in rows]
+    ax.semilogy(cost, error, "o-")
+    for r, c, e in zip(rows, cost, error):
+        ax.annotate(f"tol {r['tolerance']:g}", (c, e), textcoords="offset points", xytext=(5, 3), fontsize=7)
+    ax.set_xlabel("CPU time per sample [ms]")
+    ax.set_ylabel("largest effector error vs tolerance 1e-13 [m]")
+    ax.set_title("paper_5v_16t workspace: Newton tolerance, error vs cost")
+    ax.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def workspace_pictures(document: dict, directory: Path) -> list:
