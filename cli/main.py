@@ -14,7 +14,8 @@ import os
 import sys
 
 from vertebra import __version__
-from vertebra.core.errors import CatalogueError, GeometryError, InputError, PlausibilityWarning, VertebraError
+from vertebra.core.errors import (CatalogueError, GeometryError, InputError, OptionError, PlausibilityWarning,
+                                  VertebraError)
 
 # name -> (module, one-line help). Adding a subcommand touches this table and its module.
 SUBCOMMANDS = {
@@ -66,6 +67,16 @@ def _one_line_warnings(command: str) -> None:
     warnings.showwarning = show
 
 
+def _refuse_nul_bytes(args) -> None:
+    """An argument with a NUL byte names no file and no value (a shell cannot pass one; a
+    caller of ``main(argv)`` can): an OptionError naming the option."""
+    for name, value in vars(args).items():
+        for item in value if isinstance(value, list) else [value]:
+            if isinstance(item, str) and "\x00" in item:
+                option = "--" + name.replace("_", "-") if not name.startswith("_") else name
+                raise OptionError(f"{item!r}: an argument cannot contain a NUL byte", field=option)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -75,6 +86,7 @@ def main(argv: list[str] | None = None) -> int:
 
     pin_blas_threads()      # one BLAS/OpenMP thread per process (designer/threads.py says why)
     try:
+        _refuse_nul_bytes(args)
         code = int(args._run(args))
         sys.stdout.flush()          # a closed pipe shows here, not at interpreter exit
         return code
