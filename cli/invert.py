@@ -9,10 +9,9 @@ Exit codes: 0 every target reached within tolerance; 1 solved but some target no
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 
-from vertebra.cli.outputs import PICTURE_SUFFIXES, output_file, range_warnings
+from vertebra.cli.outputs import PICTURE_SUFFIXES, bound_warnings, output_file, range_warnings, refusal, write_json
 from vertebra.cli.prepare import add_preparation, prepared_scene
 
 
@@ -53,11 +52,9 @@ def _log(message: str) -> None:
 def run(args) -> int:
     # lazy: the parser imports every subcommand module; the libraries load for the command that runs
     from vertebra import solver
-    from vertebra.solver.inverse import InverseController, InverseSettings
+    from vertebra.solver.inverse import InverseSettings
     from vertebra.solver.inverse.trajectory import read_trajectory, scene_trajectory
-    from vertebra.solver.plausible import trajectory_warnings
-    from vertebra.solver.report import inverse_report, plot_inverse
-    from vertebra.core.errors import OptionError
+    from vertebra.core.errors import ConvergenceError, OptionError
 
     plot = output_file(args.plot, "--plot", PICTURE_SUFFIXES)
     vtk = output_file(args.vtk, "--vtk", (".pvd",))
@@ -73,10 +70,27 @@ def run(args) -> int:
     if code:
         return code
     model = solver.build_model(scene)
-    # the same start as the library's: no actuation (clipped into the bounds), at its equilibrium
-    controller = InverseController(model, settings)
     trajectory = (read_trajectory(args.trajectory, model.effector_names, model.effector_targets)
                   if args.trajectory else scene_trajectory(model))
+    try:
+        return _invert(args, model, scene, settings, trajectory, plot, vtk)
+    except ConvergenceError as error:
+        if not args.json:
+            raise
+        _log(f"vertebra invert: {error}")
+        write_json(refusal(error, scene=scene.name or args.scene, mode=args.mode, reached=False))
+        return 1
+
+
+def _invert(args, model, scene, settings, trajectory, plot, vtk) -> int:
+    # lazy: the parser imports every subcommand module; the libraries load for the command that runs
+    from vertebra.solver.bounds import BoundViolation
+    from vertebra.solver.inverse import InverseController
+    from vertebra.solver.plausible import trajectory_warnings
+    from vertebra.solver.report import inverse_report, plot_inverse
+
+    # the same start as the library's: no actuation (clipped into the bounds), at its equilibrium
+    controller = InverseController(model, settings)
     if args.trajectory:
         trajectory_warnings(model, trajectory.targets, args.trajectory)     # a trajectory in mm
 
@@ -92,6 +106,13 @@ def run(args) -> int:
     steps = controller.track(trajectory.targets, settle=True, on_step=progress)
     document = inverse_report(model, steps, trajectory.times, scene=scene.name or args.scene, mode=args.mode,
                               backend=settings.backend, tolerance=settings.tolerance)
+    broken = [(i, step["bound_violations"]) for i, step in enumerate(document["steps"]) if step["bound_violations"]]
+    for i, violations in broken[:3]:
+        shown = [BoundViolation(**{k: v for k, v in violation.items() if k != "unit"}) for violation in violations]
+        for line in bound_warnings(shown, f"step {i}: "):
+            _log(line)
+    if len(broken) > 3:
+        _log(f"warning: {len(broken) - 3} more steps beyond the scene's bounds (see bound_violations in the JSON)")
     if plot is not None:
         plot_inverse(model, steps, trajectory.times if trajectory.timed else None, path=str(plot),
                      tolerance=settings.tolerance)
@@ -104,7 +125,7 @@ def run(args) -> int:
         files = write_pvd(str(vtk), series)
         _log(f"wrote {args.vtk} ({len(files)} steps in {files[0].parent}/)")
     if args.json:
-        print(json.dumps(document))
+        write_json(document)
     else:
         last = document["steps"][-1]
         for name, effector in last["effectors"].items():

@@ -7,9 +7,13 @@ input, so that a misspelt extension or a missing directory is an :class:`OptionE
 
 from __future__ import annotations
 
+import json
+import math
 import os
+import sys
 from pathlib import Path
 
+from vertebra import __version__
 from vertebra.core.errors import OptionError
 
 PICTURE_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
@@ -50,6 +54,47 @@ def range_warnings(excesses, where: str = "", limit: int = 3) -> list[str]:
     if len(worst) > limit:
         lines.append(f"  … and {len(worst) - limit} more")
     return lines
+
+
+def bound_warnings(violations, where: str = "", limit: int = 5) -> list[str]:
+    """One-line warnings for the actuator quantities beyond the scene's bounds
+    (:class:`~vertebra.solver.bounds.BoundViolation`): the first ``limit``, and how many more."""
+    if not violations:
+        return []
+    lines = [f"warning: {where}{len(violations)} actuator quantit{'y' if len(violations) == 1 else 'ies'} beyond "
+             "the scene's bounds (bound_violations in the JSON):"]
+    lines += [f"  {violation}" for violation in violations[:limit]]
+    if len(violations) > limit:
+        lines.append(f"  … and {len(violations) - limit} more")
+    return lines
+
+
+def finite_json(value):
+    """``value`` (a JSON-ready document) with every float that is not finite (±inf, NaN) as
+    ``None``: the document then holds only standard JSON (``null`` where a number is unbounded or
+    unknown)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {key: finite_json(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [finite_json(item) for item in value]
+    return value
+
+
+def write_json(document, stream=None) -> None:
+    """Write ``document`` as one line of standard JSON (non-finite numbers as ``null``:
+    :func:`finite_json`) to ``stream`` (stdout)."""
+    stream = sys.stdout if stream is None else stream
+    json.dump(finite_json(document), stream, allow_nan=False)
+    stream.write("\n")
+
+
+def refusal(error, **fields) -> dict:
+    """The JSON document of a command that refused to solve (exit 1): ``converged`` false and
+    the ``error`` (its type and message), beside ``fields``."""
+    return {"vertebra_version": __version__, **fields, "converged": False,
+            "error": {"type": type(error).__name__, "message": str(error)}}
 
 
 def shown(values, scale: float, relative: float):

@@ -3,10 +3,10 @@ forward statics."""
 
 from __future__ import annotations
 
-import json
 import sys
 
-from vertebra.cli.outputs import PICTURE_SUFFIXES, output_file, range_warnings, shown
+from vertebra.cli.outputs import (PICTURE_SUFFIXES, bound_warnings, output_file, range_warnings, refusal, shown,
+                                  write_json)
 from vertebra.cli.prepare import add_preparation, prepared_scene
 from vertebra.core.errors import ConvergenceError
 
@@ -43,10 +43,14 @@ def run(args) -> int:
         result = model.solve()
     except ConvergenceError as error:
         if error.result is None:          # no state to report (e.g. a chamber beyond its limit point)
-            raise
+            if not args.json:
+                raise
+            print(f"vertebra simulate: {error}", file=sys.stderr)
+            write_json(refusal(error, scene=scene.name or args.scene))
+            return 1
         result = error.result
         print(f"vertebra simulate: {error}", file=sys.stderr)
-    for line in range_warnings(result.out_of_range):
+    for line in range_warnings(result.out_of_range) + bound_warnings(result.bound_violations):
         print(f"vertebra simulate: {line}", file=sys.stderr)
     report = static_report(model, result)
     if plot is not None:
@@ -59,8 +63,7 @@ def run(args) -> int:
         write_frames(str(frames), result.state)
         print(f"wrote {frames}", file=sys.stderr)
     if args.json:
-        json.dump(report, sys.stdout)
-        sys.stdout.write("\n")
+        write_json(report)
     else:
         status = "converged" if result.converged else "NOT converged"
         print(f"{scene.name or args.scene}: {status} in {result.iterations} iterations "

@@ -58,7 +58,7 @@ class BoundViolation:
 
     def __str__(self) -> str:
         side = "above" if self.bound.startswith("max") else "below"
-        return (f"{self.actuator}: {self.quantity} {self.value:.6g} {self.unit} is {self.excess:.4g} {self.unit} "
+        return (f"{self.actuator}: {self.quantity} {self.value:.6g} {self.unit} is {self.excess:.6g} {self.unit} "
                 f"{side} its {self.bound} {self.limit:.6g} {self.unit}")
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from vertebra import __version__
+from vertebra.solver.bounds import bound_violations
 from vertebra.solver.compliance import compliance_report
 from vertebra.solver.model import State, StaticResult, TrunkModel
 from vertebra.solver.plots import plot_inverse, plot_static
@@ -51,7 +52,8 @@ def static_report(model: TrunkModel, result: StaticResult) -> dict:
         "diagnostics": {"load_stages": int(result.load_steps), "factorization": result.factorization,
                         "rounding_limited": bool(result.rounding_limited),
                         "frames": int(model.n_frames), "residual_history": [float(r) for r in result.residual_history],
-                        "out_of_range": [excess.to_dict() for excess in result.out_of_range]},
+                        "out_of_range": [excess.to_dict() for excess in result.out_of_range],
+                        "bound_violations": [violation.to_dict() for violation in result.bound_violations]},
     }
 
 
@@ -122,6 +124,7 @@ def _inverse_step(model: TrunkModel, t, step) -> dict:
         "reached": bool(step.reached and step.equilibrium),
         "equilibrium": bool(step.equilibrium),
         "out_of_range": [excess.to_dict() for excess in step.out_of_range],
+        "bound_violations": [violation.to_dict() for violation in bound_violations(model, step.state, actuation)],
         "status": step.status,
         "iterations": int(step.iterations),
         "fraction": float(step.fraction),

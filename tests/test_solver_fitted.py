@@ -288,10 +288,20 @@ def test_pressures_beyond_the_inflation_limit_point_are_refused():
     below = model.solve(np.array([1.2e5, 0.0]))
     assert below.converged
     assert {e.quantity for e in below.out_of_range} == {"cavity 0 pressure"}
-    with pytest.raises(ConvergenceError, match="inflation limit point"):
+    # the entry stores no limit point met while sampling: the refusal names the fit's fold
+    # pressure and the pressures sampled, and claims no ballooning
+    with pytest.raises(ConvergenceError, match="fold pressure of its fitted energy's pressure map") as refused:
         model.solve(np.array([1.3e5, 0.0]))
+    message = str(refused.value)
+    assert "130000 Pa" in message and "no limit point was met while sampling, which reached 100000 Pa" in message
+    assert "balloons" not in message
     # the fold map is what the kernel uses below the limit (its derivative grows without bound)
     assert fold_map(np.array([1.29e5]), 1.3e5)[1][0] > 10.0
+    # an entry whose sampling met the limit point says so
+    met = _model(with_energy(SLICE, strength=0.3, pressure=1.0e5, fold_pressure=1.3e5, limit_pressure=1.25e5),
+                 chambers=CHAMBERS)
+    with pytest.raises(ConvergenceError, match=r"inflation limit point met while its energy was sampled \(125000 Pa"):
+        met.solve(np.array([1.26e5, 0.0]))
 
 
 def test_inverse_steps_report_the_range():

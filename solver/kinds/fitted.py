@@ -28,7 +28,8 @@ Range. The fit is trusted where it was sampled; :meth:`FittedEnergy.out_of_range
 quantity of a state (group coordinates of the strain and of the load, cavity pressures) outside
 the entry's ``EnergyRange`` — a result's diagnostics, never a silent extrapolation. A pressure at
 or beyond the inflation limit point (the fold of the fitted volume, or the limit met while
-sampling) has no equilibrium near it: such a load case is refused with a ConvergenceError.
+sampling) has no equilibrium near it, and the fit cannot be evaluated at or beyond its fold
+pressure: such a load case is refused with a ConvergenceError that says which of the two it met.
 """
 
 from __future__ import annotations
@@ -67,14 +68,18 @@ class _Group:
     vertebra: np.ndarray        # (k,) distal vertebra of each link's repetition
     incidence: np.ndarray       # (k, cavities, chambers) 0/1: M of each link
     limit: float                # pressure with no equilibrium beyond it (inf: none known)
+    met: bool                   # ``limit`` is the limit point met while sampling (else the fit's fold pressure)
 
 
-def _limit_pressure(model: EnergyModel) -> float:
-    """The inflation limit point of an entry's energy: the fold of its pressure map or the limit
-    point met while sampling, whichever is lower (inf when neither is known)."""
+def _limit_pressure(model: EnergyModel) -> tuple[float, bool]:
+    """The pressure beyond which an entry's energy has no equilibrium: the limit point met while
+    sampling or the fold of its pressure map, whichever is lower (inf when neither is known), and
+    whether it is the limit point met while sampling."""
     fit = model.fit
-    known = [v for v in (fit.fold_pressure, fit.range.limit_pressure) if v is not None]
-    return min(known, default=np.inf)
+    met, fold = fit.range.limit_pressure, fit.fold_pressure
+    if met is not None and (fold is None or met <= fold):
+        return float(met), True
+    return (np.inf if fold is None else float(fold)), False
 
 
 @dataclass(frozen=True)
@@ -106,7 +111,7 @@ class FittedEnergy:
                 served = np.flatnonzero(cavity[rows, j] >= 0)
                 incidence[served, cavity[rows[served], j], j] = 1.0
             groups.append(_Group(rows, entry, links[rows], of[rows], compiled.vertebra[links[rows]], incidence,
-                                 _limit_pressure(entry.model)))
+                                 *_limit_pressure(entry.model)))
         return cls(links, compiled.rest[of], tuple(groups), n_chambers)
 
     def scaled(self, scale: np.ndarray) -> "FittedEnergy":
@@ -130,11 +135,19 @@ class FittedEnergy:
             if np.any(p >= group.limit):
                 k = int(np.argmax(p.max(1)))
                 c = int(np.argmax(p[k]))
+                sampled = float(np.max(group.entry.model.fit.range.pressure_upper))
+                where = (f"cavity {c} of segment {group.segment[k]} (entry {group.entry.name!r}, vertebrae "
+                         f"{group.vertebra[k] - 1}–{group.vertebra[k]}) is pressurised to {p[k, c]:.6g} Pa")
+                if group.met:
+                    raise ConvergenceError(
+                        f"{where}, at or beyond the inflation limit point met while its energy was sampled "
+                        f"({group.limit:.6g} Pa; pressures sampled up to {sampled:.6g} Pa): the chamber has no "
+                        "equilibrium there (it balloons), and the fit is not extrapolated through the limit point")
                 raise ConvergenceError(
-                    f"cavity {c} of segment {group.segment[k]} (entry {group.entry.name!r}, vertebrae "
-                    f"{group.vertebra[k] - 1}–{group.vertebra[k]}) is pressurised to {p[k, c]:.6g} Pa, at or beyond "
-                    f"the inflation limit point of its fitted energy ({group.limit:.6g} Pa): the chamber has no "
-                    "equilibrium there (it balloons), and the fit is not extrapolated through the limit point")
+                    f"{where}, at or beyond the fold pressure of its fitted energy's pressure map ({group.limit:.6g} "
+                    f"Pa), where the fit's pressure map ends; no limit point was met while sampling, which reached "
+                    f"{sampled:.6g} Pa: the fit cannot be evaluated there (sampling the entry to higher pressures "
+                    "tells whether the chamber has a limit point)")
             prepared.append(group.entry.model.at(p))
         return tuple(prepared)
 
