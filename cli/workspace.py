@@ -105,6 +105,9 @@ def run(args) -> int:
 
 
 def _print_summary(name: str, summary: dict) -> None:
+    # lazy: the parser imports every subcommand module; the libraries load for the command that runs
+    from vertebra.solver.workspace import area_text, volume_text
+
     timing = summary["timing"]
     print(f"{name}: {summary['converged']} of {summary['samples']} samples converged "
           f"({summary['failed']} failed), {summary['iterations']['mean'] or 0:.2f} Newton iterations per solve, "
@@ -119,9 +122,9 @@ def _print_summary(name: str, summary: dict) -> None:
         if hull is None:
             shape = "directions"
         elif hull["dimension"] == 3:
-            shape = f"hull volume {hull['volume']:.4g} m³"
+            shape = f"hull volume {volume_text(hull['volume'])}"
         elif hull["dimension"] == 2:
-            shape = f"planar, hull area {hull['area']:.4g} m²"
+            shape = f"planar, hull area {area_text(hull['area'])}"
         else:
             shape = f"spans {hull['dimension']} dimension(s)"
         print(f"  effector {effector}: {extent} m, {shape}")

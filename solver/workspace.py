@@ -62,7 +62,8 @@ def actuation_box(model) -> tuple[np.ndarray, np.ndarray]:
                          file=model.scene.source, field="cable")
     for k in np.flatnonzero(~(np.isfinite(lower) & np.isfinite(upper))):
         if k < model.n_cables:
-            name, table, which = model.actuator_names[k], f"cable[{k}]", "tension"
+            which = "stroke" if model.trunk.actuators.stroke_driven[k] else "tension"
+            name, table = model.actuator_names[k], f"cable[{k}]"
         else:
             name, table, which = model.actuator_names[k], f"chamber[{k - model.n_cables}]", "pressure"
         bound = f"min_{which}" if not np.isfinite(lower[k]) else f"max_{which}"
@@ -94,7 +95,8 @@ def sample_unit(n_samples: int, dimension: int, *, method: str = "sobol", seed: 
 
 
 def sample_actuations(model, n_samples: int, *, method: str = "sobol", seed: int = 0) -> np.ndarray:
-    """``(n_samples, n_actuators)`` actuations inside the bounds (tensions N, pressures Pa)."""
+    """``(n_samples, n_actuators)`` actuations inside the bounds (tensions N, a stroke-driven
+    tendon's servo stroke m, pressures Pa)."""
     lower, upper = actuation_box(model)
     return lower + sample_unit(n_samples, lower.size, method=method, seed=seed) * (upper - lower)
 
@@ -136,7 +138,12 @@ class Workspace:
     """Forward solves of sampled actuations and the effector positions they reached.
 
     Arrays are in sample order (the order the sequence drew them). ``positions[i]`` is nan
-    where sample ``i``'s solve failed; ``failures`` lists those samples with the error."""
+    where sample ``i``'s solve failed; ``failures`` lists those samples with the error.
+    ``beyond_bounds[i]``: sample ``i``'s equilibrium breaks a bound of the scene that the
+    sampled box does not hold (a stroke, a volume growth, a stroke-driven tendon's tension;
+    ``solver.bounds``); ``out_of_range[i]``: it leaves the range a link energy was fitted on.
+    ``violations`` counts them by actuator and bound (``"t1: min_stroke"``) and by entry and
+    quantity. With ``drop_outside`` the clouds leave those samples out (they stay in the arrays)."""
 
     actuator_names: list
     effector_names: list
@@ -152,11 +159,18 @@ class Workspace:
     order: SolveOrder
     settings: dict
     timings: dict = field(default_factory=dict)
+    beyond_bounds: np.ndarray | None = None     # (n,) bool (None: none)
+    out_of_range: np.ndarray | None = None      # (n,) bool (None: none)
+    violations: dict = field(default_factory=dict)
+    drop_outside: bool = False
 
     def __post_init__(self):
         n = len(self.actuations)
+        for name in ("beyond_bounds", "out_of_range"):
+            if getattr(self, name) is None:
+                setattr(self, name, np.zeros(n, bool))
         shapes = {"positions": (n, len(self.effector_names), 3), "converged": (n,), "iterations": (n,),
-                  "warm": (n,), "predicted": (n,)}
+                  "warm": (n,), "predicted": (n,), "beyond_bounds": (n,), "out_of_range": (n,)}
         for name, shape in shapes.items():
             if getattr(self, name).shape != shape:
                 raise ValueError(f"{name} has shape {getattr(self, name).shape}, expected {shape}")
@@ -165,11 +179,22 @@ class Workspace:
     def n_samples(self) -> int:
         return len(self.actuations)
 
-    def cloud(self, name: str) -> EffectorCloud:
-        """The converged positions of effector ``name``."""
+    @property
+    def outside(self) -> np.ndarray:
+        """(n,) bool: converged samples beyond a scene bound or a fitted range."""
+        return self.converged & (self.beyond_bounds | self.out_of_range)
+
+    @property
+    def kept(self) -> np.ndarray:
+        """(n,) bool: the samples of the clouds: converged, and inside unless ``drop_outside``."""
+        return self.converged & ~self.outside if self.drop_outside else self.converged
+
+    def cloud(self, name: str, *, outside: bool = False) -> EffectorCloud:
+        """The positions of effector ``name`` at the :attr:`kept` samples (``outside``: at the
+        converged samples beyond a bound or a fitted range instead)."""
         k = self.effector_names.index(name)
         return EffectorCloud(name, "direction" if self.effector_is_axis[k] else "point",
-                             self.positions[self.converged, k])
+                             self.positions[self.outside if outside else self.kept, k])
 
     def clouds(self) -> list[EffectorCloud]:
         return [self.cloud(name) for name in self.effector_names]
@@ -190,6 +215,10 @@ class Workspace:
             "samples": self.n_samples,
             "converged": int(np.count_nonzero(self.converged)),
             "failed": int(self.n_samples - np.count_nonzero(self.converged)),
+            "beyond_bounds": int(np.count_nonzero(self.converged & self.beyond_bounds)),
+            "out_of_range": int(np.count_nonzero(self.converged & self.out_of_range)),
+            "dropped": int(np.count_nonzero(self.converged & ~self.kept)),
+            "violations": dict(self.violations),
             "settings": dict(self.settings),
             "actuators": {name: {"lower": _floats(self.bounds[0][k:k + 1])[0],
                                  "upper": _floats(self.bounds[1][k:k + 1])[0]}
@@ -203,6 +232,23 @@ class Workspace:
             "failures": list(self.failures),
             "timing": {key: float(value) for key, value in self.timings.items()},
         }
+
+
+def volume_text(volume: float) -> str:
+    """A volume (m³) for people: in mm³, cm³ or m³, whichever gives a number from 1 to 1000
+    (a hull of 2.6e-06 m³ reads "2.59 cm³")."""
+    for unit, scale in (("mm³", 1e-9), ("cm³", 1e-6), ("dm³", 1e-3)):
+        if abs(volume) < 1e3 * scale:
+            return f"{volume / scale:.3g} {unit}"
+    return f"{volume:.3g} m³"
+
+
+def area_text(area: float) -> str:
+    """An area (m²) for people: in mm², cm² or m²."""
+    for unit, scale in (("mm²", 1e-6), ("cm²", 1e-4)):
+        if abs(area) < 1e2 * scale:
+            return f"{area / scale:.3g} {unit}"
+    return f"{area:.3g} m²"
 
 
 def _floats(values) -> list:
@@ -225,13 +271,17 @@ class _Solved:
     predicted: np.ndarray
     failures: list
     cpu_s: float
+    beyond_bounds: np.ndarray = None
+    out_of_range: np.ndarray = None
+    violations: dict = field(default_factory=dict)    # "<actuator>: <bound>" / "<entry>: <quantity>" → samples
 
     @classmethod
     def failed(cls, samples: np.ndarray, n_effectors: int, error: BaseException) -> "_Solved":
         n = len(samples)
         return cls(samples, np.full((n, n_effectors, 3), np.nan), np.zeros(n, bool), np.zeros(n, int),
                    np.zeros(n, bool), np.zeros(n, bool),
-                   [{"sample": int(i), "error": type(error).__name__, "message": str(error)} for i in samples], 0.0)
+                   [{"sample": int(i), "error": type(error).__name__, "message": str(error)} for i in samples], 0.0,
+                   np.zeros(n, bool), np.zeros(n, bool))
 
 
 class _Equilibrium:
@@ -267,6 +317,8 @@ def _solve_samples(model, actuations: np.ndarray, order: np.ndarray, parent: np.
     positions = np.full((n, len(model.effector_names), 3), np.nan)
     converged, warm, predicted = np.zeros(n, bool), np.zeros(n, bool), np.zeros(n, bool)
     iterations = np.zeros(n, int)
+    beyond, outside = np.zeros(n, bool), np.zeros(n, bool)
+    violations: dict = {}
     failures = []
     inside = set(order.tolist())
     parents = [p if p in inside else -1 for p in parent[order].tolist()]
@@ -289,6 +341,10 @@ def _solve_samples(model, actuations: np.ndarray, order: np.ndarray, parent: np.
             converged[j] = True
             iterations[j] = result.iterations
             positions[j] = model.effector_positions(result.state)
+            beyond[j], outside[j] = bool(result.bound_violations), bool(result.out_of_range)
+            for key in {f"{v.actuator}: {v.bound}" for v in result.bound_violations} | \
+                    {f"{e.source}: {e.quantity}" for e in result.out_of_range}:
+                violations[key] = violations.get(key, 0) + 1
             if children.get(i):
                 kept[i] = _Equilibrium(model, result.state, actuations[i])
         if p >= 0:
@@ -298,7 +354,7 @@ def _solve_samples(model, actuations: np.ndarray, order: np.ndarray, parent: np.
         if progress is not None:
             progress(1)
     return _Solved(order, positions, converged, iterations, warm, predicted, failures,
-                   time.process_time() - cpu)
+                   time.process_time() - cpu, beyond, outside, violations)
 
 
 _WORKER_MODEL = None
@@ -350,7 +406,7 @@ def _solve_in_workers(model, actuations, plan: SolveOrder, tolerance, workers: i
 def sample_workspace(model, n_samples: int = 1000, *, method: str = "sobol", seed: int = 0,
                      ordering: str = "tree", tolerance: float | None = None, workers: int = 1,
                      chunk: int = CHUNK, actuations: np.ndarray | None = None,
-                     progress: Callable[[int], object] | None = None) -> Workspace:
+                     progress: Callable[[int], object] | None = None, drop_outside: bool = False) -> Workspace:
     """Solve the trunk at ``n_samples`` quasi-random actuations within the bounds (or at the
     given ``actuations``) and collect the effector positions.
 
@@ -359,7 +415,9 @@ def sample_workspace(model, n_samples: int = 1000, *, method: str = "sobol", see
     stepping from rest when such a warm start fails. ``tolerance`` overrides the scene's Newton
     tolerance. ``workers`` > 1 solves runs of ``chunk`` consecutive samples of the order in
     that many processes. ``progress(k)`` is called as ``k`` more samples are done (e.g. a tqdm
-    bar's ``update``)."""
+    bar's ``update``). Samples whose equilibrium breaks a bound of the scene the box does not
+    hold (strokes, volume growths, tendon tensions) or leaves a fitted range are counted and
+    flagged; ``drop_outside`` leaves them out of the clouds."""
     if ordering not in ORDERINGS:
         raise OptionError(f"unknown ordering {ordering!r}; choose one of {', '.join(ORDERINGS)}",
                           field="ordering")
@@ -387,33 +445,40 @@ def sample_workspace(model, n_samples: int = 1000, *, method: str = "sobol", see
 
     per_sample = {"positions": np.full((n, len(model.effector_names), 3), np.nan),
                   "converged": np.zeros(n, bool), "iterations": np.zeros(n, int),
-                  "warm": np.zeros(n, bool), "predicted": np.zeros(n, bool)}
+                  "warm": np.zeros(n, bool), "predicted": np.zeros(n, bool),
+                  "beyond_bounds": np.zeros(n, bool), "out_of_range": np.zeros(n, bool)}
+    violations: dict = {}
     for piece in pieces:
         for name, values in per_sample.items():
             values[piece.samples] = getattr(piece, name)
+        for key, count in piece.violations.items():
+            violations[key] = violations.get(key, 0) + count
     failures = sorted((f for piece in pieces for f in piece.failures), key=lambda f: f["sample"])
     settings = {"samples": n, "method": method if sampled else "given", "seed": seed, "ordering": ordering,
                 "tolerance": model.scene.solver.tolerance if tolerance is None else tolerance,
-                "workers": workers}
+                "workers": workers, "drop_outside": bool(drop_outside)}
     timings = {"order_s": order_s, "wall_s": time.perf_counter() - wall,
                "cpu_s": time.process_time() - cpu + _children_cpu_s() - children_cpu,
                "solve_cpu_s": float(sum(piece.cpu_s for piece in pieces))}
     return Workspace(list(model.actuator_names), list(model.effector_names),
                      np.asarray(model.effector_is_axis, bool).copy(),
                      tuple(np.array(b, float) for b in model.actuator_bounds), actuations, **per_sample,
-                     failures=failures, order=plan, settings=settings, timings=timings)
+                     failures=failures, order=plan, settings=settings, timings=timings,
+                     violations=dict(sorted(violations.items())), drop_outside=bool(drop_outside))
 
 
 # ---------------------------------------------------------------------------- files
 def write_points(workspace: Workspace, path) -> None:
-    """Every sample as a row: actuations, then ``<effector>.x/.y/.z``, ``converged`` and
-    ``iterations`` (``.csv``), or the same arrays in a ``.npz``."""
+    """Every sample as a row: actuations, then ``<effector>.x/.y/.z``, ``converged``,
+    ``iterations``, ``beyond_bounds`` and ``out_of_range`` (1/0; ``.csv``), or the same arrays in
+    a ``.npz``."""
     from pathlib import Path
 
     path = Path(path)
     if path.suffix == ".npz":
         np.savez_compressed(path, actuations=workspace.actuations, positions=workspace.positions,
                             converged=workspace.converged, iterations=workspace.iterations,
+                            beyond_bounds=workspace.beyond_bounds, out_of_range=workspace.out_of_range,
                             actuator_names=np.array(workspace.actuator_names),
                             effector_names=np.array(workspace.effector_names))
         return
@@ -421,7 +486,8 @@ def write_points(workspace: Workspace, path) -> None:
         raise OptionError(f"{path}: points are written as .csv or .npz", field="--points")
     header = list(workspace.actuator_names)
     header += [f"{name}.{axis}" for name in workspace.effector_names for axis in "xyz"]
-    header += ["converged", "iterations"]
+    header += ["converged", "iterations", "beyond_bounds", "out_of_range"]
     table = np.column_stack([workspace.actuations, workspace.positions.reshape(workspace.n_samples, -1),
-                             workspace.converged.astype(float), workspace.iterations.astype(float)])
+                             workspace.converged.astype(float), workspace.iterations.astype(float),
+                             workspace.beyond_bounds.astype(float), workspace.out_of_range.astype(float)])
     np.savetxt(path, table, delimiter=",", header=",".join(header), comments="", fmt="%.17g")
