@@ -1,0 +1,210 @@
+"""Predicted marker positions of servo-driven samples, and their derivatives.
+
+A calibration sees the robot through one narrow interface, :class:`Predictor`:
+``predict(values, samples, wrt)`` solves every sample's static equilibrium under the element
+values (:class:`~vertebra.solver.calibration.parameters.Values`) and returns the markers in the
+measurement frame and, for the elements ``wrt``, their derivatives.
+
+:class:`RuntimePredictor` builds it on the runtime: the mapped cables are the scene's
+stroke-driven tendons (tension ``k·max(0, L − L0 + stroke + P/k)``), the element values are
+run-time parameters of the model (:meth:`~vertebra.solver.model.TrunkModel.set_parameters`:
+stiffness scale per segment, hole angles and radii, spring rates, pretensions; no
+recompilation), and each sample's solve starts from the state it had at the previous call (else
+from its predecessor in the file: the data are a sequence of nearby poses).
+
+Derivatives come from the implicit function theorem at each converged state: with ``g(q, θ)``
+the out-of-balance force (tendon springs included) and ``K`` its tangent,
+``dq/dθ = −K⁻¹ ∂g/∂θ``; ``∂g/∂θ`` is a forward difference of ``g`` at the fixed converged state
+under the perturbed parameter (no re-solve: it is linear in a stiffness scale and in a
+pretension of a taut tendon, and smooth in the others), one back-substitution per parameter
+with the banded factor. The measurement frame and the marker offsets act after the solve and
+are differentiated in closed form.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from vertebra.core.errors import ConvergenceError, OptionError
+from vertebra.solver.calibration.parameters import Values
+
+__all__ = ["Prediction", "Predictor", "RuntimePredictor"]
+
+# relative forward-difference steps of the elements differentiated through the model
+# (times the typical size of the element: 1, a radian, the hole radius, the spring rate, k·length)
+FD_STEP = 1e-6
+MODEL_KINDS = ("stiffness", "angle", "radius", "cable_stiffness", "pretension")
+
+
+@dataclass
+class Prediction:
+    markers: np.ndarray             # (n, n_markers, 3) m, measurement frame
+    derivatives: np.ndarray | None  # (n, n_markers, 3, len(wrt))
+    tensions: np.ndarray            # (n, n_actuators) N at equilibrium
+    solve_s: float = 0.0
+    derivative_s: float = 0.0
+
+
+class Predictor(Protocol):
+    model: object
+
+    def predict(self, values: Values, samples, wrt=()) -> Prediction: ...
+
+
+class RuntimePredictor:
+    """Servo-driven samples on the runtime's stroke-driven tendons (module docstring)."""
+
+    def __init__(self, scene, mapping, model=None):
+        from vertebra import solver     # lazy: the calibration package is imported by the solver's users
+
+        self.scene, self.mapping = scene, mapping
+        self.model = model if model is not None else solver.build_model(scene)
+        cables = {c.name: i for i, c in enumerate(scene.cables)}
+        missing = [a.cable for a in mapping.actuators if a.cable not in cables]
+        if missing:
+            raise OptionError(f"the mapping drives cable(s) {', '.join(missing)} that the scene {scene.source} "
+                              f"does not have (it has {', '.join(cables) or 'none'})", field=mapping.source)
+        self.driven = np.array([cables[a.cable] for a in mapping.actuators], dtype=int)
+        stroke_driven = np.asarray(self.model.compiled.actuators.stroke_driven)
+        tension = [a.cable for a, i in zip(mapping.actuators, self.driven) if not stroke_driven[i]]
+        if tension:
+            raise OptionError(f"cable(s) {', '.join(tension)} of the scene {scene.source} are driven by a tension; "
+                              f"a mapped actuator column is a servo stroke (give the cable `stroke`, `stiffness` "
+                              f"and `pretension`, docs/scenes.md)", field=mapping.source)
+        self.rest_angle = np.array([c.angle for c in scene.cables], float)
+        self.rest_radius = np.array([c.radius for c in scene.cables], float)
+        n_vertebrae = len(self.model.vertebra_frames)
+        frames = []
+        for m in mapping.markers:
+            v = m.vertebra + n_vertebrae if m.vertebra < 0 else m.vertebra
+            if not 0 <= v < n_vertebrae:
+                raise OptionError(f"marker {m.name}: vertebra {m.vertebra} out of range (the scene has "
+                                  f"vertebrae 0..{n_vertebrae - 1})", field=mapping.source)
+            frames.append(int(self.model.vertebra_frames[v]))
+        self.marker_frames = np.array(frames, dtype=int)
+        self._warm: dict = {}            # (samples source, index) -> state
+
+    # ------------------------------------------------------------------ parameters
+    def _set(self, values: Values) -> None:
+        """Apply ``values`` to the model. A negative pretension is a slack of ``−P/k``: the
+        runtime's pretension is ``max(P, 0)`` and the slack shortens the stroke (:meth:`_actuation`);
+        the tendon law ``k·max(0, L − L0 + stroke + P/k)`` is the same either way."""
+        self.model.set_parameters(stiffness_scale=values.stiffness, hole_angle=self.rest_angle + values.angle,
+                                  hole_radius=self.rest_radius + values.radius,
+                                  cable_stiffness=values.cable_stiffness,
+                                  pretension=np.maximum(values.pretension, 0.0))
+
+    def _actuation(self, values: Values, command) -> np.ndarray:
+        """The model's actuation for one sample's commands (strokes of the driven cables, each
+        shortened by its slack)."""
+        actuation = self.model.actuation().copy()
+        k = values.cable_stiffness[self.driven]
+        actuation[self.driven] = command + np.minimum(values.pretension[self.driven], 0.0) / k
+        return actuation
+
+    def _step(self, kind: str, index, values: Values) -> float:
+        typical = {"stiffness": 1.0, "angle": 1.0, "radius": self.rest_radius[index] if kind == "radius" else 1.0,
+                   "cable_stiffness": values.cable_stiffness[index] if kind == "cable_stiffness" else 1.0,
+                   "pretension": values.cable_stiffness[index] * float(self.model.length_scale)
+                   if kind == "pretension" else 1.0}[kind]
+        return FD_STEP * typical
+
+    # ------------------------------------------------------------------ markers
+    def _markers(self, state, offsets):
+        """Robot-frame marker points (n_markers, 3), their lever arms ``R r`` and rotations."""
+        R = Rotation.from_quat(state.quaternions[self.marker_frames][:, [1, 2, 3, 0]]).as_matrix()
+        arm = np.einsum("mij,mj->mi", R, offsets)
+        return state.positions[self.marker_frames] + arm, arm, R
+
+    def _marker_jacobian(self, arm):
+        """(n_markers, 3, n_dof): ``dp = dx_f + dφ_f × (R r)`` of each marker's frame."""
+        J = np.zeros((len(arm), 3, self.model.n_dof))
+        for i, (f, a) in enumerate(zip(self.marker_frames, arm)):
+            if f == 0:
+                continue
+            c = 6 * (f - 1)
+            J[i, :, c:c + 3] = np.eye(3)
+            J[i, :, c + 3:c + 6] = -np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+        return J
+
+    # ------------------------------------------------------------------ predict
+    def predict(self, values: Values, samples, wrt=()) -> Prediction:
+        model = self.model
+        self._set(values)
+        Rf = Rotation.from_rotvec(values.frame[3:]).as_matrix()
+        tf = values.frame[:3]
+        n, nm = len(samples), len(self.marker_frames)
+        markers = np.empty((n, nm, 3))
+        tensions = np.empty((n, len(self.driven)))
+        actuations, states = [], []
+        t0 = time.perf_counter()
+        previous = None
+        for i in range(n):
+            actuation = self._actuation(values, samples.commands[i])
+            key = (samples.source, i)
+            start = self._warm.get(key, previous)
+            result = model.solve(actuation, initial=start, raise_on_failure=False)
+            if not result.converged and start is not None:      # a far warm start: from the rest pose
+                result = model.solve(actuation, raise_on_failure=False)
+            if not result.converged:
+                raise ConvergenceError(f"{samples.source}: sample {i}: the equilibrium did not converge "
+                                       f"({result.message})", result)
+            self._warm[key] = previous = result.state
+            points, _, _ = self._markers(result.state, values.marker)
+            markers[i] = points @ Rf.T + tf
+            tensions[i] = model.cable_tensions(result.state, actuation)[self.driven]
+            actuations.append(actuation)
+            states.append(result.state)
+        solve_s = time.perf_counter() - t0
+        derivatives = None
+        if wrt:
+            derivatives = self._derivatives(values, list(wrt), states, actuations, samples.commands, Rf)
+        return Prediction(markers, derivatives, tensions, solve_s, time.perf_counter() - t0 - solve_s)
+
+    def _derivatives(self, values, wrt, states, actuations, commands, Rf):
+        model, n = self.model, len(states)
+        nm, npar = len(self.marker_frames), len(wrt)
+        out = np.zeros((n, nm, 3, npar))
+        inner = [(col, kind, index) for col, (kind, index) in enumerate(wrt) if kind in MODEL_KINDS]
+        G = np.zeros((n, model.n_dof, len(inner)))
+        if inner:
+            g0 = np.stack([model.evaluate(s, a).gradient[1:].reshape(-1) for s, a in zip(states, actuations)])
+            for j, (_, kind, index) in enumerate(inner):
+                h = self._step(kind, index, values)
+                changed = values.with_elements([((kind, index), values.get(kind, index) + h)])
+                self._set(changed)
+                for i, s in enumerate(states):
+                    a = self._actuation(changed, commands[i])
+                    G[i, :, j] = (model.evaluate(s, a).gradient[1:].reshape(-1) - g0[i]) / h
+            self._set(values)
+        for i, (state, actuation) in enumerate(zip(states, actuations)):
+            points, arm, R = self._markers(state, values.marker)
+            if inner:
+                lin = model.linearise(state, actuation)
+                dq = -lin.solve(np.asfortranarray(G[i]))                      # (n_dof, n_inner)
+                dm = self._marker_jacobian(arm) @ dq                           # (nm, 3, n_inner)
+                out[i][..., [c for c, _, _ in inner]] = np.einsum("ij,mjp->mip", Rf, dm)
+            for col, (kind, index) in enumerate(wrt):
+                if kind == "frame":
+                    if index < 3:
+                        out[i, :, index, col] += 1.0
+                    else:
+                        out[i, :, :, col] += _rotation_derivative(values.frame[3:], index - 3, points)
+                elif kind == "marker":
+                    mi, c = index
+                    out[i, mi, :, col] += Rf @ R[mi][:, c]
+        return out
+
+
+def _rotation_derivative(rotvec, axis, points, h=1e-7):
+    """∂(R(ω) p)/∂ω_axis by a central difference of the rotation alone (no solve)."""
+    e = np.zeros(3)
+    e[axis] = h
+    plus = Rotation.from_rotvec(rotvec + e).as_matrix()
+    minus = Rotation.from_rotvec(rotvec - e).as_matrix()
+    return points @ ((plus - minus) / (2 * h)).T

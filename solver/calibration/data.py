@@ -1,0 +1,252 @@
+"""What a calibration reads besides the scene: the mapping file and the measured samples.
+
+The **mapping file** (TOML, docs/calibration.md) says how a data set's columns meet the
+scene: which column drives which stroke-driven cable, in which unit and with which sign; which columns
+hold each marker's measured position, in which unit, and on which vertebra (with which
+offset) the marker sits; the pose of the scene's world in the measurement frame (an
+initial guess that calibration may refine); and, optionally, the parameters to fit with
+their bounds. Nothing about a particular robot lives in code.
+
+**Samples** are rows of a CSV file: one static equilibrium each, actuator commands in,
+marker positions out, converted to SI through the mapping. Every error names the file, the
+field (or row and column) and the reason.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import re
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from vertebra.core.errors import InputError, SceneError
+from vertebra.solver.tables import Table
+
+__all__ = ["ActuatorMap", "MappingError", "MarkerMap", "Mapping", "Samples", "UNITS", "load_mapping",
+           "load_samples", "parse_mapping"]
+
+#: length units a mapping may name, in metres
+UNITS = {"m": 1.0, "cm": 1e-2, "mm": 1e-3, "um": 1e-6}
+
+
+class MappingError(InputError):
+    """A mapping file or a data file read through it is invalid (names file, field and reason)."""
+
+
+@dataclass(frozen=True)
+class ActuatorMap:
+    """One actuator column: the servo stroke of the scene's stroke-driven ``cable`` (its spring
+    rate and pretension come from the scene), ``sign · scale · value`` metres pulled in."""
+
+    column: str
+    cable: str
+    scale: float           # metres per unit of the column
+    sign: float            # +1: a larger value pulls the tendon
+
+
+@dataclass(frozen=True)
+class MarkerMap:
+    """One measured point: columns x, y, z (in the measurement frame) of a point fixed on
+    ``vertebra`` at ``offset`` (metres, the vertebra's frame)."""
+
+    name: str
+    columns: tuple
+    scale: float
+    vertebra: int
+    offset: tuple
+
+
+@dataclass(frozen=True)
+class Mapping:
+    actuators: tuple            # ActuatorMap, in column order
+    markers: tuple              # MarkerMap
+    frame_position: tuple       # the scene world's origin in the measurement frame, m
+    frame_rotation: tuple       # rotation vector (rad) of the scene world in the measurement frame
+    pattern_column: str | None  # column naming the pattern a sample belongs to
+    pattern_strip: tuple        # regular expressions removed from pattern names (grouping)
+    fit: tuple                  # parameter specifications (strings) to fit when none are given
+    max_samples: int | None     # training samples used at most (evenly spaced over the file)
+    source: str = "<mapping>"
+
+    @property
+    def cables(self) -> tuple:
+        return tuple(a.cable for a in self.actuators)
+
+
+def load_mapping(path) -> Mapping:
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise MappingError("file not found", file=str(path))
+    except OSError as error:
+        raise MappingError(f"cannot read: {error.strerror}", file=str(path))
+    except tomllib.TOMLDecodeError as error:
+        raise MappingError(f"not valid TOML: {error}", file=str(path))
+    return parse_mapping(data, str(path))
+
+
+def _unit(t: Table, key: str = "unit") -> float:
+    return UNITS[t.string(key, "m", choices=tuple(UNITS))]
+
+
+def parse_mapping(data: dict, source: str = "<mapping>") -> Mapping:
+    """Validate a mapping given as a dictionary (the parsed TOML)."""
+    try:
+        return _parse_mapping(data, source)
+    except SceneError as error:       # the table reader's errors, re-labelled for a mapping file
+        raise MappingError(error.reason, file=error.file, field=error.field) from None
+
+
+def _parse_mapping(data: dict, source: str) -> Mapping:
+    top = Table(data, "", source)
+    dt = top.table("data")
+    pattern_column = dt.string("pattern", None)
+    strip = dt.raw("pattern_strip", [])
+    if not isinstance(strip, list) or not all(isinstance(s, str) for s in strip):
+        raise dt.error("pattern_strip", f"expected a list of regular expressions, got {strip!r}")
+    for s in strip:
+        try:
+            re.compile(s)
+        except re.error as error:
+            raise dt.error("pattern_strip", f"{s!r} is not a regular expression: {error}")
+    dt.done()
+
+    actuators, seen = [], set()
+    tables = top.tables("actuator")
+    if not tables:
+        raise MappingError("a mapping needs at least one [[actuator]]", file=source, field="actuator")
+    for t in tables:
+        column, cable = t.string("column", required=True), t.string("cable", required=True)
+        if cable in seen:
+            raise t.error("cable", f"cable {cable!r} is driven by two columns")
+        seen.add(cable)
+        sign = t.number("sign", 1.0)
+        if sign not in (1.0, -1.0):
+            raise t.error("sign", f"must be +1 (a larger value pulls) or -1, got {sign!r}")
+        actuators.append(ActuatorMap(column, cable, _unit(t), sign))
+        t.done()
+
+    markers, names = [], set()
+    tables = top.tables("marker")
+    if not tables:
+        raise MappingError("a mapping needs at least one [[marker]]", file=source, field="marker")
+    for i, t in enumerate(tables):
+        name = t.string("name", f"marker{i}")
+        if name in names:
+            raise t.error("name", f"duplicate marker name {name!r}")
+        names.add(name)
+        columns = t.raw("columns")
+        if columns is None:
+            raise t.missing("columns")
+        if not isinstance(columns, list) or len(columns) != 3 or not all(isinstance(c, str) and c for c in columns):
+            raise t.error("columns", f"expected the names of the x, y and z columns, got {columns!r}")
+        scale = _unit(t)
+        offset = t.vector("offset", 3, (0.0, 0.0, 0.0))
+        markers.append(MarkerMap(name, tuple(columns), scale, t.number("vertebra", -1, integer=True),
+                                 tuple(scale * v for v in offset)))
+        t.done()
+
+    ft = top.table("frame")
+    scale = _unit(ft)
+    position = tuple(scale * v for v in ft.vector("position", 3, (0.0, 0.0, 0.0)))
+    rotation = tuple(math.radians(v) for v in ft.vector("rotation_deg", 3, (0.0, 0.0, 0.0)))
+    ft.done()
+
+    fit_t = top.table("fit")
+    fit = fit_t.raw("parameters", [])
+    if not isinstance(fit, list) or not all(isinstance(s, str) and s for s in fit):
+        raise fit_t.error("parameters", f"expected a list of parameter specifications, got {fit!r}")
+    max_samples = fit_t.number("max_samples", None, positive=True, integer=True)
+    fit_t.done()
+    top.done()
+    return Mapping(tuple(actuators), tuple(markers), position, rotation, pattern_column, tuple(strip),
+                   tuple(fit), max_samples, source)
+
+
+@dataclass(frozen=True)
+class Samples:
+    """Measured static samples in SI units: ``commands`` (n, n_actuators) in metres of pull
+    (sign applied), ``markers`` (n, n_markers, 3) in metres in the measurement frame,
+    ``patterns`` the pattern name of each sample (grouped by the mapping's ``pattern_strip``)."""
+
+    commands: np.ndarray
+    markers: np.ndarray
+    patterns: tuple
+    source: str = "<samples>"
+
+    def __post_init__(self):
+        n = len(self.commands)
+        if self.markers.shape[0] != n or len(self.patterns) != n:
+            raise ValueError(f"len(commands) = {n}, but len(markers) = {self.markers.shape[0]} "
+                             f"and len(patterns) = {len(self.patterns)}")
+
+    def __len__(self) -> int:
+        return len(self.commands)
+
+    def take(self, index) -> "Samples":
+        index = np.asarray(index)
+        return Samples(self.commands[index], self.markers[index], tuple(self.patterns[i] for i in index),
+                       self.source)
+
+
+def load_samples(path, mapping: Mapping) -> Samples:
+    """Read a CSV file with a header row through ``mapping``."""
+    path = Path(path)
+    source = str(path)
+    try:
+        with path.open(newline="", encoding="utf-8") as handle:
+            reader = csv.reader(handle)
+            header = next(reader, None)
+            rows = list(reader)
+    except FileNotFoundError:
+        raise MappingError("file not found", file=source)
+    except OSError as error:
+        raise MappingError(f"cannot read: {error.strerror}", file=source)
+    if header is None:
+        raise MappingError("the file is empty (a header row is needed)", file=source)
+    header = [h.strip() for h in header]
+
+    def column(name, what):
+        if name not in header:
+            raise MappingError(f"column {name!r} ({what}, named in {mapping.source}) is not in the header "
+                               f"({', '.join(header)})", file=source, field=name)
+        return header.index(name)
+
+    act = [column(a.column, f"actuator of cable {a.cable}") for a in mapping.actuators]
+    mk = [[column(c, f"marker {m.name}") for c in m.columns] for m in mapping.markers]
+    pat = column(mapping.pattern_column, "pattern") if mapping.pattern_column else None
+    rows = [r for r in rows if any(cell.strip() for cell in r)]
+    if not rows:
+        raise MappingError("no samples after the header row", file=source)
+    numeric = sorted(set(act) | {i for m in mk for i in m})
+    values = np.empty((len(rows), len(header)))
+    for i, row in enumerate(rows):
+        if len(row) != len(header):
+            raise MappingError(f"{len(row)} values for {len(header)} columns", file=source, field=f"row {i + 2}")
+        for j in numeric:
+            try:
+                values[i, j] = float(row[j])
+            except ValueError:
+                raise MappingError(f"expected a number, got {row[j]!r}", file=source,
+                                   field=f"row {i + 2}, column {header[j]}") from None
+            if not math.isfinite(values[i, j]):
+                raise MappingError(f"expected a finite number, got {row[j]!r}", file=source,
+                                   field=f"row {i + 2}, column {header[j]}")
+    commands = values[:, act] * np.array([a.sign * a.scale for a in mapping.actuators])
+    markers = np.stack([values[:, m] * marker.scale for m, marker in zip(mk, mapping.markers)], axis=1)
+    if pat is None:
+        patterns = ("all",) * len(rows)
+    else:
+        patterns = []
+        for row in rows:
+            name = row[pat].strip()
+            for expression in mapping.pattern_strip:
+                name = re.sub(expression, "", name)
+            patterns.append(name or "(unnamed)")
+        patterns = tuple(patterns)
+    return Samples(commands, markers, patterns, source)

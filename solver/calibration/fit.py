@@ -1,0 +1,210 @@
+"""Bounded nonlinear least squares of a scene's parameters against measured markers.
+
+:func:`calibrate` minimises ``Σ ρ(|predicted − measured|²)`` over the chosen parameters with
+scipy's ``least_squares`` (``trf`` with bounds, or ``lm`` without), on the analytic derivatives
+of the predictor (:mod:`~vertebra.solver.calibration.backend`); an optional robust loss
+(``soft_l1``, ``huber``, ``cauchy``, ``arctan``) and several starts (the first at the initial
+values, the others drawn inside the bounds) for multimodal problems. At the optimum it reports
+each value with its standard error from ``σ² (JᵀJ)⁻¹`` (``σ²`` the residual variance), the
+correlation matrix, and which parameters the data cannot identify.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from vertebra.core.errors import OptionError
+from vertebra.solver.calibration.backend import RuntimePredictor
+from vertebra.solver.calibration.parameters import ParameterSet, Values, parse_parameters
+
+__all__ = ["Calibration", "LOSSES", "METHODS", "calibrate", "error_metrics"]
+
+LOSSES = ("linear", "soft_l1", "huber", "cauchy", "arctan")
+METHODS = ("trf", "lm")
+# relative singular value below which a direction of the (column-normalised) Jacobian is
+# taken as unseen by the data: its derivatives carry ~1e-4 relative error (forward
+# differences at fixed state, tolerance-limited equilibria), so smaller values are noise
+RANK_TOLERANCE = 1e-6
+# a parameter whose weight in the unseen directions exceeds this is reported unidentifiable
+NULL_WEIGHT = 0.1
+# a parameter whose standard error exceeds this share of its bound interval is unidentifiable
+SE_SHARE = 0.5
+
+
+@dataclass
+class Calibration:
+    """Outcome of a calibration: the fitted parameters with their statistics, the elements they
+    set, the predictions and the error metrics, with diagnostics."""
+
+    parameters: ParameterSet
+    x: np.ndarray                   # fitted values of the parameters
+    standard_errors: np.ndarray     # nan where not identifiable
+    correlation: np.ndarray
+    identifiable: np.ndarray        # bool
+    at_bound: np.ndarray            # bool
+    values: Values                  # every element, fitted ones set
+    length: float                   # trunk length (m): the reference of the % errors
+    train: dict                     # error metrics on the training samples
+    holdout: dict | None
+    train_prediction: np.ndarray    # (n, n_markers, 3) m
+    holdout_prediction: np.ndarray | None
+    train_samples: object
+    holdout_samples: object
+    sigma: float                    # residual standard deviation per coordinate, m
+    optimiser: dict = field(default_factory=dict)
+    timings: dict = field(default_factory=dict)
+
+
+def error_metrics(predicted, measured, patterns, length) -> dict:
+    """Tip errors (m and % of ``length``) as measured and after removing the constant offset
+    (the mean error vector), overall and per pattern."""
+    residual = predicted - measured                        # (n, n_markers, 3)
+
+    def summary(r):
+        e = np.linalg.norm(r, axis=-1).reshape(-1)
+        stats = {"n": int(e.size), "rmse_m": float(np.sqrt(np.mean(e ** 2))), "mean_m": float(e.mean()),
+                 "median_m": float(np.median(e)), "p95_m": float(np.percentile(e, 95)), "max_m": float(e.max())}
+        for key in ("rmse", "mean", "median", "p95", "max"):
+            stats[f"{key}_pct_length"] = 100.0 * stats[f"{key}_m"] / length
+        return stats
+
+    offset = residual.mean(axis=0)
+    out = summary(residual)
+    out["offset_m"] = offset.tolist()
+    out["offset_removed"] = summary(residual - offset)
+    names = list(dict.fromkeys(patterns))
+    per = {}
+    for name in names:
+        mask = np.array([p == name for p in patterns])
+        s = summary(residual[mask])
+        per[name] = {"n": s["n"], "rmse_m": s["rmse_m"], "rmse_pct_length": s["rmse_pct_length"],
+                     "max_m": s["max_m"],
+                     "offset_removed_rmse_m": float(np.sqrt(np.mean(np.sum((residual[mask] - offset) ** 2, -1))))}
+    out["patterns"] = per
+    return out
+
+
+def _statistics(J, residual, ps: ParameterSet, x):
+    """Standard errors, correlation and identifiability from the Jacobian in value units."""
+    m, p = J.shape
+    dof = max(m - p, 1)
+    sigma2 = float(residual @ residual) / dof
+    norms = np.linalg.norm(J, axis=0)
+    seen = norms > 0.0
+    Jn = np.where(seen, J / np.where(seen, norms, 1.0), 0.0)
+    _, s, Vt = np.linalg.svd(Jn, full_matrices=False)
+    keep = s > RANK_TOLERANCE * (s[0] if s.size and s[0] > 0 else 1.0)
+    V = Vt.T
+    null_weight = np.sqrt(np.sum(V[:, ~keep] ** 2, axis=1)) if (~keep).any() else np.zeros(p)
+    cov_n = (V[:, keep] / s[keep] ** 2) @ V[:, keep].T
+    scale = np.where(seen, norms, np.inf)
+    cov = sigma2 * cov_n / np.outer(scale, scale)
+    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    identifiable = seen & (null_weight < NULL_WEIGHT) & (se < SE_SHARE * (ps.upper - ps.lower))
+    se = np.where(seen & (null_weight < NULL_WEIGHT), se, np.nan)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / np.outer(np.sqrt(np.diag(cov)), np.sqrt(np.diag(cov)))
+    corr[~np.isfinite(corr)] = np.nan
+    np.fill_diagonal(corr, 1.0)
+    return se, corr, identifiable, float(np.sqrt(sigma2)), {"rank": int(keep.sum()),
+                                                            "singular_values": s.tolist()}
+
+
+def calibrate(scene, mapping, train, holdout=None, fit=None, *, loss: str = "linear",
+              loss_scale: float | None = None, method: str = "trf", starts: int = 1, seed: int = 0,
+              max_evaluations: int = 60, ftol: float = 1e-6, xtol: float = 1e-6, predictor=None,
+              progress=None) -> Calibration:
+    """Fit ``fit`` (parameter specifications; the mapping's ``[fit]`` list when None) of
+    ``scene`` to the ``train`` samples and measure the result on ``holdout``.
+
+    ``loss``: one of :data:`LOSSES`; ``loss_scale`` (m): the residual at which a robust loss
+    starts to discount (default: 1 % of the trunk length). ``method``: ``trf`` (bounded) or
+    ``lm`` (unbounded; the bounds are then only checked). ``progress``: a callable taking a
+    one-line message."""
+    t_start = time.perf_counter()
+    if loss not in LOSSES:
+        raise OptionError(f"unknown loss {loss!r}; one of {', '.join(LOSSES)}", field="--loss")
+    if method not in METHODS:
+        raise OptionError(f"unknown method {method!r}; one of {', '.join(METHODS)}", field="--method")
+    if method == "lm" and loss != "linear":
+        raise OptionError("method lm takes only the linear loss", field="--loss")
+    if starts < 1:
+        raise OptionError(f"must be at least 1, got {starts}", field="--starts")
+    predictor = predictor or RuntimePredictor(scene, mapping)
+    length = float(predictor.model.length_scale)
+    ps = parse_parameters(list(fit) if fit else list(mapping.fit), scene, mapping, predictor.model)
+    if mapping.max_samples and len(train) > mapping.max_samples:
+        train = train.take(np.unique(np.linspace(0, len(train) - 1, mapping.max_samples).round().astype(int)))
+    elements = sorted({e for group in ps.elements for e in group}, key=str)
+    column = {e: i for i, e in enumerate(elements)}
+    gather = np.zeros((len(elements), len(ps)))
+    for j, group in enumerate(ps.elements):
+        for e in group:
+            gather[column[e], j] = 1.0
+    measured = train.markers.reshape(-1)
+    counter = {"fun": 0, "jac": 0, "solve_s": 0.0, "derivative_s": 0.0}
+
+    def values_of(z):
+        return ps.values(ps.initial + z * ps.typical)
+
+    def fun(z):
+        prediction = predictor.predict(values_of(z), train)
+        counter["fun"] += 1
+        counter["solve_s"] += prediction.solve_s
+        r = prediction.markers.reshape(-1) - measured
+        if progress:
+            progress(f"evaluation {counter['fun']}: train RMSE {1e3 * np.sqrt(np.mean(np.sum(r.reshape(-1, 3) ** 2, 1))):.3f} mm")
+        return r
+
+    def jac(z):
+        prediction = predictor.predict(values_of(z), train, elements)
+        counter["jac"] += 1
+        counter["solve_s"] += prediction.solve_s
+        counter["derivative_s"] += prediction.derivative_s
+        return (prediction.derivatives.reshape(-1, len(elements)) @ gather) * ps.typical
+
+    lower = (ps.lower - ps.initial) / ps.typical
+    upper = (ps.upper - ps.initial) / ps.typical
+    rng = np.random.default_rng(seed)
+    best, runs = None, []
+    for start in range(starts):
+        if start == 0:
+            z0 = np.zeros(len(ps))
+        else:           # uniform within the bounds, clipped to a few typical changes of the start
+            z0 = rng.uniform(np.maximum(lower, -5.0), np.minimum(upper, 5.0))
+        options = dict(jac=jac, method=method, max_nfev=max_evaluations, x_scale=1.0, ftol=ftol, xtol=xtol)
+        if method == "trf":
+            options.update(bounds=(lower, upper), loss=loss,
+                           f_scale=loss_scale if loss_scale is not None else 0.01 * length)
+        result = least_squares(fun, z0, **options)
+        runs.append({"start": start, "cost": float(result.cost), "nfev": int(result.nfev),
+                     "status": int(result.status), "message": str(result.message)})
+        if progress:
+            progress(f"start {start}: cost {result.cost:.6g} after {result.nfev} evaluations ({result.message})")
+        if best is None or result.cost < best.cost:
+            best = result
+    z = best.x
+    x = ps.initial + z * ps.typical
+    values = ps.values(x)
+    final = predictor.predict(values, train, elements)
+    J = final.derivatives.reshape(-1, len(elements)) @ gather
+    residual = final.markers.reshape(-1) - measured
+    se, corr, identifiable, sigma, rank = _statistics(J, residual, ps, x)
+    span = ps.upper - ps.lower
+    at_bound = (np.abs(x - ps.lower) < 1e-6 * span) | (np.abs(ps.upper - x) < 1e-6 * span)
+    train_metrics = error_metrics(final.markers, train.markers, train.patterns, length)
+    holdout_metrics = holdout_prediction = None
+    if holdout is not None:
+        h = predictor.predict(values, holdout)
+        holdout_prediction = h.markers
+        holdout_metrics = error_metrics(h.markers, holdout.markers, holdout.patterns, length)
+    optimiser = {"method": method, "loss": loss, "starts": runs, "best_start": runs.index(
+        min(runs, key=lambda r: r["cost"])), "evaluations": counter["fun"], "jacobians": counter["jac"], **rank}
+    timings = {"total_s": time.perf_counter() - t_start, "solve_s": counter["solve_s"],
+               "derivative_s": counter["derivative_s"]}
+    return Calibration(ps, x, se, corr, identifiable, at_bound, values, length, train_metrics, holdout_metrics,
+                       final.markers, holdout_prediction, train, holdout, sigma, optimiser, timings)
