@@ -26,6 +26,7 @@ SUBCOMMANDS = {
     "prepare": ("vertebra.cli.prepare", "design only the entries a scene's design segments miss"),
     "catalogue": ("vertebra.cli.catalogue", "list, show, verify, merge, export catalogue entries"),
     "workspace": ("vertebra.cli.workspace", "reachable effector positions over sampled actuations"),
+    "calibrate": ("vertebra.cli.calibrate", "fit a scene's parameters to measured static samples"),
     "examples": ("vertebra.cli.examples", "copy the example scripts, trajectories and sweep specs into DIR"),
     "demo": ("vertebra.cli.demo", "the main job on an embedded default, end to end"),
 }
