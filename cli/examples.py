@@ -14,7 +14,7 @@ from pathlib import Path
 
 from vertebra.core.errors import OptionError
 
-SHIPPED_SUFFIXES = (".py", ".csv", ".toml", ".md")
+SHIPPED_SUFFIXES = (".py", ".csv", ".toml", ".md", ".json", "LICENSE")   # LICENSE: a data set's licence
 
 
 def add_arguments(parser) -> None:

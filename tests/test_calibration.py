@@ -240,3 +240,25 @@ def test_command_line_end_to_end(robot, tmp_path, capsys):
     calibrated = solver.load_scene(tmp_path / "calibrated.toml")
     assert calibrated.effectors[-1].name == "tip"
     assert calibrated.base_position[0] == pytest.approx(document["values"]["frame"]["position"][0])
+
+
+def test_shipped_example_reads_and_predicts():
+    """The v4 example's scene, mapping and data load together; before calibration its scene
+    predicts the first pulls within 3 cm (the nominal geometry is close; the calibration's
+    acceptance run is in docs/calibration.md, minutes long)."""
+    from pathlib import Path
+
+    from vertebra.solver.calibration import load_mapping
+
+    root = Path(__file__).resolve().parents[1] / "examples" / "calibration" / "ftdcr_v4"
+    scene = solver.load_scene(root / "scene.toml")
+    mapping = load_mapping(root / "map.toml")
+    train = load_samples(root / "tdcr_sysid_20260511-183002_train.csv", mapping)
+    holdout = load_samples(root / "tdcr_sysid_20260511-183002_val.csv", mapping)
+    assert (len(train), len(holdout)) == (1620, 443)
+    assert train.patterns[0] == "tendon0_id4_pull"          # the mapping's pattern_strip applied
+    predictor = RuntimePredictor(scene, mapping)
+    ps = parse_parameters(list(mapping.fit), scene, mapping, predictor.model)
+    first = train.take(np.arange(12))
+    error = np.linalg.norm(predictor.predict(ps.values(ps.initial), first).markers - first.markers, axis=-1)
+    assert error.max() < 0.03
