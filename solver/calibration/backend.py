@@ -14,10 +14,12 @@ from its predecessor in the file: the data are a sequence of nearby poses).
 
 Derivatives come from the implicit function theorem at each converged state: with ``g(q, θ)``
 the out-of-balance force (tendon springs included) and ``K`` its tangent,
-``dq/dθ = −K⁻¹ ∂g/∂θ``; ``∂g/∂θ`` is a forward difference of ``g`` at the fixed converged state
-under the perturbed parameter (no re-solve: it is linear in a stiffness scale and in a
-pretension of a taut tendon, and smooth in the others), one back-substitution per parameter
-with the banded factor. The measurement frame and the marker offsets act after the solve and
+``dq/dθ = −K⁻¹ ∂g/∂θ``, one back-substitution per parameter with the converged tangent's
+factor. A tendon's force is ``τ ∂L/∂q`` with ``τ = k·max(0, e)`` and ``e ∋ P/k``, so for its
+pretension and spring rate ``∂g/∂θ = (∂τ/∂θ) ∂L/∂q`` in closed form; for a stiffness scale and
+the hole geometry ``∂g/∂θ`` is a forward difference of ``g`` at the fixed converged state under
+the perturbed parameter (no re-solve: ``g`` is linear in a stiffness scale and smooth in the
+hole geometry). The measurement frame and the marker offsets act after the solve and
 are differentiated in closed form.
 """
 
@@ -39,6 +41,7 @@ __all__ = ["Prediction", "Predictor", "RuntimePredictor"]
 # (times the typical size of the element: 1, a radian, the hole radius, the spring rate, k·length)
 FD_STEP = 1e-6
 MODEL_KINDS = ("stiffness", "angle", "radius", "cable_stiffness", "pretension")
+FD_KINDS = ("stiffness", "angle", "radius")      # the others in closed form
 
 
 @dataclass
@@ -172,9 +175,10 @@ class RuntimePredictor:
         out = np.zeros((n, nm, 3, npar))
         inner = [(col, kind, index) for col, (kind, index) in enumerate(wrt) if kind in MODEL_KINDS]
         G = np.zeros((n, model.n_dof, len(inner)))
-        if inner:
+        differenced = [(j, kind, index) for j, (_, kind, index) in enumerate(inner) if kind in FD_KINDS]
+        if differenced:
             g0 = np.stack([model.evaluate(s, a).gradient[1:].reshape(-1) for s, a in zip(states, actuations)])
-            for j, (_, kind, index) in enumerate(inner):
+            for j, kind, index in differenced:
                 h = self._step(kind, index, values)
                 changed = values.with_elements([((kind, index), values.get(kind, index) + h)])
                 self._set(changed)
@@ -182,10 +186,18 @@ class RuntimePredictor:
                     a = self._actuation(changed, commands[i])
                     G[i, :, j] = (model.evaluate(s, a).gradient[1:].reshape(-1) - g0[i]) / h
             self._set(values)
+        tendon = [(j, kind, index) for j, (_, kind, index) in enumerate(inner) if kind not in FD_KINDS]
+        k, P = values.cable_stiffness, values.pretension
         for i, (state, actuation) in enumerate(zip(states, actuations)):
             points, arm, R = self._markers(state, values.marker)
             if inner:
                 lin = model.linearise(state, actuation)
+                if tendon:      # τ = k·max(0, e), e ∋ P/k: the force τ ∂L/∂q changes along ∂L/∂q
+                    tension = model.cable_tensions(state, actuation)
+                    for j, kind, index in tendon:
+                        taut = float(tension[index] > 0.0)
+                        rate = taut if kind == "pretension" else tension[index] / k[index] - taut * P[index] / k[index]
+                        G[i, :, j] = rate * lin.actuator_jacobian[index]
                 dq = -lin.solve(np.asfortranarray(G[i]))                      # (n_dof, n_inner)
                 dm = self._marker_jacobian(arm) @ dq                           # (nm, 3, n_inner)
                 out[i][..., [c for c, _, _ in inner]] = np.einsum("ij,mjp->mip", Rf, dm)
