@@ -41,6 +41,7 @@ def test_relative_error_is_unit_free():
     assert relative_error(D @ C @ D, D @ other @ D) == pytest.approx(relative_error(C, other), rel=1e-9)
 
 
+@pytest.mark.slow
 def test_estimate_on_a_coarse_rod_against_a_finer_mesh():
     """Second-order rod at its default mesh (3.7k DoFs): the estimate costs a coarser solve
     (fewer DoFs than the design), the extrapolated compliance is closer to a 2× finer mesh than
@@ -60,6 +61,7 @@ def test_estimate_on_a_coarse_rod_against_a_finer_mesh():
     assert 0.5 < acc["relative_error"] / measured < 2.0, (acc["relative_error"], measured)
 
 
+@pytest.mark.slow
 def test_first_order_estimate_sees_locking():
     """First-order chambered segment at ν = 0.49 on a coarse mesh (10 mm, 672 DoFs): linear
     tetrahedra lock, the compliance is more than ten times too small (true error ~12). The estimate
@@ -88,6 +90,7 @@ def test_older_entries_keep_their_refined_mesh_estimate():
     assert estimated_error(older) == 0.012 and estimated_error({"method": "none"}) is None
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("order", [1, 2])
 def test_an_estimate_started_alongside_the_design_is_the_same_estimate(order):
     # ``estimate_alongside`` only moves the estimate's first solve to a worker process that runs

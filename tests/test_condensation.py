@@ -24,6 +24,8 @@ from vertebra.store.entry import SegmentEntry
 
 from reference.fe_chain import chain_condensed_solve, chain_fe_solve
 
+pytestmark = pytest.mark.slow      # the module's three-segment chain is meshed and solved by the full FE
+
 E = 1.0e6
 SEGMENTS = [  # bottom to top: three different segments with cavities
     ("pneumatic", dict(outer_radius=0.012, chamber_radius=0.0025, chamber_offset=0.006, chambers=2,

@@ -3,10 +3,13 @@
 
 import json
 
+import pytest
+
 from vertebra.cli.main import main
 from vtk_xml import read_pvd, read_vtp
 
 
+@pytest.mark.slow
 def test_demo_runs_the_whole_pipeline(tmp_path, capsys):
     code = main(["demo", "--out", str(tmp_path), "--points", "6"])
     out = capsys.readouterr().out

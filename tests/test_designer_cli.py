@@ -22,6 +22,7 @@ def _run(*args, timeout=300):
     return subprocess.run(_command(*args), capture_output=True, text=True, timeout=timeout)
 
 
+@pytest.mark.slow
 def test_design_json_document_and_reuse(tmp_path):
     catalogue = str(tmp_path / "cat.h5")
     vtu = tmp_path / "rod.vtu"
@@ -94,6 +95,7 @@ def test_design_vertebra_prints_scene_snippet():
     assert vertebra["mass"] == pytest.approx(1200 * 0.003 * np.pi * (0.02 ** 2 - 3 * 0.001 ** 2), rel=1e-5)
 
 
+@pytest.mark.slow
 def test_four_simultaneous_design_processes_on_one_catalogue(tmp_path):
     catalogue = str(tmp_path / "shared.h5")
     radii = ["0.008", "0.009", "0.010", "0.011"]

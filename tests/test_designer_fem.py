@@ -158,6 +158,7 @@ def test_cavity_walls_are_oriented_out_of_the_solid_on_strongly_curved_coarse_me
         np.testing.assert_allclose(n_cavity, [0.0, 0.0, a_bottom - a_top], atol=1e-12 * a_top)
 
 
+@pytest.mark.slow
 def test_mesh_convergence_at_the_expected_order():
     """P1 compliance error vs a fine P2 reference falls like h^p with p ≈ 2 (energy norm squared);
     the edge where a rigid face meets the free surface is a stress singularity that lowers the
@@ -174,6 +175,7 @@ def test_mesh_convergence_at_the_expected_order():
     assert p2_coarse < errors[-1]
 
 
+@pytest.mark.slow
 def test_cavity_volume_growth_matches_lame_thick_walled_cylinder():
     """One central chamber in a solid cylinder = a thick-walled tube with rigid closed ends.
     Lamé, closed ends, per unit length: dV/dL = 2π a u_r(a) + π a² ε_z. The rigid-end boundary
@@ -210,6 +212,7 @@ def test_p1_locking_detected_and_p2_recommended():
         design_segment("rod", p, mesh_size=0.01, order=2, estimate_accuracy=False)
 
 
+@pytest.mark.slow
 def test_amg_and_direct_agree(pneumatic):
     fe, cond, Cfull = pneumatic
     amg = condense(fe, ("top",), linear_solver="amg")
@@ -218,6 +221,7 @@ def test_amg_and_direct_agree(pneumatic):
     assert amg.info["solver"] == "amg" and max(amg.info["iterations"]) < 200
 
 
+@pytest.mark.slow
 def test_design_segment_entry_fields():
     entry = design_segment("tapered_pneumatic",
                            dict(bottom_outer_radius=0.02, top_outer_radius=0.016, bottom_chamber_radius=0.005,
@@ -244,6 +248,7 @@ BELLOWS = dict(inner_radius=0.008, outer_radius=0.014, wall_thickness=0.0015, co
                youngs_modulus=E, poisson_ratio=0.45, density=1000.0)
 
 
+@pytest.mark.slow
 def test_bellows_and_tube_entries():
     """The thin-walled families: rest volume of the corrugated bore against its closed form,
     pressure extends the bellows, and the tube's mass. (auto falls back from a stalling AMG to

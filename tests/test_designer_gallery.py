@@ -31,6 +31,7 @@ def cbha(tmp_path_factory):
     return path, cbha_catalogue(path, coarse=True, estimate_accuracy=False)
 
 
+@pytest.mark.slow
 def test_cbha_catalogue_entries_and_reuse(cbha):
     path, result = cbha
     keys = [row["key"] for row in result["entries"]]
@@ -46,6 +47,7 @@ def test_cbha_catalogue_entries_and_reuse(cbha):
     assert all(b1 > b0 for b0, b1 in zip(bending[8:], bending[9:]))
 
 
+@pytest.mark.slow
 def test_cbha_scene_solves_and_bends_away_from_the_pressurised_chamber(cbha, tmp_path):
     from vertebra import solver
     path, result = cbha
@@ -68,6 +70,7 @@ def test_cbha_scene_solves_and_bends_away_from_the_pressurised_chamber(cbha, tmp
     assert growth[0] > 0
 
 
+@pytest.mark.slow
 def test_cbha_example_script_runs(cbha):
     """The example end to end (STYLE.md §9: examples run as tests). Its catalogue already holds
     the 16 coarse entries (same content keys), so the script reuses them instead of meshing."""
@@ -97,6 +100,7 @@ def test_the_gallery_design_scene_is_the_generated_one():
     assert stored.design_segments == tuple(range(16)) and stored.catalogue is None
 
 
+@pytest.mark.slow
 def test_the_gallery_design_scene_prepares_from_the_catalogue_without_designing(cbha):
     """The gallery scene names the same designs as ``cbha_catalogue``: the same 16 keys, all reused."""
     from vertebra import solver
@@ -109,6 +113,7 @@ def test_the_gallery_design_scene_prepares_from_the_catalogue_without_designing(
     assert model.n_chambers == 6 and model.solve().converged
 
 
+@pytest.mark.slow
 def test_cbha_ranges_cover_its_pressures_and_the_equilibria_between_corners(cbha, tmp_path):
     """Pressure bounds per cavity come from the chambers over each section; the strain and load
     ranges (64 pressure corners of the six chambers, linear entries) cover seeded random

@@ -13,6 +13,8 @@ from vertebra import solver
 from vertebra.designer.gallery import cbha_catalogue
 from vertebra.solver.inverse import invert
 
+pytestmark = pytest.mark.slow      # the module designs the 16 CBHA slices (gmsh + scikit-fem)
+
 
 @pytest.fixture(scope="module")
 def cbha_model(tmp_path_factory):

@@ -45,6 +45,7 @@ def test_keys_linear_unchanged_nonlinear_distinct():
         designer.entry_key("rod", ROD, material="svk", sampling={"degre": 4})
 
 
+@pytest.mark.slow
 def test_nonlinear_rod_entry(rod_entry, tmp_path):
     """The entry carries ψ: its linear part is the linear entry's compliance (same mesh, same
     numbers), its held-out error is well below ψ_lin's, it is convex over the samples, and it
@@ -65,6 +66,7 @@ def test_nonlinear_rod_entry(rod_entry, tmp_path):
     assert catalogue.verify(path) == []
 
 
+@pytest.mark.slow
 def test_fitted_chain_against_the_full_nonlinear_trunk(rod_entry):
     """Two neo-Hookean rod segments with dead forces at both vertebrae in perpendicular directions
     (bending in 3D, ~45° at the tip), against the full nonlinear FE of the trunk (same mesh, rigid
@@ -87,6 +89,7 @@ def test_fitted_chain_against_the_full_nonlinear_trunk(rod_entry):
     assert not fitted.left_range
 
 
+@pytest.mark.slow
 def test_design_cli_material_json(tmp_path):
     """``vertebra design rod --material svk`` with a local pool of 2 workers: the JSON names the
     material and summarises the energy; the catalogue verifies."""

@@ -231,6 +231,7 @@ def test_slender_rod_bent_to_a_constant_curvature_carries_EI_theta_over_L():
     assert resp.wrench_at_b[4] == pytest.approx(EI * theta / L, rel=0.03)
 
 
+@pytest.mark.slow
 def test_limit_point_of_an_inflated_chamber_is_reported(pneumatic):
     """Pressure control past the inflation limit: no equilibrium, a ConvergenceError that names the
     stage and the lost positive definiteness (never a silent extrapolation)."""
@@ -255,6 +256,7 @@ def chain():
     return segments
 
 
+@pytest.mark.slow
 def test_trunk_small_load_limit_equals_the_linear_full_fe_chain(chain):
     from reference.fe_chain import chain_fe_solve
     wrench = np.array([0.02, -0.01, 0.05, 1e-4, 2e-4, -1e-4])
@@ -271,6 +273,7 @@ def test_trunk_small_load_limit_equals_the_linear_full_fe_chain(chain):
                                    atol=1e-6 * np.abs(linear["volume_growth"][s]).max())
 
 
+@pytest.mark.slow
 def test_trunk_rigid_base_motion_is_objective(chain):
     """The same trunk on a rotated and shifted base, under rotated loads: the same deformation."""
     Q, c = so3_exp([0.4, 0.2, -0.7]), np.array([0.1, 0.0, -0.3])
@@ -287,6 +290,7 @@ def test_trunk_rigid_base_motion_is_objective(chain):
         np.testing.assert_allclose(turned.volumes[s], upright.volumes[s], rtol=1e-9)
 
 
+@pytest.mark.slow
 def test_trunk_under_dead_moment_and_gravity_converges_quadratically(chain):
     """A dead moment (non-conservative in 3-D) with gravity on segments and vertebrae: the consistent
     tangent keeps Newton quadratic (few iterations per load step) and the equilibrium holds: the base
@@ -318,6 +322,7 @@ def test_one_dimensional_references_reduce_to_known_solutions():
     np.testing.assert_allclose(tip, [0.9436, 0.3017], atol=1e-4)
 
 
+@pytest.mark.slow
 def test_thick_walled_tube_inflates_like_the_finite_strain_plane_strain_solution():
     """Clamped tube (a = 5 mm, b = 10 mm, L = 6 b, neo-Hookean, ν = 0.45) at 0.1 MPa: the bore grows by
     28 %. At mid-length the FE radial displacements follow the plane-strain neo-Hookean solution

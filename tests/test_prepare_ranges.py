@@ -28,6 +28,8 @@ from vertebra.core.errors import OptionError, SceneError
 
 from fitted_energies import ROD, ROD_MESH, ROD_SAMPLING, nonlinear_rod
 
+pytestmark = pytest.mark.slow      # the module designs linear and nonlinear entries (gmsh + scikit-fem, nonlinear sampling)
+
 FAST = {"executor": "serial", "estimate_accuracy": False, "progress": False, "build_model": solver.build_model}
 FIT = {"paths": ROD_SAMPLING["paths"], "steps": ROD_SAMPLING["steps"]}     # degree 6 is the default
 TWIST_MOMENT = 0.1            # N m at the tip: twists each rod ~0.66 rad (linear), beyond the default 0.6 rad cap

@@ -69,6 +69,7 @@ def test_only_the_designed_entries_resolve(tmp_path):
     assert resolve_prepared(scene, tmp_path / "absent.h5").segments[0].resolved is False
 
 
+@pytest.mark.slow
 def test_nonlinear_design_segments_resolve_after_prepare(tmp_path, capsys):
     nonlinear = {"type": "design", "family": "rod", "parameters": dict(ROD), "mesh_size": ROD_MESH,
                  "material": "neo_hookean", "sampling": {"paths": ROD_SAMPLING["paths"], "steps": ROD_SAMPLING["steps"]},

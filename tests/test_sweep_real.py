@@ -19,6 +19,8 @@ from vertebra.cli import main as cli_main
 from vertebra.designer.sweep import failure_log_path, load_spec, plan_sweep, run_sweep
 from vertebra.store import catalogue
 
+pytestmark = pytest.mark.slow      # every test sweeps real designs (gmsh + scikit-fem) in worker processes
+
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples" / "sweeps"
 
 YOUNGS_MODULUS = 1.0e6
