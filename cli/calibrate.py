@@ -7,6 +7,7 @@ import json
 import sys
 
 from vertebra.cli.outputs import output_file
+from vertebra.core.errors import OptionError
 
 
 def add_arguments(parser):
@@ -41,8 +42,8 @@ def add_arguments(parser):
 def run(args) -> int:
     from pathlib import Path
 
+    # lazy: the parser imports every subcommand module; the libraries load for the command that runs
     from vertebra import solver
-    from vertebra.core.errors import OptionError
     from vertebra.solver.calibration import calibrate, load_mapping, load_samples
     from vertebra.solver.calibration.report import (calibrated_scene_toml, calibration_document, markdown_report,
                                                     write_plots)
