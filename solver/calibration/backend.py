@@ -34,6 +34,7 @@ from scipy.spatial.transform import Rotation
 
 from vertebra.core.errors import ConvergenceError, OptionError
 from vertebra.solver.calibration.parameters import Values
+from vertebra.solver.model import build_model
 
 __all__ = ["Prediction", "Predictor", "RuntimePredictor"]
 
@@ -63,10 +64,8 @@ class RuntimePredictor:
     """Servo-driven samples on the runtime's stroke-driven tendons (module docstring)."""
 
     def __init__(self, scene, mapping, model=None):
-        from vertebra import solver     # lazy: the calibration package is imported by the solver's users
-
         self.scene, self.mapping = scene, mapping
-        self.model = model if model is not None else solver.build_model(scene)
+        self.model = model if model is not None else build_model(scene)
         cables = {c.name: i for i, c in enumerate(scene.cables)}
         missing = [a.cable for a in mapping.actuators if a.cable not in cables]
         if missing:

@@ -167,6 +167,25 @@ def calibrate(scene, mapping, train, holdout=None, fit=None, *, loss: str = "lin
         counter["derivative_s"] += prediction.derivative_s
         return (prediction.derivatives.reshape(-1, len(elements)) @ gather) * ps.typical
 
+    # a parameter whose derivatives vanish on every sample at the initial values (a tendon that
+    # stays slack, a marker offset along an axis nothing turns) is not seen by the data: it keeps
+    # its initial value (an optimiser free to move it could wander into a state where it acts)
+    first = jac(np.zeros(len(ps)))
+    free = np.linalg.norm(first, axis=0) > 0.0
+    if not free.any():
+        raise OptionError("no fitted parameter changes any predicted marker at the initial values",
+                          field="--fit")
+
+    def full(y):
+        z = np.zeros(len(ps))
+        z[free] = y
+        return z
+
+    def reduced_jac(y):
+        z = full(y)
+        J = first if not z.any() else jac(z)
+        return J[:, free]
+
     lower = (ps.lower - ps.initial) / ps.typical
     upper = (ps.upper - ps.initial) / ps.typical
     rng = np.random.default_rng(seed)
@@ -175,12 +194,14 @@ def calibrate(scene, mapping, train, holdout=None, fit=None, *, loss: str = "lin
         if start == 0:
             z0 = np.zeros(len(ps))
         else:           # uniform within the bounds, clipped to a few typical changes of the start
-            z0 = rng.uniform(np.maximum(lower, -5.0), np.minimum(upper, 5.0))
-        options = dict(jac=jac, method=method, max_nfev=max_evaluations, x_scale=1.0, ftol=ftol, xtol=xtol)
+            z0 = np.where(free, rng.uniform(np.maximum(lower, -5.0), np.minimum(upper, 5.0)), 0.0)
+        options = dict(jac=reduced_jac, method=method, max_nfev=max_evaluations, x_scale=1.0, ftol=ftol,
+                       xtol=xtol)
         if method == "trf":
-            options.update(bounds=(lower, upper), loss=loss,
+            options.update(bounds=(lower[free], upper[free]), loss=loss,
                            f_scale=loss_scale if loss_scale is not None else 0.01 * length)
-        result = least_squares(fun, z0, **options)
+        result = least_squares(lambda y: fun(full(y)), z0[free], **options)
+        result.x = full(result.x)
         runs.append({"start": start, "cost": float(result.cost), "nfev": int(result.nfev),
                      "status": int(result.status), "message": str(result.message)})
         if progress:
