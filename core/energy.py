@@ -171,6 +171,47 @@ class EnergyRange:
         values[:, 8:] = p
         return values
 
+    def gauge(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(ρ (n,), active (n,))`` of strains ``s`` (n, 6): the gauge of the strain box — the
+        smallest ``ρ`` with ``s/ρ`` inside the box's strain bounds (``ρ ≤ 1``: the strain is
+        inside; rest is the box's centre of scaling) — and the group (:data:`GROUPS`) that sets
+        it. Positively homogeneous of degree one in ``s``."""
+        ratio = np.empty((s.shape[0], 4))
+        upper, lower = self._gauge_bounds
+        ratio[:, 0] = np.hypot(s[:, 0], s[:, 1]) / upper[0]
+        ratio[:, 2] = np.hypot(s[:, 3], s[:, 4]) / upper[2]
+        for group, k in ((1, 2), (3, 5)):
+            ratio[:, group] = np.where(s[:, k] >= 0.0, s[:, k] / upper[group], s[:, k] / lower[group])
+        active = np.argmax(ratio, axis=1)
+        return ratio[np.arange(s.shape[0]), active], active
+
+    def gauge_derivatives(self, s: np.ndarray, active: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(∇ρ (n, 6), ∇²ρ (n, 6, 6))`` of :meth:`gauge` at strains ``s`` away from rest, its
+        ``active`` group held (the gauge is smooth where one group sets it)."""
+        n = s.shape[0]
+        gradient, hessian = np.zeros((n, 6)), np.zeros((n, 6, 6))
+        upper, lower = self._gauge_bounds
+        for group, pair in ((0, (0, 1)), (2, (3, 4))):
+            rows = np.flatnonzero(active == group)
+            if rows.size:
+                v = s[np.ix_(rows, pair)]
+                norm = np.maximum(np.hypot(v[:, 0], v[:, 1]), 1e-300)
+                e = v / norm[:, None]
+                gradient[np.ix_(rows, pair)] = e / upper[group]
+                block = (np.eye(2) - e[:, :, None] * e[:, None, :]) / (upper[group] * norm)[:, None, None]
+                hessian[np.ix_(rows, pair, pair)] = block
+        for group, k in ((1, 2), (3, 5)):
+            rows = np.flatnonzero(active == group)
+            gradient[rows, k] = np.where(s[rows, k] >= 0.0, 1.0 / upper[group], 1.0 / lower[group])
+        return gradient, hessian
+
+    @cached_property
+    def _gauge_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """The strain bounds the gauge scales by: upper bounds (> 0) and lower bounds of the
+        signed groups (< 0; a bound through rest is moved off it by 1e-9 of its width)."""
+        width = self.pose_upper - self.pose_lower
+        return np.maximum(self.pose_upper, 1e-9 * width), np.minimum(self.pose_lower, -1e-9 * width)
+
     @property
     def quantities(self) -> tuple[str, ...]:
         """Names of the columns of :meth:`values` and :meth:`excesses`: the group coordinates
@@ -698,35 +739,27 @@ class FixedPressures:
             cache[order] = model._restrict_pressures(self.distinct, order)
         return cache[order]
 
-    def evaluate(self, s: np.ndarray, *, derivatives: int = 2, check_range: bool = True) -> EnergyValues:
+    def evaluate(self, s: np.ndarray, *, derivatives: int = 2, check_range: bool = True,
+                 extend: bool = True) -> EnergyValues:
         """ψ, ``∂ψ/∂s`` and ``∂²ψ/∂s²`` at the strains ``s`` (n, 6); with ``derivatives`` 1 also
-        ``∂ψ/∂p`` and ``∂²ψ/∂s∂p``, with 2 also ``∂²ψ/∂p²``; with ``check_range`` the range test."""
+        ``∂ψ/∂p`` and ``∂²ψ/∂s∂p``, with 2 also ``∂²ψ/∂p²``; with ``check_range`` the range test.
+        Strains outside the range's strain box take the tail of :meth:`_extend` (``extend``
+        False: the polynomial everywhere, for tests of the polynomial itself)."""
         s = np.asarray(s, dtype=float)
         kept, order, values = self._last
-        if check_range and order >= derivatives and np.array_equal(kept, s):
+        if check_range and extend and order >= derivatives and np.array_equal(kept, s):
             return values
-        values = self._evaluate(s, derivatives, check_range)
-        if check_range:
+        values = self._evaluate(s, derivatives, check_range, extend)
+        if check_range and extend:
             self._last = (s.copy(), derivatives, values)
         return values
 
-    def _evaluate(self, s: np.ndarray, derivatives: int, check_range: bool) -> EnergyValues:
+    def _evaluate(self, s: np.ndarray, derivatives: int, check_range: bool, extend: bool) -> EnergyValues:
         model = self.model
         n, m = s.shape[0], model.fit.n_cavities
-        u = np.ascontiguousarray(s.T) * model._inv_scales                # (6, n)
-        energy, grad, hess = np.empty(n), np.empty((n, 6)), np.empty((n, 6, 6))
-        extra = np.empty((n, 7 * m + (m * m if derivatives == 2 else 0))) if derivatives else None
-        matrices = self._pressure_matrices(derivatives) if derivatives and m else [None] * len(self.restricted)
-        rows = [slice(None)] if self.groups is None else self.groups
-        for row, (strain, hessian, constant), pressure in zip(rows, self.restricted, matrices):
-            ug = u[:, row]
-            mon = model._table.values_t(ug)
-            both = strain @ mon                                          # (12, k)
-            grad[row] = both[:6].T
-            energy[row] = constant + (ug * both[6:]).sum(0)
-            hess[row] = (hessian @ mon[:model._n_hess]).T.reshape(-1, 6, 6)
-            if pressure is not None:
-                extra[row] = (pressure[:extra.shape[1]] @ mon).T
+        energy, grad, hess, extra, _, _ = self._polynomial(s, derivatives)
+        if extend:
+            self._extend(s, derivatives, energy, grad, hess, extra)
         pressure_gradient = mixed = pressure_hessian = None
         if extra is not None:
             pressure_gradient = extra[:, :m]
@@ -738,6 +771,114 @@ class FixedPressures:
         return EnergyValues(energy=energy, gradient=grad, hessian=hess, pressure_gradient=pressure_gradient,
                             mixed_hessian=mixed, pressure_hessian=pressure_hessian, range_excess=excess,
                             in_range=None if excess is None else excess <= 0.0)
+
+    def _positions(self, rows: np.ndarray | None) -> list:
+        """For each restricted polynomial, the positions among ``rows`` (None: all rows) of the
+        rows it serves."""
+        if self.groups is None:
+            return [slice(None)]
+        if rows is None:
+            return self.groups
+        of_row = np.empty(sum(g.size for g in self.groups), dtype=np.int64)
+        for g, members in enumerate(self.groups):
+            of_row[members] = g
+        of = of_row[rows]
+        return [np.flatnonzero(of == g) for g in range(len(self.groups))]
+
+    def _polynomial(self, s: np.ndarray, derivatives: int, rows: np.ndarray | None = None, along: bool = False):
+        """``(ψ, ∂ψ/∂s, ∂²ψ/∂s², pressure derivatives, d_hessian, d_pressure)`` of the polynomial at
+        strains ``s`` (k, 6) of the rows ``rows`` (None: every row, in order); the pressure
+        derivatives (k, 7m [+ m²]) as :meth:`_evaluate` unpacks them, or None. With ``along`` also
+        ``d/dt`` at ``t = 1`` of the Hessian and of the pressure derivatives at ``t·s`` — exact:
+        a monomial of degree ``j`` in ``u`` scales by ``t^j``, so the derivative weights it by ``j``."""
+        model = self.model
+        n, m = s.shape[0], model.fit.n_cavities
+        u = np.ascontiguousarray(s.T) * model._inv_scales                # (6, n)
+        energy, grad, hess = np.empty(n), np.empty((n, 6)), np.empty((n, 6, 6))
+        width = 7 * m + (m * m if derivatives == 2 else 0)
+        extra = np.empty((n, width)) if derivatives else None
+        d_hess = np.empty((n, 6, 6)) if along else None
+        d_extra = np.empty((n, width)) if along and derivatives else None
+        matrices = self._pressure_matrices(derivatives) if derivatives and m else [None] * len(self.restricted)
+        degrees = model._table.degrees
+        for row, (strain, hessian, constant), pressure in zip(self._positions(rows), self.restricted, matrices):
+            ug = u[:, row]
+            if not ug.shape[1]:
+                continue
+            mon = model._table.values_t(ug)
+            both = strain @ mon                                          # (12, k)
+            grad[row] = both[:6].T
+            energy[row] = constant + (ug * both[6:]).sum(0)
+            hess[row] = (hessian @ mon[:model._n_hess]).T.reshape(-1, 6, 6)
+            if pressure is not None:
+                extra[row] = (pressure[:width] @ mon).T
+            if along:
+                weighted = mon * degrees[:, None]
+                d_hess[row] = (hessian @ weighted[:model._n_hess]).T.reshape(-1, 6, 6)
+                if pressure is not None:
+                    d_extra[row] = (pressure[:width] @ weighted).T
+        if derivatives and not m:
+            extra[:] = 0.0
+            if along:
+                d_extra[:] = 0.0
+        return energy, grad, hess, extra, d_hess, d_extra
+
+    def _extend(self, s: np.ndarray, derivatives: int, energy: np.ndarray, grad: np.ndarray, hess: np.ndarray,
+                extra: np.ndarray | None) -> None:
+        """ψ beyond the strain box, in place on the rows whose strain lies outside it.
+
+        With ``ρ`` the box's gauge (:meth:`EnergyRange.gauge`) and ``ŝ = s/ρ`` the boundary point
+        on the ray from rest, ψ_nl continues along the ray with its boundary slope::
+
+            ψ(s) = ψ_lin(s) + ψ_nl(ŝ) + (ρ − 1) ∇ψ_nl(ŝ)·ŝ
+
+        so the fitted correction's force stays bounded (``∂ψ_nl/∂s = g + (1 − 1/ρ)(I − ∇ρ ŝᵀ) H ŝ``
+        with ``g, H`` its gradient and Hessian at ŝ) and the linear entry's quadratic carries
+        the rest: ψ is C¹ across the boundary, and its curvature tends to the linear entry's
+        (the tail's own is ``O(1/ρ)``). The Hessian is exact where one group sets the gauge: the
+        third derivatives it needs enter only as ``d/dt H(tŝ)``, which the degree-weighted
+        monomials give exactly (:meth:`_polynomial`); the pressure derivatives likewise."""
+        model = self.model
+        fitted = model.fit.range
+        rho, active = fitted.gauge(s)
+        out = np.flatnonzero(rho > 1.0)
+        if not out.size:
+            return
+        m = model.fit.n_cavities
+        so, r = s[out], rho[out]
+        hat = so / r[:, None]
+        e, g, H, x, dH, dx = self._polynomial(hat, derivatives, rows=out, along=True)
+        K, S, V = model.stiffness, model.pressure_map, model.volume_compliance
+        p = np.zeros((out.size, m)) if self.p is None else self.p[out]
+        shift = p @ S.T                                                  # S p
+        lin_g, lin_gh = (so - shift) @ K, (hat - shift) @ K              # ∇ψ_lin at s and at ŝ
+        pressure_energy = 0.5 * np.einsum("ki,ki->k", p @ V, p)
+        lin_e = 0.5 * np.einsum("ki,ki->k", so - shift, lin_g) - pressure_energy
+        lin_eh = 0.5 * np.einsum("ki,ki->k", hat - shift, lin_gh) - pressure_energy
+        g_nl, H_nl = g - lin_gh, H - K
+        w = np.einsum("kij,kj->ki", H_nl, hat)                           # H_nl ŝ = d/dt ∇ψ_nl(tŝ)
+        along = np.einsum("ki,ki->k", hat, w)
+        grad_rho, hess_rho = fitted.gauge_derivatives(so, active[out])
+        c, t = 1.0 - 1.0 / r, r - 1.0
+        Pw = w - grad_rho * along[:, None]                               # (I − ∇ρ ŝᵀ) H_nl ŝ
+        energy[out] = lin_e + (e - lin_eh) + t * np.einsum("ki,ki->k", g_nl, hat)
+        grad[out] = lin_g + g_nl + c[:, None] * Pw
+        eye = np.eye(6)
+        J = (eye - hat[:, :, None] * grad_rho[:, None, :]) / r[:, None, None]    # ∂ŝ/∂s
+        P = eye - grad_rho[:, :, None] * hat[:, None, :]
+        Jw = np.einsum("kji,kj->ki", J, w)
+        curvature = (-hess_rho * along[:, None, None] - grad_rho[:, :, None] * Jw[:, None, :]
+                     + P @ (dH + H_nl) @ J)
+        full = K + H_nl @ J + Pw[:, :, None] * (grad_rho / (r * r)[:, None])[:, None, :] + c[:, None, None] * curvature
+        hess[out] = 0.5 * (full + full.transpose(0, 2, 1))
+        if extra is None or not m:
+            return
+        pg, mixed, dmixed = x[:, :m], x[:, m:7 * m].reshape(-1, m, 6), dx[:, m:7 * m].reshape(-1, m, 6)
+        mixed_nl = mixed + (K @ S).T[None]                               # cavity-major, as stored
+        extra[out, :m] = pg - (lin_g - lin_gh) @ S + t[:, None] * np.einsum("kci,ki->kc", mixed_nl, hat)
+        extra[out, m:7 * m] = (mixed + c[:, None, None] * np.einsum("kij,kcj->kci", P, dmixed)).reshape(-1, 6 * m)
+        if derivatives == 2:
+            extra[out, 7 * m:] = x[:, 7 * m:] + t[:, None] * dx[:, 7 * m:]
 
 
 def fold_map(p: np.ndarray, fold: float):
@@ -770,6 +911,7 @@ class Monomials:
         closure = closure[np.lexsort(tuple(closure[:, ::-1].T) + (closure.sum(1),))]
         total = closure.sum(1)
         self.exponents = closure
+        self.degrees = total.astype(float)
         self.index = {tuple(row): i for i, row in enumerate(closure.tolist())}
         self.blocks = []
         for k in range(1, int(total.max(initial=0)) + 1):
