@@ -49,7 +49,9 @@ def range_warnings(excesses, where: str = "", limit: int = 3) -> list[str]:
     worst = sorted(excesses, key=lambda excess: -excess.excess)
     lines = [f"warning: {where}{len(excesses)} quantit{'y' if len(excesses) == 1 else 'ies'} of "
              f"{len({e.link for e in excesses})} link(s) outside the range their fitted energy was sampled on "
-             "(extrapolated; see diagnostics.out_of_range in the JSON):"]
+             "(beyond it the fitted correction keeps its boundary force and the linear stiffness carries the "
+             "rest; widen the entry's sampled range with `vertebra design … --sampling bending=… --sampling "
+             "strain=…`, or let `vertebra prepare` size it from the scene; diagnostics.out_of_range in the JSON):"]
     lines += [f"  {excess}" for excess in worst[:limit]]
     if len(worst) > limit:
         lines.append(f"  … and {len(worst) - limit} more")

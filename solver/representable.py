@@ -56,6 +56,19 @@ def turn_message(trunk, xi: np.ndarray, scale: float, linear: np.ndarray | None)
     count = trunk.scene.segments[segment].count
     needed = turns[start:start + count * elements].reshape(count, elements).sum(1).max()
     links = max(elements + 1, math.ceil(needed / REPRESENTED_TURN))
+    spec = trunk.scene.segments[segment]
+    if spec.type != "beam":
+        repetitions = max(count + 1, math.ceil(count * needed / REPRESENTED_TURN))
+        what = f"entry {spec.entry!r}" if spec.entry else spec.type
+        turned = math.degrees(float(np.linalg.norm(xi[k, 3:])))
+        return (f"link {k} (segment {segment}, {what}) turns {turned:.0f}° at load factor {scale:.3g}: a link's "
+                f"rotation must stay below 180°, and a catalogue entry is condensed onto one link per repetition "
+                f"(its elements cannot be raised); a repetition of the segment turns about {math.degrees(needed):.0f}° "
+                f"under this load. Build the segment from a shorter entry repeated more often (about {repetitions} "
+                f"repetitions instead of {count}, ≤ {math.degrees(REPRESENTED_TURN):.0f}° each), or lower the load; "
+                "for a nonlinear entry whose fitted range the state leaves (the out-of-range diagnostics), widen "
+                "the sampled range with `vertebra design … --sampling bending=… --sampling strain=…` or let "
+                "`vertebra prepare` size it from the scene")
     return (f"link {k} (segment {segment}) turns {math.degrees(float(np.linalg.norm(xi[k, 3:]))):.0f}° at load "
             f"factor {scale:.3g}: the deformation cannot be represented with {elements} link(s) per repetition "
             f"(a link's rotation must stay below 180°); a repetition of the segment turns about "

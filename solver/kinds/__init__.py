@@ -87,15 +87,43 @@ class RangeExcess:
     upper: float
     excess: float
 
+    @property
+    def unit(self) -> tuple[str, float]:
+        """``(unit, factor)``: the physical unit the quantity reads in and the factor from its SI
+        value (strain translations in mm, rotations in degrees of one link, loads in N and N·m,
+        pressures in bar)."""
+        return physical_unit(self.quantity)
+
     def to_dict(self) -> dict:
+        unit, factor = self.unit
         return {"link": self.link, "segment": self.segment, "vertebrae": list(self.vertebrae), "entry": self.source,
                 "quantity": self.quantity, "value": self.value, "lower": self.lower, "upper": self.upper,
-                "excess": self.excess}
+                "excess": self.excess, "unit": unit, "value_in_unit": factor * self.value,
+                "lower_in_unit": factor * self.lower, "upper_in_unit": factor * self.upper}
 
     def __str__(self) -> str:
+        unit, factor = self.unit
+        unit = unit if unit == "°" else f" {unit}"
         return (f"link {self.link} (segment {self.segment}, vertebrae {self.vertebrae[0]}–{self.vertebrae[1]}, "
-                f"entry {self.source!r}): {self.quantity} {self.value:.4g} outside the fitted range "
-                f"[{self.lower:.4g}, {self.upper:.4g}] by {100.0 * self.excess:.3g} % of its width")
+                f"entry {self.source!r}): {self.quantity} {factor * self.value:.4g}{unit} outside the fitted range "
+                f"[{factor * self.lower:.4g}, {factor * self.upper:.4g}]{unit} by {100.0 * self.excess:.3g} % "
+                "of its width")
+
+
+#: physical units of the range's quantities by the word that names their group and their kind
+_UNITS = {("lateral", "strain"): ("mm", 1e3), ("axial", "strain"): ("mm", 1e3),
+          ("bending", "strain"): ("°", 180.0 / np.pi), ("twist", "strain"): ("°", 180.0 / np.pi),
+          ("lateral", "load"): ("N", 1.0), ("axial", "load"): ("N", 1.0),
+          ("bending", "load"): ("N·m", 1.0), ("twist", "load"): ("N·m", 1.0)}
+
+
+def physical_unit(quantity: str) -> tuple[str, float]:
+    """``(unit, factor from SI)`` of a range quantity's name (``"bending strain"``,
+    ``"axial load"``, ``"cavity 0 pressure"``, …); SI with factor 1 for a name not known."""
+    words = quantity.split()
+    if words and words[-1] == "pressure":
+        return "bar", 1e-5
+    return _UNITS.get(tuple(words[-2:]), ("(SI)", 1.0))
 
 
 class LinkEnergy(Protocol):
