@@ -12,6 +12,7 @@ Progress and logs go to stderr; ``--json`` prints one JSON document on stdout.
 
 from __future__ import annotations
 
+import math
 import os
 import sys
 import time
@@ -109,9 +110,40 @@ def entry_document(entry) -> dict:
                               "fit_error": energy.fit_error, "range": energy.range.to_dict(),
                               "fold_pressure": energy.fold_pressure, "material": energy.material,
                               "sampling": {k: energy.sampling[k] for k in ("samples", "solves", "paths", "held_out_paths")
-                                           if k in energy.sampling}}
+                                           if k in energy.sampling},
+                              "sampled": sampled_range(energy)}
         document["timing"].update({k: float(entry.timings[k]) for k in ("sampling_s", "fit_s") if k in entry.timings})
     return document
+
+
+def sampled_range(energy) -> dict:
+    """The range a nonlinear entry was sampled on, in physical terms (per segment: bending and
+    twist in degrees, lateral and axial displacement of the strain chart in mm; the loads it
+    carried in N and N·m; pressures in bar), what bounded the bending, and how to widen it."""
+    rng = energy.range
+    degrees, mm = 180.0 / math.pi, 1e3
+    settings = energy.sampling.get("settings", {})
+    caps = energy.sampling.get("pose_caps")
+    out = {"bending_deg": degrees * float(rng.pose_upper[2]),
+           "twist_deg": [degrees * float(rng.pose_lower[3]), degrees * float(rng.pose_upper[3])],
+           "lateral_mm": mm * float(rng.pose_upper[0]),
+           "axial_mm": [mm * float(rng.pose_lower[1]), mm * float(rng.pose_upper[1])],
+           "lateral_force_N": float(rng.load_upper[0]), "axial_force_N": [float(rng.load_lower[1]),
+                                                                         float(rng.load_upper[1])],
+           "bending_moment_Nm": float(rng.load_upper[2]),
+           "twist_moment_Nm": [float(rng.load_lower[3]), float(rng.load_upper[3])],
+           "pressure_bar": [1e-5 * float(p) for p in rng.pressure_upper]}
+    bending = settings.get("bending")
+    if caps is not None and bending is not None:
+        by_strain = float(caps[2]) < float(bending) * (1.0 - 1e-9)
+        out["bending_bounded_by"] = "strain" if by_strain else "bending"
+        widen = ("the outer-fibre strain bounds the bending (strain = "
+                 f"{settings.get('strain')}, bending ≤ strain·L/r): raise --sampling strain=…" if by_strain else
+                 f"the bending setting bounds it (bending = {bending} rad): raise --sampling bending=… (rad, < π)")
+        out["widen"] = (f"{widen} (and --sampling twist=… for twist), or let `vertebra prepare` size the range from "
+                        "a scene's loads; beyond the range the entry continues on its linear stiffness with the "
+                        "fitted correction's boundary force, and a solve reports the states outside it")
+    return out
 
 
 def _log(message: str) -> None:
@@ -207,11 +239,17 @@ def run(args) -> int:
               f"{energy['sampling']['samples']} samples; held-out load error {held.get('load_max', float('nan')):.3g} "
               f"of the range (linear entry {held.get('linear_load_max', float('nan')):.3g})"
               + (f", volume {held['volume_max']:.3g}" if "volume_max" in held else ""))
-        rng = energy["range"]
-        print(f"range     bending ≤ {rng['pose_upper'][2]:.3g} rad, twist {rng['pose_lower'][3]:.3g}…"
-              f"{rng['pose_upper'][3]:.3g} rad" + (f", pressure ≤ {max(rng['pressure_upper']):.4g} Pa"
-                                                   if rng["pressure_upper"] else "")
-              + (f" (inflation limit point ≈ {rng['limit_pressure']:.4g} Pa)" if rng["limit_pressure"] else ""))
+        rng, box = energy["range"], energy["sampled"]
+        print(f"range     per segment: bending ≤ {box['bending_deg']:.3g}°, twist {box['twist_deg'][0]:.3g}…"
+              f"{box['twist_deg'][1]:.3g}°, lateral ≤ {box['lateral_mm']:.3g} mm, axial {box['axial_mm'][0]:.3g}…"
+              f"{box['axial_mm'][1]:.3g} mm" + (f", pressure ≤ {max(box['pressure_bar']):.4g} bar"
+                                                if box["pressure_bar"] else "")
+              + (f" (inflation limit point ≈ {1e-5 * rng['limit_pressure']:.4g} bar)" if rng["limit_pressure"] else ""))
+        print(f"loads     lateral force ≤ {box['lateral_force_N']:.3g} N, axial force {box['axial_force_N'][0]:.3g}…"
+              f"{box['axial_force_N'][1]:.3g} N, bending moment ≤ {box['bending_moment_Nm']:.3g} N·m, twisting "
+              f"moment {box['twist_moment_Nm'][0]:.3g}…{box['twist_moment_Nm'][1]:.3g} N·m")
+        if "widen" in box:
+            print(f"widen     {box['widen']}")
     print(f"timing    mesh {t['mesh_s']:.2f} s, assemble {t['assemble_s']:.2f} s, solve {t['solve_s']:.2f} s, "
           f"total {t['total_s']:.2f} s")
     return 0
