@@ -11,10 +11,9 @@ design failed, 2 bad input.
 
 from __future__ import annotations
 
-import json
 import sys
 
-from vertebra.cli.outputs import PICTURE_SUFFIXES, output_file
+from vertebra.cli.outputs import PICTURE_SUFFIXES, output_file, write_json
 from vertebra.cli.prepare import add_preparation, prepared_scene
 
 POINT_SUFFIXES = (".csv", ".npz")
@@ -36,6 +35,10 @@ def add_arguments(parser) -> None:
                         help="Newton tolerance (scaled residual; default: the scene's)")
     parser.add_argument("--processes", type=int, default=1, metavar="N",
                         help="processes solving the samples (default 1)")
+    parser.add_argument("--drop-outside", action="store_true",
+                        help="leave out of the clouds the samples whose equilibrium breaks a bound of the scene "
+                             "(stroke, volume growth, tendon tension) or leaves an entry's fitted range "
+                             "(they are counted and flagged either way)")
     add_preparation(parser)
 
 
@@ -82,7 +85,7 @@ def run(args) -> int:
     with tqdm(total=args.samples, unit="solve", file=sys.stderr, disable=None, desc="workspace") as bar:
         workspace = sample_workspace(model, args.samples, method=args.sampler, seed=args.seed,
                                      ordering=args.ordering, tolerance=args.tolerance, workers=args.processes,
-                                     progress=bar.update)
+                                     progress=bar.update, drop_outside=args.drop_outside)
     if points is not None:
         write_points(workspace, points)
         print(f"wrote {points}", file=sys.stderr)
@@ -97,8 +100,7 @@ def run(args) -> int:
     if args.json:
         document = {"vertebra_version": __version__, "scene": scene.name or args.scene, **summary,
                     "points_file": None if points is None else str(points)}
-        json.dump(document, sys.stdout, allow_nan=False)
-        sys.stdout.write("\n")
+        write_json(document)
     else:
         _print_summary(scene.name or args.scene, summary)
     return 0 if summary["converged"] else 1
@@ -128,6 +130,13 @@ def _print_summary(name: str, summary: dict) -> None:
         else:
             shape = f"spans {hull['dimension']} dimension(s)"
         print(f"  effector {effector}: {extent} m, {shape}")
+    outside = summary["beyond_bounds"] + summary["out_of_range"]
+    if outside:
+        named = ", ".join(f"{key} ({count})" for key, count in list(summary["violations"].items())[:5])
+        print(f"  warning: {summary['beyond_bounds']} converged samples break a bound of the scene and "
+              f"{summary['out_of_range']} leave an entry's fitted range ({named}); "
+              + (f"{summary['dropped']} dropped from the clouds" if summary["dropped"]
+                 else "kept in the clouds and flagged (--drop-outside leaves them out)"))
     for failure in summary["failures"][:5]:
         print(f"  sample {failure['sample']} failed: {failure['error']}: {failure['message']}")
     if len(summary["failures"]) > 5:

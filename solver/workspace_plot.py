@@ -2,7 +2,8 @@
 
 ``plot_workspace(workspace, path)`` draws, for every point effector, its cloud in 3D with
 the convex hull as a translucent surface, and its projections on the x–y, x–z and y–z
-planes with the outline of each projection's convex hull, in the paper style of
+planes with the outline of each projection's convex hull; samples beyond a bound of the scene
+or an entry's fitted range are marked ×, unless dropped; in the paper style of
 :mod:`vertebra.solver.plots`.
 """
 
@@ -75,6 +76,13 @@ def plot_workspace(workspace: Workspace, path=None, *, title: str | None = None,
             else:
                 caption = "no converged sample"
                 ax.set_xlabel("x [m]"), ax.set_ylabel("y [m]"), ax.set_zlabel("z [m]")
+            # samples beyond a scene bound or a fitted range, marked over the cloud (unless dropped)
+            flagged = np.zeros((0, 3)) if workspace.drop_outside else workspace.cloud(cloud.name, outside=True).points
+            if len(flagged):
+                ax.scatter(flagged[:, 0], flagged[:, 1], flagged[:, 2], s=size, marker="x", color="k", lw=0.4)
+                caption += f", {len(flagged)} outside"
+            elif workspace.drop_outside and np.any(workspace.outside):
+                caption += f", {int(np.count_nonzero(workspace.outside))} outside dropped"
             ax.set_title(f"{cloud.name}: {len(points)} points,\n{caption}")
             k = workspace.effector_names.index(cloud.name)
             for column, (a_name, b_name, a, b) in enumerate(PROJECTIONS):
@@ -85,6 +93,9 @@ def plot_workspace(workspace: Workspace, path=None, *, title: str | None = None,
                     outline = _projected_outline(points[:, [a, b]])
                     if outline is not None:
                         side.plot(outline[:, 0], outline[:, 1], color="k", lw=0.8, label="hull")
+                if len(flagged):
+                    side.scatter(flagged[:, a], flagged[:, b], s=size, marker="x", color="k", lw=0.4,
+                                 rasterized=True, label="beyond a bound or fitted range")
                 if rest is not None:
                     side.plot(rest[k, a], rest[k, b], "x", color="tab:red", ms=5, mew=1.2, label="rest")
                 side.set_aspect("equal", adjustable="datalim")
