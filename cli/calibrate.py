@@ -7,6 +7,9 @@ import json
 import sys
 
 from vertebra.cli.outputs import output_file
+
+MAX_STARTS = 1000              # random starts of one calibration
+MAX_EVALUATIONS = 100_000      # model evaluations per start
 from vertebra.core.errors import OptionError
 
 
@@ -53,8 +56,14 @@ def run(args) -> int:
     saved = output_file(args.save_json, "--save-json", (".json",))
     if args.max_evaluations < 1:
         raise OptionError(f"must be at least 1, got {args.max_evaluations}", field="--max-evaluations")
-    if args.loss_scale is not None and not args.loss_scale > 0:
-        raise OptionError(f"must be > 0, got {args.loss_scale}", field="--loss-scale")
+    if args.loss_scale is not None and not 0 < args.loss_scale < float("inf"):
+        raise OptionError(f"must be a finite number > 0, got {args.loss_scale}", field="--loss-scale")
+    if not 1 <= args.starts <= MAX_STARTS:
+        raise OptionError(f"must be 1..{MAX_STARTS}, got {args.starts}", field="--starts")
+    if not 0 <= args.seed < 2 ** 63:
+        raise OptionError(f"must be 0..2**63-1, got {args.seed}", field="--seed")
+    if args.max_evaluations > MAX_EVALUATIONS:
+        raise OptionError(f"must be at most {MAX_EVALUATIONS}, got {args.max_evaluations}", field="--max-evaluations")
     scene = solver.load_scene(args.scene)
     mapping = load_mapping(args.map)
     train = load_samples(args.data, mapping)

@@ -15,20 +15,22 @@ field (or row and column) and the reason.
 from __future__ import annotations
 
 import csv
+import io
 import math
 import re
-import tomllib
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from vertebra.core.errors import InputError, SceneError
+from vertebra.core.inputs import load_toml, read_text
 from vertebra.solver.tables import Table
 
 __all__ = ["ActuatorMap", "MappingError", "MarkerMap", "Mapping", "Samples", "UNITS", "load_mapping",
            "load_samples", "parse_mapping"]
 
+#: largest samples file read (a million rows of a dozen numbers)
+MAX_DATA_BYTES = 256 * 2**20
 #: length units a mapping may name, in metres
 UNITS = {"m": 1.0, "cm": 1e-2, "mm": 1e-3, "um": 1e-6}
 
@@ -78,16 +80,8 @@ class Mapping:
 
 
 def load_mapping(path) -> Mapping:
-    path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise MappingError("file not found", file=str(path))
-    except OSError as error:
-        raise MappingError(f"cannot read: {error.strerror}", file=str(path))
-    except tomllib.TOMLDecodeError as error:
-        raise MappingError(f"not valid TOML: {error}", file=str(path))
-    return parse_mapping(data, str(path))
+    """Read and validate a mapping file (bounded like a scene: size, encoding, nesting)."""
+    return parse_mapping(load_toml(path, MappingError), str(path))
 
 
 def _unit(t: Table, key: str = "unit") -> float:
@@ -196,17 +190,13 @@ class Samples:
 
 def load_samples(path, mapping: Mapping) -> Samples:
     """Read a CSV file with a header row through ``mapping``."""
-    path = Path(path)
     source = str(path)
+    reader = csv.reader(io.StringIO(read_text(path, MappingError, limit=MAX_DATA_BYTES), newline=""))
     try:
-        with path.open(newline="", encoding="utf-8") as handle:
-            reader = csv.reader(handle)
-            header = next(reader, None)
-            rows = list(reader)
-    except FileNotFoundError:
-        raise MappingError("file not found", file=source)
-    except OSError as error:
-        raise MappingError(f"cannot read: {error.strerror}", file=source)
+        header = next(reader, None)
+        rows = list(reader)
+    except csv.Error as error:
+        raise MappingError(f"not a CSV file: {error}", file=source) from None
     if header is None:
         raise MappingError("the file is empty (a header row is needed)", file=source)
     header = [h.strip() for h in header]
