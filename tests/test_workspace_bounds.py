@@ -48,3 +48,20 @@ def test_workspace_cli_reports_and_drops(tmp_path, capsys):
     assert main(["workspace", str(path), "--samples", "32"]) == 0
     out = capsys.readouterr().out
     assert "break a bound of the scene" in out and "t1: min_stroke" in out and "--drop-outside" in out
+
+
+def test_samples_outside_an_entrys_fitted_range_are_counted():
+    # a fitted entry trusted up to 0.05 rad of bending per link, bent by a tip moment and its
+    # chambers: the samples whose links bend further are counted by entry and quantity
+    from test_solver_fitted import CHAMBERS, FITTED, _model, _narrow
+
+    entry = _narrow(FITTED, 0.05)
+    model = _model(entry, loads=({"vertebra": -1, "moment": [0.0, 0.25, 0.0]},),
+                   chambers=[dict(c, min_pressure=0.0) for c in CHAMBERS])
+    workspace = sample_workspace(model, 16)
+    assert workspace.converged.all()
+    outside = np.array([bool(model.solve(a).out_of_range) for a in workspace.actuations])
+    np.testing.assert_array_equal(workspace.out_of_range, outside)
+    summary = workspace.summary()
+    assert summary["out_of_range"] == outside.sum() > 0
+    assert summary["violations"][f"{entry.name}: bending strain"] == outside.sum()
