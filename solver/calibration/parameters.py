@@ -64,18 +64,17 @@ class Values:
 @dataclass(frozen=True)
 class Kind:
     unit: str
-    typical: str          # how the typical size of a change is set (for scaling and default bounds)
     doc: str
 
 
 KINDS = {
-    "stiffness": Kind("", "1", "scale of a segment's Young's and shear moduli"),
-    "angle": Kind("rad", "0.1", "correction of a cable's hole angle"),
-    "radius": Kind("m", "radius", "correction of a cable's hole radius"),
-    "cable_stiffness": Kind("N/m", "value", "axial stiffness of a driven tendon"),
-    "pretension": Kind("N", "stiffness", "tension of a driven tendon at zero command"),
-    "frame": Kind("m | rad", "frame", "pose of the scene's world in the measurement frame"),
-    "marker": Kind("m", "length", "offset of a marker on its vertebra"),
+    "stiffness": Kind("", "scale of a segment's Young's and shear moduli"),
+    "angle": Kind("rad", "correction of a cable's hole angle"),
+    "radius": Kind("m", "correction of a cable's hole radius"),
+    "cable_stiffness": Kind("N/m", "spring rate of a driven tendon"),
+    "pretension": Kind("N", "tension of a driven tendon at zero command (negative: slack)"),
+    "frame": Kind("m | rad", "pose of the scene's world in the measurement frame"),
+    "marker": Kind("m", "offset of a marker on its vertebra"),
 }
 
 
@@ -137,7 +136,7 @@ def _typical(kind: str, index, base: Values, scene, length: float) -> float:
     if kind == "cable_stiffness":
         return 0.1 * base.cable_stiffness[index]
     if kind == "pretension":
-        return 1e-3 * base.cable_stiffness[index] * 1.0     # the tension of a millimetre of stretch
+        return 5e-3 * base.cable_stiffness[index] * length    # the tension of a stretch of 0.5 % of the trunk
     if kind == "frame":
         return 0.01 * length if index < 3 else 0.02
     return 0.01 * length
