@@ -19,7 +19,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from vertebra.solver import bounds, compliance, newton, outputs
+from vertebra.solver import bounds, compliance, newton, outputs, sensitivity
 from vertebra.solver.energy import Evaluation, LoadCases, Trial, cable_tensions, evaluate, out_of_range, potential
 from vertebra.solver.newton import StaticResult
 from vertebra.solver.outputs import Linearisation
@@ -238,6 +238,13 @@ class TrunkModel:
     def effector_positions(self, state: State) -> np.ndarray:
         """World position of each point effector; world unit direction of each axis effector."""
         return outputs.effector_points(self.trunk, state)[1]
+
+    def sensitivities(self, state, actuation=None, *, wrt=sensitivity.PARAMETER_GROUPS,
+                      outputs=sensitivity.OUTPUTS, method: str = "auto") -> "sensitivity.Sensitivities":
+        """Derivatives of the outputs at the equilibrium ``state`` (or a solve's result) with respect
+        to the actuation, loads and parameters, from the converged tangent
+        (:func:`vertebra.solver.sensitivity.sensitivities`; docs/sensitivities.md)."""
+        return sensitivity.sensitivities(self, state, actuation, wrt=wrt, outputs=outputs, method=method)
 
     def effector_compliance(self, state: State, actuation=None):
         """Cartesian compliance of every effector at the equilibrium ``state`` under ``actuation``

@@ -1,0 +1,454 @@
+"""Sensitivities of an equilibrium: derivatives of its outputs with respect to the actuation, the
+loads and the run-time parameters, from the converged tangent (implicit function theorem).
+
+At an equilibrium the gradient of the potential along the solver's chart vanishes on the free
+frames, ``g(q, p) = 0`` (``q``: the free frames' ``[dx; dφ]``, world axes; ``p``: a parameter).
+With the tangent ``K = ∂g/∂q``, a change of ``p`` moves the equilibrium by
+``dq/dp = −K⁻¹ ∂g/∂p``, and an output ``y(q, p)`` changes by ``dy/dp = ∂y/∂q dq/dp + ∂y/∂p``.
+One factor of ``K`` serves every parameter: the *direct* route solves ``K dq = −∂g/∂p`` (one
+back-substitution per parameter), the *adjoint* route solves ``Kᵀ Λ = (∂y/∂q)ᵀ`` (one per output
+row) and gives ``dy/dp = −Λᵀ ∂g/∂p + ∂y/∂p`` without ``dq``. ``K`` is the factor the linearisation
+makes (the tendons' dense rank-one terms beside the band included); it is unsymmetric when dead
+moments act, and the adjoint then solves with its transpose.
+
+The explicit derivatives ``∂g/∂p`` and ``∂y/∂p`` at the fixed state are analytic for the
+actuation (the actuator forces), gravity (masses and lever arms), dead loads (a unit wrench at
+a frame), the tendons' spring rates and pretensions (taut tendons: ``∂τ/∂k = e − T₀/k``,
+``∂τ/∂T₀ = 1``, times ``∂L/∂q``) and the stiffness scales (a segment's links' gradient divided by
+its scale). The hole radii and angles move the cables' routing, their rest lengths and so the
+tendons' elongations: their explicit terms are central differences of the potential's gradient
+(and of the cable strokes and tensions) at the fixed state, ``O(h²)`` with
+``h = GEOMETRIC_STEP`` × the scale of the parameter (relative error about 1e-10); so is a
+chamber's own pressure term of its volume growth, ``−∂²ψ/∂p²`` (exact for linear entries, where
+the growth is linear in the pressure). No parameter needs a new solve. See docs/sensitivities.md.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.linalg import lu_solve
+from scipy.linalg.lapack import dgbtrs
+
+from vertebra.core.errors import ConvergenceError, OptionError
+from vertebra.core.lie import hat, qmatrix
+from vertebra.solver import outputs as outputs_module
+from vertebra.solver.banded import BandedFactor, LowRankFactor
+from vertebra.solver.energy import Evaluation, LoadCase, cable_tensions, evaluate, tangent, volume_growth
+from vertebra.solver.parameters import reparameterise
+
+PARAMETER_GROUPS = ("actuation", "gravity", "dead", "cable_stiffness", "pretension", "stiffness_scale",
+                    "hole_radius", "hole_angle")
+OUTPUTS = ("frame_positions", "frame_rotations", "effector_positions", "cable_tensions", "cable_strokes",
+           "chamber_volumes")
+AXES = ("x", "y", "z")
+WRENCH = ("fx", "fy", "fz", "mx", "my", "mz")
+GEOMETRIC_STEP = 6e-6        # ≈ ε^(1/3): the central difference's truncation and rounding balance
+PRESSURE_FLOOR = 1e3         # Pa: the smallest pressure scale of a chamber's difference step
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """One column of the sensitivities: ``group`` (one of :data:`PARAMETER_GROUPS`), ``index``
+    (actuator, cable, segment or frame) and ``component`` (gravity's axis, a dead wrench's
+    component; 0 otherwise)."""
+
+    name: str
+    group: str
+    index: int = 0
+    component: int = 0
+
+
+@dataclass
+class Sensitivities:
+    """Derivatives of an equilibrium's outputs with respect to ``parameters`` (one column each).
+
+    ``dq`` (n_dof, P): the free frames' ``[dx; dφ]`` (world axes) per unit parameter (None on the
+    adjoint route); ``outputs``: output name → (n_out, P) — ``frame_positions`` and
+    ``frame_rotations`` (3 rows per frame, the base included; a rotation's rows are the world
+    rotation increment ``dφ``), ``effector_positions`` (3 rows per effector), ``cable_tensions``,
+    ``cable_strokes`` (``L − L0``) and ``chamber_volumes`` (volume growths), one row each.
+    ``differenced``: the parameters whose explicit terms are central differences at the fixed
+    state (module docstring)."""
+
+    parameters: tuple
+    outputs: dict
+    dq: np.ndarray | None
+    method: str                      # "direct" or "adjoint"
+    effector_names: tuple = ()
+    differenced: tuple = ()
+    timings: dict = field(default_factory=dict)
+
+    def __getitem__(self, output: str) -> np.ndarray:
+        try:
+            return self.outputs[output]
+        except KeyError:
+            raise OptionError(f"no output {output!r} (computed: {', '.join(self.outputs)})", field="outputs") from None
+
+    def column(self, parameter: str) -> int:
+        """The column of the parameter named ``parameter`` (e.g. ``"actuation:t1"``)."""
+        try:
+            return self.parameters.index(parameter)
+        except ValueError:
+            raise OptionError(f"no parameter {parameter!r} among the sensitivities", field="wrt") from None
+
+    def effector_jacobian(self, effectors: Sequence[str] | None = None) -> np.ndarray:
+        """``d(effector positions)/dp`` (3·k, P) of the effectors named (default: all, in the
+        model's order), rows ``x, y, z`` per effector: the Jacobian of a least-squares fit of
+        measured points."""
+        jacobian = self["effector_positions"]
+        if effectors is None:
+            return jacobian
+        unknown = [name for name in effectors if name not in self.effector_names]
+        if unknown:
+            raise OptionError(f"unknown effector(s) {', '.join(map(repr, unknown))}", field="effectors")
+        rows = np.array([3 * self.effector_names.index(name) + k for name in effectors for k in range(3)], int)
+        return jacobian[rows]
+
+
+# ------------------------------------------------------------------ the parameters asked for
+def parameters_of(model, wrt: Iterable[str]) -> list[Parameter]:
+    """The columns named by ``wrt``: group names (every parameter of the group: every actuator,
+    gravity's three axes, six components at every free vertebra, the tendons' spring rates and
+    pretensions, the scale of every segment without cavities, every cable's hole radius and
+    angle) or single parameters (``"actuation:t1"``, ``"gravity:z"``, ``"dead:5:fx"`` or
+    ``"dead:-1"`` (all six), ``"cable_stiffness:t2"``, ``"pretension:t2"``,
+    ``"stiffness_scale:0"``, ``"hole_radius:t3"``, ``"hole_angle:t3"``)."""
+    if isinstance(wrt, str):
+        wrt = (wrt,)
+    columns: list[Parameter] = []
+    for item in wrt:
+        group, _, rest = str(item).partition(":")
+        if group not in PARAMETER_GROUPS:
+            raise OptionError(f"unknown parameter {item!r} (groups: {', '.join(PARAMETER_GROUPS)})", field="wrt")
+        columns.extend(_group(model, group, rest.split(":") if rest else None))
+    names = [c.name for c in columns]
+    repeated = sorted({n for n in names if names.count(n) > 1})
+    if repeated:
+        raise OptionError(f"parameter(s) asked for twice: {', '.join(repeated)}", field="wrt")
+    return columns
+
+
+def _group(model, group: str, keys: list | None) -> list[Parameter]:
+    trunk = model.trunk
+    actuators = trunk.actuators
+    cables = list(actuators.names[:actuators.n_cables])
+    tendons = actuators.stroke_driven
+
+    def cable(key: str, tendon_only: bool) -> int:
+        if key not in cables:
+            raise OptionError(f"unknown cable {key!r} (cables: {', '.join(cables) or 'none'})", field="wrt")
+        index = cables.index(key)
+        if tendon_only and not tendons[index]:
+            raise OptionError(f"{group} applies to stroke-driven tendons; {key!r} is tension-driven", field="wrt")
+        return index
+
+    if group == "actuation":
+        names = list(actuators.names)
+        if keys is None:
+            return [Parameter(f"actuation:{n}", group, i) for i, n in enumerate(names)]
+        if len(keys) != 1 or keys[0] not in names:
+            raise OptionError(f"unknown actuator {':'.join(keys)!r} (actuators: {', '.join(names) or 'none'})",
+                              field="wrt")
+        return [Parameter(f"actuation:{keys[0]}", group, names.index(keys[0]))]
+    if group == "gravity":
+        axes = AXES if keys is None else keys
+        if any(a not in AXES for a in axes) or (keys is not None and len(keys) != 1):
+            raise OptionError(f"gravity's axes are x, y, z (got {':'.join(keys)!r})", field="wrt")
+        return [Parameter(f"gravity:{a}", group, 0, AXES.index(a)) for a in axes]
+    if group == "dead":
+        n_vertebrae = trunk.frames.vertebra.size
+        if keys is None:
+            vertebrae, components = range(1, n_vertebrae), WRENCH
+        else:
+            try:
+                vertebra = int(keys[0])
+            except ValueError:
+                raise OptionError(f"dead loads are named dead:<vertebra>[:<component>], got {keys!r}",
+                                  field="wrt") from None
+            if not -n_vertebrae <= vertebra < n_vertebrae or len(keys) > 2:
+                raise OptionError(f"vertebra {keys[0]} out of range (0..{n_vertebrae - 1}, or negative from the end)",
+                                  field="wrt")
+            vertebrae = [vertebra % n_vertebrae]
+            components = WRENCH if len(keys) == 1 else keys[1:]
+            if any(c not in WRENCH for c in components):
+                raise OptionError(f"a dead load's components are {', '.join(WRENCH)}", field="wrt")
+        return [Parameter(f"dead:{v}:{c}", group, int(trunk.frames.vertebra[v]), WRENCH.index(c))
+                for v in vertebrae for c in components]
+    if group in ("cable_stiffness", "pretension", "hole_radius", "hole_angle"):
+        tendon_only = group in ("cable_stiffness", "pretension")
+        if keys is None:
+            return [Parameter(f"{group}:{n}", group, i) for i, n in enumerate(cables)
+                    if tendons[i] or not tendon_only]
+        return [Parameter(f"{group}:{keys[0]}", group, cable(":".join(keys), tendon_only))]
+    # stiffness_scale
+    n_segments = len(trunk.scene.segments)
+    scalable = _scalable_segments(model)
+    if keys is None:
+        return [Parameter(f"stiffness_scale:{s}", group, s) for s in range(n_segments) if scalable[s]]
+    try:
+        segment = int(keys[0])
+    except ValueError:
+        raise OptionError(f"stiffness scales are named stiffness_scale:<segment>, got {keys!r}", field="wrt") from None
+    if not -n_segments <= segment < n_segments or len(keys) != 1:
+        raise OptionError(f"segment {keys[0]} out of range (0..{n_segments - 1})", field="wrt")
+    segment %= n_segments
+    if not scalable[segment]:
+        raise OptionError(f"segment {segment} has cavities: a stiffness scale applies to segments without cavities "
+                          "only", field="wrt")
+    return [Parameter(f"stiffness_scale:{segment}", group, segment)]
+
+
+def _scalable_segments(model) -> np.ndarray:
+    """Which segments take a stiffness scale (those whose links serve no chamber's cavity)."""
+    trunk = model.compiled
+    current = model.parameters.stiffness_scale
+    scalable = np.zeros(current.size, bool)
+    for s in range(current.size):
+        if not np.any(trunk.links.segment == s):
+            continue
+        scale = current.copy()
+        scale[s] *= 2.0
+        try:
+            reparameterise(trunk, model.parameters.replace(stiffness_scale=scale))
+        except OptionError:
+            continue
+        scalable[s] = True
+    return scalable
+
+
+# ------------------------------------------------------------------ the sensitivities
+def sensitivities(model, state, actuation=None, *, wrt: Iterable[str] = PARAMETER_GROUPS,
+                  outputs: Iterable[str] = OUTPUTS, method: str = "auto") -> Sensitivities:
+    """Sensitivities at the equilibrium ``state`` (a :class:`~vertebra.solver.state.State` or a
+    solve's result, whose actuation is then the default) of ``model`` under its current
+    parameters (module docstring). ``wrt``: parameter groups or names (:func:`parameters_of`);
+    ``outputs``: names among :data:`OUTPUTS`; ``method``: "direct" (gives ``dq``), "adjoint"
+    (no ``dq``) or "auto" (adjoint when there are fewer output rows than parameters). The state
+    must be an equilibrium (its residual is not checked: a state off equilibrium gives the
+    derivatives of nothing in particular); a singular tangent (a limit point) is an error."""
+    import time
+
+    start = time.perf_counter()
+    if hasattr(state, "state") and hasattr(state, "actuation"):        # a StaticResult
+        if actuation is None:
+            actuation = state.actuation
+        state = state.state
+    values = model.actuation(actuation)
+    outputs = (outputs,) if isinstance(outputs, str) else tuple(outputs)
+    unknown = [name for name in outputs if name not in OUTPUTS]
+    if unknown:
+        raise OptionError(f"unknown output(s) {', '.join(map(repr, unknown))} (outputs: {', '.join(OUTPUTS)})",
+                          field="outputs")
+    if method not in ("auto", "direct", "adjoint"):
+        raise OptionError(f"method must be 'auto', 'direct' or 'adjoint', not {method!r}", field="method")
+    columns = parameters_of(model, wrt)
+    trunk = model.trunk
+    ev = evaluate(trunk, state, model.loads(values, 1.0))
+    lin = outputs_module.linearise(trunk, state, values, model.loads, previous=ev)
+    _check_factor(trunk, ev, lin)
+    local = _Local(model, trunk, state, values, ev, lin)
+    forces, explicit, differenced = local.explicit(columns, outputs)          # −∂g/∂p, ∂y/∂p
+    jacobians = {name: local.output_jacobian(name) for name in outputs}      # ∂y/∂q
+    rows = sum(j.shape[0] for j in jacobians.values())
+    if method == "auto":
+        method = "adjoint" if rows < len(columns) else "direct"
+    timings = {"explicit_s": time.perf_counter() - start}
+    dq = None
+    if method == "direct":
+        dq = lin.solve(np.asfortranarray(forces)) if columns else np.zeros((trunk.n_dof, 0))
+        result = {name: jacobians[name] @ dq + explicit[name] for name in outputs}
+    else:
+        stacked = np.vstack([jacobians[name] for name in outputs]) if outputs else np.zeros((0, trunk.n_dof))
+        adjoint = transpose_solve(lin.factor, np.asfortranarray(stacked.T)) if rows else stacked.T
+        total = adjoint.T @ forces
+        result, at = {}, 0
+        for name in outputs:
+            n = jacobians[name].shape[0]
+            result[name] = total[at:at + n] + explicit[name]
+            at += n
+    timings["total_s"] = time.perf_counter() - start
+    return Sensitivities(tuple(c.name for c in columns), result, dq, method, tuple(trunk.effectors.names),
+                         tuple(differenced), timings)
+
+
+def _check_factor(trunk, ev: Evaluation, lin) -> None:
+    """Refuse a state whose tangent is singular: the linearisation then factors a shifted tangent,
+    and the equilibrium has no derivative there (a limit point, or a trunk held by nothing)."""
+    matrix = tangent(trunk, ev)
+    if matrix.factor(0.0, symmetric=not trunk.loads.has_dead_moments)[0] is None:
+        raise ConvergenceError("the tangent stiffness is singular at this state: the equilibrium has no "
+                               "sensitivities there (a limit point)")
+
+
+def transpose_solve(factor, rhs: np.ndarray) -> np.ndarray:
+    """``K⁻ᵀ rhs`` with the factor of ``K`` (a banded Cholesky or LU, possibly with the tendons'
+    symmetric low-rank term beside the band: ``(A + U D Uᵀ)ᵀ = Aᵀ + U D Uᵀ``, Woodbury with
+    ``Aᵀ``)."""
+    if isinstance(factor, LowRankFactor):
+        y = transpose_solve(factor.band, rhs)
+        Zt = factor.Z if factor.band.pivots is None else transpose_solve(factor.band, factor.U)
+        return y - Zt @ lu_solve(factor.capacitance, factor.U.T @ y, trans=1, check_finite=False)
+    if not isinstance(factor, BandedFactor):
+        raise TypeError(f"cannot solve with the transpose of a {type(factor).__name__}")
+    if factor.pivots is None:                                   # Cholesky: symmetric
+        return factor.solve(rhs)
+    x, info = dgbtrs(factor.data, factor.kd, factor.kd, rhs, factor.pivots, trans=1)
+    if info:
+        raise np.linalg.LinAlgError(f"banded transposed solve failed (LAPACK info {info})")
+    return x
+
+
+class _Local:
+    """The explicit derivatives at the fixed equilibrium state."""
+
+    def __init__(self, model, trunk, state, values, ev: Evaluation, lin):
+        self.model, self.trunk, self.state, self.values, self.ev, self.lin = model, trunk, state, values, ev, lin
+        actuators = trunk.actuators
+        self.n_cables, self.n_chambers = actuators.n_cables, actuators.n_chambers
+        self.taut = np.zeros(self.n_cables, bool)            # stroke-driven tendons under tension
+        self.elongation = np.zeros(self.n_cables)
+        tendons = ev.load.tendons
+        if tendons is not None:
+            self.elongation[tendons.cables] = ev.parts.elongation
+            self.taut[tendons.cables] = ev.parts.elongation > 0.0
+        self.stiffness = actuators.cable_stiffness
+
+    # -------------------------------------------------------------- ∂y/∂q
+    def output_jacobian(self, name: str) -> np.ndarray:
+        trunk, lin = self.trunk, self.lin
+        n_frames, n_dof = trunk.frames.count, trunk.n_dof
+        if name in ("frame_positions", "frame_rotations"):
+            jacobian = np.zeros((n_frames, 3, n_frames - 1, 6))
+            shift = 0 if name == "frame_positions" else 3
+            free = np.arange(1, n_frames)
+            jacobian[free, :, free - 1, shift:shift + 3] = np.eye(3)
+            return jacobian.reshape(3 * n_frames, n_dof)
+        if name == "effector_positions":
+            return lin.effector_jacobian
+        strokes = lin.actuator_jacobian[:self.n_cables]
+        if name == "cable_strokes":
+            return strokes
+        if name == "cable_tensions":                      # taut tendons: τ = k (L − L0 + s) + T0
+            return (self.stiffness * self.taut)[:, None] * strokes
+        return lin.actuator_jacobian[self.n_cables:]      # chamber_volumes: ∂ΔV/∂q
+
+    # -------------------------------------------------------------- ∂g/∂p and ∂y/∂p
+    def explicit(self, columns: list[Parameter], names: tuple) -> tuple[np.ndarray, dict, list]:
+        """``−∂g/∂p`` on the free frames (n_dof, P), ``∂y/∂p`` per output and the parameters
+        whose terms are differences."""
+        trunk, lin, ev = self.trunk, self.lin, self.ev
+        n_frames, n_dof, P = trunk.frames.count, trunk.n_dof, len(columns)
+        sizes = {"frame_positions": 3 * n_frames, "frame_rotations": 3 * n_frames,
+                 "effector_positions": 3 * len(trunk.effectors.names), "cable_tensions": self.n_cables,
+                 "cable_strokes": self.n_cables, "chamber_volumes": self.n_chambers}
+        explicit = {name: np.zeros((sizes[name], P)) for name in names}
+        tensions = explicit.get("cable_tensions")
+        forces = np.zeros((n_frames, 6, P))                          # −∂g/∂p on every frame
+        free = forces[1:].reshape(n_dof, P)
+        strokes = lin.actuator_jacobian[:self.n_cables]              # ∂L/∂q (n_cables, n_dof)
+        differenced = []
+        lever = None
+        link_forces = None
+        for j, column in enumerate(columns):
+            group, i = column.group, column.index
+            if group == "actuation":
+                free[:, j] = lin.actuator_forces[:, i]
+                if tensions is not None and i < self.n_cables:
+                    tensions[i, j] = self.stiffness[i] * self.taut[i] if trunk.actuators.stroke_driven[i] else 1.0
+                if i >= self.n_cables and "chamber_volumes" in explicit:
+                    explicit["chamber_volumes"][:, j] = self._pressure_term(i - self.n_cables)
+            elif group == "gravity":
+                if lever is None:
+                    lever = self._lever()
+                unit = np.eye(3)[column.component]
+                forces[:, :3, j] = trunk.frames.mass[:, None] * unit           # −∂(−m g)/∂g
+                forces[:, 3:, j] = lever @ hat(unit)                           # −∂(−(R s) × g)/∂g
+            elif group == "dead":
+                forces[i, column.component, j] = 1.0
+            elif group == "cable_stiffness":                 # ∂τ/∂k = e − T0/k while taut
+                rate = (self.elongation[i] - trunk.actuators.pretension[i] / self.stiffness[i]) * self.taut[i]
+                free[:, j] = -rate * strokes[i]
+                if tensions is not None:
+                    tensions[i, j] = rate
+            elif group == "pretension":                      # ∂τ/∂T0 = 1 while taut
+                free[:, j] = -float(self.taut[i]) * strokes[i]
+                if tensions is not None:
+                    tensions[i, j] = float(self.taut[i])
+            elif group == "stiffness_scale":
+                if link_forces is None:
+                    link_forces = self._link_forces()
+                forces[:, :, j] = -link_forces(i) / self.model.parameters.stiffness_scale[i]
+            else:                                            # hole_radius, hole_angle
+                gradient, terms = self._hole_difference(column)
+                free[:, j] = -gradient
+                for name in ("cable_tensions", "cable_strokes"):
+                    if name in explicit:
+                        explicit[name][:, j] = terms[name]
+                differenced.append(column.name)
+        if "chamber_volumes" in explicit and trunk.links.fitted:     # (linear entries: exact)
+            differenced.extend(c.name for c in columns if c.group == "actuation" and c.index >= self.n_cables)
+        return np.ascontiguousarray(free), explicit, differenced
+
+    def _lever(self) -> np.ndarray:
+        """``R s`` (n_frames, 3): every frame's first mass moment in world axes."""
+        ev = self.ev
+        if ev.lever is not None:
+            return ev.lever
+        record = self.state.carried_strains()
+        rotations = record.chain.rotations if record is not None else qmatrix(self.state.quaternions)
+        return (rotations @ self.trunk.frames.moment[:, :, None])[:, :, 0]
+
+    def _link_forces(self):
+        """A function of a segment: the gradient (n_frames, 6) of its links' energies."""
+        trunk, g = self.trunk, self.ev.link_gradient
+        n_frames = trunk.frames.count
+
+        def of(segment: int) -> np.ndarray:
+            mine = (trunk.links.segment == segment)[:, None]
+            out = np.zeros((n_frames, 6))
+            out[:-1] += np.where(mine, g[:, :6], 0.0)
+            out[1:] += np.where(mine, g[:, 6:], 0.0)
+            return out
+
+        return of
+
+    def _pressure_term(self, chamber: int) -> np.ndarray:
+        """``∂ΔV/∂p`` of every chamber per unit pressure of ``chamber`` at the fixed strains: a
+        central difference (exact for linear entries, whose growth is linear in the pressure)."""
+        trunk = self.trunk
+        pressures = self.values[self.n_cables:]
+        upper = trunk.actuators.bounds[1][self.n_cables + chamber]
+        scale = max(abs(pressures[chamber]), abs(upper) if np.isfinite(upper) else 0.0, PRESSURE_FLOOR)
+        h = GEOMETRIC_STEP * scale
+        links = self.ev.links
+        growth = []
+        for sign in (1.0, -1.0):
+            p = pressures.copy()
+            p[chamber] += sign * h
+            growth.append(volume_growth(trunk, links, p, tuple(e.prepare(p) for e in trunk.links.energies)))
+        return (growth[0] - growth[1]) / (2.0 * h)
+
+    def _hole_difference(self, column: Parameter) -> tuple[np.ndarray, dict]:
+        """Central differences at the fixed state of the gradient on the free frames, the cable
+        tensions and the strokes ``L − L0`` in one hole parameter of one cable."""
+        model, trunk, state = self.model, self.trunk, self.state
+        base = model.parameters
+        array = np.array(getattr(base, column.group))
+        if column.group == "hole_radius":
+            h = GEOMETRIC_STEP * max(abs(array[column.index]), 1e-3 * trunk.frames.length_scale)
+        else:
+            h = GEOMETRIC_STEP
+        sides = []
+        for sign in (1.0, -1.0):
+            changed = array.copy()
+            changed[column.index] += sign * h
+            moved = reparameterise(model.compiled, base.replace(**{column.group: changed}))
+            ev = evaluate(moved, state, LoadCase.of(moved, self.values, 1.0))
+            lengths = outputs_module.cable_lengths(moved, state)
+            sides.append((ev.gradient[1:].reshape(-1), cable_tensions(moved, ev), lengths - moved.rest_cable_lengths))
+        (g_plus, t_plus, s_plus), (g_minus, t_minus, s_minus) = sides
+        return (g_plus - g_minus) / (2.0 * h), {"cable_tensions": (t_plus - t_minus) / (2.0 * h),
+                                                 "cable_strokes": (s_plus - s_minus) / (2.0 * h)}
