@@ -28,10 +28,10 @@ ROUNDING = 1e3 * np.finfo(float).eps
 E, NU, R_ROD, LINK = 54e9, 0.3, 0.0007, 0.02
 
 
-def rod(count=5, elements=2, density=0.0, mass=0.0):
+def rod(count=5, elements=2, density=0.0, mass=0.0, center=(0.0, 0.0, 0.0)):
     return {"type": "beam", "count": count, "length": LINK, "elements": elements, "youngs_modulus": E,
             "poisson_ratio": NU, "section": {"shape": "circle", "radius": R_ROD}, "density": density,
-            "vertebra": {"mass": mass}}
+            "vertebra": {"mass": mass, "center_of_mass": list(center)}}
 
 
 def outputs_at(model, state, actuation):
@@ -117,9 +117,11 @@ def check(model, result, steps, *, outputs=solver.sensitivity.OUTPUTS):
 
 # ------------------------------------------------------------------ beams
 def test_beam_cantilever_with_a_tip_load_gravity_and_a_dead_moment():
-    # two beam segments with mass under gravity, a tip force and a dead moment (the tangent is
+    # two beam segments with mass under gravity (vertebrae whose centres of mass lie off the axis:
+    # the weight's moments turn with them), a tip force and a dead moment (the tangent is
     # unsymmetric: LU, and the adjoint solves with its transpose)
-    scene = {"segment": [rod(3, density=7800.0, mass=0.002), rod(2, elements=3, density=2700.0, mass=0.001)],
+    scene = {"segment": [rod(3, density=7800.0, mass=0.002, center=(0.004, -0.002, 0.001)),
+                         rod(2, elements=3, density=2700.0, mass=0.001, center=(0.0, 0.003, 0.0))],
              "gravity": {"vector": [0.0, 0.0, -9.81]},
              "load": [{"vertebra": -1, "force": [0.3, -0.1, 0.0], "moment": [0.0, 0.004, 0.001]}],
              "effector": [{"name": "tip", "vertebra": -1, "offset": [0.0, 0.005, 0.0]},
