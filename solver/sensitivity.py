@@ -11,16 +11,16 @@ row) and gives ``dy/dp = −Λᵀ ∂g/∂p + ∂y/∂p`` without ``dq``. ``K`` 
 makes (the tendons' dense rank-one terms beside the band included); it is unsymmetric when dead
 moments act, and the adjoint then solves with its transpose.
 
-The explicit derivatives ``∂g/∂p`` and ``∂y/∂p`` at the fixed state are analytic for the
-actuation (the actuator forces), gravity (masses and lever arms), dead loads (a unit wrench at
-a frame), the tendons' spring rates and pretensions (taut tendons: ``∂τ/∂k = e − T₀/k``,
-``∂τ/∂T₀ = 1``, times ``∂L/∂q``) and the stiffness scales (a segment's links' gradient divided by
-its scale). The hole radii and angles move the cables' routing, their rest lengths and so the
-tendons' elongations: their explicit terms are central differences of the potential's gradient
-(and of the cable strokes and tensions) at the fixed state, ``O(h²)`` with
-``h = GEOMETRIC_STEP`` × the scale of the parameter (relative error about 1e-10); so is a
-chamber's own pressure term of its volume growth, ``−∂²ψ/∂p²`` (exact for linear entries, where
-the growth is linear in the pressure). No parameter needs a new solve. See docs/sensitivities.md.
+The explicit derivatives ``∂g/∂p`` and ``∂y/∂p`` at the fixed state are analytic: the actuation
+(the actuator forces), gravity (masses and lever arms), dead loads (a unit wrench at a frame),
+the tendons' spring rates and pretensions (taut tendons: ``∂τ/∂k = e − T₀/k``, ``∂τ/∂T₀ = 1``,
+times ``∂L/∂q``), the stiffness scales (a segment's links' gradient divided by its scale) and the
+hole radii and angles (the pieces' length gradients moved with their holes, and the tendons'
+elongations through ``L`` and ``L0``). One term is a central difference at the fixed state: a
+chamber's own pressure term of its volume growth, ``−∂²ψ/∂p²`` (exact to rounding for linear
+entries, where the growth is linear in the pressure; ``O(h²)`` with ``h = GEOMETRIC_STEP`` × the
+pressure scale, about 1e-10 relative, for fitted entries). No parameter needs a new solve. See
+docs/sensitivities.md.
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ from vertebra.core.errors import ConvergenceError, OptionError
 from vertebra.core.lie import hat, qmatrix
 from vertebra.solver import outputs as outputs_module
 from vertebra.solver.banded import BandedFactor, LowRankFactor
-from vertebra.solver.energy import Evaluation, LoadCase, cable_tensions, evaluate, tangent, volume_growth
+from vertebra.solver.energy import Evaluation, evaluate, tangent, volume_growth
 from vertebra.solver.parameters import reparameterise
 
 PARAMETER_GROUPS = ("actuation", "gravity", "dead", "cable_stiffness", "pretension", "stiffness_scale",
@@ -315,6 +315,7 @@ class _Local:
             self.elongation[tendons.cables] = ev.parts.elongation
             self.taut[tendons.cables] = ev.parts.elongation > 0.0
         self.stiffness = actuators.cable_stiffness
+        self._routing = None
 
     # -------------------------------------------------------------- ∂y/∂q
     def output_jacobian(self, name: str) -> np.ndarray:
@@ -339,7 +340,7 @@ class _Local:
     def explicit(self, columns: list[Parameter], names: tuple) -> tuple[np.ndarray, dict, list]:
         """``−∂g/∂p`` on the free frames (n_dof, P), ``∂y/∂p`` per output and the parameters
         whose terms are differences."""
-        trunk, lin, ev = self.trunk, self.lin, self.ev
+        trunk, lin = self.trunk, self.lin
         n_frames, n_dof, P = trunk.frames.count, trunk.n_dof, len(columns)
         sizes = {"frame_positions": 3 * n_frames, "frame_rotations": 3 * n_frames,
                  "effector_positions": 3 * len(trunk.effectors.names), "cable_tensions": self.n_cables,
@@ -382,12 +383,11 @@ class _Local:
                     link_forces = self._link_forces()
                 forces[:, :, j] = -link_forces(i) / self.model.parameters.stiffness_scale[i]
             else:                                            # hole_radius, hole_angle
-                gradient, terms = self._hole_difference(column)
+                gradient, terms = self._hole_derivative(column)
                 free[:, j] = -gradient
                 for name in ("cable_tensions", "cable_strokes"):
                     if name in explicit:
                         explicit[name][:, j] = terms[name]
-                differenced.append(column.name)
         if "chamber_volumes" in explicit and trunk.links.fitted:     # (linear entries: exact)
             differenced.extend(c.name for c in columns if c.group == "actuation" and c.index >= self.n_cables)
         return np.ascontiguousarray(free), explicit, differenced
@@ -431,24 +431,49 @@ class _Local:
             growth.append(volume_growth(trunk, links, p, tuple(e.prepare(p) for e in trunk.links.energies)))
         return (growth[0] - growth[1]) / (2.0 * h)
 
-    def _hole_difference(self, column: Parameter) -> tuple[np.ndarray, dict]:
-        """Central differences at the fixed state of the gradient on the free frames, the cable
-        tensions and the strokes ``L − L0`` in one hole parameter of one cable."""
-        model, trunk, state = self.model, self.trunk, self.state
-        base = model.parameters
-        array = np.array(getattr(base, column.group))
+    def _hole_derivative(self, column: Parameter) -> tuple[np.ndarray, dict]:
+        """``−∂g/∂p`` on the free frames and the cable tensions' and strokes'
+        explicit terms for one hole parameter of one cable. A change ``δh`` of the cable's hole
+        offset (its vertebrae's axes) moves each piece's ends by ``δs = R δh``; with
+        ``d = P_b − P_a``, ``u = d/|d|`` and ``δu = (I − u uᵀ) δd / |d|`` the piece's length
+        gradient ``[−u; −s_a × u; u; s_b × u]`` changes by
+        ``[−δu; −δs_a × u − s_a × δu; δu; δs_b × u + s_b × δu]``, its length by ``u · δd`` (at the
+        rest state likewise, for ``L0``), and a taut tendon's tension by ``k (δL − δL0)``."""
+        trunk, state, ev = self.trunk, self.state, self.ev
+        cables = trunk.cables
+        c = column.index
+        radius, angle = self.model.parameters.hole_radius[c], self.model.parameters.hole_angle[c]
         if column.group == "hole_radius":
-            h = GEOMETRIC_STEP * max(abs(array[column.index]), 1e-3 * trunk.frames.length_scale)
+            dh = np.array([np.cos(angle), np.sin(angle), 0.0])
         else:
-            h = GEOMETRIC_STEP
-        sides = []
-        for sign in (1.0, -1.0):
-            changed = array.copy()
-            changed[column.index] += sign * h
-            moved = reparameterise(model.compiled, base.replace(**{column.group: changed}))
-            ev = evaluate(moved, state, LoadCase.of(moved, self.values, 1.0))
-            lengths = outputs_module.cable_lengths(moved, state)
-            sides.append((ev.gradient[1:].reshape(-1), cable_tensions(moved, ev), lengths - moved.rest_cable_lengths))
-        (g_plus, t_plus, s_plus), (g_minus, t_minus, s_minus) = sides
-        return (g_plus - g_minus) / (2.0 * h), {"cable_tensions": (t_plus - t_minus) / (2.0 * h),
-                                                 "cable_strokes": (s_plus - s_minus) / (2.0 * h)}
+            dh = radius * np.array([-np.sin(angle), np.cos(angle), 0.0])
+        mine = (cables.owner == c)[:, None, None]
+        if self._routing is None:            # the pieces and their ends' rotations, here and at rest
+            record = state.carried_strains()
+            rotations = record.chain.rotations if record is not None else qmatrix(state.quaternions)
+            rest = trunk.rest_state
+            rest_rotations = qmatrix(rest.quaternions)
+            self._routing = (cables.pieces(state.positions, rotations), rotations.take(cables.ends, 0),
+                             cables.pieces(rest.positions, rest_rotations), rest_rotations.take(cables.ends, 0))
+        pieces, ends, rest_pieces, rest_ends = self._routing
+        ds = (ends @ dh).reshape(-1, 2, 3) * mine
+        ds_a, ds_b = ds[:, 0], ds[:, 1]
+        dd = ds_b - ds_a
+        rest_ds = (rest_ends @ dh).reshape(-1, 2, 3) * mine
+        rest_dd = rest_ds[:, 1] - rest_ds[:, 0]
+        u = pieces.u
+        du = (dd - u * np.einsum("ij,ij->i", u, dd)[:, None]) / pieces.length[:, None]
+        s_a, s_b = pieces.offsets[:, :3], pieces.offsets[:, 3:]
+        d_unit = np.concatenate([-du, -np.cross(ds_a, u) - np.cross(s_a, du),
+                                 du, np.cross(ds_b, u) + np.cross(s_b, du)], axis=1)
+        d_length = np.bincount(cables.owner, np.einsum("ij,ij->i", u, dd), minlength=cables.n_cables)
+        d_rest = np.bincount(cables.owner, np.einsum("ij,ij->i", rest_pieces.u, rest_dd), minlength=cables.n_cables)
+        d_stroke = d_length - d_rest
+        d_tension = self.stiffness * self.taut * d_stroke
+        gradient = np.zeros((trunk.frames.count, 6))
+        piece_tension = ev.parts.piece_tension
+        if piece_tension is not None:
+            gradient += cables.to_frames @ (piece_tension[:, None] * d_unit).reshape(-1, 6)
+        if self.taut.any():
+            gradient[1:] += (d_tension @ self.lin.actuator_jacobian[:self.n_cables]).reshape(-1, 6)
+        return gradient[1:].reshape(-1), {"cable_tensions": d_tension, "cable_strokes": d_stroke}

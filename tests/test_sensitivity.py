@@ -168,8 +168,7 @@ def test_tension_driven_cables_and_their_holes():
              "hole_radius:t1": STEP * 0.01, "hole_angle:t1": STEP, "hole_radius:t2": STEP * 0.01,
              "hole_angle:t2": STEP, "hole_angle:t3": STEP, "dead:6:fy": STEP}
     sens, worst = check(model, result, steps)
-    assert set(sens.differenced) == {"hole_radius:t1", "hole_angle:t1", "hole_radius:t2", "hole_angle:t2",
-                                     "hole_angle:t3"}
+    assert sens.differenced == ()          # the holes' terms are analytic
     # a tension-driven cable's tension is its input
     assert sens["cable_tensions"][:, :3] == pytest.approx(np.eye(3))
 
