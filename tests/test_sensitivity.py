@@ -259,3 +259,15 @@ def test_names_groups_and_errors():
         model.sensitivities(result, outputs=("volumes",))
     with pytest.raises(OptionError):
         model.sensitivities(result, wrt=("actuation:a", "actuation"))
+
+
+def test_gravity_sensitivity_of_a_trunk_without_gravity():
+    # a scene without gravity still has masses: the derivative with respect to gravity comes from
+    # the state's lever arms (none were evaluated for the potential)
+    scene = {"segment": [rod(4, density=7800.0, mass=0.003, center=(0.003, 0.002, 0.0))],
+             "load": [{"vertebra": -1, "force": [0.2, 0.0, 0.0]}],
+             "effector": [{"name": "tip", "vertebra": -1}]}
+    model = solver.build_model(solver.parse_scene(scene))
+    result = model.solve(tolerance=1e-12)
+    check(model, result, {"gravity:x": STEP * 9.81, "gravity:y": STEP * 9.81, "gravity:z": STEP * 9.81},
+          outputs=("frame_positions", "frame_rotations", "effector_positions"))
