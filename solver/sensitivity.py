@@ -18,13 +18,14 @@ times ``∂L/∂q``), the stiffness scales (a segment's links' gradient divided 
 hole radii and angles (the pieces' length gradients moved with their holes, and the tendons'
 elongations through ``L`` and ``L0``). One term is a central difference at the fixed state: a
 chamber's own pressure term of its volume growth, ``−∂²ψ/∂p²`` (exact to rounding for linear
-entries, where the growth is linear in the pressure; ``O(h²)`` with ``h = GEOMETRIC_STEP`` × the
+entries, where the growth is linear in the pressure; ``O(h²)`` with ``h = PRESSURE_STEP`` × the
 pressure scale, about 1e-10 relative, for fitted entries). No parameter needs a new solve. See
 docs/sensitivities.md.
 """
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
@@ -45,7 +46,7 @@ OUTPUTS = ("frame_positions", "frame_rotations", "effector_positions", "cable_te
            "chamber_volumes")
 AXES = ("x", "y", "z")
 WRENCH = ("fx", "fy", "fz", "mx", "my", "mz")
-GEOMETRIC_STEP = 6e-6        # ≈ ε^(1/3): the central difference's truncation and rounding balance
+PRESSURE_STEP = 6e-6         # ≈ ε^(1/3): the central difference's truncation and rounding balance
 PRESSURE_FLOOR = 1e3         # Pa: the smallest pressure scale of a chamber's difference step
 
 
@@ -70,8 +71,8 @@ class Sensitivities:
     ``frame_rotations`` (3 rows per frame, the base included; a rotation's rows are the world
     rotation increment ``dφ``), ``effector_positions`` (3 rows per effector), ``cable_tensions``,
     ``cable_strokes`` (``L − L0``) and ``chamber_volumes`` (volume growths), one row each.
-    ``differenced``: the parameters whose explicit terms are central differences at the fixed
-    state (module docstring)."""
+    ``differenced``: the parameters with an explicit term that is a central difference at the
+    fixed state (a fitted chamber's own pressure term of its volume growth; module docstring)."""
 
     parameters: tuple
     outputs: dict
@@ -229,8 +230,6 @@ def sensitivities(model, state, actuation=None, *, wrt: Iterable[str] = PARAMETE
     (no ``dq``) or "auto" (adjoint when there are fewer output rows than parameters). The state
     must be an equilibrium (its residual is not checked: a state off equilibrium gives the
     derivatives of nothing in particular); a singular tangent (a limit point) is an error."""
-    import time
-
     start = time.perf_counter()
     if hasattr(state, "state") and hasattr(state, "actuation"):        # a StaticResult
         if actuation is None:
@@ -422,7 +421,7 @@ class _Local:
         pressures = self.values[self.n_cables:]
         upper = trunk.actuators.bounds[1][self.n_cables + chamber]
         scale = max(abs(pressures[chamber]), abs(upper) if np.isfinite(upper) else 0.0, PRESSURE_FLOOR)
-        h = GEOMETRIC_STEP * scale
+        h = PRESSURE_STEP * scale
         links = self.ev.links
         growth = []
         for sign in (1.0, -1.0):
