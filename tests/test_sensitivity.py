@@ -173,9 +173,11 @@ def test_tension_driven_cables_and_their_holes():
     assert sens["cable_tensions"][:, :3] == pytest.approx(np.eye(3))
 
 
-def test_stroke_driven_tendons_slack_and_taut():
+@pytest.mark.parametrize("moment", [False, True], ids=["symmetric", "dead-moment"])
+def test_stroke_driven_tendons_slack_and_taut(moment):
     # t1, t2 taut (t2 with its pretension), t3 slack (its stroke pays out more than its elongation),
-    # t4 tension-driven
+    # t4 tension-driven; with a dead moment the band is factored by LU and the adjoint solves with
+    # the transpose of the band and of the tendons' Woodbury update
     cables = [{"name": "t1", "radius": 0.01, "angle_deg": 0.0, "to": 6, "stroke": 0.002, "stiffness": 2000.0,
                "pretension": 0.5},
               {"name": "t2", "radius": 0.009, "angle_deg": 130.0, "to": 4, "stroke": 0.0005, "stiffness": 800.0,
@@ -183,7 +185,11 @@ def test_stroke_driven_tendons_slack_and_taut():
               {"name": "t3", "radius": 0.01, "angle_deg": 250.0, "to": 6, "stroke": -0.004, "stiffness": 1500.0,
                "pretension": 0.2},
               {"name": "t4", "radius": 0.007, "angle_deg": 300.0, "to": 5, "tension": 0.8}]
-    model = solver.build_model(solver.parse_scene(tendon_scene(cables)))
+    scene = tendon_scene(cables)
+    if moment:
+        scene["load"] = [{"vertebra": -1, "force": [0.0, 0.0, 0.0], "moment": [0.002, -0.003, 0.001]}]
+    model = solver.build_model(solver.parse_scene(scene))
+    assert model.has_dead_moments == moment
     result = model.solve(tolerance=1e-12)
     tensions = model.cable_tensions(result.state)
     assert tensions[0] > 0.5 and tensions[1] > 0.5 and tensions[2] == 0.0
