@@ -71,7 +71,7 @@ def differences(model, result, column, h):
         elif group == "dead":
             vertebra, component = key.split(":")
             dead = np.array(model.parameters.dead)
-            dead[model.vertebra_frames[int(vertebra)], ("fx", "fy", "fz", "mx", "my", "mz").index(component)] += sign * h
+            dead[model.vertebra_frames[int(vertebra)], solver.sensitivity.WRENCH.index(component)] += sign * h
             changes["dead"] = dead
         elif group == "stiffness_scale":
             changes[group] = {int(key): model.parameters.stiffness_scale[int(key)] + sign * h}
@@ -125,7 +125,8 @@ def test_beam_cantilever_with_a_tip_load_gravity_and_a_dead_moment():
              "gravity": {"vector": [0.0, 0.0, -9.81]},
              "load": [{"vertebra": -1, "force": [0.3, -0.1, 0.0], "moment": [0.0, 0.004, 0.001]}],
              "effector": [{"name": "tip", "vertebra": -1, "offset": [0.0, 0.005, 0.0]},
-                          {"name": "mid", "vertebra": 2}]}
+                          {"name": "mid", "vertebra": 2},
+                          {"name": "heading", "vertebra": -1, "axis": [1.0, 0.0, 0.0]}]}
     model = solver.build_model(solver.parse_scene(scene))
     assert model.has_dead_moments
     result = model.solve(tolerance=1e-12)
