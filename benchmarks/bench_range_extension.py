@@ -16,7 +16,8 @@ and the full nonlinear FE, at loads that carry their segments out of the sampled
 
 Run: ``OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 .venv/bin/python -m benchmarks.bench_range_extension
 [--materials neo_hookean svk] [--random 200] [--entries DIR]``; writes
-``benchmarks/results/range_extension.json``.
+``benchmarks/results/range_extension.json`` (``--suffix`` to run the parts apart:
+``--random 0`` for the sweeps alone, ``--no-sweeps`` for the random trunks alone).
 """
 
 from __future__ import annotations
@@ -179,11 +180,12 @@ def main(argv=None) -> int:
     parser.add_argument("--no-sweeps", action="store_true", help="skip the sweeps against the full FE")
     parser.add_argument("--entries", type=Path, default=Path(tempfile.gettempdir()) / "vertebra-range-extension")
     parser.add_argument("--out", type=Path, default=RESULTS)
+    parser.add_argument("--suffix", default="", help="appended to the result's name (parts run apart)")
     args = parser.parse_args(argv)
     args.entries.mkdir(parents=True, exist_ok=True)
     path = args.entries / "entries.h5"
     document = {"meta": {"date": now(), "version": __version__, "load": loadavg()}, "sweeps": [], "random": None}
-    out = args.out / "range_extension.json"
+    out = args.out / f"range_extension{args.suffix}.json"
     entries = {}
     for material in args.materials:
         case = case_of(material, args.directions[0] if args.directions else "normal")

@@ -171,38 +171,49 @@ class EnergyRange:
         values[:, 8:] = p
         return values
 
-    def gauge(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(ρ (n,), active (n,))`` of strains ``s`` (n, 6): the gauge of the strain box — the
-        smallest ``ρ`` with ``s/ρ`` inside the box's strain bounds (``ρ ≤ 1``: the strain is
-        inside; rest is the box's centre of scaling) — and the group (:data:`GROUPS`) that sets
-        it. Positively homogeneous of degree one in ``s``."""
+    def ratios(self, s: np.ndarray) -> np.ndarray:
+        """(n, 4) each strain group's coordinate over its bound on its side (≤ 1: inside the
+        group's bounds) of strains ``s`` (n, 6)."""
         ratio = np.empty((s.shape[0], 4))
         upper, lower = self._gauge_bounds
         ratio[:, 0] = np.hypot(s[:, 0], s[:, 1]) / upper[0]
         ratio[:, 2] = np.hypot(s[:, 3], s[:, 4]) / upper[2]
         for group, k in ((1, 2), (3, 5)):
             ratio[:, group] = np.where(s[:, k] >= 0.0, s[:, k] / upper[group], s[:, k] / lower[group])
-        active = np.argmax(ratio, axis=1)
-        return ratio[np.arange(s.shape[0]), active], active
+        return ratio
 
-    def gauge_derivatives(self, s: np.ndarray, active: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(∇ρ (n, 6), ∇²ρ (n, 6, 6))`` of :meth:`gauge` at strains ``s`` away from rest, its
-        ``active`` group held (the gauge is smooth where one group sets it)."""
+    def gauge(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(ρ (n,), ratios (n, 4))`` of strains ``s`` (n, 6): ``ρ = 1 + |(r − 1)⁺|``, with ``r``
+        the groups' :meth:`ratios` — 1 inside the strain box, above it outside, at least every
+        group's ratio (so ``s/ρ`` lies inside the box), and smooth outside where groups are
+        crossed together (a max of the ratios would kink where two tie)."""
+        ratio = self.ratios(s)
+        over = np.maximum(ratio - 1.0, 0.0)
+        return 1.0 + np.sqrt(np.einsum("ij,ij->i", over, over)), ratio
+
+    def gauge_derivatives(self, s: np.ndarray, ratio: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(∇ρ (n, 6), ∇²ρ (n, 6, 6))`` of :meth:`gauge` at strains ``s`` outside the box
+        (``ratio``: their :meth:`ratios`)."""
         n = s.shape[0]
-        gradient, hessian = np.zeros((n, 6)), np.zeros((n, 6, 6))
         upper, lower = self._gauge_bounds
+        over = np.maximum(ratio - 1.0, 0.0)
+        excess = np.sqrt(np.einsum("ij,ij->i", over, over))
+        weight = over / excess[:, None]                                   # ∂ρ/∂r_g
+        grads, hessian = np.zeros((n, 4, 6)), np.zeros((n, 6, 6))        # ∇r_g; Σ_g w_g ∇²r_g
         for group, pair in ((0, (0, 1)), (2, (3, 4))):
-            rows = np.flatnonzero(active == group)
-            if rows.size:
-                v = s[np.ix_(rows, pair)]
-                norm = np.maximum(np.hypot(v[:, 0], v[:, 1]), 1e-300)
-                e = v / norm[:, None]
-                gradient[np.ix_(rows, pair)] = e / upper[group]
-                block = (np.eye(2) - e[:, :, None] * e[:, None, :]) / (upper[group] * norm)[:, None, None]
-                hessian[np.ix_(rows, pair, pair)] = block
+            v = s[:, pair]
+            norm = np.maximum(np.hypot(v[:, 0], v[:, 1]), 1e-300)
+            e = v / norm[:, None]
+            grads[:, group, list(pair)] = e / upper[group]
+            block = (np.eye(2) - e[:, :, None] * e[:, None, :]) * (weight[:, group] / (upper[group] * norm))[:, None,
+                                                                                                            None]
+            hessian[:, pair[0]:pair[1] + 1, pair[0]:pair[1] + 1] += block
         for group, k in ((1, 2), (3, 5)):
-            rows = np.flatnonzero(active == group)
-            gradient[rows, k] = np.where(s[rows, k] >= 0.0, 1.0 / upper[group], 1.0 / lower[group])
+            grads[:, group, k] = np.where(s[:, k] >= 0.0, 1.0 / upper[group], 1.0 / lower[group])
+        gradient = np.einsum("ng,ngi->ni", weight, grads)
+        active = (over > 0.0).astype(float)
+        hessian += (np.einsum("ng,ngi,ngj->nij", active, grads, grads)
+                    - gradient[:, :, None] * gradient[:, None, :]) / excess[:, None, None]
         return gradient, hessian
 
     @cached_property
@@ -840,7 +851,7 @@ class FixedPressures:
         monomials give exactly (:meth:`_polynomial`); the pressure derivatives likewise."""
         model = self.model
         fitted = model.fit.range
-        rho, active = fitted.gauge(s)
+        rho, ratio = fitted.gauge(s)
         out = np.flatnonzero(rho > 1.0)
         if not out.size:
             return
@@ -858,7 +869,7 @@ class FixedPressures:
         g_nl, H_nl = g - lin_gh, H - K
         w = np.einsum("kij,kj->ki", H_nl, hat)                           # H_nl ŝ = d/dt ∇ψ_nl(tŝ)
         along = np.einsum("ki,ki->k", hat, w)
-        grad_rho, hess_rho = fitted.gauge_derivatives(so, active[out])
+        grad_rho, hess_rho = fitted.gauge_derivatives(so, ratio[out])
         c, t = 1.0 - 1.0 / r, r - 1.0
         Pw = w - grad_rho * along[:, None]                               # (I − ∇ρ ŝᵀ) H_nl ŝ
         energy[out] = lin_e + (e - lin_eh) + t * np.einsum("ki,ki->k", g_nl, hat)
