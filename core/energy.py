@@ -217,6 +217,15 @@ class EnergyRange:
         return gradient, hessian
 
     @cached_property
+    def inner_cube(self) -> np.ndarray:
+        """(6,) half-widths of a cube about rest inside the strain box (a strain with every
+        ``|s_i|`` within them is inside)."""
+        upper, lower = self._gauge_bounds
+        signed = np.minimum(upper, -lower)
+        half = 1.0 / math.sqrt(2.0)
+        return np.array([upper[0] * half, upper[0] * half, signed[1], upper[2] * half, upper[2] * half, signed[3]])
+
+    @cached_property
     def _gauge_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """The strain bounds the gauge scales by: upper bounds (> 0) and lower bounds of the
         signed groups (< 0; a bound through rest is moved off it by 1e-9 of its width)."""
@@ -851,6 +860,8 @@ class FixedPressures:
         monomials give exactly (:meth:`_polynomial`); the pressure derivatives likewise."""
         model = self.model
         fitted = model.fit.range
+        if np.all(np.abs(s) <= fitted.inner_cube):          # inside for sure: the common case, cheaply
+            return
         rho, ratio = fitted.gauge(s)
         out = np.flatnonzero(rho > 1.0)
         if not out.size:
