@@ -130,3 +130,32 @@ class QP:
 
     def time_solve(self, case, backend):
         self.solve_qp(self.problem, self.backend)
+
+
+class ModelTick:
+    """The model's part of a control tick on ``paper_5v_16t``, ticking on from state to state
+    with the tensions moving ±1 %: the linearisation, ``K⁻¹[r, B]`` (one banded solve of
+    1 + actuators right-hand sides), the retraction and the effector positions."""
+
+    def setup(self):
+        from ._robots import active_actuation
+
+        self.model = model_of("paper_5v_16t")
+        self.lam = active_actuation(self.model)
+        self.change = 0.01 * self.lam
+        self.state = self.model.solve(self.lam).state
+        self.k = 0
+        for _ in range(20):
+            self.time_tick()
+
+    def time_tick(self):
+        model, state, lam = self.model, self.state, self.lam
+        lin = model.linearise(state, lam)
+        rhs = np.empty((model.n_dof, 1 + lam.size), order="F")
+        rhs[:, 0] = lin.residual
+        rhs[:, 1:] = lin.actuator_forces
+        X = lin.solve(rhs)
+        d_lam = self.change if self.k % 2 == 0 else -self.change
+        self.state = model.step(state, X[:, 0] + X[:, 1:] @ d_lam)
+        model.effector_positions(self.state)
+        self.lam, self.k = lam + d_lam, self.k + 1
