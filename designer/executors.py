@@ -162,6 +162,49 @@ def terminate_pool(pool) -> None:
     pool.shutdown(wait=True, cancel_futures=True)
 
 
+#: seconds between two looks of a pool worker's watchdog at its parent
+PARENT_WATCH_S = 0.5
+
+
+def _exit_with_parent() -> None:
+    """Make this process die with the process that started it: on Linux the kernel sends it
+    SIGKILL when its parent dies (``prctl(PR_SET_PDEATHSIG)``); everywhere a daemon thread
+    looks every :data:`PARENT_WATCH_S` whether the parent is still the one that started it
+    (an orphan is adopted by another process) and ends the process at once if not. A worker
+    of a killed ``vertebra prepare`` would otherwise go on designing and committing entries."""
+    import threading
+
+    parent = os.getppid()
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+            import signal
+
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)         # PR_SET_PDEATHSIG = 1
+        except (OSError, AttributeError):
+            pass                                               # the watchdog still acts
+    if os.getppid() != parent:                                 # died before the signal was armed
+        os._exit(1)
+
+    def watch():
+        import time
+
+        while True:
+            time.sleep(PARENT_WATCH_S)
+            if os.getppid() != parent:
+                os._exit(1)
+
+    threading.Thread(target=watch, name="vertebra-parent-watchdog", daemon=True).start()
+
+
+def start_worker() -> None:
+    """Initializer of a local pool's worker processes: they die with their parent and run
+    BLAS single-threaded."""
+    _exit_with_parent()
+    pin_blas_threads()
+
+
 @register_executor("local")
 class LocalExecutor:
     """A process pool on this machine (``concurrent.futures.ProcessPoolExecutor``).
@@ -210,7 +253,7 @@ class LocalExecutor:
 
         self._pool = ProcessPoolExecutor(max_workers=self.workers,
                                          mp_context=multiprocessing.get_context(self.start_method),
-                                         initializer=pin_blas_threads)
+                                         initializer=start_worker)
         return self._pool
 
     def _shutdown(self, terminate: bool = False):

@@ -20,8 +20,8 @@ from vertebra.core.energy import EnergyFit
 from vertebra.store.entry import SegmentEntry, canonical_json
 from vertebra.core.errors import CatalogueError
 from vertebra.store.h5read import walk
-from vertebra.store.schema import (ARRAY_FIELDS, DICT_FIELDS, SCHEMA_VERSION, EncodedEntry, check_key,
-                                   differing_fields, entry_group, entry_keys, parse_json, read_entry, read_index,
+from vertebra.store.schema import (ARRAY_FIELDS, DICT_FIELDS, SCHEMA_VERSION, EncodedEntry, check_key, same_design,
+                                   entry_group, entry_keys, parse_json, read_entry, read_index,
                                    read_stored_digests)
 from vertebra.store.shards import (CONFLICT_SUFFIX, LOCK_TIMEOUT_S, Conflict, LockTimeout, MergeReport,
                                    _publish, _temp_path, _unlink_quietly, disk_error, guard_os_errors, list_shards,
@@ -213,9 +213,11 @@ def _lookup(path: Path, keys: list[str]) -> dict:
 
 
 def _fields_against(source: Path, enc: EncodedEntry) -> list[str]:
+    """The fields in which the entry stored in ``source`` is another design than ``enc``'s
+    ([] = the same design within ``schema.SAME_DESIGN_TOLERANCE``)."""
     try:
         with open_checked(source) as f:
-            return differing_fields(_load_from(f, enc.key, str(source)), enc.entry)
+            return same_design(_load_from(f, enc.key, str(source)), enc.entry)
     except CatalogueError:
         return ["?"]
 
@@ -255,9 +257,11 @@ def add_entries(path, entries, *, consolidate: bool = True,
     encs = [EncodedEntry(e) for e in entries]
     seen: dict[str, EncodedEntry] = {}
     for enc in encs:
-        if enc.key in seen and seen[enc.key].content != enc.content:
+        fields = same_design(seen[enc.key].entry, enc.entry) \
+            if enc.key in seen and seen[enc.key].content != enc.content else []
+        if fields:
             raise CatalogueError(f"{path}: two entries with key {enc.key} but different content "
-                                 f"({', '.join(differing_fields(seen[enc.key].entry, enc.entry))})")
+                                 f"({', '.join(fields)})")
         seen[enc.key] = enc
     encs = list(seen.values())
     todo, pending_only = [], False
@@ -269,8 +273,10 @@ def add_entries(path, entries, *, consolidate: bool = True,
             continue
         content, source = found
         if not enc.content.startswith(content):
-            raise CatalogueError(f"{path}: entry {enc.key} already exists with different content "
-                                 f"({', '.join(_fields_against(source, enc))}); nothing written")
+            fields = _fields_against(source, enc)
+            if fields:
+                raise CatalogueError(f"{path}: entry {enc.key} already exists with different content "
+                                     f"({', '.join(fields)}); nothing written")
         pending_only |= source != path
     deferred = None
     if not todo:

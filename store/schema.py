@@ -55,6 +55,12 @@ DICT_FIELDS = ("parameters", "mesh", "accuracy", "timings", "provenance")
 # with the same key that differ only here are "identical content" (idempotent add,
 # merge skips them); every other field difference is a conflict.
 CIRCUMSTANTIAL_FIELDS = ("timings", "provenance")
+#: wall-clock times recorded inside a content field (``accuracy``): circumstantial too
+CIRCUMSTANTIAL_KEYS = {"accuracy": ("estimate_s",)}
+#: relative tolerance within which two entries' stored numbers count as the same design: a
+#: nonlinear fit repeated on the same mesh differs in the last bits (~1e-10 of the largest
+#: coefficient) from summation order; any real change of design moves them by far more
+SAME_DESIGN_TOLERANCE = 1e-7
 
 # HDF5 attributes ``units`` and ``description`` of every dataset vertebra writes (readers do not
 # need them: files without them read and verify as before). The compliance maps
@@ -181,8 +187,16 @@ def _metadata(key, name, family, mass, dicts: dict, *, content_only: bool) -> di
     for field in DICT_FIELDS:
         if content_only and field in CIRCUMSTANTIAL_FIELDS:
             continue
-        meta[field] = dicts[field]
+        meta[field] = _content_part(field, dicts[field]) if content_only else dicts[field]
     return meta
+
+
+def _content_part(field: str, value):
+    """``value`` without the circumstantial keys of ``field`` (wall-clock times)."""
+    drop = CIRCUMSTANTIAL_KEYS.get(field, ())
+    if not drop or not isinstance(value, dict):
+        return value
+    return {k: v for k, v in value.items() if k not in drop}
 
 
 def _digest(arrays: dict, meta: dict, energy=None) -> str:
@@ -499,10 +513,13 @@ def _check_derived_energy_arrays(group, fit: EnergyFit, rest_translation: np.nda
 
 
 def differing_fields(a: SegmentEntry, b: SegmentEntry) -> list[str]:
-    """Names of the fields in which two entries differ (arrays compared bit for bit)."""
+    """Names of the content fields in which two entries differ (arrays compared bit for bit;
+    timings, provenance and the wall-clock times of ``CIRCUMSTANTIAL_KEYS`` do not count)."""
     out = []
     for field in ("name", "family", "mass") + DICT_FIELDS:
-        if getattr(a, field) != getattr(b, field):
+        if field in CIRCUMSTANTIAL_FIELDS:
+            continue
+        if _content_part(field, getattr(a, field)) != _content_part(field, getattr(b, field)):
             out.append(field)
     for field in ARRAY_FIELDS:
         x, y = getattr(a, field), getattr(b, field)
@@ -510,6 +527,58 @@ def differing_fields(a: SegmentEntry, b: SegmentEntry) -> list[str]:
             out.append(field)
     if a.energy != b.energy and not (a.energy is None and b.energy is None):
         out.append("energy")
+    return out
+
+
+def _close(x, y, tolerance: float) -> bool:
+    """Plain data (JSON values, arrays) equal, numbers within ``tolerance`` relative to the
+    largest magnitude of their array or of the pair."""
+    if isinstance(x, dict) or isinstance(y, dict):
+        return (isinstance(x, dict) and isinstance(y, dict) and x.keys() == y.keys()
+                and all(_close(x[k], y[k], tolerance) for k in x))
+    if isinstance(x, str) or isinstance(y, str) or x is None or y is None or isinstance(x, bool) \
+            or isinstance(y, bool):
+        return type(x) is type(y) and x == y
+    try:
+        a, b = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+    except (TypeError, ValueError):
+        return x == y
+    if a.shape != b.shape:
+        return False
+    if a.size == 0:
+        return True
+    if not (np.array_equal(np.isfinite(a), np.isfinite(b))
+            and np.array_equal(a[~np.isfinite(a)], b[~np.isfinite(b)])):
+        return False
+    finite = np.isfinite(a)
+    scale = max(float(np.max(np.abs(a[finite]), initial=0.0)), float(np.max(np.abs(b[finite]), initial=0.0)))
+    return bool(np.all(np.abs(a[finite] - b[finite]) <= tolerance * scale))
+
+
+def same_design(a: SegmentEntry, b: SegmentEntry, tolerance: float = SAME_DESIGN_TOLERANCE) -> list[str]:
+    """The content fields in which ``a`` and ``b`` differ beyond ``tolerance`` ([] = the same
+    design): text and integer fields (and the energy's exponents) exactly, every stored number
+    within ``tolerance`` relative to the largest magnitude of its array or JSON list."""
+    out = []
+    if a.name != b.name or a.family != b.family:
+        out.append("name" if a.name != b.name else "family")
+    if not _close(a.mass, b.mass, tolerance):
+        out.append("mass")
+    for field in DICT_FIELDS:
+        if field not in CIRCUMSTANTIAL_FIELDS and not _close(_content_part(field, getattr(a, field)),
+                                                             _content_part(field, getattr(b, field)), tolerance):
+            out.append(field)
+    for field in ARRAY_FIELDS:
+        if not _close(getattr(a, field), getattr(b, field), tolerance):
+            out.append(field)
+    ea, eb = a.energy, b.energy
+    if (ea is None) != (eb is None):
+        out.append("energy")
+    elif ea is not None:
+        if not (np.array_equal(ea.exponents, eb.exponents) and _close(ea.coefficients, eb.coefficients, tolerance)
+                and _close(ea.scales, eb.scales, tolerance)
+                and _close(ea.attributes(), eb.attributes(), tolerance)):
+            out.append("energy")
     return out
 
 

@@ -34,7 +34,7 @@ import numpy as np
 
 from vertebra.core.errors import CatalogueError
 from vertebra.store.h5read import H5_ERRORS
-from vertebra.store.schema import (ENERGY_SCHEMA_VERSION, EncodedEntry, append_index, check_file, differing_fields,
+from vertebra.store.schema import (ENERGY_SCHEMA_VERSION, EncodedEntry, append_index, check_file, differing_fields, same_design,
                                    entry_group, init_file, read_entry, read_index, stamp_version, write_entry)
 
 log = logging.getLogger("vertebra.store")
@@ -416,9 +416,19 @@ def _conflict_fields(f, src, key, what_new) -> list[str]:
     try:
         old = read_entry(entry_group(f, key, "catalogue"), key, "catalogue")
         new = read_entry(entry_group(src, key, what_new), key, what_new)
-        return differing_fields(old, new) or ["timings/provenance only"]
+        return same_design(old, new) or differing_fields(old, new) or ["timings/provenance only"]
     except CatalogueError as error:
         return [f"unreadable: {error}"]
+
+
+def _same_design_as(f, key, entry) -> bool:
+    """Whether the catalogue's entry ``key`` is ``entry``'s design within the stored numbers'
+    tolerance (``schema.same_design``): concurrent designs of one key, nonlinear fits differing
+    in their last bits, are one entry, not a conflict."""
+    try:
+        return not same_design(read_entry(entry_group(f, key, "catalogue"), key, "catalogue"), entry)
+    except CatalogueError:
+        return False
 
 
 def _copy_entry(f, src, key, what) -> None:
@@ -441,7 +451,7 @@ def _take(f, rows, new_rows, src, src_path, what, report, *, exclude) -> bool:
         entry = read_entry(entry_group(src, key, what), key, what)     # checked before copying
         row = EncodedEntry(entry).index_row()
         if key in rows:
-            if rows[key]["content"] == row["content"]:
+            if rows[key]["content"] == row["content"] or _same_design_as(f, key, entry):
                 report.skipped.append(key)
             else:
                 report.conflicts.append(Conflict(key, str(src_path), _conflict_fields(f, src, key, what)))
