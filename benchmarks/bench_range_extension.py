@@ -62,7 +62,7 @@ def sweep(case: TrunkCase, entry) -> dict:
     linear = dataclasses.replace(entry, energy=None)
     reference = project_trunk(case)
     length = case.length
-    rows, state, warm = [], None, {"nonlinear": None, "linear": None}
+    rows, state = [], None
     for level in case.levels:
         start = time.process_time()
         row = {"force_N": level}

@@ -109,8 +109,8 @@ def entry_document(entry) -> dict:
         document["energy"] = {"degree": energy.degree, "terms": int(energy.coefficients.size),
                               "fit_error": energy.fit_error, "range": energy.range.to_dict(),
                               "fold_pressure": energy.fold_pressure, "material": energy.material,
-                              "sampling": {k: energy.sampling[k] for k in ("samples", "solves", "paths", "held_out_paths")
-                                           if k in energy.sampling},
+                              "sampling": {k: energy.sampling[k] for k in ("samples", "solves", "paths",
+                                                                           "held_out_paths") if k in energy.sampling},
                               "sampled": sampled_range(energy)}
         document["timing"].update({k: float(entry.timings[k]) for k in ("sampling_s", "fit_s") if k in entry.timings})
     return document
@@ -244,10 +244,13 @@ def run(args) -> int:
               f"{box['twist_deg'][1]:.3g}°, lateral ≤ {box['lateral_mm']:.3g} mm, axial {box['axial_mm'][0]:.3g}…"
               f"{box['axial_mm'][1]:.3g} mm" + (f", pressure ≤ {max(box['pressure_bar']):.4g} bar"
                                                 if box["pressure_bar"] else "")
-              + (f" (inflation limit point ≈ {1e-5 * rng['limit_pressure']:.4g} bar)" if rng["limit_pressure"] else ""))
-        print(f"loads     lateral force ≤ {box['lateral_force_N']:.3g} N, axial force {box['axial_force_N'][0]:.3g}…"
-              f"{box['axial_force_N'][1]:.3g} N, bending moment ≤ {box['bending_moment_Nm']:.3g} N·m, twisting "
-              f"moment {box['twist_moment_Nm'][0]:.3g}…{box['twist_moment_Nm'][1]:.3g} N·m")
+              + (f" (inflation limit point ≈ {1e-5 * rng['limit_pressure']:.4g} bar)"
+                 if rng["limit_pressure"] else ""))
+        force = box["axial_force_N"]
+        print(f"loads     lateral force ≤ {box['lateral_force_N']:.3g} N, "
+              f"axial force {force[0]:.3g}…{force[1]:.3g} N, "
+              f"bending moment ≤ {box['bending_moment_Nm']:.3g} N·m, twisting moment "
+              f"{box['twist_moment_Nm'][0]:.3g}…{box['twist_moment_Nm'][1]:.3g} N·m")
         if "widen" in box:
             print(f"widen     {box['widen']}")
     print(f"timing    mesh {t['mesh_s']:.2f} s, assemble {t['assemble_s']:.2f} s, solve {t['solve_s']:.2f} s, "

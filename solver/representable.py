@@ -63,9 +63,10 @@ def turn_message(trunk, xi: np.ndarray, scale: float, linear: np.ndarray | None)
         turned = math.degrees(float(np.linalg.norm(xi[k, 3:])))
         return (f"link {k} (segment {segment}, {what}) turns {turned:.0f}° at load factor {scale:.3g}: a link's "
                 f"rotation must stay below 180°, and a catalogue entry is condensed onto one link per repetition "
-                f"(its elements cannot be raised); a repetition of the segment turns about {math.degrees(needed):.0f}° "
-                f"under this load. Build the segment from a shorter entry repeated more often (about {repetitions} "
-                f"repetitions instead of {count}, ≤ {math.degrees(REPRESENTED_TURN):.0f}° each), or lower the load; "
+                "(its elements cannot be raised); a repetition of the segment turns about "
+                f"{math.degrees(needed):.0f}° under this load. Build the segment from a shorter entry repeated more "
+                f"often (about {repetitions} repetitions instead of {count}, "
+                f"≤ {math.degrees(REPRESENTED_TURN):.0f}° each), or lower the load; "
                 "for a nonlinear entry whose fitted range the state leaves (the out-of-range diagnostics), widen "
                 "the sampled range with `vertebra design … --sampling bending=… --sampling strain=…` or let "
                 "`vertebra prepare` size it from the scene")
