@@ -99,7 +99,10 @@ def trunk(entry, count: int, *, forces=None, pressure: float = 0.0):
 
 
 def linear_of(entry):
-    return dataclasses.replace(entry, energy=None)
+    """The entry's linear part: its compliance, without the fitted energy and the record of the
+    nonlinear design."""
+    return dataclasses.replace(entry, energy=None,
+                               provenance={k: v for k, v in entry.provenance.items() if k != "nonlinear"})
 
 
 def tip_angle(state) -> float:

@@ -38,8 +38,9 @@ class Entries:
         path, key = cache
         with catalogue.open_catalogue(path) as cat:
             entry = cat.load(key)
-        if kind == "linear":
-            entry = dataclasses.replace(entry, energy=None)
+        if kind == "linear":          # the compliance alone: no energy, no record of the nonlinear design
+            entry = dataclasses.replace(entry, energy=None, provenance={
+                k: v for k, v in entry.provenance.items() if k != "nonlinear"})
         scene = solver.parse_scene({
             "catalogue": {"path": path},
             "segment": [{"type": "entry", "entry": entry.name, "count": 20}],
