@@ -166,12 +166,23 @@ def terminate_pool(pool) -> None:
 PARENT_WATCH_S = 0.5
 
 
-def _exit_with_parent() -> None:
-    """Make this process die with the process that started it: on Linux the kernel sends it
-    SIGKILL when its parent dies (``prctl(PR_SET_PDEATHSIG)``); everywhere a daemon thread
-    looks every :data:`PARENT_WATCH_S` whether the parent is still the one that started it
-    (an orphan is adopted by another process) and ends the process at once if not. A worker
-    of a killed ``vertebra prepare`` would otherwise go on designing and committing entries."""
+def _gone(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    except OSError:                                           # exists, not ours to signal
+        return False
+    return False
+
+
+def _exit_with_parent(owner: int) -> None:
+    """Make this process die with ``owner``, the process whose pool started it: on Linux the
+    kernel sends it SIGKILL when its parent dies (``prctl(PR_SET_PDEATHSIG)``); everywhere a
+    daemon thread looks every :data:`PARENT_WATCH_S` whether its parent is still the one that
+    started it (an orphan is adopted by another process) and ``owner`` still exists, and ends
+    the process at once if not. A worker of a killed ``vertebra prepare`` would otherwise go
+    on designing and committing entries."""
     import threading
 
     parent = os.getppid()
@@ -184,7 +195,11 @@ def _exit_with_parent() -> None:
             libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)         # PR_SET_PDEATHSIG = 1
         except (OSError, AttributeError):
             pass                                               # the watchdog still acts
-    if os.getppid() != parent:                                 # died before the signal was armed
+
+    def orphaned() -> bool:
+        return os.getppid() != parent or _gone(owner) or (parent == 1 and owner != 1)
+
+    if orphaned():                                             # the owner died before we started
         os._exit(1)
 
     def watch():
@@ -192,16 +207,16 @@ def _exit_with_parent() -> None:
 
         while True:
             time.sleep(PARENT_WATCH_S)
-            if os.getppid() != parent:
+            if orphaned():
                 os._exit(1)
 
     threading.Thread(target=watch, name="vertebra-parent-watchdog", daemon=True).start()
 
 
-def start_worker() -> None:
-    """Initializer of a local pool's worker processes: they die with their parent and run
-    BLAS single-threaded."""
-    _exit_with_parent()
+def start_worker(owner: int) -> None:
+    """Initializer of a local pool's worker processes: they die with ``owner`` (the pid of the
+    process that made the pool) and run BLAS single-threaded."""
+    _exit_with_parent(owner)
     pin_blas_threads()
 
 
@@ -253,7 +268,7 @@ class LocalExecutor:
 
         self._pool = ProcessPoolExecutor(max_workers=self.workers,
                                          mp_context=multiprocessing.get_context(self.start_method),
-                                         initializer=start_worker)
+                                         initializer=start_worker, initargs=(os.getpid(),))
         return self._pool
 
     def _shutdown(self, terminate: bool = False):

@@ -429,9 +429,6 @@ def _verify_file(f, what: str) -> list[str]:
         except CatalogueError as error:
             problems.append(str(error))
             continue
-        if entry.energy is not None:
-            problems.extend(f"{what}: entry {key}: {problem}"
-                            for problem in entry.energy.check(entry.compliance, entry.rest_translation))
         if rows is None:
             continue
         row = rows.get(key)

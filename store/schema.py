@@ -42,6 +42,7 @@ import numpy as np
 from vertebra.core.energy import GROUPS, MAX_TERMS, EnergyFit, EnergyRange, rest_strain
 from vertebra.store.entry import SegmentEntry, canonical_json
 from vertebra.store import h5read
+from vertebra.store.soundness import stored_problems
 from vertebra.core.errors import CatalogueError
 
 FORMAT = "vertebra-catalogue"
@@ -347,9 +348,13 @@ def read_entry(group, key: str, what: str) -> SegmentEntry:
         raise CatalogueError(f"{what}: entry {key} ({name!r}): checksum mismatch — stored {stored_checksum}, "
                              f"data gives {checksum}; the entry is corrupt")
     try:
-        return SegmentEntry(key=key, name=name, family=family, mass=mass, **arrays, **dicts, energy=energy)
+        entry = SegmentEntry(key=key, name=name, family=family, mass=mass, **arrays, **dicts, energy=energy)
     except CatalogueError as error:
         raise CatalogueError(f"{what}: entry {key}: {error}") from None
+    problems = stored_problems(entry)
+    if problems:
+        raise CatalogueError(f"{what}: entry {key} ({name!r}) is not sound: " + "; ".join(problems))
+    return entry
 
 
 # ---------------------------------------------------------------- the energy group (schema v2)

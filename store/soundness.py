@@ -313,8 +313,178 @@ def _against(entry, env: Envelope) -> list[str]:
     return problems
 
 
+# ---------------------------------------------------------------- the fitted energy (schema v2)
+
+#: highest total degree of a fitted ψ (the designer's sampling settings allow at most 10)
+MAX_DEGREE = 10
+#: each variable's scale within this factor of the range's extent in its group (the designer
+#: takes the sampled extent itself)
+SCALE_RATIO = 1e-2
+#: the strain range: translations within this many lengths of rest, rotations within 4π (a
+#: sampled rotation vector stays within π; hand-made fits get room)
+MAX_TRANSLATION_LENGTHS = 2.0
+MAX_ROTATION = 4 * math.pi
+#: the load range within this factor of the linear load of the strain range's extents
+LOAD_RATIO = 1e3
+#: the pressure range within this factor of the pressure scales
+PRESSURE_RATIO = 1e3
+#: strains sampled in the range for the convexity and stiffness tests (seeded: the same points
+#: on every read), and how far the tangent stiffness may exceed the linear one there
+CONVEXITY_SAMPLES = 48
+MAX_STIFFENING = 1e6
+#: a fit records the least relative eigenvalue of its Hessian over its samples
+#: (``fit_error["convexity_min_relative_eigenvalue"]``); the sampled strains, which reach the
+#: corners of the range, may be below it by this slack (recorded ≥ 0), or below this factor
+#: times it minus the slack (recorded < 0)
+CONVEXITY_SLACK = 0.5
+CONVEXITY_FACTOR = 4.0
+CONVEXITY_SEED = 20240601
+
+
+def _range_samples(fit, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(strains (n, 6), pressures (n, m)) inside the range's strain box and pressure bounds,
+    rest first; seeded."""
+    rng = np.random.default_rng(CONVEXITY_SEED)
+    r = fit.range
+    lo, hi = r.pose_lower, r.pose_upper
+    t = rng.uniform(size=(n, 4))
+    t[0] = 0.0
+    radial = lambda k: np.maximum(lo[k], 0.0) + t[:, k] * (hi[k] - np.maximum(lo[k], 0.0))
+    signed = lambda k: np.clip(0.0, lo[k], hi[k]) + t[:, k] * (np.where(rng.uniform(size=n) < 0.5, lo[k], hi[k])
+                                                                - np.clip(0.0, lo[k], hi[k]))
+    angle = rng.uniform(0, 2 * math.pi, size=(n, 2))
+    s = np.zeros((n, 6))
+    s[:, 0], s[:, 1] = radial(0) * np.cos(angle[:, 0]), radial(0) * np.sin(angle[:, 0])
+    s[:, 2] = signed(1)
+    s[:, 3], s[:, 4] = radial(2) * np.cos(angle[:, 1]), radial(2) * np.sin(angle[:, 1])
+    s[:, 5] = signed(3)
+    s[0] = 0.0
+    m = fit.n_cavities
+    p = r.pressure_lower + rng.uniform(size=(n, m)) * (r.pressure_upper - r.pressure_lower)
+    p[0] = np.clip(0.0, r.pressure_lower, r.pressure_upper)
+    return s, p
+
+
+def _stored_convexity(fit) -> float | None:
+    value = fit.fit_error.get("convexity_min_relative_eigenvalue") if isinstance(fit.fit_error, dict) else None
+    return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) \
+        and math.isfinite(value) else None
+
+
+def energy_problems(entry) -> list[str]:
+    """Why an entry's fitted energy ψ (or its absence) is not sound ([] = sound): the checks a
+    reader can afford on every read.
+
+    * metadata: an entry whose provenance records a nonlinear design carries its energy; the
+      fit's degree ≤ :data:`MAX_DEGREE` and ≤ its stored sampling degree, no monomial twice;
+    * scales: each within :data:`SCALE_RATIO` (either way) of the range's extent in its group;
+    * range: contains rest (``EnergyFit.check``, with the Hessian at rest equal to the
+      linear one); translations within :data:`MAX_TRANSLATION_LENGTHS` lengths, rotations within
+      4π; loads within :data:`LOAD_RATIO` × the linear load of the strain extents; pressures
+      within :data:`PRESSURE_RATIO` × their scales;
+    * convexity: at :data:`CONVEXITY_SAMPLES` seeded strains and pressures inside the range, the
+      strain Hessian of ψ is finite, its relative eigenvalues (of ``K^-1/2 H K^-1/2``) within
+      ±:data:`MAX_STIFFENING`, and not below what the fit records as its least one (a designed
+      fit records it; see :data:`CONVEXITY_SLACK`): a convex fit stays convex.
+    """
+    from vertebra.core.energy import EnergyFit, EnergyModel, linear_terms
+
+    fit = entry.energy
+    if not isinstance(fit, EnergyFit) or fit.n_cavities != entry.n_cavities \
+            or np.any(entry.rest_quaternion != [1.0, 0.0, 0.0, 0.0]):
+        return []                                  # none, or SegmentEntry refuses it
+    problems = []
+    exponents = fit.exponents
+    degree = fit.degree
+    if degree > MAX_DEGREE:
+        problems.append(f"energy: degree {degree} above {MAX_DEGREE}")
+    settings = fit.sampling.get("settings") if isinstance(fit.sampling, dict) else None
+    stated = settings.get("degree") if isinstance(settings, dict) else None
+    if isinstance(stated, int) and not isinstance(stated, bool) and degree > stated:
+        problems.append(f"energy: degree {degree} above the degree {stated} its sampling settings state")
+    if np.unique(exponents, axis=0).shape[0] != exponents.shape[0]:
+        problems.append("energy: a monomial appears more than once")
+    if problems:
+        return problems
+    length = float(np.linalg.norm(entry.rest_translation))
+    r = fit.range
+    extent = np.maximum(np.abs(r.pose_lower), np.abs(r.pose_upper))
+    group_of = (0, 0, 1, 2, 2, 3)
+    strain_extent = extent[list(group_of)]
+    ratio = fit.scales[:6] / strain_extent
+    if np.any(ratio < SCALE_RATIO) or np.any(ratio > 1 / SCALE_RATIO):
+        problems.append(f"energy: strain scales {np.array2string(fit.scales[:6], precision=3)} are not within "
+                        f"{1 / SCALE_RATIO:g}× of the range's extents {np.array2string(strain_extent, precision=3)}")
+    if length > 0 and (extent[0] > MAX_TRANSLATION_LENGTHS * length or extent[1] > MAX_TRANSLATION_LENGTHS * length):
+        problems.append(f"energy: the strain range reaches translations {extent[0]:.3g}, {extent[1]:.3g} m, "
+                        f"beyond {MAX_TRANSLATION_LENGTHS:g} × the length {length:.3g} m")
+    if extent[2] > MAX_ROTATION or extent[3] > MAX_ROTATION:
+        problems.append(f"energy: the strain range reaches rotations {extent[2]:.3g}, {extent[3]:.3g} rad, beyond 4π")
+    m = fit.n_cavities
+    pressure_extent = np.maximum(np.abs(r.pressure_lower), np.abs(r.pressure_upper))
+    if m and np.any(pressure_extent > PRESSURE_RATIO * fit.scales[6:]):
+        problems.append(f"energy: the pressure range {pressure_extent.tolist()} Pa exceeds {PRESSURE_RATIO:g} × "
+                        f"its scales {fit.scales[6:].tolist()}")
+    try:
+        K = linear_terms(entry.compliance, entry.rest_translation).stiffness
+    except Exception as error:                       # noqa: BLE001 - any failure is a problem to report
+        return problems + [str(error)]
+    linear_load = np.abs(K) @ strain_extent
+    load_reach = np.array([math.hypot(linear_load[0], linear_load[1]), linear_load[2],
+                           math.hypot(linear_load[3], linear_load[4]), linear_load[5]])
+    load_extent = np.maximum(np.abs(r.load_lower), np.abs(r.load_upper))
+    if np.any(load_extent > LOAD_RATIO * load_reach):
+        problems.append(f"energy: the load range {np.array2string(load_extent, precision=3)} exceeds "
+                        f"{LOAD_RATIO:g} × the linear loads {np.array2string(load_reach, precision=3)} of its "
+                        "strain range")
+    if problems:
+        return problems
+    try:
+        problems.extend(fit.check(entry.compliance, entry.rest_translation))
+        if problems:
+            return problems
+        model = EnergyModel.of_entry(entry)
+        s, p = _range_samples(fit, CONVEXITY_SAMPLES)
+        with np.errstate(all="ignore"):
+            hessian = model.evaluate(s, p).hessian
+    except (ArithmeticError, ValueError, np.linalg.LinAlgError) as error:
+        return [f"energy: cannot be evaluated in its range ({error})"]
+    if not np.all(np.isfinite(hessian)):
+        return ["energy: its Hessian is not finite inside its range"]
+    w, U = np.linalg.eigh(K)
+    root = U @ np.diag(1.0 / np.sqrt(w)) @ U.T            # K^-1/2
+    relative = np.linalg.eigvalsh(root @ (0.5 * (hessian + hessian.transpose(0, 2, 1))) @ root)
+    low, high = float(relative.min()), float(relative.max())
+    stored = _stored_convexity(fit)
+    floor = None if stored is None else (-CONVEXITY_SLACK if stored >= 0 else CONVEXITY_FACTOR * stored
+                                        - CONVEXITY_SLACK)
+    where = np.array2string(s[int(np.argmin(relative.min(1)))], precision=3)
+    if floor is not None and low < floor:
+        problems.append(f"energy: its fit records a least relative eigenvalue of {stored:.3g} but it is {low:.3g} "
+                        f"at strain {where} inside its range")
+    if low < -MAX_STIFFENING:
+        problems.append(f"energy: relative eigenvalue {low:.3g} at strain {where} inside its range "
+                        f"(at least {-MAX_STIFFENING:g})")
+    if high > MAX_STIFFENING:
+        problems.append(f"energy: its tangent stiffness reaches {high:.3g} × the linear one inside its range "
+                        f"(at most {MAX_STIFFENING:g})")
+    return problems
+
+
+def stored_problems(entry) -> list[str]:
+    """Problems of an entry read from a file that its metadata show: a stored entry whose
+    provenance records a nonlinear design (``provenance["nonlinear"]``) carries its energy (an
+    entry made in memory may drop it to compare with the linear response)."""
+    provenance = entry.provenance if isinstance(entry.provenance, dict) else {}
+    if entry.energy is None and "nonlinear" in provenance:
+        return ["its provenance records a nonlinear design but it has no energy group"]
+    return []
+
+
 def soundness_problems(entry) -> list[str]:
-    """Why ``entry`` is not physically sound ([] = sound). Never raises."""
+    """Why ``entry`` is not physically sound ([] = sound): its compliance and masses
+    (:func:`_generic`, the family's envelope) and its fitted energy (:func:`energy_problems`).
+    Never raises."""
     problems = _generic(entry)
     if problems:
         return problems
@@ -322,7 +492,8 @@ def soundness_problems(entry) -> list[str]:
         env = envelope(entry.family, entry.parameters)
     except ValueError as error:
         return [f"parameters impossible for family {entry.family!r}: {error}"]
-    return _against(entry, env) if env is not None else []
+    problems = _against(entry, env) if env is not None else []
+    return problems or energy_problems(entry)
 
 
 def bound_ratios(entry) -> dict | None:

@@ -202,8 +202,12 @@ def test_verify_reports_an_energy_inconsistent_with_its_entry(tmp_path):
     path = tmp_path / "cat.h5"
     fit = _fit()
     shifted = dataclasses.replace(fit.range, pose_lower=np.array([0.0, 0.001, 0.0, -1.0]))
-    entry = dataclasses.replace(rod_entry(), key="nl1", name="nl", energy=dataclasses.replace(fit, range=shifted))
-    catalogue.add_entry(path, entry)
+    with pytest.raises(CatalogueError, match="does not contain the rest state"):      # every reader refuses it
+        dataclasses.replace(rod_entry(), key="nl1", name="nl", energy=dataclasses.replace(fit, range=shifted))
+    from tampering import _raw_replace, write_resigned
+
+    entry = _raw_replace(rod_entry(), key="nl1", name="nl", energy=_raw_replace(fit, range=shifted))
+    write_resigned(path, entry)                   # a file holding it, its checksum recomputed
     problems = catalogue.verify(path)
     assert len(problems) == 1 and "does not contain the rest state" in problems[0]
 

@@ -1,0 +1,154 @@
+"""What a user trusts of the catalogue: tampered entries with recomputed checksums are refused
+by every reader, identical designs are recognised as identical (wall-clock times aside, nonlinear
+fits within the stored numbers' tolerance), and pool workers die with a killed parent."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import numpy as np
+import pytest
+
+import tampering
+from vertebra.core.errors import CatalogueError
+from vertebra.store import catalogue, schema
+from vertebra.store.shards import problem_files
+
+
+@functools.cache
+def _bases():
+    return tampering.bases()
+
+
+def test_sound_nonlinear_entries_are_read(tmp_path):
+    """The bases of the tampering cases are sound: written the same way, every reader takes them."""
+    for entry in (_bases().rod, _bases().pneumatic):
+        path = tmp_path / f"{entry.name}.h5"
+        tampering.write_resigned(path, entry)
+        assert tampering.readers(path, entry.key) == {"verify": "accepted", "load": "accepted"}
+
+
+def test_tampered_energies_with_recomputed_checksums_are_refused_by_every_reader(tmp_path):
+    """Every kind of tampering on both bases (rod, pneumatic): 0 accepted by verify or load."""
+    results = tampering.run(tmp_path, range(2 * len(tampering.KINDS)), _bases())
+    accepted = [r for r in results if "accepted" in (r["verify"], r["load"])]
+    assert {r["kind"] for r in results} == set(tampering.KINDS)
+    assert accepted == []
+
+
+@pytest.mark.parametrize("kind", ["non-convex quartic", "range excludes rest", "energy deleted"])
+def test_the_cli_refuses_a_tampered_entry(tmp_path, kind):
+    """show and simulate (not only verify) refuse: exit 2 and a message, no traceback."""
+    from vertebra.cli.main import main
+
+    bad = tampering.tamper(_bases().rod, kind, np.random.default_rng(0))
+    path = tmp_path / "cat.h5"
+    tampering.write_resigned(path, bad)
+    scene = tmp_path / "scene.toml"
+    scene.write_text(f'[catalogue]\npath = "cat.h5"\n[[segment]]\ntype = "entry"\nentry = "{bad.key}"\ncount = 2\n')
+    assert main(["catalogue", "verify", str(path)]) != 0
+    assert main(["catalogue", "show", str(path), bad.key]) == 2
+    assert main(["simulate", str(scene)]) == 2
+
+
+def test_a_wall_clock_time_is_not_content():
+    """Two designs that differ only in how long their accuracy estimate took have one content digest."""
+    entry = _bases().rod
+    a = dataclasses.replace(entry, accuracy={"method": "richardson", "relative_error": 0.01, "estimate_s": 1.5})
+    b = dataclasses.replace(a, accuracy={**a.accuracy, "estimate_s": 7.25})
+    c = dataclasses.replace(a, accuracy={**a.accuracy, "relative_error": 0.02})
+    assert schema.EncodedEntry(a).content == schema.EncodedEntry(b).content
+    assert schema.EncodedEntry(a).checksum != schema.EncodedEntry(b).checksum
+    assert schema.EncodedEntry(a).content != schema.EncodedEntry(c).content
+
+
+def _refit(entry, relative):
+    fit = entry.energy
+    scale = np.abs(fit.coefficients).max()
+    noise = relative * scale * np.random.default_rng(1).uniform(-1, 1, size=fit.coefficients.size)
+    return dataclasses.replace(entry, energy=dataclasses.replace(fit, coefficients=fit.coefficients + noise),
+                               accuracy={**entry.accuracy, "estimate_s": float(relative)})
+
+
+def test_concurrent_writers_of_one_nonlinear_design_all_succeed(tmp_path):
+    """Two runs of one nonlinear design differ in the last bits of their fit (~2e-10): both
+    writers succeed, in turn and through pending shards merged together, and nothing is set aside."""
+    entry = _bases().rod
+    again = _refit(entry, 2e-10)
+    assert schema.EncodedEntry(entry).content != schema.EncodedEntry(again).content
+    path = tmp_path / "cat.h5"
+    catalogue.add_entry(path, entry)
+    assert catalogue.add_entry(path, again) == entry.key
+    other = tmp_path / "pending.h5"
+    catalogue.add_entries(other, [entry], consolidate=False)
+    catalogue.add_entries(other, [again], consolidate=False)
+    report = catalogue.consolidate(other)
+    assert report.conflicts == [] and list(problem_files(other)) == []
+    assert catalogue.verify(path) == [] and catalogue.verify(other) == []
+
+
+def test_another_nonlinear_design_under_the_same_key_still_conflicts(tmp_path):
+    """The tolerance is on the last bits: a fit that differs by 1e-5 is another design."""
+    path = tmp_path / "cat.h5"
+    catalogue.add_entry(path, _bases().rod)
+    with pytest.raises(CatalogueError, match="different content.*energy"):
+        catalogue.add_entry(path, _refit(_bases().rod, 1e-5))
+
+
+CHILD = textwrap.dedent("""
+    import sys, time
+    from vertebra.designer.executors import LocalExecutor
+    with LocalExecutor(workers=2) as ex:
+        for _ in ex.map_unordered(time.sleep, [60, 60]):
+            pass
+""")
+
+
+def _children(pid: int) -> set[int]:
+    out = set()
+    for task in os.listdir(f"/proc/{pid}/task"):
+        with open(f"/proc/{pid}/task/{task}/children") as fh:
+            out |= {int(x) for x in fh.read().split()}
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().split(")")[-1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_pool_workers_die_with_their_killed_parent():
+    """SIGKILL of the process that owns a local pool: its workers end within seconds."""
+    parent = subprocess.Popen([sys.executable, "-c", CHILD])
+    try:
+        deadline = time.monotonic() + 20
+        workers: set[int] = set()
+        while time.monotonic() < deadline and len(workers) < 2:
+            time.sleep(0.2)
+            workers = {c for c in _children(parent.pid)
+                       if b"resource_tracker" not in open(f"/proc/{c}/cmdline", "rb").read()}
+        assert len(workers) >= 2, "the pool did not start"
+        time.sleep(1.0)                              # initializers ran
+        parent.send_signal(signal.SIGKILL)
+        parent.wait()
+        deadline = time.monotonic() + 5
+        while time.monotonic() < deadline and any(_alive(w) for w in workers):
+            time.sleep(0.1)
+        alive = [w for w in workers if _alive(w)]
+        for w in alive:                              # leave nothing behind if the test fails
+            os.kill(w, signal.SIGKILL)
+        assert alive == []
+    finally:
+        if parent.poll() is None:
+            parent.kill()
