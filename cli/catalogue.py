@@ -8,6 +8,8 @@ schema check out, 2 otherwise; ``merge`` exits 1 when conflicts were left out.
 from __future__ import annotations
 
 import json
+
+import numpy as np
 import sys
 
 from vertebra.cli.documents import print_document
@@ -36,18 +38,42 @@ def _varied(rows: list[dict]) -> dict[str, dict]:
     return common
 
 
-def _table(rows: list[dict], wide: bool, pending=frozenset()) -> None:
+def material(entry) -> str:
+    """``linear``, or the material model of a nonlinear entry's fitted energy."""
+    if entry.energy is None:
+        return "linear"
+    model = entry.energy.material.get("model") if isinstance(entry.energy.material, dict) else None
+    return str(model or "nonlinear")
+
+
+def fitted_range(entry) -> str:
+    """One line: where a nonlinear entry's energy was fitted (strain extents by group, pressures)."""
+    if entry.energy is None:
+        return "-"
+    r = entry.energy.range
+    length = float(np.linalg.norm(entry.rest_translation)) or 1.0
+    text = (f"lateral ≤ {r.pose_upper[0] / length:.3g} L, axial {r.pose_lower[1] / length:.3g}…"
+            f"{r.pose_upper[1] / length:.3g} L, bending ≤ {r.pose_upper[2]:.3g} rad, "
+            f"twist {r.pose_lower[3]:.3g}…{r.pose_upper[3]:.3g} rad")
+    if r.pressure_upper.size:
+        text += f", pressure ≤ {float(r.pressure_upper.max()):.4g} Pa"
+    return text
+
+
+def _table(rows: list[dict], wide: bool, pending=frozenset(), materials: dict | None = None) -> None:
     """Entries as aligned columns, nothing cut. The parameters column lists, per family of two or
     more entries, only the parameters that vary; the shared ones follow on one line per family
-    (``wide``: every parameter on every row)."""
+    (``wide``: every parameter on every row). ``materials``: key → material column."""
     common = {} if wide else _varied(rows)
-    cells = [(r["key"], r["name"], r["family"], str(r["n_cavities"]),
+    materials = materials or {}
+    cells = [(r["key"], r["name"], r["family"], str(r["n_cavities"]), materials.get(r["key"], ""),
               _text({k: v for k, v in r["parameters"].items() if k not in common.get(r["family"], {})})
               + (" (pending)" if r["key"] in pending else "")) for r in rows]
-    head = ("key", "name", "family", "cav", "parameters" if wide else "parameters (varied)")
-    widths = [max(len(c[j]) for c in cells + [head]) for j in range(4)]
+    head = ("key", "name", "family", "cav", "material" if materials else "",
+            "parameters" if wide else "parameters (varied)")
+    widths = [max(len(c[j]) for c in cells + [head]) for j in range(5)]
     for c in [head] + cells:
-        print("  ".join(value.ljust(width) for value, width in zip(c[:4], widths)) + "  " + c[4])
+        print("  ".join(value.ljust(width) for value, width in zip(c[:5], widths) if width) + "  " + c[5])
     for family, shared in common.items():
         if shared:
             print(f"every {family} entry: {_text(shared)}")
@@ -57,13 +83,27 @@ def _ls(args) -> int:
     # lazy: the parser imports every subcommand module; the libraries load for the command that runs
     from vertebra.store import catalogue
 
+    from vertebra.core.errors import CatalogueError
+
     with catalogue.open_catalogue(args.file) as cat:
         rows = cat.list()
         pending = set(cat.pending)
-    if args.json:
-        _print_json([{k: r[k] for k in ("key", "name", "family", "parameters")} for r in rows])
-        return 0
-    _table(rows, args.wide, pending)
+        if args.json:
+            _print_json([{k: r[k] for k in ("key", "name", "family", "parameters")} for r in rows])
+            return 0
+        materials, ranges = {}, {}
+        for r in rows:
+            try:
+                entry = cat.load(r["key"])
+            except CatalogueError:
+                materials[r["key"]] = "unreadable (catalogue verify)"
+                continue
+            materials[r["key"]] = material(entry)
+            if entry.energy is not None:
+                ranges[r["key"]] = fitted_range(entry)
+    _table(rows, args.wide, pending, materials)
+    for key, text in ranges.items():
+        print(f"{key} fitted on: {text}")
     print(f"{len(rows)} entries", file=sys.stderr)
     return 0
 
@@ -87,6 +127,13 @@ def _show(args) -> int:
         print(f"mass       {entry.mass} kg  centre of mass {entry.center_of_mass} m")
         print(f"rest pose  d0 {entry.rest_translation} m  R0 {entry.rest_quaternion}")
         print(f"compliance ({entry.compliance.shape[0]}×{entry.compliance.shape[1]})\n{entry.compliance}")
+        print(f"material   {material(entry)}")
+        if entry.energy is not None:
+            fit = entry.energy
+            held = fit.fit_error.get("held_out", {}) if isinstance(fit.fit_error, dict) else {}
+            print(f"energy     degree {fit.degree}, {fit.exponents.shape[0]} terms; held-out load error "
+                  f"{held.get('load_max', float('nan')):.3g} (linear entry {held.get('linear_load_max', float('nan')):.3g})")
+            print(f"fitted on  {fitted_range(entry)}")
         for field in ("mesh", "accuracy", "timings", "provenance"):
             print(f"{field:10} {json.dumps(getattr(entry, field), sort_keys=True)}")
         print(f"checksum   {data['checksum']}")

@@ -9,6 +9,7 @@ reader of stdout went away, e.g. ``vertebra simulate … | head``.
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 import importlib
 import os
 import sys
@@ -46,7 +47,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="vertebra",
         description="Model and control continuum robots with rigid vertebrae: design segments (gmsh + "
-                    "scikit-fem) into an HDF5 catalogue, simulate trunks forward, invert them for actuation.")
+                    "scikit-fem) into an HDF5 catalogue, simulate trunks forward, invert them for actuation.",
+        epilog=f"Documentation (docs/NAME.md in the help texts): {Path(__file__).resolve().parent.parent / 'docs'}")
     parser.add_argument("--version", action="version", version=f"vertebra {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, (module_name, help_text) in SUBCOMMANDS.items():

@@ -346,6 +346,18 @@ def _shard_name(encs: list[EncodedEntry]) -> str:
     return f"batch@{h.hexdigest()[:16]}{SHARD_SUFFIX}"
 
 
+def _shards_directory(path: Path) -> Path:
+    """Create ``<catalogue>.shards/`` (a merger removes it when it leaves it empty)."""
+    d = shards_dir(path)
+    try:
+        d.mkdir(exist_ok=True)
+    except FileExistsError:
+        raise CatalogueError(f"{d}: exists but is not a directory (the shards of {path} go there)") from None
+    except OSError as error:
+        raise disk_error(d, "cannot create the shards directory", error) from None
+    return d
+
+
 def write_shard(path, encs: list[EncodedEntry]) -> Path:
     """Commit ``encs`` as one shard file next to catalogue ``path``; returns its path.
 
@@ -356,12 +368,6 @@ def write_shard(path, encs: list[EncodedEntry]) -> Path:
     if not path.parent.is_dir():
         raise CatalogueError(f"{path}: directory {path.parent} does not exist")
     d = shards_dir(path)
-    try:
-        d.mkdir(exist_ok=True)
-    except FileExistsError:
-        raise CatalogueError(f"{d}: exists but is not a directory (the shards of {path} go there)") from None
-    except OSError as error:
-        raise disk_error(d, "cannot create the shards directory", error) from None
     final = d / _shard_name(encs)
     try:
         with memory_file(None, final.name) as f:
@@ -374,7 +380,14 @@ def write_shard(path, encs: list[EncodedEntry]) -> Path:
         raise disk_error(final, "cannot build the shard in memory", error) from None
     tmp = _temp_path(d, "shard")
     try:
-        write_new(tmp, image)
+        for attempt in range(3):
+            _shards_directory(path)
+            try:
+                write_new(tmp, image)
+                break
+            except FileNotFoundError:
+                if attempt == 2:            # a merger removed the empty directory meanwhile: again
+                    raise
         _publish(tmp, final)
     except BaseException as error:
         _unlink_quietly(tmp)
@@ -578,3 +591,8 @@ def _settle(path, shards, merged, conflicted, corrupt) -> None:
     except OSError as error:
         log.warning("%s: merged, but tidying the shards failed (%s); the next merge finishes it",
                     path, error.strerror or error)
+        return
+    try:
+        shards_dir(path).rmdir()            # only when empty: a writer's temporary file keeps it
+    except OSError:
+        pass

@@ -33,7 +33,7 @@ def test_ls_shows_varied_parameters_in_full_and_shared_ones_once(rods, monkeypat
     code, out, _ = vertebra(["ls", path], monkeypatch, capsys)
     assert code == 0
     lines = out.splitlines()
-    assert lines[0].split()[:5] == ["key", "name", "family", "cav", "parameters"]
+    assert lines[0].split()[:6] == ["key", "name", "family", "cav", "material", "parameters"]
     for e in entries[:4]:
         row = next(line for line in lines if line.startswith(e.key))
         # nothing cut: the whole key and name, and every varied parameter with its value

@@ -152,3 +152,31 @@ def test_pool_workers_die_with_their_killed_parent():
     finally:
         if parent.poll() is None:
             parent.kill()
+
+
+def test_no_empty_shards_directory_is_left_beside_a_catalogue(tmp_path):
+    """A merge that empties ``<catalogue>.shards/`` removes it; pending shards keep it."""
+    path = tmp_path / "cat.h5"
+    catalogue.add_entry(path, _bases().rod)
+    assert not (tmp_path / "cat.h5.shards").exists()
+    catalogue.add_entries(path, [_bases().pneumatic], consolidate=False)
+    assert (tmp_path / "cat.h5.shards").is_dir()
+    catalogue.consolidate(path)
+    assert not (tmp_path / "cat.h5.shards").exists()
+    assert len(catalogue.open_catalogue(path)) == 2 and catalogue.verify(path) == []
+
+
+def test_catalogue_ls_and_show_name_the_material_and_the_fitted_range(tmp_path, capsys):
+    from vertebra.cli.main import main
+
+    path = tmp_path / "cat.h5"
+    catalogue.add_entries(path, [_bases().pneumatic, tampering.bases().pneumatic.__class__(
+        **{**{f.name: getattr(_bases().pneumatic, f.name) for f in dataclasses.fields(_bases().pneumatic)},
+           "key": "plain", "name": "plain", "energy": None, "provenance": {}})])
+    assert main(["catalogue", "ls", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "material" in out and "synthetic" in out and "linear" in out
+    assert "fitted on: lateral ≤ 0.2 L" in out and "pressure ≤ 1.5e+05 Pa" in out
+    assert main(["catalogue", "show", str(path), "tamper-pneumatic-nl"]) == 0
+    out = capsys.readouterr().out
+    assert "material   synthetic" in out and "fitted on  lateral" in out and "held-out load error" in out

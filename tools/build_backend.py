@@ -22,7 +22,7 @@ from setuptools.build_meta import (  # noqa: F401  (re-exported hooks)
 )
 
 SHIPPED = ("pyproject.toml", "README.md", "MANIFEST.in", "tools", "__init__.py", "__main__.py", "cli", "core", "designer", "solver", "store",
-           "examples")
+           "examples", "docs", "LICENSE")
 
 
 @contextmanager
