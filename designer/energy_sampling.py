@@ -40,6 +40,28 @@ from vertebra.core.energy import group_coordinates
 from vertebra.core.errors import ConvergenceError, OptionError
 
 
+#: environment variable: set to 1 by ``vertebra prepare`` (with its progress bar on) so that the
+#: worker designing a nonlinear entry reports the stages inside it on stderr (it inherits it)
+ENTRY_PROGRESS = "VERTEBRA_ENTRY_PROGRESS"
+
+
+def entry_progress(label: str, material: str):
+    """The ``progress`` callback of a design run in a worker: None for a linear entry or when
+    :data:`ENTRY_PROGRESS` is not ``1``, else one line ``label: message`` on stderr per stage
+    (pressure ramp, paths sampled so far with FE solves and seconds, the fit's held-out errors
+    against the linear entry's)."""
+    import os
+    import sys
+
+    if material == "linear" or os.environ.get(ENTRY_PROGRESS) != "1":
+        return None
+
+    def say(message: str) -> None:
+        print(f"{label}: {message}", file=sys.stderr, flush=True)
+
+    return say
+
+
 class PoseSolver(Protocol):
     """A segment's nonlinear FE with the bottom frame clamped and the top frame at a prescribed
     pose (``x = t + R X`` on the top face) and cavity pressures."""

@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING, Any, Callable
 import numpy as np
 
 from vertebra import __version__
-from vertebra.designer.energy_sampling import SamplingSettings
+from vertebra.designer.energy_sampling import ENTRY_PROGRESS, SamplingSettings
 from vertebra.designer.families import family_of
 from vertebra.designer.scene_range import (RANGE_SETTINGS, SamplingChoice, choose_sampling, estimate_ranges, uncovered,
                                            union)
@@ -273,6 +273,24 @@ def resolve(scene: Scene, keys: dict[int, str], catalogue) -> Scene:
     return dataclasses.replace(scene, segments=segments, catalogue=str(catalogue))
 
 
+@contextlib.contextmanager
+def _entry_progress(on: bool):
+    """While designing: with ``on``, the workers (which inherit the environment) report the
+    stages inside a nonlinear entry on stderr (``energy_sampling.entry_progress``)."""
+    saved = os.environ.get(ENTRY_PROGRESS)
+    if on:
+        os.environ[ENTRY_PROGRESS] = "1"
+    else:
+        os.environ.pop(ENTRY_PROGRESS, None)
+    try:
+        yield
+    finally:
+        if saved is None:
+            os.environ.pop(ENTRY_PROGRESS, None)
+        else:
+            os.environ[ENTRY_PROGRESS] = saved
+
+
 def prepare_designs(designs: list[Design], catalogue, *, source: str, label: str = "prepare",
                     executor: str = "local", workers: int | None = None, scheduler: str | None = None,
                     start_method: str = "spawn", linear_solver: str = "auto", estimate_accuracy: bool = True,
@@ -288,8 +306,9 @@ def prepare_designs(designs: list[Design], catalogue, *, source: str, label: str
     if plan.invalid:
         failure = plan.invalid[0]
         raise SceneError(failure.message, file=source, field=f"segment[{failure.index}].parameters")
-    run = run_plan(plan, executor=executor, workers=workers, scheduler=scheduler, start_method=start_method,
-                   progress=progress, dry_run=dry_run, started=start)
+    with _entry_progress(progress and not dry_run):
+        run = run_plan(plan, executor=executor, workers=workers, scheduler=scheduler, start_method=start_method,
+                       progress=progress, dry_run=dry_run, started=start)
     status = _statuses(run)
     segments = tuple(PreparedSegment(t.index, t.family, t.parameters, t.key_options, t.key, status[t.index])
                      for t in plan.tasks)

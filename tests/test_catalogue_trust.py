@@ -180,3 +180,26 @@ def test_catalogue_ls_and_show_name_the_material_and_the_fitted_range(tmp_path, 
     assert main(["catalogue", "show", str(path), "tamper-pneumatic-nl"]) == 0
     out = capsys.readouterr().out
     assert "material   synthetic" in out and "fitted on  lateral" in out and "held-out load error" in out
+
+
+def test_a_nonlinear_design_in_a_worker_reports_its_stages_while_prepare_shows_progress(monkeypatch, capsys):
+    """``prepare`` (progress on) lets the worker designing a nonlinear entry print its stages
+    (paths sampled, the fit's held-out errors) on stderr; linear entries and --no-progress stay quiet."""
+    from vertebra.designer import preparation
+    from vertebra.designer.sweep import tasks
+
+    seen = []
+    monkeypatch.setattr(tasks, "design_segment", lambda family, parameters, progress=None, **kw: seen.append(progress))
+    task = dataclasses.make_dataclass("T", ["family", "parameters", "name", "options"])
+
+    def design(material, on):
+        seen.clear()
+        with preparation._entry_progress(on):
+            tasks.FiniteElementDesigner().design(task("rod", {}, "nl-rod", {"material": material}))
+        return seen[0]
+
+    assert design("neo_hookean", False) is None and design("linear", True) is None
+    say = design("neo_hookean", True)
+    say("  3/13 paths, 12 FE solves, 40.0 s")
+    assert capsys.readouterr().err == "nl-rod:   3/13 paths, 12 FE solves, 40.0 s\n"
+    assert os.environ.get("VERTEBRA_ENTRY_PROGRESS") is None

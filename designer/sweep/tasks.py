@@ -17,6 +17,7 @@ from functools import partial
 from typing import Callable, Collection, Protocol, runtime_checkable
 
 from vertebra.designer.families import FAMILIES, canonical_parameters
+from vertebra.designer.energy_sampling import entry_progress
 from vertebra.designer.keys import entry_key
 from vertebra.designer.segment import design_segment
 from vertebra.designer.sweep.samplers import SAMPLERS
@@ -122,4 +123,5 @@ class FiniteElementDesigner:
         return entry_key(task.family, task.parameters, **task.key_options)
 
     def design(self, task: Task) -> SegmentEntry:
-        return design_segment(task.family, dict(task.parameters), name=task.name, progress=None, **task.options)
+        progress = entry_progress(task.name or task.family, task.options.get("material", "linear"))
+        return design_segment(task.family, dict(task.parameters), name=task.name, progress=progress, **task.options)
