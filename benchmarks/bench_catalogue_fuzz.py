@@ -9,7 +9,11 @@
 2. A 300 MB variable-length string attribute in an entry: seconds to refuse it (verify, load)
    against the seconds h5py needs to read it.
 
-Results: benchmarks/results/catalogue_fuzz.json and .md.
+3. ``--tamper N``: N seeded tampering cases of nonlinear entries written with a recomputed
+   checksum (tests/tampering.py: coefficients, convexity, scales, range, terms, the energy group
+   deleted), each through ``verify`` and ``load``; ``accepted`` must be 0. Only these run then.
+
+Results: benchmarks/results/catalogue_fuzz.json and .md (``--tamper``: catalogue_tamper.json).
 
     OMP_NUM_THREADS=1 .venv/bin/python -m benchmarks.bench_catalogue_fuzz [--cases 1000]
 """
@@ -68,11 +72,41 @@ def huge_attribute(directory: Path, megabytes: int = 300) -> dict:
     return out
 
 
+def tamper(cases: int, first_seed: int) -> int:
+    """Seeded tampering cases (tests/tampering.py); writes results/catalogue_tamper.json."""
+    import json
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+    import tampering
+
+    start = time.perf_counter()
+    with tempfile.TemporaryDirectory() as d:
+        results = tampering.run(Path(d), range(first_seed, first_seed + cases))
+    by_kind = collections.defaultdict(lambda: {"cases": 0, "accepted": 0})
+    for r in results:
+        by_kind[r["kind"]]["cases"] += 1
+        by_kind[r["kind"]]["accepted"] += "accepted" in (r["verify"], r["load"])
+    accepted = [r for r in results if "accepted" in (r["verify"], r["load"])]
+    out = {"date": datetime.now(timezone.utc).replace(microsecond=0).isoformat(), "host": platform.node(),
+           "cases": cases, "seeds": [first_seed, first_seed + cases - 1], "run_s": time.perf_counter() - start,
+           "accepted": len(accepted), "by_kind": dict(by_kind), "accepted_cases": accepted}
+    path = Path(__file__).resolve().parent / "results" / "catalogue_tamper.json"
+    path.write_text(json.dumps(out, indent=1) + "\n")
+    for kind, row in sorted(by_kind.items()):
+        print(f"{kind:24} {row['cases']:5d} cases  {row['accepted']} accepted")
+    print(f"{cases} tampering cases in {out['run_s']:.1f} s: {len(accepted)} accepted")
+    return 1 if accepted else 0
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cases", type=int, default=1000)
     parser.add_argument("--first-seed", type=int, default=1000, help="(make test uses seeds 0-99)")
+    parser.add_argument("--tamper", type=int, default=0, metavar="N",
+                        help="run N tampering cases of nonlinear entries instead (tests/tampering.py)")
     args = parser.parse_args(argv)
+    if args.tamper:
+        return tamper(args.tamper, args.first_seed)
     result = {"date": datetime.now(timezone.utc).replace(microsecond=0).isoformat(), "host": platform.node(),
               "python": platform.python_version(), "loadavg_start": os.getloadavg(), "deadline_s": 30.0,
               "cases": args.cases, "seeds": [args.first_seed, args.first_seed + args.cases - 1]}
