@@ -77,7 +77,7 @@ def tamper(entry, kind: str, rng: np.random.Generator):
     if kind == "coefficients x1e300":
         return _raw_replace(entry, energy=_raw_replace(fit, coefficients=fit.coefficients * 10.0 ** rng.integers(8, 301)))
     if kind == "coefficients x(-1e3)":
-        factor = -(10.0 ** rng.uniform(0, 3))
+        factor = -(10.0 ** rng.uniform(1, 3))     # × −1 of a weak correction stays convex: not detectable
         return _raw_replace(entry, energy=_raw_replace(fit, coefficients=fit.coefficients * factor))
     if kind == "non-convex quartic":
         j = int(rng.integers(0, 6))
