@@ -251,6 +251,14 @@ class EncodedEntry:
         self.checksum, self.content = digests(self.key, self.name, self.family, self.mass,
                                               self.arrays, self.dicts, entry.energy)
 
+    def legacy_content(self) -> str:
+        """The content digest as files written before ``CIRCUMSTANTIAL_KEYS`` existed store it
+        (wall-clock times inside ``accuracy`` included): their index rows still verify."""
+        dicts = {field: self.dicts[field] for field in DICT_FIELDS}
+        meta = {"key": self.key, "name": self.name, "family": self.family, "mass": float(self.mass)}
+        meta.update({f: dicts[f] for f in DICT_FIELDS if f not in CIRCUMSTANTIAL_FIELDS})
+        return _digest(self.arrays, meta, self.entry.energy)
+
     def index_row(self) -> dict:
         return {"key": self.key, "name": self.name, "family": self.family,
                 "parameters": self.dicts["parameters"], "n_cavities": int(self.arrays["cavity_volumes"].size),

@@ -203,3 +203,22 @@ def test_a_nonlinear_design_in_a_worker_reports_its_stages_while_prepare_shows_p
     say("  3/13 paths, 12 FE solves, 40.0 s")
     assert capsys.readouterr().err == "nl-rod:   3/13 paths, 12 FE solves, 40.0 s\n"
     assert os.environ.get("VERTEBRA_ENTRY_PROGRESS") is None
+
+
+def test_a_file_whose_content_digests_include_the_estimate_time_still_verifies_and_takes_the_same_design(tmp_path):
+    """Files written while ``estimate_s`` counted as content keep that digest in their index:
+    verify accepts it, and the same design with another estimate time is no conflict."""
+    import h5py
+
+    entry = dataclasses.replace(_bases().rod, accuracy={"method": "richardson", "relative_error": 0.01,
+                                                        "estimate_s": 3.0})
+    path = tmp_path / "cat.h5"
+    catalogue.add_entry(path, entry)
+    enc = schema.EncodedEntry(entry)
+    assert enc.legacy_content() != enc.content
+    with h5py.File(path, "r+") as f:                 # as the earlier writer stored it
+        f["entries"][entry.key].attrs["content"] = schema._fixed_string(enc.legacy_content())
+        f["index"][0] = schema.canonical_json({**enc.index_row(), "content": enc.legacy_content()})
+    assert catalogue.verify(path) == []
+    again = dataclasses.replace(entry, accuracy={**entry.accuracy, "estimate_s": 9.0})
+    assert catalogue.add_entry(path, again) == entry.key and catalogue.verify(path) == []
