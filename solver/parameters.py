@@ -120,8 +120,6 @@ def _check(trunk, parameters: Parameters) -> None:
         raise OptionError("a stroke-driven tendon's spring rate must be positive", field="cable_stiffness")
     if np.any(parameters.cable_stiffness[~tendons] != 0.0) or np.any(parameters.pretension[~tendons] != 0.0):
         raise OptionError("spring rates and pretensions apply to stroke-driven tendons only", field="cable_stiffness")
-    if np.any(parameters.pretension < 0.0):
-        raise OptionError("a pretension pulls: it must not be negative", field="pretension")
     if np.any(parameters.stiffness_scale <= 0.0):
         raise OptionError("a stiffness scale must be positive", field="stiffness_scale")
     if np.any(parameters.hole_radius < 0.0):

@@ -307,7 +307,7 @@ def _tendon(t: Table) -> dict:
         raise t.error("free_length", "sets the tendon's length for `axial_stiffness`; with `stiffness` "
                                      "(the spring rate itself) it has no meaning")
     return {"stroke": t.number("stroke"), "stiffness": stiffness, "axial_stiffness": axial,
-            "free_length": free_length, "pretension": t.number("pretension", 0.0, nonneg=True),
+            "free_length": free_length, "pretension": t.number("pretension", 0.0),
             "max_stroke_change": t.number("max_stroke_change", None, positive=True, unbounded=True)}
 
 

@@ -76,7 +76,7 @@ def _scene_data():
 
 def test_parameters_are_checked():
     model = scene()
-    for changes, message in (({"gravity": [1.0, 2.0]}, "3 values"), ({"pretension": {"a": -1.0}}, "pretension"),
+    for changes, message in (({"gravity": [1.0, 2.0]}, "3 values"),
                              ({"cable_stiffness": {"c": 10.0}}, "stroke-driven tendons only"),
                              ({"stiffness_scale": {5: 1.0}}, "out of range"), ({"hole_angle": {"z": 1.0}}, "unknown cable"),
                              ({"mass": 1.0}, "unknown parameter"), ({"stiffness_scale": {0: 0.0}}, "positive"),

@@ -94,6 +94,14 @@ def test_a_slack_tendon_carries_nothing_and_changes_nothing():
     assert np.abs(alone.state.positions - result.state.positions).max() <= 1e-9 * model.length_scale
 
 
+def test_a_negative_pretension_is_a_slack_at_zero_stroke():
+    # P < 0 leaves the tendon −P/k too long at zero stroke: the same law as a stroke shortened by it.
+    k, P = 2000.0, -0.6
+    slack = build([tendon("a", 0.0, 0.003, stiffness=k, pretension=P), tendon("b", 180.0, 0.0)]).solve()
+    shifted = build([tendon("a", 0.0, 0.003 + P / k, stiffness=k, pretension=0.0), tendon("b", 180.0, 0.0)]).solve()
+    assert np.abs(slack.state.positions - shifted.state.positions).max() <= 1e-12
+
+
 def test_the_tendons_tangent_is_the_derivative_of_the_gradient_and_its_factor_solves_it():
     model = build([tendon("a", 0.0, 0.004), tendon("b", 180.0, 0.0), tendon("c", 90.0, 0.002, to=5),
                    tendon("d", 270.0, -0.01)], loads=[{"vertebra": -1, "force": [0.0, -0.3, 0.0]}])

@@ -93,20 +93,16 @@ class RuntimePredictor:
 
     # ------------------------------------------------------------------ parameters
     def _set(self, values: Values) -> None:
-        """Apply ``values`` to the model. A negative pretension is a slack of ``−P/k``: the
-        runtime's pretension is ``max(P, 0)`` and the slack shortens the stroke (:meth:`_actuation`);
-        the tendon law ``k·max(0, L − L0 + stroke + P/k)`` is the same either way."""
+        """Apply ``values`` to the model (a negative pretension is a slack of ``−P/k`` at zero stroke)."""
         self.model.set_parameters(stiffness_scale=values.stiffness, hole_angle=self.rest_angle + values.angle,
                                   hole_radius=self.rest_radius + values.radius,
                                   cable_stiffness=values.cable_stiffness,
-                                  pretension=np.maximum(values.pretension, 0.0))
+                                  pretension=values.pretension)
 
     def _actuation(self, values: Values, command) -> np.ndarray:
-        """The model's actuation for one sample's commands (strokes of the driven cables, each
-        shortened by its slack)."""
+        """The model's actuation for one sample's commands (the strokes of the driven cables)."""
         actuation = self.model.actuation().copy()
-        k = values.cable_stiffness[self.driven]
-        actuation[self.driven] = command + np.minimum(values.pretension[self.driven], 0.0) / k
+        actuation[self.driven] = command
         return actuation
 
     def _step(self, kind: str, index, values: Values) -> float:

@@ -3,9 +3,8 @@ pictures (docs/calibration.md).
 
 * :func:`calibrated_scene_toml` — the scene file with the fitted values in place: moduli
   scaled, hole angles and radii corrected, the tendons' spring rates and pretensions, the
-  base pose and gravity expressed in the measurement frame, one effector per marker. A
-  negative pretension (a slack tendon) cannot be a scene's pretension: the scene gets 0 and
-  the header lists the slack, which adds to the servo command.
+  base pose and gravity expressed in the measurement frame, one effector per marker (a
+  negative pretension is a tendon slack by ``−P/k`` at zero stroke).
 * :func:`calibration_document` — the ``vertebra calibrate --json`` document.
 * :func:`markdown_report`, :func:`write_plots` — for people.
 """
@@ -99,7 +98,7 @@ def calibrated_scene_toml(cal, scene, mapping) -> str:
             table.pop("axial_stiffness", None)
             table.pop("free_length", None)
             table["stiffness"] = float(v.cable_stiffness[i])
-            table["pretension"] = float(max(v.pretension[i], 0.0))
+            table["pretension"] = float(v.pretension[i])
     position, quaternion, Rf = _compose_base(scene, v.frame)
     data["base"] = {"position": position.tolist(), "quaternion": quaternion.tolist()}
     if scene.gravity is not None:
@@ -117,13 +116,9 @@ def calibrated_scene_toml(cal, scene, mapping) -> str:
     for m, offset in zip(mapping.markers, v.marker):
         effectors.append({"name": m.name, "vertebra": m.vertebra, "offset": offset.tolist()})
     data["effector"] = effectors
-    slack = [(name, -v.pretension[names.index(name)] / v.cable_stiffness[names.index(name)])
-             for name in names if name in driven and v.pretension[names.index(name)] < 0.0]
-    note = ("\nslack tendons (a negative pretension): the servo command that gives stroke s in this scene is "
-            "s plus the slack:\n" + "\n".join(f"  {name}: slack {1e3 * m:.4f} mm" for name, m in slack)) if slack else ""
     header = (f"{scene.name or Path(scene.source).stem}: calibrated by vertebra {__version__} "
               f"(held-out tip RMSE {_mm(cal.holdout, 'rmse_m')}, train {_mm(cal.train, 'rmse_m')}); "
-              f"positions in the measurement frame" + note)
+              "positions in the measurement frame")
     ordered = {k: data[k] for k in data if not isinstance(data[k], (dict, list))}
     ordered.update({k: data[k] for k in data if isinstance(data[k], (dict, list))})
     return scene_toml(ordered, header)
