@@ -465,6 +465,12 @@ def solve(trunk, loads: LoadCases, actuation: np.ndarray, initial: State | None,
                       "loads are beyond what the trunk can carry)" if stalled else ""))
     excess = (out_of_range(trunk, kinematics(final).xi, loads(actuation, 1.0 if converged else load.scale))
               if trunk.links.fitted else ())
+    if excess and not converged:
+        worst = max(excess, key=lambda e: e.excess)
+        message += (f"; {len({e.link for e in excess})} link(s) of nonlinear entries left their fitted range "
+                    f"(largest: {worst}): beyond it an entry runs on its linear stiffness plus the fit's boundary "
+                    "force — widen the entry's sampled range (`vertebra design … --sampling …`) or let "
+                    "`vertebra prepare` size it from the scene")
     result = StaticResult(converged, iterations, float(residual), final, actuation, history, stages,
                           "+".join(sorted(kinds)) or "none", {"solve_s": time.perf_counter() - start},
                           rounding_limited=limited and converged, largest_turn=_turn(final),
