@@ -9,7 +9,9 @@ and the full nonlinear FE, at loads that carry their segments out of the sampled
    vertebrae, continued from level to level), the runtime with the nonlinear entries and with
    their linear parts; the tip error in % of the trunk length, convergence, and the largest
    bending per segment reported outside the range.
-2. Random trunks. 200 trunks of 2–8 repetitions of those entries under random tip forces and
+2. Convergence (runtime only) at every level and direction: with the tail beyond the box, with
+   the polynomial evaluated outside it instead, and with the linear entries.
+3. Random trunks. 200 trunks of 2–8 repetitions of those entries under random tip forces and
    moments up to 3× the load box (the largest segment load up to three times the sampled
    bound): every solve converges or stops with a reason; the states outside the range are
    reported where they are (the solve's own report checked against the range test).
@@ -172,6 +174,38 @@ def random_trunks(entries: dict, n: int, seed: int = 0) -> dict:
     return {"summary": summary, "rows": rows}
 
 
+def convergence(entries: dict) -> list:
+    """Runtime only, every material, direction and level: does the trunk converge with the tail
+    beyond the box, with the polynomial evaluated outside it instead (the kernel's tail switched
+    off for the study), and with the linear entries; iterations, tip rotation, quantities out of
+    range and the largest bending reported."""
+    from vertebra.core import energy
+
+    rows = []
+    tail = energy.FixedPressures._extend
+    for material, entry in entries.items():
+        for direction in DIRECTIONS:
+            case = case_of(material, direction)
+            for level in case.levels:
+                row = {"material": material, "direction": direction, "force_N": level}
+                for kind, chosen, extend in (("nonlinear", entry, True), ("polynomial", entry, False),
+                                             ("linear", dataclasses.replace(entry, energy=None), True)):
+                    energy.FixedPressures._extend = tail if extend else (lambda *args, **kwargs: None)
+                    try:
+                        result = runtime_model(case, [chosen], level).solve(raise_on_failure=False)
+                    finally:
+                        energy.FixedPressures._extend = tail
+                    R = lie.qmatrix(result.state.quaternions[-1:])[0]
+                    row[kind] = {"converged": bool(result.converged), "iterations": int(result.iterations),
+                                 "tip_rotation_deg": rotation_angle_deg(R), "out_of_range": len(result.out_of_range),
+                                 "bending_out_of_range_deg": bending_out(result)}
+                rows.append(row)
+                log(f"  {material} {direction} {level} N: " + ", ".join(
+                    f"{k} {'ok' if row[k]['converged'] else 'FAILED'} ({row[k]['out_of_range']} out)"
+                    for k in ("nonlinear", "polynomial", "linear")))
+    return rows
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--materials", nargs="*", default=["neo_hookean", "svk"])
@@ -192,6 +226,8 @@ def main(argv=None) -> int:
         entries[material], seconds = designed(case, ROD, path)
         log(f"{material}: entry {entries[material].name}, bending range "
             f"{math.degrees(float(entries[material].energy.range.pose_upper[2])):.1f}° ({seconds:.0f} s to design)")
+    document["convergence"] = convergence(entries)
+    write_json(document, out)
     if args.random:
         document["random"] = random_trunks(entries, args.random)
         write_json(document, out)
