@@ -191,12 +191,13 @@ def evaluate(trunk, state, load: LoadCase, previous: "Evaluation | Trial | None"
     else:
         q = state.quaternions
         links = Links.of(q[:-1], x[:-1], q[1:], x[1:])
-        rotations = qmatrix(q) if load.piece_tension is not None or load.weight is not None else None
-    parts = None
+        rotations = qmatrix(q) if load.cables or load.weight is not None else None
+    parts = energy = None
     if previous is not None and record is not None and previous.record is record and previous.load is load:
-        parts = previous.parts
+        parts, energy = previous.parts, previous.energy
     if parts is None:
         parts = _potential_parts(trunk, x, rotations, links.xi, load)
+        energy = _total(trunk, x, parts, load)
     _, w, kept = parts.response
     g_links = links.gradient(w)
     grad = np.zeros((x.shape[0], 6))
@@ -215,7 +216,7 @@ def evaluate(trunk, state, load: LoadCase, previous: "Evaluation | Trial | None"
 
     if load.dead is not None:
         grad -= load.dead
-    return Evaluation(_total(trunk, x, parts, load), grad, links, w, kept, g_links, pieces, lever, load,
+    return Evaluation(energy, grad, links, w, kept, g_links, pieces, lever, load,
                       record is not None and record is trunk.rest_state.strains, record, parts)
 
 
