@@ -83,8 +83,6 @@ def _ls(args) -> int:
     # lazy: the parser imports every subcommand module; the libraries load for the command that runs
     from vertebra.store import catalogue
 
-    from vertebra.core.errors import CatalogueError
-
     with catalogue.open_catalogue(args.file) as cat:
         rows = cat.list()
         pending = set(cat.pending)

@@ -47,6 +47,8 @@ from typing import Callable
 
 import numpy as np
 
+from vertebra.core.energy import EnergyFit, EnergyModel, linear_terms
+
 #: factor below the stiffness-side bound an entry may be (locking first-order elements)
 LOWER_FACTOR = 100.0
 #: factor above the compliance-side bound an entry may be (polygonal walls, estimates)
@@ -387,8 +389,6 @@ def energy_problems(entry) -> list[str]:
       ±:data:`MAX_STIFFENING`, and not below what the fit records as its least one (a designed
       fit records it; see :data:`CONVEXITY_SLACK`): a convex fit stays convex.
     """
-    from vertebra.core.energy import EnergyFit, EnergyModel, linear_terms
-
     fit = entry.energy
     if not isinstance(fit, EnergyFit) or fit.n_cavities != entry.n_cavities \
             or np.any(entry.rest_quaternion != [1.0, 0.0, 0.0, 0.0]):
