@@ -124,6 +124,6 @@ def test_sweep_spec_material():
     assert parse_spec({"family": "rod", "parameters": fixed, "grid": {"radius": [0.01]}}).options["material"] == "linear"
     with pytest.raises(SpecError, match="rubber"):
         parse_spec({"family": "rod", "parameters": fixed, "grid": {"radius": [0.01]}, "material": "rubber"})
-    with pytest.raises(SpecError, match="sampling.steps"):
+    with pytest.raises(SpecError, match=r"sampling: steps: 0 is out of range"):
         parse_spec({"family": "rod", "parameters": fixed, "grid": {"radius": [0.01]}, "material": "svk",
                     "sampling": {"steps": 0}})

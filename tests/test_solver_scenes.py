@@ -166,6 +166,6 @@ def test_the_documented_scene_example_is_valid():
     block = text.split("```toml")[1].split("```")[0]
     data = tomllib.loads(block.replace('"<catalogue key, unique key prefix or name>"', '"x"'))
     scene = solver.parse_scene(data, source="docs/scenes.md")
-    assert scene.n_vertebrae == 23 and len(scene.cables) == 1 and len(scene.chambers) == 1
+    assert scene.n_vertebrae == 23 and len(scene.cables) == 2 and scene.cables[1].stroke_driven and len(scene.chambers) == 1
     assert scene.design_segments == (2,) and scene.segments[2].design.material == "linear"
     assert scene.effectors[1].axis == (0.0, 0.0, 1.0) and abs(sum(v * v for v in scene.effectors[1].target) - 1) < 1e-12
