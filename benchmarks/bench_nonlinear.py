@@ -12,7 +12,7 @@ Sections (all by default; name some to run only those):
     sampling on the local pool of 2 workers: cost per entry. Then the fit study on its samples:
     degree 4/6/8 × number of loading paths, each fit's held-out error and the tip error of
     trunks of 2 and 4 segments (planar and 3D loads, up to ~90°) against the full nonlinear FE
-    of the same trunk (designer.nonlinear.trunk.NonlinearTrunk, same mesh), linear entries
+    of the same trunk (designer.nonlinear.fe_trunk.NonlinearTrunk, same mesh), linear entries
     for comparison.
 ``family``
     A squat neo-Hookean rod (length/radius 1, four segments), an ``svk`` rod (length/radius 4)
@@ -125,7 +125,7 @@ LOAD_KINDS = {
 
 def trunk_cases(segment, entry, n, kind, levels, *, reference_cache):
     """Full nonlinear FE trunk solutions of ``n`` segments at increasing load levels (continuation)."""
-    from vertebra.designer.nonlinear.trunk import NonlinearTrunk, TrunkLoads
+    from vertebra.designer.nonlinear.fe_trunk import NonlinearTrunk, TrunkLoads
 
     key = (n, kind)
     if key in reference_cache:
@@ -298,7 +298,7 @@ def section_family(results, quick):
 
 def section_pneumatic(results, quick):
     from tests.reference.energy_chain import EntryEnergy, solve_chain
-    from vertebra.designer.nonlinear.trunk import NonlinearTrunk, TrunkLoads
+    from vertebra.designer.nonlinear.fe_trunk import NonlinearTrunk, TrunkLoads
 
     log("pneumatic: CBHA-like slice")
     entry, result, spec, linear_s = condensed("pneumatic", CBHA, "neo_hookean",

@@ -74,7 +74,7 @@ def _trunk_errors(entry, references) -> list[dict]:
 
 def section_pressure(results: dict) -> None:
     from vertebra import designer, solver
-    from vertebra.designer.nonlinear.trunk import NonlinearTrunk, TrunkLoads
+    from vertebra.designer.nonlinear.fe_trunk import NonlinearTrunk, TrunkLoads
     from vertebra.designer.nonlinear_condensation import FamilySolid
 
     out = {"loadavg": loadavg()[0], "slices": SLICES, "bound": BOUND}

@@ -15,7 +15,7 @@ Sections (tables in ``results/runtime_nonlinear.md``, numbers in ``results/runti
     it was sampled on: the entries are designed on coarse meshes.
 ``accuracy``
     A spot check of the public path against the full nonlinear FE of the same trunk
-    (``designer.nonlinear.trunk.NonlinearTrunk``, same meshes and material, rigid vertebrae):
+    (``designer.nonlinear.fe_trunk.NonlinearTrunk``, same meshes and material, rigid vertebrae):
     ``build_model(scene)`` with the designed entries, rod trunks under dead loads (planar and
     3D) and four pneumatic slices with one chamber pressurised — tip error in % of the trunk
     length, tip angle and volume growth errors, for the nonlinear and the linear entries, and
@@ -119,7 +119,7 @@ def cpu_median(model, repeats: int) -> float:
 def evaluation_us(model, state, repeats: int) -> float:
     """CPU time of the links' part of one Newton evaluation at ``state``: the link energies'
     response and material tangent (what the energy class is asked per iteration)."""
-    from vertebra.solver.energy import link_response
+    from vertebra.solver.potential import link_response
     from vertebra.solver.state import kinematics
 
     trunk_ = model.trunk
@@ -236,7 +236,7 @@ def _runtime(entry, count, forces, pressure=0.0):
 
 
 def section_accuracy(results: dict, entries: dict, quick: bool) -> None:
-    from vertebra.designer.nonlinear.trunk import NonlinearTrunk, TrunkLoads
+    from vertebra.designer.nonlinear.fe_trunk import NonlinearTrunk, TrunkLoads
 
     rows = []
     rod = entries["rod-d6"]

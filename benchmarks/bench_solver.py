@@ -126,7 +126,7 @@ def count_evaluations(model, fn):
 def evaluation_pieces(model, state, act, reps, budget_s=None):
     """Timings of one Newton iteration's pieces at ``state``: gradient (``evaluate``), gradient and
     tangent, the tangent's symmetric band; returns (tangent, rhs, timings)."""
-    from vertebra.solver.energy import tangent
+    from vertebra.solver.potential import tangent
     trunk = model.trunk
     matrix, t_tan = timed(lambda: tangent(trunk, model.evaluate(state, act)), reps, budget_s=budget_s)
     ev, t_grad = timed(lambda: model.evaluate(state, act), reps, budget_s=budget_s)

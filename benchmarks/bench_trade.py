@@ -1,6 +1,6 @@
 """The speed–accuracy trade, measured: every knob's error against a reference and its cost.
 
-References: the full nonlinear FE of the same trunk (``designer.nonlinear.trunk.NonlinearTrunk``,
+References: the full nonlinear FE of the same trunk (``designer.nonlinear.fe_trunk.NonlinearTrunk``,
 neo-Hookean, rigid vertebrae tying the segments' faces, on the entries' own meshes or on a finer
 one) and closed forms (the planar elastica). Timings are CPU time of the calling thread
 (``time.thread_time``, one BLAS thread), medians over rounds interleaved between the variants
@@ -170,7 +170,7 @@ class References:
         """(record, state): tip position, rotation and chamber volume growth (summed over the
         segments) of ``count`` copies of ``solid`` under dead ``forces`` {vertebra: force} and
         ``pressures`` (per-cavity, the same in every segment); state is None when cached or failed."""
-        from vertebra.designer.nonlinear.trunk import NonlinearTrunk, TrunkLoads
+        from vertebra.designer.nonlinear.fe_trunk import NonlinearTrunk, TrunkLoads
 
         spec, segment = solid
         forces = {int(k): np.asarray(f, dtype=float) for k, f in (forces or {}).items()}

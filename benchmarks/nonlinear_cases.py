@@ -167,7 +167,7 @@ def _segment(spec: SegmentSpec, mesh, material_name: str, quadrature: str, **opt
     from skfem import Basis, ElementTetP2
 
     from vertebra.designer.fem import build_fe
-    from vertebra.designer.nonlinear.assembly import SolidModel
+    from vertebra.designer.nonlinear.fe_assembly import SolidModel
     from vertebra.designer.nonlinear.framed import FramedSolid
     fe = build_fe(mesh, material.youngs_modulus, material.poisson_ratio, common["density"], common["n_cavities"],
                   common["length"])

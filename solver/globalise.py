@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from vertebra.solver.energy import evaluate
+from vertebra.solver.potential import evaluate
 from vertebra.solver.state import retract, strain_change
 
 NEUTRAL = 1e-9        # curvature above −NEUTRAL·D is neutral (a symmetry of the loads), not unstable

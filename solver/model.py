@@ -5,11 +5,11 @@
 then runs many times without re-parsing or re-allocating the structure. The model is a façade:
 
 * :mod:`~vertebra.solver.trunk` — the compiled, read-only arrays (``model.trunk``);
-* :mod:`~vertebra.solver.energy` — potential, gradient and tangent at a state;
+* :mod:`~vertebra.solver.potential` — potential, gradient and tangent at a state;
 * :mod:`~vertebra.solver.assembly` / :mod:`~vertebra.solver.banded` — band storage and factors;
 * :mod:`~vertebra.solver.newton` — the forward solve;
 * :mod:`~vertebra.solver.outputs` — effectors, actuator displacements, the linearisation;
-* :class:`~vertebra.solver.energy.LoadCases` — the load cases of the last two actuations asked for.
+* :class:`~vertebra.solver.potential.LoadCases` — the load cases of the last two actuations asked for.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from vertebra.solver import bounds, compliance, newton, outputs, sensitivity
-from vertebra.solver.energy import Evaluation, LoadCases, Trial, cable_tensions, evaluate, out_of_range, potential
+from vertebra.solver.potential import Evaluation, LoadCases, Trial, cable_tensions, evaluate, out_of_range, potential
 from vertebra.solver.newton import StaticResult
 from vertebra.solver.outputs import Linearisation
 from vertebra.solver.parameters import Parameters, parameters_of, reparameterise
@@ -173,14 +173,14 @@ class TrunkModel:
 
     def evaluate(self, state: State, actuation=None, *, scale: float = 1.0, previous=None) -> Evaluation:
         """Total potential and gradient at ``state`` under ``scale`` × the actuation and loads
-        (:func:`vertebra.solver.energy.evaluate`; ``previous``: an evaluation or :meth:`trial`
+        (:func:`vertebra.solver.potential.evaluate`; ``previous``: an evaluation or :meth:`trial`
         of the same state to reuse)."""
         actuation = self.actuation(actuation)
         return evaluate(self.trunk, state, self.loads(actuation, scale), previous)
 
     def potential(self, state: State, actuation=None) -> float:
         """Total potential at ``state`` under the actuation and loads, without its gradient
-        (:func:`vertebra.solver.energy.potential`)."""
+        (:func:`vertebra.solver.potential.potential`)."""
         return self.trial(state, actuation).energy
 
     def trial(self, state: State, actuation=None) -> "Trial | Evaluation":

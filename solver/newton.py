@@ -51,7 +51,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vertebra.solver.energy import LoadCase, LoadCases, evaluate, out_of_range, tangent
+from vertebra.solver.potential import LoadCase, LoadCases, evaluate, out_of_range, tangent
 from vertebra.solver import globalise
 from vertebra.solver.globalise import NEUTRAL
 from vertebra.solver.representable import (COLLAPSE_LIMIT, FOLD_LIMIT, TURN_LIMIT, Unrepresentable,

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vertebra.solver.energy import Evaluation, LoadCases, chamber_forces, evaluate, tangent, volume_growth
+from vertebra.solver.potential import Evaluation, LoadCases, chamber_forces, evaluate, tangent, volume_growth
 from vertebra.solver.state import kinematics
 from vertebra.core.lie import hat, qmatrix, qrotate
 from vertebra.core.errors import ConvergenceError

@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from vertebra.solver.beam import Section
+from vertebra.solver.timoshenko import Section
 from vertebra.solver.tables import Table
 from vertebra.core.errors import SceneError
 

@@ -37,7 +37,7 @@ from vertebra.core.errors import ConvergenceError, OptionError
 from vertebra.core.lie import hat, qmatrix
 from vertebra.solver import outputs as outputs_module
 from vertebra.solver.banded import BandedFactor, LowRankFactor
-from vertebra.solver.energy import Evaluation, evaluate, tangent, volume_growth
+from vertebra.solver.potential import Evaluation, evaluate, tangent, volume_growth
 from vertebra.solver.parameters import reparameterise
 
 PARAMETER_GROUPS = ("actuation", "gravity", "dead", "cable_stiffness", "pretension", "stiffness_scale",

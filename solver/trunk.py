@@ -18,7 +18,7 @@ import numpy as np
 
 from vertebra.solver.assembly import BandAssembler
 from vertebra.solver.cables import CableRouting
-from vertebra.solver.energy import RestConstants, rest_constants
+from vertebra.solver.potential import RestConstants, rest_constants
 from vertebra.solver.kinds import CompiledLinks, kind_for
 from vertebra.core.energy import rest_strain
 from vertebra.core.lie import qmatrix

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vertebra.designer.energy_fit import FitResult, pose_derivatives
-from vertebra.solver.beam import Section, timoshenko_compliance
+from vertebra.solver.timoshenko import Section, timoshenko_compliance
 from vertebra.core.energy import EnergyFit, EnergyModel, EnergyRange, linear_terms, rest_strain
 from vertebra.store.entry import SegmentEntry
 from vertebra.core.errors import ConvergenceError

@@ -9,7 +9,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from vertebra import solver
-from vertebra.solver.beam import Section, timoshenko_compliance
+from vertebra.solver.timoshenko import Section, timoshenko_compliance
 from vertebra.solver.compliance import effector_compliance
 from vertebra.solver.scene import LoadSpec
 

@@ -165,7 +165,7 @@ def pneumatic_entry(length=0.03, youngs_modulus=1e6, poisson_ratio=0.45, outer=0
     """A synthetic three-cavity elastomer segment (no CBHA catalogue entry exists yet):
     tube compliance C, pressure acting as a push ``F`` on the top face at each cavity,
     G = C F, V = Fᵀ C F + v₀ I — symmetric positive definite by construction."""
-    from vertebra.solver.beam import Section, timoshenko_compliance
+    from vertebra.solver.timoshenko import Section, timoshenko_compliance
     from vertebra.store.entry import SegmentEntry
 
     C = timoshenko_compliance(length, youngs_modulus, youngs_modulus / (2 * (1 + poisson_ratio)),

@@ -72,7 +72,7 @@ def test_fitted_chain_against_the_full_nonlinear_trunk(rod_entry):
     (bending in 3D, ~45° at the tip), against the full nonlinear FE of the trunk (same mesh, rigid
     vertebrae): the fitted entry's tip is within 0.1 % of the trunk length (coarse sampling: 8
     paths; measured 0.008 % at 44°), ψ_lin's ≥ 0.3 % off (measured 0.54 %)."""
-    from vertebra.designer.nonlinear.trunk import NonlinearTrunk, TrunkLoads
+    from vertebra.designer.nonlinear.fe_trunk import NonlinearTrunk, TrunkLoads
 
     spec = FamilySolid("rod", json.dumps(rod_entry.parameters, sort_keys=True), MESH, 2, "neo_hookean")
     segment = spec.build()

@@ -105,7 +105,7 @@ def test_patch_test_homogeneous_deformation_is_reproduced_exactly():
     """A homogeneous deformation leaves interior nodes in equilibrium for every material on curved
     P2 tetrahedra (the quadrature integrates cof(J)∇N exactly) and the energy is W(F)·volume."""
     from vertebra.designer.fem import build_fe
-    from vertebra.designer.nonlinear.assembly import SolidModel
+    from vertebra.designer.nonlinear.fe_assembly import SolidModel
     fam, p, mesh = _mesh("rod", dict(radius=0.004, length=0.01, youngs_modulus=E, poisson_ratio=0.3), 0.003)
     fe = build_fe(mesh, E, 0.3, 0.0, 0, 0.01)
     boundary_nodes = np.unique(np.concatenate([t.ravel() for t in mesh.facets.values()]))

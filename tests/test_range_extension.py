@@ -134,7 +134,7 @@ def test_a_trunk_beyond_its_box_solves_is_reported_and_is_no_worse_than_linear(r
     farther from the full nonlinear FE than the linear entries' (measured, in % of the length:
     0.005 with the whole box, 0.11 cut to a third, 0.25 cut to a sixth, 0.31 for the linear
     entries)."""
-    from vertebra.designer.nonlinear.trunk import NonlinearTrunk, TrunkLoads
+    from vertebra.designer.nonlinear.fe_trunk import NonlinearTrunk, TrunkLoads
     from vertebra.designer.nonlinear_condensation import FamilySolid
 
     forces = {3: [1.2, 0.0, 0.0]}

@@ -9,7 +9,7 @@ import pytest
 
 from vertebra import solver
 from vertebra.solver.analytic import column_tip_angle
-from vertebra.solver.energy import tangent
+from vertebra.solver.potential import tangent
 from vertebra.solver.gallery import load
 from vertebra.core.lie import qlog
 from vertebra.solver.newton import is_stable

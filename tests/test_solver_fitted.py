@@ -350,7 +350,7 @@ def test_chain_of_nonlinear_entries_against_the_full_nonlinear_fe(rod, case):
     the test tells the two apart. The runtime equals the fit's yardstick chain to solver
     tolerance (the same energies: 1e-9 of the length)."""
     from reference.energy_chain import EntryEnergy, PointLoad, solve_chain
-    from vertebra.designer.nonlinear.trunk import NonlinearTrunk, TrunkLoads
+    from vertebra.designer.nonlinear.fe_trunk import NonlinearTrunk, TrunkLoads
     from vertebra.designer.nonlinear_condensation import FamilySolid
 
     assert rod.energy.fit_error["held_out"]["load_max"] < 0.02

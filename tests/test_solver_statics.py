@@ -7,7 +7,7 @@ import pytest
 
 from vertebra import solver
 from vertebra.solver.analytic import arc_tip, cantilever_deflection_uniform_load, elastica_tip
-from vertebra.solver.beam import Section, timoshenko_compliance
+from vertebra.solver.timoshenko import Section, timoshenko_compliance
 from vertebra.core.lie import qlog
 from vertebra.core.errors import ConvergenceError
 

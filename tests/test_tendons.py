@@ -14,7 +14,7 @@ import pytest
 
 from vertebra import solver
 from vertebra.core.errors import SceneError
-from vertebra.solver.energy import cable_tensions, tangent
+from vertebra.solver.potential import cable_tensions, tangent
 from vertebra.solver.gallery import load
 
 E, NU, R_ROD, LINK = 54e9, 0.3, 0.0007, 0.02

@@ -21,9 +21,9 @@ imports (scikit-fem, gmsh, pyamg) happen inside functions.
 """
 
 from vertebra.designer.nonlinear.materials import MATERIALS, get_material
-from vertebra.designer.nonlinear.newton import NewtonSettings
-from vertebra.designer.nonlinear.segment import NonlinearSegment, SegmentResponse, SegmentSettings, SegmentState
-from vertebra.designer.nonlinear.trunk import (NonlinearTrunk, TrunkLoads, TrunkResponse, TrunkSettings, TrunkState,
+from vertebra.designer.nonlinear.fe_newton import NewtonSettings
+from vertebra.designer.nonlinear.fe_segment import NonlinearSegment, SegmentResponse, SegmentSettings, SegmentState
+from vertebra.designer.nonlinear.fe_trunk import (NonlinearTrunk, TrunkLoads, TrunkResponse, TrunkSettings, TrunkState,
                                                VertebraMass)
 
 __all__ = ["MATERIALS", "get_material", "NewtonSettings", "NonlinearSegment", "SegmentResponse",

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vertebra.core.lie import hat, se3_exp_matrix, se3_log_matrix
-from vertebra.designer.nonlinear.assembly import SolidModel
+from vertebra.designer.nonlinear.fe_assembly import SolidModel
 
 FACES = ("bottom", "top")
 #: outward normal of the cavity on each cap, in the frame of the face

@@ -9,7 +9,7 @@ errors, their correlations and the tip errors on training and held-out samples.
 from vertebra.solver.calibration.data import (Mapping, MappingError, Samples, load_mapping, load_samples,
                                               parse_mapping)
 from vertebra.solver.calibration.fit import Calibration, LOSSES, METHODS, calibrate, error_metrics
-from vertebra.solver.calibration.parameters import KINDS, ParameterSet, Values, parse_parameters
+from vertebra.solver.calibration.fit_parameters import KINDS, ParameterSet, Values, parse_parameters
 
 __all__ = ["Calibration", "KINDS", "LOSSES", "METHODS", "Mapping", "MappingError", "ParameterSet", "Samples",
            "Values", "calibrate", "error_metrics", "load_mapping", "load_samples", "parse_mapping",

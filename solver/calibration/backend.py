@@ -2,7 +2,7 @@
 
 A calibration sees the robot through one narrow interface, :class:`Predictor`:
 ``predict(values, samples, wrt)`` solves every sample's static equilibrium under the element
-values (:class:`~vertebra.solver.calibration.parameters.Values`) and returns the markers in the
+values (:class:`~vertebra.solver.calibration.fit_parameters.Values`) and returns the markers in the
 measurement frame and, for the elements ``wrt``, their derivatives.
 
 :class:`RuntimePredictor` builds it on the runtime: the mapped cables are the scene's
@@ -33,7 +33,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from vertebra.core.errors import ConvergenceError, OptionError
-from vertebra.solver.calibration.parameters import Values
+from vertebra.solver.calibration.fit_parameters import Values
 from vertebra.solver.model import build_model
 
 __all__ = ["Prediction", "Predictor", "RuntimePredictor"]

@@ -19,7 +19,7 @@ from scipy.optimize import least_squares
 
 from vertebra.core.errors import OptionError
 from vertebra.solver.calibration.backend import RuntimePredictor
-from vertebra.solver.calibration.parameters import ParameterSet, Values, parse_parameters
+from vertebra.solver.calibration.fit_parameters import ParameterSet, Values, parse_parameters
 
 __all__ = ["Calibration", "LOSSES", "METHODS", "calibrate", "error_metrics"]
 

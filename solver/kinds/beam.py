@@ -1,7 +1,7 @@
 """Beam links: analytic Timoshenko sections (``type = "beam"`` segments) as quadratic links.
 
 A repetition of length ``l`` with ``elements`` links makes links of length ``l / elements``,
-each with the closed-form cantilever compliance of its length (:mod:`vertebra.solver.beam`),
+each with the closed-form cantilever compliance of its length (:mod:`vertebra.solver.timoshenko`),
 its mass ``ρ A l`` at mid-length, and no cavities.
 """
 
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from vertebra.solver.beam import timoshenko_compliance
+from vertebra.solver.timoshenko import timoshenko_compliance
 from vertebra.solver.kinds import LinkSource, register
 from vertebra.solver.kinds.quadratic import Compliance, QuadraticKind
 

@@ -14,7 +14,7 @@ moments come from lever arms) and cavity pressures. The unknowns are the strains
 is minimised by Newton with a backtracking line search, its Hessian the segments' Hessians
 plus the loads' (central differences of their closed-form gradient). The reference it is
 measured against is the full nonlinear FE of the same trunk
-(:class:`designer.nonlinear.trunk.NonlinearTrunk`, same meshes and material).
+(:class:`designer.nonlinear.fe_trunk.NonlinearTrunk`, same meshes and material).
 """
 
 from __future__ import annotations

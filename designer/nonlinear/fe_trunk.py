@@ -36,7 +36,7 @@ import numpy as np
 
 from vertebra.designer.nonlinear.framed import Pose
 from vertebra.designer.nonlinear.krylov import ReusedFactorSolver
-from vertebra.designer.nonlinear.newton import NewtonSettings, Step, march
+from vertebra.designer.nonlinear.fe_newton import NewtonSettings, Step, march
 from vertebra.core.errors import OptionError
 from vertebra.core.lie import hat, qfrom_matrix, so3_expm1, so3_log
 

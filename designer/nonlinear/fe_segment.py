@@ -44,10 +44,10 @@ import numpy as np
 from vertebra.designer.families import canonical_parameters, family_of, resolve_mesh_size
 from vertebra.designer.fem import build_fe, rigid_body_modes
 from vertebra.designer.geometry import mesh_segment
-from vertebra.designer.nonlinear.assembly import SolidModel
+from vertebra.designer.nonlinear.fe_assembly import SolidModel
 from vertebra.designer.nonlinear.framed import FramedSolid, Pose
 from vertebra.designer.nonlinear.krylov import ReusedFactorSolver
-from vertebra.designer.nonlinear.newton import NewtonSettings, Step, march
+from vertebra.designer.nonlinear.fe_newton import NewtonSettings, Step, march
 from vertebra.designer.nonlinear.materials import get_material
 from vertebra.core.errors import OptionError
 from vertebra.core.lie import hat, se3_exp_matrix, se3_log_matrix, so3_exp, so3_log
