@@ -49,7 +49,7 @@ from vertebra.designer.sweep.run import run_plan
 from vertebra.designer.sweep.spec import DESIGN_OPTIONS, design_options
 from vertebra.designer.sweep.store import CatalogueStore, SweepStore
 from vertebra.designer.sweep.tasks import Batch, FiniteElementDesigner, SegmentDesigner, Task
-from vertebra.core.errors import ConvergenceError, OptionError, SceneError
+from vertebra.core.errors import CatalogueError, ConvergenceError, OptionError, SceneError
 from vertebra.store.catalogue import open_catalogue
 
 if TYPE_CHECKING:       # the designer reads scenes as data; it never imports the solver at run time
@@ -164,6 +164,27 @@ class PrepareReport:
             out["warnings"] = list(self.warnings)
         return out
 
+    def _fit_summaries(self) -> dict:
+        """Key → the fit's held-out load error against the linear entry's, for the nonlinear
+        entries in the catalogue (designed or reused)."""
+        keys = {s.key for s in self.segments
+                if s.sampling is not None and s.key is not None and s.status in ("designed", "reused")}
+        if not keys or self.dry_run:
+            return {}
+        out = {}
+        try:
+            with open_catalogue(self.catalogue) as catalogue:
+                for key in keys:
+                    fit = catalogue.load(key).energy
+                    held = fit.fit_error.get("held_out", {}) if fit is not None and isinstance(fit.fit_error, dict) else {}
+                    if "load_max" in held:
+                        out[key] = (f"degree {fit.degree}, {fit.exponents.shape[0]} terms; held-out load error "
+                                    f"{held['load_max']:.3g} of the load range (linear entry "
+                                    f"{held.get('linear_load_max', float('nan')):.3g})")
+        except CatalogueError:
+            return {}
+        return out
+
     def summary(self, rows: bool = True) -> str:
         """A one-line count, then (``rows``) one line per design segment (a nonlinear one with the
         range it is sampled for), then any failures and warnings."""
@@ -185,10 +206,13 @@ class PrepareReport:
                 lines.append(f"  range estimate: {len(self.estimate.actuations)} actuations solved with linear "
                              f"entries in {self.estimate.seconds:.2g} s"
                              + (f", {len(self.estimate.failed)} without equilibrium" if self.estimate.failed else ""))
+        fits = self._fit_summaries() if rows else {}
         for s in self.segments if rows else ():
             lines.append(f"  {f'segment[{s.segment}]':12s} {s.family:18s} {s.key or '(key pending)'}  {s.status}")
             if s.sampling is not None:
                 lines.append(f"    sampled for: {s.sampling.describe()}")
+            if s.key in fits:
+                lines.append(f"    fit: {fits[s.key]}")
         for s in self.segments:
             lines.extend(f"  warning: segment[{s.segment}]: {w}" for w in s.warnings)
         lines.extend(f"  warning: {w}" for w in self.warnings)

@@ -216,6 +216,8 @@ def test_a_second_run_designs_nothing_and_one_edit_designs_one_entry(prepared):
     assert [r.status for r in report.counterparts] == ["reused", "designed"]       # and its new linear counterpart
     summary = report.summary()
     assert "1 reused, 1 designed" in summary and "linear counterparts" in summary
+    # each nonlinear entry's fit: its held-out load error beside its linear entry's
+    assert summary.count("fit: degree") == 2 and "held-out load error" in summary and "(linear entry" in summary
     with catalogue.open_catalogue(directory / "cat.h5") as cat:
         assert len(cat.keys()) == 4                                    # 2 nonlinear entries, 2 linear counterparts
 
