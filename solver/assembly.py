@@ -243,6 +243,8 @@ class Tangent:
         (Cholesky of the shifted matrix), "lu" or "shifted-lu". With a dense term beside the
         band the factor is the band's, updated (:class:`~vertebra.solver.banded.LowRankFactor`):
         the band alone decides definiteness (the dense term is positive semi-definite)."""
+        if shift and scale is None:
+            scale = np.abs(self.diagonal()) + 1e-300
         factor, kind = self._band_factor(shift, symmetric, scale, definite)
         if self.low_rank is None:
             return factor, kind
@@ -254,14 +256,12 @@ class Tangent:
         band = self.symmetric_band()
         if shift:
             band = band.copy()
-            band[0] += shift * (np.abs(self.diagonal()) + 1e-300 if scale is None else scale)
+            band[0] += shift * scale
         factor = LowRankFactor.definite(band, *self.low_rank)
         return (factor, ("shifted" if shift else "cholesky")) if factor is not None else (None, None)
 
     def _band_factor(self, shift, symmetric, scale, definite):
         assembler = self.assembler
-        if shift and scale is None:
-            scale = np.abs(self.diagonal()) + 1e-300
         if symmetric:
             band = self.symmetric_band()
             if shift:

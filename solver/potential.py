@@ -106,6 +106,10 @@ class Tendons:
     def elongation(self, cable_lengths: np.ndarray) -> np.ndarray:
         return cable_lengths[self.cables] - self.rest + self.shift
 
+    def tension(self, elongation: np.ndarray) -> np.ndarray:
+        """``k·max(0, e)``: a tendon never pushes."""
+        return self.stiffness * np.maximum(elongation, 0.0)
+
 
 class LoadCases:
     """The load cases of the last two (actuation, load factor) pairs asked for, most recent
@@ -254,7 +258,7 @@ def _potential_parts(trunk, x: np.ndarray, rotations, xi: np.ndarray, load: Load
         cables = trunk.cables
         parts.elongation = tendons.elongation(np.bincount(cables.owner, spans[2], minlength=cables.n_cables))
         tension = np.zeros(cables.n_cables)
-        tension[tendons.cables] = tendons.stiffness * np.maximum(parts.elongation, 0.0)
+        tension[tendons.cables] = tendons.tension(parts.elongation)
         pieces = tension[cables.owner]
         parts.piece_tension = pieces if load.piece_tension is None else pieces + load.piece_tension
     return parts
@@ -379,7 +383,7 @@ def cable_tensions(trunk, ev: Evaluation) -> np.ndarray:
     if tendons is None:
         return tensions
     tensions = tensions.copy()
-    tensions[tendons.cables] = tendons.stiffness * np.maximum(ev.parts.elongation, 0.0)
+    tensions[tendons.cables] = tendons.tension(ev.parts.elongation)
     return tensions
 
 
