@@ -30,9 +30,9 @@ from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from vertebra.core.errors import ConvergenceError, OptionError
+from vertebra.core.lie import qmatrix, so3_exp
 from vertebra.solver.calibration.fit_parameters import Values
 from vertebra.solver.model import build_model
 
@@ -115,7 +115,7 @@ class RuntimePredictor:
     # ------------------------------------------------------------------ markers
     def _markers(self, state, offsets):
         """Robot-frame marker points (n_markers, 3), their lever arms ``R r`` and rotations."""
-        R = Rotation.from_quat(state.quaternions[self.marker_frames][:, [1, 2, 3, 0]]).as_matrix()
+        R = qmatrix(state.quaternions[self.marker_frames])
         arm = np.einsum("mij,mj->mi", R, offsets)
         return state.positions[self.marker_frames] + arm, arm, R
 
@@ -137,7 +137,7 @@ class RuntimePredictor:
         equilibria (a least-squares step asks for the residuals, then the Jacobian, at one point)."""
         model = self.model
         self._set(values)
-        Rf = Rotation.from_rotvec(values.frame[3:]).as_matrix()
+        Rf = so3_exp(values.frame[3:])
         key = (samples.source, len(samples), samples.commands.tobytes(),
                tuple(getattr(values, f).tobytes() for f in ("stiffness", "angle", "radius", "cable_stiffness",
                                                             "pretension", "frame", "marker")))
@@ -224,6 +224,5 @@ def _rotation_derivative(rotvec, axis, points, h=1e-7):
     """∂(R(ω) p)/∂ω_axis by a central difference of the rotation alone (no solve)."""
     e = np.zeros(3)
     e[axis] = h
-    plus = Rotation.from_rotvec(rotvec + e).as_matrix()
-    minus = Rotation.from_rotvec(rotvec - e).as_matrix()
+    plus, minus = so3_exp(rotvec + e), so3_exp(rotvec - e)
     return points @ ((plus - minus) / (2 * h)).T

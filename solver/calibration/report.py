@@ -16,9 +16,9 @@ import tomllib
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from vertebra import __version__
+from vertebra.core.lie import qexp, qmul, so3_exp
 from vertebra.solver.scene import scene_toml
 
 __all__ = ["calibrated_scene_toml", "calibration_document", "markdown_report", "write_plots"]
@@ -68,13 +68,12 @@ def calibration_document(cal, scene, mapping, sources: dict | None = None) -> di
 
 
 def _compose_base(scene, frame):
-    """Base pose of the scene in the measurement frame: ``T_frame · T_base``."""
-    Rf = Rotation.from_rotvec(frame[3:])
-    qb = scene.base_quaternion
-    Rb = Rotation.from_quat([qb[1], qb[2], qb[3], qb[0]])
-    position = Rf.apply(np.asarray(scene.base_position)) + frame[:3]
-    x, y, z, w = (Rf * Rb).as_quat()
-    return position, np.array([w, x, y, z]), Rf
+    """Base pose of the scene in the measurement frame: ``T_frame · T_base``; and the frame's
+    rotation matrix."""
+    Rf = so3_exp(frame[3:])
+    position = Rf @ np.asarray(scene.base_position, float) + frame[:3]
+    quaternion = qmul(qexp(frame[3:]), np.asarray(scene.base_quaternion, float))
+    return position, quaternion, Rf
 
 
 def calibrated_scene_toml(cal, scene, mapping) -> str:
@@ -102,17 +101,17 @@ def calibrated_scene_toml(cal, scene, mapping) -> str:
     position, quaternion, Rf = _compose_base(scene, v.frame)
     data["base"] = {"position": position.tolist(), "quaternion": quaternion.tolist()}
     if scene.gravity is not None:
-        data["gravity"] = {"vector": Rf.apply(np.asarray(scene.gravity)).tolist()}
+        data["gravity"] = {"vector": (Rf @ np.asarray(scene.gravity)).tolist()}
     for load in data.get("load", []):
         for key in ("force", "moment"):
             if key in load:
-                load[key] = Rf.apply(np.asarray(load[key], float)).tolist()
+                load[key] = (Rf @ np.asarray(load[key], float)).tolist()
     effectors = [e for e in data.get("effector", []) if e.get("name") not in {m.name for m in mapping.markers}]
     for e in effectors:
         if "target" in e:
-            e["target"] = (Rf.apply(np.asarray(e["target"], float)) + (0.0 if "axis" in e else v.frame[:3])).tolist()
+            e["target"] = ((Rf @ np.asarray(e["target"], float)) + (0.0 if "axis" in e else v.frame[:3])).tolist()
         if "axis" in e:
-            e["axis"] = Rf.apply(np.asarray(e["axis"], float)).tolist()
+            e["axis"] = (Rf @ np.asarray(e["axis"], float)).tolist()
     for m, offset in zip(mapping.markers, v.marker):
         effectors.append({"name": m.name, "vertebra": m.vertebra, "offset": offset.tolist()})
     data["effector"] = effectors
