@@ -74,6 +74,7 @@ class ConstraintSpace:
     regularisation: float = DEFAULT_REGULARISATION
     max_change: np.ndarray | float = np.inf
     rows: np.ndarray = field(init=False, repr=False, compare=False)  # actuators with a finite displacement bound
+    unit_weights: bool = field(init=False, repr=False, compare=False)  # every effector weight is 1
 
     def __post_init__(self):
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 (frozen dataclass)
@@ -101,6 +102,7 @@ class ConstraintSpace:
                            ("regularisation", eps), ("max_change", change)):
             set_(key, value)
         set_("rows", _read_only(np.flatnonzero(np.isfinite(dlo) | np.isfinite(dhi))))
+        set_("unit_weights", bool((w == 1.0).all()))
 
     @classmethod
     def of_model(cls, model, regularisation: float = DEFAULT_REGULARISATION) -> "ConstraintSpace":
@@ -126,21 +128,27 @@ class ConstraintSpace:
         ``box`` (lower, upper) narrows the λ box of this one problem (a tick's, :meth:`tick_box`);
         ``damping`` weighs the change from ``actuation`` (:class:`ConstraintProblem`)."""
         B = lin.actuator_forces
-        rhs = np.empty((B.shape[0], 1 + B.shape[1]), order="F")  # LAPACK's layout: no copy in the solve
+        rhs = np.empty((B.shape[0], 1 + B.shape[1]), order="F")  # LAPACK's layout, solved in place
         rhs[:, 0] = lin.residual
         rhs[:, 1:] = B
-        X = lin.solve(rhs)
-        JeX = lin.effector_jacobian @ X
-        JaX = lin.actuator_jacobian @ X
+        X = lin.solve(rhs, overwrite=True)
+        JeX = lin.effector_jacobian.dot(X)
+        JaX = lin.actuator_jacobian.dot(X)
         W_ea, W_aa = JeX[:, 1:], JaX[:, 1:]
         # e − target + Je K⁻¹r − W_ea λ0 and a + Ja K⁻¹r − W_aa λ0
         delta_e_free = (lin.effector_positions - targets).reshape(-1)
         delta_e_free += JeX[:, 0]
-        delta_e_free -= W_ea @ actuation
+        delta_e_free -= W_ea.dot(actuation)
         delta_a_free = lin.actuator_displacements + JaX[:, 0]
-        delta_a_free -= W_aa @ actuation
-        problem = ConstraintProblem(self, W_ea, delta_e_free, W_aa, delta_a_free, actuation, box, damping)
-        return Projection(problem, X[:, 0], X[:, 1:])
+        delta_a_free -= W_aa.dot(actuation)
+        # one sum over everything projected: finite unless a value is not (or the sum overflows,
+        # when the constructor's own check looks at each array)
+        finite = math.isfinite(float(JeX.sum()) + float(JaX.sum()) + float(delta_e_free.dot(delta_e_free)) +
+                               float(delta_a_free.dot(delta_a_free)))
+        problem = (ConstraintProblem.projected(self, W_ea, delta_e_free, W_aa, delta_a_free, actuation, box, damping)
+                   if finite else
+                   ConstraintProblem(self, W_ea, delta_e_free, W_aa, delta_a_free, actuation, box, damping))
+        return Projection(problem, X[:, 0], X[:, 1:], JeX[:, 0])
 
 
 _ONES: dict = {}  # n -> read-only ones(n), for row sums
@@ -151,6 +159,18 @@ def _ones(n: int) -> np.ndarray:
     if a is None:
         a = _ONES[n] = _read_only(np.ones(n))
     return a
+
+
+def _box(box, n: int) -> tuple:
+    """``box`` as two ordered float arrays (lower ≤ upper) of ``n`` values without NaN
+    (:class:`OptionError` otherwise)."""
+    lower, upper = box
+    if not (isinstance(lower, np.ndarray) and isinstance(upper, np.ndarray)):
+        lower, upper = (_array(f"box[{k}]", b, (n,)) for k, b in enumerate(box))
+    # (the smallest gap is NaN, never ≥ 0, when a bound is NaN)
+    if lower.shape != (n,) or upper.shape != (n,) or not float(np.minimum.reduce(upper - lower)) >= 0.0:
+        raise OptionError(f"must be two ordered arrays (lower ≤ upper) of {n} values without NaN", field="box")
+    return lower, upper
 
 
 def _array(name: str, value, shape: tuple) -> np.ndarray:
@@ -222,13 +242,21 @@ class ConstraintProblem:
             if not (math.isfinite(self.damping) and self.damping > 0) or lambda0 is None:
                 raise OptionError(f"must be finite and ≥ 0, with lambda0, got {self.damping}", field="damping")
         if self.box is not None:
-            lower, upper = self.box
-            if not (isinstance(lower, np.ndarray) and isinstance(upper, np.ndarray)):
-                lower, upper = (_array(f"box[{k}]", b, (n,)) for k, b in enumerate(self.box))
-                object.__setattr__(self, "box", (lower, upper))
-            if lower.shape != (n,) or upper.shape != (n,) or not (lower <= upper).all():   # (False for NaN)
-                raise OptionError(f"must be two ordered arrays (lower ≤ upper) of {n} values without NaN",
-                                  field="box")
+            object.__setattr__(self, "box", _box(self.box, n))
+
+    @classmethod
+    def projected(cls, space: ConstraintSpace, W_ea, delta_e_free, W_aa, delta_a_free, lambda0, box=None,
+                  damping: float = 0.0) -> "ConstraintProblem":
+        """The problem of :meth:`ConstraintSpace.project`, whose arrays have the space's shapes by
+        construction and have been checked finite there (with ``lambda0`` inside the space's box,
+        and ``box`` from :meth:`ConstraintSpace.tick_box`): stored as they are, without the
+        constructor's conversions and checks."""
+        problem = object.__new__(cls)
+        for key, value in (("space", space), ("W_ea", W_ea), ("delta_e_free", delta_e_free), ("W_aa", W_aa),
+                           ("delta_a_free", delta_a_free), ("lambda0", lambda0),
+                           ("box", None if box is None else _box(box, space.n_actuators)), ("damping", damping)):
+            object.__setattr__(problem, key, value)
+        return problem
 
     @property
     def n_actuators(self) -> int:
@@ -255,8 +283,8 @@ class ConstraintProblem:
 
     def predict(self, lam: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """Linearised effector gaps ``δe(λ)`` and actuator displacements ``δa(λ)`` (None without ``W_aa``)."""
-        de = self.delta_e_free + self.W_ea @ lam
-        da = None if self.W_aa is None else self.delta_a_free + self.W_aa @ lam
+        de = self.delta_e_free + self.W_ea.dot(lam)
+        da = None if self.W_aa is None else self.delta_a_free + self.W_aa.dot(lam)
         return de, da
 
 
@@ -267,8 +295,9 @@ class Projection:
     problem: ConstraintProblem
     K_inv_r: np.ndarray  # (n_dof,)
     K_inv_B: np.ndarray  # (n_dof, n_actuators)
+    Je_K_inv_r: np.ndarray | None = None  # (n_rows,) the effectors' part of K⁻¹r (their motion to the equilibrium under λ0)
 
     def state_change(self, actuation: np.ndarray) -> np.ndarray:
         """``dq(λ) = K⁻¹r + K⁻¹B (λ − λ0)`` (paper eq. 10): the linearised motion to the
         equilibrium under ``actuation``."""
-        return self.K_inv_r + self.K_inv_B @ (actuation - self.problem.lambda0)
+        return self.K_inv_r + self.K_inv_B.dot(actuation - self.problem.lambda0)
