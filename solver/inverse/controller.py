@@ -275,10 +275,8 @@ class InverseController:
         n_cables = model.n_cables
         # the effectors' linear motion per unit α, and how far the start lies from its own
         # equilibrium (the part of the step that corrects an imbalance left by the last tick)
-        Je = lin.effector_jacobian
-        Je_K_inv_r = projection.Je_K_inv_r
-        motion = _largest(Je.dot(dq))
-        imbalance = _largest(Je.dot(projection.K_inv_r) if Je_K_inv_r is None else Je_K_inv_r)
+        motion = _largest(lin.effector_jacobian.dot(dq))
+        imbalance = _largest(projection.Je_K_inv_r)
         floor = 0.01 * self.settings.tolerance
         # ∂E/∂λ of the cables: their lengths L(q) = L0 + stroke
         cables = d_lam[:n_cables]
@@ -311,8 +309,7 @@ class InverseController:
                 # cut back like one whose energy does not fall
                 try:
                     judged = model.evaluate(trial, lam, previous=judged)
-                    correction = lin.solve(-judged.gradient[1:].reshape(-1))
-                    miss = _largest(Je.dot(correction))
+                    miss = _largest(projection.effector_motion(-judged.gradient[1:].reshape(-1)))
                 except (ConvergenceError, FloatingPointError):
                     miss = math.inf
                 allowed = MISS * alpha * motion + (1.0 - alpha) * imbalance + floor

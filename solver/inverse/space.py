@@ -124,31 +124,70 @@ class ConstraintSpace:
     def project(self, lin, targets: np.ndarray, actuation: np.ndarray, box: tuple | None = None,
                 damping: float = 0.0) -> "Projection":
         """Project a ``solver.Linearisation`` at ``actuation`` (``λ0``) with effector ``targets``
-        (n_effectors, 3) into this space (module docstring). One banded solve for ``K⁻¹[r, B]``.
-        ``box`` (lower, upper) narrows the λ box of this one problem (a tick's, :meth:`tick_box`);
-        ``damping`` weighs the change from ``actuation`` (:class:`ConstraintProblem`)."""
-        B = lin.actuator_forces
+        (n_effectors, 3) into this space (module docstring). ``box`` (lower, upper) narrows the λ
+        box of this one problem (a tick's, :meth:`tick_box`); ``damping`` weighs the change from
+        ``actuation`` (:class:`ConstraintProblem`).
+
+        With a Cholesky factor ``K = L Lᵀ`` (``lin.cholesky``) and ``B = Jaᵀ diag(c)``
+        (``lin.force_scale``) every product is one of halves: one triangular sweep
+        ``Z = L⁻¹[Jaᵀ, Jeᵀ, r]`` and ``[Ja; Je] K⁻¹ [B, r] = Z_aeᵀ Z diag(c, 1)`` — ``W_aa`` and
+        ``W_ea`` without the second sweep, and ``W_aa diag(c)⁻¹`` symmetric by construction. Else
+        one banded solve ``X = K⁻¹[r, B]`` and ``[Je; Ja] X``."""
+        factor, scale = lin.cholesky, lin.force_scale
+        if factor is not None and scale is not None:
+            projection = self._project_halves(lin, factor, scale, targets, actuation, box, damping)
+            if projection is not None:
+                return projection
+        # (also where the halves are not finite: here each array comes from one part of the
+        # linearisation, so the constructor's message names the array a broken part feeds)
+        Je, Ja, B = lin.effector_jacobian, lin.actuator_jacobian, lin.actuator_forces
         rhs = np.empty((B.shape[0], 1 + B.shape[1]), order="F")  # LAPACK's layout, solved in place
         rhs[:, 0] = lin.residual
         rhs[:, 1:] = B
         X = lin.solve(rhs, overwrite=True)
-        JeX = lin.effector_jacobian.dot(X)
-        JaX = lin.actuator_jacobian.dot(X)
+        JeX = Je.dot(X)
+        JaX = Ja.dot(X)
         W_ea, W_aa = JeX[:, 1:], JaX[:, 1:]
+        problem, _ = self._problem(lin, W_ea, JeX[:, 0], W_aa, JaX[:, 0], JeX, JaX, targets, actuation, box,
+                                        damping)
+        return Projection(problem, JeX[:, 0].copy(), X[:, 0], X[:, 1:], lin)
+
+    def _project_halves(self, lin, factor, scale, targets, actuation, box, damping) -> "Projection | None":
+        """:meth:`project` with the halves of a Cholesky factor; None when not finite."""
+        Je, Ja = lin.effector_jacobian, lin.actuator_jacobian
+        n_act = Ja.shape[0]
+        rhs = np.empty((Ja.shape[1], n_act + Je.shape[0] + 1), order="F")   # LAPACK's layout, solved in place
+        rhs[:, :n_act] = Ja.T
+        rhs[:, n_act:-1] = Je.T
+        rhs[:, -1] = lin.residual
+        Z = factor.forward(rhs, overwrite=True)
+        products = Z[:, :-1].T.dot(Z)                    # [Ja; Je] K⁻¹ [Jaᵀ, Jeᵀ, r]
+        products[:, :n_act] *= scale
+        JaX, JeX = products[:n_act], products[n_act:]
+        problem, finite = self._problem(lin, JeX[:, :n_act], JeX[:, -1], JaX[:, :n_act], JaX[:, -1], JeX, JaX,
+                                        targets, actuation, box, damping, strict=False)
+        if not finite:
+            return None
+        return Projection(problem, JeX[:, -1].copy(), Z[:, -1], Z[:, :n_act] * scale, lin, (factor, Z[:, n_act:-1]))
+
+    def _problem(self, lin, W_ea, JeKr, W_aa, JaKr, JeX, JaX, targets, actuation, box, damping, strict=True):
+        """The :class:`ConstraintProblem` of a projection and whether it is finite (one sum over
+        everything projected: finite unless a value is not, or the sum overflows, when the
+        constructor's own check looks at each array); None when not and not ``strict``."""
         # e − target + Je K⁻¹r − W_ea λ0 and a + Ja K⁻¹r − W_aa λ0
         delta_e_free = (lin.effector_positions - targets).reshape(-1)
-        delta_e_free += JeX[:, 0]
+        delta_e_free += JeKr
         delta_e_free -= W_ea.dot(actuation)
-        delta_a_free = lin.actuator_displacements + JaX[:, 0]
+        delta_a_free = lin.actuator_displacements + JaKr
         delta_a_free -= W_aa.dot(actuation)
-        # one sum over everything projected: finite unless a value is not (or the sum overflows,
-        # when the constructor's own check looks at each array)
         finite = math.isfinite(float(JeX.sum()) + float(JaX.sum()) + float(delta_e_free.dot(delta_e_free)) +
                                float(delta_a_free.dot(delta_a_free)))
-        problem = (ConstraintProblem.projected(self, W_ea, delta_e_free, W_aa, delta_a_free, actuation, box, damping)
-                   if finite else
-                   ConstraintProblem(self, W_ea, delta_e_free, W_aa, delta_a_free, actuation, box, damping))
-        return Projection(problem, X[:, 0], X[:, 1:], JeX[:, 0])
+        if finite:
+            return ConstraintProblem.projected(self, W_ea, delta_e_free, W_aa, delta_a_free, actuation, box,
+                                               damping), True
+        if not strict:
+            return None, False
+        return ConstraintProblem(self, W_ea, delta_e_free, W_aa, delta_a_free, actuation, box, damping), False
 
 
 _ONES: dict = {}  # n -> read-only ones(n), for row sums
@@ -290,14 +329,29 @@ class ConstraintProblem:
 
 @dataclass
 class Projection:
-    """A linearisation projected into constraint space: the problem and ``K⁻¹r``, ``K⁻¹B``."""
+    """A linearisation projected into constraint space: the problem, the effectors' motion
+    ``Je K⁻¹r`` towards the equilibrium under ``λ0``, and what a state change needs — ``K⁻¹r`` and
+    ``K⁻¹B`` (``free``, ``per_actuator``), or with a Cholesky factor their halves ``L⁻¹r``,
+    ``L⁻¹B`` and the factor whose ``L⁻ᵀ`` completes them (``halves``: the factor and
+    ``L⁻¹Jeᵀ``)."""
 
     problem: ConstraintProblem
-    K_inv_r: np.ndarray  # (n_dof,)
-    K_inv_B: np.ndarray  # (n_dof, n_actuators)
-    Je_K_inv_r: np.ndarray | None = None  # (n_rows,) the effectors' part of K⁻¹r (their motion to the equilibrium under λ0)
+    Je_K_inv_r: np.ndarray     # (n_rows,)
+    free: np.ndarray           # (n_dof,) K⁻¹r, or L⁻¹r
+    per_actuator: np.ndarray   # (n_dof, n_actuators) K⁻¹B, or L⁻¹B
+    lin: object = field(repr=False, default=None)     # the linearisation projected
+    halves: tuple | None = field(repr=False, default=None)
 
     def state_change(self, actuation: np.ndarray) -> np.ndarray:
         """``dq(λ) = K⁻¹r + K⁻¹B (λ − λ0)`` (paper eq. 10): the linearised motion to the
         equilibrium under ``actuation``."""
-        return self.K_inv_r + self.K_inv_B.dot(actuation - self.problem.lambda0)
+        dq = self.free + self.per_actuator.dot(actuation - self.problem.lambda0)
+        return dq if self.halves is None else self.halves[0].backward(dq, overwrite=True)
+
+    def effector_motion(self, force: np.ndarray) -> np.ndarray:
+        """``Je K⁻¹ force`` (n_rows,): how far the effectors move under an out-of-balance
+        ``force`` (n_dof,) by the linearisation's tangent."""
+        if self.halves is None:
+            return self.lin.effector_jacobian.dot(self.lin.solve(force))
+        factor, Ze = self.halves
+        return Ze.T.dot(factor.forward(force))
