@@ -13,18 +13,19 @@ Robots:
 Protocol (the control loop of ``benchmarks/speed/inverse.py``): from the equilibrium under 0.3 N
 on every tendon, each tick from the state and actuation the last one left, the targets moving on
 a 1 mm circle around the effectors there (one turn per 100 ticks); 20 ticks of warm-up, then
-``--repeats`` timed ticks (CPU time of the thread, garbage collector off). After the timed loop
-every tick is checked: actuation inside the bounds, change within the per-tick limit, and the
-equilibrium under its actuation found (``InverseController.settled``), with the largest error of
-those equilibria from the targets.
+``--rounds`` blocks of ``--block`` timed ticks per robot (CPU time of the thread, garbage
+collector off). After the timing every tick is checked: actuation inside the bounds, change
+within the per-tick limit, and the equilibrium under its actuation found
+(``InverseController.settled``), with the largest error of those equilibria from the targets.
 
 A/B: ``--base REV`` (a git revision, snapshot with ``git archive``) or ``--base-root DIR`` (a
-folder holding a ``vertebra`` package) is timed against this tree in fresh subprocesses, rounds
-alternating A B B A …, so that load bursts on a shared machine hit both alike; the ratio reported
-is the median over rounds of B/A (B: this tree).
+folder holding a ``vertebra`` package) is timed against this tree. Each side runs in its own
+worker process that keeps its controllers; the blocks alternate between the sides (A B, then
+B A, …) so that load bursts on a shared machine hit both alike, and the ratio reported is the
+median over blocks of B/A (B: this tree), with its quartiles.
 
-Run: ``.venv/bin/python -m benchmarks.bench_tick [--base REV | --base-root DIR] [--rounds 8]
-[--repeats 400]``; writes ``benchmarks/results/tick.json``.
+Run: ``.venv/bin/python -m benchmarks.bench_tick [--base REV | --base-root DIR] [--rounds 40]
+[--block 50]``; writes ``benchmarks/results/tick.json``.
 """
 
 from __future__ import annotations

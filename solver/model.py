@@ -237,7 +237,7 @@ class TrunkModel:
 
     def effector_positions(self, state: State) -> np.ndarray:
         """World position of each point effector; world unit direction of each axis effector."""
-        return outputs.effector_points(self.trunk, state)[1]
+        return outputs.effector_points(self.trunk, state)[1].copy()
 
     def sensitivities(self, state, actuation=None, *, wrt=sensitivity.PARAMETER_GROUPS,
                       outputs=sensitivity.OUTPUTS, method: str = "auto") -> "sensitivity.Sensitivities":

@@ -48,15 +48,23 @@ class Linearisation:
 
 
 def effector_points(trunk, state) -> tuple[np.ndarray, np.ndarray]:
-    """World offsets (``R r``: lever arms, or the axes) and positions of the effectors."""
+    """World offsets (``R r``: lever arms, or the axes) and positions of the effectors. A state
+    that carries its strains keeps them (read-only) for the next call with the same effectors: a
+    control tick reports the effectors where the next tick linearises."""
     effectors = trunk.effectors
     f = effectors.frames
     record = state.carried_strains()
-    if record is not None:                # the chain's rotation matrices, no quaternion algebra
-        turned = (record.chain.rotations[f] @ effectors.offsets[:, :, None])[:, :, 0]
-    else:
+    if record is None:
         turned = qrotate(state.quaternions[f], effectors.offsets)
-    return turned, state.positions[f] * effectors.point_mask + turned
+        return turned, state.positions[f] * effectors.point_mask + turned
+    kept = record.effector_points
+    if kept is not None and kept[0] is effectors:
+        return kept[1], kept[2]
+    turned = (record.chain.rotations[f] @ effectors.offsets[:, :, None])[:, :, 0]   # no quaternion algebra
+    positions = state.positions[f] * effectors.point_mask + turned
+    turned.flags.writeable = positions.flags.writeable = False
+    record.effector_points = (effectors, turned, positions)
+    return turned, positions
 
 
 def cable_lengths(trunk, state, pieces=None) -> np.ndarray:
