@@ -125,7 +125,7 @@ def quadratic_form(problem: ConstraintProblem, displacement_bounds=None, *, scal
     diagonal += (rho + damping) * d  # P = H + (ρ + δ s) diag(d), symmetric by construction (Wᵀ diag(w) W)
     if damping:
         pull = (damping * d) * problem.lambda0
-        q = q - pull
+        q -= pull                   # (q is this function's own array)
         c += 0.5 * float(pull.dot(problem.lambda0))
     lower, upper = problem.lambda_lower, problem.lambda_upper
     rows = space.rows
@@ -155,9 +155,10 @@ def energy_diagonal(problem: ConstraintProblem, diagonal: np.ndarray | None = No
     without ``W_aa``: ``diagonal``, the effector Hessian's), floored at 1e-12 of the largest so
     that an actuator with no own displacement stays regularised. A new array."""
     d = np.abs(problem.W_aa.diagonal()) if problem.W_aa is not None else diagonal.copy()
-    dmax = float(np.maximum.reduce(d))
+    values = d.tolist()     # (finite, a problem's arrays are; few: Python's min and max beat numpy's reductions)
+    dmax = max(values)
     floor = 1e-12 * dmax if dmax > 0 else 1.0
-    if float(np.minimum.reduce(d)) < floor:
+    if min(values) < floor:
         d = np.maximum(d, floor)
     return d
 
@@ -165,7 +166,7 @@ def energy_diagonal(problem: ConstraintProblem, diagonal: np.ndarray | None = No
 def _unit_rows(G: np.ndarray, row_lower: np.ndarray, row_upper: np.ndarray) -> tuple:
     """Rows ``row_lower ≤ G y ≤ row_upper`` (``G``: this caller's own array) normalised to a
     largest entry of 1 per row."""
-    unit = 1.0 / np.maximum(np.maximum.reduce(np.abs(G), axis=1), 1e-300)
+    unit = 1.0 / np.maximum.reduce(np.abs(G), axis=1, initial=1e-300)
     G *= unit[:, None]
     return G, row_lower * unit, row_upper * unit
 
@@ -287,7 +288,7 @@ def least_effort_form(problem: ConstraintProblem, first: np.ndarray, slack, disp
     n, W = problem.n_actuators, problem.W_ea
     if energy is None:
         energy = energy_diagonal(problem, np.einsum("ij,ij->j", W, W))
-    d = energy * (1.0 / float(np.maximum.reduce(energy)))
+    d = energy * (1.0 / max(energy.tolist()))
     np.maximum(d, 1e-12, out=d)
     reached = W.dot(first)
     dlo, dhi = displacement_bounds
