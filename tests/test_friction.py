@@ -1,0 +1,176 @@
+"""Tendon friction at the holes (solver/friction.py, docs/friction.md): the capstan law, sticking,
+the hysteresis of a pull and a release, the work it dissipates, and μ = 0 as today's solver."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from vertebra import solver
+from vertebra.solver import friction
+
+E, NU, R_ROD, LINK, N = 54e9, 0.3, 0.0007, 0.02, 10
+EI = E * math.pi * R_ROD ** 4 / 4
+
+
+def rod():
+    return {"type": "beam", "count": N, "length": LINK, "elements": 1, "youngs_modulus": E,
+            "poisson_ratio": NU, "section": {"shape": "circle", "radius": R_ROD}}
+
+
+def build(cable, loads=()):
+    return solver.build_model(solver.parse_scene({"segment": [rod()], "cable": [cable], "load": list(loads),
+                                                   "effector": [{"name": "tip", "vertebra": -1}]}))
+
+
+def pulled(mu, **extra):
+    return {"name": "t", "radius": 0.01, "to": N, "tension": 0.0, "friction": mu, **extra}
+
+
+def servo(mu, pretension=0.0):
+    return {"name": "t", "radius": 0.01, "to": N, "stroke": 0.0, "stiffness": 2000.0, "pretension": pretension,
+            "friction": mu}
+
+
+def route_of(model):
+    return friction.routes(model.trunk.cables).pieces[0]
+
+
+def test_capstan_ratio_on_a_constant_curvature_bend_is_exact():
+    # a pure end moment bends the rod into a constant-curvature arc (every link turns by the same
+    # φ = M ℓ/EI); a cable pulled over it slides at every hole: distal/proximal = e^(−μΘ), Θ = 9φ
+    mu, moment = 0.25, 0.02
+    model = build(pulled(mu), loads=[{"vertebra": N, "moment": [0.0, moment, 0.0]}])
+    bent = solver.build_model(
+        solver.parse_scene({"segment": [rod()], "load": [{"vertebra": N, "moment": [0.0, moment, 0.0]}]})).solve()
+    turns = np.linalg.norm(bent.state.strains.xi[:, 3:], axis=1)
+    phi = moment * LINK / EI
+    assert np.allclose(turns, phi, rtol=1e-9, atol=0)
+    lengths, angles = friction.geometry(model.trunk, bent.state)
+    route = route_of(model)
+    assert np.allclose(angles[route[1:]], phi, rtol=1e-9)
+    pull = friction.transmission(model.trunk, friction.FrictionState.rest(model.trunk), np.array([4.0]),
+                                 lengths, angles)
+    tension = pull.tension[route]
+    assert (pull.slip[route[1:]] == 1).all()
+    assert tension[-1] / tension[0] == pytest.approx(math.exp(-mu * (N - 1) * phi), rel=1e-10, abs=0)
+    assert np.allclose(tension[1:] / tension[:-1], math.exp(-mu * phi), rtol=1e-12, atol=0)
+
+
+@pytest.mark.parametrize("mu", [0.1, 0.3])
+def test_a_pull_from_rest_slides_everywhere_and_meets_the_capstan_law_at_its_own_shape(mu):
+    model = build(pulled(mu))
+    result = model.solve({"t": 3.0})
+    assert result.converged and result.friction is not None
+    route = route_of(model)
+    _, angles = friction.geometry(model.trunk, result.state)
+    tension = result.friction.tension[route]
+    assert (result.friction.slip[route[1:]] == 1).all()
+    assert tension[0] == 3.0
+    assert tension[-1] / tension[0] == pytest.approx(math.exp(-mu * angles[route].sum()), rel=1e-10, abs=0)
+    frictionless = build(pulled(0.0)).solve({"t": 3.0})
+    tip, free_tip = result.state.positions[-1], frictionless.state.positions[-1]
+    assert tip[0] < free_tip[0]                 # less tension reaches the distal vertebrae: less bending
+
+
+@pytest.mark.parametrize("cable, values", [(pulled, [1.0, 3.0, 2.0, 0.5]), (servo, [0.001, 0.002, 0.0005, -0.001])])
+def test_zero_friction_is_todays_solver(cable, values):
+    today = build({k: v for k, v in cable(0.0).items() if k != "friction"})
+    model = build(cable(0.0))
+    # a scene's friction = 0 takes today's path; a sequence runs the friction rounds with every factor 1
+    single = model.solve({"t": values[0]})
+    assert np.array_equal(single.state.positions, today.solve({"t": values[0]}).state.positions)
+    sequence = model.solve_sequence([{"t": v} for v in values])
+    state = None
+    for value, result in zip(values, sequence):
+        reference = today.solve({"t": value}, state)
+        state = reference.state
+        assert np.abs(result.state.positions - reference.state.positions).max() <= 1e-12
+        assert np.abs(result.state.quaternions - reference.state.quaternions).max() <= 1e-12
+        route = route_of(model)
+        tensions = result.friction.tension[route]
+        assert np.abs(tensions - today.cable_tensions(reference.state, {"t": value})[0]).max() <= 1e-12 * max(1.0, tensions.max())
+
+
+def loop(model, top, steps):
+    """Tip x over a pull 0 → top and a release back to 0 in ``steps`` increments each."""
+    up = np.linspace(0.0, top, steps + 1)
+    commands = list(up[1:]) + list(up[::-1][1:])
+    results = model.solve_sequence([{"t": v} for v in commands])
+    tip = np.array([r.state.positions[-1, 0] for r in results])
+    pull = np.r_[0.0, tip[:steps]]
+    release = np.r_[tip[steps:][::-1], tip[steps - 1]]       # at up[0..steps]
+    release[-1] = pull[-1]
+    return up, pull, release, results
+
+
+@pytest.mark.parametrize("cable, top", [(pulled, 3.0), (servo, 0.002)])
+def test_the_pull_release_loop_widens_with_friction_and_closes_without(cable, top):
+    widths = []
+    for mu in (0.0, 0.1, 0.2):
+        _, pull, release, _ = loop(build(cable(mu)), top, 6)
+        widths.append(np.abs(release - pull).max())
+        if mu and cable is pulled:
+            assert (release[1:-1] > pull[1:-1]).all()      # on the way back the stuck spans hold the bend
+    assert widths[0] <= 1e-9
+    assert widths[0] < 1e-3 * widths[1] and widths[1] < widths[2]
+
+
+def test_a_reversal_moves_the_distal_tension_only_after_the_base_tension_fell_by_e_to_2_mu_theta():
+    # from the peak of a pull the distal span keeps its tension while the slip front runs from the
+    # base: it moves once T₀ < T_peak e^(−μ(Θ_peak + Θ_now)) — e^(−2μΘ) on a bend that keeps its shape
+    mu, peak = 0.2, 3.0
+    model = build(pulled(mu))
+    top = model.solve({"t": peak})
+    route = route_of(model)
+    distal = top.friction.tension[route[-1]]
+    theta_peak = friction.geometry(model.trunk, top.state)[1][route].sum()
+    guess = peak * math.exp(-2.0 * mu * theta_peak)
+    thresholds = []
+    for factor in (1.02, 0.98):
+        result = model.solve({"t": guess * factor}, history=top.friction)
+        theta = friction.geometry(model.trunk, result.state)[1][route].sum()
+        threshold = peak * math.exp(-mu * (theta_peak + theta))
+        thresholds.append(threshold)
+        stuck = result.friction.slip[route[1:]] == 0
+        if guess * factor > threshold:
+            assert result.friction.tension[route[-1]] == distal and stuck[-1]
+        else:
+            assert result.friction.tension[route[-1]] < distal and not stuck.any()
+            assert (result.friction.slip[route[1:]] == -1).all()
+    assert guess * 1.02 > thresholds[0] and guess * 0.98 < thresholds[1]
+
+
+def dissipation(model, steps):
+    """Work of the servo's base tension ∮ T₀ ds and the friction work Σ (T_in − T_out) · slide over
+    a closed stroke loop 0 → 2 mm → −1 mm (slack: the trunk back at rest, every span unloaded)."""
+    up = np.linspace(0.0, 0.002, steps + 1)
+    down = np.linspace(0.002, -0.001, int(1.5 * steps) + 1)
+    commands = np.r_[up[1:], down[1:]]
+    results = model.solve_sequence([{"t": v} for v in commands])
+    route = route_of(model)
+    states = [friction.FrictionState.rest(model.trunk)] + [r.friction for r in results]
+    stroke = np.r_[0.0, commands]
+    work = drop_work = 0.0
+    for before, after, ds in zip(states[:-1], states[1:], np.diff(stroke)):
+        work += 0.5 * (before.tension[route[0]] + after.tension[route[0]]) * ds
+        slide = np.cumsum((before.material[route] - after.material[route])[::-1])[::-1][1:]   # through hole k, towards the base
+        drop = 0.5 * ((before.tension[route[:-1]] - before.tension[route[1:]])
+                      + (after.tension[route[:-1]] - after.tension[route[1:]]))
+        drop_work += float(drop @ slide)
+    assert not results[-1].friction.tension.any()
+    return work, drop_work
+
+
+def test_the_work_of_the_base_tension_over_a_closed_loop_is_the_friction_work():
+    model = build(servo(0.2))
+    coarse = dissipation(model, 8)
+    fine = dissipation(model, 16)
+    for work, dissipated in (coarse, fine):
+        assert work > 0.0 and dissipated > 0.0
+    error = [abs(w - d) / w for w, d in (coarse, fine)]
+    assert max(error) < 1e-4            # measured: 6.3e-6 (8 steps per pull), 3.3e-6 (16)
+    frictionless = dissipation(build(servo(0.0)), 8)
+    assert abs(frictionless[0]) < 1e-3 * coarse[0] and abs(frictionless[1]) <= 1e-12
