@@ -174,3 +174,51 @@ def test_the_work_of_the_base_tension_over_a_closed_loop_is_the_friction_work():
     assert max(error) < 1e-4            # measured: 6.3e-6 (8 steps per pull), 3.3e-6 (16)
     frictionless = dissipation(build(servo(0.0)), 8)
     assert abs(frictionless[0]) < 1e-3 * coarse[0] and abs(frictionless[1]) <= 1e-12
+
+
+def scene_file(tmp_path, cable):
+    from vertebra.solver.scene import scene_toml
+    path = tmp_path / "section.toml"
+    path.write_text(scene_toml({"name": "section", "segment": [rod()], "cable": [cable],
+                                "effector": [{"name": "tip", "vertebra": -1}]}))
+    return path
+
+
+def test_json_carries_route_span_tensions_and_stick_and_the_cli_runs_sequences(tmp_path, capsys):
+    import json
+    from vertebra.cli.main import main
+    path = scene_file(tmp_path, pulled(0.2))
+    assert main(["simulate", str(path), "--json", "--sequence", "t=1,3,2.5"]) == 0
+    steps = json.loads(capsys.readouterr().out)["sequence"]
+    assert len(steps) == 3
+    model = build(pulled(0.2))
+    expected = model.solve_sequence([{"t": v} for v in (1.0, 3.0, 2.5)])
+    for document, result in zip(steps, expected):
+        cable = document["cables"]["t"]
+        route = np.array(cable["route"])
+        assert route.shape == (N + 1, 3) and len(cable["tensions"]) == N and len(cable["stick"]) == N - 1
+        assert np.allclose(route[0], [0.01, 0.0, 0.0])                   # the base hole first
+        assert np.allclose(cable["tensions"], result.friction.tension[route_of(model)], rtol=1e-12, atol=0)
+        assert cable["tension"] == cable["tensions"][0]
+    assert not any(steps[1]["cables"]["t"]["stick"])                      # a pull slides everywhere
+    assert any(steps[2]["cables"]["t"]["stick"]) and not all(steps[2]["cables"]["t"]["stick"])
+    # frictionless: one tension along the cable, nothing sticks
+    plain = scene_file(tmp_path, {k: v for k, v in pulled(0.0).items() if k != "friction"})
+    assert main(["simulate", str(plain), "--json"]) == 0
+    cable = json.loads(capsys.readouterr().out)["cables"]["t"]
+    assert cable["tensions"] == [0.0] * N and cable["stick"] == [False] * (N - 1)
+    # text output and bad sequences
+    assert main(["simulate", str(path), "--sequence", "t=1,0"]) == 0
+    assert "step 1: t=0: converged" in capsys.readouterr().out
+    for bad in ("x=1", "t=1,a", "t"):
+        assert main(["simulate", str(path), "--sequence", bad]) == 2
+        assert "--sequence" in capsys.readouterr().err
+
+
+def test_friction_must_not_be_negative(tmp_path, capsys):
+    from vertebra.cli.main import main
+    assert main(["simulate", str(scene_file(tmp_path, pulled(-0.1)))]) == 2
+    err = capsys.readouterr().err
+    assert "friction" in err and "Traceback" not in err
+    with pytest.raises(Exception, match="friction"):
+        build(pulled(0.0)).with_parameters(friction={"t": -1.0})
