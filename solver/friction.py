@@ -43,7 +43,7 @@ import numpy as np
 
 from vertebra.core.errors import ConvergenceError
 from vertebra.core.lie import qmatrix
-from vertebra.solver import newton
+from vertebra.solver import newton, outputs
 from vertebra.solver.potential import LoadCase, Tendons, evaluate
 
 FIXED_POINT = 1e-12     # relative change of the span tensions at which the fixed point has converged
@@ -68,9 +68,23 @@ class Routes:
         return np.flatnonzero(self.previous >= 0)
 
 
+_ROUTES: dict = {}
+
+
 def routes(cables) -> Routes:
     """The route of every cable of a :class:`~vertebra.solver.cables.CableRouting` (its pieces
-    are sorted by their first frame, so a cable's pieces come in route order)."""
+    are sorted by their first frame, so a cable's pieces come in route order); made once per
+    routing (kept beside its read-only ``owner`` array)."""
+    kept = _ROUTES.get(id(cables.owner))
+    if kept is not None and kept[0] is cables.owner:
+        return kept[1]
+    if len(_ROUTES) > 64:
+        _ROUTES.clear()
+    _ROUTES[id(cables.owner)] = (cables.owner, made := _routes(cables))
+    return made
+
+
+def _routes(cables) -> Routes:
     pieces = tuple(np.flatnonzero(cables.owner == k) for k in range(cables.n_cables))
     previous = np.full(cables.owner.size, -1)
     for run in pieces:
@@ -161,9 +175,10 @@ class Transmission:
 
 
 def transmission(trunk, history: FrictionState, actuation: np.ndarray, lengths: np.ndarray,
-                 angles: np.ndarray) -> Transmission:
+                 angles: np.ndarray, guess: np.ndarray | None = None) -> Transmission:
     """The return map from the committed ``history`` under the command ``actuation`` at poses with
-    span ``lengths`` and turning ``angles`` (module docstring)."""
+    span ``lengths`` and turning ``angles`` (module docstring); ``guess``: the holes' statuses
+    the tendons' active-set iteration starts from (an earlier round's; None: every hole stuck)."""
     actuators, cables = trunk.actuators, trunk.cables
     route = routes(cables)
     mu = actuators.friction
@@ -194,7 +209,8 @@ def transmission(trunk, history: FrictionState, actuation: np.ndarray, lengths: 
         trial = history.material[run].copy()
         trial[0] -= actuation[c] - history.actuation[c]
         if mu[c] > 0.0:
-            status, g, tau, new = _tendon_spans(lengths[run], angles[run], mu[c], trial, compliance)
+            status, g, tau, new = _tendon_spans(lengths[run], angles[run], mu[c], trial, compliance,
+                                                None if guess is None else guess[run])
         else:
             status = np.ones(run.size, np.int8)
             status[0] = 0
@@ -203,17 +219,18 @@ def transmission(trunk, history: FrictionState, actuation: np.ndarray, lengths: 
             new = lengths[run] - compliance * tau
         tension[run], slip[run], material[run] = np.maximum(g * tau, 0.0), status, new
         if frictional:
-            if mu[c] > 0.0:
-                starts = np.r_[np.flatnonzero(status == 0), run.size]
-                for a, b in zip(starts[:-1], starts[1:]):
-                    span = run[a:b]
-                    units[span] = len(unit_cable)
-                    weights[span] = g[a:b]
-                    unit_cable.append(c)
-                    unit_k.append(1.0 / float(compliance[a:b] @ g[a:b]))
-                    unit_rest.append(float(trial[a:b].sum() - (1.0 - g[a:b]) @ lengths[span]))
-                    unit_shift.append(0.0)
-                    unit_scaled.append(True)
+            if mu[c] > 0.0:                 # one unit per run of spans joined by sliding holes
+                first = len(unit_cable)
+                group = np.cumsum(status == 0) - 1
+                count = int(group[-1]) + 1
+                units[run] = first + group
+                weights[run] = g
+                unit_cable.extend([c] * count)
+                unit_k.extend((1.0 / np.bincount(group, compliance * g, count)).tolist())
+                unit_rest.extend((np.bincount(group, trial, count)
+                                  - np.bincount(group, (1.0 - g) * lengths[run], count)).tolist())
+                unit_shift.extend([0.0] * count)
+                unit_scaled.extend([True] * count)
             else:                         # a frictionless tendon among frictional ones: today's unit
                 units[run] = len(unit_cable)
                 unit_cable.append(c)
@@ -232,58 +249,66 @@ def transmission(trunk, history: FrictionState, actuation: np.ndarray, lengths: 
     return Transmission(tension, slip, material, driven if np.any(driven) else None, tendons, scaled)
 
 
-def _tendon_spans(L: np.ndarray, angle: np.ndarray, mu: float, trial: np.ndarray, compliance: np.ndarray):
+def _tendon_spans(L: np.ndarray, angle: np.ndarray, mu: float, trial: np.ndarray, compliance: np.ndarray,
+                  start: np.ndarray | None = None):
     """The return map of one stroke-driven tendon at span lengths ``L``: the holes' statuses, the
     capstan factors ``g`` within each run of spans joined by sliding holes, the spans' tension
-    before the tendon's slack is cut off (``τ g``) and their new unstretched lengths. Starts with
-    every hole stuck (the elastic trial) and frees the hole whose band is exceeded most, or sticks
-    the sliding hole whose material flows against its slip, until none is."""
+    before the tendon's slack is cut off (``τ g``) and their new unstretched lengths. From the
+    statuses ``start`` (None: every hole stuck, the elastic trial) it frees the hole whose band
+    is exceeded most, or sticks the sliding hole whose material flows against its slip, until
+    none is (plain floats: a tendon has tens of holes)."""
     n = L.size
-    status = np.zeros(n, np.int8)
+    L, trial, compliance = L.tolist(), trial.tolist(), compliance.tolist()
+    factor = [math.exp(mu * a) for a in angle.tolist()]
+    status = [0] * n if start is None else [int(v) for v in start]
+    status[0] = 0
     for _ in range(4 * n + 4):
-        g, tau, new = _runs(L, angle, mu, trial, compliance, status)
-        T = np.maximum(g * tau, 0.0)
-        scale = max(float(T.max()), 1e-300)
-        worst, fix = 0.0, None
+        g, tau, new = _runs(L, factor, trial, compliance, status)
+        T = [max(gj * tj, 0.0) for gj, tj in zip(g, tau)]
+        scale = max(max(T), 1e-300)
+        worst, fix = SLIP, None
         for j in range(1, n):
             if status[j] == 0:
-                factor = math.exp(mu * angle[j])
-                low, high = T[j - 1] / factor, T[j - 1] * factor
-                if T[j] < low and (low - T[j]) / scale > max(worst, SLIP):
+                low, high = T[j - 1] / factor[j], T[j - 1] * factor[j]
+                if (low - T[j]) / scale > worst:
                     worst, fix = (low - T[j]) / scale, (j, 1)
-                elif T[j] > high and (T[j] - high) / scale > max(worst, SLIP):
+                elif (T[j] - high) / scale > worst:
                     worst, fix = (T[j] - high) / scale, (j, -1)
         if fix is None:
-            for j in range(1, n):
+            j = 1
+            while j < n:
                 if status[j] and T[j - 1] + T[j] > 0.0:
-                    run_end = j + 1
-                    while run_end < n and status[run_end]:
-                        run_end += 1
-                    flow = float((trial[j:run_end] - new[j:run_end]).sum())
-                    backflow = -status[j] * flow / max(float(np.abs(trial[j:run_end]).sum()), 1e-300)
-                    if backflow > max(worst, SLIP):
+                    end = j + 1
+                    while end < n and status[end]:
+                        end += 1
+                    flow = sum(trial[j:end]) - sum(new[j:end])
+                    backflow = -status[j] * flow / max(sum(abs(v) for v in trial[j:end]), 1e-300)
+                    if backflow > worst:
                         worst, fix = backflow, (j, 0)
+                j += 1
         if fix is None:
-            return status, g, tau, new
+            return np.array(status, np.int8), np.array(g), np.array(tau), np.array(new)
         status[fix[0]] = fix[1]
     raise ConvergenceError("the stick/slip states of a tendon's holes did not settle (the return map cycles)")
 
 
-def _runs(L, angle, mu, trial, compliance, status):
+def _runs(L: list, factor: list, trial: list, compliance: list, status: list):
     """Capstan factors, run tensions (per span, before the slack cut-off) and new unstretched
     lengths for the holes' ``status`` (runs split at stuck holes; each run keeps its material)."""
-    n = L.size
-    g = np.ones(n)
-    tau = np.empty(n)
-    new = np.empty(n)
-    starts = np.r_[np.flatnonzero(status == 0), n]
-    starts[0] = 0
-    for a, b in zip(starts[:-1], starts[1:]):
-        for j in range(a + 1, b):
-            g[j] = g[j - 1] * math.exp(-status[j] * mu * angle[j])
-        run = slice(a, b)
-        tau[run] = (L[run].sum() - trial[run].sum()) / float(compliance[run] @ g[run])
-        new[run] = L[run] - compliance[run] * g[run] * tau[run]
+    n = len(L)
+    g, tau, new = [1.0] * n, [0.0] * n, [0.0] * n
+    a = 0
+    while a < n:
+        b = a + 1
+        while b < n and status[b]:
+            g[b] = g[b - 1] / factor[b] if status[b] > 0 else g[b - 1] * factor[b]
+            b += 1
+        weight = sum(c * gj for c, gj in zip(compliance[a:b], g[a:b]))
+        t = (sum(L[a:b]) - sum(trial[a:b])) / weight
+        for j in range(a, b):
+            tau[j] = t
+            new[j] = L[j] - compliance[j] * g[j] * t
+        a = b
     return g, tau, new
 
 
@@ -332,7 +357,7 @@ def solve(trunk, actuation: np.ndarray, history: FrictionState | None, initial=N
         state = result.state
         balanced = _span_tensions(trunk, state, loads(actuation, 1.0))
         lengths, angles = geometry(trunk, state)
-        following = transmission(trunk, history, actuation, lengths, angles)
+        following = transmission(trunk, history, actuation, lengths, angles, current.slip)
         scale = max(float(np.abs(balanced).max(initial=0.0)), float(history.tension.max(initial=0.0)), floor)
         change = float(np.abs(following.tension - balanced).max(initial=0.0)) / scale
         # converged: the tensions the return map gives at the new poses are those the poses are
@@ -354,6 +379,57 @@ def solve(trunk, actuation: np.ndarray, history: FrictionState | None, initial=N
     if not result.converged and raise_on_failure:
         raise ConvergenceError(result.message or "the frictional solve did not converge", result)
     return result
+
+
+def transmission_ratios(trunk, current: Transmission, angles: np.ndarray) -> np.ndarray:
+    """(m,) how much of a change of each cable's command reaches each span in the current
+    sliding direction: a tension-driven cable's ``∂T_j/∂T₀`` (the capstan factors up to the first
+    stuck hole, 0 beyond it; a slack cable as if pulled), a tendon's ``∂T_j/∂s`` over the run of
+    spans that holds its first span (``K g_j`` while taut, 0 elsewhere)."""
+    actuators, cables = trunk.actuators, trunk.cables
+    mu = actuators.friction
+    ratio = np.zeros(cables.owner.size)
+    tendons = current.tendons
+    for c, run in enumerate(routes(cables).pieces):
+        if not actuators.stroke_driven[c]:
+            factor = 1.0
+            for j, piece in enumerate(run):
+                if j:
+                    status = current.slip[piece]
+                    if status == 0 and (current.tension[run[j - 1]] > 0.0 or current.tension[piece] > 0.0):
+                        break                                   # stuck: the spans beyond keep their tension
+                    factor *= math.exp(-mu[c] * angles[piece] if status >= 0 else mu[c] * angles[piece])
+                ratio[piece] = factor
+        elif tendons is not None and current.tension[run[0]] > 0.0:
+            unit = tendons.units[run[0]]
+            spans = run[tendons.units[run] == unit]
+            ratio[spans] = tendons.stiffness[unit] * tendons.weights[spans]
+        elif current.tension[run[0]] > 0.0:                     # a frictionless tendon: k along the cable
+            ratio[run] = actuators.cable_stiffness[c]
+    return ratio
+
+
+def linearise(trunk, state, actuation: np.ndarray, history: FrictionState | None = None):
+    """The linearisation (:func:`~vertebra.solver.outputs.linearise`) at the equilibrium ``state``
+    reached under ``actuation`` from ``history`` (None: from rest — a monotone pull): the tangent
+    with every span's own tension, and as each cable's actuator force the forces of its spans per
+    unit change of its command in the current sliding direction (:func:`transmission_ratios`) —
+    the frictional transmission the inverse's QP sees. Stuck spans take no part in it."""
+    if history is None:
+        history = FrictionState.rest(trunk)
+    lengths, angles = geometry(trunk, state)
+    current = transmission(trunk, history, actuation, lengths, angles)
+    lin = outputs.linearise(trunk, state, actuation, _Loads(trunk, current))
+    cables = trunk.cables
+    n_cables, n_frames = cables.n_cables, trunk.frames.count
+    if n_cables:
+        ratio = transmission_ratios(trunk, current, angles)
+        pieces = cables.pieces(state.positions, qmatrix(state.quaternions))
+        rows = np.repeat(cables.owner, 2) * n_frames + cables.ends
+        forces = np.zeros((n_cables * n_frames, 6))
+        np.add.at(forces, rows, (ratio[:, None] * pieces.unit).reshape(-1, 6))
+        lin.actuator_forces[:, :n_cables] = -forces.reshape(n_cables, n_frames, 6)[:, 1:].reshape(n_cables, -1).T
+    return lin, current
 
 
 def _span_tensions(trunk, state, load: LoadCase) -> np.ndarray:

@@ -218,6 +218,8 @@ class TrunkModel:
     def linearise(self, state: State, actuation=None, *, previous=None) -> Linearisation:
         """Tangent stiffness factor, actuator and effector Jacobians at ``state`` (``previous``:
         an evaluation or :meth:`trial` of the same state and actuation to reuse)."""
+        if np.any(self.trunk.actuators.friction):        # the frictional transmission of a pull from rest
+            return friction.linearise(self.trunk, state, self.actuation(actuation))[0]
         return outputs.linearise(self.trunk, state, self.actuation(actuation), self.loads, previous)
 
     def cable_tensions(self, state: State, actuation=None) -> np.ndarray:

@@ -222,3 +222,42 @@ def test_friction_must_not_be_negative(tmp_path, capsys):
     assert "friction" in err and "Traceback" not in err
     with pytest.raises(Exception, match="friction"):
         build(pulled(0.0)).with_parameters(friction={"t": -1.0})
+
+
+@pytest.mark.slow
+def test_the_inverse_sees_the_frictional_transmission_and_its_answers_reach_the_targets():
+    # 20 random reachable targets of the 16-tendon gallery robot with μ = 0.2: the QP's actuator
+    # forces are the spans' forces per unit base tension of a pull (capstan factors), and the
+    # forward solve from rest of the inverse's answer puts both effectors on their targets
+    import dataclasses
+    from vertebra.solver.gallery import load
+    from vertebra.solver.inverse.controller import InverseController, InverseSettings
+    scene = load("paper_5v_16t")
+    scene = dataclasses.replace(scene, cables=tuple(dataclasses.replace(c, friction=0.2) for c in scene.cables))
+    model = solver.build_model(scene)
+    rng = np.random.default_rng(23)
+    worst = 0.0
+    for _ in range(20):
+        actuation = rng.uniform(0.0, 3.0, 16) * (rng.random(16) < 0.4)
+        targets = model.effector_positions(model.solve(actuation).state)
+        step = InverseController(model, InverseSettings(mode="converged")).step(targets)
+        assert step.reached and step.equilibrium
+        check = model.solve(step.actuation)
+        worst = max(worst, float(np.linalg.norm(model.effector_positions(check.state) - targets, axis=1).max()))
+    assert worst <= 1e-6
+    # the transmission itself: a pulled cable's actuator force is Σ g_j ∂L_j/∂q with g the capstan factors
+    state = model.solve(actuation).state
+    lin = model.linearise(state, actuation)
+    plain = solver.build_model(load("paper_5v_16t")).linearise(state, actuation)
+    c = int(np.argmax(actuation))
+    assert not np.allclose(lin.actuator_forces[:, c], plain.actuator_forces[:, c])
+    lengths, angles = friction.geometry(model.trunk, state)
+    route = friction.routes(model.trunk.cables).pieces[c]
+    ratio = np.exp(-0.2 * np.cumsum(angles[route]))
+    pieces = model.trunk.cables.pieces(state.positions, friction.qmatrix(state.quaternions))
+    expected = np.zeros((model.n_frames, 6))
+    for piece, g in zip(route, ratio):
+        a, b = model.trunk.cables.piece_a[piece], model.trunk.cables.piece_b[piece]
+        expected[a] += g * pieces.unit[piece, :6]
+        expected[b] += g * pieces.unit[piece, 6:]
+    assert np.allclose(lin.actuator_forces[:, c], -expected[1:].reshape(-1), rtol=1e-12, atol=1e-15)
