@@ -92,7 +92,7 @@ def run(args) -> int:
         plot_static(model, result, str(plot))
         print(f"wrote {plot}", file=sys.stderr)
     if vtk is not None:
-        write_vtp(str(vtk), trunk_polydata(model, result.state, result.actuation))
+        write_vtp(str(vtk), trunk_polydata(model, result.state, result.actuation, friction=result.friction))
         print(f"wrote {vtk}", file=sys.stderr)
     if frames is not None:
         write_frames(str(frames), result.state)
@@ -172,7 +172,7 @@ def _run_sequence(args, model, commands: list, plot, vtk, frames) -> int:
             plot_static(model, result, str(plot))
             print(f"wrote {plot}", file=sys.stderr)
         if vtk is not None:
-            write_vtp(str(vtk), trunk_polydata(model, result.state, result.actuation))
+            write_vtp(str(vtk), trunk_polydata(model, result.state, result.actuation, friction=result.friction))
             print(f"wrote {vtk}", file=sys.stderr)
         if frames is not None:
             write_frames(str(frames), result.state)

@@ -341,8 +341,9 @@ def solve(trunk, actuation: np.ndarray, history: FrictionState | None, initial=N
     current = transmission(trunk, history, actuation, lengths, angles)
     iterations, stages, history_of_residuals = 0, 0, []
     # the tensions' scale: the largest before or after the command (a release to slack measures
-    # the rounding left against the tension it released), at least a strain of 1e-12 of the stiffest tendon
-    floor = max(1e-12 * float(np.max(trunk.actuators.cable_stiffness * trunk.rest_cable_lengths, initial=0.0)), 1e-300)
+    # the rounding left against the tension it released), at least the tension of a strain of
+    # 1e-3 of the stiffest tendon — FIXED_POINT of it is the rounding of a tendon's length
+    floor = max(1e-3 * float(np.max(trunk.actuators.cable_stiffness * trunk.rest_cable_lengths, initial=0.0)), 1e-300)
     converged = False
     change = math.inf
     for _ in range(MAX_ROUNDS):

@@ -261,3 +261,52 @@ def test_the_inverse_sees_the_frictional_transmission_and_its_answers_reach_the_
         expected[a] += g * pieces.unit[piece, :6]
         expected[b] += g * pieces.unit[piece, 6:]
     assert np.allclose(lin.actuator_forces[:, c], -expected[1:].reshape(-1), rtol=1e-12, atol=1e-15)
+
+
+@pytest.mark.slow
+def test_calibration_fits_friction_from_a_time_ordered_pull_release_sequence(tmp_path):
+    # synthetic data: a small three-tendon robot pulled and released in turn, predicted as one
+    # sequence with μ = 0.15; `friction` (one μ shared by the driven tendons) is fitted back
+    import sys
+    sys.path.insert(0, str(__import__("pathlib").Path(__file__).parent))
+    from test_calibration import MAPPING, SCENE
+    from vertebra.solver.calibration import Samples, calibrate, parse_mapping, parse_parameters
+    from vertebra.solver.calibration.backend import RuntimePredictor
+    from vertebra.solver.calibration.sequence import SequencePredictor
+    path = tmp_path / "scene.toml"
+    path.write_text(SCENE)
+    scene, mapping = solver.load_scene(path), parse_mapping(MAPPING, "map.toml")
+    up = np.linspace(0.0, 3.0, 5)
+    loop = np.r_[up, up[::-1][1:]]
+    commands = 1e-3 * np.array([(u, -1.0, -1.0) for u in loop] + [(-1.0, u, 0.5 * u - 1.0) for u in loop])
+    empty = Samples(commands, np.zeros((len(commands), 1, 3)), ("a",) * len(loop) + ("b",) * len(loop), "synthetic")
+    ps = parse_parameters(["friction"], scene, mapping, solver.build_model(scene))
+    assert ps.names == ("friction",) and len(ps.elements[0]) == 3
+    predictor = SequencePredictor(scene, mapping)
+    frictionless = predictor.predict(ps.values([0.0]), empty).markers
+    assert np.array_equal(frictionless, RuntimePredictor(scene, mapping).predict(ps.values([0.0]), empty).markers)
+    truth = predictor.predict(ps.values([0.15]), empty).markers
+    gap = np.linalg.norm(truth[3, 0] - truth[5, 0])             # the same command on the pull and the release
+    assert gap > 1e-5 and np.linalg.norm(frictionless[3, 0] - frictionless[5, 0]) < 1e-9
+    samples = Samples(commands, truth, empty.patterns, "synthetic")
+    derivative = predictor.predict(ps.values([0.05]), samples, [e for e in ps.elements[0]]).derivatives
+    assert np.abs(derivative).max() > 0.0
+    cal = calibrate(scene, mapping, samples, fit=["friction"])    # from μ = 0.05 (the scene has none)
+    before = np.sqrt(np.mean(np.sum((frictionless - truth) ** 2, -1)))
+    assert cal.x[0] == pytest.approx(0.15, abs=1e-3)                # the optimiser's tolerances (1e-6)
+    assert cal.train["rmse_m"] < 1e-2 * before
+
+
+def test_paraview_carries_span_tensions_and_stick(tmp_path):
+    from vertebra.solver.paraview import CABLE, trunk_polydata, write_vtp
+    model = build(pulled(0.2))
+    pull, release = model.solve_sequence([{"t": 3.0}, {"t": 2.5}])
+    data = trunk_polydata(model, release.state, release.actuation, friction=release.friction)
+    cable = data.cell_data["part"] == CABLE
+    assert np.array_equal(data.cell_data["tension"][cable], release.friction.tension[route_of(model)])
+    stick = data.point_data["stick"][data.point_data["cable"] == 0]
+    assert stick[0] == 0 and stick[-1] == 0
+    assert np.array_equal(stick[1:-1].astype(bool), release.friction.slip[route_of(model)[1:]] == 0)
+    assert stick[1:-1].any() and not stick[1:-1].all()
+    write_vtp(str(tmp_path / "release.vtp"), data)
+    assert "stick" not in trunk_polydata(model, pull.state, pull.actuation).point_data

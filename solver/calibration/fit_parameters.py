@@ -222,6 +222,9 @@ def parse_parameters(specs, scene, mapping, model, option: str = "--fit") -> Par
                                   field=option) from None
             if not low < high:
                 raise OptionError(f"{spec!r}: lower bound {low:g} is not below upper bound {high:g}", field=option)
+            if k0 == "friction" and value == low:
+                # a frictionless scene: start inside (the bounded optimiser cannot leave a start on its bound)
+                value = min(low + _typical(k0, i0, base, scene, length), 0.5 * (low + high))
             if not low <= value <= high:
                 raise OptionError(f"{spec!r}: the initial value {value:g} lies outside the bounds "
                                   f"[{low:g}, {high:g}]", field=option)
