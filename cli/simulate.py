@@ -9,7 +9,7 @@ import sys
 from vertebra.cli.outputs import (PICTURE_SUFFIXES, bound_warnings, output_file, range_warnings, refusal, shown,
                                   write_json)
 from vertebra.cli.prepare import add_preparation, prepared_scene
-from vertebra.core.errors import ConvergenceError
+from vertebra.core.errors import ConvergenceError, OptionError
 
 VTK_SUFFIXES = (".vtp",)
 FRAME_SUFFIXES = (".csv",)
@@ -35,8 +35,6 @@ def add_arguments(parser):
 
 def _sequence(model, items) -> list:
     """The commands of ``--sequence`` items (``NAME=V1,V2,…``) as actuation arrays."""
-    from vertebra.core.errors import OptionError
-
     columns = {}
     for item in items:
         name, sep, values = item.partition("=")
@@ -140,6 +138,7 @@ def _print_actuators(model, report: dict, tolerance: float) -> None:
 
 def _run_sequence(args, model, commands: list, plot, vtk, frames) -> int:
     """``--sequence``: solve ``commands`` in order; stop at the first that fails."""
+    # lazy: the libraries load for the command that runs (as in run)
     from vertebra.solver.paraview import trunk_polydata, write_vtp
     from vertebra.solver.report import plot_static, static_report, write_frames
 
