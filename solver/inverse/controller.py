@@ -155,9 +155,17 @@ _THREE = np.ones(3)
 
 def _largest(v: np.ndarray) -> float:
     """The largest length of the 3-vectors in ``v`` (n_effectors·3 values, effector rows); NaN
-    when a value is."""
-    v = v * v
-    return math.sqrt(float(np.maximum.reduce(v.reshape(-1, 3).dot(_THREE))))
+    when a value is. (A few effectors: Python floats beat numpy's calls.)"""
+    values = v.tolist()
+    largest = 0.0
+    for k in range(0, len(values), 3):
+        x, y, z = values[k:k + 3]
+        squared = x * x + y * y + z * z
+        if not squared <= largest:
+            if squared != squared:          # NaN
+                return squared
+            largest = squared
+    return math.sqrt(largest)
 
 
 class InverseController:
