@@ -317,7 +317,8 @@ class InverseController:
                 # cut back like one whose energy does not fall
                 try:
                     judged = model.evaluate(trial, lam, previous=judged)
-                    miss = _largest(projection.effector_motion(-judged.gradient[1:].reshape(-1)))
+                    # (|Je K⁻¹ r|, r = −gradient: the sign does not change the length)
+                    miss = _largest(projection.effector_motion(judged.gradient[1:].reshape(-1)))
                 except (ConvergenceError, FloatingPointError):
                     miss = math.inf
                 allowed = MISS * alpha * motion + (1.0 - alpha) * imbalance + floor
