@@ -41,7 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vertebra.core.errors import ConvergenceError
+from vertebra.core.errors import ConvergenceError, OptionError
 from vertebra.core.lie import qmatrix
 from vertebra.solver import newton, outputs
 from vertebra.solver.potential import LoadCase, Tendons, evaluate
@@ -52,8 +52,8 @@ SPLIT_ROUNDS = 25       # rounds after which an increment is applied in two halv
 MAX_SPLITS = 4          # an increment is split into 2^MAX_SPLITS parts at most
 SLIP = 1e-12            # relative excess of a hole's band (or backflow of a sliding hole) that changes its status
 
-__all__ = ["FrictionState", "Routes", "Transmission", "routes", "solve", "solve_sequence", "transmission",
-           "turning_angles"]
+__all__ = ["FrictionState", "Routes", "Transmission", "linearise", "routes", "sensitivities", "solve",
+           "solve_sequence", "transmission", "transmission_ratios", "turning_angles"]
 
 
 @dataclass(frozen=True)
@@ -380,7 +380,7 @@ def _increment(trunk, actuation, history, initial, options, rounds):
     floor = max(1e-3 * float(np.max(trunk.actuators.cable_stiffness * trunk.rest_cable_lengths, initial=0.0)), 1e-300)
     converged = False
     change = math.inf
-    before = pinned = None          # the statuses two rounds back; the holes held at incipient slip
+    seen, pinned = [], None         # the statuses of the rounds so far; the holes held at incipient slip
     for _ in range(rounds):
         loads = _Loads(trunk, current)
         result = newton.solve(trunk, loads, actuation, state, raise_on_failure=False, **options)
@@ -401,14 +401,18 @@ def _increment(trunk, actuation, history, initial, options, rounds):
         if (change <= FIXED_POINT or result.iterations == 0) and np.array_equal(following.slip, current.slip):
             converged = True
             break
-        if before is not None and np.array_equal(following.slip, before):
-            # a two-cycle: holes that stick at one shape and slide at the shape that follows sit at
-            # incipient slip — hold them sliding (the sliding status of the two) for this increment
-            flips = following.slip != current.slip
+        seen.append(current.slip)
+        cycle = next((k for k, slip in enumerate(seen[:-1]) if np.array_equal(slip, following.slip)), None)
+        if cycle is not None:
+            # a cycle: holes that stick at one round's shape and slide at a later one's sit at
+            # incipient slip — hold them sliding (their sliding status in the cycle) for this increment
+            statuses = np.array(seen[cycle:])
+            flips = np.any(statuses != statuses[0], axis=0)
+            sliding = np.where(np.any(statuses > 0, axis=0), 1, -1)
             pinned = flips if pinned is None else pinned | flips
-            guess = np.where(flips, following.slip + current.slip, following.slip).astype(np.int8)
+            guess = np.where(flips, sliding, following.slip).astype(np.int8)
             following = transmission(trunk, history, actuation, lengths, angles, guess, pinned)
-        before = current.slip
+            seen = []
         current = following
     result.iterations, result.load_steps, result.residual_history = iterations, stages, history_of_residuals
     if result.converged and not converged:
@@ -492,3 +496,42 @@ def solve_sequence(model, actuations, history: FrictionState | None = None, init
         results.append(result)
         history, initial = result.friction, None
     return results
+
+
+def sensitivities(model, actuations, history: FrictionState | None = None, cables=None, step: float = 1e-4) -> dict:
+    """Derivatives with respect to the cables' friction coefficients of the effector positions
+    and the span tensions after each command of a sequence (``actuations`` applied in order to
+    ``history``; None: from rest). A sequence's result depends on μ through its whole path (the
+    holes that stick, the slip fronts), so these are central differences of the whole sequence
+    with a step of ``step`` in μ (one-sided at μ = 0), not the implicit-function derivatives of
+    one equilibrium (:meth:`~vertebra.solver.model.TrunkModel.sensitivities`). ``cables``: names
+    (default every cable). Returns ``{"names", "effector_positions": (steps, 3·n_effectors, p),
+    "span_tensions": (steps, m, p)}``."""
+    names = list(model.actuator_names[:model.n_cables])
+    cables = names if cables is None else list(cables)
+    unknown = [c for c in cables if c not in names]
+    if unknown:
+        raise OptionError(f"unknown cable(s) {', '.join(unknown)} (cables: {', '.join(names)})", field="cables")
+    base = model.parameters
+    actuations = [model.actuation(a) for a in actuations]
+
+    def run(friction_values):
+        model.set_parameters(friction=friction_values)
+        results = model.solve_sequence(actuations, history)
+        return (np.stack([model.effector_positions(r.state).reshape(-1) for r in results]),
+                np.stack([r.friction.tension for r in results]))
+
+    positions = np.zeros((len(actuations), 3 * len(model.effector_names), len(cables)))
+    tensions = np.zeros((len(actuations), model.trunk.cables.owner.size, len(cables)))
+    try:
+        for j, name in enumerate(cables):
+            k = names.index(name)
+            mu = base.friction[k]
+            low, high = base.friction.copy(), base.friction.copy()
+            low[k], high[k] = max(mu - step, 0.0), mu + step
+            (p_low, t_low), (p_high, t_high) = run(low), run(high)
+            positions[..., j] = (p_high - p_low) / (high[k] - low[k])
+            tensions[..., j] = (t_high - t_low) / (high[k] - low[k])
+    finally:
+        model.set_parameters(base)
+    return {"names": [f"friction:{c}" for c in cables], "effector_positions": positions, "span_tensions": tensions}
