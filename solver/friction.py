@@ -49,6 +49,7 @@ from vertebra.solver.potential import LoadCase, Tendons, evaluate
 FIXED_POINT = 1e-12     # relative change of the span tensions at which the fixed point has converged
 MAX_ROUNDS = 100        # return map / equilibrium rounds of an increment that is not split further
 SPLIT_ROUNDS = 25       # rounds after which an increment is applied in two halves
+UNSETTLED = 8           # rounds of changing hole statuses after which the holes that changed are held sliding
 MAX_SPLITS = 4          # an increment is split into 2^MAX_SPLITS parts at most
 SLIP = 1e-12            # relative excess of a hole's band (or backflow of a sliding hole) that changes its status
 
@@ -403,10 +404,13 @@ def _increment(trunk, actuation, history, initial, options, rounds):
             break
         seen.append(current.slip)
         cycle = next((k for k, slip in enumerate(seen[:-1]) if np.array_equal(slip, following.slip)), None)
+        if cycle is None and len(seen) >= UNSETTLED and not np.array_equal(following.slip, current.slip):
+            cycle = len(seen) - UNSETTLED // 2
         if cycle is not None:
-            # a cycle: holes that stick at one round's shape and slide at a later one's sit at
-            # incipient slip — hold them sliding (their sliding status in the cycle) for this increment
-            statuses = np.array(seen[cycle:])
+            # a cycle (or statuses that keep changing): holes that stick at one round's shape and
+            # slide at a later one's sit at incipient slip — hold them sliding (their sliding
+            # status over those rounds) for this increment
+            statuses = np.array(seen[cycle:] + [following.slip])
             flips = np.any(statuses != statuses[0], axis=0)
             sliding = np.where(np.any(statuses > 0, axis=0), 1, -1)
             pinned = flips if pinned is None else pinned | flips
