@@ -478,6 +478,7 @@ def linearise(trunk, state, actuation: np.ndarray, history: FrictionState | None
         forces = np.zeros((n_cables * n_frames, 6))
         np.add.at(forces, rows, (ratio[:, None] * pieces.unit).reshape(-1, 6))
         lin.actuator_forces[:, :n_cables] = -forces.reshape(n_cables, n_frames, 6)[:, 1:].reshape(n_cables, -1).T
+        lin.force_scale = None      # the forces are no longer the Jacobian's rows scaled
     return lin, current
 
 

@@ -103,10 +103,15 @@ class Actuators(_Frozen):
     pretension: np.ndarray        # (n_cables,) N of the stroke-driven tendons at zero stroke, at rest
     friction: np.ndarray          # (n_cables,) μ of the capstan law at the cable's holes (0: frictionless)
 
-    @property
+    @functools.cached_property
     def tendons(self) -> np.ndarray:
-        """Indices of the stroke-driven cables."""
-        return np.flatnonzero(self.stroke_driven)
+        """Indices of the stroke-driven cables (read-only)."""
+        return _read_only(np.flatnonzero(self.stroke_driven))
+
+    @functools.cached_property
+    def frictional(self) -> bool:
+        """Does any cable have friction at its holes?"""
+        return bool(np.any(self.friction))
 
     def validate(self):
         if self.default.shape != (self.n_cables + self.n_chambers,):
