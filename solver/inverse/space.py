@@ -149,7 +149,7 @@ class ConstraintSpace:
         JaX = Ja.dot(X)
         W_ea, W_aa = JeX[:, 1:], JaX[:, 1:]
         problem, _ = self._problem(lin, W_ea, JeX[:, 0], W_aa, JaX[:, 0], JeX, JaX, targets, actuation, box,
-                                        damping)
+                                   damping)
         return Projection(problem, JeX[:, 0].copy(), X[:, 0], X[:, 1:], lin)
 
     def _project_halves(self, lin, factor, scale, targets, actuation, box, damping) -> "Projection | None":
@@ -287,9 +287,8 @@ class ConstraintProblem:
     def projected(cls, space: ConstraintSpace, W_ea, delta_e_free, W_aa, delta_a_free, lambda0, box=None,
                   damping: float = 0.0) -> "ConstraintProblem":
         """The problem of :meth:`ConstraintSpace.project`, whose arrays have the space's shapes by
-        construction and have been checked finite there (with ``lambda0`` inside the space's box,
-        and ``box`` from :meth:`ConstraintSpace.tick_box`): stored as they are, without the
-        constructor's conversions and checks."""
+        construction and have been checked finite there: stored as they are, without the
+        constructor's conversions (``box`` is checked as there)."""
         problem = object.__new__(cls)
         for key, value in (("space", space), ("W_ea", W_ea), ("delta_e_free", delta_e_free), ("W_aa", W_aa),
                            ("delta_a_free", delta_a_free), ("lambda0", lambda0),
