@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vertebra.solver import newton
+from vertebra.solver import bounds, newton
 from vertebra.solver.banded import factor_block_cholesky
 from vertebra.solver.cables import CablePieces, _spans
 from vertebra.solver.chain import CARRY_ANGLE, chain_poses
@@ -1065,7 +1065,6 @@ class _LazyStates:
 def bound_violations(model, result: BatchResult) -> list:
     """Every sample's :func:`vertebra.solver.bounds.bound_violations` (empty tuples at once when
     the actuations lie within their bounds and the scene bounds nothing a state makes)."""
-    from vertebra.solver import bounds            # (bounds imports the model's outputs; batch is imported by the model)
     actuators = model.trunk.actuators
     lower, upper = actuators.bounds
     dlo, dhi = actuators.displacement_bounds

@@ -136,23 +136,28 @@ def order_tree(coordinates: np.ndarray) -> SolveOrder:
     return SolveOrder(np.concatenate(order), parent)
 
 
-LEVEL = 64               # one sample in LEVEL starts from rest in the "levels" order
+LEVELS = (64, 8)         # the "levels" order: every 64th sample from rest, then every 8th, then the others
 
 
 def order_levels(coordinates: np.ndarray) -> SolveOrder:
-    """Two levels, for solving in batches: every :data:`LEVEL`-th sample (of a low-discrepancy
-    sequence: spread over the box) starts from rest; every other sample from the nearest of those
-    (a k-d tree query). Each level is one batch of independent solves."""
+    """Coarse to fine, for solving in batches: every 64th sample (of a low-discrepancy sequence:
+    spread over the box) starts from rest; every other 8th sample from the nearest of those;
+    every other sample from the nearest of all these (k-d tree queries). Three generations,
+    each one batch of independent solves."""
     from scipy.spatial import cKDTree
 
     n = len(coordinates)
-    first = np.arange(0, n, LEVEL)
-    rest = np.setdiff1d(np.arange(n), first, assume_unique=True)
     parent = np.full(n, -1)
-    if rest.size:
-        _, near = cKDTree(coordinates[first]).query(coordinates[rest])
-        parent[rest] = first[np.asarray(near, int)]
-    return SolveOrder(np.concatenate([first, rest]), parent)
+    solved = np.arange(0, n, LEVELS[0])
+    order = [solved]
+    for stride in LEVELS[1:] + (1,):
+        level = np.setdiff1d(np.arange(0, n, stride), solved, assume_unique=True)
+        if level.size:
+            _, near = cKDTree(coordinates[solved]).query(coordinates[level])
+            parent[level] = solved[np.asarray(near, int)]
+            order.append(level)
+            solved = np.union1d(solved, level)
+    return SolveOrder(np.concatenate(order), parent)
 
 
 ORDERINGS: dict[str, Callable[[np.ndarray], SolveOrder]] = {

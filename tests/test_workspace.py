@@ -126,12 +126,15 @@ def test_dask_executor_gives_the_same_clouds(robot):
 
 
 def test_generations_solve_each_sample_after_its_parent(robot):
-    from vertebra.solver.workspace_order import LEVEL, generations
+    from vertebra.solver.workspace_order import generations
 
     coordinates = response_coordinates(robot, sample_actuations(robot, 300))
     levels = ORDERINGS["levels"](coordinates)
     depth = generations(levels)
-    assert set(depth.tolist()) == {0, 1} and np.count_nonzero(depth == 0) == -(-300 // LEVEL)
+    # every 64th from rest; every 8th from those; the others from the nearest of both (a sample whose
+    # nearest is one of the first starts in the second generation)
+    assert np.flatnonzero(depth == 0).tolist() == list(range(0, 300, 64)) and depth.max() == 2
+    assert np.all(depth[np.arange(0, 300, 8)] <= 1)
     tree = ORDERINGS["tree"](coordinates)
     depth = generations(tree)
     has = tree.parent >= 0
