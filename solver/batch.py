@@ -918,6 +918,8 @@ def _solve_chunk(context: _Context, actuation: np.ndarray, start: np.ndarray | N
     run.leave(np.flatnonzero(~(reference > 0.0) | ~np.isfinite(reference)), "no load at rest, or not finite")
     if trunk.loads.has_dead_moments:
         run.leave(np.arange(B), "dead moments (an unsymmetric tangent: LU factors)")
+    if np.any(trunk.actuators.friction):
+        run.leave(np.arange(B), "cable friction (a fixed point of the capstan law over Newton solves)")
     xi = np.broadcast_to(rest_xi, (B,) + rest_xi.shape).copy()
     if start is not None:
         given = warm & np.all(np.isfinite(start.reshape(B, -1)), 1)
@@ -997,8 +999,8 @@ def solve_batch(model, actuation: np.ndarray, initial=None, *, tolerance: float,
             out.why[i] = run.why[j]
             initial_state = states_given[i] if states_given is not None else None
             try:
-                result = newton.solve(trunk, model.loads, actuation[i], initial_state, tolerance=tolerance,
-                                      max_iterations=max_iterations, load_steps=load_steps, raise_on_failure=False)
+                result = model.solve(actuation[i], initial_state, tolerance=tolerance, max_iterations=max_iterations,
+                                     load_steps=load_steps, raise_on_failure=False)
             except _FAILURES as error:
                 out.messages[i] = str(error) or type(error).__name__
                 out.errors[i] = type(error).__name__
