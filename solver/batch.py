@@ -17,7 +17,7 @@ rest, the representability checks and the stability test at convergence. A sampl
 it (a negative-curvature step, a step below the resolution of the poses, a stage that fails and
 would be retried in smaller increments, a state the links cannot represent, a start state
 without carried strains, non-finite values, dead moments (LU factors)) is solved again from its
-own start by the single solve (:func:`vertebra.solver.newton.solve`), so its result, and its
+own start by the single solve (``model.solve``), so its result, and its
 failure message, are exactly the single solve's; ``BatchResult.single`` marks those samples.
 
 Samples that converge leave the active set; a batch is cut into chunks whose working arrays stay

@@ -174,3 +174,12 @@ def test_a_sample_that_fails_fails_alone_with_the_single_solves_message():
     assert batch.converged.tolist() == [True, False, True]
     assert batch.single.tolist() == [False, True, False]
     assert "turns" in batch.messages[1] or "cable" in batch.messages[1]
+
+
+def test_cable_friction_is_solved_by_the_single_solve_sample_by_sample():
+    model = solver.build_model(load_scene("gallery:paper_3v_4t"))
+    model.set_parameters(friction={name: 0.2 for name in model.actuator_names})
+    rng = np.random.default_rng(9)
+    batch = _compare(model, rng.uniform(0.0, 3.0, (3, model.n_cables)))
+    assert batch.single.all() and batch.converged.all() and "friction" in batch.why[0]
+    assert batch.result(0).friction is not None
