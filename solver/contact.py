@@ -211,6 +211,16 @@ def bodies(model: ContactModel, key) -> tuple[str, str]:
 # gaps at a state
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross products of (k, 3) arrays (numpy's is slow on small stacks)."""
+    a, b = np.broadcast_arrays(a, b)
+    out = np.empty(a.shape)
+    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    return out
+
+
 def _golden(distance, low: np.ndarray, high: np.ndarray) -> np.ndarray:
     """The minimiser of each ``distance(s)`` (batched) in ``[low, high]`` by golden-section search."""
     a, b = low.copy(), high.copy()
@@ -266,9 +276,9 @@ def _rims(model, R, x, features, obstacle):
     distance, normal, _ = obstacle.closest(point)
     rows = np.zeros((features.size, 2, 6))
     rows[:, 0, :3] = normal
-    rows[:, 0, 3:] = np.cross(point - x[frame], normal)
+    rows[:, 0, 3:] = _cross(point - x[frame], normal)
     return (distance, point, normal, np.stack([frame, np.full(frame.size, -1)], 1), rows,
-            np.stack([np.cross(axis, point - center), center - point], 1))
+            np.stack([_cross(axis, point - center), center - point], 1))
 
 
 def _balls(model, R, x, features, obstacle):
@@ -324,10 +334,10 @@ def _pairs(model, R, x, features):
     gap = np.add.reduce((point - face_point) * m, -1)
     rows = np.empty((features.size, 2, 6))
     rows[:, 0, :3] = m
-    rows[:, 0, 3:] = np.cross(point - x[fa], m)
+    rows[:, 0, 3:] = _cross(point - x[fa], m)
     rows[:, 1, :3] = -m
-    rows[:, 1, 3:] = -np.cross(point - x[fb], m)
-    return gap, point, m, np.stack([fa, fb], 1), rows, np.stack([np.cross(rim_axis, point - center), center - point], 1)
+    rows[:, 1, 3:] = -_cross(point - x[fb], m)
+    return gap, point, m, np.stack([fa, fb], 1), rows, np.stack([_cross(rim_axis, point - center), center - point], 1)
 
 
 _FEATURES = {RIM: _rims, BALL: _balls, CHORD: _chords}
@@ -358,14 +368,13 @@ def evaluate(model: ContactModel, state, keys: np.ndarray | None = None) -> Cont
                                   function(model, R, x, features, obstacle)))
     else:
         keys = np.asarray(keys, int).reshape(-1, 3)
-        for kind in (PAIR, RIM, BALL, CHORD):
-            for j in np.unique(keys[keys[:, 0] == kind, 2]):
-                chosen = keys[(keys[:, 0] == kind) & (keys[:, 2] == j)]
-                features = chosen[:, 1]
-                found = (_pairs(model, R, x, features) if kind == PAIR
-                         else _chords(model, R, x, features, model.obstacles[j], ends=True) if kind == CHORD
-                         else _FEATURES[kind](model, R, x, features, model.obstacles[j]))
-                parts.append((chosen, found))
+        for kind, j in sorted(set(zip(keys[:, 0].tolist(), keys[:, 2].tolist()))):
+            chosen = keys[(keys[:, 0] == kind) & (keys[:, 2] == j)]
+            features = chosen[:, 1]
+            found = (_pairs(model, R, x, features) if kind == PAIR
+                     else _chords(model, R, x, features, model.obstacles[j], ends=True) if kind == CHORD
+                     else _FEATURES[kind](model, R, x, features, model.obstacles[j]))
+            parts.append((chosen, found))
     if not parts:
         return ContactSet(np.zeros((0, 3), int), np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)),
                           np.zeros((0, 2), int), np.zeros((0, 2, 6)), np.zeros((0, 2, 3)), np.zeros((0, 2, 3)))
@@ -375,10 +384,9 @@ def evaluate(model: ContactModel, state, keys: np.ndarray | None = None) -> Cont
     found = ContactSet(key, gap, point, normal, frames, rows, origin, slide)
     if keys is None:
         kept = np.flatnonzero(found.gap < model.margin)
-        found = found.select(key[kept])
-    else:
-        found = found.select(keys)
-    return found
+        return ContactSet(key[kept], gap[kept], point[kept], normal[kept], frames[kept], rows[kept], origin[kept],
+                          slide[kept])
+    return found.select(keys)
 
 
 def _near(model, x, obstacle) -> dict:
@@ -453,6 +461,9 @@ class Constraints:
         self.reference = None                     # gaps of those contacts at the step's start
         self.springs = None                       # (G, k) of the last stiffened tangent
         self._cache = (None, None)
+        self._pressed = (None, None, None)
+        assembler = trunk.assembler             # the cable pieces' terms by the frames they join
+        self._pairs = {(int(a), int(b)): k for k, (a, b) in enumerate(zip(assembler.pair_a, assembler.pair_b))}
 
     def at(self, state) -> ContactSet:
         """Every candidate contact at ``state`` (kept for the last state asked)."""
@@ -461,8 +472,11 @@ class Constraints:
         return self._cache[1]
 
     def pressed(self, state) -> ContactSet:
-        """The contacts carrying the current multipliers, at ``state``."""
-        return evaluate(self.model, state, self.keys)
+        """The contacts carrying the current multipliers, at ``state`` (kept for the last state
+        and multipliers asked)."""
+        if self._pressed[0] is not state or self._pressed[1] is not self.keys:
+            self._pressed = (state, self.keys, evaluate(self.model, state, self.keys))
+        return self._pressed[2]
 
     def balance(self, gradient: np.ndarray, state) -> np.ndarray:
         """The Lagrangian's gradient ``∇E − Gᵀλ`` (n_frames, 6) at ``state``."""
@@ -539,9 +553,7 @@ class Constraints:
         single = (upper < 0) & (lower > 0)
         np.add.at(links, (lower[single] - 1, slice(6, 12), slice(6, 12)), blocks[single, :6, :6])
         # frames a repetition apart: the slot of the cable pieces that join them, where a cable does
-        assembler = matrix.assembler
-        pairs = {(int(a), int(b)): k for k, (a, b) in enumerate(zip(assembler.pair_a, assembler.pair_b))}
-        slot = np.array([pairs.get((int(a), int(b)), -1) for a, b in zip(lower, upper)], int)
+        slot = np.array([self._pairs.get((a, b), -1) for a, b in zip(lower.tolist(), upper.tolist())], int)
         cabled = (upper >= 0) & ~joined & (slot >= 0)
         if cabled.any():
             np.add.at(matrix.assembler.views(terms)[1], slot[cabled], blocks[cabled])
@@ -667,12 +679,12 @@ def _blocks(contacts, lam, S, point, n, pair, chord):
     v = np.zeros((key.shape[0], 12))
     rim = ~pair & ~chord
     v[rim, :3] = S_tau[rim]
-    v[rim, 3:6] = np.cross(l[rim], S_tau[rim]) + np.cross(tau[rim], n[rim])
+    v[rim, 3:6] = _cross(l[rim], S_tau[rim]) + _cross(tau[rim], n[rim])
     if chord.any():
         t = np.add.reduce(contacts.rows[chord, 1, :3] * n[chord], -1)[:, None]
         v[chord, :3] = (1.0 - t) * S_tau[chord] - n[chord]
         v[chord, 6:9] = t * S_tau[chord] + n[chord]
-    v[pair, 3:6] = np.cross(tau[pair], n[pair])
+    v[pair, 3:6] = _cross(tau[pair], n[pair])
     v[pair, 9:12] = -v[pair, 3:6]
     sliding = f_ss > 1e-12 * np.sqrt(np.add.reduce(tau * tau, -1)) * (np.abs(S).max(axis=(1, 2)) * np.sqrt(
         np.add.reduce(tau * tau, -1)) + np.sqrt(np.add.reduce(second * second, -1)) + 1e-300)
