@@ -98,6 +98,7 @@ class StaticResult:
                                      # (solver.bounds; set by TrunkModel.solve)
     contacts: tuple = ()             # contact.Contact: every candidate contact of the returned state
                                      # with its force (empty: the trunk declares no contact shapes)
+    friction: object = None          # FrictionState after a frictional solve (solver.friction; None: frictionless)
 
     def __repr__(self) -> str:
         tip = ", ".join(f"{v:.6g}" for v in self.state.positions[-1])
