@@ -163,7 +163,7 @@ class TrunkModel:
         settings = self.scene.solver
         values = self.actuation(actuation)
         bounds.check_pushing(self, values, from_scene=actuation is None)
-        frictional = history is not None or bool(np.any(self.trunk.actuators.friction))
+        frictional = history is not None or self.trunk.actuators.frictional
         try:
             result = (friction.solve if frictional else newton.solve)(
                 self.trunk, *((values, history) if frictional else (self.loads, values)), initial,
@@ -244,7 +244,7 @@ class TrunkModel:
     def linearise(self, state: State, actuation=None, *, previous=None) -> Linearisation:
         """Tangent stiffness factor, actuator and effector Jacobians at ``state`` (``previous``:
         an evaluation or :meth:`trial` of the same state and actuation to reuse)."""
-        if np.any(self.trunk.actuators.friction):        # the frictional transmission of a pull from rest
+        if self.trunk.actuators.frictional:        # the frictional transmission of a pull from rest
             return friction.linearise(self.trunk, state, self.actuation(actuation))[0]
         return outputs.linearise(self.trunk, state, self.actuation(actuation), self.loads, previous)
 
@@ -278,7 +278,7 @@ class TrunkModel:
 
     def effector_positions(self, state: State) -> np.ndarray:
         """World position of each point effector; world unit direction of each axis effector."""
-        return outputs.effector_points(self.trunk, state)[1]
+        return outputs.effector_points(self.trunk, state)[1].copy()
 
     def sensitivities(self, state, actuation=None, *, wrt=sensitivity.PARAMETER_GROUPS,
                       outputs=sensitivity.OUTPUTS, method: str = "auto") -> "sensitivity.Sensitivities":
