@@ -381,14 +381,15 @@ def tangent(context: _Context, ev: Evaluation) -> Tangent:
 
 
 def _cable_jacobian(context: _Context, pieces: CablePieces, B: int) -> np.ndarray:
-    """``∂L/∂q`` (B, n_cables, n_frames, 6) of every cable of every sample."""
+    """``∂L/∂q`` (B, n_cables, n_frames, 6) of every cable of every sample
+    (:meth:`vertebra.solver.cables.CableRouting.jacobian`'s two gathers, over the batch)."""
     trunk = context.trunk
     cables = trunk.cables
-    unit = pieces.unit.reshape(B, -1, 6)
-    if isinstance(cables.to_jacobian, np.ndarray):
-        jacobian = cables.to_jacobian @ unit
-    else:                                              # (sparse incidence of a large trunk)
-        jacobian = np.stack([cables.to_jacobian @ u for u in unit])
+    ends = np.zeros((B, 2 * cables.piece_a.size + 1, 6))         # the piece ends' gradients, then a zero row
+    ends[:, :-1] = pieces.unit.reshape(B, -1, 6)
+    starting, ending = cables.jacobian_ends
+    jacobian = ends[:, starting]
+    jacobian += ends[:, ending]
     return jacobian.reshape(B, cables.n_cables, trunk.frames.count, 6)
 
 
@@ -920,6 +921,8 @@ def _solve_chunk(context: _Context, actuation: np.ndarray, start: np.ndarray | N
         run.leave(np.arange(B), "dead moments (an unsymmetric tangent: LU factors)")
     if np.any(trunk.actuators.friction):
         run.leave(np.arange(B), "cable friction (a fixed point of the capstan law over Newton solves)")
+    if trunk.contact is not None:
+        run.leave(np.arange(B), "contacts (the sequential-QP step on the gaps)")
     xi = np.broadcast_to(rest_xi, (B,) + rest_xi.shape).copy()
     if start is not None:
         given = warm & np.all(np.isfinite(start.reshape(B, -1)), 1)

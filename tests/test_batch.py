@@ -183,3 +183,13 @@ def test_cable_friction_is_solved_by_the_single_solve_sample_by_sample():
     batch = _compare(model, rng.uniform(0.0, 3.0, (3, model.n_cables)))
     assert batch.single.all() and batch.converged.all() and "friction" in batch.why[0]
     assert batch.result(0).friction is not None
+
+
+def test_contacts_are_solved_by_the_single_solve_sample_by_sample():
+    from test_contact import disc_trunk
+
+    model = disc_trunk(2.0)
+    assert model.trunk.contact is not None
+    actuations = np.array([model.actuation() * f for f in (0.5, 1.0)])
+    batch = _compare(model, actuations)
+    assert batch.single.all() and "contacts" in batch.why[0]
