@@ -319,3 +319,88 @@ def test_without_contact_shapes_no_contact_code_runs(monkeypatch):
     assert model.trunk.contact is None
     result = model.solve()
     assert result.converged and result.contacts == ()
+
+
+# --- output and the inverse -------------------------------------------------------------------------
+
+def test_paraview_file_shows_the_contacts(tmp_path):
+    from vertebra.solver.paraview import CONTACT, trunk_polydata, write_vtp
+    from vtk_xml import read_vtp
+
+    model = disc_trunk(10.0)
+    result = model.solve()
+    data = read_vtp(write_vtp(tmp_path / "c.vtp", trunk_polydata(model, result.state, result.actuation,
+                                                                  contacts=result.contacts)))
+    assert data.field_data["part_names"][CONTACT] == "contact"
+    at = data.point_data["contact_force"] > 0.0
+    assert at.sum() == 2
+    assert np.allclose(np.sort(data.point_data["contact_force"][at]), np.sort([c.force for c in pressed(result)]))
+    assert np.allclose(data.point_data["contact_normal"][at][0], pressed(result)[0].normal)
+    assert (data.cell_data["part"] == CONTACT).sum() == len(result.contacts)
+
+
+def wall_robot(wall=0.03):
+    """The gallery's 16-tendon robot (tip effector) with discs of 12 mm on its vertebrae (its
+    holes at 10 mm) beside a wall x = ``wall``."""
+    import dataclasses
+    from vertebra.solver.gallery import load
+    from vertebra.solver.obstacles import Plane
+
+    scene = load("paper_5v_16t")
+    segments = tuple(dataclasses.replace(s, vertebra=dataclasses.replace(s.vertebra, disc_radius=0.012,
+                                                                         disc_thickness=0.003))
+                     for s in scene.segments)
+    return solver.build_model(dataclasses.replace(scene, segments=segments, effectors=scene.effectors[1:],
+                                                  obstacles=(Plane(np.array([wall, 0.0, 0.0]),
+                                                                   np.array([-1.0, 0.0, 0.0])),)))
+
+
+def test_inverse_reaches_targets_beside_a_wall_without_penetration():
+    # 20 tip targets made by forward solves that pull towards the wall (most of them with a disc
+    # pressed on it): the converged inverse (each iteration's equilibrium solved with the contacts)
+    # reaches every one to 1e-4 m and no disc enters the wall
+    from vertebra.solver.inverse import InverseController, InverseSettings
+
+    model = wall_robot()
+    rng = np.random.default_rng(1)
+    targets, touching = [], 0
+    while len(targets) < 20:
+        a = np.zeros(16)
+        a[rng.choice(16, 3, replace=False)] = rng.uniform(0, 8, 3)
+        a[[0, 4, 8, 12]] += rng.uniform(0, 6, 4)
+        result = model.solve(a, raise_on_failure=False)
+        if result.converged:
+            targets.append(model.effector_positions(result.state)[0])
+            touching += bool(pressed(result))
+    assert touching >= 10
+    controller = InverseController(model, InverseSettings(mode="converged", tolerance=1e-4))
+    for target in targets:
+        step = controller.step(target[None])
+        assert step.reached and step.equilibrium
+        found = contact.evaluate(model.trunk.contact, step.state)
+        assert found.gap.min() >= -1e-9
+
+
+def test_tick_mode_along_a_trajectory_that_touches_the_wall():
+    # a tip path from rest into the wall and along it (made by forward solves, the last two
+    # thirds with a disc pressed on the wall), tracked by control ticks (3 per target): the
+    # ticks' states stay out of the wall and on the path. (Ticks step the state by the
+    # linearisation without the contacts: the robot's redundancy keeps it off the wall here.)
+    from vertebra.solver.inverse import InverseController, InverseSettings
+
+    model = wall_robot()
+    path, touching = [], 0
+    for s in np.linspace(0.0, 1.0, 30):
+        a = np.zeros(16)
+        a[[0, 4, 8, 12]] = 6.0 * min(1.0, 2.0 * s)
+        a[[1, 5]] = 4.0 * max(0.0, 2.0 * s - 1.0)
+        result = model.solve(a)
+        path.append(model.effector_positions(result.state)[0])
+        touching += bool(pressed(result))
+    assert touching >= 15
+    controller = InverseController(model, InverseSettings(mode="tick"))
+    for target in path:
+        for _ in range(3):
+            step = controller.step(target[None])
+        assert contact.evaluate(model.trunk.contact, step.state).gap.min() >= -1e-9
+        assert step.errors.max() <= 1e-5
