@@ -98,7 +98,12 @@ def main(argv=None) -> None:
     parser.add_argument("--fit", nargs="+", default=["friction"],
                         help="parameters fitted from the frictionless calibration's values (friction among them)")
     parser.add_argument("--name", default="friction_v4", help="results file name (benchmarks/results/NAME.json)")
+    parser.add_argument("--holdout-only", action="store_true", help="predict only the held-out file after the fit")
+    parser.add_argument("--scan", nargs="+", type=float, metavar="MU",
+                        help="no fit: predict the held-out file with the frictionless fit's values at each μ")
     args = parser.parse_args(argv)
+    if args.scan:
+        return scan(args)
     document = json.loads(Path(args.document).read_text())
     with tempfile.TemporaryDirectory() as tmp:
         mapping_path = Path(tmp) / "map.toml"
@@ -124,7 +129,7 @@ def main(argv=None) -> None:
         predictor = SequencePredictor(scene, mapping)
         values = cal.values
         length = float(predictor.model.length_scale)
-        for name, samples in (("holdout", holdout), ("train", train)):
+        for name, samples in (("holdout", holdout),) + ((("train", train),) if not args.holdout_only else ()):
             index = pairs(samples)
             row = {}
             for label, friction in (("frictionless", np.zeros_like(values.friction)), ("fitted", values.friction)):
@@ -142,6 +147,41 @@ def main(argv=None) -> None:
                     f"{row[label]['pull_release']['explained_share']}")
             out[name] = row
     write_json(out, RESULTS / f"{args.name}.json")
+    log(f"wrote benchmarks/results/{args.name}.json")
+
+
+def scan(args) -> None:
+    """The held-out file predicted as a sequence at each μ of ``--scan``, every other value the
+    frictionless calibration's."""
+    document = json.loads(Path(args.document).read_text())
+    with tempfile.TemporaryDirectory() as tmp:
+        mapping_path = Path(tmp) / "map.toml"
+        mapping_path.write_text(derived_mapping(document, None))
+        mapping = load_mapping(mapping_path)
+        scene_path = Path(tmp) / "scene.toml"
+        scene_path.write_text(Path(args.calibrated).read_text())
+        scene = load_scene(scene_path)
+        holdout = load_samples(HOLDOUT, mapping)
+        predictor = SequencePredictor(scene, mapping)
+        from vertebra.solver.calibration.fit_parameters import initial_values      # (benchmark script)
+        values = initial_values(scene, mapping, predictor.model)
+        index = pairs(holdout)
+        rows = []
+        for mu in args.scan:
+            t1 = time.perf_counter()
+            predicted = predictor.predict(dataclasses.replace(values, friction=np.full(values.friction.size, mu)),
+                                          holdout).markers
+            metrics = error_metrics(predicted, holdout.markers, holdout.patterns, float(predictor.model.length_scale))
+            row = {"mu": mu, "rmse_m": metrics["rmse_m"], "rmse_pct_length": metrics["rmse_pct_length"],
+                   "median_m": metrics["median_m"], "pull_release": gaps(holdout, predicted, index),
+                   "seconds": time.perf_counter() - t1}
+            rows.append(row)
+            log(f"held out, μ = {mu}: RMSE {1e3 * row['rmse_m']:.3f} mm, pull/release: measured median "
+                f"{1e3 * row['pull_release']['measured_median_m']:.2f} mm, predicted median "
+                f"{1e3 * row['pull_release']['predicted_median_m']:.3f} mm, explained share "
+                f"{row['pull_release']['explained_share']:.3f}")
+    write_json({"benchmark": "friction_v4_scan", "vertebra_version": __version__, "date": now(),
+                "loadavg": loadavg(), "holdout": rows}, RESULTS / f"{args.name}.json")
     log(f"wrote benchmarks/results/{args.name}.json")
 
 
