@@ -165,36 +165,36 @@ class Loads:
 
 # ----------------------------------------------------------------------------- evaluation
 class _Context:
-    """What a batch of B samples of one trunk reuses: hole offsets and cable groups repeated
-    per sample, the quadratic links' constant material tangents as rows."""
+    """What a batch of samples of one trunk reuses: hole offsets repeated per sample and the
+    quadratic links' constant material tangents as rows, kept for the largest batch asked for
+    (a smaller batch takes their first rows), and each batch's cable groups."""
 
     def __init__(self, trunk):
         self.trunk = trunk
         self._kept = {}
 
-    def _of(self, key, B, make):
-        value = self._kept.get((key, B))
-        if value is None:
-            value = self._kept[(key, B)] = make()
-        return value
+    def _rows(self, key, B, make):
+        """The first rows, for B samples, of what ``make(count)`` builds for ``count`` samples."""
+        value, count = self._kept.get(key, (None, 0))
+        if count < B:
+            value, count = make(B), B
+            self._kept[key] = (value, count)
+        return value[:len(value) // count * B]
 
     def holes(self, B):
         holes = self.trunk.cables.holes
-        return self._of("holes", B, lambda: np.ascontiguousarray(np.broadcast_to(holes, (B,) + holes.shape)
-                                                                   .reshape(-1, 3, 1)))
+        return self._rows("holes", B, lambda count: np.ascontiguousarray(
+            np.broadcast_to(holes, (count,) + holes.shape).reshape(-1, 3, 1)))
 
     def groups(self, B):
+        """Each sample's groups of pieces (``CablePieces.tangent``), offset to its rows; B·m: none."""
         groups, m = self.trunk.assembler.cable_groups, self.trunk.cables.piece_a.size
-
-        def make():
-            offset = (np.arange(B) * m)[:, None, None]
-            return np.where(groups[None] < m, groups[None] + offset, B * m).reshape(-1, groups.shape[1])
-        return self._of("groups", B, make)
+        offset = (np.arange(B) * m)[:, None, None]
+        return np.where(groups[None] < m, groups[None] + offset, B * m).reshape(-1, groups.shape[1])
 
     def material(self, B, energy):
-        return self._of(("material", id(energy)), B,
-                        lambda: np.ascontiguousarray(np.broadcast_to(energy.stiffness, (B,) + energy.stiffness.shape)
-                                                     .reshape(-1, 6, 6)))
+        return self._rows(("material", id(energy)), B, lambda count: np.ascontiguousarray(
+            np.broadcast_to(energy.stiffness, (count,) + energy.stiffness.shape).reshape(-1, 6, 6)))
 
 
 @dataclass
