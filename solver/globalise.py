@@ -1,7 +1,7 @@
 """The globalisation steps of the forward solve beyond the shifted Newton step: a direction of
 negative curvature of an indefinite tangent (to leave saddles and maxima) and the backtracking
-line search on the energy (or, with dead moments, an energy-like merit). The stage they act on is
-:mod:`vertebra.solver.newton`'s.
+line search on the energy (or, with loads that have no potential, an energy-like merit). The
+stage they act on is :mod:`vertebra.solver.newton`'s.
 """
 
 from __future__ import annotations
@@ -53,10 +53,10 @@ def bend(stage, ev, r: np.ndarray, factor, shift: float, scale: np.ndarray):
 
 
 def line_search(stage, state, ev, residual: float, dq, change, alpha: float, rp: float,
-                 curvature: float, moments):
+                 curvature: float, nonpotential):
     """Backtracking from ``alpha`` along ``dq``: the first fraction that lowers the energy (the
-    merit, with dead moments) by an Armijo share of the quadratic model's prediction ``α r·p −
-    ½α² pᵀHp`` — or, where the prediction is below the energy's rounding, that does not raise
+    merit ``E − f·Δq`` with ``nonpotential`` forces ``f`` at the iterate: dead moments, follower
+    loads) by an Armijo share of the quadratic model's prediction ``α r·p − ½α² pᵀHp`` — or, where the prediction is below the energy's rounding, that does not raise
     the residual. Returns (state, evaluation, α, decrease, prediction, quality) with quality the
     ratio of actual to predicted decrease of the first (full) trial (1 below rounding, 0 when
     it was cut back), or None."""
@@ -69,8 +69,8 @@ def line_search(stage, state, ev, residual: float, dq, change, alpha: float, rp:
         ev_trial = evaluate(trunk, trial, load)
         predicted = alpha * rp - 0.5 * alpha * alpha * curvature
         decrease = ev.energy - ev_trial.energy
-        if moments is not None:
-            decrease += alpha * float(moments @ dq.reshape(-1, 6)[:, 3:].reshape(-1))
+        if nonpotential is not None:
+            decrease += alpha * float(nonpotential @ dq)
         if predicted <= noise:       # the energy cannot judge this step: the residual does
             good = stage.norm(ev_trial) <= residual
             ratio = 1.0

@@ -28,6 +28,7 @@ class Linearisation:
     effector_positions: np.ndarray
     actuator_displacements: np.ndarray
     energy: float = 0.0          # total potential at the state (dead moments excluded)
+    shift: float = 0.0           # μ of the factor (0: the tangent itself; > 0: it was singular)
 
     def solve(self, rhs: np.ndarray, *, overwrite: bool = False) -> np.ndarray:
         """``K⁻¹ rhs`` with the banded factor, for ``rhs`` of shape (n_dof,) or (n_dof, k): the
@@ -93,7 +94,7 @@ def linearise(trunk, state, actuation: np.ndarray, loads: LoadCases, previous=No
                                "is not finite)")
     matrix = tangent(trunk, ev)
     for shift in LINEARISATION_SHIFTS:
-        factor, _ = matrix.factor(shift, symmetric=not trunk.loads.has_dead_moments)
+        factor, _ = matrix.factor(shift, symmetric=not trunk.loads.unsymmetric)
         if factor is not None:
             break
     if factor is None:
@@ -130,4 +131,4 @@ def linearise(trunk, state, actuation: np.ndarray, loads: LoadCases, previous=No
         effector_jacobian=Je[:, 1:].reshape(3 * len(effectors.names), n_dof),
         effector_positions=positions,
         actuator_displacements=actuator_displacements(trunk, state, actuation, loads, links=links, pieces=pieces),
-        energy=ev.energy)
+        energy=ev.energy, shift=shift)
