@@ -96,6 +96,7 @@ class StaticResult:
                                      # link energy was fitted on (empty: inside, or no fitted energies)
     bound_violations: tuple = ()     # BoundViolation: actuator quantities beyond the scene's bounds
                                      # (solver.bounds; set by TrunkModel.solve)
+    friction: object = None          # FrictionState after a frictional solve (solver.friction; None: frictionless)
 
     def __repr__(self) -> str:
         tip = ", ".join(f"{v:.6g}" for v in self.state.positions[-1])

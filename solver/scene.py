@@ -57,6 +57,7 @@ class CableSpec:
     free_length: float = 0.0                    # m of tendon outside the robot (servo to base hole)
     pretension: float = 0.0                     # N at zero stroke with the trunk at rest
     max_stroke_change: float | None = None      # m per control tick (None: derived from the bounds)
+    friction: float = 0.0                       # μ of the capstan law at every hole it passes (solver/friction.py)
 
     @property
     def stroke_driven(self) -> bool:
@@ -248,7 +249,7 @@ def parse_scene(data: dict, source: str = "<dict>", base_dir=".") -> Scene:
         cables.append(CableSpec(name, radius, angle, first, last, tension, *_bounds(t, "tension"),
                                 *_bounds(t, "stroke", -math.inf),
                                 t.number("max_tension_change", None, positive=True, unbounded=True),
-                                **_tendon(t)))
+                                **_tendon(t), friction=t.number("friction", 0.0, nonneg=True)))
         t.done()
 
     chambers = []

@@ -101,11 +101,17 @@ class Actuators(_Frozen):
     stroke_driven: np.ndarray     # (n_cables,) bool: the cable's value is a servo stroke (m), not a tension
     cable_stiffness: np.ndarray   # (n_cables,) N/m spring rate of the stroke-driven tendons (0: tension-driven)
     pretension: np.ndarray        # (n_cables,) N of the stroke-driven tendons at zero stroke, at rest
+    friction: np.ndarray          # (n_cables,) μ of the capstan law at the cable's holes (0: frictionless)
 
-    @property
+    @functools.cached_property
     def tendons(self) -> np.ndarray:
-        """Indices of the stroke-driven cables."""
-        return np.flatnonzero(self.stroke_driven)
+        """Indices of the stroke-driven cables (read-only)."""
+        return _read_only(np.flatnonzero(self.stroke_driven))
+
+    @functools.cached_property
+    def frictional(self) -> bool:
+        """Does any cable have friction at its holes?"""
+        return bool(np.any(self.friction))
 
     def validate(self):
         if self.default.shape != (self.n_cables + self.n_chambers,):
@@ -326,7 +332,8 @@ def _actuators(scene, rest_volumes, rest_lengths: np.ndarray) -> Actuators:
          np.array([c.max_stroke if f else np.inf for c, f in zip(cables, free)]
                   + [c.max_volume_growth for c in chambers], float)),
         rest_volumes, max_change, np.array(by_stroke, bool).reshape(-1), stiffness,
-        np.array([c.pretension for c in cables], float).reshape(-1))
+        np.array([c.pretension for c in cables], float).reshape(-1),
+        np.array([c.friction for c in cables], float).reshape(-1))
 
 
 def _loads(scene, frames: Frames) -> Loads:

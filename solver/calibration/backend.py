@@ -90,6 +90,18 @@ class RuntimePredictor:
         self._pool = None
         self._scene, self._mapping = scene, mapping
 
+    # the engine's pieces, for predictors built on this one (calibration.sequence)
+    rest_radius = property(lambda self: self.engine.rest_radius)
+
+    def _set(self, values: Values) -> None:
+        self.engine._set(values)
+
+    def _actuation(self, command) -> np.ndarray:
+        return self.engine._actuation(command)
+
+    def _markers(self, state, offsets):
+        return self.engine._markers(state, offsets)
+
     def __enter__(self):
         return self
 
@@ -159,7 +171,7 @@ class _Engine:
         self.model.set_parameters(stiffness_scale=values.stiffness, hole_angle=self.rest_angle + values.angle,
                                   hole_radius=self.rest_radius + values.radius,
                                   cable_stiffness=values.cable_stiffness,
-                                  pretension=values.pretension)
+                                  pretension=values.pretension, friction=values.friction)
 
     def _actuation(self, command) -> np.ndarray:
         """The model's actuation for one sample's commands (the strokes of the driven cables)."""
@@ -201,7 +213,7 @@ class _Engine:
         Rf = so3_exp(values.frame[3:])
         key = (source, offset, len(commands), commands.tobytes(),
                tuple(getattr(values, f).tobytes() for f in ("stiffness", "angle", "radius", "cable_stiffness",
-                                                            "pretension", "frame", "marker")))
+                                                            "pretension", "frame", "marker", "friction")))
         t0 = time.perf_counter()
         iterations = 0
         if self._last is not None and self._last[0] == key:

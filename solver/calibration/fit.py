@@ -18,7 +18,8 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from vertebra.core.errors import OptionError
-from vertebra.solver.calibration.backend import RuntimePredictor, default_workers
+from vertebra.solver.calibration.backend import default_workers
+from vertebra.solver.calibration.sequence import SequencePredictor
 from vertebra.solver.calibration.fit_parameters import ParameterSet, Values, parse_parameters
 
 __all__ = ["Calibration", "LOSSES", "METHODS", "calibrate", "error_metrics"]
@@ -141,7 +142,8 @@ def calibrate(scene, mapping, train, holdout=None, fit=None, *, loss: str = "lin
                           max_evaluations, ftol, xtol, progress, t_start)
     if workers is None:
         workers = default_workers(min(len(train), mapping.max_samples or len(train)))
-    with RuntimePredictor(scene, mapping, workers=workers) as predictor:
+    # (the runtime predictor's own path without friction, its workers included)
+    with SequencePredictor(scene, mapping, workers=workers) as predictor:
         return _calibrate(predictor, scene, mapping, train, holdout, fit, loss, loss_scale, method, starts, seed,
                           max_evaluations, ftol, xtol, progress, t_start)
 
