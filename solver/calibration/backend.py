@@ -120,11 +120,11 @@ class RuntimePredictor:
         wrt = tuple(wrt)
         blocks = min(self.workers, len(samples))
         if blocks <= 1:
-            return self.engine.predict(values, samples.commands, samples.source, 0, wrt)
+            return self.engine.predict(values, samples.commands, samples.source, samples.rows, wrt)
         if self._pool is None:
             self._pool = _Pool(self.workers, self._scene, self._mapping)
         edges = np.linspace(0, len(samples), blocks + 1).round().astype(int)
-        parts = self._pool.map("predict", [(values, samples.commands[a:b], samples.source, int(a), wrt)
+        parts = self._pool.map("predict", [(values, samples.commands[a:b], samples.source, samples.rows[a:b], wrt)
                                            for a, b in zip(edges[:-1], edges[1:])])
         return Prediction(np.concatenate([p.markers for p in parts]),
                           None if not wrt else np.concatenate([p.derivatives for p in parts]),
@@ -163,6 +163,7 @@ class _Engine:
         self.marker_frames = np.array(frames, dtype=int)
         self._warm: dict = {}            # (samples source, index) -> _Warm
         self._last = None                # (key, markers, actuations, states) of the previous call
+        self._derived = None             # (key, wrt, derivatives) of the last derivatives taken
         self._columns: dict = {}         # model elements -> the sensitivities' parameter columns
 
     # ------------------------------------------------------------------ parameters
@@ -206,12 +207,12 @@ class _Engine:
         return J
 
     # ------------------------------------------------------------------ predict
-    def predict(self, values: Values, commands, source, offset: int, wrt: tuple) -> Prediction:
-        """Markers of the samples ``commands`` (rows ``offset…`` of ``source``) under ``values``
-        and, for the elements ``wrt``, their derivatives."""
+    def predict(self, values: Values, commands, source, rows, wrt: tuple) -> Prediction:
+        """Markers of the samples ``commands`` (rows ``rows`` of ``source``) under ``values`` and,
+        for the elements ``wrt``, their derivatives."""
         self._set(values)
         Rf = so3_exp(values.frame[3:])
-        key = (source, offset, len(commands), commands.tobytes(),
+        key = (source, rows.tobytes(), commands.tobytes(),
                tuple(getattr(values, f).tobytes() for f in ("stiffness", "angle", "radius", "cable_stiffness",
                                                             "pretension", "frame", "marker", "friction")))
         t0 = time.perf_counter()
@@ -219,15 +220,20 @@ class _Engine:
         if self._last is not None and self._last[0] == key:
             markers, actuations, states = self._last[1:]
         else:
-            markers, actuations, states, iterations = self._solve(values, commands, source, offset, Rf)
+            markers, actuations, states, iterations = self._solve(values, commands, source, rows, Rf)
             self._last = (key, markers, actuations, states)
         solve_s = time.perf_counter() - t0
         derivatives = None
         if wrt:
-            derivatives = self._derivatives(values, wrt, states, actuations, source, offset, Rf)
-        return Prediction(markers.copy(), derivatives, solve_s, time.perf_counter() - t0 - solve_s, iterations)
+            if self._derived is not None and self._derived[:2] == (key, wrt):
+                derivatives = self._derived[2]       # (the optimiser's last Jacobian, asked for again)
+            else:
+                derivatives = self._derivatives(values, wrt, states, actuations, source, rows, Rf)
+                self._derived = (key, wrt, derivatives)
+        return Prediction(markers.copy(), None if derivatives is None else derivatives.copy(), solve_s,
+                          time.perf_counter() - t0 - solve_s, iterations)
 
-    def _solve(self, values, commands, source, offset, Rf):
+    def _solve(self, values, commands, source, rows, Rf):
         model = self.model
         n, nm = len(commands), len(self.marker_frames)
         markers = np.empty((n, nm, 3))
@@ -236,7 +242,7 @@ class _Engine:
         iterations = 0
         for i in range(n):
             actuation = self._actuation(commands[i])
-            warm = self._warm.get((source, offset + i))
+            warm = self._warm.get((source, int(rows[i])))
             # from the sample's own equilibrium moved to these values, else as it was, else from
             # its predecessor's; from the rest pose when those fail (a far warm start)
             starts = [previous] if warm is None else [warm.predicted(model, values), warm.state]
@@ -247,9 +253,9 @@ class _Engine:
                 if result.converged:
                     break
             if not result.converged:
-                raise ConvergenceError(f"{source}: sample {offset + i}: the equilibrium did not converge "
+                raise ConvergenceError(f"{source}: sample {int(rows[i])}: the equilibrium did not converge "
                                        f"({result.message})", result)
-            self._warm[(source, offset + i)] = _Warm(result.state)
+            self._warm[(source, int(rows[i]))] = _Warm(result.state)
             previous = result.state
             points, _, _ = self._markers(result.state, values.marker)
             markers[i] = points @ Rf.T + values.frame[:3]
@@ -257,7 +263,7 @@ class _Engine:
             states.append(result.state)
         return markers, actuations, states, iterations
 
-    def _derivatives(self, values, wrt, states, actuations, source, offset, Rf):
+    def _derivatives(self, values, wrt, states, actuations, source, rows, Rf):
         model, n = self.model, len(states)
         nm, npar = len(self.marker_frames), len(wrt)
         out = np.zeros((n, nm, 3, npar))
@@ -271,7 +277,7 @@ class _Engine:
             points, arm, R = self._markers(state, values.marker)
             if inner:
                 dq = model.sensitivities(state, actuation, wrt=columns, outputs=(), method="direct").dq
-                self._warm[(source, offset + i)] = _Warm(state, inner, at, dq)
+                self._warm[(source, int(rows[i]))] = _Warm(state, inner, at, dq)
                 dm = self._marker_jacobian(arm) @ dq                           # (nm, 3, n_inner)
                 out[i][..., where] = np.einsum("ij,mjp->mip", Rf, dm)
             for col, (kind, index) in enumerate(wrt):
