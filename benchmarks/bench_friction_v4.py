@@ -51,7 +51,7 @@ def derived_mapping(document: dict, max_samples: int | None) -> str:
     here), the fitted marker offset, and friction as the parameter to fit."""
     text = (DATA / "map.toml").read_text()
     head = text[:text.index("[frame]")]
-    offset = document["elements"]["markers"]["tip"]["offset"]
+    offset = document["values"]["markers"]["tip"]["offset"]
     head = head.replace("offset = [0.0, 0.0, 8.0]", "offset = [%r, %r, %r]" % tuple(1e3 * v for v in offset))
     lines = [head, "[frame]", 'unit = "mm"', "position = [0.0, 0.0, 0.0]", "rotation_deg = [0.0, 0.0, 0.0]", "",
              "[fit]", 'parameters = ["friction"]']

@@ -90,7 +90,8 @@ def run(args) -> int:
         plot_static(model, result, str(plot))
         print(f"wrote {plot}", file=sys.stderr)
     if vtk is not None:
-        write_vtp(str(vtk), trunk_polydata(model, result.state, result.actuation, friction=result.friction))
+        write_vtp(str(vtk), trunk_polydata(model, result.state, result.actuation, friction=result.friction,
+                                                  contacts=result.contacts))
         print(f"wrote {vtk}", file=sys.stderr)
     if frames is not None:
         write_frames(str(frames), result.state)
@@ -171,7 +172,8 @@ def _run_sequence(args, model, commands: list, plot, vtk, frames) -> int:
             plot_static(model, result, str(plot))
             print(f"wrote {plot}", file=sys.stderr)
         if vtk is not None:
-            write_vtp(str(vtk), trunk_polydata(model, result.state, result.actuation, friction=result.friction))
+            write_vtp(str(vtk), trunk_polydata(model, result.state, result.actuation, friction=result.friction,
+                                                  contacts=result.contacts))
             print(f"wrote {vtk}", file=sys.stderr)
         if frames is not None:
             write_frames(str(frames), result.state)

@@ -41,17 +41,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vertebra.core.errors import ConvergenceError
+from vertebra.core.errors import ConvergenceError, OptionError
 from vertebra.core.lie import qmatrix
 from vertebra.solver import newton, outputs
 from vertebra.solver.potential import LoadCase, Tendons, evaluate
 
 FIXED_POINT = 1e-12     # relative change of the span tensions at which the fixed point has converged
-MAX_ROUNDS = 100        # return map / equilibrium rounds per command
+MAX_ROUNDS = 100        # return map / equilibrium rounds of an increment that is not split further
+SPLIT_ROUNDS = 25       # rounds after which an increment is applied in two halves
+UNSETTLED = 8           # rounds of changing hole statuses after which the holes that changed are held sliding
+MAX_SPLITS = 4          # an increment is split into 2^MAX_SPLITS parts at most
 SLIP = 1e-12            # relative excess of a hole's band (or backflow of a sliding hole) that changes its status
 
-__all__ = ["FrictionState", "Routes", "Transmission", "routes", "solve", "solve_sequence", "transmission",
-           "turning_angles"]
+__all__ = ["FrictionState", "Routes", "Transmission", "linearise", "routes", "sensitivities", "solve",
+           "solve_sequence", "transmission", "transmission_ratios", "turning_angles"]
 
 
 @dataclass(frozen=True)
@@ -175,10 +178,11 @@ class Transmission:
 
 
 def transmission(trunk, history: FrictionState, actuation: np.ndarray, lengths: np.ndarray,
-                 angles: np.ndarray, guess: np.ndarray | None = None) -> Transmission:
+                 angles: np.ndarray, guess: np.ndarray | None = None, pinned: np.ndarray | None = None) -> Transmission:
     """The return map from the committed ``history`` under the command ``actuation`` at poses with
     span ``lengths`` and turning ``angles`` (module docstring); ``guess``: the holes' statuses
-    the tendons' active-set iteration starts from (an earlier round's; None: every hole stuck)."""
+    the tendons' active-set iteration starts from (an earlier round's; None: every hole stuck);
+    ``pinned``: (m,) holes of tendons held at the ``guess``'s sliding status (incipient slip)."""
     actuators, cables = trunk.actuators, trunk.cables
     route = routes(cables)
     mu = actuators.friction
@@ -210,7 +214,8 @@ def transmission(trunk, history: FrictionState, actuation: np.ndarray, lengths: 
         trial[0] -= actuation[c] - history.actuation[c]
         if mu[c] > 0.0:
             status, g, tau, new = _tendon_spans(lengths[run], angles[run], mu[c], trial, compliance,
-                                                None if guess is None else guess[run])
+                                                None if guess is None else guess[run],
+                                                None if pinned is None else pinned[run])
         else:
             status = np.ones(run.size, np.int8)
             status[0] = 0
@@ -250,25 +255,26 @@ def transmission(trunk, history: FrictionState, actuation: np.ndarray, lengths: 
 
 
 def _tendon_spans(L: np.ndarray, angle: np.ndarray, mu: float, trial: np.ndarray, compliance: np.ndarray,
-                  start: np.ndarray | None = None):
+                  start: np.ndarray | None = None, pinned: np.ndarray | None = None):
     """The return map of one stroke-driven tendon at span lengths ``L``: the holes' statuses, the
     capstan factors ``g`` within each run of spans joined by sliding holes, the spans' tension
     before the tendon's slack is cut off (``τ g``) and their new unstretched lengths. From the
     statuses ``start`` (None: every hole stuck, the elastic trial) it frees the hole whose band
     is exceeded most, or sticks the sliding hole whose material flows against its slip, until
-    none is (plain floats: a tendon has tens of holes)."""
+    none is (plain floats: a tendon has tens of holes); ``pinned`` holes keep their start status."""
     n = L.size
     L, trial, compliance = L.tolist(), trial.tolist(), compliance.tolist()
     factor = [math.exp(mu * a) for a in angle.tolist()]
     status = [0] * n if start is None else [int(v) for v in start]
     status[0] = 0
+    fixed = [False] * n if pinned is None else pinned.tolist()
     for _ in range(4 * n + 4):
         g, tau, new = _runs(L, factor, trial, compliance, status)
         T = [max(gj * tj, 0.0) for gj, tj in zip(g, tau)]
         scale = max(max(T), 1e-300)
         worst, fix = SLIP, None
         for j in range(1, n):
-            if status[j] == 0:
+            if status[j] == 0 and not fixed[j]:
                 low, high = T[j - 1] / factor[j], T[j - 1] * factor[j]
                 if (low - T[j]) / scale > worst:
                     worst, fix = (low - T[j]) / scale, (j, 1)
@@ -277,7 +283,7 @@ def _tendon_spans(L: np.ndarray, angle: np.ndarray, mu: float, trial: np.ndarray
         if fix is None:
             j = 1
             while j < n:
-                if status[j] and T[j - 1] + T[j] > 0.0:
+                if status[j] and not fixed[j] and T[j - 1] + T[j] > 0.0:
                     end = j + 1
                     while end < n and status[end]:
                         end += 1
@@ -333,7 +339,36 @@ def solve(trunk, actuation: np.ndarray, history: FrictionState | None, initial=N
     """The equilibrium under ``actuation`` applied to ``history`` (None: from rest — a single
     command is a monotone pull), from ``initial`` poses (None: the history's). Returns a
     :class:`~vertebra.solver.newton.StaticResult` whose ``friction`` is the new
-    :class:`FrictionState`."""
+    :class:`FrictionState`. An increment whose fixed point does not settle in
+    :data:`SPLIT_ROUNDS` rounds (holes that stick at one shape and slide at the shape that
+    follows) is applied in two halves, each as a command of its own, down to
+    ``2^-MAX_SPLITS`` of it: the path between two commands is then the straight one."""
+    if history is None:
+        history = FrictionState.rest(trunk)
+    options = dict(tolerance=tolerance, max_iterations=max_iterations, load_steps=load_steps)
+    result = _split(trunk, actuation, history, initial, options, 0)
+    if not result.converged and raise_on_failure:
+        raise ConvergenceError(result.message or "the frictional solve did not converge", result)
+    return result
+
+
+def _split(trunk, actuation, history, initial, options, depth):
+    result = _increment(trunk, actuation, history, initial, options, MAX_ROUNDS if depth == MAX_SPLITS else SPLIT_ROUNDS)
+    if result.converged or depth == MAX_SPLITS:
+        return result
+    first = _split(trunk, 0.5 * (history.actuation + actuation), history, initial, options, depth + 1)
+    if not first.converged:
+        return first
+    second = _split(trunk, actuation, first.friction, first.state, options, depth + 1)
+    second.iterations += first.iterations + result.iterations
+    second.load_steps += first.load_steps + result.load_steps
+    second.residual_history = result.residual_history + first.residual_history + second.residual_history
+    return second
+
+
+def _increment(trunk, actuation, history, initial, options, rounds):
+    """One increment: the fixed point of the return map and the frames' equilibrium (module
+    docstring) in at most ``rounds`` rounds; ``result.friction`` is None unless it settled."""
     if history is None:
         history = FrictionState.rest(trunk)
     state = initial if initial is not None else history.state
@@ -346,10 +381,10 @@ def solve(trunk, actuation: np.ndarray, history: FrictionState | None, initial=N
     floor = max(1e-3 * float(np.max(trunk.actuators.cable_stiffness * trunk.rest_cable_lengths, initial=0.0)), 1e-300)
     converged = False
     change = math.inf
-    for _ in range(MAX_ROUNDS):
+    seen, pinned = [], None         # the statuses of the rounds so far; the holes held at incipient slip
+    for _ in range(rounds):
         loads = _Loads(trunk, current)
-        result = newton.solve(trunk, loads, actuation, state, tolerance=tolerance, max_iterations=max_iterations,
-                              load_steps=load_steps, raise_on_failure=False)
+        result = newton.solve(trunk, loads, actuation, state, raise_on_failure=False, **options)
         iterations += result.iterations
         stages += result.load_steps
         history_of_residuals.extend(result.residual_history)
@@ -358,7 +393,7 @@ def solve(trunk, actuation: np.ndarray, history: FrictionState | None, initial=N
         state = result.state
         balanced = _span_tensions(trunk, state, loads(actuation, 1.0))
         lengths, angles = geometry(trunk, state)
-        following = transmission(trunk, history, actuation, lengths, angles, current.slip)
+        following = transmission(trunk, history, actuation, lengths, angles, current.slip, pinned)
         scale = max(float(np.abs(balanced).max(initial=0.0)), float(history.tension.max(initial=0.0)), floor)
         change = float(np.abs(following.tension - balanced).max(initial=0.0)) / scale
         # converged: the tensions the return map gives at the new poses are those the poses are
@@ -367,18 +402,31 @@ def solve(trunk, actuation: np.ndarray, history: FrictionState | None, initial=N
         if (change <= FIXED_POINT or result.iterations == 0) and np.array_equal(following.slip, current.slip):
             converged = True
             break
+        seen.append(current.slip)
+        cycle = next((k for k, slip in enumerate(seen[:-1]) if np.array_equal(slip, following.slip)), None)
+        if cycle is None and len(seen) >= UNSETTLED and not np.array_equal(following.slip, current.slip):
+            cycle = len(seen) - UNSETTLED // 2
+        if cycle is not None:
+            # a cycle (or statuses that keep changing): holes that stick at one round's shape and
+            # slide at a later one's sit at incipient slip — hold them sliding (their sliding
+            # status over those rounds) for this increment
+            statuses = np.array(seen[cycle:] + [following.slip])
+            flips = np.any(statuses != statuses[0], axis=0)
+            sliding = np.where(np.any(statuses > 0, axis=0), 1, -1)
+            pinned = flips if pinned is None else pinned | flips
+            guess = np.where(flips, sliding, following.slip).astype(np.int8)
+            following = transmission(trunk, history, actuation, lengths, angles, guess, pinned)
+            seen = []
         current = following
     result.iterations, result.load_steps, result.residual_history = iterations, stages, history_of_residuals
     if result.converged and not converged:
         result.converged = False
-        result.message = (f"the friction fixed point did not converge in {MAX_ROUNDS} rounds (the span tensions "
-                          f"still change by {change:.3g} of the largest)")
+        result.message = (f"the friction fixed point did not converge in {rounds} rounds of an increment split "
+                          f"{MAX_SPLITS} times (the span tensions still change by {change:.3g} of the largest)")
     if converged:
         direction = np.where(following.slip != 0, following.slip, history.direction).astype(np.int8)
         result.friction = FrictionState(actuation.copy(), result.state, balanced, following.material,
                                         following.slip, direction)
-    if not result.converged and raise_on_failure:
-        raise ConvergenceError(result.message or "the frictional solve did not converge", result)
     return result
 
 
@@ -453,3 +501,42 @@ def solve_sequence(model, actuations, history: FrictionState | None = None, init
         results.append(result)
         history, initial = result.friction, None
     return results
+
+
+def sensitivities(model, actuations, history: FrictionState | None = None, cables=None, step: float = 1e-4) -> dict:
+    """Derivatives with respect to the cables' friction coefficients of the effector positions
+    and the span tensions after each command of a sequence (``actuations`` applied in order to
+    ``history``; None: from rest). A sequence's result depends on μ through its whole path (the
+    holes that stick, the slip fronts), so these are central differences of the whole sequence
+    with a step of ``step`` in μ (one-sided at μ = 0), not the implicit-function derivatives of
+    one equilibrium (:meth:`~vertebra.solver.model.TrunkModel.sensitivities`). ``cables``: names
+    (default every cable). Returns ``{"names", "effector_positions": (steps, 3·n_effectors, p),
+    "span_tensions": (steps, m, p)}``."""
+    names = list(model.actuator_names[:model.n_cables])
+    cables = names if cables is None else list(cables)
+    unknown = [c for c in cables if c not in names]
+    if unknown:
+        raise OptionError(f"unknown cable(s) {', '.join(unknown)} (cables: {', '.join(names)})", field="cables")
+    base = model.parameters
+    actuations = [model.actuation(a) for a in actuations]
+
+    def run(friction_values):
+        model.set_parameters(friction=friction_values)
+        results = model.solve_sequence(actuations, history)
+        return (np.stack([model.effector_positions(r.state).reshape(-1) for r in results]),
+                np.stack([r.friction.tension for r in results]))
+
+    positions = np.zeros((len(actuations), 3 * len(model.effector_names), len(cables)))
+    tensions = np.zeros((len(actuations), model.trunk.cables.owner.size, len(cables)))
+    try:
+        for j, name in enumerate(cables):
+            k = names.index(name)
+            mu = base.friction[k]
+            low, high = base.friction.copy(), base.friction.copy()
+            low[k], high[k] = max(mu - step, 0.0), mu + step
+            (p_low, t_low), (p_high, t_high) = run(low), run(high)
+            positions[..., j] = (p_high - p_low) / (high[k] - low[k])
+            tensions[..., j] = (t_high - t_low) / (high[k] - low[k])
+    finally:
+        model.set_parameters(base)
+    return {"names": [f"friction:{c}" for c in cables], "effector_positions": positions, "span_tensions": tensions}

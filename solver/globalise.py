@@ -1,7 +1,8 @@
 """The globalisation steps of the forward solve beyond the shifted Newton step: a direction of
 negative curvature of an indefinite tangent (to leave saddles and maxima) and the backtracking
-line search on the energy (or, with loads that have no potential, an energy-like merit). The
-stage they act on is :mod:`vertebra.solver.newton`'s.
+line search on the energy (or, with loads that have no potential, an energy-like merit; with
+contacts, the Lagrangian at the step's contact forces). The stage they act on is
+:mod:`vertebra.solver.newton`'s.
 """
 
 from __future__ import annotations
@@ -71,8 +72,10 @@ def line_search(stage, state, ev, residual: float, dq, change, alpha: float, rp:
         decrease = ev.energy - ev_trial.energy
         if nonpotential is not None:
             decrease += alpha * float(nonpotential @ dq)
+        if stage.constraints is not None:        # the Lagrangian E − λᵀg at the step's contact forces
+            decrease += stage.constraints.work(trial)
         if predicted <= noise:       # the energy cannot judge this step: the residual does
-            good = stage.norm(ev_trial) <= residual
+            good = stage.norm(ev_trial, trial) <= residual
             ratio = 1.0
         else:
             good = decrease >= ARMIJO * predicted - noise

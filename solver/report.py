@@ -33,6 +33,8 @@ def static_report(model: TrunkModel, result: StaticResult) -> dict:
     volume = model.chamber_volume_growth(state, actuation[model.n_cables:])
     effectors = model.effector_positions(state)
     compliance = compliance_report(model, result)
+    # a scene that declares contact shapes lists every candidate contact (docs/contact.md)
+    contacts = ({"contacts": [c.as_dict() for c in result.contacts]} if model.trunk.contact is not None else {})
     return {
         "vertebra_version": __version__,
         "converged": bool(result.converged),
@@ -49,6 +51,7 @@ def static_report(model: TrunkModel, result: StaticResult) -> dict:
                                     "volume_growth": float(volume[k]),
                                     "rest_volume": float(model.chamber_rest_volumes[k])}
                      for k, chamber in enumerate(model.scene.chambers)},
+        **contacts,
         "timing": {key: float(value) for key, value in result.timings.items()},
         "diagnostics": {"load_stages": int(result.load_steps), "factorization": result.factorization,
                         "rounding_limited": bool(result.rounding_limited),

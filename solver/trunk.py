@@ -18,6 +18,7 @@ import numpy as np
 
 from vertebra.solver.assembly import BandAssembler
 from vertebra.solver.cables import CableRouting
+from vertebra.solver.contact import ContactModel, check_rest, compile_contact
 from vertebra.solver.potential import RestConstants, rest_constants
 from vertebra.solver.kinds import CompiledLinks, kind_for
 from vertebra.core.energy import rest_strain
@@ -182,6 +183,7 @@ class Trunk:
     rest_piece_lengths: np.ndarray     # (m,) length of every cable piece at rest
     rest: RestConstants | None = None  # what the unstressed rest state gives (set by compile_trunk)
     compiled: "Trunk | None" = None    # the trunk compiled from the scene (None: this is it); see parameters.py
+    contact: ContactModel | None = None   # discs, capsule segments, obstacles (None: no contact code runs)
 
     def __post_init__(self):
         if self.links.count != self.frames.count - 1:
@@ -212,8 +214,12 @@ def compile_trunk(scene, entries: dict) -> Trunk:
     loads = _loads(scene, frames)
     assembler = BandAssembler(frames.count - 1, cables.span, cables.piece_a, cables.piece_b, loads.turning)
     rest_lengths = cables.lengths(rest_pieces)
+    contact = compile_contact(scene, frames, links.segment)
+    if contact is not None:
+        check_rest(contact, rest_state, scene.source)
     trunk = Trunk(scene, frames, links, cables, _actuators(scene, rest_volumes, rest_lengths), loads,
-                  _effectors(scene, frames), assembler, rest_state, rest_lengths, rest_pieces.length)
+                  _effectors(scene, frames), assembler, rest_state, rest_lengths, rest_pieces.length,
+                  contact=contact)
     object.__setattr__(trunk, "rest", rest_constants(trunk))      # (needs the trunk it belongs to)
     return trunk
 

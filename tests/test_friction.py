@@ -310,3 +310,20 @@ def test_paraview_carries_span_tensions_and_stick(tmp_path):
     assert stick[1:-1].any() and not stick[1:-1].all()
     write_vtp(str(tmp_path / "release.vtp"), data)
     assert "stick" not in trunk_polydata(model, pull.state, pull.actuation).point_data
+
+
+def test_sensitivities_to_friction_are_differences_of_the_whole_sequence():
+    model = build(pulled(0.2))
+    commands = [{"t": 3.0}, {"t": 2.0}]
+    derivative = friction.sensitivities(model, commands)
+    assert derivative["names"] == ["friction:t"]
+    assert model.parameters.friction[0] == 0.2                      # restored
+    tip_x = derivative["effector_positions"][:, 0, 0]
+    assert tip_x[0] < 0.0                                           # more friction: less of the pull reaches the tip
+    coarse = friction.sensitivities(model, commands, step=1e-3)["effector_positions"][:, 0, 0]
+    assert np.allclose(tip_x, coarse, rtol=1e-3)
+    route = route_of(model)
+    top = model.solve_sequence(commands)[0]
+    theta = friction.geometry(model.trunk, top.state)[1][route].sum()
+    # a pull's distal tension T₀ e^(−μΘ): ∂/∂μ = −T₀ e^(−μΘ) (Θ + μ ∂Θ/∂μ), Θ barely moving
+    assert derivative["span_tensions"][0, route[-1], 0] == pytest.approx(-3.0 * math.exp(-0.2 * theta) * theta, rel=0.05)
