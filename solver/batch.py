@@ -35,7 +35,7 @@ import numpy as np
 
 from vertebra.solver import bounds, newton
 from vertebra.solver.banded import factor_block_cholesky
-from vertebra.solver.cables import CablePieces, _spans
+from vertebra.solver.cables import CablePieces, _spans, scatter_rows
 from vertebra.solver.chain import CARRY_ANGLE, chain_poses
 from vertebra.solver.globalise import ARMIJO, NEUTRAL, ROUNDING, SEARCH_FLOOR
 from vertebra.solver.links import Links, link_tangent
@@ -264,7 +264,8 @@ def evaluate(context: _Context, states: States, load: Loads) -> Evaluation:
             piece_tension = tendon_pieces if piece_tension is None else tendon_pieces + piece_tension
         pieces = CablePieces.of_spans(offsets, d, length)
         forces = (piece_tension.reshape(-1)[:, None] * pieces.unit).reshape(B, 2 * m, 6)
-        grad += cables.to_frames @ forces
+        grad += scatter_rows(cables.ends, forces.transpose(1, 0, 2).reshape(2 * m, -1),
+                             trunk.frames.count).reshape(-1, B, 6).transpose(1, 0, 2)
     if load.weight is not None:
         lever = (R @ trunk.frames.moment[:, :, None])[..., 0]
         energy = energy - np.add.reduce((trunk.frames.mass @ x + np.add.reduce(lever, 1)) * load.weight, 1)
