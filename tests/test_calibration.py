@@ -304,15 +304,3 @@ def test_worker_processes_and_warm_starts(robot):
     unpredicted = plain.predict(moved, samples).iterations
     assert predicted <= 0.8 * unpredicted           # (39 against 57 at the scene's tolerance of 1e-10)
 
-
-def test_a_coarse_start_reaches_the_same_optimum(robot):
-    """Fitting every second sample first, then all of them, lands where the fit of all of them
-    from the initial values does (noisy data: the same optimum to a hundredth of a standard
-    error)."""
-    scene, mapping, _ = robot
-    data = _synthetic(robot, 2e-4, 3)
-    fit = [f for f in FIT if f != "pretension.c"]
-    direct = calibrate(scene, mapping, data, fit=fit, coarse=1)
-    staged = calibrate(scene, mapping, data, fit=fit, coarse=2)
-    assert staged.optimiser["coarse"] == 2 and "coarse_nfev" in staged.optimiser["starts"][0]
-    assert np.all(np.abs(staged.x - direct.x) <= 0.01 * direct.standard_errors)

@@ -4,9 +4,7 @@
 scipy's ``least_squares`` (``trf`` with bounds, or ``lm`` without), on the analytic derivatives
 of the predictor (:mod:`~vertebra.solver.calibration.backend`); an optional robust loss
 (``soft_l1``, ``huber``, ``cauchy``, ``arctan``) and several starts (the first at the initial
-values, the others drawn inside the bounds) for multimodal problems. A large training set is fitted
-first on every fourth sample, whose optimum starts the fit of them all (a start near the optimum:
-few evaluations of the whole set, the same optimum). At the optimum it reports
+values, the others drawn inside the bounds) for multimodal problems. At the optimum it reports
 each value with its standard error from ``σ² (JᵀJ)⁻¹`` (``σ²`` the residual variance), the
 correlation matrix, and which parameters the data cannot identify.
 """
@@ -36,12 +34,6 @@ RANK_TOLERANCE = 1e-6
 NULL_WEIGHT = 0.1
 # a parameter whose standard error exceeds this share of its bound interval is unidentifiable
 SE_SHARE = 0.5
-# a large training set is fitted first on every COARSE_STRIDE-th sample (when it has at least
-# COARSE_STRIDE × COARSE_SAMPLES), to COARSE_FTOL: a start from which the whole set's fit needs
-# few of its costly evaluations
-COARSE_STRIDE = 4
-COARSE_SAMPLES = 256
-COARSE_FTOL = 1e-4
 
 
 @dataclass
@@ -126,7 +118,7 @@ def _statistics(J, residual, ps: ParameterSet, x):
 def calibrate(scene, mapping, train, holdout=None, fit=None, *, loss: str = "linear",
               loss_scale: float | None = None, method: str = "trf", starts: int = 1, seed: int = 0,
               max_evaluations: int = 60, ftol: float = 1e-6, xtol: float = 1e-6, predictor=None,
-              workers: int | None = None, coarse: int | None = None, progress=None) -> Calibration:
+              workers: int | None = None, progress=None) -> Calibration:
     """Fit ``fit`` (parameter specifications; the mapping's ``[fit]`` list when None) of
     ``scene`` to the ``train`` samples and measure the result on ``holdout``.
 
@@ -135,9 +127,7 @@ def calibrate(scene, mapping, train, holdout=None, fit=None, *, loss: str = "lin
     ``lm`` (unbounded; the bounds are then only checked). ``workers``: processes solving the
     samples (default: one per core, at most one per
     :data:`~vertebra.solver.calibration.backend.SAMPLES_PER_WORKER` training samples).
-    ``coarse``: fit every ``coarse``-th training sample first, as the start of the fit of them all
-    (default: :data:`COARSE_STRIDE` for at least :data:`COARSE_STRIDE` × :data:`COARSE_SAMPLES`
-    training samples, else 1: none). ``progress``: a callable taking a one-line message."""
+    ``progress``: a callable taking a one-line message."""
     t_start = time.perf_counter()
     if loss not in LOSSES:
         raise OptionError(f"unknown loss {loss!r}; one of {', '.join(LOSSES)}", field="--loss")
@@ -149,17 +139,17 @@ def calibrate(scene, mapping, train, holdout=None, fit=None, *, loss: str = "lin
         raise OptionError(f"must be at least 1, got {starts}", field="--starts")
     if predictor is not None:
         return _calibrate(predictor, scene, mapping, train, holdout, fit, loss, loss_scale, method, starts, seed,
-                          max_evaluations, ftol, xtol, coarse, progress, t_start)
+                          max_evaluations, ftol, xtol, progress, t_start)
     if workers is None:
         workers = default_workers(min(len(train), mapping.max_samples or len(train)))
     # (the runtime predictor's own path without friction, its workers included)
     with SequencePredictor(scene, mapping, workers=workers) as predictor:
         return _calibrate(predictor, scene, mapping, train, holdout, fit, loss, loss_scale, method, starts, seed,
-                          max_evaluations, ftol, xtol, coarse, progress, t_start)
+                          max_evaluations, ftol, xtol, progress, t_start)
 
 
 def _calibrate(predictor, scene, mapping, train, holdout, fit, loss, loss_scale, method, starts, seed,
-               max_evaluations, ftol, xtol, coarse, progress, t_start) -> Calibration:
+               max_evaluations, ftol, xtol, progress, t_start) -> Calibration:
     length = float(predictor.model.length_scale)
     ps = parse_parameters(list(fit) if fit else list(mapping.fit), scene, mapping, predictor.model)
     if mapping.max_samples and len(train) > mapping.max_samples:
@@ -172,29 +162,23 @@ def _calibrate(predictor, scene, mapping, train, holdout, fit, loss, loss_scale,
             gather[column[e], j] = 1.0
     measured = train.markers.reshape(-1)
     counter = {"fun": 0, "jac": 0, "solve_s": 0.0, "derivative_s": 0.0, "newton_iterations": 0}
-    if coarse is None:
-        coarse = COARSE_STRIDE if len(train) >= COARSE_STRIDE * COARSE_SAMPLES else 1
-    if not (isinstance(coarse, int) and coarse >= 1):
-        raise OptionError(f"must be a positive whole number, got {coarse!r}", field="coarse")
-    first_set = train.take(np.arange(0, len(train), coarse)) if coarse > 1 else train
 
     def values_of(z):
         return ps.values(ps.initial + z * ps.typical)
 
-    def fun(z, samples):
-        prediction = predictor.predict(values_of(z), samples)
+    def fun(z):
+        prediction = predictor.predict(values_of(z), train)
         counter["fun"] += 1
         counter["solve_s"] += prediction.solve_s
         counter["newton_iterations"] += prediction.iterations
-        r = prediction.markers.reshape(-1) - samples.markers.reshape(-1)
+        r = prediction.markers.reshape(-1) - measured
         if progress:
-            label = "" if samples is train else f" (every {coarse}th sample)"
-            progress(f"evaluation {counter['fun']}: train RMSE{label} "
+            progress(f"evaluation {counter['fun']}: train RMSE "
                      f"{1e3 * np.sqrt(np.mean(np.sum(r.reshape(-1, 3) ** 2, 1))):.3f} mm")
         return r
 
-    def jac(z, samples):
-        prediction = predictor.predict(values_of(z), samples, elements)
+    def jac(z):
+        prediction = predictor.predict(values_of(z), train, elements)
         counter["jac"] += 1
         counter["solve_s"] += prediction.solve_s
         counter["newton_iterations"] += prediction.iterations
@@ -203,9 +187,8 @@ def _calibrate(predictor, scene, mapping, train, holdout, fit, loss, loss_scale,
 
     # a parameter whose derivatives vanish on every sample at the initial values (a tendon that
     # stays slack, a marker offset along an axis nothing turns) is not seen by the data: it keeps
-    # its initial value (an optimiser free to move it could wander into a state where it acts);
-    # judged on the samples fitted first
-    first = jac(np.zeros(len(ps)), first_set)
+    # its initial value (an optimiser free to move it could wander into a state where it acts)
+    first = jac(np.zeros(len(ps)))
     free = np.linalg.norm(first, axis=0) > 0.0
     if not free.any():
         raise OptionError("no fitted parameter changes any predicted marker at the initial values",
@@ -219,20 +202,10 @@ def _calibrate(predictor, scene, mapping, train, holdout, fit, loss, loss_scale,
     lower = (ps.lower - ps.initial) / ps.typical
     upper = (ps.upper - ps.initial) / ps.typical
 
-    def fit_on(samples, z0, tolerance):
-        def reduced_jac(y):
-            z = full(y)
-            J = first if samples is first_set and not z.any() else jac(z, samples)
-            return J[:, free]
-
-        options = dict(jac=reduced_jac, method=method, max_nfev=max_evaluations, x_scale=1.0, ftol=tolerance,
-                       xtol=xtol)
-        if method == "trf":
-            options.update(bounds=(lower[free], upper[free]), loss=loss,
-                           f_scale=loss_scale if loss_scale is not None else 0.01 * length)
-        result = least_squares(lambda y: fun(full(y), samples), z0[free], **options)
-        result.x = full(result.x)
-        return result
+    def reduced_jac(y):
+        z = full(y)
+        J = first if not z.any() else jac(z)
+        return J[:, free]
 
     rng = np.random.default_rng(seed)
     best, runs = None, []
@@ -241,18 +214,15 @@ def _calibrate(predictor, scene, mapping, train, holdout, fit, loss, loss_scale,
             z0 = np.zeros(len(ps))
         else:           # uniform within the bounds, clipped to a few typical changes of the start
             z0 = np.where(free, rng.uniform(np.maximum(lower, -5.0), np.minimum(upper, 5.0)), 0.0)
-        run = {"start": start}
-        if coarse > 1:      # a start for the whole set: the same fit on every coarse-th sample
-            first_fit = fit_on(first_set, z0, max(ftol, COARSE_FTOL))
-            z0 = first_fit.x
-            run["coarse_nfev"] = int(first_fit.nfev)
-            if progress:
-                progress(f"start {start}: every {coarse}th sample: cost {first_fit.cost:.6g} after "
-                         f"{first_fit.nfev} evaluations; now every sample")
-        result = fit_on(train, z0, ftol)
-        run.update({"cost": float(result.cost), "nfev": int(result.nfev), "status": int(result.status),
-                    "message": str(result.message)})
-        runs.append(run)
+        options = dict(jac=reduced_jac, method=method, max_nfev=max_evaluations, x_scale=1.0, ftol=ftol,
+                       xtol=xtol)
+        if method == "trf":
+            options.update(bounds=(lower[free], upper[free]), loss=loss,
+                           f_scale=loss_scale if loss_scale is not None else 0.01 * length)
+        result = least_squares(lambda y: fun(full(y)), z0[free], **options)
+        result.x = full(result.x)
+        runs.append({"start": start, "cost": float(result.cost), "nfev": int(result.nfev),
+                     "status": int(result.status), "message": str(result.message)})
         if progress:
             progress(f"start {start}: cost {result.cost:.6g} after {result.nfev} evaluations ({result.message})")
         if best is None or result.cost < best.cost:
@@ -273,8 +243,7 @@ def _calibrate(predictor, scene, mapping, train, holdout, fit, loss, loss_scale,
         holdout_prediction = h.markers
         holdout_metrics = error_metrics(h.markers, holdout.markers, holdout.patterns, length)
     optimiser = {"method": method, "loss": loss, "starts": runs, "best_start": runs.index(
-        min(runs, key=lambda r: r["cost"])), "coarse": coarse, "evaluations": counter["fun"],
-                 "jacobians": counter["jac"],
+        min(runs, key=lambda r: r["cost"])), "evaluations": counter["fun"], "jacobians": counter["jac"],
                  "newton_iterations": counter["newton_iterations"], "workers": getattr(predictor, "workers", 1), **rank}
     timings = {"total_s": time.perf_counter() - t_start, "solve_s": counter["solve_s"],
                "derivative_s": counter["derivative_s"]}
