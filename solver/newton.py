@@ -11,7 +11,7 @@ Each iteration at a fixed load factor
   indefinite tangent (no LU there: it steers Newton towards saddles). Dead moments and follower
   loads (no potential) make ``H`` unsymmetric: banded LU of ``H + μ·D`` with their turning in it
   (the consistent tangent, so that Newton stays quadratic), judged by an energy-like merit (the
-  potential minus the linearised work of those loads at the iterate);
+  potential minus those loads' work along the step: :func:`~vertebra.solver.globalise.moved`);
 * where the tangent proved indefinite and the shift needed is large (``μ ≥`` :data:`BEND_SHIFT`),
   or at a stationary point that is a saddle, weighs a step along the direction of most negative
   curvature (inverse iteration with the shifted factor) against the shifted one;
@@ -310,7 +310,7 @@ def _newton(stage: _Stage, state: State):
                                f"state given, or the last converged stage) at load factor {load.scale:.3g}")
     stage.represented(state, ev)
     r = -ev.gradient[1:].reshape(-1)
-    work = nonpotential_forces(trunk, state, load)      # (the merit's linearised work at the iterate)
+    work = nonpotential_forces(trunk, state, load)      # (the merit's loads without a potential, here)
     # the last direction came from the unshifted Cholesky factor (a positive definite tangent) at a
     # state already close to equilibrium: the equilibrium reached from it is taken as stable
     trusted = False
