@@ -130,6 +130,10 @@ def _load() -> dict:
 
 
 def _save(results: dict) -> None:
+    """Write the results, keeping the sections another run saved meanwhile (sections run in
+    parallel processes each own theirs)."""
+    for key, value in _load().items():
+        results.setdefault(key, value)
     results["machine"] = {"host": socket.gethostname(), "python": platform.python_version(), "date": now(),
                           "cores": os.cpu_count(), "load": loadavg()}
     OUT.parent.mkdir(parents=True, exist_ok=True)

@@ -77,6 +77,10 @@ class SegmentState:
     du_dpose: np.ndarray | None = None       # (n_int, 6) in frame-origin coordinates of b
     du_dpressure: np.ndarray | None = None   # (n_int, n_cav)
     condensed: dict | None = None            # frame-origin stiffness, volume derivatives
+    # the last solve's increment (scaled: translation / L, rotation, pressure / E) and the error of
+    # its first-order (tangent) predictor: the second-order term the next, similar step extrapolates
+    increment: np.ndarray | None = None
+    remainder: np.ndarray | None = None
 
     def poses(self) -> dict:
         return {"bottom": Pose(np.eye(3), np.zeros(3)), "top": Pose(self.R, self.t)}
@@ -109,6 +113,11 @@ class SegmentResponse:
         """Force and moment about ``b``'s origin (``a``'s axes)."""
         f = self.wrench[:3]
         return np.concatenate([f, self.wrench[3:] - np.cross(self.t, f)])
+
+
+#: cosine between consecutive solves' increments above which the second-order term of the last
+#: one's predictor is extrapolated into the next prediction
+SECOND_ORDER_COSINE = 0.9
 
 
 def left_from_frame_origin(t: np.ndarray) -> np.ndarray:
@@ -268,6 +277,7 @@ class _PoseProblem:
         self.times = {"evaluate_s": 0.0, "solve_s": 0.0}
         # (s, u_interior − rigid blend) of the last converged states on this path
         self.history = [(0.0, initial.u_interior - self.framed.rigid_blend(Pose(initial.R, initial.t)))]
+        self.first_order = None          # (increment, first-order prediction) of a whole-path first step
 
     def first_step(self) -> float:
         s = self.settings
@@ -301,7 +311,26 @@ class _PoseProblem:
             u += (blend - blend0) + state.du_dpose @ dzeta - (plus - minus) / (2 * eps)
             if p.size:
                 u += state.du_dpressure @ (p - state.pressures)
+            increment = np.concatenate([dzeta[:3] / self.segment.length, dzeta[3:],
+                                        (p - state.pressures) / self.segment.material.youngs_modulus])
+            if s_to == 1.0:
+                self.first_order = (increment, u.copy())
+            u += self._second_order(state, increment)
         return SegmentState(R, t, p, u)
+
+    @staticmethod
+    def _second_order(state: SegmentState, increment: np.ndarray):
+        """The previous solve's predictor error scaled to this increment (``ratio²``, ratio the
+        projection of this increment on that one's) when the two are nearly parallel — along a
+        loading path, consecutive samples: the second-order term of the path's extrapolation."""
+        if state.remainder is None or state.increment is None or state.increment.shape != increment.shape:
+            return 0.0
+        last = state.increment
+        norms = float(np.linalg.norm(last) * np.linalg.norm(increment))
+        if norms == 0.0 or float(last @ increment) < SECOND_ORDER_COSINE * norms:
+            return 0.0
+        ratio = float(last @ increment) / float(last @ last)
+        return ratio ** 2 * state.remainder if ratio <= 2.0 else 0.0
 
     def converged(self, state: SegmentState, evaluation, s: float = 1.0) -> SegmentState:
         """Remember the state for the secant predictor; at the end of the path (``s = 1``) add the
@@ -336,8 +365,11 @@ class _PoseProblem:
                      "energy": evaluation.energy - 0.5 * float(g_i @ y),
                      "dvolume_dpose": evaluation.dvolume_frames[6:].T - M[6:, :6],
                      "dvolume_dpressure": M[6:, 6:]}
+        increment, remainder = None, None
+        if self.first_order is not None and len(self.history) == 2 and self.history[0][0] == 0.0:
+            increment, remainder = self.first_order[0], state.u_interior - y - self.first_order[1]
         return SegmentState(state.R, state.t, state.pressures, state.u_interior - y, du_dpose=-Xq,
-                            du_dpressure=Xp, condensed=condensed)
+                            du_dpressure=Xp, condensed=condensed, increment=increment, remainder=remainder)
 
     # ---- Newton problem ----------------------------------------------------------------------
     def evaluate(self, state: SegmentState, hessian: bool = True):

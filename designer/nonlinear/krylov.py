@@ -10,9 +10,9 @@ that does not converge within its budget, or meets negative curvature, the curre
 matrix is factored afresh. The budget is the time of the last factorization: the
 iterations allowed are those whose factor applications (timed as they run) cost
 less than refactoring would. A solve that the last one's convergence rate says cannot
-reach its tolerance within the budget refactors at once instead of trying (measured:
-the condensed-tangent solves of a path, 10 right-hand sides, spent their 3 allowed
-iterations before refactoring anyway). With a fresh direct factor the solve is exact
+reach its tolerance within the budget refactors at once instead of trying (the
+condensed-tangent solves — ten right-hand sides, so a budget of a few iterations —
+otherwise spend it and refactor anyway). With a fresh direct factor the solve is exact
 up to iterative refinement, also for indefinite matrices.
 """
 
