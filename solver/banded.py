@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg import eig_banded, lu_factor, lu_solve
-from scipy.linalg.lapack import dgbtrf, dgbtrs, dpbtrf, dpbtrs
+from scipy.linalg.lapack import dgbtrf, dgbtrs, dpbtrf, dpbtrs, dtbtrs
 
 
 @dataclass(slots=True)
@@ -33,6 +33,26 @@ class BandedFactor:
             x, info = dgbtrs(self.data, self.kd, self.kd, rhs, self.pivots, overwrite_b=overwrite)
         if info:
             raise np.linalg.LinAlgError(f"banded solve failed (LAPACK info {info})")
+        return x
+
+    def forward(self, rhs: np.ndarray, *, overwrite: bool = False) -> np.ndarray:
+        """``L⁻¹ rhs`` of a Cholesky factor ``A = L Lᵀ`` (one triangular band sweep, ``dtbtrs``):
+        ``A⁻¹ = L⁻ᵀ L⁻¹``, so products ``Cᵀ A⁻¹ D`` are ``(L⁻¹C)ᵀ (L⁻¹D)``. ``overwrite``: as
+        :meth:`solve`."""
+        if self.pivots is not None:
+            raise ValueError("an LU factor has no symmetric halves")
+        x, info = dtbtrs(self.data, rhs, uplo="L", overwrite_b=overwrite)
+        if info:
+            raise np.linalg.LinAlgError(f"banded triangular solve failed (LAPACK info {info})")
+        return x
+
+    def backward(self, rhs: np.ndarray, *, overwrite: bool = False) -> np.ndarray:
+        """``L⁻ᵀ rhs`` of a Cholesky factor ``A = L Lᵀ``: ``backward(forward(b)) = A⁻¹ b``."""
+        if self.pivots is not None:
+            raise ValueError("an LU factor has no symmetric halves")
+        x, info = dtbtrs(self.data, rhs, uplo="L", trans="T", overwrite_b=overwrite)
+        if info:
+            raise np.linalg.LinAlgError(f"banded triangular solve failed (LAPACK info {info})")
         return x
 
 

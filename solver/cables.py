@@ -152,6 +152,18 @@ def incidence(rows: np.ndarray, n_rows: int):
     return csr_matrix((np.ones(rows.size), (rows, np.arange(rows.size))), shape=(n_rows, rows.size))
 
 
+def _jacobian_ends(owner: np.ndarray, a: np.ndarray, b: np.ndarray, n_cables: int, n_frames: int) -> np.ndarray:
+    """(2, n_cables·n_frames): for every (cable, frame) row of the cables' Jacobian, the row of the
+    piece ends' gradients (``unit.reshape(-1, 6)``: piece k's a end is row 2k, its b end 2k + 1)
+    of the cable's piece that starts at the frame and of the one that ends there; 2m where none
+    does (a cable passes each frame once)."""
+    m = owner.size
+    ends = np.full((2, n_cables * n_frames), 2 * m)
+    ends[0, owner * n_frames + a] = 2 * np.arange(m)
+    ends[1, owner * n_frames + b] = 2 * np.arange(m) + 1
+    return ends
+
+
 @dataclass(frozen=True)
 class CableRouting:
     """The pieces of every cable, sorted by the pair of frames they join (a, then b)."""
@@ -166,7 +178,8 @@ class CableRouting:
     ends: np.ndarray           # (2m,) frames a₀ b₀ a₁ b₁ …
     holes: np.ndarray          # (2m, 3, 1) hole offsets in the same order
     to_frames: object          # incidence (n_frames, 2m): piece-end rows → frame rows
-    to_jacobian: object        # incidence (n_cables·n_frames, 2m): piece-end rows → (cable, frame) rows
+    jacobian_ends: np.ndarray  # (2, n_cables·n_frames): the piece-end rows (2m: none) whose length gradients
+                               # make each (cable, frame) row of the Jacobian: the piece starting there, the one ending there
 
     @classmethod
     def of(cls, cables, vertebra_frames: np.ndarray, n_frames: int) -> "CableRouting":
@@ -184,7 +197,7 @@ class CableRouting:
         ends = np.stack([a, b], 1).reshape(-1)
         return cls(len(cables), n_frames, a, b, hole, hole.copy(), owner, ends,
                    np.stack([hole, hole], 1).reshape(-1, 3, 1), incidence(ends, n_frames),
-                   incidence(np.repeat(owner, 2) * n_frames + ends, len(cables) * n_frames))
+                   _jacobian_ends(owner, a, b, len(cables), n_frames))
 
     def with_holes(self, radius: np.ndarray, angle: np.ndarray) -> "CableRouting":
         """The routing with every cable's holes at distance ``radius`` (n_cables,) from the axis and
@@ -217,8 +230,15 @@ class CableRouting:
         return self.to_frames @ (piece_tension[:, None] * pieces.unit).reshape(-1, 6)
 
     def jacobian(self, pieces: CablePieces) -> np.ndarray:
-        """``∂L/∂q`` (n_cables, n_frames, 6) of every cable."""
-        return (self.to_jacobian @ pieces.unit.reshape(-1, 6)).reshape(self.n_cables, self.n_frames, 6)
+        """``∂L/∂q`` (n_cables, n_frames, 6) of every cable: on each frame, the length gradients of
+        the cable's piece starting there and of its piece ending there (two gathers)."""
+        ends = np.empty((2 * pieces.unit.shape[0] + 1, 6))       # the piece ends' gradients, then a zero row
+        ends[:-1] = pieces.unit.reshape(-1, 6)
+        ends[-1] = 0.0
+        starting, ending = self.jacobian_ends
+        jacobian = ends.take(starting, 0)
+        jacobian += ends.take(ending, 0)
+        return jacobian.reshape(self.n_cables, self.n_frames, 6)
 
     def paths(self, positions: np.ndarray, quaternions: np.ndarray) -> list[np.ndarray]:
         """World polyline of each cable through its holes."""

@@ -1,6 +1,7 @@
 """The globalisation steps of the forward solve beyond the shifted Newton step: a direction of
 negative curvature of an indefinite tangent (to leave saddles and maxima) and the backtracking
-line search on the energy (or, with dead moments, an energy-like merit). The stage they act on is
+line search on the energy (or, with dead moments, an energy-like merit; with contacts, the
+Lagrangian at the step's contact forces). The stage they act on is
 :mod:`vertebra.solver.newton`'s.
 """
 
@@ -71,8 +72,10 @@ def line_search(stage, state, ev, residual: float, dq, change, alpha: float, rp:
         decrease = ev.energy - ev_trial.energy
         if moments is not None:
             decrease += alpha * float(moments @ dq.reshape(-1, 6)[:, 3:].reshape(-1))
+        if stage.constraints is not None:        # the Lagrangian E − λᵀg at the step's contact forces
+            decrease += stage.constraints.work(trial)
         if predicted <= noise:       # the energy cannot judge this step: the residual does
-            good = stage.norm(ev_trial) <= residual
+            good = stage.norm(ev_trial, trial) <= residual
             ratio = 1.0
         else:
             good = decrease >= ARMIJO * predicted - noise

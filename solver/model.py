@@ -19,7 +19,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from vertebra.solver import bounds, compliance, newton, outputs, sensitivity
+from vertebra.solver import bounds, compliance, friction, newton, outputs, sensitivity
 from vertebra.solver.potential import Evaluation, LoadCases, Trial, cable_tensions, evaluate, out_of_range, potential
 from vertebra.solver.newton import StaticResult
 from vertebra.solver.outputs import Linearisation
@@ -148,18 +148,25 @@ class TrunkModel:
 
     # ------------------------------------------------------------------ solve
     def solve(self, actuation=None, initial: State | None = None, *, tolerance=None,
-              max_iterations=None, load_steps=None, raise_on_failure=True) -> StaticResult:
+              max_iterations=None, load_steps=None, raise_on_failure=True, history=None) -> StaticResult:
         """Quasi-static equilibrium (paper eq. 9) by Newton with line search and automatic load
         stepping (:mod:`~vertebra.solver.newton`). ``actuation``: see :meth:`actuation`
         (e.g. ``{"t1": 5.0}``). Raises :class:`ConvergenceError` (with the partial result) on
         failure. A negative tension on a cable is refused, other bounds are reported
-        (``result.bound_violations``, :mod:`~vertebra.solver.bounds`)."""
+        (``result.bound_violations``, :mod:`~vertebra.solver.bounds`).
+
+        With cable friction (a ``friction`` in the scene, or a ``history``) the command is applied
+        to ``history`` (a :class:`~vertebra.solver.friction.FrictionState`, e.g. an earlier
+        result's ``friction``; None: the rest state — a single command is a monotone pull) and
+        ``result.friction`` is the state after it (:mod:`~vertebra.solver.friction`,
+        docs/friction.md); :meth:`solve_sequence` chains commands."""
         settings = self.scene.solver
         values = self.actuation(actuation)
         bounds.check_pushing(self, values, from_scene=actuation is None)
+        frictional = history is not None or self.trunk.actuators.frictional
         try:
-            result = newton.solve(
-                self.trunk, self.loads, values, initial,
+            result = (friction.solve if frictional else newton.solve)(
+                self.trunk, *((values, history) if frictional else (self.loads, values)), initial,
                 tolerance=settings.tolerance if tolerance is None else tolerance,
                 max_iterations=settings.max_iterations if max_iterations is None else max_iterations,
                 load_steps=settings.load_steps if load_steps is None else load_steps,
@@ -170,6 +177,12 @@ class TrunkModel:
             raise
         result.bound_violations = bounds.bound_violations(self, result.state, values)
         return result
+
+    def solve_sequence(self, actuations, history=None, initial: State | None = None, **options) -> list:
+        """Solve the commands ``actuations`` (each as for :meth:`solve`) in order, each applied to
+        the friction state the one before left (``history``: where the sequence starts; None: at
+        rest): a pull then a release traces the hysteresis loop. Returns the results."""
+        return friction.solve_sequence(self, [self.actuation(a) for a in actuations], history, initial, **options)
 
     def evaluate(self, state: State, actuation=None, *, scale: float = 1.0, previous=None) -> Evaluation:
         """Total potential and gradient at ``state`` under ``scale`` × the actuation and loads
@@ -205,6 +218,8 @@ class TrunkModel:
     def linearise(self, state: State, actuation=None, *, previous=None) -> Linearisation:
         """Tangent stiffness factor, actuator and effector Jacobians at ``state`` (``previous``:
         an evaluation or :meth:`trial` of the same state and actuation to reuse)."""
+        if self.trunk.actuators.frictional:        # the frictional transmission of a pull from rest
+            return friction.linearise(self.trunk, state, self.actuation(actuation))[0]
         return outputs.linearise(self.trunk, state, self.actuation(actuation), self.loads, previous)
 
     def cable_tensions(self, state: State, actuation=None) -> np.ndarray:
@@ -237,7 +252,7 @@ class TrunkModel:
 
     def effector_positions(self, state: State) -> np.ndarray:
         """World position of each point effector; world unit direction of each axis effector."""
-        return outputs.effector_points(self.trunk, state)[1]
+        return outputs.effector_points(self.trunk, state)[1].copy()
 
     def sensitivities(self, state, actuation=None, *, wrt=sensitivity.PARAMETER_GROUPS,
                       outputs=sensitivity.OUTPUTS, method: str = "auto") -> "sensitivity.Sensitivities":

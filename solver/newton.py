@@ -57,6 +57,7 @@ from vertebra.solver.globalise import NEUTRAL
 from vertebra.solver.representable import (COLLAPSE_LIMIT, FOLD_LIMIT, TURN_LIMIT, Unrepresentable,
                                            largest_turn, segment_of, turn_message)
 from vertebra.solver.state import State, kinematics, strain_change
+from vertebra.solver import contact
 from vertebra.core.errors import ConvergenceError
 
 RESOLUTION = 1e-13     # corrections below this fraction of the extent (and radians) are rounding
@@ -95,6 +96,9 @@ class StaticResult:
                                      # link energy was fitted on (empty: inside, or no fitted energies)
     bound_violations: tuple = ()     # BoundViolation: actuator quantities beyond the scene's bounds
                                      # (solver.bounds; set by TrunkModel.solve)
+    contacts: tuple = ()             # contact.Contact: every candidate contact of the returned state
+                                     # with its force (empty: the trunk declares no contact shapes)
+    friction: object = None          # FrictionState after a frictional solve (solver.friction; None: frictionless)
 
     def __repr__(self) -> str:
         tip = ", ".join(f"{v:.6g}" for v in self.state.positions[-1])
@@ -155,12 +159,28 @@ class _Stage:
         self.axis, self.shortest = trunk.rest.axis, trunk.rest.shortest   # a link's axial stretch is ρ · axis
         self.turn = 0.0                       # largest link rotation of the current state
         self.stretching = True                # the last step may have changed a link's length
+        # unilateral contacts (None: the trunk declares none and no contact code runs)
+        self.constraints = contact.Constraints(trunk) if trunk.contact is not None else None
 
-    def norm(self, ev) -> float:
-        return residual_norm(ev.gradient[1:], self.reference, self.weights)
+    def norm(self, ev, state=None) -> float:
+        """The scaled residual of ``ev`` (with contacts: of the Lagrangian at ``state``, the
+        current contact forces included)."""
+        if self.constraints is None:
+            return residual_norm(ev.gradient[1:], self.reference, self.weights)
+        return residual_norm(self.constraints.balance(ev.gradient, state)[1:], self.reference, self.weights)
 
-    def stable(self, ev, matrix=None) -> bool:
+    def stable(self, ev, matrix=None, state=None) -> bool:
+        """:func:`is_stable`; with pressed contacts, on the directions they leave free."""
+        if self.constraints is not None:
+            if matrix is None:
+                matrix = self.constraints.lagrangian(tangent(self.trunk, ev), state)
+            matrix = self.constraints.stiffened(matrix, state)
         return is_stable(self.trunk, ev, matrix)
+
+    def converged(self, residual: float, state) -> bool:
+        """In balance to the tolerance (with contacts: and no gap open under a force, none closed
+        beyond the tolerance)."""
+        return residual <= self.tolerance and (self.constraints is None or self.constraints.feasible(state))
 
     def below_resolution(self, state: State, dq: np.ndarray, alpha: float = 1.0) -> bool:
         """Is every translation of ``α·dq`` below 1e-13 of the extent and every rotation below
@@ -186,7 +206,7 @@ class _Stage:
                 return "stalled"
         if residual > max(self.tolerance, self.rounding_floor(state, matrix)):
             return "stalled"
-        if not (kind == "cholesky" or self.stable(ev, matrix)):
+        if not ((kind == "cholesky" and self.constraints is None) or self.stable(ev, matrix, state)):
             return "unstable"
         return "rounding-limited"
 
@@ -281,7 +301,8 @@ def _newton(stage: _Stage, state: State):
     trunk, load, kinds = stage.trunk, stage.load, stage.kinds
     symmetric = stage.symmetric
     ev = evaluate(trunk, state, load)
-    residual = stage.norm(ev)
+    constraints = stage.constraints
+    residual = stage.norm(ev, state)
     if not math.isfinite(residual + ev.energy):
         raise ConvergenceError(f"non-finite values appeared in the evaluation of the start state (the initial "
                                f"state given, or the last converged stage) at load factor {load.scale:.3g}")
@@ -294,18 +315,22 @@ def _newton(stage: _Stage, state: State):
     escapes = 0
     while True:
         stage.history.append(residual)
-        converged = residual <= stage.tolerance
+        converged = stage.converged(residual, state)
         if converged:
-            if trusted or stage.stable(ev):
+            if trusted or stage.stable(ev, state=state):
                 return True, state, residual
-            if escapes == ESCAPES:     # a saddle that the negative-curvature steps did not leave
+            if escapes == ESCAPES or constraints is not None:
+                # a saddle that the negative-curvature steps did not leave (with contacts, none is
+                # taken: a step along negative curvature ignores the gaps)
                 kinds.add("unstable")
                 return False, state, residual
         if stage.iterations >= stage.max_iterations:
             return False, state, residual
         stage.iterations += 1
         stage.stretching = False
-        matrix = tangent(trunk, ev)
+        matrix = factored = tangent(trunk, ev)
+        if constraints is not None:
+            matrix = factored = constraints.lagrangian(matrix, state)     # the Lagrangian's tangent
         shift = stage.shift
         scale = None
         indefinite = False       # a factor of this tangent failed: it is not positive definite
@@ -314,19 +339,37 @@ def _newton(stage: _Stage, state: State):
                 return False, state, residual
             if shift and scale is None:
                 scale = np.maximum(np.abs(matrix.diagonal()), trunk.rest.stiffness)
-            factor, kind = matrix.factor(shift, symmetric=symmetric, scale=scale, definite=symmetric)
+            factor, kind = factored.factor(shift, symmetric=symmetric, scale=scale, definite=symmetric)
+            if factor is None and constraints is not None and factored is matrix and constraints.multipliers.size:
+                # springs along the pressed contacts (an augmented Lagrangian): the tangent need
+                # only be definite where the contacts leave the trunk free, and the step's QP
+                # keeps the pressed contacts as they are
+                factored = constraints.stiffened(matrix, state, contact.STEP_SPRING)
+                continue
             if factor is None:
                 indefinite = True
                 shift = _raise_shift(shift, 10.0)
                 continue
             dq = curvature = None
             if not converged:
-                dq = factor.solve(r)
-                rp = float(r @ dq)
+                if constraints is None:
+                    dq = factor.solve(r)
+                    balanced = r
+                else:
+                    # the sequential-QP step on the linearised gaps (solver/contact.py)
+                    constrained = constraints.step(factor, r, state)
+                    if constrained is None:
+                        shift = _raise_shift(shift, 10.0)
+                        continue
+                    dq, balanced = constrained.dq, constrained.balanced
+                    constraints.accept(constrained)
+                rp = float(balanced @ dq)
                 if not rp > 0.0:                    # an LU direction that does not descend (or NaN)
                     shift = _raise_shift(shift, 10.0)
                     continue
                 curvature = rp - shift * float(dq @ (scale * dq)) if shift else rp    # pᵀHp: (H + μD)p = r
+                if constraints is not None:
+                    curvature -= constraints.spring_work(dq)
                 change = strain_change(dq, ev.links)
                 if stage.linear is None and ev.at_rest and not shift:
                     # the linear response from rest: what the load asks of each link, to first order
@@ -337,14 +380,14 @@ def _newton(stage: _Stage, state: State):
                     # the step is below the floating-point resolution of the poses: either the
                     # residual left is rounding (stop here and report it as it is), or the
                     # damping or a cap made the step short and the solve has stalled
-                    verdict = stage.at_resolution(state, ev, matrix, r, dq if not shift and alpha == 1.0 else None,
+                    verdict = stage.at_resolution(state, ev, matrix, balanced, dq if not shift and alpha == 1.0 else None,
                                                   kind, residual)
                     kinds.add(verdict)
                     if verdict != "rounding-limited":
                         return False, state, residual
                     kinds.add(kind)
                     return True, state, residual
-            if converged or (indefinite and shift >= BEND_SHIFT):
+            if constraints is None and (converged or (indefinite and shift >= BEND_SHIFT)):
                 # a negative-curvature step (as far as the strain-space caps allow) where it
                 # promises more than the shifted Newton step: how a stationary point with an
                 # indefinite tangent (a saddle) is left, and how a column compressed far beyond
@@ -357,7 +400,9 @@ def _newton(stage: _Stage, state: State):
                     dq, change, rp, curvature, _ = bend
                     alpha, kind = 1.0, "curvature"
                     escapes += converged
-            step = globalise.line_search(stage, state, ev, residual, dq, change, alpha, rp, curvature, moments)
+            # (with contacts, the residual a step must not raise is the one at the step's forces)
+            before = residual if constraints is None or converged else stage.norm(ev, state)
+            step = globalise.line_search(stage, state, ev, before, dq, change, alpha, rp, curvature, moments)
             if step is not None:
                 break
             if kind == "curvature" and converged:
@@ -375,7 +420,7 @@ def _newton(stage: _Stage, state: State):
         trusted = kind == "cholesky" and residual <= TRUSTED_RESIDUAL
         kinds.add(kind)
         state, ev = trial, ev_trial
-        residual = stage.norm(ev)
+        residual = stage.norm(ev, state)
         if not math.isfinite(residual):
             raise ConvergenceError(f"non-finite forces appeared after a Newton step at load factor {load.scale:.3g}")
         stage.represented(state, ev)
@@ -395,6 +440,7 @@ def solve(trunk, loads: LoadCases, actuation: np.ndarray, initial: State | None,
         raise ConvergenceError("non-finite values appeared in the actuation or the loads (the out-of-balance "
                                "force at rest is not finite)")
     history, kinds = [], set()
+    pressed = None            # the contact forces of the last stage (contact.Constraints)
     state = (initial or trunk.rest_state).copy()
     if reference == 0.0:
         # nothing loads the rest pose: the start is the answer when it is in balance, else its
@@ -436,6 +482,8 @@ def solve(trunk, loads: LoadCases, actuation: np.ndarray, initial: State | None,
         iterations += stage.iterations
         stages += 1
         shift, linear = stage.shift, stage.linear
+        if stage.constraints is not None:
+            pressed = stage.constraints
         if ok:
             last_good, scale = state_new, target
             if scale >= 1.0:
@@ -471,10 +519,14 @@ def solve(trunk, loads: LoadCases, actuation: np.ndarray, initial: State | None,
                     f"(largest: {worst}): beyond it an entry runs on its linear stiffness plus the fit's boundary "
                     "force — widen the entry's sampled range (`vertebra design … --sampling …`) or let "
                     "`vertebra prepare` size it from the scene")
+    contacts = ()
+    if trunk.contact is not None:
+        contacts = (contact.report(trunk.contact, final, pressed.keys, pressed.multipliers) if pressed is not None
+                    else contact.report(trunk.contact, final, np.zeros((0, 3), int), np.zeros(0)))
     result = StaticResult(converged, iterations, float(residual), final, actuation, history, stages,
                           "+".join(sorted(kinds)) or "none", {"solve_s": time.perf_counter() - start},
                           rounding_limited=limited and converged, largest_turn=_turn(final),
-                          message=message, out_of_range=excess)
+                          message=message, out_of_range=excess, contacts=contacts)
     if not converged and raise_on_failure:
         raise ConvergenceError(message, result)
     return result

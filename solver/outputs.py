@@ -8,6 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vertebra.solver.banded import BandedFactor
 from vertebra.solver.potential import Evaluation, LoadCases, chamber_forces, evaluate, tangent, volume_growth
 from vertebra.solver.state import kinematics
 from vertebra.core.lie import hat, qmatrix, qrotate
@@ -28,6 +29,16 @@ class Linearisation:
     effector_positions: np.ndarray
     actuator_displacements: np.ndarray
     energy: float = 0.0          # total potential at the state (dead moments excluded)
+    # actuator_forces = actuator_jacobianᵀ · diag(force_scale): −1 per cable, −k per taut tendon
+    # (0 when slack), +1 per chamber
+    force_scale: np.ndarray | None = None
+
+    @property
+    def cholesky(self):
+        """The factor when it is a banded Cholesky factor ``K = L Lᵀ`` (its ``forward`` applies
+        ``L⁻¹``, its ``backward`` ``L⁻ᵀ``), else None (LU, or updated by a dense term)."""
+        factor = self.factor
+        return factor if isinstance(factor, BandedFactor) and factor.pivots is None else None
 
     def solve(self, rhs: np.ndarray, *, overwrite: bool = False) -> np.ndarray:
         """``K⁻¹ rhs`` with the banded factor, for ``rhs`` of shape (n_dof,) or (n_dof, k): the
@@ -37,15 +48,23 @@ class Linearisation:
 
 
 def effector_points(trunk, state) -> tuple[np.ndarray, np.ndarray]:
-    """World offsets (``R r``: lever arms, or the axes) and positions of the effectors."""
+    """World offsets (``R r``: lever arms, or the axes) and positions of the effectors. A state
+    that carries its strains keeps them (read-only) for the next call with the same effectors: a
+    control tick reports the effectors where the next tick linearises."""
     effectors = trunk.effectors
     f = effectors.frames
     record = state.carried_strains()
-    if record is not None:                # the chain's rotation matrices, no quaternion algebra
-        turned = (record.chain.rotations[f] @ effectors.offsets[:, :, None])[:, :, 0]
-    else:
+    if record is None:
         turned = qrotate(state.quaternions[f], effectors.offsets)
-    return turned, state.positions[f] * effectors.point_mask + turned
+        return turned, state.positions[f] * effectors.point_mask + turned
+    kept = record.effector_points
+    if kept is not None and kept[0] is effectors:
+        return kept[1], kept[2]
+    turned = (record.chain.rotations[f] @ effectors.offsets[:, :, None])[:, :, 0]   # no quaternion algebra
+    positions = state.positions[f] * effectors.point_mask + turned
+    turned.flags.writeable = positions.flags.writeable = False
+    record.effector_points = (effectors, turned, positions)
+    return turned, positions
 
 
 def cable_lengths(trunk, state, pieces=None) -> np.ndarray:
@@ -102,22 +121,28 @@ def linearise(trunk, state, actuation: np.ndarray, loads: LoadCases, previous=No
     n_cables, n_chambers = trunk.actuators.n_cables, trunk.actuators.n_chambers
     n_act = n_cables + n_chambers
     links, pieces = ev.links, ev.pieces
-    jac = np.zeros((n_act, n_frames, 6))
-    if n_cables:
-        if pieces is None:                            # slack cables: not evaluated for the forces
-            pieces = trunk.cables.pieces(state.positions, qmatrix(state.quaternions))
-        jac[:n_cables] = trunk.cables.jacobian(pieces)
-    forces = -jac                                     # cable: −τ ∂L/∂q
-    tendons = ev.load.tendons
-    if tendons is not None:                           # tendon: −k ∂L/∂q per unit stroke while taut
-        forces[tendons.cables] *= (tendons.stiffness * (ev.parts.elongation > 0.0))[:, None, None]
+    if n_cables and pieces is None:                   # slack cables: not evaluated for the forces
+        pieces = trunk.cables.pieces(state.positions, qmatrix(state.quaternions))
+    if n_chambers or not n_cables:
+        jac = np.zeros((n_act, n_frames, 6))
+        if n_cables:
+            jac[:n_cables] = trunk.cables.jacobian(pieces)
+    else:
+        jac = trunk.cables.jacobian(pieces)
     if n_chambers:
         g = links.gradient(chamber_forces(trunk, ev))  # (n_links, chamber, 12)
-        chamber_jac = np.zeros((n_chambers, n_frames, 6))
+        chamber_jac = jac[n_cables:]
         chamber_jac[:, :-1] += np.moveaxis(g[..., :6], 1, 0)
         chamber_jac[:, 1:] += np.moveaxis(g[..., 6:], 1, 0)
-        jac[n_cables:] = chamber_jac
-        forces[n_cables:] = chamber_jac               # ∂r/∂p = (∂ξ/∂q)ᵀ (−∂²ψ/∂ξ∂p) = Jaᵀ
+    jacobian = jac[:, 1:].reshape(n_act, n_dof)
+    # per unit of each actuator's value: a cable −τ ∂L/∂q, a tendon −k ∂L/∂q per unit stroke while
+    # taut, a chamber ∂r/∂p = (∂ξ/∂q)ᵀ (−∂²ψ/∂ξ∂p) = Jaᵀ
+    scale = np.ones(n_act)
+    scale[:n_cables] = -1.0
+    tendons = ev.load.tendons
+    if tendons is not None:
+        scale[tendons.cables] = -tendons.stiffness * (ev.parts.elongation > 0.0)
+    forces = jacobian * scale[:, None]      # a new C-ordered array: its transpose is in the banded solves' order
     effectors = trunk.effectors
     Je = effectors.translation_jacobian.copy()
     turned, positions = effector_points(trunk, state)
@@ -125,9 +150,9 @@ def linearise(trunk, state, actuation: np.ndarray, loads: LoadCases, previous=No
     Je = Je.reshape(3 * len(effectors.names), n_frames, 6)
     return Linearisation(
         residual=-ev.gradient[1:].reshape(-1), factor=factor,
-        actuator_forces=forces[:, 1:].reshape(n_act, n_dof).T.copy(),
-        actuator_jacobian=jac[:, 1:].reshape(n_act, n_dof),
+        actuator_forces=forces.T,
+        actuator_jacobian=jacobian,
         effector_jacobian=Je[:, 1:].reshape(3 * len(effectors.names), n_dof),
         effector_positions=positions,
         actuator_displacements=actuator_displacements(trunk, state, actuation, loads, links=links, pieces=pieces),
-        energy=ev.energy)
+        energy=ev.energy, force_scale=scale)

@@ -36,6 +36,7 @@ class Parameters:
     stiffness_scale: np.ndarray     # (n_segments,) multiplies every link energy of the segment
     hole_radius: np.ndarray         # (n_cables,) m, the holes' distance from the axis
     hole_angle: np.ndarray          # (n_cables,) rad, about local +z from local +x
+    friction: np.ndarray            # (n_cables,) μ of the capstan law at the cable's holes (solver/friction.py)
 
     def __post_init__(self):
         for field in dataclasses.fields(self):
@@ -52,7 +53,7 @@ class Parameters:
         return cls(gravity, np.array(trunk.loads.dead, float),
                    np.array(trunk.actuators.cable_stiffness), np.array(trunk.actuators.pretension),
                    np.ones(len(trunk.scene.segments)), np.array([c.radius for c in cables], float),
-                   np.array([c.angle for c in cables], float))
+                   np.array([c.angle for c in cables], float), np.array(trunk.actuators.friction))
 
     def replace(self, **changes) -> "Parameters":
         """A copy with ``changes`` (whole arrays, shape-checked)."""
@@ -68,7 +69,7 @@ class Parameters:
 def parameters_of(trunk, base: Parameters, changes: Mapping) -> Parameters:
     """``base`` with ``changes`` given by name: ``gravity`` (3 values), ``dead``
     (``{vertebra: [fx, fy, fz, mx, my, mz]}``, replacing that vertebra's load),
-    ``cable_stiffness`` / ``pretension`` / ``hole_radius`` / ``hole_angle`` (``{cable name: value}``;
+    ``cable_stiffness`` / ``pretension`` / ``hole_radius`` / ``hole_angle`` / ``friction`` (``{cable name: value}``;
     angles in rad) and ``stiffness_scale`` (``{segment index: value}``), or whole arrays."""
     names = list(trunk.actuators.names[:trunk.actuators.n_cables])
     n_segments = len(trunk.scene.segments)
@@ -124,6 +125,8 @@ def _check(trunk, parameters: Parameters) -> None:
         raise OptionError("a stiffness scale must be positive", field="stiffness_scale")
     if np.any(parameters.hole_radius < 0.0):
         raise OptionError("a hole's distance from the axis must not be negative", field="hole_radius")
+    if np.any(parameters.friction < 0.0):
+        raise OptionError("a friction coefficient must not be negative", field="friction")
 
 
 def reparameterise(trunk, parameters: Parameters):
@@ -138,7 +141,7 @@ def reparameterise(trunk, parameters: Parameters):
     changes["loads"] = Loads(dead, gravity, bool(np.any(dead[:, :3])), bool(np.any(dead[:, 3:])),
                              gravity is not None and bool(np.any(trunk.frames.mass)))
     changes["actuators"] = dataclasses.replace(trunk.actuators, cable_stiffness=parameters.cable_stiffness,
-                                               pretension=parameters.pretension)
+                                               pretension=parameters.pretension, friction=parameters.friction)
     if not (np.array_equal(parameters.hole_radius, compiled.hole_radius)
             and np.array_equal(parameters.hole_angle, compiled.hole_angle)):
         changes["cables"] = trunk.cables.with_holes(parameters.hole_radius, parameters.hole_angle)

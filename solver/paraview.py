@@ -22,11 +22,13 @@ import numpy as np
 
 from vertebra import __version__
 from vertebra.solver import display
+from vertebra.solver.friction import routes as friction_routes
 from vertebra.core.lie import qmatrix
 
 # parts of the trunk, by the value of the cell array "part" (their names go to field data)
 PARTS = ("backbone", "cable", "vertebra", "effector", "target")
 BACKBONE, CABLE, VERTEBRA, EFFECTOR, TARGET = range(len(PARTS))
+CONTACT = len(PARTS)       # contact points: a part of files written with contacts only
 DISC_SIDES = 32
 CELL_KINDS = ("verts", "lines", "polys")          # VTK's order of cell data in PolyData (no strips)
 
@@ -84,10 +86,16 @@ class PolyData:
                                      f"{'points' if where == 'point_data' else 'cells'}")
 
 
-def trunk_polydata(model, state, actuation=None, targets=None, *, time: float | None = None) -> PolyData:
+def trunk_polydata(model, state, actuation=None, targets=None, *, time: float | None = None,
+                   friction=None, contacts=None) -> PolyData:
     """The PolyData of ``model`` at ``state`` under ``actuation`` (default: the scene's), with
     the point effectors' ``targets`` ((n_eff, 3), NaN where none; default: the scene's) and,
-    when given, ``time`` (s) as the field ``TimeValue`` that ParaView reads as the time."""
+    when given, ``time`` (s) as the field ``TimeValue`` that ParaView reads as the time. With the
+    ``friction`` state of a frictional solve (``result.friction``) each cable cell carries its
+    span's own tension and each cable point ``stick`` (1: the cable is stuck at that hole). With
+    ``contacts`` (``result.contacts``, docs/contact.md) each contact is a vertex (part
+    ``contact``) at its point on the body with ``contact_force`` (N), ``contact_gap`` (m) and
+    ``contact_normal``."""
     actuation = model.actuation(actuation)
     targets = model.effector_targets if targets is None else np.asarray(targets, dtype=float)
     n_frames, nc = model.n_frames, model.n_cables
@@ -97,7 +105,8 @@ def trunk_polydata(model, state, actuation=None, targets=None, *, time: float | 
 
     vertebra_of_frame = np.full(n_frames, -1)
     vertebra_of_frame[vertebra_frames] = np.arange(vertebra_frames.size)
-    points = _Points()
+    extra = (("stick",) if friction is not None else ()) + (("contact_force", "contact_gap") if contacts else ())
+    points = _Points(extra, ("contact_normal",) if contacts else ())
     frames = points.add(state.positions, frame=np.arange(n_frames), vertebra=vertebra_of_frame,
                         radius=backbone_radius, x_axis=rotations[:, :, 0], y_axis=rotations[:, :, 1],
                         z_axis=rotations[:, :, 2])
@@ -112,8 +121,15 @@ def trunk_polydata(model, state, actuation=None, targets=None, *, time: float | 
         cell_rows["lines"].append((BACKBONE, k, link_vertebra[k], -1, -1))
 
     cable_radius = display.cable_radii(model)
+    routes = friction_routes(model.trunk.cables).pieces
+    span_tension = []
     for c, path in enumerate(display.cable_paths(model, state)):
-        ids = points.add(path, cable=np.full(len(path), c), radius=np.full(len(path), cable_radius[c]))
+        stick = np.zeros(len(path))
+        if friction is not None:
+            stick[1:-1] = friction.slip[routes[c][1:]] == 0
+            span_tension.append(friction.tension[routes[c]])
+        ids = points.add(path, cable=np.full(len(path), c), radius=np.full(len(path), cable_radius[c]),
+                         **({"stick": stick} if friction is not None else {}))
         for a, b in zip(ids[:-1], ids[1:]):
             cells["lines"].append(np.array([a, b]))
             cell_rows["lines"].append((CABLE, -1, -1, c, -1))
@@ -141,17 +157,25 @@ def trunk_polydata(model, state, actuation=None, targets=None, *, time: float | 
             cell_rows["verts"].append((part, -1, -1, -1, e))
             error.append(gap)
 
+    for c in contacts or ():
+        ids = points.add(np.array([c.point]), contact_force=np.array([c.force]), contact_gap=np.array([c.gap]),
+                         contact_normal=np.array([c.normal]), radius=np.array([marker]))
+        cells["verts"].append(ids)
+        cell_rows["verts"].append((CONTACT, -1, -1, -1, -1))
+        error.append(0.0)
+
     rows = np.array([row for kind in CELL_KINDS for row in cell_rows[kind]], dtype=np.int64).reshape(-1, 5)
     n_verts, n_lines = len(cells["verts"]), len(cells["lines"])
     tension = np.zeros(len(rows))
-    tension[n_verts:n_verts + n_lines][cable_cells] = actuation[cable_of_cell[cable_cells]]
+    tension[n_verts:n_verts + n_lines][cable_cells] = (actuation[cable_of_cell[cable_cells]] if friction is None
+                                                       else np.concatenate(span_tension))
     cell_error = np.zeros(len(rows))
     cell_error[:n_verts] = error
     cell_data = {"part": rows[:, 0], "link": rows[:, 1], "vertebra": rows[:, 2], "cable": rows[:, 3],
                  "effector": rows[:, 4], "tension": tension, "error": cell_error}
 
     names = model.actuator_names
-    field_data = {"part_names": list(PARTS), "vertebra_version": [__version__],
+    field_data = {"part_names": list(PARTS) + (["contact"] if contacts else []), "vertebra_version": [__version__],
                   "cable_names": names[:nc], "cable_tension": actuation[:nc],
                   "chamber_names": names[nc:], "chamber_pressure": actuation[nc:],
                   "effector_names": list(model.effector_names)}
@@ -171,9 +195,10 @@ class _Points:
     INDEX = ("vertebra", "frame", "cable", "effector")
     VECTOR = ("x_axis", "y_axis", "z_axis")
 
-    def __init__(self):
+    def __init__(self, extra: tuple = (), vectors: tuple = ()):
         self.blocks, self.count = [], 0
-        self.parts = {name: [] for name in self.INDEX + ("radius",) + self.VECTOR}
+        self.vectors = self.VECTOR + tuple(vectors)
+        self.parts = {name: [] for name in self.INDEX + ("radius",) + tuple(extra) + self.vectors}
 
     def add(self, xyz: np.ndarray, **arrays) -> np.ndarray:
         n = len(xyz)
@@ -184,7 +209,7 @@ class _Points:
             elif name in self.INDEX:
                 parts.append(np.full(n, -1, dtype=np.int32))
             else:
-                parts.append(np.zeros((n, 3) if name in self.VECTOR else n))
+                parts.append(np.zeros((n, 3) if name in self.vectors else n))
         ids = np.arange(self.count, self.count + n)
         self.count += n
         return ids

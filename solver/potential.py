@@ -55,10 +55,10 @@ class LoadCase:
         pressures = scale * actuation[n_cables:]
         link_loads = tuple(e.prepare(pressures) for e in trunk.links.energies)
         tendons = None
-        if n_cables and actuators.stroke_driven.any():
+        if n_cables and actuators.tendons.size:
             tendons = Tendons.of(trunk, tensions, scale)       # (the stroke-driven values are strokes)
             tensions = np.where(actuators.stroke_driven, 0.0, tensions)
-        piece_tension = tensions[trunk.cables.owner] if n_cables and np.any(tensions) else None
+        piece_tension = tensions[trunk.cables.owner] if n_cables and tensions.any() else None
         if previous is not None and previous.scale == scale:
             return cls(actuation, scale, pressures, link_loads, piece_tension, tendons, previous.weight,
                        previous.weight_hat, previous.frame_weight, previous.dead, previous.dead_forces)
@@ -92,6 +92,37 @@ class Tendons:
     stiffness: np.ndarray     # (t,) k, N/m
     rest: np.ndarray          # (t,) L₀, the rest lengths
     shift: np.ndarray         # (t,) s + T₀/k at the load factor (the elongation at rest)
+    # with friction (solver/friction.py) a tendon is split into units — runs of pieces joined by
+    # sliding holes — whose length is Σ g L over their pieces (g: the capstan factors of the
+    # run) and whose piece tensions are g times the unit's; None: every tendon is one unit of
+    # its whole cable with g = 1
+    units: np.ndarray | None = None     # (m,) unit of every piece (t: a piece of no unit)
+    weights: np.ndarray | None = None   # (m,) g of every piece in its unit
+
+    def lengths(self, cables, piece_lengths: np.ndarray) -> np.ndarray:
+        """The length of every unit from the pieces' lengths (a whole tendon's: its cable's)."""
+        if self.units is None:
+            return np.bincount(cables.owner, piece_lengths, minlength=cables.n_cables)[self.cables]
+        return np.bincount(self.units, self.weights * piece_lengths, minlength=self.cables.size + 1)[:-1]
+
+    def piece_tension(self, cables, tension: np.ndarray) -> np.ndarray:
+        """The tension of every piece from the units' ``tension`` (0 on the other cables' pieces)."""
+        if self.units is None:
+            full = np.zeros(cables.n_cables)
+            full[self.cables] = tension
+            return full[cables.owner]
+        full = np.zeros(self.cables.size + 1)
+        full[:-1] = tension
+        return self.weights * full[self.units]
+
+    def jacobian(self, cables, pieces: CablePieces) -> np.ndarray:
+        """``∂(unit length)/∂q`` (t, n_frames, 6) of every unit."""
+        if self.units is None:
+            return cables.jacobian(pieces)[self.cables]
+        rows = np.repeat(self.units, 2) * cables.n_frames + cables.ends
+        out = np.zeros(((self.cables.size + 1) * cables.n_frames, 6))
+        np.add.at(out, rows, (self.weights[:, None] * pieces.unit).reshape(-1, 6))
+        return out.reshape(-1, cables.n_frames, 6)[:-1]
 
     @classmethod
     def of(cls, trunk, values: np.ndarray, scale: float) -> "Tendons":
@@ -103,8 +134,9 @@ class Tendons:
         return cls(cables, k, trunk.rest_cable_lengths[cables],
                    values[cables] + scale * actuators.pretension[cables] / k)
 
-    def elongation(self, cable_lengths: np.ndarray) -> np.ndarray:
-        return cable_lengths[self.cables] - self.rest + self.shift
+    def elongation(self, lengths: np.ndarray) -> np.ndarray:
+        """``e`` of every unit from its length (:meth:`lengths`)."""
+        return lengths - self.rest + self.shift
 
     def tension(self, elongation: np.ndarray) -> np.ndarray:
         """``k·max(0, e)``: a tendon never pushes."""
@@ -256,10 +288,8 @@ def _potential_parts(trunk, x: np.ndarray, rotations, xi: np.ndarray, load: Load
     tendons = load.tendons
     if tendons is not None:
         cables = trunk.cables
-        parts.elongation = tendons.elongation(np.bincount(cables.owner, spans[2], minlength=cables.n_cables))
-        tension = np.zeros(cables.n_cables)
-        tension[tendons.cables] = tendons.tension(parts.elongation)
-        pieces = tension[cables.owner]
+        parts.elongation = tendons.elongation(tendons.lengths(cables, spans[2]))
+        pieces = tendons.piece_tension(cables, tendons.tension(parts.elongation))
         parts.piece_tension = pieces if load.piece_tension is None else pieces + load.piece_tension
     return parts
 
@@ -371,7 +401,7 @@ def tendon_stiffness(trunk, ev: Evaluation) -> tuple | None:
     taut = ev.parts.elongation > 0.0
     if not taut.any():
         return None
-    jacobian = trunk.cables.jacobian(ev.pieces)[tendons.cables[taut], 1:]
+    jacobian = tendons.jacobian(trunk.cables, ev.pieces)[taut, 1:]
     return np.ascontiguousarray(jacobian.reshape(-1, trunk.n_dof).T), tendons.stiffness[taut]
 
 

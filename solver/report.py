@@ -13,6 +13,7 @@ import numpy as np
 from vertebra import __version__
 from vertebra.solver.bounds import bound_violations
 from vertebra.solver.compliance import compliance_report
+from vertebra.solver.friction import FrictionState, routes
 from vertebra.solver.model import State, StaticResult, TrunkModel
 from vertebra.solver.plots import plot_inverse, plot_static
 
@@ -32,6 +33,8 @@ def static_report(model: TrunkModel, result: StaticResult) -> dict:
     volume = model.chamber_volume_growth(state, actuation[model.n_cables:])
     effectors = model.effector_positions(state)
     compliance = compliance_report(model, result)
+    # a scene that declares contact shapes lists every candidate contact (docs/contact.md)
+    contacts = ({"contacts": [c.as_dict() for c in result.contacts]} if model.trunk.contact is not None else {})
     return {
         "vertebra_version": __version__,
         "converged": bool(result.converged),
@@ -43,11 +46,12 @@ def static_report(model: TrunkModel, result: StaticResult) -> dict:
                                 else {"position": [float(v) for v in effectors[k]]}),
                              "compliance": compliance.get(name)}
                       for k, name in enumerate(model.effector_names)},
-        "cables": cables_report(model, state, actuation, lengths),
+        "cables": cables_report(model, state, actuation, lengths, result.friction),
         "chambers": {chamber.name: {"pressure": float(actuation[model.n_cables + k]),
                                     "volume_growth": float(volume[k]),
                                     "rest_volume": float(model.chamber_rest_volumes[k])}
                      for k, chamber in enumerate(model.scene.chambers)},
+        **contacts,
         "timing": {key: float(value) for key, value in result.timings.items()},
         "diagnostics": {"load_stages": int(result.load_steps), "factorization": result.factorization,
                         "rounding_limited": bool(result.rounding_limited),
@@ -57,20 +61,30 @@ def static_report(model: TrunkModel, result: StaticResult) -> dict:
     }
 
 
-def cables_report(model: TrunkModel, state, actuation: np.ndarray, lengths: np.ndarray | None = None) -> dict:
-    """Every cable's tension (a stroke-driven tendon's from its elongation at ``state``), length and
-    stroke ``L − L0`` (the change of its path through the holes); a stroke-driven tendon also
-    its servo stroke (its command) and whether it is slack."""
+def cables_report(model: TrunkModel, state, actuation: np.ndarray, lengths: np.ndarray | None = None,
+                  friction: FrictionState | None = None) -> dict:
+    """Every cable's tension (a stroke-driven tendon's from its elongation at ``state``; with
+    friction the first span's), length and stroke ``L − L0`` (the change of its path through the
+    holes), its ``route`` (the holes it runs through, proximal first), the ``tensions`` of its spans
+    between them and ``stick`` (is it stuck at each interior hole: the ``friction`` state of a
+    frictional solve; without one every span carries the cable's tension and nothing sticks); a
+    stroke-driven tendon also its servo stroke (its command) and whether it is slack."""
     if lengths is None:
         lengths = model.cable_lengths(state)
-    tensions = model.cable_tensions(state, actuation)
+    tensions = model.cable_tensions(state, actuation) if friction is None else None
     stroke_driven = model.trunk.actuators.stroke_driven
+    paths = model.trunk.cables.paths(state.positions, state.quaternions)
     out = {}
     for k, cable in enumerate(model.scene.cables):
-        row = {"tension": float(tensions[k]), "length": float(lengths[k]),
-               "stroke": float(lengths[k] - model.rest_cable_lengths[k])}
+        run = routes(model.trunk.cables).pieces[k]
+        spans = (np.full(run.size, tensions[k]) if friction is None else friction.tension[run])
+        row = {"tension": float(spans[0]), "length": float(lengths[k]),
+               "stroke": float(lengths[k] - model.rest_cable_lengths[k]),
+               "route": [[float(v) for v in point] for point in paths[k]],
+               "tensions": [float(v) for v in spans],
+               "stick": ([False] * (run.size - 1) if friction is None else (friction.slip[run[1:]] == 0).tolist())}
         if stroke_driven[k]:
-            row.update(servo_stroke=float(actuation[k]), slack=bool(tensions[k] == 0.0))
+            row.update(servo_stroke=float(actuation[k]), slack=bool(not spans.any()))
         out[cable.name] = row
     return out
 
@@ -109,7 +123,7 @@ def _inverse_step(model: TrunkModel, t, step) -> dict:
         "t": float(t),
         "cables": ({names[j]: {"tension": float(actuation[j]), "stroke": float(displacements[j])} for j in range(nc)}
                    if not model.n_tendons else
-                   {name: {k: v for k, v in row.items() if k != "length"}
+                   {name: {k: v for k, v in row.items() if k not in ("length", "route", "tensions", "stick")}
                     for name, row in cables_report(model, step.state, actuation).items()}),
         "chambers": {names[j]: {"pressure": float(actuation[j]), "volume_growth": float(displacements[j])}
                      for j in range(nc, len(names))},

@@ -16,8 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from vertebra.solver.plausible import scene_warnings
+from vertebra.solver.obstacles import parse_obstacle
 from vertebra.solver.segments import (DESIGN_MATERIALS, SEGMENT_TYPES, DesignSpec, SegmentSpec, VertebraSpec,
-                                      parse_segment)
+                                      parse_disc, parse_segment)
 from vertebra.solver.tables import Table
 from vertebra.core.errors import SceneError
 from vertebra.core.inputs import check_depth, load_toml
@@ -57,6 +58,7 @@ class CableSpec:
     free_length: float = 0.0                    # m of tendon outside the robot (servo to base hole)
     pretension: float = 0.0                     # N at zero stroke with the trunk at rest
     max_stroke_change: float | None = None      # m per control tick (None: derived from the bounds)
+    friction: float = 0.0                       # μ of the capstan law at every hole it passes (solver/friction.py)
 
     @property
     def stroke_driven(self) -> bool:
@@ -114,6 +116,8 @@ class Scene:
     loads: tuple = ()
     effectors: tuple = ()
     source: str = "<scene>"
+    obstacles: tuple = ()                  # solver.obstacles: Plane, Sphere, Capsule, Box, Mesh
+    base_disc: tuple = (0.0, 0.0)          # the base's contact disc: (radius, thickness)
 
     @property
     def n_vertebrae(self) -> int:
@@ -189,6 +193,7 @@ def parse_scene(data: dict, source: str = "<dict>", base_dir=".") -> Scene:
     if abs(norm - 1.0) > 1e-6:
         raise bt.error("quaternion", f"must have unit norm, got norm {norm:.6g}")
     base_quaternion = tuple(v / norm for v in base_quaternion)
+    base_disc = parse_disc(bt)
     bt.done()
 
     catalogue = None
@@ -244,7 +249,7 @@ def parse_scene(data: dict, source: str = "<dict>", base_dir=".") -> Scene:
         cables.append(CableSpec(name, radius, angle, first, last, tension, *_bounds(t, "tension"),
                                 *_bounds(t, "stroke", -math.inf),
                                 t.number("max_tension_change", None, positive=True, unbounded=True),
-                                **_tendon(t)))
+                                **_tendon(t), friction=t.number("friction", 0.0, nonneg=True)))
         t.done()
 
     chambers = []
@@ -276,10 +281,12 @@ def parse_scene(data: dict, source: str = "<dict>", base_dir=".") -> Scene:
                                       target=_unit(t, "target", target) if axis is not None else target,
                                       weight=t.number("weight", 1.0, positive=True), axis=axis))
         t.done()
+    obstacles = tuple(parse_obstacle(t, base_dir) for t in top.tables("obstacle"))
     top.done()
     scene = Scene(segments=segments, name=scene_name, solver=settings, gravity=gravity, base_position=base_position,
                  base_quaternion=base_quaternion, catalogue=catalogue, cables=tuple(cables),
-                 chambers=tuple(chambers), loads=tuple(loads), effectors=tuple(effectors), source=source)
+                 chambers=tuple(chambers), loads=tuple(loads), effectors=tuple(effectors), source=source,
+                 obstacles=obstacles, base_disc=(base_disc["disc_radius"], base_disc["disc_thickness"]))
     scene_warnings(scene)           # unit slips (a pressure of 1.5 Pa): warnings, not errors
     return scene
 

@@ -17,7 +17,7 @@ Three types (a registry of parsers, :data:`SEGMENT_PARSERS`):
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from vertebra.solver.timoshenko import Section
 from vertebra.solver.tables import Table
@@ -32,6 +32,8 @@ DESIGN_MATERIALS = ("linear", "svk", "neo_hookean")
 class VertebraSpec:
     mass: float = 0.0
     center_of_mass: tuple = (0.0, 0.0, 0.0)   # in the vertebra's frame
+    disc_radius: float = 0.0                  # a contact disc in the frame's x–y plane (0: none; docs/contact.md)
+    disc_thickness: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -73,6 +75,8 @@ class SegmentSpec:
     entry: str = ""
     # design: what the entry is (or will be) designed from
     design: DesignSpec | None = None
+    # contact: the links' chords are capsules of this radius (None: the segment touches nothing)
+    contact_radius: float | None = None
 
     @property
     def resolved(self) -> bool:
@@ -81,14 +85,24 @@ class SegmentSpec:
 
 
 def parse_vertebra(t: Table) -> VertebraSpec:
+    disc = parse_disc(t)
     spec = VertebraSpec(mass=t.number("mass", 0.0, nonneg=True),
-                        center_of_mass=t.vector("center_of_mass", 3, (0.0, 0.0, 0.0)))
+                        center_of_mass=t.vector("center_of_mass", 3, (0.0, 0.0, 0.0)), **disc)
     inertia = t.raw("inertia")  # accepted for completeness (statics does not need it)
     if inertia is not None and not (isinstance(inertia, list) and len(inertia) in (3, 9) and all(
             not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v) for v in inertia)):
         raise t.error("inertia", f"expected 3 principal moments or 9 matrix entries (finite numbers), got {inertia!r}")
     t.done()
     return spec
+
+
+def parse_disc(t: Table) -> dict:
+    """``disc_radius`` and ``disc_thickness`` of a vertebra (or the base): its contact disc."""
+    radius = t.number("disc_radius", 0.0, nonneg=True)
+    thickness = t.number("disc_thickness", 0.0, nonneg=True)
+    if thickness > 0.0 and radius == 0.0:
+        raise t.error("disc_thickness", "a disc needs its `disc_radius` too")
+    return {"disc_radius": radius, "disc_thickness": thickness}
 
 
 def parse_section(t: Table, poisson_ratio: float) -> Section:
@@ -198,6 +212,7 @@ def parse_segment(t: Table) -> SegmentSpec:
     elements = t.number("elements", 1, integer=True, positive=True)
     vertebra = parse_vertebra(t.table("vertebra"))
     segment = SEGMENT_PARSERS[kind](t, count, elements, vertebra)
+    contact_radius = t.number("contact_radius", None, nonneg=True)
     t.done()
-    return segment
+    return segment if contact_radius is None else replace(segment, contact_radius=contact_radius)
 

@@ -27,6 +27,9 @@ class StrainRecord:
     chain: Chain
     positions: np.ndarray
     quaternions: np.ndarray
+    # the effector points of these poses, once asked for: (the trunk's Effectors, turned offsets,
+    # positions), read-only (solver.outputs.effector_points)
+    effector_points: tuple | None = field(default=None, repr=False, compare=False)
 
     @cached_property
     def links(self) -> Links:

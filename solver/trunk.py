@@ -18,6 +18,7 @@ import numpy as np
 
 from vertebra.solver.assembly import BandAssembler
 from vertebra.solver.cables import CableRouting
+from vertebra.solver.contact import ContactModel, check_rest, compile_contact
 from vertebra.solver.potential import RestConstants, rest_constants
 from vertebra.solver.kinds import CompiledLinks, kind_for
 from vertebra.core.energy import rest_strain
@@ -101,11 +102,17 @@ class Actuators(_Frozen):
     stroke_driven: np.ndarray     # (n_cables,) bool: the cable's value is a servo stroke (m), not a tension
     cable_stiffness: np.ndarray   # (n_cables,) N/m spring rate of the stroke-driven tendons (0: tension-driven)
     pretension: np.ndarray        # (n_cables,) N of the stroke-driven tendons at zero stroke, at rest
+    friction: np.ndarray          # (n_cables,) μ of the capstan law at the cable's holes (0: frictionless)
 
-    @property
+    @functools.cached_property
     def tendons(self) -> np.ndarray:
-        """Indices of the stroke-driven cables."""
-        return np.flatnonzero(self.stroke_driven)
+        """Indices of the stroke-driven cables (read-only)."""
+        return _read_only(np.flatnonzero(self.stroke_driven))
+
+    @functools.cached_property
+    def frictional(self) -> bool:
+        """Does any cable have friction at its holes?"""
+        return bool(np.any(self.friction))
 
     def validate(self):
         if self.default.shape != (self.n_cables + self.n_chambers,):
@@ -156,6 +163,7 @@ class Trunk:
     rest_piece_lengths: np.ndarray     # (m,) length of every cable piece at rest
     rest: RestConstants | None = None  # what the unstressed rest state gives (set by compile_trunk)
     compiled: "Trunk | None" = None    # the trunk compiled from the scene (None: this is it); see parameters.py
+    contact: ContactModel | None = None   # discs, capsule segments, obstacles (None: no contact code runs)
 
     def __post_init__(self):
         if self.links.count != self.frames.count - 1:
@@ -179,8 +187,12 @@ def compile_trunk(scene, entries: dict) -> Trunk:
     loads = _loads(scene, frames)
     assembler = BandAssembler(frames.count - 1, cables.span, cables.piece_a, cables.piece_b, loads.has_gravity)
     rest_lengths = cables.lengths(rest_pieces)
+    contact = compile_contact(scene, frames, links.segment)
+    if contact is not None:
+        check_rest(contact, rest_state, scene.source)
     trunk = Trunk(scene, frames, links, cables, _actuators(scene, rest_volumes, rest_lengths), loads,
-                  _effectors(scene, frames), assembler, rest_state, rest_lengths, rest_pieces.length)
+                  _effectors(scene, frames), assembler, rest_state, rest_lengths, rest_pieces.length,
+                  contact=contact)
     object.__setattr__(trunk, "rest", rest_constants(trunk))      # (needs the trunk it belongs to)
     return trunk
 
@@ -299,7 +311,8 @@ def _actuators(scene, rest_volumes, rest_lengths: np.ndarray) -> Actuators:
          np.array([c.max_stroke if f else np.inf for c, f in zip(cables, free)]
                   + [c.max_volume_growth for c in chambers], float)),
         rest_volumes, max_change, np.array(by_stroke, bool).reshape(-1), stiffness,
-        np.array([c.pretension for c in cables], float).reshape(-1))
+        np.array([c.pretension for c in cables], float).reshape(-1),
+        np.array([c.friction for c in cables], float).reshape(-1))
 
 
 def _loads(scene, frames: Frames) -> Loads:

@@ -169,3 +169,4 @@ def test_the_documented_scene_example_is_valid():
     assert scene.n_vertebrae == 23 and len(scene.cables) == 2 and scene.cables[1].stroke_driven and len(scene.chambers) == 1
     assert scene.design_segments == (2,) and scene.segments[2].design.material == "linear"
     assert scene.effectors[1].axis == (0.0, 0.0, 1.0) and abs(sum(v * v for v in scene.effectors[1].target) - 1) < 1e-12
+    assert [o.type for o in scene.obstacles] == ["plane", "sphere"] and scene.segments[0].vertebra.disc_radius == 0.012

@@ -18,7 +18,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from vertebra.core.errors import OptionError
-from vertebra.solver.calibration.backend import RuntimePredictor
+from vertebra.solver.calibration.sequence import SequencePredictor
 from vertebra.solver.calibration.fit_parameters import ParameterSet, Values, parse_parameters
 
 __all__ = ["Calibration", "LOSSES", "METHODS", "calibrate", "error_metrics"]
@@ -134,7 +134,7 @@ def calibrate(scene, mapping, train, holdout=None, fit=None, *, loss: str = "lin
         raise OptionError("method lm takes only the linear loss", field="--loss")
     if starts < 1:
         raise OptionError(f"must be at least 1, got {starts}", field="--starts")
-    predictor = predictor or RuntimePredictor(scene, mapping)
+    predictor = predictor or SequencePredictor(scene, mapping)      # RuntimePredictor's own path without friction
     length = float(predictor.model.length_scale)
     ps = parse_parameters(list(fit) if fit else list(mapping.fit), scene, mapping, predictor.model)
     if mapping.max_samples and len(train) > mapping.max_samples:

@@ -18,7 +18,9 @@ Kinds (:data:`KINDS`): ``stiffness`` (scale of a segment's E and G; members: seg
 cable), ``cable_stiffness`` (spring rate, N/m; a driven cable), ``pretension`` (N at zero stroke; a
 driven cable),
 ``frame`` (members x, y, z in m, rx, ry, rz as a rotation vector in rad), ``marker``
-(offset of a marker, m; members ``NAME.x``, ``NAME.y``, ``NAME.z``).
+(offset of a marker, m; members ``NAME.x``, ``NAME.y``, ``NAME.z``), ``friction`` (μ at a driven
+cable's holes, docs/friction.md: a calibration with friction predicts the samples as one
+time-ordered sequence, :mod:`~vertebra.solver.calibration.sequence`).
 """
 
 from __future__ import annotations
@@ -45,6 +47,7 @@ class Values:
     pretension: np.ndarray       # (n_cables,) N of the stroke-driven tendons at zero stroke
     frame: np.ndarray            # (6,) world origin (m) and rotation vector (rad) in the measurement frame
     marker: np.ndarray           # (n_markers, 3) offsets, m
+    friction: np.ndarray         # (n_cables,) μ of the capstan law at a cable's holes (0: frictionless)
 
     def get(self, kind: str, index) -> float:
         return float(getattr(self, kind)[index])
@@ -75,6 +78,8 @@ KINDS = {
     "pretension": Kind("N", "tension of a driven tendon at zero command (negative: slack)"),
     "frame": Kind("m | rad", "pose of the scene's world in the measurement frame"),
     "marker": Kind("m", "offset of a marker on its vertebra"),
+    "friction": Kind("", "friction coefficient μ at a driven tendon's holes (capstan law; the samples are "
+                         "then a time-ordered sequence)"),
 }
 
 
@@ -85,7 +90,8 @@ def initial_values(scene, mapping, model) -> Values:
                   cable_stiffness=np.array(model.compiled.actuators.cable_stiffness, float),
                   pretension=np.array(model.compiled.actuators.pretension, float),
                   frame=np.array(mapping.frame_position + mapping.frame_rotation),
-                  marker=np.array([m.offset for m in mapping.markers]))
+                  marker=np.array([m.offset for m in mapping.markers]),
+                  friction=np.array(model.compiled.actuators.friction, float))
 
 
 def _members(kind: str, scene, mapping) -> dict:
@@ -94,7 +100,7 @@ def _members(kind: str, scene, mapping) -> dict:
         return {str(i): i for i in range(len(scene.segments))}
     if kind in ("angle", "radius"):
         return {c.name: i for i, c in enumerate(scene.cables)}
-    if kind in ("cable_stiffness", "pretension"):
+    if kind in ("cable_stiffness", "pretension", "friction"):
         names = [c.name for c in scene.cables]
         return {a.cable: names.index(a.cable) for a in mapping.actuators if a.cable in names}
     if kind == "frame":
@@ -139,6 +145,8 @@ def _typical(kind: str, index, base: Values, scene, length: float) -> float:
         return 5e-3 * base.cable_stiffness[index] * length    # the tension of a stretch of 0.5 % of the trunk
     if kind == "frame":
         return 0.01 * length if index < 3 else 0.02
+    if kind == "friction":
+        return 0.05
     return 0.01 * length
 
 
@@ -157,6 +165,8 @@ def _default_bounds(kind: str, index, value: float, base: Values, scene, length:
         return -0.1 * k * length, 0.1 * k * length          # slack or stretch of a tenth of the trunk
     if kind == "frame":
         return (value - length, value + length) if index < 3 else (value - math.pi / 2, value + math.pi / 2)
+    if kind == "friction":
+        return 0.0, 1.0
     return value - 0.5 * length, value + 0.5 * length
 
 
@@ -212,6 +222,9 @@ def parse_parameters(specs, scene, mapping, model, option: str = "--fit") -> Par
                                   field=option) from None
             if not low < high:
                 raise OptionError(f"{spec!r}: lower bound {low:g} is not below upper bound {high:g}", field=option)
+            if k0 == "friction" and value == low:
+                # a frictionless scene: start inside (the bounded optimiser cannot leave a start on its bound)
+                value = min(low + _typical(k0, i0, base, scene, length), 0.5 * (low + high))
             if not low <= value <= high:
                 raise OptionError(f"{spec!r}: the initial value {value:g} lies outside the bounds "
                                   f"[{low:g}, {high:g}]", field=option)

@@ -41,7 +41,8 @@ def _elements(cal, scene, mapping) -> dict:
     return {"stiffness_scale": {str(i): float(s) for i, s in enumerate(v.stiffness)},
             "cables": {c.name: {"angle_deg": math.degrees(c.angle + da), "radius": c.radius + dr}
                        for c, da, dr in zip(scene.cables, v.angle, v.radius)},
-            "tendons": {a.cable: {"stiffness": float(k), "pretension": float(p)}
+            "tendons": {a.cable: {"stiffness": float(k), "pretension": float(p),
+                                  "friction": float(v.friction[[c.name for c in scene.cables].index(a.cable)])}
                         for a, k, p in zip(mapping.actuators, v.cable_stiffness, v.pretension)},
             "frame": {"position": v.frame[:3].tolist(), "rotation_vector": v.frame[3:].tolist()},
             "markers": {m.name: {"vertebra": m.vertebra, "offset": o.tolist()}
@@ -98,6 +99,8 @@ def calibrated_scene_toml(cal, scene, mapping) -> str:
             table.pop("free_length", None)
             table["stiffness"] = float(v.cable_stiffness[i])
             table["pretension"] = float(v.pretension[i])
+            if v.friction[i] or "friction" in table:
+                table["friction"] = float(v.friction[i])
     position, quaternion, Rf = _compose_base(scene, v.frame)
     data["base"] = {"position": position.tolist(), "quaternion": quaternion.tolist()}
     if scene.gravity is not None:

@@ -147,7 +147,17 @@ def _errors(positions: np.ndarray, targets: np.ndarray) -> np.ndarray:
     """|position − target| per effector."""
     d = positions - targets
     d *= d
-    return np.sqrt(np.add.reduce(d, axis=1))
+    return np.sqrt(d.dot(_THREE))
+
+
+_THREE = np.ones(3)
+
+
+def _largest(v: np.ndarray) -> float:
+    """The largest length of the 3-vectors in ``v`` (n_effectors·3 values, effector rows); NaN
+    when a value is."""
+    v = v * v
+    return math.sqrt(float(np.maximum.reduce(v.reshape(-1, 3).dot(_THREE))))
 
 
 class InverseController:
@@ -221,7 +231,7 @@ class InverseController:
             errors=errors, displacements=displacements, reached=float(np.maximum.reduce(errors)) <= tolerance,
             equilibrium=equilibrium, iterations=iterations, qp=sol, timings=timings, status=status,
             out_of_range=self.model.out_of_range(self.state, self.actuation), predicted_positions=predicted,
-            predicted_errors=_errors(predicted, targets))
+            predicted_errors=errors.copy() if predicted is positions else _errors(predicted, targets))
 
     # ------------------------------------------------------------------ modes
     def tick(self, targets) -> InverseStep:
@@ -260,18 +270,18 @@ class InverseController:
         alpha = self.trust.fraction(dq)
         cut = aimed or alpha < 1.0
         r = lin.residual
-        r_dq = float(dq @ r)
-        b_dq = float(dq @ (lin.actuator_forces @ d_lam))
+        r_dq = float(dq.dot(r))
+        b_dq = float(dq.dot(lin.actuator_forces.dot(d_lam)))
         n_cables = model.n_cables
         # the effectors' linear motion per unit α, and how far the start lies from its own
         # equilibrium (the part of the step that corrects an imbalance left by the last tick)
-        Je = lin.effector_jacobian
-        motion = float(np.max(_errors((Je @ dq).reshape(-1, 3), 0.0)))
-        imbalance = float(np.max(_errors((Je @ projection.K_inv_r).reshape(-1, 3), 0.0)))
+        motion = _largest(lin.effector_jacobian.dot(dq))
+        imbalance = _largest(projection.Je_K_inv_r)
         floor = 0.01 * self.settings.tolerance
         # ∂E/∂λ of the cables: their lengths L(q) = L0 + stroke
-        d_energy = float(d_lam[:n_cables] @ model.rest_cable_lengths) + \
-            float(d_lam[:n_cables] @ lin.actuator_displacements[:n_cables])
+        cables = d_lam[:n_cables]
+        d_energy = float(cables.dot(model.rest_cable_lengths)) + float(cables.dot(lin.actuator_displacements[:n_cables]))
+        exact_energy = model.n_chambers or model.n_tendons
         quality = 0.0
         for _ in range(CUTS):
             lam = lam0 + alpha * d_lam
@@ -279,7 +289,7 @@ class InverseController:
             # r_λ = r + B(λ − λ0) and K dq = r + B d_lam
             predicted = alpha * (1.0 - 0.5 * alpha) * r_dq + 0.5 * alpha * alpha * b_dq
             try:     # (a pressure beyond a chamber's inflation limit point has no potential: not applied)
-                if model.n_chambers or model.n_tendons:
+                if exact_energy:
                     before = model.potential(state0, lam)
                 else:      # the potential is linear in tension-driven cables' tensions: E_λ(q) = E_λ0(q) + (λ − λ0)·L(q)
                     before = lin.energy + alpha * d_energy
@@ -289,7 +299,7 @@ class InverseController:
             except ConvergenceError:
                 before = after = math.nan
             if self._moments is not None:
-                after -= alpha * float(self._moments @ dq.reshape(-1, 6)[:, 3:].reshape(-1))
+                after -= alpha * float(self._moments.dot(dq.reshape(-1, 6)[:, 3:].reshape(-1)))
             decrease = before - after
             noise = 1e-12 * abs(before)
             quality = decrease / predicted if predicted > noise else (1.0 if decrease >= -noise else 0.0)
@@ -299,8 +309,7 @@ class InverseController:
                 # cut back like one whose energy does not fall
                 try:
                     judged = model.evaluate(trial, lam, previous=judged)
-                    correction = lin.solve(-judged.gradient[1:].reshape(-1))
-                    miss = float(np.max(_errors((Je @ correction).reshape(-1, 3), 0.0)))
+                    miss = _largest(projection.effector_motion(-judged.gradient[1:].reshape(-1)))
                 except (ConvergenceError, FloatingPointError):
                     miss = math.inf
                 allowed = MISS * alpha * motion + (1.0 - alpha) * imbalance + floor

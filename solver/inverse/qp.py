@@ -81,6 +81,7 @@ class QuadraticForm:
 
 
 _NO_ROWS: dict = {}  # n -> the (0, n) matrix and (0,) bounds of a box-only problem (no entries to change)
+_ONES: dict = {}     # n -> read-only ones(n): the scale of unscaled forms, and row sums
 
 
 def _no_rows(n: int) -> tuple:
@@ -90,58 +91,84 @@ def _no_rows(n: int) -> tuple:
     return rows
 
 
+def _ones(n: int) -> np.ndarray:
+    ones = _ONES.get(n)
+    if ones is None:
+        ones = _ONES[n] = _read_only(np.ones(n))
+    return ones
+
+
 def quadratic_form(problem: ConstraintProblem, displacement_bounds=None, *, scaled: bool = False) -> QuadraticForm:
     """The QP of paper eq. 13 with the energy regulariser (module docstring).
     ``displacement_bounds`` (lower, upper) replace the space's limits (same finite entries)."""
     space = problem.space
-    w, de, W_ea = space.effector_weights, problem.delta_e_free, problem.W_ea
-    Wsq = W_ea * w[:, None]
-    P = W_ea.T @ Wsq
-    q = Wsq.T @ de
-    c = 0.5 * float(de @ (w * de))
+    de, W_ea = problem.delta_e_free, problem.W_ea
+    if space.unit_weights:
+        P = W_ea.T.dot(W_ea)
+        q = W_ea.T.dot(de)
+        c = 0.5 * float(de.dot(de))
+    else:
+        w = space.effector_weights
+        Wsq = W_ea * w[:, None]
+        P = W_ea.T.dot(Wsq)
+        q = Wsq.T.dot(de)
+        c = 0.5 * float(de.dot(w * de))
     n = P.shape[0]
     diagonal = P.reshape(-1)[:: n + 1]  # a view of P's diagonal (P is a new C-contiguous array)
-    if problem.W_aa is not None:
-        d = np.abs(problem.W_aa.diagonal())
-    else:
-        d = diagonal.copy()
-    # An actuator with no own displacement (d = 0) would be left unregularised:
-    # floor d relative to the others so that P stays definite.
-    dmax = float(np.maximum.reduce(d))
-    floor = 1e-12 * dmax if dmax > 0 else 1.0
-    if float(np.minimum.reduce(d)) < floor:
-        d = np.maximum(d, floor)
-    s = float(np.add.reduce(diagonal / d)) / n  # the mean of Hᵢᵢ/dᵢ
-    rho = space.regularisation * (s if s > 0 else 1.0)
+    d = energy_diagonal(problem, diagonal)
+    s = float((diagonal / d).dot(_ones(n))) / n  # the mean of Hᵢᵢ/dᵢ
+    if not s > 0:
+        s = 1.0
+    rho = space.regularisation * s
     # Levenberg–Marquardt damping of the change from λ0, when asked: ½ δ s Σ dᵢ (λᵢ − λ0ᵢ)²
-    damping = problem.damping * (s if s > 0 else 1.0)
+    damping = problem.damping * s
     diagonal += (rho + damping) * d  # P = H + (ρ + δ s) diag(d), symmetric by construction (Wᵀ diag(w) W)
     if damping:
         pull = (damping * d) * problem.lambda0
-        q = q - pull
-        c += 0.5 * float(pull @ problem.lambda0)
-    dlo, dhi = (space.displacement_lower, space.displacement_upper) if displacement_bounds is None \
-        else displacement_bounds
-    rows = space.rows
+        q -= pull                   # (q is this function's own array)
+        c += 0.5 * float(pull.dot(problem.lambda0))
     lower, upper = problem.lambda_lower, problem.lambda_upper
+    rows = space.rows
     if rows.size:
+        dlo, dhi = (space.displacement_lower, space.displacement_upper) if displacement_bounds is None \
+            else displacement_bounds
         G = problem.W_aa[rows]
         row_lower = dlo[rows] - problem.delta_a_free[rows]
         row_upper = dhi[rows] - problem.delta_a_free[rows]
     else:
         G, row_lower, row_upper = _no_rows(n)
     if scaled:
-        scale = 1.0 / np.sqrt(diagonal)
+        root = np.sqrt(diagonal)
+        scale = 1.0 / root
         P *= scale[:, None] * scale  # P is this function's own array
         q = q * scale
-        lower, upper = lower / scale, upper / scale
+        lower, upper = lower * root, upper * root
         if rows.size:
-            G = G * scale[None, :]
-            unit = 1.0 / np.maximum(np.abs(G).max(axis=1), 1e-300)
-            G, row_lower, row_upper = G * unit[:, None], row_lower * unit, row_upper * unit
+            G, row_lower, row_upper = _unit_rows(G * scale, row_lower, row_upper)
     else:
-        scale = np.ones(n)
+        scale = _ones(n)
     return QuadraticForm(P, q, c, lower, upper, G, row_lower, row_upper, rows, rho, d, scale)
+
+
+def energy_diagonal(problem: ConstraintProblem, diagonal: np.ndarray | None = None) -> np.ndarray:
+    """The actuation-energy weights ``dᵢ = |W_aa,ii|`` of the regulariser (module docstring;
+    without ``W_aa``: ``diagonal``, the effector Hessian's), floored at 1e-12 of the largest so
+    that an actuator with no own displacement stays regularised. A new array."""
+    d = np.abs(problem.W_aa.diagonal()) if problem.W_aa is not None else diagonal.copy()
+    values = d.tolist()     # (finite, a problem's arrays are; few: Python's min and max beat numpy's reductions)
+    dmax = max(values)
+    floor = 1e-12 * dmax if dmax > 0 else 1.0
+    if min(values) < floor:
+        d = np.maximum(d, floor)
+    return d
+
+
+def _unit_rows(G: np.ndarray, row_lower: np.ndarray, row_upper: np.ndarray) -> tuple:
+    """Rows ``row_lower ≤ G y ≤ row_upper`` (``G``: this caller's own array) normalised to a
+    largest entry of 1 per row."""
+    unit = 1.0 / np.maximum.reduce(np.abs(G), axis=1, initial=1e-300)
+    G *= unit[:, None]
+    return G, row_lower * unit, row_upper * unit
 
 
 @dataclass
@@ -251,39 +278,49 @@ def _no_relaxation(n: int) -> np.ndarray:
 
 
 def least_effort_form(problem: ConstraintProblem, first: np.ndarray, slack, displacement_bounds, *,
-                      scaled: bool = False) -> QuadraticForm:
+                      scaled: bool = False, energy: np.ndarray | None = None) -> QuadraticForm:
     """The second stage of the least-effort QP (module docstring): ``½ Σᵢ dᵢ λᵢ²`` (d the
     actuation-energy diagonal of :func:`quadratic_form`, normalised to its largest entry) over
     the λ box, the displacement rows and the effector rows ``|W_ea (λ − first)| ≤ slack`` (m per
-    row): the efforts that keep every effector row of the first stage's answer ``first``."""
+    row): the efforts that keep every effector row of the first stage's answer ``first``.
+    ``energy``: the first stage's ``energy_diagonal`` (computed here when not given)."""
     space = problem.space
     n, W = problem.n_actuators, problem.W_ea
-    d = np.abs(problem.W_aa.diagonal()) if problem.W_aa is not None else np.einsum("ij,ij->j", W, W)
-    dmax = float(np.maximum.reduce(d))
-    d = d / dmax if dmax > 0 else np.ones(n)
-    d = np.maximum(d, 1e-12)
-    reached = W @ first
-    slack = np.broadcast_to(np.asarray(slack, dtype=float), reached.shape)
+    if energy is None:
+        energy = energy_diagonal(problem, np.einsum("ij,ij->j", W, W))
+    d = energy * (1.0 / max(energy.tolist()))
+    np.maximum(d, 1e-12, out=d)
+    reached = W.dot(first)
     dlo, dhi = displacement_bounds
     rows = space.rows
     if rows.size:
-        G = np.vstack([problem.W_aa[rows], W])
+        G = np.concatenate([problem.W_aa[rows], W])
         row_lower = np.concatenate([dlo[rows] - problem.delta_a_free[rows], reached - slack])
         row_upper = np.concatenate([dhi[rows] - problem.delta_a_free[rows], reached + slack])
     else:
-        G, row_lower, row_upper = W.copy(), reached - slack, reached + slack
-    P = np.diag(d)
+        G, row_lower, row_upper = W, reached - slack, reached + slack
     lower, upper = problem.lambda_lower, problem.lambda_upper
     if scaled:
-        scale = 1.0 / np.sqrt(d)
-        P = np.eye(n)
-        lower, upper = lower / scale, upper / scale
-        G = G * scale[None, :]
-        unit = 1.0 / np.maximum(np.abs(G).max(axis=1), 1e-300)
-        G, row_lower, row_upper = G * unit[:, None], row_lower * unit, row_upper * unit
+        root = np.sqrt(d)
+        scale = 1.0 / root
+        P = _identity(n)
+        lower, upper = lower * root, upper * root
+        G, row_lower, row_upper = _unit_rows(G * scale, row_lower, row_upper)
     else:
-        scale = np.ones(n)
+        P = np.diag(d)
+        G = G.copy() if G is W else G
+        scale = _ones(n)
     return QuadraticForm(P, np.zeros(n), 0.0, lower, upper, G, row_lower, row_upper, rows, 0.0, d, scale)
+
+
+_IDENTITY: dict = {}  # n -> read-only identity(n)
+
+
+def _identity(n: int) -> np.ndarray:
+    eye = _IDENTITY.get(n)
+    if eye is None:
+        eye = _IDENTITY[n] = _read_only(np.eye(n))
+    return eye
 
 
 def solve_constraint_problem(problem: ConstraintProblem, backend: str | QPBackend = DEFAULT_BACKEND, *,
@@ -304,24 +341,25 @@ def solve_constraint_problem(problem: ConstraintProblem, backend: str | QPBacken
     solver = get_backend(backend) if isinstance(backend, str) else backend
     start = problem.start()
     bounds, relaxation = None, None
-    if problem.space.rows.size:
+    space = problem.space
+    if space.rows.size:
         start, bounds, relaxation = _feasible_start(problem, start)
     form = quadratic_form(problem, bounds, scaled=solver.scaled)
     tol = max(tolerance * math.sqrt(2.0 * form.c), absolute_tolerance, 1e-300)
-    out = solver.solve(form, start / form.scale, tolerance=tol,
-                       max_iterations=solver.default_max_iterations if max_iterations is None else max_iterations)
-    lam = np.minimum(np.maximum(out.actuation * form.scale, problem.lambda_lower), problem.lambda_upper)
+    budget = solver.default_max_iterations if max_iterations is None else max_iterations
+    lower, upper = problem.lambda_lower, problem.lambda_upper
+    out = solver.solve(form, start / form.scale, tolerance=tol, max_iterations=budget)
+    lam = np.minimum(np.maximum(out.actuation * form.scale, lower), upper)
     iterations, status, converged = out.iterations, out.status, out.converged
+    limits = (space.displacement_lower, space.displacement_upper) if bounds is None else bounds
     if slack is not None and converged:
         # second stage: the least effort among the efforts that keep the first stage's effector gaps
-        limits = (problem.space.displacement_lower, problem.space.displacement_upper) if bounds is None else bounds
-        second = least_effort_form(problem, lam, slack, limits, scaled=solver.scaled)
-        out2 = solver.solve(second, lam / second.scale, tolerance=tol,
-                            max_iterations=solver.default_max_iterations if max_iterations is None
-                            else max_iterations)
+        second = least_effort_form(problem, lam, slack, limits, scaled=solver.scaled,
+                                   energy=form.energy_diagonal if problem.W_aa is not None else None)
+        out2 = solver.solve(second, lam / second.scale, tolerance=tol, max_iterations=budget)
         iterations += out2.iterations
         if out2.converged:
-            lam = np.minimum(np.maximum(out2.actuation * second.scale, problem.lambda_lower), problem.lambda_upper)
+            lam = np.minimum(np.maximum(out2.actuation * second.scale, lower), upper)
     de, da = problem.predict(lam)
     relaxed = relaxation is not None
     return ConstraintSolution(
@@ -329,6 +367,4 @@ def solve_constraint_problem(problem: ConstraintProblem, backend: str | QPBacken
         converged=converged, status="relaxed" if (relaxed and converged) else status,
         backend=solver.name, time_s=time.perf_counter() - t0,
         displacement_relaxation=relaxation if relaxed else _no_relaxation(lam.size),
-        regularisation_weight=form.regularisation_weight, problem=problem,
-        displacement_bounds=(problem.space.displacement_lower, problem.space.displacement_upper) if bounds is None
-        else bounds)
+        regularisation_weight=form.regularisation_weight, problem=problem, displacement_bounds=limits)

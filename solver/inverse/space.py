@@ -74,6 +74,7 @@ class ConstraintSpace:
     regularisation: float = DEFAULT_REGULARISATION
     max_change: np.ndarray | float = np.inf
     rows: np.ndarray = field(init=False, repr=False, compare=False)  # actuators with a finite displacement bound
+    unit_weights: bool = field(init=False, repr=False, compare=False)  # every effector weight is 1
 
     def __post_init__(self):
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 (frozen dataclass)
@@ -101,6 +102,7 @@ class ConstraintSpace:
                            ("regularisation", eps), ("max_change", change)):
             set_(key, value)
         set_("rows", _read_only(np.flatnonzero(np.isfinite(dlo) | np.isfinite(dhi))))
+        set_("unit_weights", bool((w == 1.0).all()))
 
     @classmethod
     def of_model(cls, model, regularisation: float = DEFAULT_REGULARISATION) -> "ConstraintSpace":
@@ -122,25 +124,70 @@ class ConstraintSpace:
     def project(self, lin, targets: np.ndarray, actuation: np.ndarray, box: tuple | None = None,
                 damping: float = 0.0) -> "Projection":
         """Project a ``solver.Linearisation`` at ``actuation`` (``λ0``) with effector ``targets``
-        (n_effectors, 3) into this space (module docstring). One banded solve for ``K⁻¹[r, B]``.
-        ``box`` (lower, upper) narrows the λ box of this one problem (a tick's, :meth:`tick_box`);
-        ``damping`` weighs the change from ``actuation`` (:class:`ConstraintProblem`)."""
-        B = lin.actuator_forces
-        rhs = np.empty((B.shape[0], 1 + B.shape[1]), order="F")  # LAPACK's layout: no copy in the solve
+        (n_effectors, 3) into this space (module docstring). ``box`` (lower, upper) narrows the λ
+        box of this one problem (a tick's, :meth:`tick_box`); ``damping`` weighs the change from
+        ``actuation`` (:class:`ConstraintProblem`).
+
+        With a Cholesky factor ``K = L Lᵀ`` (``lin.cholesky``) and ``B = Jaᵀ diag(c)``
+        (``lin.force_scale``) every product is one of halves: one triangular sweep
+        ``Z = L⁻¹[Jaᵀ, Jeᵀ, r]`` and ``[Ja; Je] K⁻¹ [B, r] = Z_aeᵀ Z diag(c, 1)`` — ``W_aa`` and
+        ``W_ea`` without the second sweep, and ``W_aa diag(c)⁻¹`` symmetric by construction. Else
+        one banded solve ``X = K⁻¹[r, B]`` and ``[Je; Ja] X``."""
+        factor, scale = lin.cholesky, lin.force_scale
+        if factor is not None and scale is not None:
+            projection = self._project_halves(lin, factor, scale, targets, actuation, box, damping)
+            if projection is not None:
+                return projection
+        # (also where the halves are not finite: here each array comes from one part of the
+        # linearisation, so the constructor's message names the array a broken part feeds)
+        Je, Ja, B = lin.effector_jacobian, lin.actuator_jacobian, lin.actuator_forces
+        rhs = np.empty((B.shape[0], 1 + B.shape[1]), order="F")  # LAPACK's layout, solved in place
         rhs[:, 0] = lin.residual
         rhs[:, 1:] = B
-        X = lin.solve(rhs)
-        JeX = lin.effector_jacobian @ X
-        JaX = lin.actuator_jacobian @ X
+        X = lin.solve(rhs, overwrite=True)
+        JeX = Je.dot(X)
+        JaX = Ja.dot(X)
         W_ea, W_aa = JeX[:, 1:], JaX[:, 1:]
+        problem, _ = self._problem(lin, W_ea, JeX[:, 0], W_aa, JaX[:, 0], JeX, JaX, targets, actuation, box,
+                                        damping)
+        return Projection(problem, JeX[:, 0].copy(), X[:, 0], X[:, 1:], lin)
+
+    def _project_halves(self, lin, factor, scale, targets, actuation, box, damping) -> "Projection | None":
+        """:meth:`project` with the halves of a Cholesky factor; None when not finite."""
+        Je, Ja = lin.effector_jacobian, lin.actuator_jacobian
+        n_act = Ja.shape[0]
+        rhs = np.empty((Ja.shape[1], n_act + Je.shape[0] + 1), order="F")   # LAPACK's layout, solved in place
+        rhs[:, :n_act] = Ja.T
+        rhs[:, n_act:-1] = Je.T
+        rhs[:, -1] = lin.residual
+        Z = factor.forward(rhs, overwrite=True)
+        products = Z[:, :-1].T.dot(Z)                    # [Ja; Je] K⁻¹ [Jaᵀ, Jeᵀ, r]
+        products[:, :n_act] *= scale
+        JaX, JeX = products[:n_act], products[n_act:]
+        problem, finite = self._problem(lin, JeX[:, :n_act], JeX[:, -1], JaX[:, :n_act], JaX[:, -1], JeX, JaX,
+                                        targets, actuation, box, damping, strict=False)
+        if not finite:
+            return None
+        return Projection(problem, JeX[:, -1].copy(), Z[:, -1], Z[:, :n_act] * scale, lin, (factor, Z[:, n_act:-1]))
+
+    def _problem(self, lin, W_ea, JeKr, W_aa, JaKr, JeX, JaX, targets, actuation, box, damping, strict=True):
+        """The :class:`ConstraintProblem` of a projection and whether it is finite (one sum over
+        everything projected: finite unless a value is not, or the sum overflows, when the
+        constructor's own check looks at each array); None when not and not ``strict``."""
         # e − target + Je K⁻¹r − W_ea λ0 and a + Ja K⁻¹r − W_aa λ0
         delta_e_free = (lin.effector_positions - targets).reshape(-1)
-        delta_e_free += JeX[:, 0]
-        delta_e_free -= W_ea @ actuation
-        delta_a_free = lin.actuator_displacements + JaX[:, 0]
-        delta_a_free -= W_aa @ actuation
-        problem = ConstraintProblem(self, W_ea, delta_e_free, W_aa, delta_a_free, actuation, box, damping)
-        return Projection(problem, X[:, 0], X[:, 1:])
+        delta_e_free += JeKr
+        delta_e_free -= W_ea.dot(actuation)
+        delta_a_free = lin.actuator_displacements + JaKr
+        delta_a_free -= W_aa.dot(actuation)
+        finite = math.isfinite(float(JeX.sum()) + float(JaX.sum()) + float(delta_e_free.dot(delta_e_free)) +
+                               float(delta_a_free.dot(delta_a_free)))
+        if finite:
+            return ConstraintProblem.projected(self, W_ea, delta_e_free, W_aa, delta_a_free, actuation, box,
+                                               damping), True
+        if not strict:
+            return None, False
+        return ConstraintProblem(self, W_ea, delta_e_free, W_aa, delta_a_free, actuation, box, damping), False
 
 
 _ONES: dict = {}  # n -> read-only ones(n), for row sums
@@ -151,6 +198,18 @@ def _ones(n: int) -> np.ndarray:
     if a is None:
         a = _ONES[n] = _read_only(np.ones(n))
     return a
+
+
+def _box(box, n: int) -> tuple:
+    """``box`` as two ordered float arrays (lower ≤ upper) of ``n`` values without NaN
+    (:class:`OptionError` otherwise)."""
+    lower, upper = box
+    if not (isinstance(lower, np.ndarray) and isinstance(upper, np.ndarray)):
+        lower, upper = (_array(f"box[{k}]", b, (n,)) for k, b in enumerate(box))
+    # (the smallest gap is NaN, never ≥ 0, when a bound is NaN)
+    if lower.shape != (n,) or upper.shape != (n,) or not float(np.minimum.reduce(upper - lower)) >= 0.0:
+        raise OptionError(f"must be two ordered arrays (lower ≤ upper) of {n} values without NaN", field="box")
+    return lower, upper
 
 
 def _array(name: str, value, shape: tuple) -> np.ndarray:
@@ -222,13 +281,21 @@ class ConstraintProblem:
             if not (math.isfinite(self.damping) and self.damping > 0) or lambda0 is None:
                 raise OptionError(f"must be finite and ≥ 0, with lambda0, got {self.damping}", field="damping")
         if self.box is not None:
-            lower, upper = self.box
-            if not (isinstance(lower, np.ndarray) and isinstance(upper, np.ndarray)):
-                lower, upper = (_array(f"box[{k}]", b, (n,)) for k, b in enumerate(self.box))
-                object.__setattr__(self, "box", (lower, upper))
-            if lower.shape != (n,) or upper.shape != (n,) or not (lower <= upper).all():   # (False for NaN)
-                raise OptionError(f"must be two ordered arrays (lower ≤ upper) of {n} values without NaN",
-                                  field="box")
+            object.__setattr__(self, "box", _box(self.box, n))
+
+    @classmethod
+    def projected(cls, space: ConstraintSpace, W_ea, delta_e_free, W_aa, delta_a_free, lambda0, box=None,
+                  damping: float = 0.0) -> "ConstraintProblem":
+        """The problem of :meth:`ConstraintSpace.project`, whose arrays have the space's shapes by
+        construction and have been checked finite there (with ``lambda0`` inside the space's box,
+        and ``box`` from :meth:`ConstraintSpace.tick_box`): stored as they are, without the
+        constructor's conversions and checks."""
+        problem = object.__new__(cls)
+        for key, value in (("space", space), ("W_ea", W_ea), ("delta_e_free", delta_e_free), ("W_aa", W_aa),
+                           ("delta_a_free", delta_a_free), ("lambda0", lambda0),
+                           ("box", None if box is None else _box(box, space.n_actuators)), ("damping", damping)):
+            object.__setattr__(problem, key, value)
+        return problem
 
     @property
     def n_actuators(self) -> int:
@@ -255,20 +322,36 @@ class ConstraintProblem:
 
     def predict(self, lam: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """Linearised effector gaps ``δe(λ)`` and actuator displacements ``δa(λ)`` (None without ``W_aa``)."""
-        de = self.delta_e_free + self.W_ea @ lam
-        da = None if self.W_aa is None else self.delta_a_free + self.W_aa @ lam
+        de = self.delta_e_free + self.W_ea.dot(lam)
+        da = None if self.W_aa is None else self.delta_a_free + self.W_aa.dot(lam)
         return de, da
 
 
 @dataclass
 class Projection:
-    """A linearisation projected into constraint space: the problem and ``K⁻¹r``, ``K⁻¹B``."""
+    """A linearisation projected into constraint space: the problem, the effectors' motion
+    ``Je K⁻¹r`` towards the equilibrium under ``λ0``, and what a state change needs — ``K⁻¹r`` and
+    ``K⁻¹B`` (``free``, ``per_actuator``), or with a Cholesky factor their halves ``L⁻¹r``,
+    ``L⁻¹B`` and the factor whose ``L⁻ᵀ`` completes them (``halves``: the factor and
+    ``L⁻¹Jeᵀ``)."""
 
     problem: ConstraintProblem
-    K_inv_r: np.ndarray  # (n_dof,)
-    K_inv_B: np.ndarray  # (n_dof, n_actuators)
+    Je_K_inv_r: np.ndarray     # (n_rows,)
+    free: np.ndarray           # (n_dof,) K⁻¹r, or L⁻¹r
+    per_actuator: np.ndarray   # (n_dof, n_actuators) K⁻¹B, or L⁻¹B
+    lin: object = field(repr=False, default=None)     # the linearisation projected
+    halves: tuple | None = field(repr=False, default=None)
 
     def state_change(self, actuation: np.ndarray) -> np.ndarray:
         """``dq(λ) = K⁻¹r + K⁻¹B (λ − λ0)`` (paper eq. 10): the linearised motion to the
         equilibrium under ``actuation``."""
-        return self.K_inv_r + self.K_inv_B @ (actuation - self.problem.lambda0)
+        dq = self.free + self.per_actuator.dot(actuation - self.problem.lambda0)
+        return dq if self.halves is None else self.halves[0].backward(dq, overwrite=True)
+
+    def effector_motion(self, force: np.ndarray) -> np.ndarray:
+        """``Je K⁻¹ force`` (n_rows,): how far the effectors move under an out-of-balance
+        ``force`` (n_dof,) by the linearisation's tangent."""
+        if self.halves is None:
+            return self.lin.effector_jacobian.dot(self.lin.solve(force))
+        factor, Ze = self.halves
+        return Ze.T.dot(factor.forward(force))

@@ -31,6 +31,7 @@ ROTATION = 0.25       # start rotation radius, rad
 GROWTH, SHRINK = 2.0, 0.25
 LARGEST, SMALLEST = 4.0, 1.0 / 1024.0   # radii bounds, relative to their start
 GOOD, POOR = 0.75, 0.25                  # step quality that grows / shrinks the region
+_THREE = np.ones(3)
 
 
 @dataclass
@@ -59,7 +60,7 @@ class TrustRegion:
         radius (``rotation`` for axis effectors, ``translation`` for points)."""
         gap = targets - positions
         flat = gap.reshape(-1)
-        if float(flat @ flat) <= min(self.translation, self.rotation) ** 2:   # (every gap is shorter)
+        if float(flat.dot(flat)) <= min(self.translation, self.rotation) ** 2:   # (every gap is shorter)
             return targets
         radius = np.where(is_axis, self.rotation, self.translation)
         distance = np.sqrt(np.add.reduce(gap * gap, 1))
@@ -70,7 +71,7 @@ class TrustRegion:
 
     def fraction(self, dq: np.ndarray) -> float:
         """The largest ``α ≤ 1`` with ``α·dq`` within the radii (``dq``: ``[dx; dφ]`` per frame)."""
-        squared = np.maximum.reduce(np.add.reduce((dq * dq).reshape(-1, 2, 3), 2)).tolist()  # largest |dx|², |dφ|²
+        squared = np.maximum.reduce((dq * dq).reshape(-1, 3).dot(_THREE).reshape(-1, 2)).tolist()  # largest |dx|², |dφ|²
         return min(1.0, self.translation / max(math.sqrt(squared[0]), 1e-300),
                    self.rotation / max(math.sqrt(squared[1]), 1e-300))
 

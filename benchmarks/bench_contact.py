@@ -1,0 +1,119 @@
+"""Contact (docs/contact.md): what a solve with pressed contacts costs against the same robot's
+contact-free solve, and do random tendon robots whose holes would meet converge once their
+discs are declared?
+
+    python -m benchmarks.bench_contact [--rounds 9] [--robots 30]
+
+* cost: a 20-vertebra trunk (a capsule backbone) sagging under gravity until its outer part
+  lies on a floor (five frames pressed), against the same trunk without the floor (no contact
+  model); solves from rest, interleaved A, B, A, B … and medians reported.
+* robots: tests/robots.py's random tendon robots with their tensions tripled, without discs
+  (how many are refused because cable holes meet) and with discs (1.2 × the widest hole, 20 %
+  of the shortest spacing thick) on every vertebra and the base.
+
+Writes benchmarks/results/contact.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+
+import numpy as np
+
+from benchmarks.common import RESULTS, ROOT, loadavg, log, now, write_json
+from vertebra import __version__, solver
+
+VERTEBRAE, SPACING, RADIUS, E = 20, 0.01, 0.001, 2e9
+FLOOR = 0.025          # m: the tip would sag 0.168 m; five frames come to lie on the floor
+
+
+def trunk(floor: bool, gravity: float = 20.0) -> dict:
+    """The 20-vertebra trunk along +z sagging under gravity along −x; with ``floor``, a plane
+    ``FLOOR`` m below its axis that its outer part comes to lie on."""
+    scene = {"segment": [{"type": "beam", "count": VERTEBRAE, "length": SPACING, "youngs_modulus": E,
+                          "poisson_ratio": 0.3, "section": {"shape": "circle", "radius": RADIUS},
+                          "vertebra": {"mass": 0.002}}],
+             "gravity": {"vector": [-gravity, 0.0, 0.0]}}
+    if floor:
+        scene["segment"][0]["contact_radius"] = RADIUS
+        scene["obstacle"] = [{"type": "plane", "point": [-FLOOR, 0.0, 0.0], "normal": [1.0, 0.0, 0.0]}]
+    return scene
+
+
+def cost(rounds: int) -> dict:
+    with_stops = solver.build_model(solver.parse_scene(trunk(True)))
+    without = solver.build_model(solver.parse_scene(trunk(False)))
+    first = with_stops.solve()
+    pressed = [c for c in first.contacts if c.force > 0.0]
+    times = {"contact": [], "free": []}
+    iterations = {"contact": first.iterations, "free": without.solve().iterations}
+    for _ in range(rounds):
+        for name, model in (("contact", with_stops), ("free", without)):
+            start = time.perf_counter()
+            result = model.solve()
+            times[name].append(time.perf_counter() - start)
+            assert result.converged
+    medians = {name: float(np.median(t)) for name, t in times.items()}
+    return {"vertebrae": VERTEBRAE, "links": with_stops.n_frames - 1, "pressed_contacts": len(pressed),
+            "candidate_contacts": len(first.contacts), "iterations": iterations,
+            "median_s": medians, "ratio": medians["contact"] / medians["free"],
+            "times_s": times, "largest_penetration_m": float(max(0.0, -min(c.gap for c in first.contacts))),
+            "largest_gap_times_force": float(max(abs(c.gap * c.force) for c in first.contacts))}
+
+
+def robots(count: int) -> dict:
+    sys.path.insert(0, str(ROOT / "tests"))
+    from robots import tendon_robot
+
+    rows = []
+    for seed in range(count):
+        scene = tendon_robot(np.random.default_rng(seed))
+        for cable in scene["cable"]:
+            cable["tension"] *= 3.0
+            cable["max_tension"] = max(cable["max_tension"], cable["tension"])
+        plain = solver.build_model(solver.parse_scene(scene)).solve(raise_on_failure=False)
+        holes = max(c["radius"] for c in scene["cable"])
+        spacing = min(s["length"] for s in scene["segment"])
+        disc = {"disc_radius": 1.2 * holes, "disc_thickness": 0.2 * spacing}
+        scene["segment"] = [dict(s, vertebra=dict(s.get("vertebra", {}), **disc)) for s in scene["segment"]]
+        scene["base"] = dict(disc)
+        model = solver.build_model(solver.parse_scene(scene))
+        start = time.perf_counter()
+        result = model.solve(raise_on_failure=False)
+        elapsed = time.perf_counter() - start
+        rows.append({"seed": seed, "holes_meet_without_discs": "holes of the two vertebrae meet" in plain.message,
+                     "converged_without_discs": bool(plain.converged), "converged": bool(result.converged),
+                     "iterations": int(result.iterations), "load_stages": int(result.load_steps),
+                     "pressed": sum(c.force > 0.0 for c in result.contacts),
+                     "deepest_gap_m": float(min((c.gap for c in result.contacts), default=0.0)),
+                     "solve_s": elapsed, "message": result.message})
+        log(f"robot {seed}: converged {result.converged} ({result.iterations} iterations, {elapsed:.2f} s)")
+    return {"robots": count, "converged": sum(r["converged"] for r in rows),
+            "holes_meet_without_discs": sum(r["holes_meet_without_discs"] for r in rows),
+            "converged_of_those": sum(r["converged"] for r in rows if r["holes_meet_without_discs"]),
+            "median_iterations": float(np.median([r["iterations"] for r in rows])), "rows": rows}
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--rounds", type=int, default=9)
+    parser.add_argument("--robots", type=int, default=30)
+    args = parser.parse_args(argv)
+    result = {"vertebra_version": __version__, "date": now(), "loadavg": loadavg(),
+              "machine": "2 cores shared with other jobs: ratios are interleaved medians",
+              "cost": cost(args.rounds), "random_robots": robots(args.robots)}
+    c, r = result["cost"], result["random_robots"]
+    print(f"cost: {c['pressed_contacts']} pressed contacts, {c['median_s']['contact'] * 1e3:.2f} ms vs "
+          f"{c['median_s']['free'] * 1e3:.2f} ms contact-free: {c['ratio']:.2f}x "
+          f"({c['iterations']['contact']} vs {c['iterations']['free']} iterations)")
+    print(f"random robots: {r['converged']}/{r['robots']} converge with discs; "
+          f"{r['holes_meet_without_discs']} were refused without (holes meet), {r['converged_of_those']} of them converge")
+    write_json(result, RESULTS / "contact.json")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

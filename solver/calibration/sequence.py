@@ -1,0 +1,104 @@
+"""Predictions of time-ordered samples with tendon friction (docs/friction.md).
+
+With friction the pose under a command depends on the commands before it: the samples of a data
+file are then one sequence in file order (each row a command applied to the state the row
+before left, the first from rest), solved with the friction state carried from row to row
+(:meth:`~vertebra.solver.model.TrunkModel.solve` with ``history``). Without friction (every
+``friction`` element 0) :class:`SequencePredictor` is the :class:`RuntimePredictor` itself.
+
+Derivatives with friction are forward differences of the whole sequence (a parameter changes
+the path, not only the equilibrium at one command): one sequence per model parameter
+(stiffness, hole geometry, tendon spring rate and pretension, friction); the measurement frame
+and the marker offsets act after the solve and are differenced on the solved states.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from vertebra.core.errors import ConvergenceError
+from vertebra.core.lie import so3_exp
+from vertebra.solver.calibration.backend import Prediction, RuntimePredictor
+from vertebra.solver.calibration.fit_parameters import Values
+
+__all__ = ["SequencePredictor"]
+
+# forward-difference steps, times the element's typical size (backend's, and 1 for μ): above the
+# equilibria's tolerance-limited noise carried along a sequence
+SEQUENCE_STEP = 1e-4
+OUTPUT_STEP = 1e-7
+SOLVED_KINDS = ("stiffness", "angle", "radius", "cable_stiffness", "pretension", "friction")
+
+
+class SequencePredictor(RuntimePredictor):
+    """The samples as one time-ordered sequence of commands (module docstring)."""
+
+    def __init__(self, scene, mapping, model=None):
+        super().__init__(scene, mapping, model)
+        self._kept = None        # (key, markers, states) of the last sequence solved
+
+    def _set(self, values: Values) -> None:
+        super()._set(values)
+        if not np.array_equal(self.model.parameters.friction, values.friction):
+            self.model.set_parameters(friction=values.friction)
+
+    def predict(self, values: Values, samples, wrt=()) -> Prediction:
+        if not np.any(values.friction) and not any(kind == "friction" for kind, _ in wrt):
+            return super().predict(values, samples, wrt)
+        t0 = time.perf_counter()
+        markers, states = self._sequence(values, samples)
+        solve_s = time.perf_counter() - t0
+        derivatives = None
+        if wrt:
+            derivatives = np.stack([self._difference(values, samples, element, markers, states)
+                                    for element in wrt], -1)
+            self._set(values)
+        return Prediction(markers.copy(), derivatives, solve_s, time.perf_counter() - t0 - solve_s)
+
+    def _sequence(self, values: Values, samples, keep: bool = True):
+        """Markers (n, n_markers, 3) and states of the samples solved in order under ``values``
+        (``keep``: remember them for a call with the same values and samples)."""
+        key = (samples.source, len(samples), samples.commands.tobytes(),
+               tuple(getattr(values, f).tobytes() for f in ("stiffness", "angle", "radius", "cable_stiffness",
+                                                            "pretension", "frame", "marker", "friction")))
+        if self._kept is not None and self._kept[0] == key:
+            return self._kept[1], self._kept[2]
+        self._set(values)
+        model = self.model
+        history = state = None
+        states = []
+        for i, command in enumerate(samples.commands):
+            result = model.solve(self._actuation(values, command), state, history=history, raise_on_failure=False)
+            if not result.converged:
+                raise ConvergenceError(f"{samples.source}: sample {i}: the frictional equilibrium did not converge "
+                                       f"({result.message})", result)
+            history, state = result.friction, result.state
+            states.append(state)
+        markers = self._observe(values, states)
+        if keep:
+            self._kept = (key, markers, states)
+        return markers, states
+
+    def _observe(self, values: Values, states) -> np.ndarray:
+        Rf = so3_exp(values.frame[3:])
+        return np.stack([self._markers(state, values.marker)[0] @ Rf.T + values.frame[:3] for state in states])
+
+    def _difference(self, values: Values, samples, element, markers, states) -> np.ndarray:
+        """(n, n_markers, 3): the markers' forward difference in one element."""
+        kind, index = element
+        if kind in SOLVED_KINDS:
+            typical = {"radius": self.rest_radius[index] if kind == "radius" else 1.0,
+                       "cable_stiffness": values.cable_stiffness[index] if kind == "cable_stiffness" else 1.0,
+                       "pretension": values.cable_stiffness[index] * float(self.model.length_scale)
+                       if kind == "pretension" else 1.0}.get(kind, 1.0)
+            h = SEQUENCE_STEP * typical
+        else:
+            h = OUTPUT_STEP * (1.0 if kind == "frame" and index >= 3 else float(self.model.length_scale))
+        changed = values.with_elements([((kind, index), values.get(kind, index) + h)])
+        if kind in SOLVED_KINDS:
+            moved = self._sequence(changed, samples, keep=False)[0]
+        else:
+            moved = self._observe(changed, states)
+        return (moved - markers) / h

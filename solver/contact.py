@@ -1,0 +1,730 @@
+"""Unilateral contact (docs/contact.md): vertebra discs touching each other, and discs and
+capsule-shaped segments touching the scene's obstacles.
+
+The model is a set of gaps ``g_i(q) ≥ 0`` with contact forces ``λ_i ≥ 0`` and ``g_i λ_i = 0``.
+Equilibrium minimises the potential ``E`` subject to the gaps: its Lagrangian is ``E − λᵀg``
+and ``∇E = Gᵀλ`` with ``G = ∂g/∂q``. The forward solve (:mod:`vertebra.solver.newton`) takes
+sequential-QP steps: at a state with residual ``r = −∇E`` and the banded factor of the
+(shifted) tangent ``K``, the step minimises ``−rᵀp + ½ pᵀKp`` subject to the linearised gaps
+``g + Gp ≥ 0``. Condensed on the contacts (the paper's compliance projection onto the contact
+directions), that is the linear complementarity problem
+
+    ``w = g + G K⁻¹ r + W λ ≥ 0,  λ ≥ 0,  wᵀλ = 0,   W = G K⁻¹ Gᵀ``
+
+(the Delassus operator: one back-substitution of the banded factor per candidate contact),
+solved exactly by principal pivoting (:func:`complementarity`); then ``p = K⁻¹(r + Gᵀλ)``.
+The line search judges steps on the Lagrangian ``E − λᵀg`` at the new multipliers, along
+which ``p`` descends (``−(r + Gᵀλ)ᵀp = −pᵀKp``).
+
+Shapes. A vertebra with ``disc_radius > 0`` carries a disc of that radius and
+``disc_thickness`` centred on its frame in the frame's x–y plane. Adjacent discs touch rim
+to face: the rim of the smaller disc (the upper one when equal) against the plane of the
+other's facing side. A disc meets obstacles through the rims of its two faces (the closest
+point of each rim circle). A segment with ``contact_radius`` is a chain of capsules along the
+chords between its frames: its frames are balls of that radius, and a chord's interior meets
+an obstacle where it is closer than both ends. The closest point of a rim or a chord to an
+obstacle is closed-form for planes and spheres and found by golden-section search for the
+other types; its gap's derivative is that of the closest point held fixed on the body (the
+envelope theorem).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from vertebra.core.errors import SceneError
+from vertebra.core.lie import qmatrix
+from vertebra.solver.obstacles import Plane, Sphere
+
+RIM, BALL, CHORD, PAIR = 0, 1, 2, 3          # kinds of contact
+KIND_NAMES = ("disc", "frame", "segment", "disc")
+SAMPLES = 16                 # starting samples of the golden-section search on a rim
+CHORD_SAMPLES = 8            # … and on a chord
+GOLDEN = 0.5 * (math.sqrt(5.0) - 1.0)
+GOLDEN_STEPS = 48            # shrinks the bracket by 1e-10
+MARGIN = 0.25                # candidate contacts: a gap below this share of the trunk's length
+GAP_TOLERANCE = 1e-10        # a converged state's deepest penetration, per trunk length
+ACTIVE_GAP = 1e-12           # a pressed contact's gap at convergence, per trunk length
+REGULARISATION = 1e-12       # of the largest diagonal of W: redundant contacts stay solvable
+STABILITY_SPRING = 1e6       # the springs (× the stiffness along the contact) that judge a constrained
+                             # equilibrium's stability …
+STEP_SPRING = 10.0           # … and that convexify a Newton step's model (augmented Lagrangian)
+PIVOTS = 200                 # principal pivoting steps per contact before the QP is refused
+
+
+@dataclass(frozen=True, eq=False)
+class ContactModel:
+    """What a trunk can touch: discs, capsule segments and obstacles (compiled once)."""
+
+    obstacles: tuple
+    disc_frame: np.ndarray        # (d,) frame of each disc
+    disc_vertebra: np.ndarray     # (d,) its vertebra
+    disc_radius: np.ndarray       # (d,)
+    disc_thickness: np.ndarray    # (d,)
+    pair: np.ndarray              # (p, 2) discs (rim disc, face disc) of adjacent vertebrae
+    pair_side: np.ndarray         # (p, 2) ±1: the side (along z) of each disc that faces the other
+    ball_frame: np.ndarray        # (b,) frames of capsule segments
+    ball_radius: np.ndarray       # (b,)
+    chord: np.ndarray             # (c,) links of capsule segments (link k joins frames k, k + 1)
+    chord_radius: np.ndarray      # (c,)
+    length: float                 # the trunk's length: the scale of gaps
+    vertebra_of_frame: np.ndarray # (n_frames,) the vertebra a frame belongs to (its repetition's end)
+
+    @property
+    def margin(self) -> float:
+        return MARGIN * self.length
+
+
+@dataclass
+class ContactSet:
+    """Contacts at one state (``m`` of them): which bodies, where, how far apart."""
+
+    key: np.ndarray               # (m, 3) kind, feature, obstacle (−1 for disc pairs)
+    gap: np.ndarray               # (m,) signed distance (m); < 0 penetrates
+    point: np.ndarray             # (m, 3) the contact point on the body (world)
+    normal: np.ndarray            # (m, 3) unit normal pushing the body away (world)
+    frames: np.ndarray            # (m, 2) frames the gap depends on (−1: none)
+    rows: np.ndarray              # (m, 2, 6) ∂g/∂q of those frames ([dx; dφ], world axes)
+    origin: np.ndarray            # (m, 2, 3) the positions of those frames (world)
+    slide: np.ndarray             # (m, 2, 3) the body point's first and second derivatives along
+                                  # the rim's angle or the chord's parameter (zero for a ball)
+
+    @property
+    def count(self) -> int:
+        return self.gap.size
+
+    def jacobian(self, n_frames: int) -> np.ndarray:
+        """``G = ∂g/∂q`` (m, 6·(n_frames − 1)) on the free frames (frame 0 is clamped)."""
+        G = np.zeros((self.count, n_frames, 6))
+        for side in range(2):
+            frame = self.frames[:, side]
+            used = frame > 0
+            np.add.at(G, (np.flatnonzero(used), frame[used]), self.rows[used, side])
+        return G[:, 1:].reshape(self.count, -1)
+
+    def forces(self, multipliers: np.ndarray, n_frames: int) -> np.ndarray:
+        """The contact forces' generalised forces ``Gᵀλ`` (n_frames, 6) on every frame."""
+        out = np.zeros((n_frames, 6))
+        for side in range(2):
+            frame = self.frames[:, side]
+            used = frame >= 0
+            np.add.at(out, frame[used], multipliers[used, None] * self.rows[used, side])
+        return out
+
+    def select(self, keys: np.ndarray) -> "ContactSet":
+        """The contacts with the given keys, in their order (each must be present)."""
+        index = {tuple(k): i for i, k in enumerate(self.key.tolist())}
+        take = np.array([index[tuple(k)] for k in keys.tolist()], int)
+        return ContactSet(self.key[take], self.gap[take], self.point[take], self.normal[take], self.frames[take],
+                          self.rows[take], self.origin[take], self.slide[take])
+
+
+# ---------------------------------------------------------------------------------------------
+# compiling a scene's contact shapes
+
+
+def compile_contact(scene, frames, links_segment: np.ndarray) -> ContactModel | None:
+    """The contact model of a scene (None when it declares no disc, capsule or obstacle: the
+    solve then runs without any contact code)."""
+    vertebrae = [segment.vertebra for segment in scene.segments for _ in range(segment.count)]
+    base = getattr(scene, "base_disc", (0.0, 0.0))
+    radius = np.array([base[0]] + [v.disc_radius for v in vertebrae], float)
+    thickness = np.array([base[1]] + [v.disc_thickness for v in vertebrae], float)
+    capsule = np.array([segment.contact_radius if segment.contact_radius is not None else -1.0
+                        for segment in scene.segments], float)
+    obstacles = tuple(getattr(scene, "obstacles", ()))
+    if not (np.any(radius > 0.0) or np.any(capsule >= 0.0) or obstacles):
+        return None
+    has_disc = np.flatnonzero(radius > 0.0)
+    disc_frame = np.asarray(frames.vertebra)[has_disc]
+    position = np.searchsorted(has_disc, has_disc)
+    adjacent = np.flatnonzero(np.diff(has_disc) == 1)
+    # the smaller disc's rim meets the larger one's face (the upper one's rim when equal)
+    lower, upper = position[adjacent], position[adjacent + 1]
+    upper_rim = radius[has_disc][upper] <= radius[has_disc][lower]
+    pair = np.stack([np.where(upper_rim, upper, lower), np.where(upper_rim, lower, upper)], 1).reshape(-1, 2)
+    pair_side = np.stack([np.where(upper_rim, -1.0, 1.0), np.where(upper_rim, 1.0, -1.0)], 1).reshape(-1, 2)
+    chord = np.flatnonzero(capsule[links_segment] >= 0.0)
+    chord_radius = capsule[links_segment][chord]
+    ball_radius = np.full(frames.count, -1.0)
+    np.maximum.at(ball_radius, chord, chord_radius)
+    np.maximum.at(ball_radius, chord + 1, chord_radius)
+    ball_frame = np.flatnonzero(ball_radius >= 0.0)
+    vertebra_of_frame = np.searchsorted(np.asarray(frames.vertebra), np.arange(frames.count))
+    model = ContactModel(obstacles, disc_frame, has_disc, radius[has_disc], thickness[has_disc], pair, pair_side,
+                         ball_frame, ball_radius[ball_frame], chord, chord_radius, float(frames.length_scale),
+                         vertebra_of_frame)
+    for array in (model.disc_frame, model.disc_vertebra, model.disc_radius, model.disc_thickness, model.pair,
+                  model.pair_side, model.ball_frame, model.ball_radius, model.chord, model.chord_radius,
+                  model.vertebra_of_frame):
+        array.flags.writeable = False
+    return model
+
+
+def check_rest(model: ContactModel, state, source: str) -> None:
+    """Refuse a scene whose discs overlap, or whose trunk is inside an obstacle, at rest."""
+    found = evaluate(model, state)
+    tolerance = GAP_TOLERANCE * model.length
+    bad = np.flatnonzero(found.gap < -tolerance)
+    if bad.size:
+        k = bad[int(np.argmin(found.gap[bad]))]
+        raise SceneError(f"at rest {describe(model, found.key[k])} overlap by {-found.gap[k]:.3g} m: the contact "
+                         "model needs a state without penetration to start from (check disc_thickness against the "
+                         "vertebra spacing, and the obstacles' placement)", file=source,
+                         field="obstacle" if found.key[k, 0] != PAIR else "segment")
+
+
+def describe(model: ContactModel, key) -> str:
+    """The bodies of a contact in words."""
+    kind, feature, obstacle = (int(v) for v in key)
+    if kind == PAIR:
+        a, b = model.disc_vertebra[model.pair[feature]]
+        return f"the discs of vertebrae {min(a, b)} and {max(a, b)}"
+    if kind == RIM:
+        body = f"the disc of vertebra {int(model.disc_vertebra[feature // 2])}"
+    elif kind == BALL:
+        body = f"frame {int(model.ball_frame[feature])} (vertebra {int(model.vertebra_of_frame[model.ball_frame[feature]])})"
+    else:
+        body = f"link {int(model.chord[feature])}"
+    return f"{body} and obstacle {obstacle} ({model.obstacles[obstacle].type})"
+
+
+def bodies(model: ContactModel, key) -> tuple[str, str]:
+    """The two bodies of a contact as short labels (JSON)."""
+    kind, feature, obstacle = (int(v) for v in key)
+    if kind == PAIR:
+        a, b = sorted(int(v) for v in model.disc_vertebra[model.pair[feature]])
+        return f"vertebra {a} disc", f"vertebra {b} disc"
+    if kind == RIM:
+        body = f"vertebra {int(model.disc_vertebra[feature // 2])} disc"
+    elif kind == BALL:
+        body = f"frame {int(model.ball_frame[feature])}"
+    else:
+        body = f"link {int(model.chord[feature])}"
+    return body, f"obstacle {obstacle} ({model.obstacles[obstacle].type})"
+
+
+# ---------------------------------------------------------------------------------------------
+# gaps at a state
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross products of (k, 3) arrays (numpy's is slow on small stacks)."""
+    a, b = np.broadcast_arrays(a, b)
+    out = np.empty(a.shape)
+    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    return out
+
+
+def _golden(distance, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """The minimiser of each ``distance(s)`` (batched) in ``[low, high]`` by golden-section search."""
+    a, b = low.copy(), high.copy()
+    c, d = b - GOLDEN * (b - a), a + GOLDEN * (b - a)
+    fc, fd = distance(c), distance(d)
+    for _ in range(GOLDEN_STEPS):
+        left = fc < fd
+        b = np.where(left, d, b)
+        a = np.where(left, a, c)
+        c_new = np.where(left, b - GOLDEN * (b - a), d)
+        d_new = np.where(left, c, a + GOLDEN * (b - a))
+        moved = np.where(left, c_new, d_new)
+        f_moved = distance(moved)
+        fd, fc = np.where(left, fc, f_moved), np.where(left, f_moved, fd)
+        c, d = c_new, d_new
+    return 0.5 * (a + b)
+
+
+def _rim_points(center, e1, e2, radius, angle):
+    return center + radius[:, None] * (np.cos(angle)[:, None] * e1 + np.sin(angle)[:, None] * e2)
+
+
+def _lowest_on_rim(center, axis, e1, radius, direction):
+    """The rim point farthest along ``−direction`` (a plane's normal projected on the disc)."""
+    inplane = direction - np.add.reduce(direction * axis, -1)[:, None] * axis
+    norm = np.sqrt(np.add.reduce(inplane * inplane, -1))
+    u = np.where((norm > 1e-12)[:, None], inplane / np.maximum(norm, 1e-300)[:, None], e1)
+    return center - radius[:, None] * u
+
+
+def _rims(model, R, x, features, obstacle):
+    """Closest points of disc rims (feature 2d: the lower face of disc d, 2d + 1 its upper face)."""
+    disc = features // 2
+    side = np.where(features % 2, 0.5, -0.5)
+    frame = model.disc_frame[disc]
+    axes = R[frame]
+    e1, e2, axis = axes[:, :, 0], axes[:, :, 1], axes[:, :, 2]
+    center = x[frame] + (side * model.disc_thickness[disc])[:, None] * axis
+    radius = model.disc_radius[disc]
+    if isinstance(obstacle, Plane):
+        point = _lowest_on_rim(center, axis, e1, radius, np.broadcast_to(obstacle.normal, center.shape))
+    elif isinstance(obstacle, Sphere):
+        point = _lowest_on_rim(center, axis, e1, radius, center - obstacle.center)
+    else:
+        samples = 2.0 * math.pi * np.arange(SAMPLES) / SAMPLES
+        trial = _rim_points(np.repeat(center, SAMPLES, 0), np.repeat(e1, SAMPLES, 0), np.repeat(e2, SAMPLES, 0),
+                            np.repeat(radius, SAMPLES), np.tile(samples, center.shape[0]))
+        start = samples[np.argmin(obstacle.closest(trial)[0].reshape(-1, SAMPLES), 1)]
+        width = 2.0 * math.pi / SAMPLES
+        angle = _golden(lambda s: obstacle.closest(_rim_points(center, e1, e2, radius, s))[0],
+                        start - width, start + width)
+        point = _rim_points(center, e1, e2, radius, angle)
+    distance, normal, _ = obstacle.closest(point)
+    rows = np.zeros((features.size, 2, 6))
+    rows[:, 0, :3] = normal
+    rows[:, 0, 3:] = _cross(point - x[frame], normal)
+    return (distance, point, normal, np.stack([frame, np.full(frame.size, -1)], 1), rows,
+            np.stack([_cross(axis, point - center), center - point], 1))
+
+
+def _balls(model, R, x, features, obstacle):
+    frame = model.ball_frame[features]
+    distance, normal, _ = obstacle.closest(x[frame])
+    radius = model.ball_radius[features]
+    rows = np.zeros((features.size, 2, 6))
+    rows[:, 0, :3] = normal
+    return (distance - radius, x[frame] - radius[:, None] * normal, normal,
+            np.stack([frame, np.full(frame.size, -1)], 1), rows, np.zeros((features.size, 2, 3)))
+
+
+def _chords(model, R, x, features, obstacle, ends=False):
+    """Closest interior points of chords (where the ends are farther: a ball covers an end; an
+    end found is kept only with ``ends``: a contact followed from one state to the next)."""
+    link = model.chord[features]
+    a, b = x[link], x[link + 1]
+    if isinstance(obstacle, Plane):
+        t = np.zeros(link.size)          # a plane is closest at an end
+    elif isinstance(obstacle, Sphere):
+        ab = b - a
+        t = np.clip(np.add.reduce((obstacle.center - a) * ab, -1) / np.maximum(np.add.reduce(ab * ab, -1), 1e-300),
+                    0.0, 1.0)
+    else:
+        samples = np.linspace(0.0, 1.0, CHORD_SAMPLES + 1)
+        trial = a[:, None] + samples[None, :, None] * (b - a)[:, None]
+        start = samples[np.argmin(obstacle.closest(trial.reshape(-1, 3))[0].reshape(link.size, -1), 1)]
+        width = 1.0 / CHORD_SAMPLES
+        t = _golden(lambda s: obstacle.closest(a + s[:, None] * (b - a))[0],
+                    np.maximum(start - width, 0.0), np.minimum(start + width, 1.0))
+    interior = (t > 1e-9) & (t < 1.0 - 1e-9)
+    point = a + t[:, None] * (b - a)
+    distance, normal, _ = obstacle.closest(point)
+    radius = model.chord_radius[features]
+    rows = np.zeros((features.size, 2, 6))
+    rows[:, 0, :3] = (1.0 - t)[:, None] * normal
+    rows[:, 1, :3] = t[:, None] * normal
+    gap = distance - radius if ends else np.where(interior, distance - radius, np.inf)
+    return (gap, point - radius[:, None] * normal, normal, np.stack([link, link + 1], 1), rows,
+            np.stack([b - a, np.zeros_like(a)], 1))
+
+
+def _pairs(model, R, x, features):
+    """Adjacent discs: the rim of one against the plane of the other's facing side."""
+    rim, face = model.pair[features, 0], model.pair[features, 1]
+    rim_side, face_side = model.pair_side[features, 0], model.pair_side[features, 1]
+    fa, fb = model.disc_frame[rim], model.disc_frame[face]
+    rim_axis, face_axis = R[fa][:, :, 2], R[fb][:, :, 2]
+    m = face_side[:, None] * face_axis                        # the face's outward normal
+    face_point = x[fb] + (0.5 * face_side * model.disc_thickness[face])[:, None] * face_axis
+    center = x[fa] + (0.5 * rim_side * model.disc_thickness[rim])[:, None] * rim_axis
+    point = _lowest_on_rim(center, rim_axis, R[fa][:, :, 0], model.disc_radius[rim], m)
+    gap = np.add.reduce((point - face_point) * m, -1)
+    rows = np.empty((features.size, 2, 6))
+    rows[:, 0, :3] = m
+    rows[:, 0, 3:] = _cross(point - x[fa], m)
+    rows[:, 1, :3] = -m
+    rows[:, 1, 3:] = -_cross(point - x[fb], m)
+    return gap, point, m, np.stack([fa, fb], 1), rows, np.stack([_cross(rim_axis, point - center), center - point], 1)
+
+
+_FEATURES = {RIM: _rims, BALL: _balls, CHORD: _chords}
+
+
+def _counts(model) -> dict:
+    return {RIM: 2 * model.disc_frame.size, BALL: model.ball_frame.size, CHORD: model.chord.size}
+
+
+def evaluate(model: ContactModel, state, keys: np.ndarray | None = None) -> ContactSet:
+    """The contacts at ``state``: every candidate whose gap is below the margin (``keys`` None:
+    the broad phase — the margin around each obstacle's bounds, then the exact gaps), or exactly
+    the contacts ``keys`` (m, 3), in their order."""
+    x, R = state.positions, qmatrix(state.quaternions)
+    parts = []
+    if keys is None:
+        if model.pair.size:
+            features = np.arange(model.pair.shape[0])
+            parts.append((np.column_stack([np.full(features.size, PAIR), features, np.full(features.size, -1)]),
+                          _pairs(model, R, x, features)))
+        for j, obstacle in enumerate(model.obstacles):
+            near = _near(model, x, obstacle)
+            for kind, function in _FEATURES.items():
+                features = near[kind]
+                if features.size:
+                    parts.append((np.column_stack([np.full(features.size, kind), features,
+                                                   np.full(features.size, j)]),
+                                  function(model, R, x, features, obstacle)))
+    else:
+        keys = np.asarray(keys, int).reshape(-1, 3)
+        for kind, j in sorted(set(zip(keys[:, 0].tolist(), keys[:, 2].tolist()))):
+            chosen = keys[(keys[:, 0] == kind) & (keys[:, 2] == j)]
+            features = chosen[:, 1]
+            found = (_pairs(model, R, x, features) if kind == PAIR
+                     else _chords(model, R, x, features, model.obstacles[j], ends=True) if kind == CHORD
+                     else _FEATURES[kind](model, R, x, features, model.obstacles[j]))
+            parts.append((chosen, found))
+    if not parts:
+        return ContactSet(np.zeros((0, 3), int), np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)),
+                          np.zeros((0, 2), int), np.zeros((0, 2, 6)), np.zeros((0, 2, 3)), np.zeros((0, 2, 3)))
+    key = np.concatenate([k for k, _ in parts])
+    gap, point, normal, frames, rows, slide = (np.concatenate([found[i] for _, found in parts]) for i in range(6))
+    origin = np.where((frames >= 0)[:, :, None], x[np.maximum(frames, 0)], 0.0)
+    found = ContactSet(key, gap, point, normal, frames, rows, origin, slide)
+    if keys is None:
+        kept = np.flatnonzero(found.gap < model.margin)
+        return ContactSet(key[kept], gap[kept], point[kept], normal[kept], frames[kept], rows[kept], origin[kept],
+                          slide[kept])
+    return found.select(keys)
+
+
+def _near(model, x, obstacle) -> dict:
+    """The broad phase: the features of each kind whose bounding box comes within the margin of
+    the obstacle's (every feature for an unbounded obstacle)."""
+    counts = _counts(model)
+    box = obstacle.bounds()
+    if box is None:
+        return {kind: np.arange(n) for kind, n in counts.items()}
+    low, high = box[0] - model.margin, box[1] + model.margin
+    out = {}
+    reach = np.repeat(model.disc_radius + 0.5 * model.disc_thickness, 2)
+    centre = np.repeat(x[model.disc_frame], 2, 0) if model.disc_frame.size else np.zeros((0, 3))
+    out[RIM] = np.flatnonzero(np.all((centre + reach[:, None] >= low) & (centre - reach[:, None] <= high), 1))
+    ball = x[model.ball_frame]
+    out[BALL] = np.flatnonzero(np.all((ball + model.ball_radius[:, None] >= low)
+                                      & (ball - model.ball_radius[:, None] <= high), 1))
+    a, b = x[model.chord], x[model.chord + 1]
+    r = model.chord_radius[:, None]
+    out[CHORD] = np.flatnonzero(np.all((np.maximum(a, b) + r >= low) & (np.minimum(a, b) - r <= high), 1))
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# the complementarity problem in constraint space
+
+
+def complementarity(W: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+    """``λ ≥ 0`` with ``w = b + Wλ ≥ 0`` and ``wᵀλ = 0`` for a P-matrix ``W`` (positive definite,
+    or the unsymmetric Delassus operator of a dead-moment tangent), by Murty's principal pivoting
+    (least index rule: finite for P-matrices). None when it does not terminate."""
+    m = b.size
+    active = b < 0.0
+    for _ in range(PIVOTS * max(m, 1)):
+        lam = np.zeros(m)
+        index = np.flatnonzero(active)
+        if index.size:
+            try:
+                lam[index] = np.linalg.solve(W[np.ix_(index, index)], -b[index])
+            except np.linalg.LinAlgError:
+                return None
+        w = b + W @ lam
+        scale = np.abs(b).max(initial=0.0) + 1e-300
+        wrong = np.flatnonzero((active & (lam < -1e-13 * scale / max(np.abs(np.diag(W)).max(initial=0.0), 1e-300)))
+                               | (~active & (w < -1e-13 * scale)))
+        if not wrong.size:
+            return np.where(active, np.maximum(lam, 0.0), 0.0)
+        active[wrong[0]] = not active[wrong[0]]
+    return None
+
+
+@dataclass
+class Step:
+    """A contact-constrained step: the frame increments, the multipliers and the contacts they
+    act at (taken at the step's start), and the Lagrangian's residual ``r + Gᵀλ``."""
+
+    dq: np.ndarray
+    multipliers: np.ndarray
+    contacts: ContactSet
+    balanced: np.ndarray
+
+
+class Constraints:
+    """The contact side of one Newton stage: the contacts of the states it visits, the
+    multipliers of the last step, and what the forward solve asks of them."""
+
+    def __init__(self, trunk):
+        self.trunk, self.model = trunk, trunk.contact
+        self.n_frames = trunk.frames.count
+        self.keys = np.zeros((0, 3), int)        # contacts with a positive multiplier
+        self.multipliers = np.zeros(0)
+        self.reference = None                     # gaps of those contacts at the step's start
+        self.springs = None                       # (G, k) of the last stiffened tangent
+        self._cache = (None, None)
+        self._pressed = (None, None, None)
+        assembler = trunk.assembler             # the cable pieces' terms by the frames they join
+        self._pairs = {(int(a), int(b)): k for k, (a, b) in enumerate(zip(assembler.pair_a, assembler.pair_b))}
+
+    def at(self, state) -> ContactSet:
+        """Every candidate contact at ``state`` (kept for the last state asked)."""
+        if self._cache[0] is not state:
+            self._cache = (state, evaluate(self.model, state))
+        return self._cache[1]
+
+    def pressed(self, state) -> ContactSet:
+        """The contacts carrying the current multipliers, at ``state`` (kept for the last state
+        and multipliers asked)."""
+        if self._pressed[0] is not state or self._pressed[1] is not self.keys:
+            self._pressed = (state, self.keys, evaluate(self.model, state, self.keys))
+        return self._pressed[2]
+
+    def balance(self, gradient: np.ndarray, state) -> np.ndarray:
+        """The Lagrangian's gradient ``∇E − Gᵀλ`` (n_frames, 6) at ``state``."""
+        if not self.multipliers.size:
+            return gradient
+        return gradient - self.pressed(state).forces(self.multipliers, self.n_frames)
+
+    def step(self, factor, r: np.ndarray, state) -> Step | None:
+        """The sequential-QP step (module docstring) with the factor of the shifted tangent ``K``;
+        None when the complementarity problem has no solution the pivoting finds."""
+        contacts = self.at(state)
+        p = factor.solve(r)
+        if not contacts.count:
+            return Step(p, np.zeros(0), contacts, r)
+        G = contacts.jacobian(self.n_frames)
+        Z = factor.solve(np.asfortranarray(G.T))                  # K⁻¹Gᵀ: one solve per contact
+        W = G @ Z
+        b = contacts.gap + G @ p
+        regularised = W.copy()
+        regularised[np.diag_indices_from(W)] += REGULARISATION * max(float(np.abs(np.diag(W)).max()), 1e-300)
+        lam = complementarity(regularised, b)
+        if lam is None:
+            return None
+        active = np.flatnonzero(lam > 0.0)
+        if active.size:
+            # the pressed contacts' gaps closed exactly (the regularisation only picks the set)
+            exact = np.linalg.lstsq(W[np.ix_(active, active)], -b[active], rcond=1e-13)[0]
+            if np.all(exact > 0.0):
+                lam[active] = exact
+        return Step(p + Z @ lam, lam, contacts, r + G.T @ lam)
+
+    def accept(self, step: Step) -> None:
+        """Take a step's multipliers as the current ones (only the pressed contacts are kept)."""
+        pressed = step.multipliers > 0.0
+        self.keys = step.contacts.key[pressed]
+        self.multipliers = step.multipliers[pressed]
+        self.reference = step.contacts.gap[pressed]
+
+    def work(self, trial) -> float:
+        """``λᵀ(g(trial) − g(start))``: the Lagrangian's change beyond the potential's."""
+        if not self.multipliers.size:
+            return 0.0
+        return float(self.multipliers @ (self.pressed(trial).gap - self.reference))
+
+    def feasible(self, state) -> bool:
+        """No contact penetrates beyond the tolerance and every pressed contact is closed."""
+        tolerance = GAP_TOLERANCE * self.model.length
+        contacts = self.at(state)
+        if contacts.count and float(contacts.gap.min()) < -tolerance:
+            return False
+        if self.multipliers.size:
+            gaps = self.pressed(state).gap
+            if float(np.abs(gaps).max()) > ACTIVE_GAP * self.model.length:
+                return False
+        return True
+
+    def lagrangian(self, matrix, state):
+        """The tangent of the Lagrangian ``E − λᵀg``: ``matrix`` plus ``−Σ λ_i ∂²g_i`` of the
+        pressed contacts (:func:`curvature`), added to the band's terms of the link or the cable
+        pieces that join its frames (a contact between frames neither joins keeps only its
+        blocks on the diagonal)."""
+        if not self.multipliers.size:
+            return matrix
+        frames, blocks = curvature(self.model, self.pressed(state), self.multipliers)
+        terms = matrix.terms.copy()
+        links = matrix.assembler.views(terms)[0]
+        a, b = frames[:, 0], frames[:, 1]
+        lower = np.where(b >= 0, np.minimum(a, b), a)
+        upper = np.where(b >= 0, np.maximum(a, b), -1)
+        swap = (b >= 0) & (b < a)
+        blocks = np.where(swap[:, None, None], blocks[:, np.r_[6:12, 0:6]][:, :, np.r_[6:12, 0:6]], blocks)
+        joined = upper == lower + 1
+        np.add.at(links, lower[joined], blocks[joined])
+        single = (upper < 0) & (lower > 0)
+        np.add.at(links, (lower[single] - 1, slice(6, 12), slice(6, 12)), blocks[single, :6, :6])
+        # frames a repetition apart: the slot of the cable pieces that join them, where a cable does
+        slot = np.array([self._pairs.get((a, b), -1) for a, b in zip(lower.tolist(), upper.tolist())], int)
+        cabled = (upper >= 0) & ~joined & (slot >= 0)
+        if cabled.any():
+            np.add.at(matrix.assembler.views(terms)[1], slot[cabled], blocks[cabled])
+        apart = (upper >= 0) & ~joined & ~cabled
+        first = apart & (lower > 0)
+        np.add.at(links, (lower[first] - 1, slice(6, 12), slice(6, 12)), blocks[first, :6, :6])
+        np.add.at(links, (upper[apart] - 1, slice(6, 12), slice(6, 12)), blocks[apart, 6:, 6:])
+        return type(matrix)(matrix.assembler, terms, matrix.low_rank)
+
+    def stiffened(self, matrix, state, stiffness: float = STABILITY_SPRING):
+        """The tangent plus a stiff spring along each pressed contact (``stiffness`` × the
+        stiffness of the tangent's diagonal along the contact's direction): positive definite exactly when the
+        tangent is on the directions the contacts leave free (the constrained equilibrium's
+        stability), up to the spring's finiteness. Kept as the last springs (:meth:`spring_work`)."""
+        self.springs = None
+        if not self.multipliers.size:
+            return matrix
+        G = self.pressed(state).jacobian(self.n_frames)
+        squared = np.maximum(np.add.reduce(G * G, 1), 1e-300)
+        # the tangent's stiffness along each contact's direction, from its diagonal
+        along = (G * G) @ np.abs(matrix.diagonal()) / squared
+        spring = stiffness * along / squared
+        self.springs = (G, spring)
+        U, d = (G.T, spring) if matrix.low_rank is None else (np.hstack([matrix.low_rank[0], G.T]),
+                                                              np.concatenate([matrix.low_rank[1], spring]))
+        return type(matrix)(matrix.assembler, matrix.terms, (U, d))
+
+    def spring_work(self, dq: np.ndarray) -> float:
+        """``dqᵀ (Σ k_i G_iᵀG_i) dq`` of the springs last added by :meth:`stiffened`."""
+        if self.springs is None:
+            return 0.0
+        G, spring = self.springs
+        along = G @ dq
+        return float(spring @ (along * along))
+
+
+def _hat(v: np.ndarray) -> np.ndarray:
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., 0, 1], out[..., 0, 2], out[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    out[..., 1, 0], out[..., 2, 0], out[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
+    return out
+
+
+def _surface_curvature(obstacle, point: np.ndarray, scale: float) -> np.ndarray:
+    """The Hessian of the obstacle's signed distance at ``point`` (k, 3, 3): the derivative of
+    its normal, by central differences (zero for planes)."""
+    if isinstance(obstacle, Plane):
+        return np.zeros((point.shape[0], 3, 3))
+    h = 1e-6 * scale
+    shifted = point[:, None, :] + h * np.eye(3)[None]
+    plus = obstacle.closest(shifted.reshape(-1, 3))[1].reshape(-1, 3, 3)
+    minus = obstacle.closest((point[:, None, :] - h * np.eye(3)[None]).reshape(-1, 3))[1].reshape(-1, 3, 3)
+    S = np.swapaxes(plus - minus, 1, 2) / (2.0 * h)              # S[:, i, k] = ∂n_i/∂p_k
+    return 0.5 * (S + np.swapaxes(S, 1, 2))
+
+
+def curvature(model: ContactModel, contacts: ContactSet, multipliers: np.ndarray):
+    """``−λ_i ∂²g_i`` of each contact as a 12×12 block on its frames ``[a; b]`` (the derivative of
+    the contact forces' generalised forces with the contact point held on the body: the turning
+    of the lever arms, the turning of a disc's face normal and the obstacle's surface curvature;
+    the sliding of a closest point along a rim or chord is not included). Returns (frames (k, 2),
+    blocks (k, 12, 12))."""
+    key, frames = contacts.key, contacts.frames
+    lam = multipliers[:, None, None]
+    n = contacts.normal
+    # the point carrying the force (a ball's centre, a chord's axis point, a rim point)
+    radius = np.zeros(key.shape[0])
+    ball = key[:, 0] == BALL
+    radius[ball] = model.ball_radius[key[ball, 1]]
+    chord = key[:, 0] == CHORD
+    radius[chord] = model.chord_radius[key[chord, 1]]
+    point = contacts.point + radius[:, None] * n
+    pair = key[:, 0] == PAIR
+    S = np.zeros((key.shape[0], 3, 3))
+    for j in np.unique(key[~pair, 2]):
+        chosen = (~pair) & (key[:, 2] == j)
+        S[chosen] = _surface_curvature(model.obstacles[j], point[chosen], model.length)
+    return frames, _blocks(contacts, lam, S, point, n, pair, chord)
+
+
+def _blocks(contacts, lam, S, point, n, pair, chord):
+    key = contacts.key
+    blocks = np.zeros((key.shape[0], 12, 12))
+    origin = contacts.origin
+    l = point - origin[:, 0]
+    hat_l, hat_n = _hat(l), _hat(n)
+    obstacle = ~pair & ~chord
+    # −λ∂²g for a point on frame a: [[−λS, λS l̂], [−λ l̂ S, −λ n̂ l̂ + λ l̂ S l̂]]
+    blocks[obstacle, :3, :3] = -lam[obstacle] * S[obstacle]
+    blocks[obstacle, :3, 3:6] = lam[obstacle] * S[obstacle] @ hat_l[obstacle]
+    blocks[obstacle, 3:6, :3] = -lam[obstacle] * hat_l[obstacle] @ S[obstacle]
+    blocks[obstacle, 3:6, 3:6] = lam[obstacle] * (-hat_n[obstacle] @ hat_l[obstacle]
+                                                  + hat_l[obstacle] @ S[obstacle] @ hat_l[obstacle])
+    # a chord's axis point (1 − t) x_a + t x_b
+    if chord.any():
+        t = np.add.reduce(contacts.rows[chord, 1, :3] * n[chord], -1)
+        weights = np.stack([1.0 - t, t], 1)
+        for i in range(2):
+            for k in range(2):
+                blocks[chord, 6 * i:6 * i + 3, 6 * k:6 * k + 3] = -(lam[chord] * S[chord]
+                                                                   * (weights[:, i] * weights[:, k])[:, None, None])
+    # a rim on frame a (X) against the face of frame b (Y), m = n
+    if pair.any():
+        lp, m = l[pair], n[pair]
+        d = point[pair] - origin[pair, 1]
+        hm, hl, hd = _hat(m), _hat(lp), _hat(d)
+        lam_p = lam[pair]
+        B = np.zeros((lp.shape[0], 12, 12))
+        B[:, 0:3, 9:12] = lam_p * hm                  # X force  / Y turn
+        B[:, 3:6, 3:6] = -lam_p * hm @ hl             # X moment / X turn
+        B[:, 3:6, 9:12] = lam_p * hl @ hm             # X moment / Y turn
+        B[:, 6:9, 9:12] = -lam_p * hm                 # Y force  / Y turn
+        B[:, 9:12, 0:3] = -lam_p * hm                 # Y moment / X move
+        B[:, 9:12, 3:6] = lam_p * hm @ hl             # Y moment / X turn
+        B[:, 9:12, 6:9] = lam_p * hm                  # Y moment / Y move
+        B[:, 9:12, 9:12] = -lam_p * hd @ hm           # Y moment / Y turn
+        blocks[pair] = B
+    # the closest point sliding along its rim or chord: g = min_s f(s, q) adds −f_qs f_sqᵀ / f_ss
+    # to ∂²g, so −λ∂²g gains λ v vᵀ / f_ss with v = ∂f_s/∂q
+    tau, second = contacts.slide[:, 0], contacts.slide[:, 1]
+    S_tau = np.einsum("kij,kj->ki", S, tau)
+    f_ss = np.add.reduce(tau * S_tau, -1) + np.add.reduce(n * second, -1)
+    v = np.zeros((key.shape[0], 12))
+    rim = ~pair & ~chord
+    v[rim, :3] = S_tau[rim]
+    v[rim, 3:6] = _cross(l[rim], S_tau[rim]) + _cross(tau[rim], n[rim])
+    if chord.any():
+        t = np.add.reduce(contacts.rows[chord, 1, :3] * n[chord], -1)[:, None]
+        v[chord, :3] = (1.0 - t) * S_tau[chord] - n[chord]
+        v[chord, 6:9] = t * S_tau[chord] + n[chord]
+    v[pair, 3:6] = _cross(tau[pair], n[pair])
+    v[pair, 9:12] = -v[pair, 3:6]
+    sliding = f_ss > 1e-12 * np.sqrt(np.add.reduce(tau * tau, -1)) * (np.abs(S).max(axis=(1, 2)) * np.sqrt(
+        np.add.reduce(tau * tau, -1)) + np.sqrt(np.add.reduce(second * second, -1)) + 1e-300)
+    scale = np.where(sliding, lam[:, 0, 0] / np.where(sliding, f_ss, 1.0), 0.0)
+    blocks += scale[:, None, None] * v[:, :, None] * v[:, None, :]
+    return blocks
+
+
+@dataclass(frozen=True)
+class Contact:
+    """One contact of a solved state (the JSON's ``contacts``)."""
+
+    bodies: tuple
+    point: tuple          # on the body, world (m)
+    normal: tuple         # unit, pushing the body away
+    gap: float            # m (≥ 0 up to the solve's tolerance)
+    force: float          # N (≥ 0)
+
+    def as_dict(self) -> dict:
+        return {"bodies": list(self.bodies), "point": list(self.point), "normal": list(self.normal),
+                "gap": self.gap, "force": self.force}
+
+
+def report(model: ContactModel, state, keys: np.ndarray, multipliers: np.ndarray) -> tuple:
+    """Every candidate contact of ``state`` with its force (the pressed ones first)."""
+    found = evaluate(model, state)
+    force = np.zeros(found.count)
+    index = {tuple(k): i for i, k in enumerate(found.key.tolist())}
+    extra = []
+    for k, lam in zip(keys.tolist(), multipliers.tolist()):
+        if tuple(k) in index:
+            force[index[tuple(k)]] = lam
+        else:
+            extra.append((k, lam))
+    if extra:
+        more = evaluate(model, state, np.array([k for k, _ in extra]))
+        found = ContactSet(*(np.concatenate([a, b]) for a, b in zip(
+            (found.key, found.gap, found.point, found.normal, found.frames, found.rows, found.origin, found.slide),
+            (more.key, more.gap, more.point, more.normal, more.frames, more.rows, more.origin, more.slide))))
+        force = np.concatenate([force, [lam for _, lam in extra]])
+    order = np.lexsort((found.gap, -force))
+    return tuple(Contact(bodies(model, found.key[i]), tuple(found.point[i].tolist()), tuple(found.normal[i].tolist()),
+                         float(found.gap[i]), float(force[i])) for i in order)

@@ -1,0 +1,542 @@
+"""Tendon friction at the holes: the capstan law with sticking, and the path-dependent solve.
+
+A cable runs through the holes of its vertebrae (its *route*: the proximal — actuated — hole
+first, the terminating hole last). Each stretch between two consecutive holes is a *span* (a
+piece of :class:`~vertebra.solver.cables.CableRouting`) with its own tension; at an interior
+hole the cable turns by the angle ``Δθ`` between its incoming and outgoing spans (from the
+frames' poses: it changes with the shape). With a friction coefficient ``μ`` the hole is
+
+* sliding towards the base (``slip = +1``, the cable being pulled in): ``T_out = T_in e^(−μΔθ)``;
+* sliding away from the base (``slip = −1``, the cable paid out): ``T_out = T_in e^(+μΔθ)``;
+* stuck (``slip = 0``) while ``T_in e^(−μΔθ) ≤ T_out ≤ T_in e^(+μΔθ)``.
+
+(point contact at the holes, no bending stiffness of the cable: docs/friction.md). The result
+depends on the history of the commands, which a :class:`FrictionState` carries: every span's
+tension, the unstretched length of every span of a stroke-driven tendon, and every hole's
+slip and last slip direction.
+
+One command is one increment from the state it is applied to, solved as a fixed point:
+
+1. the *return map* (:func:`transmission`) at the current poses: from the committed state, the
+   spans' tensions that the friction law allows (tension-driven cable: the command is the first
+   span's tension and every stuck span keeps its tension, clipped into its hole's band — a
+   sweep from the base; stroke-driven tendon: the spans are springs that share its compliance
+   by rest length, the stroke takes material out of the first span, and the holes' statuses
+   are found by an active-set iteration in which runs of spans joined by sliding holes exchange
+   material and carry capstan-related tensions);
+2. the frames' equilibrium for those span tensions (tension-driven spans: fixed tensions, the
+   potential ``Σ T L``; a run of tendon spans: one spring on the capstan-weighted length
+   ``Σ g L``) with the existing Newton solver — an energy minimum, so well posed;
+3. repeated from the new poses until the tensions the return map gives there equal the tensions
+   the equilibrium was found with (relative change ≤ :data:`FIXED_POINT`) and no hole changed
+   its status. With ``μ = 0`` every factor is exactly 1: the first equilibrium is today's
+   frictionless one and the return map reproduces its tensions bit for bit.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from vertebra.core.errors import ConvergenceError, OptionError
+from vertebra.core.lie import qmatrix
+from vertebra.solver import newton, outputs
+from vertebra.solver.potential import LoadCase, Tendons, evaluate
+
+FIXED_POINT = 1e-12     # relative change of the span tensions at which the fixed point has converged
+MAX_ROUNDS = 100        # return map / equilibrium rounds of an increment that is not split further
+SPLIT_ROUNDS = 25       # rounds after which an increment is applied in two halves
+UNSETTLED = 8           # rounds of changing hole statuses after which the holes that changed are held sliding
+MAX_SPLITS = 4          # an increment is split into 2^MAX_SPLITS parts at most
+SLIP = 1e-12            # relative excess of a hole's band (or backflow of a sliding hole) that changes its status
+
+__all__ = ["FrictionState", "Routes", "Transmission", "linearise", "routes", "sensitivities", "solve",
+           "solve_sequence", "transmission", "transmission_ratios", "turning_angles"]
+
+
+@dataclass(frozen=True)
+class Routes:
+    """The spans (pieces) of every cable in route order, proximal first."""
+
+    pieces: tuple             # per cable: (n_c,) piece indices
+    previous: np.ndarray      # (m,) the piece before each in its route (−1: the first)
+    first: np.ndarray         # (n_cables,) the first piece of every cable
+
+    @property
+    def interior(self) -> np.ndarray:
+        """The pieces that start at an interior hole of their route."""
+        return np.flatnonzero(self.previous >= 0)
+
+
+_ROUTES: dict = {}
+
+
+def routes(cables) -> Routes:
+    """The route of every cable of a :class:`~vertebra.solver.cables.CableRouting` (its pieces
+    are sorted by their first frame, so a cable's pieces come in route order); made once per
+    routing (kept beside its read-only ``owner`` array)."""
+    kept = _ROUTES.get(id(cables.owner))
+    if kept is not None and kept[0] is cables.owner:
+        return kept[1]
+    if len(_ROUTES) > 64:
+        _ROUTES.clear()
+    _ROUTES[id(cables.owner)] = (cables.owner, made := _routes(cables))
+    return made
+
+
+def _routes(cables) -> Routes:
+    pieces = tuple(np.flatnonzero(cables.owner == k) for k in range(cables.n_cables))
+    previous = np.full(cables.owner.size, -1)
+    for run in pieces:
+        previous[run[1:]] = run[:-1]
+    return Routes(pieces, previous, np.array([run[0] for run in pieces], int))
+
+
+def turning_angles(routes: Routes, d: np.ndarray, length: np.ndarray) -> np.ndarray:
+    """(m,) the angle by which each cable turns at the proximal hole of each piece (0 at the
+    first hole of a route) from the pieces' spans ``d`` (m, 3) and lengths (m,)."""
+    u = d / length[:, None]
+    angle = np.zeros(length.size)
+    inner = routes.interior
+    a, b = u[routes.previous[inner]], u[inner]
+    angle[inner] = np.arctan2(np.linalg.norm(np.cross(a, b), axis=1), np.add.reduce(a * b, 1))
+    return angle
+
+
+def geometry(trunk, state) -> tuple:
+    """The pieces' lengths (m,) and turning angles (m,) at ``state`` (None: the rest state)."""
+    state = trunk.rest_state if state is None else state
+    _, d, length = trunk.cables.spans(state.positions, qmatrix(state.quaternions))
+    return length, turning_angles(routes(trunk.cables), d, length)
+
+
+@dataclass(frozen=True)
+class FrictionState:
+    """What a frictional solve leaves behind for the next command: the history."""
+
+    actuation: np.ndarray     # the command it was reached under
+    state: object             # the frames' State (None: the rest state)
+    tension: np.ndarray       # (m,) every span's tension, N
+    material: np.ndarray      # (m,) unstretched length of every span of a stroke-driven tendon (nan elsewhere), m
+    slip: np.ndarray          # (m,) at each span's proximal hole: +1 sliding towards the base, −1 away, 0 stuck
+    direction: np.ndarray     # (m,) the last slip direction there (0: never slid)
+
+    @classmethod
+    def rest(cls, trunk) -> "FrictionState":
+        """The trunk at rest under zero commands: tension-driven cables slack, stroke-driven
+        tendons at their pretension, spread over the spans by rest length."""
+        actuators, cables = trunk.actuators, trunk.cables
+        m = cables.owner.size
+        tension = np.zeros(m)
+        material = np.full(m, np.nan)
+        for c in actuators.tendons.tolist():
+            run = np.flatnonzero(cables.owner == c)
+            share = _shares(trunk, c, run)
+            k, pretension = actuators.cable_stiffness[c], actuators.pretension[c]
+            material[run] = trunk.rest_piece_lengths[run] - share * pretension / k
+            tension[run] = max(pretension, 0.0)
+        zeros = np.zeros(m, np.int8)
+        return cls(np.zeros(actuators.default.size), None, tension, material, zeros, zeros.copy())
+
+    def stick(self, routes: Routes) -> list:
+        """Per cable: one flag per interior hole of its route — is the cable stuck there?"""
+        return [(self.slip[run[1:]] == 0).tolist() for run in routes.pieces]
+
+
+def _shares(trunk, cable: int, run: np.ndarray) -> np.ndarray:
+    """The share of a tendon's compliance ``1/k`` that each of its spans holds: its rest length
+    over the cable's."""
+    return trunk.rest_piece_lengths[run] / trunk.rest_cable_lengths[cable]
+
+
+@dataclass
+class Transmission:
+    """The return map's answer at one set of poses: the spans' tensions and statuses, the tendons'
+    new unstretched lengths and the load it makes for the frames' equilibrium."""
+
+    tension: np.ndarray       # (m,) every span's tension at these poses
+    slip: np.ndarray          # (m,) int8
+    material: np.ndarray      # (m,) tendons' unstretched span lengths (nan elsewhere)
+    driven: np.ndarray | None     # (m,) tension of the tension-driven spans (None: all slack)
+    tendons: Tendons | None       # the tendon units (None: today's per-cable tendons, or none)
+    tendon_scaled: np.ndarray | None = None   # per unit: True where the spring is scaled with the load factor
+
+    def load(self, trunk, actuation: np.ndarray, scale: float, previous: LoadCase | None = None) -> LoadCase:
+        """The load case of the frames' equilibrium under ``actuation`` at load factor ``scale``."""
+        base = LoadCase.of(trunk, actuation, scale, previous)
+        driven = None if self.driven is None else scale * self.driven
+        tendons = base.tendons
+        if self.tendons is not None:
+            t = self.tendons
+            stiffness = np.where(self.tendon_scaled, scale * t.stiffness, t.stiffness)
+            shift = np.where(self.tendon_scaled, t.shift, scale * t.shift)
+            tendons = dataclasses.replace(t, stiffness=stiffness, shift=shift)
+        return dataclasses.replace(base, piece_tension=driven, tendons=tendons, reference=None)
+
+
+def transmission(trunk, history: FrictionState, actuation: np.ndarray, lengths: np.ndarray,
+                 angles: np.ndarray, guess: np.ndarray | None = None, pinned: np.ndarray | None = None) -> Transmission:
+    """The return map from the committed ``history`` under the command ``actuation`` at poses with
+    span ``lengths`` and turning ``angles`` (module docstring); ``guess``: the holes' statuses
+    the tendons' active-set iteration starts from (an earlier round's; None: every hole stuck);
+    ``pinned``: (m,) holes of tendons held at the ``guess``'s sliding status (incipient slip)."""
+    actuators, cables = trunk.actuators, trunk.cables
+    route = routes(cables)
+    mu = actuators.friction
+    m = lengths.size
+    tension = np.zeros(m)
+    slip = np.zeros(m, np.int8)
+    material = np.full(m, np.nan)
+    driven = np.zeros(m)
+    frictional = [c for c in actuators.tendons.tolist() if mu[c] > 0.0]
+    units, weights = np.full(m, 0), np.ones(m)
+    unit_cable, unit_k, unit_rest, unit_shift, unit_scaled = [], [], [], [], []
+    for c, run in enumerate(route.pieces):
+        if not actuators.stroke_driven[c]:
+            T = float(actuation[c])
+            old = history.tension[run]
+            out = np.empty(run.size)
+            status = np.zeros(run.size, np.int8)
+            out[0] = T
+            for j in range(1, run.size):
+                turn = mu[c] * angles[run[j]]
+                low, high = out[j - 1] * math.exp(-turn), out[j - 1] * math.exp(turn)
+                status[j] = 1 if old[j] < low else -1 if old[j] > high else 0
+                out[j] = min(max(old[j], low), high)
+            tension[run], slip[run], driven[run] = out, status, out
+            continue
+        k = actuators.cable_stiffness[c]
+        compliance = _shares(trunk, c, run) / k
+        trial = history.material[run].copy()
+        trial[0] -= actuation[c] - history.actuation[c]
+        if mu[c] > 0.0:
+            status, g, tau, new = _tendon_spans(lengths[run], angles[run], mu[c], trial, compliance,
+                                                None if guess is None else guess[run],
+                                                None if pinned is None else pinned[run])
+        else:
+            status = np.ones(run.size, np.int8)
+            status[0] = 0
+            g = np.ones(run.size)
+            tau = np.full(run.size, (lengths[run].sum() - trial.sum()) / compliance.sum())
+            new = lengths[run] - compliance * tau
+        tension[run], slip[run], material[run] = np.maximum(g * tau, 0.0), status, new
+        if frictional:
+            if mu[c] > 0.0:                 # one unit per run of spans joined by sliding holes
+                first = len(unit_cable)
+                group = np.cumsum(status == 0) - 1
+                count = int(group[-1]) + 1
+                units[run] = first + group
+                weights[run] = g
+                unit_cable.extend([c] * count)
+                unit_k.extend((1.0 / np.bincount(group, compliance * g, count)).tolist())
+                unit_rest.extend((np.bincount(group, trial, count)
+                                  - np.bincount(group, (1.0 - g) * lengths[run], count)).tolist())
+                unit_shift.extend([0.0] * count)
+                unit_scaled.extend([True] * count)
+            else:                         # a frictionless tendon among frictional ones: today's unit
+                units[run] = len(unit_cable)
+                unit_cable.append(c)
+                unit_k.append(k)
+                unit_rest.append(float(trunk.rest_cable_lengths[c]))
+                unit_shift.append(float(actuation[c] + actuators.pretension[c] / k))
+                unit_scaled.append(False)
+    tendons = scaled = None
+    if frictional:
+        n_units = len(unit_cable)
+        tendon_piece = actuators.stroke_driven[cables.owner]
+        units = np.where(tendon_piece, units, n_units)
+        tendons = Tendons(np.array(unit_cable, int), np.array(unit_k), np.array(unit_rest), np.array(unit_shift),
+                          units, np.where(tendon_piece, weights, 0.0))
+        scaled = np.array(unit_scaled, bool)
+    return Transmission(tension, slip, material, driven if np.any(driven) else None, tendons, scaled)
+
+
+def _tendon_spans(L: np.ndarray, angle: np.ndarray, mu: float, trial: np.ndarray, compliance: np.ndarray,
+                  start: np.ndarray | None = None, pinned: np.ndarray | None = None):
+    """The return map of one stroke-driven tendon at span lengths ``L``: the holes' statuses, the
+    capstan factors ``g`` within each run of spans joined by sliding holes, the spans' tension
+    before the tendon's slack is cut off (``τ g``) and their new unstretched lengths. From the
+    statuses ``start`` (None: every hole stuck, the elastic trial) it frees the hole whose band
+    is exceeded most, or sticks the sliding hole whose material flows against its slip, until
+    none is (plain floats: a tendon has tens of holes); ``pinned`` holes keep their start status."""
+    n = L.size
+    L, trial, compliance = L.tolist(), trial.tolist(), compliance.tolist()
+    factor = [math.exp(mu * a) for a in angle.tolist()]
+    status = [0] * n if start is None else [int(v) for v in start]
+    status[0] = 0
+    fixed = [False] * n if pinned is None else pinned.tolist()
+    for _ in range(4 * n + 4):
+        g, tau, new = _runs(L, factor, trial, compliance, status)
+        T = [max(gj * tj, 0.0) for gj, tj in zip(g, tau)]
+        scale = max(max(T), 1e-300)
+        worst, fix = SLIP, None
+        for j in range(1, n):
+            if status[j] == 0 and not fixed[j]:
+                low, high = T[j - 1] / factor[j], T[j - 1] * factor[j]
+                if (low - T[j]) / scale > worst:
+                    worst, fix = (low - T[j]) / scale, (j, 1)
+                elif (T[j] - high) / scale > worst:
+                    worst, fix = (T[j] - high) / scale, (j, -1)
+        if fix is None:
+            j = 1
+            while j < n:
+                if status[j] and not fixed[j] and T[j - 1] + T[j] > 0.0:
+                    end = j + 1
+                    while end < n and status[end]:
+                        end += 1
+                    flow = sum(trial[j:end]) - sum(new[j:end])
+                    backflow = -status[j] * flow / max(sum(abs(v) for v in trial[j:end]), 1e-300)
+                    if backflow > worst:
+                        worst, fix = backflow, (j, 0)
+                j += 1
+        if fix is None:
+            return np.array(status, np.int8), np.array(g), np.array(tau), np.array(new)
+        status[fix[0]] = fix[1]
+    raise ConvergenceError("the stick/slip states of a tendon's holes did not settle (the return map cycles)")
+
+
+def _runs(L: list, factor: list, trial: list, compliance: list, status: list):
+    """Capstan factors, run tensions (per span, before the slack cut-off) and new unstretched
+    lengths for the holes' ``status`` (runs split at stuck holes; each run keeps its material)."""
+    n = len(L)
+    g, tau, new = [1.0] * n, [0.0] * n, [0.0] * n
+    a = 0
+    while a < n:
+        b = a + 1
+        while b < n and status[b]:
+            g[b] = g[b - 1] / factor[b] if status[b] > 0 else g[b - 1] * factor[b]
+            b += 1
+        weight = sum(c * gj for c, gj in zip(compliance[a:b], g[a:b]))
+        t = (sum(L[a:b]) - sum(trial[a:b])) / weight
+        for j in range(a, b):
+            tau[j] = t
+            new[j] = L[j] - compliance[j] * g[j] * t
+        a = b
+    return g, tau, new
+
+
+class _Loads:
+    """The load cases of one transmission (newton.solve asks for them by actuation and factor)."""
+
+    def __init__(self, trunk, transmission: Transmission):
+        self.trunk, self.transmission = trunk, transmission
+        self.kept = {}
+
+    def __call__(self, actuation: np.ndarray, scale: float = 1.0) -> LoadCase:
+        key = (actuation.tobytes(), scale)
+        if key not in self.kept:
+            previous = next(iter(self.kept.values()), None)
+            self.kept[key] = self.transmission.load(self.trunk, actuation, scale,
+                                                    previous if previous is not None and previous.scale == scale else None)
+        return self.kept[key]
+
+
+def solve(trunk, actuation: np.ndarray, history: FrictionState | None, initial=None, *, tolerance: float,
+          max_iterations: int, load_steps: int, raise_on_failure: bool = True):
+    """The equilibrium under ``actuation`` applied to ``history`` (None: from rest — a single
+    command is a monotone pull), from ``initial`` poses (None: the history's). Returns a
+    :class:`~vertebra.solver.newton.StaticResult` whose ``friction`` is the new
+    :class:`FrictionState`. An increment whose fixed point does not settle in
+    :data:`SPLIT_ROUNDS` rounds (holes that stick at one shape and slide at the shape that
+    follows) is applied in two halves, each as a command of its own, down to
+    ``2^-MAX_SPLITS`` of it: the path between two commands is then the straight one."""
+    if history is None:
+        history = FrictionState.rest(trunk)
+    options = dict(tolerance=tolerance, max_iterations=max_iterations, load_steps=load_steps)
+    result = _split(trunk, actuation, history, initial, options, 0)
+    if not result.converged and raise_on_failure:
+        raise ConvergenceError(result.message or "the frictional solve did not converge", result)
+    return result
+
+
+def _split(trunk, actuation, history, initial, options, depth):
+    result = _increment(trunk, actuation, history, initial, options, MAX_ROUNDS if depth == MAX_SPLITS else SPLIT_ROUNDS)
+    if result.converged or depth == MAX_SPLITS:
+        return result
+    first = _split(trunk, 0.5 * (history.actuation + actuation), history, initial, options, depth + 1)
+    if not first.converged:
+        return first
+    second = _split(trunk, actuation, first.friction, first.state, options, depth + 1)
+    second.iterations += first.iterations + result.iterations
+    second.load_steps += first.load_steps + result.load_steps
+    second.residual_history = result.residual_history + first.residual_history + second.residual_history
+    return second
+
+
+def _increment(trunk, actuation, history, initial, options, rounds):
+    """One increment: the fixed point of the return map and the frames' equilibrium (module
+    docstring) in at most ``rounds`` rounds; ``result.friction`` is None unless it settled."""
+    if history is None:
+        history = FrictionState.rest(trunk)
+    state = initial if initial is not None else history.state
+    lengths, angles = geometry(trunk, state)
+    current = transmission(trunk, history, actuation, lengths, angles)
+    iterations, stages, history_of_residuals = 0, 0, []
+    # the tensions' scale: the largest before or after the command (a release to slack measures
+    # the rounding left against the tension it released), at least the tension of a strain of
+    # 1e-3 of the stiffest tendon — FIXED_POINT of it is the rounding of a tendon's length
+    floor = max(1e-3 * float(np.max(trunk.actuators.cable_stiffness * trunk.rest_cable_lengths, initial=0.0)), 1e-300)
+    converged = False
+    change = math.inf
+    seen, pinned = [], None         # the statuses of the rounds so far; the holes held at incipient slip
+    for _ in range(rounds):
+        loads = _Loads(trunk, current)
+        result = newton.solve(trunk, loads, actuation, state, raise_on_failure=False, **options)
+        iterations += result.iterations
+        stages += result.load_steps
+        history_of_residuals.extend(result.residual_history)
+        if not result.converged:
+            break
+        state = result.state
+        balanced = _span_tensions(trunk, state, loads(actuation, 1.0))
+        lengths, angles = geometry(trunk, state)
+        following = transmission(trunk, history, actuation, lengths, angles, current.slip, pinned)
+        scale = max(float(np.abs(balanced).max(initial=0.0)), float(history.tension.max(initial=0.0)), floor)
+        change = float(np.abs(following.tension - balanced).max(initial=0.0)) / scale
+        # converged: the tensions the return map gives at the new poses are those the poses are
+        # in balance with, or the poses did not move in this round (the round maps them to
+        # themselves; what is left is the rounding of the tendons' run lengths)
+        if (change <= FIXED_POINT or result.iterations == 0) and np.array_equal(following.slip, current.slip):
+            converged = True
+            break
+        seen.append(current.slip)
+        cycle = next((k for k, slip in enumerate(seen[:-1]) if np.array_equal(slip, following.slip)), None)
+        if cycle is None and len(seen) >= UNSETTLED and not np.array_equal(following.slip, current.slip):
+            cycle = len(seen) - UNSETTLED // 2
+        if cycle is not None:
+            # a cycle (or statuses that keep changing): holes that stick at one round's shape and
+            # slide at a later one's sit at incipient slip — hold them sliding (their sliding
+            # status over those rounds) for this increment
+            statuses = np.array(seen[cycle:] + [following.slip])
+            flips = np.any(statuses != statuses[0], axis=0)
+            sliding = np.where(np.any(statuses > 0, axis=0), 1, -1)
+            pinned = flips if pinned is None else pinned | flips
+            guess = np.where(flips, sliding, following.slip).astype(np.int8)
+            following = transmission(trunk, history, actuation, lengths, angles, guess, pinned)
+            seen = []
+        current = following
+    result.iterations, result.load_steps, result.residual_history = iterations, stages, history_of_residuals
+    if result.converged and not converged:
+        result.converged = False
+        result.message = (f"the friction fixed point did not converge in {rounds} rounds of an increment split "
+                          f"{MAX_SPLITS} times (the span tensions still change by {change:.3g} of the largest)")
+    if converged:
+        direction = np.where(following.slip != 0, following.slip, history.direction).astype(np.int8)
+        result.friction = FrictionState(actuation.copy(), result.state, balanced, following.material,
+                                        following.slip, direction)
+    return result
+
+
+def transmission_ratios(trunk, current: Transmission, angles: np.ndarray) -> np.ndarray:
+    """(m,) how much of a change of each cable's command reaches each span in the current
+    sliding direction: a tension-driven cable's ``∂T_j/∂T₀`` (the capstan factors up to the first
+    stuck hole, 0 beyond it; a slack cable as if pulled), a tendon's ``∂T_j/∂s`` over the run of
+    spans that holds its first span (``K g_j`` while taut, 0 elsewhere)."""
+    actuators, cables = trunk.actuators, trunk.cables
+    mu = actuators.friction
+    ratio = np.zeros(cables.owner.size)
+    tendons = current.tendons
+    for c, run in enumerate(routes(cables).pieces):
+        if not actuators.stroke_driven[c]:
+            factor = 1.0
+            for j, piece in enumerate(run):
+                if j:
+                    status = current.slip[piece]
+                    if status == 0 and (current.tension[run[j - 1]] > 0.0 or current.tension[piece] > 0.0):
+                        break                                   # stuck: the spans beyond keep their tension
+                    factor *= math.exp(-mu[c] * angles[piece] if status >= 0 else mu[c] * angles[piece])
+                ratio[piece] = factor
+        elif tendons is not None and current.tension[run[0]] > 0.0:
+            unit = tendons.units[run[0]]
+            spans = run[tendons.units[run] == unit]
+            ratio[spans] = tendons.stiffness[unit] * tendons.weights[spans]
+        elif current.tension[run[0]] > 0.0:                     # a frictionless tendon: k along the cable
+            ratio[run] = actuators.cable_stiffness[c]
+    return ratio
+
+
+def linearise(trunk, state, actuation: np.ndarray, history: FrictionState | None = None):
+    """The linearisation (:func:`~vertebra.solver.outputs.linearise`) at the equilibrium ``state``
+    reached under ``actuation`` from ``history`` (None: from rest — a monotone pull): the tangent
+    with every span's own tension, and as each cable's actuator force the forces of its spans per
+    unit change of its command in the current sliding direction (:func:`transmission_ratios`) —
+    the frictional transmission the inverse's QP sees. Stuck spans take no part in it."""
+    if history is None:
+        history = FrictionState.rest(trunk)
+    lengths, angles = geometry(trunk, state)
+    current = transmission(trunk, history, actuation, lengths, angles)
+    lin = outputs.linearise(trunk, state, actuation, _Loads(trunk, current))
+    cables = trunk.cables
+    n_cables, n_frames = cables.n_cables, trunk.frames.count
+    if n_cables:
+        ratio = transmission_ratios(trunk, current, angles)
+        pieces = cables.pieces(state.positions, qmatrix(state.quaternions))
+        rows = np.repeat(cables.owner, 2) * n_frames + cables.ends
+        forces = np.zeros((n_cables * n_frames, 6))
+        np.add.at(forces, rows, (ratio[:, None] * pieces.unit).reshape(-1, 6))
+        lin.actuator_forces[:, :n_cables] = -forces.reshape(n_cables, n_frames, 6)[:, 1:].reshape(n_cables, -1).T
+        lin.force_scale = None      # the forces are no longer the Jacobian's rows scaled
+    return lin, current
+
+
+def _span_tensions(trunk, state, load: LoadCase) -> np.ndarray:
+    """The tension of every span in the equilibrium of ``load`` at ``state``."""
+    m = trunk.cables.owner.size
+    if not load.cables:
+        return np.zeros(m)
+    tension = evaluate(trunk, state, load).parts.piece_tension
+    return np.zeros(m) if tension is None else np.array(tension, float)
+
+
+def solve_sequence(model, actuations, history: FrictionState | None = None, initial=None, **options) -> list:
+    """Solve the commands ``actuations`` in order, each from the last one's equilibrium and
+    friction state (``history``: where the sequence starts; None: at rest). Returns the results."""
+    results = []
+    for actuation in actuations:
+        result = model.solve(actuation, initial, history=history if history is not None else FrictionState.rest(model.trunk),
+                             **options)
+        results.append(result)
+        history, initial = result.friction, None
+    return results
+
+
+def sensitivities(model, actuations, history: FrictionState | None = None, cables=None, step: float = 1e-4) -> dict:
+    """Derivatives with respect to the cables' friction coefficients of the effector positions
+    and the span tensions after each command of a sequence (``actuations`` applied in order to
+    ``history``; None: from rest). A sequence's result depends on μ through its whole path (the
+    holes that stick, the slip fronts), so these are central differences of the whole sequence
+    with a step of ``step`` in μ (one-sided at μ = 0), not the implicit-function derivatives of
+    one equilibrium (:meth:`~vertebra.solver.model.TrunkModel.sensitivities`). ``cables``: names
+    (default every cable). Returns ``{"names", "effector_positions": (steps, 3·n_effectors, p),
+    "span_tensions": (steps, m, p)}``."""
+    names = list(model.actuator_names[:model.n_cables])
+    cables = names if cables is None else list(cables)
+    unknown = [c for c in cables if c not in names]
+    if unknown:
+        raise OptionError(f"unknown cable(s) {', '.join(unknown)} (cables: {', '.join(names)})", field="cables")
+    base = model.parameters
+    actuations = [model.actuation(a) for a in actuations]
+
+    def run(friction_values):
+        model.set_parameters(friction=friction_values)
+        results = model.solve_sequence(actuations, history)
+        return (np.stack([model.effector_positions(r.state).reshape(-1) for r in results]),
+                np.stack([r.friction.tension for r in results]))
+
+    positions = np.zeros((len(actuations), 3 * len(model.effector_names), len(cables)))
+    tensions = np.zeros((len(actuations), model.trunk.cables.owner.size, len(cables)))
+    try:
+        for j, name in enumerate(cables):
+            k = names.index(name)
+            mu = base.friction[k]
+            low, high = base.friction.copy(), base.friction.copy()
+            low[k], high[k] = max(mu - step, 0.0), mu + step
+            (p_low, t_low), (p_high, t_high) = run(low), run(high)
+            positions[..., j] = (p_high - p_low) / (high[k] - low[k])
+            tensions[..., j] = (t_high - t_low) / (high[k] - low[k])
+    finally:
+        model.set_parameters(base)
+    return {"names": [f"friction:{c}" for c in cables], "effector_positions": positions, "span_tensions": tensions}

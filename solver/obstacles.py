@@ -1,0 +1,329 @@
+"""Rigid obstacles of a scene (``[[obstacle]]`` tables, docs/contact.md): their geometry and the
+signed distance of points to them.
+
+Every obstacle answers one question, batched over points: :meth:`closest` gives each point's
+signed distance to its surface (positive outside), the outward unit normal at the closest
+surface point and that point. A registry (:data:`OBSTACLE_TYPES`) maps a table's ``type`` to
+the class that parses it; adding a type touches this module only. Triangle meshes are read
+from STL (ASCII or binary) or Wavefront OBJ files by the small readers below (numpy only: the
+runtime does not import meshio), or given inline as ``vertices`` and ``triangles``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from vertebra.core.lie import qmatrix
+
+TINY = 1e-300
+MAX_TRIANGLES = 200_000
+
+
+def _unit(t, key, vector):
+    norm = math.sqrt(sum(v * v for v in vector))
+    if not norm > 0.0:
+        raise t.error(key, "a direction must not be the zero vector")
+    return np.array(vector, float) / norm
+
+
+def _normalised(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    norm = np.sqrt(np.add.reduce(v * v, -1))
+    return v / np.maximum(norm, TINY)[..., None], norm
+
+
+@dataclass(frozen=True, eq=False)
+class Plane:
+    """The half-space below a plane through ``point`` with outward ``normal``."""
+
+    point: np.ndarray
+    normal: np.ndarray
+    type = "plane"
+
+    @classmethod
+    def parse(cls, t, base_dir) -> "Plane":
+        return cls(np.array(t.vector("point", 3, (0.0, 0.0, 0.0))), _unit(t, "normal", t.vector("normal", 3, required=True)))
+
+    def closest(self, points):
+        distance = (points - self.point) @ self.normal
+        normal = np.broadcast_to(self.normal, points.shape)
+        return distance, normal, points - distance[..., None] * self.normal
+
+    def bounds(self):
+        return None                       # unbounded
+
+
+@dataclass(frozen=True, eq=False)
+class Sphere:
+    """A solid ball; ``radius = 0`` is a point stop."""
+
+    center: np.ndarray
+    radius: float
+    type = "sphere"
+
+    @classmethod
+    def parse(cls, t, base_dir) -> "Sphere":
+        return cls(np.array(t.vector("center", 3, required=True)), t.number("radius", required=True, nonneg=True))
+
+    def closest(self, points):
+        normal, norm = _normalised(points - self.center)
+        return norm - self.radius, normal, self.center + self.radius * normal
+
+    def bounds(self):
+        return self.center - self.radius, self.center + self.radius
+
+
+def _segment_parameter(points, a, b):
+    """Parameter in [0, 1] of the point of each segment a→b closest to ``points``."""
+    ab = b - a
+    return np.clip(np.add.reduce((points - a) * ab, -1) / np.maximum(np.add.reduce(ab * ab, -1), TINY), 0.0, 1.0)
+
+
+@dataclass(frozen=True, eq=False)
+class Capsule:
+    """The points within ``radius`` of the segment ``a``–``b`` (a cylinder with round ends)."""
+
+    a: np.ndarray
+    b: np.ndarray
+    radius: float
+    type = "capsule"
+
+    @classmethod
+    def parse(cls, t, base_dir) -> "Capsule":
+        return cls(np.array(t.vector("a", 3, required=True)), np.array(t.vector("b", 3, required=True)),
+                   t.number("radius", required=True, positive=True))
+
+    def closest(self, points):
+        s = _segment_parameter(points, self.a, self.b)
+        axis = self.a + s[..., None] * (self.b - self.a)
+        normal, norm = _normalised(points - axis)
+        return norm - self.radius, normal, axis + self.radius * normal
+
+    def bounds(self):
+        return np.minimum(self.a, self.b) - self.radius, np.maximum(self.a, self.b) + self.radius
+
+
+@dataclass(frozen=True, eq=False)
+class Box:
+    """A box of half-sides ``half`` centred at ``center``, turned by the unit ``quaternion``."""
+
+    center: np.ndarray
+    half: np.ndarray
+    rotation: np.ndarray
+    type = "box"
+
+    @classmethod
+    def parse(cls, t, base_dir) -> "Box":
+        half = t.vector("half_extents", 3, required=True)
+        if min(half) <= 0.0:
+            raise t.error("half_extents", f"must be > 0, got {list(half)}")
+        q = t.vector("quaternion", 4, (1.0, 0.0, 0.0, 0.0))
+        norm = math.sqrt(sum(v * v for v in q))
+        if abs(norm - 1.0) > 1e-6:
+            raise t.error("quaternion", f"must have unit norm, got norm {norm:.6g}")
+        return cls(np.array(t.vector("center", 3, required=True)), np.array(half),
+                   qmatrix(np.array(q) / norm))
+
+    def closest(self, points):
+        local = (points - self.center) @ self.rotation
+        clamped = np.clip(local, -self.half, self.half)
+        outside = local - clamped
+        away = np.sqrt(np.add.reduce(outside * outside, -1))
+        # inside: the nearest face
+        depth = self.half - np.abs(local)                     # distance to each pair of faces
+        face = np.argmin(depth, -1)
+        inside = away <= 0.0
+        surface = clamped.copy()
+        index = np.nonzero(inside)
+        sign = np.where(local[index + (face[index],)] >= 0.0, 1.0, -1.0)
+        surface[index + (face[index],)] = sign * self.half[face[index]]
+        normal_local = np.where(inside[..., None], 0.0, outside / np.maximum(away, TINY)[..., None])
+        normal_local[index + (face[index],)] = sign
+        distance = np.where(inside, -np.take_along_axis(depth, face[..., None], -1)[..., 0], away)
+        return distance, normal_local @ self.rotation.T, surface @ self.rotation.T + self.center
+
+    def bounds(self):
+        extent = np.abs(self.rotation) @ self.half
+        return self.center - extent, self.center + extent
+
+
+@dataclass(frozen=True, eq=False)
+class Mesh:
+    """A closed triangle mesh (outward-facing triangles): ``vertices`` (k, 3), ``triangles`` (t, 3)."""
+
+    vertices: np.ndarray
+    triangles: np.ndarray
+    source: str = ""
+    type = "mesh"
+
+    @classmethod
+    def parse(cls, t, base_dir) -> "Mesh":
+        if t.has("path"):
+            path = Path(base_dir) / t.string("path", required=True)
+            vertices, triangles = read_mesh(path, t)
+            source = str(path)
+        else:
+            vertices = np.array(_rows(t, "vertices", 3, float), float)
+            triangles = np.array(_rows(t, "triangles", 3, int), int)
+            source = "inline"
+        scale = t.number("scale", 1.0, positive=True)
+        offset = np.array(t.vector("offset", 3, (0.0, 0.0, 0.0)))
+        if triangles.size == 0:
+            raise t.error("triangles" if source == "inline" else "path", "the mesh has no triangles")
+        if triangles.shape[0] > MAX_TRIANGLES:
+            raise t.error("path", f"{triangles.shape[0]} triangles; at most {MAX_TRIANGLES} are supported")
+        if triangles.min() < 0 or triangles.max() >= vertices.shape[0]:
+            raise t.error("triangles", f"vertex indices must lie in 0..{vertices.shape[0] - 1}")
+        mesh = cls(vertices * scale + offset, triangles, source)
+        if np.any(mesh.areas <= 0.0):
+            raise t.error("triangles", f"triangle {int(np.argmin(mesh.areas))} has no area")
+        return mesh
+
+    @property
+    def corners(self) -> np.ndarray:
+        return self.vertices[self.triangles]                 # (t, 3, 3)
+
+    @property
+    def areas(self) -> np.ndarray:
+        c = self.corners
+        return 0.5 * np.linalg.norm(np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]), axis=-1)
+
+    def closest(self, points):
+        """Closest points on the triangles (Ericson, Real-Time Collision Detection §5.1.5) after a
+        broad phase: a triangle whose bounding box is farther from a point than that point's
+        distance to some triangle's corner cannot hold its closest point. The sign comes from
+        the closest triangle's face normal."""
+        shape = points.shape[:-1]
+        p = points.reshape(-1, 3)
+        c = self.corners
+        low, high = c.min(1), c.max(1)
+        gap = np.maximum(np.maximum(low[None] - p[:, None], p[:, None] - high[None]), 0.0)
+        box_distance = np.add.reduce(gap * gap, -1)                          # (k, t) squared
+        corner = np.add.reduce((p[:, None] - c[None, :, 0]) ** 2, -1)
+        point, triangle = np.nonzero(box_distance <= corner.min(1)[:, None])
+        q = _closest_on_triangles(p[point], c[triangle])
+        d2 = np.add.reduce((q - p[point]) ** 2, -1)
+        order = np.lexsort((d2, point))                                     # by point, nearest first
+        first = order[np.r_[True, point[order][1:] != point[order][:-1]]]
+        distance, surface, best = np.sqrt(d2[first]), q[first], triangle[first]
+        face = np.cross(c[best, 1] - c[best, 0], c[best, 2] - c[best, 0])
+        face, _ = _normalised(face)
+        offset = p - surface
+        sign = np.where(np.add.reduce(offset * face, -1) < 0.0, -1.0, 1.0)
+        normal = np.where((distance > 1e-12 * (1.0 + np.abs(p).max()))[:, None], sign[:, None] * offset
+                          / np.maximum(distance, TINY)[:, None], face)
+        return (sign * distance).reshape(shape), normal.reshape(shape + (3,)), surface.reshape(shape + (3,))
+
+    def bounds(self):
+        return self.vertices.min(0), self.vertices.max(0)
+
+
+def _closest_on_triangles(p: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """The point of each triangle ``c`` (N, 3, 3) closest to its point ``p`` (N, 3) (Ericson's regions)."""
+    a, b, cc = c[:, 0], c[:, 1], c[:, 2]
+    ab, ac, ap = b - a, cc - a, p - a
+    d1, d2 = np.einsum("ij,ij->i", ab, ap), np.einsum("ij,ij->i", ac, ap)
+    bp = p - b
+    d3, d4 = np.einsum("ij,ij->i", ab, bp), np.einsum("ij,ij->i", ac, bp)
+    cp = p - cc
+    d5, d6 = np.einsum("ij,ij->i", ab, cp), np.einsum("ij,ij->i", ac, cp)
+    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        denominator = 1.0 / (va + vb + vc)
+        v_in, w_in = vb * denominator, vc * denominator
+        result = a + v_in[:, None] * ab + w_in[:, None] * ac                  # inside the face
+        w_bc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        edge_bc = b + w_bc[:, None] * (cc - b)
+        v_ab = d1 / (d1 - d3)
+        w_ac = d2 / (d2 - d6)
+    edge_ab = a + v_ab[:, None] * ab
+    edge_ac = a + w_ac[:, None] * ac
+    # the regions, the later assignment winning (Ericson's early returns in reverse)
+    result = np.where(((va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0))[:, None], edge_bc, result)
+    result = np.where(((vb <= 0) & (d2 >= 0) & (d6 <= 0))[:, None], edge_ac, result)
+    result = np.where(((d6 >= 0) & (d5 <= d6))[:, None], cc, result)
+    result = np.where(((vc <= 0) & (d1 >= 0) & (d3 <= 0))[:, None], edge_ab, result)
+    result = np.where(((d3 >= 0) & (d4 <= d3))[:, None], b, result)
+    result = np.where(((d1 <= 0) & (d2 <= 0))[:, None], a, result)
+    return result
+
+
+def _rows(t, key, n, kind):
+    value = t.raw(key)
+    if value is None:
+        raise t.missing(key)
+    if (not isinstance(value, list) or not value or any(not isinstance(row, list) or len(row) != n for row in value)
+            or any(isinstance(v, bool) or not isinstance(v, (int, float)) or (kind is int and not isinstance(v, int))
+                   or not math.isfinite(v) for row in value for v in row)):
+        raise t.error(key, f"expected a list of rows of {n} {'integers' if kind is int else 'finite numbers'}")
+    return value
+
+
+def read_mesh(path: Path, t) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices and triangles of an STL (ASCII or binary) or OBJ file (polygons fanned into
+    triangles); errors name the scene field."""
+    suffix = path.suffix.lower()
+    try:
+        data = path.read_bytes()
+    except OSError as error:
+        raise t.error("path", f"cannot read mesh {path}: {error.strerror or error}")
+    try:
+        if suffix == ".stl":
+            return _read_stl(data)
+        if suffix == ".obj":
+            return _read_obj(data.decode("utf-8", "replace"))
+    except (ValueError, IndexError) as error:
+        raise t.error("path", f"{path}: not a valid {suffix[1:].upper()} mesh ({error})")
+    raise t.error("path", f"{path}: mesh files are read as .stl or .obj (convert others with meshio)")
+
+
+def _read_stl(data: bytes):
+    if len(data) >= 84:
+        count = int(np.frombuffer(data[80:84], "<u4")[0])
+        if len(data) == 84 + 50 * count:
+            record = np.dtype([("normal", "<f4", 3), ("corners", "<f4", (3, 3)), ("attribute", "<u2")])
+            corners = np.frombuffer(data, record, count, 84)["corners"].astype(float)
+            return _merge(corners.reshape(-1, 3))
+    text = data.decode("ascii", "replace")
+    values = [line.split()[1:4] for line in text.splitlines() if line.strip().startswith("vertex")]
+    corners = np.array(values, float)
+    if corners.size == 0 or corners.shape[0] % 3:
+        raise ValueError("no triangles of three vertices")
+    return _merge(corners)
+
+
+def _merge(corners: np.ndarray):
+    vertices, inverse = np.unique(corners, axis=0, return_inverse=True)
+    return vertices, inverse.reshape(-1, 3)
+
+
+def _read_obj(text: str):
+    vertices, triangles = [], []
+    for line in text.splitlines():
+        parts = line.split()
+        if not parts:
+            continue
+        if parts[0] == "v":
+            vertices.append([float(v) for v in parts[1:4]])
+        elif parts[0] == "f":
+            corners = [int(p.split("/")[0]) for p in parts[1:]]
+            corners = [c - 1 if c > 0 else len(vertices) + c for c in corners]
+            triangles += [[corners[0], corners[i], corners[i + 1]] for i in range(1, len(corners) - 1)]
+    if not triangles:
+        raise ValueError("no faces")
+    return np.array(vertices, float), np.array(triangles, int)
+
+
+#: an ``[[obstacle]]`` table's ``type`` → the class that parses it
+OBSTACLE_TYPES = {cls.type: cls for cls in (Plane, Sphere, Capsule, Box, Mesh)}
+
+
+def parse_obstacle(t, base_dir):
+    kind = t.string("type", required=True, choices=tuple(OBSTACLE_TYPES))
+    obstacle = OBSTACLE_TYPES[kind].parse(t, base_dir)
+    t.done()
+    return obstacle
+

@@ -1,0 +1,406 @@
+"""Unilateral contact (docs/contact.md): obstacles and vertebra discs, against closed forms and
+the elastica, complementarity at every contact, the scene contract, and no contact code in a
+scene without contact shapes."""
+
+import math
+import struct
+
+import numpy as np
+import pytest
+from scipy.optimize import brentq
+
+from vertebra import solver
+from vertebra.core.errors import SceneError
+from vertebra.core.lie import qmul
+from vertebra.solver import contact
+from vertebra.solver.analytic import elastica_tip
+from vertebra.solver.potential import evaluate
+from vertebra.solver.timoshenko import Section, timoshenko_compliance
+
+E, NU, RADIUS, LENGTH = 200e9, 0.3, 1e-3, 0.5
+EI = E * math.pi * RADIUS ** 4 / 4
+
+
+def cantilever(force, obstacle, elements=20, contact_radius=0.0):
+    """A steel rod along +z under a dead tip force along +x, its centreline a capsule."""
+    return solver.build_model(solver.parse_scene({
+        "segment": [{"type": "beam", "count": 1, "elements": elements, "length": LENGTH, "youngs_modulus": E,
+                     "poisson_ratio": NU, "section": {"shape": "circle", "radius": RADIUS},
+                     "contact_radius": contact_radius}],
+        "load": [{"vertebra": -1, "force": [force, 0.0, 0.0]}], "obstacle": [obstacle]}))
+
+
+def pressed(result):
+    return [c for c in result.contacts if c.force > 0.0]
+
+
+def assert_complementary(result):
+    # gap·force ≤ 1e-12 (N·m), gap ≥ −1e-9 m, force ≥ 0 at every contact reported
+    assert result.contacts
+    for c in result.contacts:
+        assert c.force >= 0.0 and c.gap >= -1e-9 and abs(c.gap * c.force) <= 1e-12, c
+
+
+def test_cantilever_on_a_plane_small_deflection_reaction_is_the_closed_form():
+    # a tip force that would bend the free rod 10× past a stop plane x = δ: the tip rests on it
+    # and the reaction is P − δ/c (c the Timoshenko tip compliance); PL²/EI = 1e-3 keeps the
+    # geometric nonlinearity at 1e-6 of the deflection
+    P = 1e-3 * EI / LENGTH ** 2
+    c = timoshenko_compliance(LENGTH, E, E / (2 * (1 + NU)), Section.circle(RADIUS, NU))[0, 0]
+    stop = 0.1 * P * c
+    result = cantilever(P, {"type": "plane", "point": [stop, 0, 0], "normal": [-1, 0, 0]}).solve()
+    assert result.converged
+    (tip,) = pressed(result)
+    assert tip.bodies == ("frame 20", "obstacle 0 (plane)")
+    assert math.isclose(tip.force, P - stop / c, rel_tol=1e-5)
+    assert abs(result.state.positions[-1][0] - stop) <= 1e-9
+    assert_complementary(result)
+
+
+def test_cantilever_on_a_point_stop_midway_is_the_propped_cantilever():
+    # a point stop (a sphere of radius 0) at frame 10 (a = L/2), δ beside the surface of the
+    # unloaded rod (a capsule of the rod's radius): the reaction of a cantilever propped at a to
+    # a deflection δ under a tip load P (Euler–Bernoulli; shear changes it by ~1e-5)
+    P, a = 1e-3 * EI / LENGTH ** 2, LENGTH / 2
+    free = P * a ** 2 * (3 * LENGTH - a) / (6 * EI)
+    stop = 0.2 * free
+    result = cantilever(P, {"type": "sphere", "center": [stop + RADIUS, 0, a], "radius": 0.0},
+                        contact_radius=RADIUS).solve()
+    (prop,) = pressed(result)
+    # the rod bears on the point just beyond frame 10 (it curves toward the stop there): on the
+    # chord of link 10, within 1e-6 of the length from a
+    assert prop.bodies == ("link 10", "obstacle 0 (sphere)") and abs(prop.point[2] - a) <= 1e-6 * LENGTH
+    assert math.isclose(prop.force, (free - stop) * 3 * EI / a ** 3, rel_tol=1e-4)
+    assert_complementary(result)
+
+
+@pytest.mark.parametrize("load_parameter, stop", [(1.0, 0.2), (3.0, 0.25), (10.0, 0.4)])
+def test_cantilever_on_a_plane_large_deflection_is_the_elastica_with_a_stop(load_parameter, stop):
+    # frictionless stop x = stop·L: the tip slides on it and carries the dead force less the
+    # reaction, which the elastica must bend to exactly the stop: k_net = (P − R)L²/EI
+    P = load_parameter * EI / LENGTH ** 2
+    k_net = brentq(lambda k: elastica_tip(k, LENGTH)[0] - stop * LENGTH, 1e-3, load_parameter, xtol=1e-14)
+    reference = elastica_tip(k_net, LENGTH)
+    result = cantilever(P, {"type": "plane", "point": [stop * LENGTH, 0, 0], "normal": [-1, 0, 0]}).solve()
+    tip = result.state.positions[-1]
+    assert result.converged
+    assert np.hypot(tip[0] - reference[0], tip[2] - reference[1]) / LENGTH <= 1e-3      # 0.1 % of L
+    (reaction,) = pressed(result)
+    # the 20-link chain is within 1e-4 of the elastica's tip: its reaction within 2e-3 of P − k_net EI/L²
+    assert math.isclose(reaction.force, P - k_net * EI / LENGTH ** 2, rel_tol=2e-3)
+    assert_complementary(result)
+
+
+# --- vertebra discs ------------------------------------------------------------------------------
+
+SPACING, DISC, THICK, HOLE = 0.01, 0.015, 0.002, 0.008
+
+
+def disc_trunk(tension, count=2):
+    return solver.build_model(solver.parse_scene({
+        "segment": [{"type": "beam", "count": count, "length": SPACING, "youngs_modulus": 1e9,
+                     "section": {"area": 1e-3, "Ixx": 1e-12, "Iyy": 1e-12, "J": 2e-12},
+                     "vertebra": {"disc_radius": DISC, "disc_thickness": THICK}}],
+        "base": {"disc_radius": DISC, "disc_thickness": THICK},
+        "cable": [{"name": "c", "radius": HOLE, "angle_deg": 0.0, "to": count, "tension": tension}]}))
+
+
+def relative(state, k):
+    """The rotation angle of vertebra k + 1 in vertebra k, and its position there."""
+    q = state.quaternions
+    turn = qmul(q[k] * np.array([1.0, -1.0, -1.0, -1.0]), q[k + 1])
+    angle = 2.0 * math.atan2(np.linalg.norm(turn[1:]), turn[0])
+    R = solver.State(state.positions, state.quaternions).transforms()[k, :3, :3]
+    return angle, R.T @ (state.positions[k + 1] - state.positions[k])
+
+
+def geometric_limit(d):
+    """The bend angle at which the lower rim of a disc at ``d`` (in the frame below, bent about y
+    toward +x) touches the upper face of the disc below: d_z − (t/2)cos θ − R sin θ + … = t/2."""
+    def gap(theta):
+        axis = np.array([math.sin(theta), 0.0, math.cos(theta)])
+        rim = d - 0.5 * THICK * axis + DISC * np.array([math.cos(theta), 0.0, -math.sin(theta)])
+        return rim[2] - 0.5 * THICK
+    return brentq(gap, 1e-6, 1.4)
+
+
+@pytest.mark.parametrize("tension", [10.0, 30.0])
+def test_discs_stop_the_bend_at_their_geometric_limit(tension):
+    # a tendon bends a 2-vertebra trunk until every pair of discs touches rim to face; the holes
+    # (8 mm) would meet without discs. The bend angle is the geometric limit for the relative
+    # position the backbone takes (its S-shaped bending moves that position: docs/contact.md)
+    model = disc_trunk(tension)
+    result = model.solve()
+    assert result.converged
+    assert len(pressed(result)) == 2
+    for k in range(2):
+        angle, d = relative(result.state, k)
+        assert abs(angle - geometric_limit(d)) <= 1e-6
+    assert_complementary(result)
+
+
+def test_disc_contact_force_balances_the_tip_vertebra():
+    # moment balance of the last vertebra about its frame: the tendon's pull at its hole, the
+    # contact force at the reported point along the reported normal, and the link's wrench (from
+    # the potential's link gradient) sum to zero; the tension beyond contact goes into the
+    # contact force
+    forces = []
+    for tension in (10.0, 30.0):
+        model = disc_trunk(tension)
+        result = model.solve()
+        state = result.state
+        x = state.positions
+        R = state.transforms()[:, :3, :3]
+        hole = x + R @ np.array([HOLE, 0.0, 0.0])
+        pull = tension * (hole[1] - hole[2]) / np.linalg.norm(hole[1] - hole[2])
+        (touch,) = [c for c in pressed(result) if c.bodies == ("vertebra 1 disc", "vertebra 2 disc")]
+        push = touch.force * np.array(touch.normal)
+        ev = evaluate(model.trunk, state, model.loads(result.actuation, 1.0))
+        link = -ev.link_gradient[-1, 6:]                     # the backbone's force and moment on frame 2
+        moment = (np.cross(hole[2] - x[2], pull) + np.cross(np.array(touch.point) - x[2], push) + link[3:])
+        force = pull + push + link[:3]
+        scale = tension * HOLE
+        assert np.abs(moment).max() <= 1e-9 * scale and np.abs(force).max() <= 1e-9 * tension
+        forces.append(touch.force)
+    assert forces[1] > 2.0 * forces[0]
+
+
+def test_random_tendon_robots_with_discs_converge_where_holes_meet():
+    # tendon robots from the robustness generator with tensions tripled: most of them bend until
+    # cable holes meet (refused without discs); with discs (1.2 × the widest hole, 20 % of the
+    # spacing thick) declared on every vertebra and the base, the discs touch and the solve converges
+    from robots import tendon_robot
+
+    refused = 0
+    for seed in (0, 5, 6, 7, 10, 13, 19, 25):
+        scene = tendon_robot(np.random.default_rng(seed))
+        for cable in scene["cable"]:
+            cable["tension"] *= 3.0
+            cable["max_tension"] = max(cable["max_tension"], cable["tension"])
+        plain = solver.build_model(solver.parse_scene(scene)).solve(raise_on_failure=False)
+        refused += "holes of the two vertebrae meet" in plain.message
+        holes = max(c["radius"] for c in scene["cable"])
+        spacing = min(s["length"] for s in scene["segment"])
+        disc = {"disc_radius": 1.2 * holes, "disc_thickness": 0.2 * spacing}
+        scene["segment"] = [dict(s, vertebra=dict(s.get("vertebra", {}), **disc)) for s in scene["segment"]]
+        scene["base"] = dict(disc)
+        result = solver.build_model(solver.parse_scene(scene)).solve(raise_on_failure=False)
+        assert result.converged, (seed, result.message)
+        assert pressed(result)
+        assert_complementary(result)
+    assert refused >= 5
+
+
+# --- leaning on obstacles -------------------------------------------------------------------------
+
+def leaning(obstacle, gravity):
+    return solver.build_model(solver.parse_scene({
+        "segment": [{"type": "beam", "count": 10, "length": 0.03, "elements": 2, "youngs_modulus": 2e9,
+                     "poisson_ratio": NU, "section": {"shape": "circle", "radius": 0.001}, "density": 1000,
+                     "contact_radius": 0.001, "vertebra": {"mass": 0.002, "disc_radius": 0.01,
+                                                           "disc_thickness": 0.004}}],
+        "gravity": {"vector": [-gravity, 0, 0]}, "obstacle": [obstacle]}))
+
+
+def box_triangles(center, half):
+    corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
+    vertices = corners * half + center
+    triangles = []
+    for a, b, c, d in [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]:
+        for t in ((a, b, c), (a, c, d)):
+            p = vertices[list(t)]
+            outward = np.cross(p[1] - p[0], p[2] - p[0]) @ (p.mean(0) - center) > 0
+            triangles.append(list(t) if outward else [t[0], t[2], t[1]])
+    return vertices, np.array(triangles)
+
+
+def write_binary_stl(path, vertices, triangles):
+    with open(path, "wb") as out:
+        out.write(b"\0" * 80 + struct.pack("<I", len(triangles)))
+        for t in triangles:
+            out.write(struct.pack("<12fH", 0, 0, 0, *vertices[t].ravel(), 0))
+
+
+def test_trunk_leaning_on_a_sphere_is_complementary():
+    result = leaning({"type": "sphere", "center": [-0.21, 0, 0.2], "radius": 0.2}, gravity=5.0).solve()
+    assert result.converged and pressed(result)
+    assert_complementary(result)
+
+
+@pytest.mark.parametrize("form", ["box", "mesh"])
+def test_trunk_leaning_on_a_box_and_on_its_triangle_mesh(form, tmp_path):
+    # the same box as a primitive and as a binary STL of 12 triangles: the same equilibrium
+    center, half = np.array([-0.06, 0, 0.2]), np.array([0.03, 0.05, 0.03])
+    if form == "box":
+        obstacle = {"type": "box", "center": center.tolist(), "half_extents": half.tolist()}
+    else:
+        write_binary_stl(tmp_path / "box.stl", *box_triangles(center, half))
+        obstacle = {"type": "mesh", "path": str(tmp_path / "box.stl")}
+    result = leaning(obstacle, gravity=20.0).solve()
+    assert result.converged and pressed(result)
+    assert_complementary(result)
+    (touch,) = pressed(result)
+    assert touch.bodies[0] == "vertebra 7 disc"
+    assert abs(touch.point[0] - (center[0] + half[0])) <= 1e-9        # on the box's face x = −0.03
+    assert math.isclose(touch.force, 0.29770, rel_tol=1e-3)
+
+
+def test_mesh_files_ascii_stl_and_obj_read_as_the_same_box(tmp_path):
+    vertices, triangles = box_triangles(np.zeros(3), np.ones(3))
+    lines = ["solid box"]
+    for t in triangles:
+        lines += ["facet normal 0 0 0", "outer loop"] + [f"vertex {x} {y} {z}" for x, y, z in vertices[t]]
+        lines += ["endloop", "endfacet"]
+    (tmp_path / "box.stl").write_text("\n".join(lines + ["endsolid box"]))
+    (tmp_path / "box.obj").write_text("\n".join([f"v {x} {y} {z}" for x, y, z in vertices]
+                                                + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in triangles]))
+    points = np.array([[2.0, 0.3, 0.1], [0.5, 0.2, -0.1], [1.5, 1.5, 1.5]])
+    expected = [1.0, -0.5, math.sqrt(3 * 0.25)]
+    for name in ("box.stl", "box.obj"):
+        scene = solver.parse_scene({"segment": [{"type": "beam", "length": 0.1, "youngs_modulus": 1e9,
+                                                 "section": {"shape": "circle", "radius": 0.001}}],
+                                    "obstacle": [{"type": "mesh", "path": name, "offset": [0, 0, 5]}]},
+                                   base_dir=tmp_path)
+        mesh = scene.obstacles[0]
+        distance, normal, _ = mesh.closest(points + [0, 0, 5])
+        assert np.allclose(distance, expected, atol=1e-12)
+        assert np.allclose(normal[0], [1, 0, 0])
+
+
+# --- the scene contract ---------------------------------------------------------------------------
+
+def scene_with(**changes):
+    data = {"segment": [{"type": "beam", "count": 2, "length": 0.01, "youngs_modulus": 1e9,
+                         "section": {"shape": "circle", "radius": 0.001}}]}
+    data.update(changes)
+    return data
+
+
+@pytest.mark.parametrize("changes, field, words", [
+    ({"obstacle": [{"type": "cone"}]}, "obstacle[0].type", "must be one of"),
+    ({"obstacle": [{"type": "sphere", "center": [0, 0, 1]}]}, "obstacle[0].radius", "required"),
+    ({"obstacle": [{"type": "sphere", "center": [0, 0, 1], "radus": 1}]}, "obstacle[0].radus", "did you mean"),
+    ({"obstacle": [{"type": "plane", "normal": [0, 0, 0]}]}, "obstacle[0].normal", "zero vector"),
+    ({"obstacle": [{"type": "mesh", "path": "missing.stl"}]}, "obstacle[0].path", "cannot read"),
+    ({"obstacle": [{"type": "mesh", "vertices": [[0, 0, 0]], "triangles": [[0, 1, 2]]}]}, "obstacle[0].triangles",
+     "indices"),
+    ({"base": {"disc_thickness": 0.001}}, "base.disc_thickness", "disc_radius"),
+])
+def test_bad_obstacles_and_discs_name_the_field(changes, field, words):
+    with pytest.raises(SceneError) as error:
+        solver.build_model(solver.parse_scene(scene_with(**changes)))
+    assert error.value.field == field and words in str(error.value)
+
+
+def test_discs_that_overlap_at_rest_are_refused():
+    data = scene_with()
+    data["segment"][0]["vertebra"] = {"disc_radius": 0.01, "disc_thickness": 0.02}       # thicker than 10 mm apart
+    with pytest.raises(SceneError, match="discs of vertebrae 1 and 2 overlap"):
+        solver.build_model(solver.parse_scene(data))
+
+
+def test_a_trunk_inside_an_obstacle_at_rest_is_refused():
+    data = scene_with(obstacle=[{"type": "sphere", "center": [0, 0, 0.01], "radius": 0.005}])
+    data["segment"][0]["contact_radius"] = 0.001
+    with pytest.raises(SceneError, match="overlap"):
+        solver.build_model(solver.parse_scene(data))
+
+
+def test_without_contact_shapes_no_contact_code_runs(monkeypatch):
+    # a scene without discs, capsules or obstacles compiles no contact model, and a solve never
+    # reaches the contact module: its results are the contact-free solver's
+    def forbidden(*args, **kwargs):
+        raise AssertionError("contact code ran")
+
+    for name in ("evaluate", "report", "complementarity", "curvature"):
+        monkeypatch.setattr(contact, name, forbidden)
+    monkeypatch.setattr(contact, "Constraints", forbidden)
+    model = solver.build_model(solver.load_scene("gallery:paper_3v_8t"))
+    assert model.trunk.contact is None
+    result = model.solve()
+    assert result.converged and result.contacts == ()
+
+
+# --- output and the inverse -------------------------------------------------------------------------
+
+def test_paraview_file_shows_the_contacts(tmp_path):
+    from vertebra.solver.paraview import CONTACT, trunk_polydata, write_vtp
+    from vtk_xml import read_vtp
+
+    model = disc_trunk(10.0)
+    result = model.solve()
+    data = read_vtp(write_vtp(tmp_path / "c.vtp", trunk_polydata(model, result.state, result.actuation,
+                                                                  contacts=result.contacts)))
+    assert data.field_data["part_names"][CONTACT] == "contact"
+    at = data.point_data["contact_force"] > 0.0
+    assert at.sum() == 2
+    assert np.allclose(np.sort(data.point_data["contact_force"][at]), np.sort([c.force for c in pressed(result)]))
+    assert np.allclose(data.point_data["contact_normal"][at][0], pressed(result)[0].normal)
+    assert (data.cell_data["part"] == CONTACT).sum() == len(result.contacts)
+
+
+def wall_robot(wall=0.03):
+    """The gallery's 16-tendon robot (tip effector) with discs of 12 mm on its vertebrae (its
+    holes at 10 mm) beside a wall x = ``wall``."""
+    import dataclasses
+    from vertebra.solver.gallery import load
+    from vertebra.solver.obstacles import Plane
+
+    scene = load("paper_5v_16t")
+    segments = tuple(dataclasses.replace(s, vertebra=dataclasses.replace(s.vertebra, disc_radius=0.012,
+                                                                         disc_thickness=0.003))
+                     for s in scene.segments)
+    return solver.build_model(dataclasses.replace(scene, segments=segments, effectors=scene.effectors[1:],
+                                                  obstacles=(Plane(np.array([wall, 0.0, 0.0]),
+                                                                   np.array([-1.0, 0.0, 0.0])),)))
+
+
+def test_inverse_reaches_targets_beside_a_wall_without_penetration():
+    # 20 tip targets made by forward solves that pull towards the wall (most of them with a disc
+    # pressed on it): the converged inverse (each iteration's equilibrium solved with the contacts)
+    # reaches every one to 1e-4 m and no disc enters the wall
+    from vertebra.solver.inverse import InverseController, InverseSettings
+
+    model = wall_robot()
+    rng = np.random.default_rng(1)
+    targets, touching = [], 0
+    while len(targets) < 20:
+        a = np.zeros(16)
+        a[rng.choice(16, 3, replace=False)] = rng.uniform(0, 8, 3)
+        a[[0, 4, 8, 12]] += rng.uniform(0, 6, 4)
+        result = model.solve(a, raise_on_failure=False)
+        if result.converged:
+            targets.append(model.effector_positions(result.state)[0])
+            touching += bool(pressed(result))
+    assert touching >= 10
+    controller = InverseController(model, InverseSettings(mode="converged", tolerance=1e-4))
+    for target in targets:
+        step = controller.step(target[None])
+        assert step.reached and step.equilibrium
+        found = contact.evaluate(model.trunk.contact, step.state)
+        assert found.gap.min() >= -1e-9
+
+
+def test_tick_mode_along_a_trajectory_that_touches_the_wall():
+    # a tip path from rest into the wall and along it (made by forward solves, the last two
+    # thirds with a disc pressed on the wall), tracked by control ticks (3 per target): the
+    # ticks' states stay out of the wall and on the path. (Ticks step the state by the
+    # linearisation without the contacts: the robot's redundancy keeps it off the wall here.)
+    from vertebra.solver.inverse import InverseController, InverseSettings
+
+    model = wall_robot()
+    path, touching = [], 0
+    for s in np.linspace(0.0, 1.0, 30):
+        a = np.zeros(16)
+        a[[0, 4, 8, 12]] = 6.0 * min(1.0, 2.0 * s)
+        a[[1, 5]] = 4.0 * max(0.0, 2.0 * s - 1.0)
+        result = model.solve(a)
+        path.append(model.effector_positions(result.state)[0])
+        touching += bool(pressed(result))
+    assert touching >= 15
+    controller = InverseController(model, InverseSettings(mode="tick"))
+    for target in path:
+        for _ in range(3):
+            step = controller.step(target[None])
+        assert contact.evaluate(model.trunk.contact, step.state).gap.min() >= -1e-9
+        assert step.errors.max() <= 1e-5
