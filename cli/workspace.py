@@ -3,8 +3,10 @@
 Reachable effector positions over actuations sampled quasi-randomly within their bounds
 (``vertebra.solver.workspace``). Progress goes to stderr; ``--json`` prints one summary
 document on stdout (per effector: count, extents, centroid, convex hull; failures by
-sample); ``--points`` writes every sample; ``--processes N`` solves the samples in N
-processes (``--workers`` is for designing entries with ``--prepare``). Exit codes: 0 when at
+sample); ``--points`` writes every sample; the samples are solved in batches
+(``model.solve_batch``), and ``--processes N`` spreads the batches over N processes
+(``--executor dask`` or ``--scheduler ADDRESS``, the options that also say where ``--prepare``
+designs entries, over a dask cluster; ``--workers`` is for designing entries with ``--prepare``). Exit codes: 0 when at
 least one sample converged (failed samples are counted and listed), 1 when none did or a
 design failed, 2 bad input.
 """
@@ -29,12 +31,14 @@ def add_arguments(parser) -> None:
     parser.add_argument("--sampler", choices=("sobol", "halton"), default="sobol",
                         help="quasi-random sequence (scrambled; default sobol)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the scrambling (default 0)")
-    parser.add_argument("--ordering", choices=("tree", "chain", "sampled"), default="tree",
-                        help="solve order for warm starts (default tree)")
+    parser.add_argument("--ordering", choices=("levels", "tree", "chain", "sampled"), default="levels",
+                        help="which solved sample each one starts from; samples are solved in batches, one "
+                             "generation of this order at a time (default levels: two batches)")
     parser.add_argument("--tolerance", type=float, default=None,
                         help="Newton tolerance (scaled residual; default: the scene's)")
     parser.add_argument("--processes", type=int, default=1, metavar="N",
-                        help="processes solving the samples (default 1)")
+                        help="processes solving the batches (default 1; with --executor dask or --scheduler the "
+                             "batches are solved on dask: a LocalCluster of N workers, or the scheduler's cluster)")
     parser.add_argument("--drop-outside", action="store_true",
                         help="leave out of the clouds the samples whose equilibrium breaks a bound of the scene "
                              "(stroke, volume growth, tendon tension) or leaves an entry's fitted range "
@@ -85,6 +89,8 @@ def run(args) -> int:
     with tqdm(total=args.samples, unit="solve", file=sys.stderr, disable=None, desc="workspace") as bar:
         workspace = sample_workspace(model, args.samples, method=args.sampler, seed=args.seed,
                                      ordering=args.ordering, tolerance=args.tolerance, workers=args.processes,
+                                     executor="dask" if args.scheduler or args.executor == "dask" else "local",
+                                     scheduler=args.scheduler,
                                      progress=bar.update, drop_outside=args.drop_outside)
     if points is not None:
         write_points(workspace, points)

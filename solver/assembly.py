@@ -82,6 +82,7 @@ class BandAssembler:
         self.terms_size = self._weight_start + (nb * 9 if gravity else 0) + 1
         destination = self._term_destinations()
         self._storage_gather, self._band_gather = self._gathers(destination, sym_ij, sym_ji)
+        self._offsets = None               # the cable pairs by block offset (symmetric_blocks), when first asked for
 
     def _flat(self, band, c, offset, r, col):
         """Index in the flat storage of ``[lower, upper][band][c, offset, r, col]``."""
@@ -168,6 +169,43 @@ class BandAssembler:
         band = np.add.reduce(terms.take(self._band_gather), axis=0)
         band *= 0.5
         return band.reshape(self.kd + 1, self.n)
+
+    def symmetric_blocks(self, links: np.ndarray, cables: np.ndarray | None, weight: np.ndarray | None) -> np.ndarray:
+        """Lower block band (B, n_blocks, span + 1, 6, 6), ``[:, c, s] = ½(A + Aᵀ)[c + s, c]``, of the
+        symmetric part of a batch of tangents given by their terms: the links' (B, n_blocks, 12, 12),
+        the cable pairs' (B, n_pairs, 12, 12) and the weight's (B, n_blocks, 3, 3) (None: none).
+        What :func:`~vertebra.solver.banded.factor_block_cholesky` factors: each term's 6×6 blocks
+        added where they couple (no gather), one batched sum per block offset."""
+        nb = self.n_blocks
+        B = links.size // (nb * 144)
+        S = np.zeros((B, nb, self.span + 1, 6, 6))
+        H = links.reshape(B, nb, 2, 6, 2, 6)                # link k joins blocks k − 1 (a) and k (b)
+        S[:, :, 0] += H[:, :, 1, :, 1, :]
+        S[:, :-1, 0] += H[:, 1:, 0, :, 0, :]
+        S[:, :-1, 1] += H[:, 1:, 1, :, 0, :] + H[:, 1:, 0, :, 1, :].mT
+        if cables is not None and self.n_pairs:
+            C = cables.reshape(B, self.n_pairs, 2, 6, 2, 6)
+            aa, ab, ba, bb = C[:, :, 0, :, 0, :], C[:, :, 0, :, 1, :], C[:, :, 1, :, 0, :], C[:, :, 1, :, 1, :]
+            for offset, pairs, a, b, free in self._pair_offsets():
+                S[:, b, 0] += bb[:, pairs]
+                pairs, a = pairs[free], a[free]
+                S[:, a, 0] += aa[:, pairs]
+                S[:, a, offset] += ba[:, pairs] + ab[:, pairs].mT
+        if weight is not None:
+            S[:, :, 0, 3:, 3:] += weight
+        diagonal = S[:, :, 0]
+        S[:, :, 0] = diagonal + diagonal.mT
+        S *= 0.5
+        return S
+
+    def _pair_offsets(self) -> list:
+        """The cable pairs by block offset: (offset, pairs, block a, block b, a is free), each with
+        distinct blocks (so that one batched sum per offset adds no block twice)."""
+        if self._offsets is None:
+            gap = self.pair_b - self.pair_a
+            self._offsets = [(int(o), np.flatnonzero(gap == o), self.pair_a[gap == o] - 1, self.pair_b[gap == o] - 1,
+                              self.pair_a[gap == o] > 0) for o in np.unique(gap)]
+        return self._offsets
 
     # ------------------------------------------------------------------ block storage
     def new_storage(self):

@@ -62,17 +62,24 @@ class Chain:
     translations: np.ndarray   # (n, 3) relative translations p of the links, in a's axes
     link_coefficients: np.ndarray | None   # (n, 31) lie.coefficients() of the strains, when carried
     largest_turn2: float = 0.0             # the largest θ² of the links' rotations
+    largest_turns2: np.ndarray | None = None   # (B,) per chain of a batch (None: one chain)
 
 
 def chain_poses(q0: np.ndarray, x0: np.ndarray, xi: np.ndarray) -> Chain:
     """World quaternions (n+1, 4) and positions (n+1, 3) of a chain from its base pose and the
     strains ``ξ`` (n, 6) of its links. When every link turns less than :data:`CARRY_ANGLE`, the
-    links' logarithm-side coefficients come from the same product as the exponentials."""
-    n = xi.shape[0]
+    links' logarithm-side coefficients come from the same product as the exponentials.
+
+    ``ξ`` may carry leading batch axes (B, n, 6): B chains from the same base, composed by the
+    same products over the batch (their rows of link coefficients flattened, (B·n, 31);
+    ``largest_turns2`` per chain)."""
+    lead = xi.shape[:-2]
+    n = xi.shape[-2]
     N = n + 1
-    rho, phi = xi[:, :3], xi[:, 3:]
+    flat = xi.reshape(-1, 6)
+    rho, phi = flat[:, :3], flat[:, 3:]
     theta2 = (phi[:, None, :] @ phi[:, :, None])[:, 0, 0]
-    largest = float(np.maximum.reduce(theta2)) if n else 0.0
+    largest = float(np.maximum.reduce(theta2)) if theta2.size else 0.0
     if not largest < math.inf:                   # NaN, or a rotation whose square overflows
         raise ConvergenceError("non-finite values appeared in the retraction (a step of non-finite or "
                                "overflowing size)")
@@ -86,29 +93,48 @@ def chain_poses(q0: np.ndarray, x0: np.ndarray, xi: np.ndarray) -> Chain:
             link_coef = coef[:, :31]
     else:
         expc = exp_coefficients(theta2)
-    doubling = N <= 64
+    doubling = N <= 64 or bool(lead)
     c = 1 if doubling else math.isqrt(N - 1) + 1
     m = N if doubling else -(-N // c)
-    F = _feature_template(m * c).copy()                # features [q, q⊗q, p, 1] of each factor
-    F[0, :4], F[0, 20:23] = q0, x0
-    F[1:N, 0] = expc[:, 0]
-    F[1:N, 1:4] = expc[:, 1:2] * phi
-    F[1:N, 20:23] = exp_translation(expc, phi, rho)
-    quats = F[:N, :4]
-    F[:N, 4:20] = (quats[:, :, None] * quats[:, None, :]).reshape(N, 16)
-    if doubling:
-        M = (F @ _POSE_TABLE).reshape(N, 8, 8)
+    template = _feature_template(m * c)
+    if lead:
+        F = np.empty(lead + template.shape)
+        F[...] = template
+    else:
+        F = template.copy()                             # features [q, q⊗q, p, 1] of each factor
+    F[..., 0, :4], F[..., 0, 20:23] = q0, x0
+    F[..., 1:N, 0] = expc[:, 0].reshape(lead + (n,))
+    F[..., 1:N, 1:4] = (expc[:, 1:2] * phi).reshape(lead + (n, 3))
+    F[..., 1:N, 20:23] = exp_translation(expc, phi, rho).reshape(lead + (n, 3))
+    quats = F[..., :N, :4]
+    F[..., :N, 4:20] = (quats[..., :, None] * quats[..., None, :]).reshape(lead + (N, 16))
+    if lead:
+        # a batch: the factors built block by block (no table product) and their prefix products
+        # taken one link after the other, each a product over the whole batch (N − 1 products
+        # instead of N log₂N: the batch, not the chain, fills the arrays)
+        M = np.zeros(lead + (N, 8, 8))
+        M[..., :4, :4] = (quats @ L_TABLE).reshape(lead + (N, 4, 4))
+        M[..., 4:7, 4:7] = (F[..., 4:20] @ R_TABLE).reshape(lead + (N, 3, 3))
+        M[..., 4:7, 7] = F[..., 20:23]
+        M[..., 7, 7] = 1.0
+        for k in range(1, N):
+            M[..., k, :, :] = M[..., k - 1, :, :] @ M[..., k, :, :]
+    elif doubling:
+        M = (F @ _POSE_TABLE).reshape(lead + (N, 8, 8))
         shift = 1
         while shift < N:
-            M[shift:] = M[:-shift] @ M[shift:]
+            M[..., shift:, :, :] = M[..., :-shift, :, :] @ M[..., shift:, :, :]
             shift *= 2
     else:
-        M = (F @ _POSE_TABLE).reshape(m, c, 8, 8)
+        M = (F @ _POSE_TABLE).reshape(lead + (m, c, 8, 8))
         for j in range(1, c):
-            M[:, j] = M[:, j - 1] @ M[:, j]
+            M[..., j, :, :] = M[..., j - 1, :, :] @ M[..., j, :, :]
         for i in range(1, m):
-            M[i] = M[i - 1, -1] @ M[i]
-        M = M.reshape(m * c, 8, 8)[:N]
-    quaternions = M[:, :4, 0]
-    quaternions = quaternions / np.sqrt(quaternions[:, None, :] @ quaternions[:, :, None])[:, 0]
-    return Chain(quaternions, M[:, 4:7, 7].copy(), M[:, 4:7, 4:7], F[1:N, 20:23], link_coef, largest)
+            M[..., i, :, :, :] = M[..., i - 1, -1:, :, :] @ M[..., i, :, :, :]
+        M = M.reshape(lead + (m * c, 8, 8))[..., :N, :, :]
+    quaternions = M[..., :4, 0]
+    quaternions = quaternions / np.sqrt(quaternions[..., None, :] @ quaternions[..., :, None])[..., 0]
+    chain = Chain(quaternions, M[..., 4:7, 7].copy(), M[..., 4:7, 4:7], F[..., 1:N, 20:23], link_coef, largest)
+    if lead:
+        chain.largest_turns2 = np.maximum.reduce(theta2.reshape(lead + (n,)), -1) if n else np.zeros(lead)
+    return chain

@@ -11,6 +11,7 @@ import math
 
 import numpy as np
 
+from vertebra.core.lie import qconj, qlog, qmul
 from vertebra.solver.potential import evaluate
 from vertebra.solver.state import retract, strain_change
 
@@ -53,6 +54,16 @@ def bend(stage, ev, r: np.ndarray, factor, shift: float, scale: np.ndarray):
     return dq, change, rp, curvature, rp - 0.5 * curvature
 
 
+def turned(state, trial) -> np.ndarray:
+    """The rotation vectors (world axes) that take the free frames of ``state`` to those of
+    ``trial``, flattened: the work of dead moments ``M`` from one to the other along the
+    geodesics is ``M · turned`` exactly. The merit needs this, not ``α M·Δφ``: the retraction
+    (in strain space) turns the frames differently from ``exp(αΔφ)`` at second order, and near
+    an equilibrium, where the potential's gradient balances ``M``, that second-order term would
+    put the merit's curvature off ``pᵀHp`` and the step-quality ratio off 1 for good."""
+    return qlog(qmul(trial.quaternions[1:], qconj(state.quaternions[1:]))).reshape(-1)
+
+
 def line_search(stage, state, ev, residual: float, dq, change, alpha: float, rp: float,
                  curvature: float, moments):
     """Backtracking from ``alpha`` along ``dq``: the first fraction that lowers the energy (the
@@ -71,7 +82,7 @@ def line_search(stage, state, ev, residual: float, dq, change, alpha: float, rp:
         predicted = alpha * rp - 0.5 * alpha * alpha * curvature
         decrease = ev.energy - ev_trial.energy
         if moments is not None:
-            decrease += alpha * float(moments @ dq.reshape(-1, 6)[:, 3:].reshape(-1))
+            decrease += float(moments @ turned(state, trial))
         if stage.constraints is not None:        # the Lagrangian E − λᵀg at the step's contact forces
             decrease += stage.constraints.work(trial)
         if predicted <= noise:       # the energy cannot judge this step: the residual does

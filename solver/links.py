@@ -138,8 +138,11 @@ class Links:
 
     def strain_change(self, dq: np.ndarray) -> np.ndarray:
         """``G [dq_a; dq_b] = J_l⁻¹ ζ``: the linearised change (n, 6) of the strains under frame
-        increments ``dq = [dx; dφ]`` (world axes, all n + 1 frames, (n + 1, 6))."""
-        pairs = np.concatenate([dq[:-1], dq[1:]], 1)
+        increments ``dq = [dx; dφ]`` (world axes, all n + 1 frames, (n + 1, 6)); for links of a batch
+        of B chains (B·n rows, sample by sample), ``dq`` (B, n + 1, 6) gives (B·n, 6)."""
+        pairs = np.concatenate([dq[..., :-1, :], dq[..., 1:, :]], -1)
+        if pairs.ndim > 2:
+            pairs = pairs.reshape(-1, 12)
         return (self.G @ pairs[:, :, None])[:, :, 0]
 
     def generalised_force(self, y: np.ndarray) -> np.ndarray:

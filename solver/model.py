@@ -19,7 +19,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from vertebra.solver import bounds, compliance, friction, newton, outputs, sensitivity
+from vertebra.solver import batch, bounds, compliance, friction, newton, outputs, sensitivity
 from vertebra.solver.potential import Evaluation, LoadCases, Trial, cable_tensions, evaluate, out_of_range, potential
 from vertebra.solver.newton import StaticResult
 from vertebra.solver.outputs import Linearisation
@@ -176,6 +176,32 @@ class TrunkModel:
                 error.result.bound_violations = bounds.bound_violations(self, error.result.state, values)
             raise
         result.bound_violations = bounds.bound_violations(self, result.state, values)
+        return result
+
+    def solve_batch(self, actuations, initial=None, *, tolerance=None, max_iterations=None, load_steps=None,
+                    chunk=None, progress=None) -> "batch.BatchResult":
+        """Equilibria of many actuations at once (:func:`vertebra.solver.batch.solve_batch`):
+        ``actuations`` (B, n_actuators) in :attr:`actuator_names` order; ``initial`` None (from
+        rest), start states (a sequence of :class:`State`, None entries from rest) or their link
+        strains (B, n_links, 6). Each sample's result is the single :meth:`solve`'s (its checks,
+        its failures, reported per sample: nothing is raised for a sample that fails). A negative
+        tension on a cable is refused as by :meth:`solve`; bounds are reported per sample
+        (``result.bound_violations``)."""
+        settings = self.scene.solver
+        values = np.asarray(actuations, dtype=float)
+        if values.ndim != 2 or values.shape[1] != len(self.actuator_names):
+            raise OptionError(f"actuations must be (samples, {len(self.actuator_names)}) for the actuators "
+                              f"{', '.join(self.actuator_names)}; got shape {values.shape}", field="actuations")
+        if self.n_cables:
+            pushing = np.flatnonzero(np.any(values[:, :self.n_cables] < 0.0, 1))
+            for i in pushing[:1].tolist():
+                bounds.check_pushing(self, values[i])
+        result = batch.solve_batch(
+            self, values, initial,
+            tolerance=settings.tolerance if tolerance is None else tolerance,
+            max_iterations=settings.max_iterations if max_iterations is None else max_iterations,
+            load_steps=settings.load_steps if load_steps is None else load_steps, chunk=chunk, progress=progress)
+        result.bound_violations = batch.bound_violations(self, result)
         return result
 
     def solve_sequence(self, actuations, history=None, initial: State | None = None, **options) -> list:

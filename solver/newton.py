@@ -10,7 +10,7 @@ Each iteration at a fixed load factor
   ``μ`` raised tenfold until the shifted matrix is positive definite, so ``p`` descends even on an
   indefinite tangent (no LU there: it steers Newton towards saddles). Dead moments make ``H``
   unsymmetric: banded LU of ``H + μ·D``, judged by an energy-like merit (the potential minus the
-  linearised work of the moments);
+  moments' work along the step, exact: :func:`~vertebra.solver.globalise.turned`);
 * where the tangent proved indefinite and the shift needed is large (``μ ≥`` :data:`BEND_SHIFT`),
   or at a stationary point that is a saddle, weighs a step along the direction of most negative
   curvature (inverse iteration with the shifted factor) against the shifted one;

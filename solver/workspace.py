@@ -42,8 +42,10 @@ from typing import Callable
 
 import numpy as np
 
+from vertebra.solver.batch import path_tangents, predicted_strains
 from vertebra.solver.hull import Hull, convex_hull
-from vertebra.solver.workspace_order import ORDERINGS, SolveOrder, response_coordinates
+from vertebra.solver.workspace_order import ORDERINGS, SolveOrder, generations, response_coordinates
+from vertebra.core.lie import qrotate
 from vertebra.core.errors import ConvergenceError, OptionError, SceneError
 
 SAMPLERS = ("sobol", "halton")
@@ -256,7 +258,7 @@ def _floats(values) -> list:
 
 
 # ---------------------------------------------------------------------------- solve
-CHUNK = 256              # samples per task when solving in worker processes
+CHUNK = 4096             # samples of one generation solved together (per worker task)
 
 
 @dataclass
@@ -284,77 +286,26 @@ class _Solved:
                    np.zeros(n, bool), np.zeros(n, bool))
 
 
-class _Equilibrium:
-    """A solved sample that later samples start from, with the tangent of the equilibrium path
-    through it, ``dq/dλ = K⁻¹ B`` (computed when first asked for)."""
-
-    def __init__(self, model, state, actuation):
-        self.model, self.state, self.actuation = model, state, actuation
-        self._path = None
-
-    def start_for(self, actuation: np.ndarray):
-        """Euler predictor: the state moved along the path tangent by the change of actuation
-        (the plain equilibrium where the tangent cannot be factored)."""
-        if self._path is None:
-            try:
-                lin = self.model.linearise(self.state, self.actuation)
-                self._path = lin.solve(lin.actuator_forces)
-            except SOLVE_FAILURES:
-                self._path = False
-        if self._path is False:
-            return self.state, False
-        return self.model.step(self.state, self._path @ (actuation - self.actuation)), True
-
-
-def _solve_samples(model, actuations: np.ndarray, order: np.ndarray, parent: np.ndarray,
-                   tolerance: float | None, progress=None) -> _Solved:
-    """Solve ``actuations[i]`` for ``i`` in ``order``, each from the Euler prediction off its
-    parent's equilibrium when the parent is among them (else from rest). ``actuations`` and
-    ``parent`` are indexed by sample; equilibria are kept only while a later sample still
-    starts from them."""
+def _solve_part(model, actuations: np.ndarray, start: np.ndarray, tolerance: float | None) -> dict:
+    """One batch of samples (:meth:`TrunkModel.solve_batch`, ``start``: link strains, nan rows from
+    rest): what the workspace keeps of each, the equilibria's link strains included."""
     cpu = time.process_time()
-    n = len(order)
-    positions = np.full((n, len(model.effector_names), 3), np.nan)
-    converged, warm, predicted = np.zeros(n, bool), np.zeros(n, bool), np.zeros(n, bool)
-    iterations = np.zeros(n, int)
-    beyond, outside = np.zeros(n, bool), np.zeros(n, bool)
-    violations: dict = {}
-    failures = []
-    inside = set(order.tolist())
-    parents = [p if p in inside else -1 for p in parent[order].tolist()]
-    children = {}
-    for p in parents:
-        if p >= 0:
-            children[p] = children.get(p, 0) + 1
-    kept = {}
-    for j, (i, p) in enumerate(zip(order.tolist(), parents)):
-        initial = None
-        if p in kept:
-            initial, predicted[j] = kept[p].start_for(actuations[i])
-        warm[j] = initial is not None
-        try:
-            result = model.solve(actuations[i], initial=initial, tolerance=tolerance)
-        except SOLVE_FAILURES as error:
-            iterations[j] = getattr(getattr(error, "result", None), "iterations", 0)
-            failures.append({"sample": i, "error": type(error).__name__, "message": str(error)})
-        else:
-            converged[j] = True
-            iterations[j] = result.iterations
-            positions[j] = model.effector_positions(result.state)
-            beyond[j], outside[j] = bool(result.bound_violations), bool(result.out_of_range)
-            for key in {f"{v.actuator}: {v.bound}" for v in result.bound_violations} | \
-                    {f"{e.source}: {e.quantity}" for e in result.out_of_range}:
-                violations[key] = violations.get(key, 0) + 1
-            if children.get(i):
-                kept[i] = _Equilibrium(model, result.state, actuations[i])
-        if p >= 0:
-            children[p] -= 1
-            if not children[p]:
-                kept.pop(p, None)
-        if progress is not None:
-            progress(1)
-    return _Solved(order, positions, converged, iterations, warm, predicted, failures,
-                   time.process_time() - cpu, beyond, outside, violations)
+    result = model.solve_batch(actuations, start, tolerance=tolerance)
+    trunk = model.trunk
+    effectors = trunk.effectors
+    f = effectors.frames
+    positions = np.full((len(actuations), len(effectors.names), 3), np.nan)
+    ok = result.converged
+    if ok.any():
+        turned = qrotate(result.quaternions[ok][:, f], effectors.offsets)
+        positions[ok] = result.positions[ok][:, f] * effectors.point_mask + turned
+    violations = [sorted({f"{v.actuator}: {v.bound}" for v in result.bound_violations[i]}
+                         | {f"{e.source}: {e.quantity}" for e in result.out_of_range[i]}) for i in range(len(ok))]
+    return {"converged": ok, "iterations": result.iterations, "strains": result.strains, "positions": positions,
+            "messages": result.messages, "errors": result.errors, "violations": violations,
+            "beyond": np.array([bool(v) for v in result.bound_violations], bool) & ok,
+            "outside": np.array([bool(v) for v in result.out_of_range], bool) & ok,
+            "cpu_s": time.process_time() - cpu}
 
 
 _WORKER_MODEL = None
@@ -365,8 +316,8 @@ def _start_worker(model) -> None:
     _WORKER_MODEL = model
 
 
-def _solve_in_worker(actuations, order, parent, tolerance) -> _Solved:
-    return _solve_samples(_WORKER_MODEL, actuations, order, parent, tolerance)
+def _solve_in_worker(actuations, start, tolerance) -> dict:
+    return _solve_part(_WORKER_MODEL, actuations, start, tolerance)
 
 
 def _children_cpu_s() -> float:
@@ -379,48 +330,208 @@ def _children_cpu_s() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
-def _solve_in_workers(model, actuations, plan: SolveOrder, tolerance, workers: int, chunk: int,
-                      progress) -> list:
-    """The solve order cut into runs of ``chunk`` samples, solved by ``workers`` processes
-    (started with ``spawn``; each receives the model once). A run's first sample, and any whose
-    parent is in another run, starts from rest."""
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+class _InProcess:
+    """Parts solved one after the other in this process."""
 
-    runs = [plan.order[k:k + chunk] for k in range(0, len(plan.order), chunk)]
-    solved = []
-    with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                             initializer=_start_worker, initargs=(model,)) as pool:
-        futures = {pool.submit(_solve_in_worker, actuations, run, plan.parent, tolerance): run for run in runs}
+    def __init__(self, model):
+        self.model = model
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc_info):
+        return None
+
+    workers = 1
+
+    def map(self, parts, tolerance):
+        for part in parts:
+            yield part, _solve_part(self.model, part[1], part[2], tolerance)
+
+
+class _Processes:
+    """Parts solved by ``workers`` processes (spawned, one BLAS thread each; each receives the
+    compiled model once)."""
+
+    def __init__(self, model, workers: int):
+        self.model, self.workers = model, workers
+        self._pool = None
+
+    def __enter__(self):
+        import multiprocessing
+        import os
+        from concurrent.futures import ProcessPoolExecutor
+
+        for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+            os.environ.setdefault(name, "1")      # (inherited by the spawned workers)
+        self._pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"),
+                                         initializer=_start_worker, initargs=(self.model,))
+        return self
+
+    def __exit__(self, *exc_info):
+        self._pool.shutdown()
+        return None
+
+    def map(self, parts, tolerance):
+        from concurrent.futures import as_completed
+
+        futures = {self._pool.submit(_solve_in_worker, part[1], part[2], tolerance): part for part in parts}
         for future in as_completed(futures):
-            run = futures[future]
+            part = futures[future]
             try:
-                solved.append(future.result())
+                yield part, future.result()
             except Exception as error:     # the worker process itself failed: its samples failed
-                solved.append(_Solved.failed(run, len(model.effector_names), error))
+                yield part, error
+
+
+class _Dask:
+    """Parts solved on a dask cluster: the one at ``scheduler``, or a LocalCluster of ``workers``
+    single-threaded worker processes (dask's nannies start them with one BLAS thread)."""
+
+    def __init__(self, model, workers: int, scheduler: str | None):
+        self.model, self.workers, self.scheduler = model, workers, scheduler
+        self._client = self._cluster = self._model = None
+
+    def __enter__(self):
+        import logging
+
+        from dask.distributed import Client, LocalCluster
+
+        if self.scheduler:
+            try:
+                self._client = Client(self.scheduler, timeout="20s")
+            except (OSError, TimeoutError) as error:
+                raise OptionError(f"cannot reach dask scheduler {self.scheduler!r}: {error}",
+                                  field="scheduler") from None
+        else:
+            self._cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
+                                         dashboard_address=None, silence_logs=logging.ERROR)
+            self._client = Client(self._cluster)
+        self._model = self._client.scatter(self.model, broadcast=True)
+        return self
+
+    def __exit__(self, *exc_info):
+        self._client.close()
+        if self._cluster is not None:
+            self._cluster.close()
+        return None
+
+    def map(self, parts, tolerance):
+        from dask.distributed import as_completed
+
+        futures = {self._client.submit(_solve_part, self._model, part[1], part[2], tolerance, pure=False): part
+                   for part in parts}
+        for future in as_completed(list(futures)):
+            part = futures.pop(future)
+            try:
+                yield part, future.result()
+            except Exception as error:  # noqa: BLE001 - a worker that died, a result that did not arrive
+                yield part, error
+            future.release()
+
+
+EXECUTORS = ("local", "dask")
+
+
+def _solve_generations(model, actuations: np.ndarray, plan: SolveOrder, tolerance, executor, chunk: int,
+                       progress) -> _Solved:
+    """Solve the samples generation by generation (:func:`generations`): each generation in
+    batches (parts of at most ``chunk`` samples, spread over the executor's workers), every
+    sample from the Euler prediction off its parent's equilibrium (the path tangents of a
+    generation's parents computed together), from rest where it has none."""
+    n = len(actuations)
+    n_links = model.trunk.links.count
+    depth = generations(plan)
+    positions = np.full((n, len(model.effector_names), 3), np.nan)
+    converged, warm, predicted = np.zeros(n, bool), np.zeros(n, bool), np.zeros(n, bool)
+    iterations = np.zeros(n, int)
+    beyond, outside = np.zeros(n, bool), np.zeros(n, bool)
+    violations: dict = {}
+    failures = []
+    cpu = 0.0
+    parents = plan.parent
+    last_use = np.full(n, -1)                   # the last generation that starts from a sample
+    child = parents >= 0
+    np.maximum.at(last_use, parents[child], depth[child])
+    kept = {}                                   # link strains of solved samples that later ones start from
+    rank = np.empty(n, int)
+    rank[plan.order] = np.arange(n)
+    for generation in range(int(depth.max(initial=0)) + 1):
+        wave = np.flatnonzero(depth == generation)
+        wave = wave[np.argsort(rank[wave], kind="stable")]
+        start = np.full((wave.size, n_links, 6), np.nan)
+        mine = parents[wave]
+        from_parent = np.flatnonzero((mine >= 0) & converged[np.maximum(mine, 0)])
+        if from_parent.size:
+            up = np.unique(mine[from_parent])
+            strains = np.stack([kept[p] for p in up.tolist()])
+            paths, has = path_tangents(model, strains, actuations[up])
+            which = np.searchsorted(up, mine[from_parent])
+            start[from_parent] = strains[which]
+            move = has[which]
+            if move.any():
+                at = from_parent[move]
+                start[at] = predicted_strains(model, strains[which[move]], paths[which[move]],
+                                              actuations[wave[at]] - actuations[mine[at]])
+            warm[wave[from_parent]] = True
+            predicted[wave[from_parent[move]]] = True
+        size = max(1, min(chunk, -(-wave.size // max(1, executor.workers))))
+        parts = [(wave[k:k + size], actuations[wave[k:k + size]], start[k:k + size])
+                 for k in range(0, wave.size, size)]
+        for (rows, _, _), found in executor.map(parts, tolerance):
+            if isinstance(found, BaseException):
+                for i in rows.tolist():
+                    failures.append({"sample": i, "error": type(found).__name__, "message": str(found)})
+                if progress is not None:
+                    progress(len(rows))
+                continue
+            cpu += found["cpu_s"]
+            ok = found["converged"]
+            converged[rows], iterations[rows] = ok, found["iterations"]
+            positions[rows] = found["positions"]
+            beyond[rows], outside[rows] = found["beyond"], found["outside"]
+            for j, i in enumerate(rows.tolist()):
+                if ok[j]:
+                    for key in found["violations"][j]:
+                        violations[key] = violations.get(key, 0) + 1
+                    if last_use[i] > generation:
+                        kept[i] = found["strains"][j]
+                else:
+                    failures.append({"sample": i, "error": found["errors"][j] or "ConvergenceError",
+                                     "message": found["messages"][j]})
             if progress is not None:
-                progress(len(run))
-    return solved
+                progress(len(rows))
+        for p in [p for p in kept if last_use[p] <= generation]:    # no later generation starts from them
+            del kept[p]
+    return _Solved(plan.order, positions[plan.order], converged[plan.order], iterations[plan.order],
+                   warm[plan.order], predicted[plan.order], failures, cpu, beyond[plan.order], outside[plan.order],
+                   violations)
 
 
 def sample_workspace(model, n_samples: int = 1000, *, method: str = "sobol", seed: int = 0,
-                     ordering: str = "tree", tolerance: float | None = None, workers: int = 1,
+                     ordering: str = "levels", tolerance: float | None = None, workers: int = 1,
                      chunk: int = CHUNK, actuations: np.ndarray | None = None,
-                     progress: Callable[[int], object] | None = None, drop_outside: bool = False) -> Workspace:
+                     progress: Callable[[int], object] | None = None, drop_outside: bool = False,
+                     executor: str = "local", scheduler: str | None = None) -> Workspace:
     """Solve the trunk at ``n_samples`` quasi-random actuations within the bounds (or at the
     given ``actuations``) and collect the effector positions.
 
-    Each sample starts from the Euler prediction off the equilibrium of the sample
-    ``ordering`` names as its parent (:data:`ORDERINGS`); the solver itself falls back to load
-    stepping from rest when such a warm start fails. ``tolerance`` overrides the scene's Newton
-    tolerance. ``workers`` > 1 solves runs of ``chunk`` consecutive samples of the order in
-    that many processes. ``progress(k)`` is called as ``k`` more samples are done (e.g. a tqdm
-    bar's ``update``). Samples whose equilibrium breaks a bound of the scene the box does not
-    hold (strokes, volume growths, tendon tensions) or leaves a fitted range are counted and
+    The samples are solved in batches (:meth:`TrunkModel.solve_batch`), generation by
+    generation of ``ordering`` (:data:`ORDERINGS`): each sample starts from the Euler prediction
+    off the equilibrium of the sample the ordering names as its parent (solved in an earlier
+    generation); the solver itself falls back to load stepping from rest when such a warm start
+    fails. ``tolerance`` overrides the scene's Newton tolerance. A generation is cut into parts
+    of at most ``chunk`` samples spread over ``workers`` processes (``executor="local"``), or
+    over a dask cluster (``executor="dask"``: the one at ``scheduler``, or a LocalCluster of
+    ``workers`` processes). ``progress(k)`` is called as ``k`` more samples are done (e.g. a
+    tqdm bar's ``update``). Samples whose equilibrium breaks a bound of the scene the box does
+    not hold (strokes, volume growths, tendon tensions) or leaves a fitted range are counted and
     flagged; ``drop_outside`` leaves them out of the clouds."""
     if ordering not in ORDERINGS:
         raise OptionError(f"unknown ordering {ordering!r}; choose one of {', '.join(ORDERINGS)}",
                           field="ordering")
+    if executor not in EXECUTORS:
+        raise OptionError(f"unknown executor {executor!r}; choose one of {', '.join(EXECUTORS)}", field="executor")
     if tolerance is not None and not (tolerance > 0 and math.isfinite(tolerance)):
         raise OptionError(f"must be a positive number, got {tolerance}", field="tolerance")
     for name, value in (("workers", workers), ("chunk", chunk)):
@@ -438,10 +549,14 @@ def sample_workspace(model, n_samples: int = 1000, *, method: str = "sobol", see
     n = len(actuations)
     plan = ORDERINGS[ordering](response_coordinates(model, actuations))
     order_s = time.perf_counter() - wall
-    if workers == 1 or n <= chunk:
-        pieces = [_solve_samples(model, actuations, plan.order, plan.parent, tolerance, progress)]
+    if executor == "dask":
+        pool = _Dask(model, workers, scheduler)
+    elif workers > 1 and n > chunk:
+        pool = _Processes(model, workers)
     else:
-        pieces = _solve_in_workers(model, actuations, plan, tolerance, workers, chunk, progress)
+        pool = _InProcess(model)
+    with pool:
+        pieces = [_solve_generations(model, actuations, plan, tolerance, pool, chunk, progress)]
 
     per_sample = {"positions": np.full((n, len(model.effector_names), 3), np.nan),
                   "converged": np.zeros(n, bool), "iterations": np.zeros(n, int),
@@ -456,7 +571,7 @@ def sample_workspace(model, n_samples: int = 1000, *, method: str = "sobol", see
     failures = sorted((f for piece in pieces for f in piece.failures), key=lambda f: f["sample"])
     settings = {"samples": n, "method": method if sampled else "given", "seed": seed, "ordering": ordering,
                 "tolerance": model.scene.solver.tolerance if tolerance is None else tolerance,
-                "workers": workers, "drop_outside": bool(drop_outside)}
+                "workers": workers, "executor": executor, "drop_outside": bool(drop_outside)}
     timings = {"order_s": order_s, "wall_s": time.perf_counter() - wall,
                "cpu_s": time.process_time() - cpu + _children_cpu_s() - children_cpu,
                "solve_cpu_s": float(sum(piece.cpu_s for piece in pieces))}

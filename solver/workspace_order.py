@@ -2,7 +2,8 @@
 
 Nearness is measured in the linear response of the trunk at rest, ``q ≈ K⁻¹ B λ``
 (translations in m, rotations times the trunk length), projected on its principal directions;
-:data:`ORDERINGS` names the orders (see :mod:`vertebra.solver.workspace`).
+:data:`ORDERINGS` names the orders (see :mod:`vertebra.solver.workspace`); each sample's
+*generation* (its depth in the forest of parents) says which batch it is solved in.
 """
 
 from __future__ import annotations
@@ -51,6 +52,17 @@ class SolveOrder:
         has = self.parent >= 0
         if np.any(position[self.parent[has]] >= position[has]):
             raise ValueError("every sample's parent must be solved before it")
+
+
+def generations(order: SolveOrder) -> np.ndarray:
+    """Each sample's depth in the forest of parents (0: from rest): the samples of one
+    generation start from equilibria of earlier ones and are solved together."""
+    depth = [0] * order.parent.size
+    parent = order.parent.tolist()
+    for i in order.order.tolist():
+        if parent[i] >= 0:
+            depth[i] = depth[parent[i]] + 1
+    return np.array(depth, int)
 
 
 def _squared_norms(coordinates: np.ndarray) -> np.ndarray:
@@ -124,7 +136,32 @@ def order_tree(coordinates: np.ndarray) -> SolveOrder:
     return SolveOrder(np.concatenate(order), parent)
 
 
+LEVELS = (64, 8)         # the "levels" order: every 64th sample from rest, then every 8th, then the others
+
+
+def order_levels(coordinates: np.ndarray) -> SolveOrder:
+    """Coarse to fine, for solving in batches: every 64th sample (of a low-discrepancy sequence:
+    spread over the box) starts from rest; every other 8th sample from the nearest of those;
+    every other sample from the nearest of all these (k-d tree queries). Three generations,
+    each one batch of independent solves."""
+    from scipy.spatial import cKDTree
+
+    n = len(coordinates)
+    parent = np.full(n, -1)
+    solved = np.arange(0, n, LEVELS[0])
+    order = [solved]
+    for stride in LEVELS[1:] + (1,):
+        level = np.setdiff1d(np.arange(0, n, stride), solved, assume_unique=True)
+        if level.size:
+            _, near = cKDTree(coordinates[solved]).query(coordinates[level])
+            parent[level] = solved[np.asarray(near, int)]
+            order.append(level)
+            solved = np.union1d(solved, level)
+    return SolveOrder(np.concatenate(order), parent)
+
+
 ORDERINGS: dict[str, Callable[[np.ndarray], SolveOrder]] = {
+    "levels": order_levels,
     "tree": order_tree,
     "chain": order_chain,
     "sampled": order_sampled,

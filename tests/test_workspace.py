@@ -104,19 +104,47 @@ def test_failed_solves_are_recorded_and_their_children_start_from_rest():
     json.dumps(summary, allow_nan=False)
 
 
-def test_worker_processes_give_the_same_clouds(robot):
-    # runs of 16 samples in two processes; a run's first sample starts from rest, so positions
-    # agree to the solver tolerance (1e-9 m as above), not bit for bit
+def test_worker_processes_and_dask_give_the_same_clouds(robot):
+    # each generation is cut into parts of 16 samples solved by two processes (or dask workers):
+    # the same starts as in one process, so the same equilibria (to rounding: a batch's
+    # composition changes only the order of sums)
     serial = sample_workspace(robot, 40, seed=5)
     parallel = sample_workspace(robot, 40, seed=5, workers=2, chunk=16)
-    assert parallel.converged.all()
-    assert np.abs(parallel.positions - serial.positions).max() <= 1e-9
-    # warm exactly where the tree parent was solved in the same run of 16
-    run_of = np.empty(40, int)
-    run_of[parallel.order.order] = np.arange(40) // 16
-    parent = parallel.order.parent
-    same_run = (parent >= 0) & (run_of[np.maximum(parent, 0)] == run_of)
-    assert np.array_equal(parallel.warm, same_run)
+    assert parallel.converged.all() and serial.converged.all()
+    assert np.abs(parallel.positions - serial.positions).max() <= 1e-12
+    assert np.array_equal(parallel.warm, serial.warm) and np.array_equal(parallel.iterations, serial.iterations)
+    assert parallel.settings["workers"] == 2
+
+
+@pytest.mark.slow
+def test_dask_executor_gives_the_same_clouds(robot):
+    pytest.importorskip("dask.distributed")
+    serial = sample_workspace(robot, 40, seed=5)
+    dask = sample_workspace(robot, 40, seed=5, workers=2, chunk=16, executor="dask")
+    assert dask.converged.all() and dask.settings["executor"] == "dask"
+    assert np.abs(dask.positions - serial.positions).max() <= 1e-12
+
+
+def test_generations_solve_each_sample_after_its_parent(robot):
+    from vertebra.solver.workspace_order import generations
+
+    coordinates = response_coordinates(robot, sample_actuations(robot, 300))
+    levels = ORDERINGS["levels"](coordinates)
+    depth = generations(levels)
+    # every 64th from rest; every 8th from those; the others from the nearest of both (a sample whose
+    # nearest is one of the first starts in the second generation)
+    assert np.flatnonzero(depth == 0).tolist() == list(range(0, 300, 64)) and depth.max() == 2
+    assert np.all(depth[np.arange(0, 300, 8)] <= 1)
+    tree = ORDERINGS["tree"](coordinates)
+    depth = generations(tree)
+    has = tree.parent >= 0
+    assert np.all(depth[has] == depth[tree.parent[has]] + 1) and np.all(depth[~has] == 0)
+    # the tree's generations reach the same equilibria as the levels' batches
+    actuations = sample_actuations(robot, 60, seed=1)
+    a = sample_workspace(robot, actuations=actuations, ordering="tree")
+    b = sample_workspace(robot, actuations=actuations)
+    assert a.converged.all() and b.converged.all()
+    assert np.abs(a.positions - b.positions).max() <= 1e-9
 
 
 def test_convex_hull_of_known_clouds():

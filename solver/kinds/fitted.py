@@ -131,7 +131,14 @@ class FittedEnergy:
             return tuple(group.entry.model.at(None) for group in self.groups)
         prepared = []
         for group in self.groups:
-            p = group.incidence @ pressures
+            if pressures.ndim == 2:        # a batch (B, chambers): rows sample by sample
+                p = (group.incidence @ pressures[:, None, :, None])[..., 0].reshape(-1, group.incidence.shape[1])
+                if np.all(p < group.limit):
+                    prepared.append(group.entry.model.at(p))
+                    continue
+                p = group.incidence @ pressures[int(np.argmax(np.max(p.reshape(pressures.shape[0], -1), 1)))]
+            else:
+                p = group.incidence @ pressures
             if np.any(p >= group.limit):
                 k = int(np.argmax(p.max(1)))
                 c = int(np.argmax(p[k]))
@@ -152,45 +159,72 @@ class FittedEnergy:
         return tuple(prepared)
 
     def _evaluate(self, group: _Group, xi: np.ndarray, fixed: FixedPressures, **what) -> EnergyValues:
+        """The group's values at the strains ``xi`` (n, 6), or (B, n, 6) for a batch (rows sample
+        by sample)."""
         rows = group.rows
+        if xi.ndim > 2:
+            return fixed.evaluate((xi[..., rows, :] - self.rest[rows]).reshape(-1, 6), **what)
         return fixed.evaluate(xi[rows] - self.rest[rows], **what)
 
     def response(self, xi: np.ndarray, prepared: tuple) -> tuple[float, np.ndarray, tuple]:
-        """ψ, ``w = ∂ψ/∂s`` and (kept for the tangent) ``∂²ψ/∂s²``: the strain derivatives only."""
+        """ψ, ``w = ∂ψ/∂s`` and (kept for the tangent) ``∂²ψ/∂s²``: the strain derivatives only.
+        For a batch ``xi`` (B, n, 6) (prepared by :meth:`prepare` of (B, chambers) pressures), Σ ψ
+        per sample (B,); the kept values hold the rows of every sample, sample by sample."""
         scale = self.scale
+        batch = xi.shape[:-2]
         if len(self.groups) == 1:
+            if batch:
+                values = prepared[0].evaluate((xi - self.rest).reshape(-1, 6), derivatives=0, check_range=False)
+                energy, gradient = values.energy.reshape(xi.shape[:-1]), values.gradient.reshape(xi.shape)
+                if scale is not None:
+                    energy, gradient = scale * energy, scale[:, None] * gradient
+                return np.add.reduce(energy, -1), gradient, (values,)
             values = prepared[0].evaluate(xi - self.rest, derivatives=0, check_range=False)
             if scale is None:
                 return float(values.energy.sum()), values.gradient, (values,)
             return float(scale @ values.energy), scale[:, None] * values.gradient, (values,)
-        total, w, kept = 0.0, np.empty_like(xi), []
+        total, w, kept = (np.zeros(batch) if batch else 0.0), np.empty_like(xi), []
         for group, fixed in zip(self.groups, prepared):
-            values = self._evaluate(group, xi, fixed, derivatives=0, check_range=False)
-            if scale is None:
-                total += float(values.energy.sum())
-                w[group.rows] = values.gradient
+            rows = group.rows
+            s = xi[..., rows, :] - self.rest[rows]
+            values = fixed.evaluate(s.reshape(-1, 6) if batch else s, derivatives=0, check_range=False)
+            energy, gradient = values.energy.reshape(s.shape[:-1]), values.gradient.reshape(s.shape)
+            if batch:
+                if scale is not None:
+                    energy, gradient = scale[rows] * energy, scale[rows, None] * gradient
+                total = total + np.add.reduce(energy, -1)
+            elif scale is None:
+                total += float(energy.sum())
             else:
-                total += float(scale[group.rows] @ values.energy)
-                w[group.rows] = scale[group.rows, None] * values.gradient
+                total += float(scale[rows] @ energy)
+                gradient = scale[rows, None] * gradient
+            w[..., rows, :] = gradient
             kept.append(values)
         return total, w, tuple(kept)
 
     def material_tangent(self, xi: np.ndarray, prepared: tuple, kept: tuple) -> np.ndarray:
+        """``∂²ψ/∂s²`` (n, 6, 6), or (B·n, 6, 6) sample by sample for a batch."""
+        batch = xi.shape[:-2]
         if len(self.groups) == 1:
             hessian = kept[0].hessian
         else:
-            hessian = np.empty((xi.shape[0], 6, 6))
+            hessian = np.empty(xi.shape[:-1] + (6, 6))
             for group, values in zip(self.groups, kept):
-                hessian[group.rows] = values.hessian
-        return hessian if self.scale is None else self.scale[:, None, None] * hessian
+                hessian[..., group.rows, :, :] = values.hessian.reshape(batch + (-1, 6, 6))
+            hessian = hessian.reshape(-1, 6, 6)
+        if self.scale is None:
+            return hessian
+        return (np.tile(self.scale, batch) if batch else self.scale)[:, None, None] * hessian
 
     def chamber_forces(self, xi: np.ndarray, prepared: tuple, kept: tuple) -> np.ndarray:
-        """``−∂²ψ/∂s∂p · M`` per link (n, chambers, 6)."""
-        out = np.zeros((xi.shape[0], self.n_chambers, 6))
+        """``−∂²ψ/∂s∂p · M`` per link (n, chambers, 6); (B, n, chambers, 6) for a batch ``xi`` (B, n, 6)."""
+        batch = xi.shape[:-2]
+        out = np.zeros(batch + (xi.shape[-2], self.n_chambers, 6))
         if self.n_chambers:
             for group, fixed in zip(self.groups, prepared):
                 values = self._evaluate(group, xi, fixed, derivatives=1)
-                out[group.rows] = -np.einsum("kim,kmj->kji", values.mixed_hessian, group.incidence)
+                mixed = values.mixed_hessian.reshape(batch + (-1,) + values.mixed_hessian.shape[1:])
+                out[..., group.rows, :, :] = -np.einsum("...kim,kmj->...kji", mixed, group.incidence)
         return out
 
     def volume_growth(self, xi: np.ndarray, prepared: tuple, pressures: np.ndarray) -> np.ndarray:

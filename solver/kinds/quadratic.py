@@ -82,16 +82,23 @@ class QuadraticEnergy:
 
     def prepare(self, pressures: np.ndarray) -> tuple[np.ndarray, float]:
         """The rest strains under ``pressures`` (``ξ₀ + A G p``) and the pressure-only energy
-        ``−½ pᵀ V p`` (constant at given pressures)."""
+        ``−½ pᵀ V p`` (constant at given pressures). ``pressures`` (B, m) of a batch of samples
+        give (B, n, 6) rest strains and (B,) constants."""
         if not pressures.size or not np.any(pressures):
             return self.rest, 0.0
+        if pressures.ndim == 2:
+            constant = -0.5 * np.add.reduce((pressures @ self.volume_compliance) * pressures, 1)
+            return self.rest + (self.pressure_strain @ pressures[:, None, :, None])[..., 0], constant
         return self.rest + self.pressure_strain @ pressures, -0.5 * float(pressures @ self.volume_compliance @ pressures)
 
     def response(self, xi: np.ndarray, prepared: tuple[np.ndarray, float]) -> tuple[float, np.ndarray, None]:
+        """``(Σ ψ, w, None)`` at the strains ``xi`` (n, 6); for a batch (B, n, 6), Σ ψ per sample (B,)."""
         rest, constant = prepared
         e = xi - rest
-        w = (self.stiffness @ e[:, :, None])[:, :, 0]
-        return 0.5 * float(np.vdot(e, w)) + constant, w, None
+        w = (self.stiffness @ e[..., None])[..., 0]
+        if e.ndim == 2:
+            return 0.5 * float(np.vdot(e, w)) + constant, w, None
+        return 0.5 * np.add.reduce((e * w).reshape(e.shape[0], -1), 1) + constant, w, None
 
     def material_tangent(self, xi: np.ndarray, prepared: tuple, kept: None) -> np.ndarray:
         return self.stiffness
