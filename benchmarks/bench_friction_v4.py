@@ -46,7 +46,7 @@ HOLDOUT = DATA / "tdcr_sysid_20260511-183002_val.csv"
 SAME_COMMAND = 0.08e-3      # m: every servo within this on both rows of a pair
 
 
-def derived_mapping(document: dict, max_samples: int | None) -> str:
+def derived_mapping(document: dict, max_samples: int | None, fit=("friction",)) -> str:
     """map.toml with the measurement frame composed into the calibrated scene's base (identity
     here), the fitted marker offset, and friction as the parameter to fit."""
     text = (DATA / "map.toml").read_text()
@@ -54,7 +54,7 @@ def derived_mapping(document: dict, max_samples: int | None) -> str:
     offset = document["values"]["markers"]["tip"]["offset"]
     head = head.replace("offset = [0.0, 0.0, 8.0]", "offset = [%r, %r, %r]" % tuple(1e3 * v for v in offset))
     lines = [head, "[frame]", 'unit = "mm"', "position = [0.0, 0.0, 0.0]", "rotation_deg = [0.0, 0.0, 0.0]", "",
-             "[fit]", 'parameters = ["friction"]']
+             "[fit]", "parameters = [%s]" % ", ".join(f'"{f}"' for f in fit)]
     if max_samples:
         lines.append(f"max_samples = {max_samples}")
     return "\n".join(lines) + "\n"
@@ -95,11 +95,19 @@ def main(argv=None) -> None:
     parser.add_argument("--max-samples", type=int, default=None, help="training rows used by the fit")
     parser.add_argument("--start", type=float, default=0.05, help="initial μ")
     parser.add_argument("--max-evaluations", type=int, default=12)
+    parser.add_argument("--fit", nargs="+", default=["friction"],
+                        help="parameters fitted from the frictionless calibration's values (friction among them)")
+    parser.add_argument("--name", default="friction_v4", help="results file name (benchmarks/results/NAME.json)")
+    parser.add_argument("--holdout-only", action="store_true", help="predict only the held-out file after the fit")
+    parser.add_argument("--scan", nargs="+", type=float, metavar="MU",
+                        help="no fit: predict the held-out file with the frictionless fit's values at each μ")
     args = parser.parse_args(argv)
+    if args.scan:
+        return scan(args)
     document = json.loads(Path(args.document).read_text())
     with tempfile.TemporaryDirectory() as tmp:
         mapping_path = Path(tmp) / "map.toml"
-        mapping_path.write_text(derived_mapping(document, args.max_samples))
+        mapping_path.write_text(derived_mapping(document, args.max_samples, args.fit))
         mapping = load_mapping(mapping_path)
         text = Path(args.calibrated).read_text()
         scene_path = Path(tmp) / "scene.toml"
@@ -112,14 +120,16 @@ def main(argv=None) -> None:
         t0 = time.perf_counter()
         cal = calibrate(scene, mapping, train, holdout, max_evaluations=args.max_evaluations,
                         progress=lambda message: log(f"fit: {message}"))
-        mu = float(cal.x[0])
-        out["fit"] = {"mu": mu, "standard_error": float(cal.standard_errors[0]), "seconds": time.perf_counter() - t0,
-                      "train_subsampled": cal.train, "optimiser": cal.optimiser}
-        log(f"fitted μ = {mu:.4f} ± {cal.standard_errors[0]:.4f} in {time.perf_counter() - t0:.0f} s")
+        mu = float(cal.x[list(cal.parameters.names).index("friction")])
+        out["fit"] = {"parameters": dict(zip(cal.parameters.names, cal.x.tolist())),
+                      "standard_errors": dict(zip(cal.parameters.names, cal.standard_errors.tolist())),
+                      "mu": mu, "seconds": time.perf_counter() - t0, "train_subsampled": cal.train,
+                      "holdout": cal.holdout, "optimiser": cal.optimiser}
+        log(f"fitted {dict(zip(cal.parameters.names, np.round(cal.x, 5)))} in {time.perf_counter() - t0:.0f} s")
         predictor = SequencePredictor(scene, mapping)
         values = cal.values
         length = float(predictor.model.length_scale)
-        for name, samples in (("holdout", holdout), ("train", train)):
+        for name, samples in (("holdout", holdout),) + ((("train", train),) if not args.holdout_only else ()):
             index = pairs(samples)
             row = {}
             for label, friction in (("frictionless", np.zeros_like(values.friction)), ("fitted", values.friction)):
@@ -136,8 +146,43 @@ def main(argv=None) -> None:
                     f"{1e3 * (row[label]['pull_release']['predicted_median_m'] or 0):.3f} mm, explained share "
                     f"{row[label]['pull_release']['explained_share']}")
             out[name] = row
-    write_json(out, RESULTS / "friction_v4.json")
-    log("wrote benchmarks/results/friction_v4.json")
+    write_json(out, RESULTS / f"{args.name}.json")
+    log(f"wrote benchmarks/results/{args.name}.json")
+
+
+def scan(args) -> None:
+    """The held-out file predicted as a sequence at each μ of ``--scan``, every other value the
+    frictionless calibration's."""
+    document = json.loads(Path(args.document).read_text())
+    with tempfile.TemporaryDirectory() as tmp:
+        mapping_path = Path(tmp) / "map.toml"
+        mapping_path.write_text(derived_mapping(document, None))
+        mapping = load_mapping(mapping_path)
+        scene_path = Path(tmp) / "scene.toml"
+        scene_path.write_text(Path(args.calibrated).read_text())
+        scene = load_scene(scene_path)
+        holdout = load_samples(HOLDOUT, mapping)
+        predictor = SequencePredictor(scene, mapping)
+        from vertebra.solver.calibration.fit_parameters import initial_values      # (benchmark script)
+        values = initial_values(scene, mapping, predictor.model)
+        index = pairs(holdout)
+        rows = []
+        for mu in args.scan:
+            t1 = time.perf_counter()
+            predicted = predictor.predict(dataclasses.replace(values, friction=np.full(values.friction.size, mu)),
+                                          holdout).markers
+            metrics = error_metrics(predicted, holdout.markers, holdout.patterns, float(predictor.model.length_scale))
+            row = {"mu": mu, "rmse_m": metrics["rmse_m"], "rmse_pct_length": metrics["rmse_pct_length"],
+                   "median_m": metrics["median_m"], "pull_release": gaps(holdout, predicted, index),
+                   "seconds": time.perf_counter() - t1}
+            rows.append(row)
+            log(f"held out, μ = {mu}: RMSE {1e3 * row['rmse_m']:.3f} mm, pull/release: measured median "
+                f"{1e3 * row['pull_release']['measured_median_m']:.2f} mm, predicted median "
+                f"{1e3 * row['pull_release']['predicted_median_m']:.3f} mm, explained share "
+                f"{row['pull_release']['explained_share']:.3f}")
+    write_json({"benchmark": "friction_v4_scan", "vertebra_version": __version__, "date": now(),
+                "loadavg": loadavg(), "holdout": rows}, RESULTS / f"{args.name}.json")
+    log(f"wrote benchmarks/results/{args.name}.json")
 
 
 if __name__ == "__main__":

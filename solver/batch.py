@@ -35,7 +35,7 @@ import numpy as np
 
 from vertebra.solver import bounds, newton
 from vertebra.solver.banded import factor_block_cholesky
-from vertebra.solver.cables import CablePieces, _spans
+from vertebra.solver.cables import CablePieces, _spans, scatter_rows
 from vertebra.solver.chain import CARRY_ANGLE, chain_poses
 from vertebra.solver.globalise import ARMIJO, NEUTRAL, ROUNDING, SEARCH_FLOOR
 from vertebra.solver.links import Links, link_tangent
@@ -264,7 +264,8 @@ def evaluate(context: _Context, states: States, load: Loads) -> Evaluation:
             piece_tension = tendon_pieces if piece_tension is None else tendon_pieces + piece_tension
         pieces = CablePieces.of_spans(offsets, d, length)
         forces = (piece_tension.reshape(-1)[:, None] * pieces.unit).reshape(B, 2 * m, 6)
-        grad += cables.to_frames @ forces
+        grad += scatter_rows(cables.ends, forces.transpose(1, 0, 2).reshape(2 * m, -1),
+                             trunk.frames.count).reshape(-1, B, 6).transpose(1, 0, 2)
     if load.weight is not None:
         lever = (R @ trunk.frames.moment[:, :, None])[..., 0]
         energy = energy - np.add.reduce((trunk.frames.mass @ x + np.add.reduce(lever, 1)) * load.weight, 1)
@@ -369,7 +370,7 @@ def tangent(context: _Context, ev: Evaluation) -> Tangent:
     if ev.pieces is not None:
         cables = ev.pieces.tangent(ev.piece_tension.reshape(-1), context.groups(B))
     weight = None
-    if assembler.gravity:
+    if trunk.loads.has_gravity:
         weight = -ev.load.weight_hat[:, None] @ hat(ev.lever[:, 1:])
     blocks = assembler.symmetric_blocks(links, cables, weight)
     if ev.load.tendons is None:
@@ -915,10 +916,11 @@ def _solve_chunk(context: _Context, actuation: np.ndarray, start: np.ndarray | N
     rest_states, _ = compose(trunk, np.broadcast_to(rest_xi, (B,) + rest_xi.shape).copy())
     with np.errstate(all="ignore"):
         reference = _force_scale(trunk, evaluate(context, rest_states, full).gradient)
-    # zero or non-finite references, dead moments (LU factors): the single solve's own cases
+    # zero or non-finite references, dead moments and follower loads (LU factors): the single
+    # solve's own cases
     run.leave(np.flatnonzero(~(reference > 0.0) | ~np.isfinite(reference)), "no load at rest, or not finite")
-    if trunk.loads.has_dead_moments:
-        run.leave(np.arange(B), "dead moments (an unsymmetric tangent: LU factors)")
+    if trunk.loads.unsymmetric:
+        run.leave(np.arange(B), "dead moments or follower loads (an unsymmetric tangent: LU factors)")
     if np.any(trunk.actuators.friction):
         run.leave(np.arange(B), "cable friction (a fixed point of the capstan law over Newton solves)")
     if trunk.contact is not None:
