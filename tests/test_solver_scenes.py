@@ -121,7 +121,10 @@ def test_simulate_json_contract(tmp_path, capsys):
     assert {"converged", "iterations", "residual", "vertebrae", "frames", "effectors", "cables", "chambers",
             "timing"} <= set(document)
     assert len(document["vertebrae"]) == 21 and len(document["frames"]) == 41
-    assert set(document["cables"]["s1-0"]) == {"tension", "length", "stroke"}
+    assert set(document["cables"]["s1-0"]) == {"tension", "length", "stroke", "route", "tensions", "stick"}
+    cable = document["cables"]["s1-0"]                  # frictionless: one tension along the route
+    assert len(cable["tensions"]) == len(cable["route"]) - 1 == len(cable["stick"]) + 1
+    assert set(cable["tensions"]) == {cable["tension"]} and not any(cable["stick"])
     assert document["timing"]["solve_s"] > 0
     assert (tmp_path / "p.png").stat().st_size > 10000
     from vtk_xml import read_vtp
