@@ -47,6 +47,9 @@ def add_arguments(parser) -> None:
                         help="constitutive model (default linear: the linear condensation alone)")
     parser.add_argument("--sampling", dest="sampling", action="append", default=[], metavar="NAME=VALUE",
                         help="a nonlinear sampling/fit setting (repeatable), e.g. --sampling degree=8")
+    parser.add_argument("--pressurised", default=None, metavar="none|all|I,J,...",
+                        help="cavities a nonlinear entry is sampled under pressure in (default all): 'none' skips "
+                             "the inflation-limit search and fits ψ at zero pressure (sampling.cavities)")
     parser.add_argument("--executor", default="local", help="where nonlinear FE solves run: serial | local | dask")
     parser.add_argument("--workers", type=int, default=None, help="worker processes (default: one per core)")
     parser.add_argument("--scheduler", default=None, help="dask scheduler address (with --executor dask)")
@@ -70,6 +73,22 @@ def parse_values(values: list[str]) -> dict:
                 raise OptionError(f"parameter {name!r}: not a number: {text!r}", field="--set") from None
         out[name] = value
     return out
+
+
+def parse_pressurised(text: str) -> list | None:
+    """``--pressurised``: ``all`` (None), ``none`` ([]) or comma-separated cavity indices."""
+    lowered = text.strip().lower()
+    if lowered == "all":
+        return None
+    if lowered == "none":
+        return []
+    try:
+        cavities = [int(part) for part in lowered.split(",")]
+    except ValueError:
+        raise OptionError(f"expected none, all or cavity indices like 0,2; got {text!r}", field="--pressurised") from None
+    if any(c < 0 for c in cavities):
+        raise OptionError(f"cavity indices are ≥ 0; got {text!r}", field="--pressurised")
+    return cavities
 
 
 def parse_sampling(values: list[str]) -> dict:
@@ -185,6 +204,8 @@ def run(args) -> int:
     parameters = designer.canonical_parameters(family, values)          # GeometryError before meshing
     plausibility.design(parameters, args.mesh_size, parameters_field="", mesh_field="--mesh-size")
     sampling = parse_sampling(args.sampling) if args.material != "linear" else None
+    if args.pressurised is not None and sampling is not None:
+        sampling["cavities"] = parse_pressurised(args.pressurised)
     key = designer.entry_key(family, parameters, mesh_size=args.mesh_size, order=args.order, material=args.material,
                              sampling=sampling)
 

@@ -43,12 +43,17 @@ def _silence_stdout() -> None:
     except (OSError, ValueError):   # stdout without a file descriptor (captured in tests)
         pass
 
+#: the documentation's folder: the repository's docs/, installed as vertebra/docs (package data)
+DOCS = Path(__file__).resolve().parent.parent / "docs"
+DOCS_EPILOG = f"Documentation (docs/NAME.md in the help texts): {DOCS}"
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="vertebra",
         description="Model and control continuum robots with rigid vertebrae: design segments (gmsh + "
                     "scikit-fem) into an HDF5 catalogue, simulate trunks forward, invert them for actuation.",
-        epilog=f"Documentation (docs/NAME.md in the help texts): {Path(__file__).resolve().parent.parent / 'docs'}")
+        epilog=DOCS_EPILOG)
     parser.add_argument("--version", action="version", version=f"vertebra {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, (module_name, help_text) in SUBCOMMANDS.items():
@@ -56,7 +61,18 @@ def build_parser() -> argparse.ArgumentParser:
         p = sub.add_parser(name, help=help_text, description=help_text)
         module.add_arguments(p)
         p.set_defaults(_run=module.run)
+    _cite_docs(parser)
     return parser
+
+
+def _cite_docs(parser: argparse.ArgumentParser) -> None:
+    """Every command's and subcommand's --help ends by saying where docs/NAME.md is (the docs
+    ship inside the installed package)."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for child in action.choices.values():
+                child.epilog = child.epilog or DOCS_EPILOG
+                _cite_docs(child)
 
 def _one_line_warnings(command: str) -> None:
     """Print each Python warning as one line on stderr, ``vertebra COMMAND: warning: …``."""

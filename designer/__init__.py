@@ -15,16 +15,29 @@ Heavy imports (gmsh, scikit-fem, pyamg, meshio) happen inside the functions; ``p
 the runtime's scenes as data (the designer never imports the solver).
 """
 
-from vertebra.designer.families import (FAMILIES, Family, Parameter, canonical_parameters, register_family,
-                                        resolve_mesh_size)
-from vertebra.designer.keys import entry_key
-from vertebra.designer.preparation import PrepareReport, prepare
-from vertebra.designer.segment import design_segment
-from vertebra.designer.vertebra import VERTEBRA_PARAMETERS, vertebra_properties, vertebra_snippet
-
 __all__ = [
     "FAMILIES", "Family", "Parameter", "register_family",
     "canonical_parameters", "entry_key", "design_segment", "resolve_mesh_size",
     "VERTEBRA_PARAMETERS", "vertebra_properties", "vertebra_snippet",
     "PrepareReport", "prepare",
 ]
+
+
+def __getattr__(name: str):
+    """The public API, loaded on first use (PEP 562): importing one designer module alone — a
+    pool worker unpickling its initializer from ``designer.executors`` — must not first load the
+    whole designer (seconds of numpy/scipy imports during which a worker of a killed parent
+    could not yet notice it is orphaned)."""
+    if name not in __all__:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    # lazy: the public API's modules load at the first use of any of its names (docstring)
+    from vertebra.designer import families, keys, preparation, segment, vertebra
+    for module in (families, keys, preparation, segment, vertebra):
+        if hasattr(module, name):
+            globals()[name] = value = getattr(module, name)
+            return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))

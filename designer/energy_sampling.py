@@ -68,12 +68,13 @@ class PoseSolver(Protocol):
 
     n_cavities: int
 
-    def solve(self, R, t, pressures=None, initial=None) -> Any:
+    def solve(self, R, t, pressures=None, initial=None, min_load_step=None) -> Any:
         """Equilibrium at the pose: an object with ``wrench`` (6,) ``∂ψ/∂ζ`` for a left
         perturbation ``exp(ζ^)T_b`` in a's axes, ``tangent`` (6, 6), ``volumes`` (n,) cavity
         volumes (``−∂ψ/∂p`` up to the rest volumes), ``dvolume_dpose`` (n, 6),
         ``dvolume_dpressure`` (n, n) and ``state`` (to continue from). Raises
-        ConvergenceError when it cannot."""
+        ConvergenceError when it cannot (at once when its load steps would be cut below
+        ``min_load_step``, a fraction of the way from ``initial``)."""
 
 
 class ModelSpec(Protocol):
@@ -131,6 +132,7 @@ class SamplingSettings:
     limit_fraction: float = 0.9      # pressures stay below this fraction of the inflation limit
     hessian_weight: float = 0.3      # weight of the tangent rows in the least squares
     seed: int = 0
+    cavities: tuple | None = None    # cavities sampled under pressure (None: all; (): none, see pressurised)
 
     def __post_init__(self):
         for name, limit in SAMPLING_LIMITS.items():     # counts that size the sampling's arrays
@@ -160,13 +162,36 @@ class SamplingSettings:
             "limit_fraction": 0 < self.limit_fraction < 1,
             "hessian_weight": self.hessian_weight >= 0,
             "seed": isinstance(self.seed, int) and 0 <= self.seed < 2**63,
+            "cavities": self.cavities is None or (isinstance(self.cavities, tuple) and all(
+                isinstance(c, int) and not isinstance(c, bool) and c >= 0 for c in self.cavities)
+                and len(set(self.cavities)) == len(self.cavities)),
         }
         bad = [name for name, ok in checks.items() if not ok]
         if bad:
             raise OptionError(f"{getattr(self, bad[0])!r} is out of range", field=f"sampling.{bad[0]}")
 
     def describe(self) -> dict:
-        return asdict(self)
+        """The settings as JSON (``cavities`` only when set: the keys of entries sampled under
+        every cavity's pressure are those of the settings before it existed)."""
+        out = asdict(self)
+        if self.cavities is None:
+            del out["cavities"]
+        else:
+            out["cavities"] = list(self.cavities)
+        return out
+
+    def pressurised(self, n_cavities: int) -> tuple[int, ...]:
+        """The cavities sampled under pressure: ``cavities`` (checked against ``n_cavities``), or
+        every one. With none, the entry is sampled and fitted at zero pressure (no inflation-limit
+        search, no pressure terms; its range admits no pressure) — for a segment whose chambers no
+        scene pressurises (``vertebra prepare`` knows; ``vertebra design --pressurised``)."""
+        if self.cavities is None:
+            return tuple(range(n_cavities))
+        bad = [c for c in self.cavities if c >= n_cavities]
+        if bad:
+            raise OptionError(f"cavity {bad[0]} does not exist (the segment has {n_cavities})",
+                              field="sampling.cavities")
+        return tuple(sorted(self.cavities))
 
     def resolved(self, n_cavities: int, material: str) -> "SamplingSettings":
         """The settings with their automatic values filled for a segment with ``n_cavities`` of
@@ -175,10 +200,14 @@ class SamplingSettings:
         growth 4-13 % off, 6 within 1 %; four slices at 1.5 bar, 94 % of their inflation limit,
         6 samples per path put the tip 0.41 % of the trunk length off, the bending angle 2.3 %
         and the volume growth 1.4 %, 10 samples 0.17 %, 0.9 % and 1.0 %, 14 samples no better);
-        the outer-fibre strain is :data:`STRAIN`, or the material's :data:`SOFTENING_STRAIN`."""
+        the outer-fibre strain is :data:`STRAIN`, or the material's :data:`SOFTENING_STRAIN`;
+        ``cavities`` naming every cavity is the default (None: same entry, same key)."""
         from dataclasses import replace
 
-        return replace(self, paths=self.paths if self.paths is not None else (30 if n_cavities else 18),
+        pressurised = self.pressurised(n_cavities)                      # checked against the segment
+        cavities = None if len(pressurised) == n_cavities else pressurised
+        return replace(self, cavities=cavities,
+                       paths=self.paths if self.paths is not None else (30 if n_cavities else 18),
                        steps=self.steps if self.steps is not None else (10 if n_cavities else 6),
                        pressure_degree=self.pressure_degree if self.pressure_degree is not None else self.degree,
                        strain=self.strain if self.strain is not None else SOFTENING_STRAIN.get(material, STRAIN))
@@ -190,6 +219,8 @@ class SamplingSettings:
         unknown = sorted(set(data) - known)
         if unknown:
             raise OptionError(f"unknown setting (known: {', '.join(sorted(known))})", field=f"sampling.{unknown[0]}")
+        if isinstance(data.get("cavities"), list):
+            data["cavities"] = tuple(data["cavities"])
         return cls(**data)
 
 
@@ -237,21 +268,24 @@ def load_box(K: np.ndarray, length: float, radius: float, settings: SamplingSett
 def path_endpoints(n_cavities: int, settings: SamplingSettings) -> tuple[np.ndarray, np.ndarray]:
     """``(endpoints (P, 6+m) on the unit box's boundary, held_out (P,) bool)``: the box axes (pure
     lateral force, tension, compression, bending, twist; one cavity, all cavities), then
-    ``settings.paths`` scrambled-Halton directions (one group at its bound)."""
+    ``settings.paths`` scrambled-Halton directions (one group at its bound). Only the
+    pressurised cavities (:meth:`SamplingSettings.pressurised`) see a pressure."""
     from scipy.stats import qmc
 
     m = n_cavities
+    used = np.zeros(m, dtype=bool)
+    used[list(settings.pressurised(m))] = True
     axes = []
     for index, value in ((0, 1.0), (2, 1.0), (2, -1.0), (3, 1.0), (5, 1.0)):
         e = np.zeros(6 + m)
         e[index] = value
         axes.append(e)
-    if m:
+    if used.any():
         one = np.zeros(6 + m)
-        one[6] = 1.0
+        one[6 + int(np.flatnonzero(used)[0])] = 1.0
         every = np.zeros(6 + m)
-        every[6:] = 1.0
-        axes += [one, every] if m > 1 else [one]
+        every[6:] = used
+        axes += [one, every] if used.sum() > 1 else [one]
     points = []
     if settings.paths:
         h = qmc.Halton(d=6 + m, scramble=True, seed=settings.seed).random(settings.paths)
@@ -261,7 +295,7 @@ def path_endpoints(n_cavities: int, settings: SamplingSettings) -> tuple[np.ndar
             e[2] = 2.0 * row[2] - 1.0
             e[3:5] = row[3] * np.array([math.cos(2 * math.pi * row[4]), math.sin(2 * math.pi * row[4])])
             e[5] = 2.0 * row[5] - 1.0
-            e[6:] = row[6:]
+            e[6:] = row[6:] * used
             size = np.max(np.concatenate([group_coordinates(e[:6])[[0, 2]], np.abs(e[[2, 5]]), e[6:]]))
             points.append(e / size)
     endpoints = np.array(axes + points).reshape(-1, 6 + m)
@@ -408,14 +442,37 @@ def _free_volume_compliance(H, Hsp, Hpp, cavity):
     return -eff[cavity, cavity]
 
 
+#: a ramp's FE solve gives up once its load step is cut below this fraction: past the limit point
+#: no equilibrium exists, and cutting down to the solver's own 1/4096 cost minutes per failure
+RAMP_MIN_LOAD_STEP = 1.0 / 16.0
+#: the ramp stops short of the fold's extrapolated limit point once within two ``min_step`` of it
+#: and the free volume compliance has grown this much (the fold's normal form holds there)
+RAMP_FOLD_COMPLIANCE = 4.0
+
+
+def _fold(inverse: list) -> float | None:
+    """Where the fold's normal form puts the limit point from the last two ``(p, 1/compliance)``:
+    near a fold the compliance grows like 1/√(P − p), so 1/compliance² falls linearly to 0 at P."""
+    if len(inverse) < 2:
+        return None
+    (p1, c1), (p2, c2) = inverse[-2], inverse[-1]
+    return p2 + c2 ** 2 * (p2 - p1) / (c1 ** 2 - c2 ** 2) if c2 < c1 else None
+
+
 def run_pressure_ramp(task: PressureTask) -> PressureOutcome:
     """Raise one cavity's pressure with the top frame free (zero load: one predictor step of
-    the pose per increment) until the FE fails or the free volume compliance has grown 25×
-    over its rest value (the approach of a limit point, where it diverges); the failing
-    increment is bisected down to ``min_step``. The limit is the last converged pressure
-    plus the extrapolation of the inverse compliance squared to zero (a fold's normal form),
-    at most two ``min_step`` beyond it. The same extrapolation from the last two steps is
-    reported as ``fold`` when no limit was met: where the ballooning heads."""
+    the pose per increment) towards the inflation limit point, a continuation in few solves:
+    each increment is at most ``first_step`` and at most half the way to where the fold's
+    normal form (:func:`_fold`) puts the limit from the last two steps, so the ramp closes in
+    on the limit geometrically instead of stepping past it (a failed FE solve beyond the limit
+    costs many times a converged one; those that happen give up early,
+    :data:`RAMP_MIN_LOAD_STEP`). An increment whose FE fails or whose free volume compliance
+    has grown 25× over its rest value (the approach of a limit point, where it diverges) is
+    halved, down to ``min_step``; the ramp also stops once the extrapolated limit is within
+    two ``min_step`` (with the compliance grown :data:`RAMP_FOLD_COMPLIANCE`×). The limit is
+    the last converged pressure plus that extrapolation, at most two ``min_step`` beyond it.
+    The same extrapolation is reported as ``fold`` when no limit was met: where the
+    ballooning heads."""
     start = time.perf_counter()
     model = worker_model(task.spec)
     m = len(task.rest_volumes)
@@ -426,40 +483,44 @@ def run_pressure_ramp(task: PressureTask) -> PressureOutcome:
     step = task.first_step
     history, solves, reason = [], 0, ""
     inverse = []                                    # (p, 1/compliance) to extrapolate the limit
+    compliance = task.rest_compliance
     while p[task.cavity] < task.largest and step >= task.min_step:
+        fold = _fold(inverse)
+        increment = step
+        if fold is not None and fold > p[task.cavity]:
+            if fold - p[task.cavity] <= 2 * task.min_step and compliance >= RAMP_FOLD_COMPLIANCE * task.rest_compliance:
+                reason = "limit point extrapolated within two resolution steps (fold normal form)"
+                break
+            increment = min(step, max(0.5 * (fold - p[task.cavity]), task.min_step))
         target_p = p.copy()
-        target_p[task.cavity] = min(p[task.cavity] + step, task.largest)
+        target_p[task.cavity] = min(p[task.cavity] + increment, task.largest)
         s_new = s + np.linalg.solve(H, -g - Hsp @ (target_p - p))
         R, t = pose_of_strain(s_new[None], task.rest_translation)
         try:
-            response = model.solve(R[0], t[0], target_p, initial=state)
+            response = model.solve(R[0], t[0], target_p, initial=state, min_load_step=RAMP_MIN_LOAD_STEP)
             solves += 1
         except ConvergenceError as error:
             reason = f"FE did not converge ({error})"
-            step *= 0.5
+            step = 0.5 * increment
             continue
         sample = response_samples(s_new[None], target_p[None], [response], task.rest_translation,
                                   task.rest_volumes, np.zeros(1, dtype=int))
         g_new, H_new, Hsp_new = sample.gradient[0], sample.hessian[0], sample.mixed[0]
         try:
-            compliance = _free_volume_compliance(H_new, Hsp_new, sample.pressure_hessian[0], task.cavity)
+            trial = _free_volume_compliance(H_new, Hsp_new, sample.pressure_hessian[0], task.cavity)
         except np.linalg.LinAlgError:
-            compliance = np.inf
-        if not (compliance > 0) or compliance > 25.0 * task.rest_compliance:
+            trial = np.inf
+        if not (trial > 0) or trial > 25.0 * task.rest_compliance:
             reason = "free volume compliance above 25× its rest value"
-            step *= 0.5
+            step = 0.5 * increment
             continue
+        compliance = trial
         s, p, state = s_new, target_p, response.state
         g, H, Hsp = g_new, H_new, Hsp_new
         history.append((float(p[task.cavity]), float(-sample.pressure_gradient[0, task.cavity])))
         inverse.append((float(p[task.cavity]), 1.0 / compliance))
     reached = float(p[task.cavity])
-    fold = None
-    if len(inverse) >= 2:
-        # near a fold the compliance grows like 1/√(P − p): 1/compliance² falls linearly to 0 at P
-        (p1, c1), (p2, c2) = inverse[-2], inverse[-1]
-        if c2 < c1:
-            fold = p2 + c2 ** 2 * (p2 - p1) / (c1 ** 2 - c2 ** 2)
+    fold = _fold(inverse)
     limit = None
     if reached < task.largest:
         limit = min(max(reached, fold or reached), reached + 2 * task.min_step)

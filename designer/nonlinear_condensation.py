@@ -24,6 +24,8 @@ from vertebra.designer.executors import Crash, make_executor
 from vertebra.designer.keys import NONLINEAR_VERSION, SegmentDesign
 from vertebra.designer.linear import LinearCondenser
 from vertebra.designer.nonlinear import NonlinearSegment
+from vertebra.designer.nonlinear.fe_newton import NewtonSettings
+from vertebra.designer.nonlinear.fe_segment import SegmentSettings
 from vertebra.designer.threads import pin_blas_threads
 from vertebra.core.energy import EnergyFit, EnergyRange, group_coordinates, linear_terms
 from vertebra.core.errors import ConvergenceError
@@ -31,6 +33,15 @@ from vertebra.store.entry import SegmentEntry
 
 #: margin added around the sampled poses when stating the range (fraction of each group's width)
 POSE_MARGIN = 0.02
+#: Newton tolerance (residual / force scale) of the sampling's FE solves. A response takes the
+#: remaining interior residual out to first order (``fe_segment._PoseProblem.converged``), so its
+#: wrench, volumes and ψ are exact to O(rtol²) and its tangent to O(rtol) (700× below the fits'
+#: tangent errors): 1e-5 instead of the FE's 1e-10 saves about one Newton iteration (an
+#: assembly and a solve) per sample, and with the predictor's second-order term
+#: (``fe_segment._PoseProblem._second_order``) many samples along a path need none (measured on
+#: a P2 rod, 1.1k DoFs, 8 paths: 4.5 assemblies per Newton solve at 1e-10, 3.6 at 1e-6, 3.1 at
+#: 1e-5 with the second-order term)
+SAMPLE_RTOL = 1e-5
 
 
 def _say(progress, message: str) -> None:
@@ -52,7 +63,7 @@ def material_constants(material: str, parameters: dict) -> dict:
 class FamilySolid:
     """ModelSpec (:class:`designer.energy_sampling.ModelSpec`) of a designed segment's nonlinear FE:
     the family's mesh (gmsh meshes deterministically, so it is the linear entry's mesh) with a
-    material of :data:`designer.nonlinear.MATERIALS`."""
+    material of :data:`designer.nonlinear.MATERIALS`, its solves converged to :data:`SAMPLE_RTOL`."""
 
     family: str
     parameters: str                  # canonical JSON of the canonical parameters
@@ -67,9 +78,10 @@ class FamilySolid:
 
     def build(self):
         pin_blas_threads(1)
+        settings = SegmentSettings(newton=NewtonSettings(rtol=SAMPLE_RTOL))
         return NonlinearSegment.from_family(self.family, json.loads(self.parameters), self.material,
                                             mesh_size=self.mesh_size, order=self.order,
-                                            linear_solver=self.linear_solver)
+                                            linear_solver=self.linear_solver, settings=settings)
 
 
 @dataclass
@@ -92,9 +104,9 @@ def _results(executor, function, items):
 
 
 def pressure_range(executor, spec, entry, linear, settings: SamplingSettings, youngs_modulus: float,
-                   progress=None):
+                   progress=None, cavity: int = 0):
     """``(largest sampled pressure, inflation limit point or None, fold pressure or None, free pose at
-    the top pressure, diagnostics)``: a ramp of cavity 0's pressure with the top free (by the
+    the top pressure, diagnostics)``: a ramp of ``cavity``'s pressure with the top free (by the
     family's symmetry every cavity behaves alike) up to the requested pressure, or up to the
     Young's modulus when none is requested. Without a limit point below the ramp, the fold
     map uses where the ramp's last steps put it (if beyond the sampled pressures)."""
@@ -102,9 +114,9 @@ def pressure_range(executor, spec, entry, linear, settings: SamplingSettings, yo
     largest = settings.pressure / settings.limit_fraction if settings.pressure else youngs_modulus
     task = PressureTask(spec=spec, rest_translation=tuple(entry.rest_translation),
                         rest_volumes=tuple(entry.cavity_volumes), stiffness=tuple(K.ravel()),
-                        mixed=tuple((-K @ S).ravel()), cavity=0, rest_compliance=float(V[0, 0]),
+                        mixed=tuple((-K @ S).ravel()), cavity=cavity, rest_compliance=float(V[cavity, cavity]),
                         largest=largest, first_step=largest / 16.0, min_step=largest / 512.0)
-    _say(progress, f"pressure ramp of cavity 0 up to {largest:.4g} Pa (inflation limit point search)")
+    _say(progress, f"pressure ramp of cavity {cavity} up to {largest:.4g} Pa (inflation limit point search)")
     outcome = next(_results(executor, run_pressure_ramp, [task]))
     if outcome.limit is not None:
         top = settings.limit_fraction * outcome.limit
@@ -166,11 +178,15 @@ def condense_energy(entry, spec, *, radius: float, youngs_modulus: float, symmet
     K = linear[0]
     length = float(np.linalg.norm(entry.rest_translation))
     timings = {}
+    pressurised = settings.pressurised(m)
     with make_executor(executor, workers=workers, scheduler=scheduler) as pool:
         pressure_info, limit, fold_estimate, p_top, free_pose = {}, None, None, 0.0, np.zeros(4)
-        if m:
+        if pressurised:
             p_top, limit, fold_estimate, free_pose, pressure_info = pressure_range(
-                pool, spec, entry, linear, settings, youngs_modulus, progress)
+                pool, spec, entry, linear, settings, youngs_modulus, progress, cavity=pressurised[0])
+        elif m:
+            _say(progress, f"no cavity pressurised (sampling.cavities): sampled at zero pressure, "
+                           f"no inflation-limit search")
         box, caps = load_box(K, length, radius, settings, pressure=p_top, free_pose=free_pose)
         endpoints, held_paths = path_endpoints(m, settings)
         tasks = _tasks(spec, entry, linear, box, caps, endpoints, settings, pool.workers)
@@ -181,8 +197,10 @@ def condense_energy(entry, spec, *, radius: float, youngs_modulus: float, symmet
         for result in _results(pool, run_paths, tasks):
             outcomes.append(result)
             done += len(result.reached)
+            elapsed = time.perf_counter() - t0
+            left = f", about {elapsed * (len(endpoints) - done) / done:.0f} s left" if done < len(endpoints) else ""
             _say(progress, f"  {done}/{len(endpoints)} paths, {sum(o.solves for o in outcomes)} FE solves, "
-                           f"{time.perf_counter() - t0:.1f} s")
+                           f"{elapsed:.1f} s{left}")
     timings["sampling_s"] = time.perf_counter() - start
     parts = [o.samples for o in outcomes if o.samples is not None]
     if not parts:
@@ -201,17 +219,18 @@ def condense_energy(entry, spec, *, radius: float, youngs_modulus: float, symmet
         [max(abs(energy_range.pose_lower[1]), energy_range.pose_upper[1])],
         [energy_range.pose_upper[2]] * 2,
         [max(abs(energy_range.pose_lower[3]), energy_range.pose_upper[3])],
-        [max(p_top, 1e-300)] * m])
+        [p_top if p_top > 0 else youngs_modulus] * m])   # no pressure sampled: any finite scale
     group = symmetry_group(symmetry, settings.degree)
     held_out = held_paths[samples.path]
     t1 = time.perf_counter()
-    fold = fold_estimate if (m and settings.fold) else None
+    fold = fold_estimate if (pressurised and settings.fold) else None
     if fold is not None:                # the pressures' scale in the fold variable w(p)
         scales[6:] = 2.0 * fold * (1.0 - math.sqrt(1.0 - p_top / fold))
-    result = fit_energy(samples, linear, degree=settings.degree, pressure_degree=settings.pressure_degree if m else 0,
+    result = fit_energy(samples, linear, degree=settings.degree,
+                        pressure_degree=settings.pressure_degree if pressurised else 0,
                         group=group, scales=scales, held_out=held_out, hessian_weight=settings.hessian_weight,
                         fold=fold)
-    volume_scale = float(np.abs(samples.pressure_gradient).max()) if m else None
+    volume_scale = float(np.abs(samples.pressure_gradient).max()) if pressurised else None
     bounds = energy_range.load_upper
     errors = {"held_out": fit_errors(result, linear, samples.take(held_out), bounds, volume_scale)
               if held_out.any() else {"samples": 0},

@@ -298,6 +298,9 @@ class SamplingChoice:
             if name in caps and caps[name] < self.values[name]:
                 text += f" capped at {math.degrees(caps[name]):.3g}° by the strain"
             parts.append(text)
+        if self.cavities and self.settings.get("cavities") is not None:
+            named = self.settings["cavities"]
+            parts.append("pressurised cavities: " + (", ".join(map(str, named)) if named else "none"))
         return ", ".join(parts)
 
     def to_json(self) -> dict:
@@ -369,10 +372,24 @@ def choose_sampling(estimate: SegmentRange, *, compliance, rest_translation, rad
                             f"({asked:.4g}): states beyond it leave the fitted range")
         values[name], sources[name] = value, "scene setting"
     settings = {name: value for name, value in values.items() if value != getattr(defaults, name)}
+    pressurised = _pressurised(estimate, cavities)
+    if pressurised is not None:
+        settings["cavities"] = pressurised
     settings.update(user)
     SamplingSettings.from_dict(settings)                        # the result must be valid settings
     return SamplingChoice(settings, values, sources, needed, tuple(warnings), cavities=cavities,
                           slenderness=length / radius)
+
+
+def _pressurised(estimate: SegmentRange, cavities: int) -> list | None:
+    """``sampling.cavities`` for the scene: ``[]`` when it pressurises none of the segment's
+    cavities (a positive pressure), so the entry skips the inflation-limit search and the
+    pressures nothing applies; None (all) when it pressurises any — one ramp serves every
+    cavity by symmetry and the paths cost the same, so naming a subset would save nothing and
+    only narrow the entry."""
+    if not cavities or any(high > 0.0 and c < cavities for c, (_, high) in estimate.pressures.items()):
+        return None
+    return []
 
 
 def _pressure(estimate: SegmentRange, warnings: list) -> tuple:

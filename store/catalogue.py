@@ -19,6 +19,7 @@ import numpy as np
 from vertebra.core.energy import EnergyFit
 from vertebra.store.entry import SegmentEntry, canonical_json
 from vertebra.core.errors import CatalogueError
+from vertebra.store import locking
 from vertebra.store.h5read import walk
 from vertebra.store.schema import (ARRAY_FIELDS, DICT_FIELDS, SCHEMA_VERSION, EncodedEntry, check_key, same_design,
                                    entry_group, entry_keys, parse_json, read_entry, read_index,
@@ -290,6 +291,7 @@ def add_entries(path, entries, *, consolidate: bool = True,
         if conflict.exists():
             keys = _conflicting_keys(path, conflict)
             _unlink_quietly(conflict)
+            locking.remove_directory_if_empty(shards_dir(path))      # it may have been the last file
             raise CatalogueError(f"{path}: another process added {', '.join(keys) or 'these keys'} with "
                                  "different content at the same time; your entries with those keys were "
                                  "not stored (the others were)")

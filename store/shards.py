@@ -3,12 +3,14 @@
 The catalogue file ``X.h5`` is never modified in place and never opened with mode
 ``'w'``. A writer puts its entries into a new shard file in ``X.h5.shards/``
 (temporary name, fsync, atomic ``os.replace`` into place: from then on the entry is
-*committed*). A merger holding ``filelock.FileLock("X.h5.lock")`` reads the current
+*committed*). A merger holding the lock ``X.h5.shards/.lock`` (:mod:`.locking`) reads the current
 catalogue into memory, appends the pending shards there (each entry checked — checksum,
 links, soundness — before it is copied), writes the result into a temporary file next to
 it, fsyncs, and ``os.replace``s it over ``X.h5``; only then are the merged shards deleted.
 A process killed at any moment leaves either a temporary file (ignored, later cleaned) or
 a committed shard (merged later) and the old or the new catalogue — both complete files.
+When the lock is released the lock file goes, and the shards directory too if it is empty:
+a catalogue with nothing pending is one file.
 
 Files are built in memory (HDF5 core driver) and reach the disk through plain writes: a
 full, read-only or forbidden disk fails one ``write`` with a clean OSError, mapped to a
@@ -33,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from vertebra.core.errors import CatalogueError
+from vertebra.store import locking
 from vertebra.store.h5read import H5_ERRORS
 from vertebra.store.schema import (ENERGY_SCHEMA_VERSION, EncodedEntry, append_index, check_file, differing_fields, same_design,
                                    entry_group, init_file, read_entry, read_index, stamp_version, write_entry)
@@ -43,6 +46,7 @@ LOCK_TIMEOUT_S = 600.0
 LOCK_FIRST_REPORT_S = 2.0       # a wait for the merger lock is reported after this long …
 LOCK_REPORT_EVERY_S = 15.0      # … and again at this interval until it is obtained or given up
 SHARD_SUFFIX = ".h5"
+LOCK_NAME = ".lock"
 CONFLICT_SUFFIX = ".conflict"
 CORRUPT_SUFFIX = ".corrupt"
 _HOST = socket.gethostname().replace("~", "-") or "host"
@@ -84,7 +88,8 @@ def shards_dir(path) -> Path:
 
 
 def lock_path(path) -> Path:
-    return Path(str(path) + ".lock")
+    """The merger lock's file, inside the shards directory (both removed when a merge ends)."""
+    return shards_dir(path) / LOCK_NAME
 
 
 def _temp_path(directory: Path, stem: str) -> Path:
@@ -273,66 +278,48 @@ def _unlink_quietly(p: Path) -> None:
         log.warning("%s: could not remove (%s)", p, error.strerror or error)
 
 
-def _lock_holder(lock: Path, soft: bool) -> str:
-    """What is known about the holder of the merger lock, for messages."""
-    if not soft:
-        return "held by another process (a merge in progress)"
-    try:
-        st = lock.stat()
-        with open(lock, "rb") as fh:
-            text = fh.read(4096).decode("utf-8", "replace")
-    except OSError:
-        return "soft lock file present"
-    fields = dict(line.split("=", 1) for line in text.splitlines() if "=" in line)
-    who = ", ".join(f"{k} {fields[k]}" for k in ("pid", "host") if k in fields)
-    if not who and text.strip().splitlines():
-        who = "pid " + text.strip().splitlines()[0][:20]
-    age = time.time() - st.st_mtime
-    return f"soft lock file created {age:.0f} s ago" + (f" by {who}" if who else "")
-
-
 @contextlib.contextmanager
 def catalogue_lock(path, timeout: float = LOCK_TIMEOUT_S):
-    """Hold the merger lock, a separate file ``<catalogue>.lock`` (``filelock``).
+    """Hold the merger lock: ``<catalogue>.shards/.lock`` (:mod:`vertebra.store.locking`).
 
-    A wait is reported (logging, warning level: stderr by default) after
-    ``LOCK_FIRST_REPORT_S`` and every ``LOCK_REPORT_EVERY_S``, naming the lock and what is
-    known of its holder; after ``timeout`` seconds :class:`LockTimeout` says what to do. A lock
-    file that cannot be created (read-only filesystem, permissions) is a CatalogueError at once.
+    The lock file and, when it is empty, the shards directory are removed on release, so a
+    catalogue with nothing pending has nothing beside it. A wait is reported (logging,
+    warning level: stderr by default) after ``LOCK_FIRST_REPORT_S`` and every
+    ``LOCK_REPORT_EVERY_S``, naming the lock and what is known of its holder; after
+    ``timeout`` seconds :class:`LockTimeout` says what to do. A lock file that cannot be
+    created (read-only filesystem, permissions) is a CatalogueError at once.
 
-    ``VERTEBRA_CATALOGUE_LOCK=soft`` switches to ``SoftFileLock`` (existence of the lock
-    file) for filesystems where ``fcntl`` locks do not work; a crashed merger then leaves
-    the lock file behind and it must be deleted by hand.
+    ``VERTEBRA_CATALOGUE_LOCK=soft`` switches to a lock by the file's existence for
+    filesystems where ``flock`` does not work across machines; a merger killed while holding
+    it leaves the lock file behind and it must be deleted by hand.
     """
-    import filelock
-
     lock_file = lock_path(path)
-    soft = os.environ.get("VERTEBRA_CATALOGUE_LOCK", "").strip().lower() == "soft"
-    lock = (filelock.SoftFileLock if soft else filelock.FileLock)(str(lock_file))
+    how = locking.mechanism()
     start = time.monotonic()
     report_at = start + LOCK_FIRST_REPORT_S
     while True:
-        now = time.monotonic()
         try:
-            lock.acquire(timeout=max(0.0, min(start + timeout, report_at) - now), poll_interval=0.05)
-            break
-        except filelock.Timeout:
-            now = time.monotonic()
-            waited = now - start
-            if waited >= timeout:
-                raise LockTimeout(
-                    f"{lock_file}: catalogue lock not obtained within {timeout:.0f} s "
-                    f"({_lock_holder(lock_file, soft)}); if no merger is running"
-                    + (", the soft lock file is stale: delete it" if soft else ", try again")) from None
-            log.warning("%s: waiting %.0f s for the catalogue lock %s (%s); giving up after %.0f s",
-                        path, waited, lock_file, _lock_holder(lock_file, soft), timeout)
-            report_at = now + LOCK_REPORT_EVERY_S
+            held = locking.acquire(lock_file, min(start + timeout, report_at), tidy_dir=True, how=how)
+        except NotADirectoryError:
+            raise _not_a_directory(path) from None
         except OSError as error:
             raise disk_error(lock_file, "cannot create the catalogue lock file", error) from None
+        if held is not None:
+            break
+        now = time.monotonic()
+        waited = now - start
+        if waited >= timeout:
+            raise LockTimeout(
+                f"{lock_file}: catalogue lock not obtained within {timeout:.0f} s "
+                f"({locking.holder(lock_file, how)}); if no merger is running"
+                + (", the soft lock file is stale: delete it" if how == "soft" else ", try again")) from None
+        log.warning("%s: waiting %.0f s for the catalogue lock %s (%s); giving up after %.0f s",
+                    path, waited, lock_file, locking.holder(lock_file, how), timeout)
+        report_at = now + LOCK_REPORT_EVERY_S
     try:
-        yield lock
+        yield held
     finally:
-        lock.release()
+        locking.release(held, tidy_dir=True)
 
 
 # ---------------------------------------------------------------- writing shards
@@ -346,13 +333,20 @@ def _shard_name(encs: list[EncodedEntry]) -> str:
     return f"batch@{h.hexdigest()[:16]}{SHARD_SUFFIX}"
 
 
+#: times a writer recreates the shards directory that a releasing merger removed meanwhile
+_DIRECTORY_ATTEMPTS = 100
+
+
+def _not_a_directory(path) -> CatalogueError:
+    return CatalogueError(f"{shards_dir(path)}: exists but is not a directory (the shards and the merger "
+                          f"lock of {path} go there)")
+
+
 def _shards_directory(path: Path) -> Path:
-    """Create ``<catalogue>.shards/`` (a merger removes it when it leaves it empty)."""
+    """Create ``<catalogue>.shards/`` (the merger lock's release removes it when empty)."""
     d = shards_dir(path)
     try:
-        d.mkdir(exist_ok=True)
-    except FileExistsError:
-        raise CatalogueError(f"{d}: exists but is not a directory (the shards of {path} go there)") from None
+        locking.make_directory(d)
     except OSError as error:
         raise disk_error(d, "cannot create the shards directory", error) from None
     return d
@@ -380,13 +374,15 @@ def write_shard(path, encs: list[EncodedEntry]) -> Path:
         raise disk_error(final, "cannot build the shard in memory", error) from None
     tmp = _temp_path(d, "shard")
     try:
-        for attempt in range(3):
+        for attempt in range(_DIRECTORY_ATTEMPTS):
             _shards_directory(path)
             try:
                 write_new(tmp, image)
                 break
-            except FileNotFoundError:
-                if attempt == 2:            # a merger removed the empty directory meanwhile: again
+            except NotADirectoryError:
+                raise _not_a_directory(path) from None
+            except FileNotFoundError:       # a merger removed the empty directory meanwhile: again
+                if attempt == _DIRECTORY_ATTEMPTS - 1:
                     raise
         _publish(tmp, final)
     except BaseException as error:
@@ -591,8 +587,3 @@ def _settle(path, shards, merged, conflicted, corrupt) -> None:
     except OSError as error:
         log.warning("%s: merged, but tidying the shards failed (%s); the next merge finishes it",
                     path, error.strerror or error)
-        return
-    try:
-        shards_dir(path).rmdir()            # only when empty: a writer's temporary file keeps it
-    except OSError:
-        pass

@@ -122,7 +122,7 @@ class OracleSegment:
             H[:, 6:, 6:] -= ddV[:, :, None] * np.eye(m)[None]
         return energy, g, H
 
-    def solve(self, R, t, pressures=None, initial=None):
+    def solve(self, R, t, pressures=None, initial=None, min_load_step=None):
         from scipy.spatial.transform import Rotation
         from vertebra.core.lie import se3_log
 

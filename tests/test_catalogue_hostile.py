@@ -491,7 +491,7 @@ def test_directories_where_files_are_expected(tmp_path, capsys):
     with pytest.raises(CatalogueError, match="exists but is not a directory"):
         catalogue.add_entry(blocked, make_entry(0))
     locked = tmp_path / "locked.h5"
-    shards.lock_path(locked).mkdir()
+    shards.lock_path(locked).mkdir(parents=True)
     key = catalogue.add_entry(locked, make_entry(0))            # stored; the merge cannot lock
     assert key.status == "stored, merge deferred" and "lock file" in key.merge_deferred
 
@@ -506,11 +506,12 @@ def test_lock_wait_is_reported_and_gives_up_with_a_clear_error(tmp_path, caplog,
     monkeypatch.setattr(shards, "LOCK_REPORT_EVERY_S", 0.2)
     path = tmp_path / "cat.h5"
     catalogue.add_entry(path, make_entry(0))
+    shards.lock_path(path).parent.mkdir()
     shards.lock_path(path).write_text("4242\nsomehost\n")        # left by a crashed merger
-    with pytest.raises(shards.LockTimeout, match=r"cat\.h5\.lock: catalogue lock not obtained within 1 s "
+    with pytest.raises(shards.LockTimeout, match=r"cat\.h5\.shards/\.lock: catalogue lock not obtained within 1 s "
                                                  r"\(soft lock file created \d+ s ago by pid 4242.*stale: delete it"):
         catalogue.consolidate(path, timeout=1.0)
-    assert "waiting" in caplog.text and "cat.h5.lock" in caplog.text
+    assert "waiting" in caplog.text and "cat.h5.shards/.lock" in caplog.text
     key = catalogue.add_entry(path, make_entry(1), timeout=0.5)
     assert key.status == "stored, merge deferred" and "not obtained" in key.merge_deferred
     shards.lock_path(path).unlink()

@@ -115,3 +115,16 @@ def test_four_simultaneous_design_processes_on_one_catalogue(tmp_path):
     assert {row["key"] for row in json.loads(listing.stdout)} == keys
     verify = _run("catalogue", "verify", catalogue)
     assert verify.returncode == 0, verify.stdout + verify.stderr
+
+
+def test_pressurised_option_names_the_sampled_cavities():
+    """``--pressurised``: all (the default settings), none, or indices; anything else is refused
+    naming the option."""
+    from vertebra.cli.design import parse_pressurised
+    from vertebra.core.errors import OptionError
+
+    assert parse_pressurised("all") is None and parse_pressurised("NONE") == []
+    assert parse_pressurised("0,2") == [0, 2]
+    for bad in ("zero", "-1", "0,,1"):
+        with pytest.raises(OptionError, match="--pressurised"):
+            parse_pressurised(bad)

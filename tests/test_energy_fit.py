@@ -13,6 +13,7 @@ from vertebra.designer.energy_sampling import SamplingSettings
 from vertebra.designer.families import AXISYMMETRIC, FAMILIES, SegmentSymmetry
 from vertebra.designer.nonlinear_condensation import condense_energy
 from vertebra.core.energy import Monomials, linear_terms
+from vertebra.core.errors import OptionError
 from energy_oracle import OracleEnergy, OracleSpec, rod_entry
 from reference.energy_chain import EntryEnergy, PointLoad, solve_chain
 
@@ -220,3 +221,31 @@ def test_automatic_sampling_settings_depend_on_material_and_cavities():
     rod = {"radius": 0.01, "length": 0.01, "youngs_modulus": 1e6, "poisson_ratio": 0.35}
     assert entry_key("rod", rod, material="svk") == entry_key("rod", rod, material="svk", sampling={"strain": 0.25})
     assert entry_key("rod", rod, material="svk") != entry_key("rod", rod, material="svk", sampling={"strain": 0.4})
+
+
+def test_cavities_setting_samples_only_the_pressurised_chambers():
+    """``sampling.cavities``: none pressurised — no inflation-limit ramp, every sample at zero
+    pressure, no pressure terms, a range that admits no pressure; one named — its ramp finds
+    the limit (within 1 %) and only it is sampled under pressure. The keys of the default
+    settings do not change (``cavities`` is described only when set)."""
+    spec = OracleSpec(cavities=3, balloon=1.3e-6, p_limit=1.47e5)
+    entry = rod_entry(cavities=3)
+    base = SamplingSettings(degree=4, pressure_degree=4, paths=12, steps=4)
+    assert "cavities" not in base.describe()
+    assert SamplingSettings.from_dict({"cavities": [1]}).describe()["cavities"] == [1]
+    none = condense_energy(entry, spec, radius=0.01, youngs_modulus=1e6, symmetry=THREE_AT_ZERO,
+                           material={"model": "oracle"}, settings=dataclasses.replace(base, cavities=()))
+    assert "ramp_solves" not in none.energy.sampling
+    assert np.all(none.samples.pressure == 0.0)
+    assert np.all(none.energy.range.pressure_upper == 0.0) and none.energy.range.limit_pressure is None
+    assert all(np.sum(e[6:]) == 0 for e in none.energy.exponents)          # no pressure terms
+    assert none.energy.fit_error["held_out"]["load_max"] < 1e-6
+    one = condense_energy(entry, spec, radius=0.01, youngs_modulus=1e6, symmetry=THREE_AT_ZERO,
+                          material={"model": "oracle"}, settings=dataclasses.replace(base, cavities=(1,)))
+    assert abs(one.energy.range.limit_pressure - 1.47e5) < 0.01 * 1.47e5
+    assert np.all(one.samples.pressure[:, [0, 2]] == 0.0) and one.samples.pressure[:, 1].max() > 0
+    assert one.energy.fit_error["held_out"]["volume_max"] < 1e-3
+    with pytest.raises(OptionError, match="cavity 3"):
+        SamplingSettings(cavities=(3,)).pressurised(3)
+    with pytest.raises(OptionError, match="sampling.cavities"):
+        SamplingSettings(cavities=(1, 1))

@@ -273,6 +273,21 @@ def test_chamber_bounds_set_the_pressure_range(tmp_path, max_pressure, expected)
     assert "pressure" in row.sampling.describe() and not (tmp_path / "cat.h5").exists()
 
 
+def test_unpressurised_cavities_are_not_sampled(tmp_path):
+    """A pneumatic segment that no chamber of the scene pressurises is sampled at zero pressure
+    (``sampling.cavities = []``: no inflation-limit ramp), a key of its own."""
+    data = {"catalogue": {"path": "cat.h5"},
+            "segment": [{"type": "design", "family": "pneumatic", "parameters": PNEUMATIC, "mesh_size": 0.005,
+                         "material": "neo_hookean", "count": 2}]}
+    _, report = prepare(solver.parse_scene(data, base_dir=tmp_path), dry_run=True, **FAST)
+    [row] = report.segments
+    assert row.sampling.settings["cavities"] == []
+    assert "pressurised cavities: none" in row.sampling.describe()
+    assert row.key == designer.entry_key("pneumatic", PNEUMATIC, mesh_size=0.005, material="neo_hookean",
+                                         sampling={"cavities": []})
+    assert row.key != designer.entry_key("pneumatic", PNEUMATIC, mesh_size=0.005, material="neo_hookean")
+
+
 def test_nonlinear_segments_need_the_model_builder_and_valid_sampling(tmp_path):
     scene = solver.parse_scene(twisted_rods(rod_segment()), base_dir=tmp_path, source="s.toml")
     with pytest.raises(OptionError, match="build_model"):

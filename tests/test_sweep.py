@@ -353,6 +353,7 @@ def test_failures_are_isolated_and_logged(tmp_path):
     assert by_index[1]["parameters"]["radius"] == -0.01 and "radius" in by_index[1]["message"]
     assert by_index[2]["message"] == "boom in task 2" and "RuntimeError" in by_index[2]["traceback"]
     assert by_index[2]["key"] and by_index[2]["parameters"]["explode"] is True
+    assert not Path(str(failure_log_path(catalogue)) + ".lock").exists()     # the log's lock leaves nothing
     for record in lines:
         assert record["version"] == 1 and record["sweep"] == "<dict>" and record["catalogue"] == str(catalogue)
         assert record["family"] == "rod" and record["mesh_size"] == 0.004 and record["order"] == 1

@@ -10,6 +10,15 @@ implements :class:`NewtonProblem`; states are opaque to this module.
   (Armijo) on the merit; a trial state whose merit is not finite (an inverted
   element) is cut back like any other. Near convergence the merit differences fall
   to round-off: a step whose predicted decrease is below that level is taken whole.
+  The full step's trial is evaluated with its tangent at once and its merit read from
+  that evaluation, which the next iteration reuses (full steps are the rule: one
+  assembly per iteration instead of an assembly and a merit evaluation); shorter
+  trials evaluate the merit alone.
+* Inexact Newton: the step's linear solve needs only the accuracy the iteration can
+  use; :func:`forcing` gives the problem the relative residual to reach, ``η = min(η_max,
+  max(r, 0.1 rtol / r))`` at residual ratio ``r`` (quadratic convergence kept: the
+  solve's error ``η r`` is no larger than the ``O(r²)`` remainder of Newton's model;
+  and a solve that lands the next residual below the tolerance is accurate enough).
 * Load stepping (:func:`march`): the load path is parametrised by ``s ∈ [0, 1]``; the
   problem moves a converged state to ``s + Δs`` with a predictor; a step whose Newton
   iteration fails is halved, one that converged quickly lets the next one double, and
@@ -40,6 +49,7 @@ class NewtonSettings:
     max_shifts: int = 4
     min_step: float = 1.0 / 4096.0   # smallest load-step fraction before giving up
     grow_iterations: int = 4         # a load step converged in at most this many iterations doubles the next
+    max_forcing: float = 1e-2        # loosest relative residual of a step's linear solve (inexact Newton)
 
     def __post_init__(self):
         if not (0 < self.rtol < 1):
@@ -59,13 +69,16 @@ class NewtonProblem(Protocol):
     def residual_ratio(self, state, evaluation) -> float:
         """Residual over its tolerance scale (converged when ≤ rtol)."""
 
-    def step(self, state, evaluation, shift: float = 0.0) -> Step: ...
+    def step(self, state, evaluation, shift: float = 0.0, forcing: float = 0.0) -> Step:
+        """Newton step; its linear solve may stop at the relative residual ``forcing`` (0: the
+        problem's own tolerance, and never looser than a problem that needs more allows)."""
 
     def retract(self, state, step: Step, alpha: float): ...
 
-    def merit(self, state, step: "Step | None" = None, alpha: float = 0.0) -> float:
+    def merit(self, state, step: "Step | None" = None, alpha: float = 0.0, evaluation=None) -> float:
         """Merit of ``state``, reached by ``alpha`` × ``step`` from the line search's start (the
-        linearised work of non-potential loads along the step is subtracted)."""
+        linearised work of non-potential loads along the step is subtracted); read from
+        ``evaluation`` (of ``state``) when given."""
 
     def merit_scale(self, evaluation) -> float: ...
 
@@ -87,11 +100,21 @@ class NewtonReport:
     negative_pivots: int | None = None
 
 
+def forcing(residual: float, settings: NewtonSettings) -> float:
+    """Relative residual a Newton step's linear solve must reach at residual ratio ``residual``
+    (inexact Newton, see the module docstring)."""
+    if residual <= 0.0:
+        return settings.max_forcing
+    return min(settings.max_forcing, max(residual, 0.1 * settings.rtol / residual))
+
+
 def newton(problem: NewtonProblem, state, settings: NewtonSettings):
     """Converged ``(state, evaluation, report)``, or :class:`NewtonFailure`."""
     report = NewtonReport()
+    evaluation = problem.evaluate(state, hessian=True)
     for iteration in range(settings.max_iterations + 1):
-        evaluation = problem.evaluate(state, hessian=True)
+        if evaluation is None:
+            evaluation = problem.evaluate(state, hessian=True)
         report.residual = problem.residual_ratio(state, evaluation)
         report.iterations = iteration
         if not math.isfinite(report.residual):
@@ -100,17 +123,19 @@ def newton(problem: NewtonProblem, state, settings: NewtonSettings):
             return state, evaluation, report
         if iteration == settings.max_iterations:
             break
-        state = _line_search(problem, state, evaluation, settings, report)
+        state, evaluation = _line_search(problem, state, evaluation, settings, report)
     raise NewtonFailure(f"no convergence in {settings.max_iterations} iterations "
                         f"(residual/tolerance scale {report.residual:.3g})", report)
 
 
 def _line_search(problem, state, evaluation, settings, report):
-    merit0 = problem.merit(state)
+    """``(accepted state, its evaluation or None)``."""
+    merit0 = problem.merit(state, evaluation=evaluation)
     scale = problem.merit_scale(evaluation)
+    eta = forcing(report.residual, settings)
     shift = 0.0
     for attempt in range(settings.max_shifts + 1):
-        step = problem.step(state, evaluation, shift)
+        step = problem.step(state, evaluation, shift, eta)
         if step.info.get("negative_pivots"):
             report.negative_pivots = step.info["negative_pivots"]
             report.indefinite = True
@@ -124,12 +149,16 @@ def _line_search(problem, state, evaluation, settings, report):
     alpha = 1.0
     while alpha >= settings.min_step_length:
         trial = problem.retract(state, step, alpha)
-        merit = problem.merit(trial, step, alpha)
+        trial_evaluation = None
+        if alpha == 1.0:                          # the full step: evaluated whole, reused if accepted
+            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+                trial_evaluation = problem.evaluate(trial, hessian=True)
+        merit = problem.merit(trial, step, alpha, evaluation=trial_evaluation)
         if math.isfinite(merit):
             if merit <= merit0 + settings.armijo * alpha * step.slope:
-                return trial
+                return trial, trial_evaluation
             if abs(step.slope) <= settings.roundoff * scale and abs(merit - merit0) <= 10 * settings.roundoff * scale:
-                return trial                      # round-off regime: the merit cannot resolve the step
+                return trial, trial_evaluation    # round-off regime: the merit cannot resolve the step
         alpha *= 0.5
         report.line_search_cuts += 1
     raise NewtonFailure("line search failed (no decrease of the merit along the Newton step)", report)

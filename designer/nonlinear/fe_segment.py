@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -61,8 +61,9 @@ class SegmentSettings:
     max_rotation_step: float = 0.35          # rad of frame b per load step
     max_translation_step: float = 0.1        # fraction of the segment length per load step
     max_pressure_step: float = 0.05          # fraction of Young's modulus per load step
-    step_rtol: float = 1e-8                  # relative residual of each Newton-step linear solve
-    tangent_rtol: float = 1e-10              # relative residual of the condensed-tangent solves
+    step_rtol: float = 1e-8                  # tightest relative residual of a Newton-step linear solve
+    #                                          (looser while far from convergence: fe_newton.forcing)
+    tangent_rtol: float = 1e-6               # relative residual of the condensed-tangent solves (stationary form)
 
 
 @dataclass
@@ -76,6 +77,10 @@ class SegmentState:
     du_dpose: np.ndarray | None = None       # (n_int, 6) in frame-origin coordinates of b
     du_dpressure: np.ndarray | None = None   # (n_int, n_cav)
     condensed: dict | None = None            # frame-origin stiffness, volume derivatives
+    # the last solve's increment (scaled: translation / L, rotation, pressure / E) and the error of
+    # its first-order (tangent) predictor: the second-order term the next, similar step extrapolates
+    increment: np.ndarray | None = None
+    remainder: np.ndarray | None = None
 
     def poses(self) -> dict:
         return {"bottom": Pose(np.eye(3), np.zeros(3)), "top": Pose(self.R, self.t)}
@@ -108,6 +113,11 @@ class SegmentResponse:
         """Force and moment about ``b``'s origin (``a``'s axes)."""
         f = self.wrench[:3]
         return np.concatenate([f, self.wrench[3:] - np.cross(self.t, f)])
+
+
+#: cosine between consecutive solves' increments above which the second-order term of the last
+#: one's predictor is extrapolated into the next prediction
+SECOND_ORDER_COSINE = 0.9
 
 
 def left_from_frame_origin(t: np.ndarray) -> np.ndarray:
@@ -188,9 +198,12 @@ class NonlinearSegment:
         return self._rest
 
     # ---- solve -------------------------------------------------------------------------------
-    def solve(self, R, t, pressures=None, initial: SegmentState | None = None, gravity=None) -> SegmentResponse:
+    def solve(self, R, t, pressures=None, initial: SegmentState | None = None, gravity=None,
+              min_load_step: float | None = None) -> SegmentResponse:
         """Equilibrium with frame ``b`` at ``(R, t)`` (in ``a``), cavity pressures ``pressures`` (Pa) and an
-        optional gravity vector (m/s², in ``a``'s axes) on the segment's own mass."""
+        optional gravity vector (m/s², in ``a``'s axes) on the segment's own mass. ``min_load_step``:
+        give up once a load step is cut below it (default: the settings' ``newton.min_step``) —
+        for callers that expect a failure and handle it cheaply."""
         start = time.perf_counter()
         target = self._target(R, t, pressures)
         initial = self.rest_state() if initial is None else initial
@@ -198,7 +211,10 @@ class NonlinearSegment:
             raise OptionError("initial: state of another segment model", field="initial")
         stats0 = dict(self.solver.stats)
         problem = _PoseProblem(self, initial, target, gravity)
-        state, evaluation, report = march(problem, problem, initial, self.settings.newton,
+        newton = self.settings.newton
+        if min_load_step is not None:
+            newton = replace(newton, min_step=max(newton.min_step, min_load_step))
+        state, evaluation, report = march(problem, problem, initial, newton,
                                           first_step=problem.first_step(), max_step=min(1.0, 2 * problem.first_step()),
                                           stage="nonlinear segment")
         response = self._response(state, evaluation, report, problem)
@@ -261,6 +277,7 @@ class _PoseProblem:
         self.times = {"evaluate_s": 0.0, "solve_s": 0.0}
         # (s, u_interior − rigid blend) of the last converged states on this path
         self.history = [(0.0, initial.u_interior - self.framed.rigid_blend(Pose(initial.R, initial.t)))]
+        self.first_order = None          # (increment, first-order prediction) of a whole-path first step
 
     def first_step(self) -> float:
         s = self.settings
@@ -294,7 +311,26 @@ class _PoseProblem:
             u += (blend - blend0) + state.du_dpose @ dzeta - (plus - minus) / (2 * eps)
             if p.size:
                 u += state.du_dpressure @ (p - state.pressures)
+            increment = np.concatenate([dzeta[:3] / self.segment.length, dzeta[3:],
+                                        (p - state.pressures) / self.segment.material.youngs_modulus])
+            if s_to == 1.0:
+                self.first_order = (increment, u.copy())
+            u += self._second_order(state, increment)
         return SegmentState(R, t, p, u)
+
+    @staticmethod
+    def _second_order(state: SegmentState, increment: np.ndarray):
+        """The previous solve's predictor error scaled to this increment (``ratio²``, ratio the
+        projection of this increment on that one's) when the two are nearly parallel — along a
+        loading path, consecutive samples: the second-order term of the path's extrapolation."""
+        if state.remainder is None or state.increment is None or state.increment.shape != increment.shape:
+            return 0.0
+        last = state.increment
+        norms = float(np.linalg.norm(last) * np.linalg.norm(increment))
+        if norms == 0.0 or float(last @ increment) < SECOND_ORDER_COSINE * norms:
+            return 0.0
+        ratio = float(last @ increment) / float(last @ last)
+        return ratio ** 2 * state.remainder if ratio <= 2.0 else 0.0
 
     def converged(self, state: SegmentState, evaluation, s: float = 1.0) -> SegmentState:
         """Remember the state for the secant predictor; at the end of the path (``s = 1``) add the
@@ -302,7 +338,11 @@ class _PoseProblem:
 
         The remaining interior residual ``g_i`` (within tolerance) is taken out to first
         order: ``y = H_ii⁻¹ g_i`` corrects the wrench (``g_b − H_biy``), the volumes
-        (``V − ∂V/∂u_i · y``) and ψ (``Π − ½ g_i·y``)."""
+        (``V − ∂V/∂u_i · y``) and ψ (``Π − ½ g_i·y``).
+
+        The condensed second derivatives ``Bᵀ H_ii⁻¹ B`` (``B = [H_iq, ∂V/∂u_i]``) are taken in
+        their stationary form ``BᵀX + XᵀB − Xᵀ H_ii X`` with ``X ≈ H_ii⁻¹ B``: its error is
+        quadratic in the solve's, so ``tangent_rtol`` can stay loose (1e-6 gives ~1e-12)."""
         remainder = state.u_interior - self.framed.rigid_blend(Pose(state.R, state.t))
         self.history = (self.history + [(s, remainder)])[-2:]
         if s < 1.0:
@@ -315,16 +355,21 @@ class _PoseProblem:
                                          rtol=self.settings.tangent_rtol)
         self.times["solve_s"] += time.perf_counter() - start
         Xq, Xp, y = X[:, :6], X[:, 6:-1], X[:, -1]
-        stiffness = evaluation.H_qq[6:, 6:] - H_iq.T @ Xq
-        dVdp = dV_i.T @ Xp
-        condensed = {"stiffness": 0.5 * (stiffness + stiffness.T),
+        B, XB = np.column_stack([H_iq, dV_i]), X[:, :-1]
+        BX = B.T @ XB
+        M = BX + BX.T - XB.T @ (evaluation.H_ii @ XB)                  # stationary Bᵀ H_ii⁻¹ B
+        M = 0.5 * (M + M.T)
+        condensed = {"stiffness": evaluation.H_qq[6:, 6:] - M[:6, :6],
                      "wrench": evaluation.gradient_frames[6:] - H_iq.T @ y,
                      "volumes": evaluation.volumes - dV_i.T @ y,
                      "energy": evaluation.energy - 0.5 * float(g_i @ y),
-                     "dvolume_dpose": evaluation.dvolume_frames[6:].T - dV_i.T @ Xq,
-                     "dvolume_dpressure": 0.5 * (dVdp + dVdp.T)}
+                     "dvolume_dpose": evaluation.dvolume_frames[6:].T - M[6:, :6],
+                     "dvolume_dpressure": M[6:, 6:]}
+        increment, remainder = None, None
+        if self.first_order is not None and len(self.history) == 2 and self.history[0][0] == 0.0:
+            increment, remainder = self.first_order[0], state.u_interior - y - self.first_order[1]
         return SegmentState(state.R, state.t, state.pressures, state.u_interior - y, du_dpose=-Xq,
-                            du_dpressure=Xp, condensed=condensed)
+                            du_dpressure=Xp, condensed=condensed, increment=increment, remainder=remainder)
 
     # ---- Newton problem ----------------------------------------------------------------------
     def evaluate(self, state: SegmentState, hessian: bool = True):
@@ -337,20 +382,22 @@ class _PoseProblem:
         r = float(np.linalg.norm(evaluation.gradient_interior))
         return 0.0 if r == 0.0 else r / max(evaluation.force_scale, 1e-300)
 
-    def step(self, state, evaluation, shift: float = 0.0) -> Step:
+    def step(self, state, evaluation, shift: float = 0.0, forcing: float = 0.0) -> Step:
         start = time.perf_counter()
         A = evaluation.H_ii
         if shift:
             A = A + shift * _diagonal(A)
         g = evaluation.gradient_interior
-        d, info = self.segment.solver.solve(A, -g, rtol=self.settings.step_rtol)
+        d, info = self.segment.solver.solve(A, -g, rtol=max(self.settings.step_rtol, forcing))
         self.times["solve_s"] += time.perf_counter() - start
         return Step(direction=d, slope=float(g @ d), info=info)
 
     def retract(self, state: SegmentState, step: Step, alpha: float) -> SegmentState:
         return SegmentState(state.R, state.t, state.pressures, state.u_interior + alpha * step.direction)
 
-    def merit(self, state: SegmentState, step: Step | None = None, alpha: float = 0.0) -> float:
+    def merit(self, state: SegmentState, step: Step | None = None, alpha: float = 0.0, evaluation=None) -> float:
+        if evaluation is not None:
+            return evaluation.energy
         start = time.perf_counter()
         value = self.framed.energy(state.u_interior, state.poses(), state.pressures, self.gravity)[0]
         self.times["evaluate_s"] += time.perf_counter() - start

@@ -325,7 +325,9 @@ class _TrunkProblem:
         worst = max(parts)
         return 0.0 if worst == 0.0 else worst / scale
 
-    def step(self, state, evaluation, shift: float = 0.0) -> Step:
+    def step(self, state, evaluation, shift: float = 0.0, forcing: float = 0.0) -> Step:
+        """The condensed Newton step; ``forcing`` is not used: the interior solves build the
+        trunk's Schur complement, which must be exact to ``step_rtol`` for the frames' step."""
         start = time.perf_counter()
         trunk = self.trunk
         m = trunk.n_segments
@@ -391,16 +393,20 @@ class _TrunkProblem:
         out.u = [u + alpha * d for u, d in zip(state.u, step.direction["du"])]
         return out
 
-    def merit(self, state: TrunkState, step: Step | None = None, alpha: float = 0.0) -> float:
-        """Energy minus the linearised work of the dead moments along the current step."""
+    def merit(self, state: TrunkState, step: Step | None = None, alpha: float = 0.0, evaluation=None) -> float:
+        """Energy (from ``evaluation`` when given) minus the linearised work of the dead moments
+        along the current step."""
         start = time.perf_counter()
         trunk = self.trunk
         loads = state.loads
-        value = self._body_terms(state, loads)[0]
-        for s, seg in enumerate(trunk.segments):
-            poses, Rr = self._segment_poses(state, s)
-            gravity = None if loads["gravity"] is None else Rr.T @ loads["gravity"]
-            value += seg.framed.energy(state.u[s], poses, loads["pressures"][s], gravity)[0]
+        if evaluation is not None:
+            value = evaluation["energy"]
+        else:
+            value = self._body_terms(state, loads)[0]
+            for s, seg in enumerate(trunk.segments):
+                poses, Rr = self._segment_poses(state, s)
+                gravity = None if loads["gravity"] is None else Rr.T @ loads["gravity"]
+                value += seg.framed.energy(state.u[s], poses, loads["pressures"][s], gravity)[0]
         if step is not None:
             value -= alpha * float(np.sum(loads["moments"] * step.direction["dq"][:, 3:]))
         self.times["evaluate_s"] += time.perf_counter() - start

@@ -9,12 +9,16 @@ sides advancing together (one factor application per iteration for the block); w
 that does not converge within its budget, or meets negative curvature, the current
 matrix is factored afresh. The budget is the time of the last factorization: the
 iterations allowed are those whose factor applications (timed as they run) cost
-less than refactoring would. With a fresh direct factor the solve is exact up to
-iterative refinement, also for indefinite matrices.
+less than refactoring would. A solve that the last one's convergence rate says cannot
+reach its tolerance within the budget refactors at once instead of trying (the
+condensed-tangent solves — ten right-hand sides, so a budget of a few iterations —
+otherwise spend it and refactor anyway). With a fresh direct factor the solve is exact
+up to iterative refinement, also for indefinite matrices.
 """
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 
@@ -53,6 +57,7 @@ class ReusedFactorSolver:
     last_info: dict = field(default_factory=dict)
     factor_time: float = 0.0                # seconds of the last factorization
     apply_time: float = 0.0                 # seconds per right-hand side of one factor application
+    rate: float = 0.0                       # residual reduction per iteration of the last preconditioned CG
 
     def __post_init__(self):
         if self.method not in ("auto", "direct", "amg"):
@@ -71,6 +76,7 @@ class ReusedFactorSolver:
         self.factor_time = time.perf_counter() - start
         self.kind = kind
         self.fresh = True
+        self.rate = 0.0
         self.stats["factorizations"] += 1
         return self.factor.info
 
@@ -89,6 +95,10 @@ class ReusedFactorSolver:
         per_iteration = self.apply_time * B2.shape[1]
         maxit = MAX_ITERATIONS if per_iteration <= 0 else int(self.factor_time / per_iteration)
         maxit = min(max(maxit, MIN_ITERATIONS), MAX_ITERATIONS)
+        if (not refactored and self.kind == "direct" and 0.0 < self.rate < 1.0
+                and math.log(rtol) / math.log(self.rate) > maxit):
+            self.refactor(A)                # the stale factor would not make it: do not try (a fresh one is exact)
+            refactored = True
         X, iterations, ok = self._iterate(A, B2, rtol, maxit)
         if not ok and not refactored:
             self.refactor(A)
@@ -127,13 +137,21 @@ class ReusedFactorSolver:
         done = np.linalg.norm(R, axis=0) <= target
         if done.all():
             return X, 0, True
-        if self.fresh and self.kind == "direct":
-            for k in range(1, 4):                      # iterative refinement (exact factor, any inertia)
-                X += M(R).reshape(B.shape)
-                R = B - A @ X
-                if np.all(np.linalg.norm(R, axis=0) <= target):
-                    return X, k, True
-            return X, 3, False
+        if not (self.fresh and self.kind == "direct"):
+            X, R, k, ok = self._cg(A, B, X, R, done, target, maxit, M)
+            worst = float(np.max(np.linalg.norm(R, axis=0) / np.where(bnorm > 0, bnorm, 1.0)))
+            self.rate = min(max(worst, 1e-300) ** (1.0 / (k + 1)), 0.999) if ok else 0.999
+            return X, k, ok
+        for k in range(1, 4):                          # iterative refinement (exact factor, any inertia)
+            X += M(R).reshape(B.shape)
+            R = B - A @ X
+            if np.all(np.linalg.norm(R, axis=0) <= target):
+                return X, k, True
+        return X, 3, False
+
+    @staticmethod
+    def _cg(A, B, X, R, done, target, maxit, M):
+        """Block PCG from ``X`` (residual ``R``) with the preconditioner ``M``."""
         Z = M(R).reshape(B.shape)
         P = Z.copy()
         rz = np.einsum("ij,ij->j", R, Z)
@@ -142,18 +160,18 @@ class ReusedFactorSolver:
             pap = np.einsum("ij,ij->j", P, AP)
             active = ~done
             if np.any(pap[active] <= 0.0):             # negative curvature: not SPD (or stale factor)
-                return X, k, False
+                return X, R, k, False
             alpha = np.where(active, rz / np.where(active, pap, 1.0), 0.0)
             X += alpha * P
             R -= alpha * AP
             done = np.linalg.norm(R, axis=0) <= target
             if done.all():
-                return X, k, True
+                return X, R, k, True
             Z = M(R).reshape(B.shape)
             rz_new = np.einsum("ij,ij->j", R, Z)
             beta = np.where(active, rz_new / np.where(rz != 0, rz, 1.0), 0.0)
             P = Z + beta * P
             rz = rz_new
-        return X, maxit, False
+        return X, R, maxit, False
 
 

@@ -15,6 +15,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from vertebra.designer.sweep.tasks import Batch, Task
+from vertebra.store import locking
 
 FAILURE_LOG_VERSION = 1
 FAILURE_LOG_SUFFIX = ".failures.jsonl"
@@ -51,6 +52,10 @@ class TaskFailure:
                 "traceback": self.traceback, "worker": self.worker}
 
 
+#: seconds a sweep waits for another one appending to the same failure log
+FAILURE_LOG_LOCK_TIMEOUT_S = 600.0
+
+
 def failure_log_path(catalogue) -> Path:
     """``<catalogue>.failures.jsonl``, next to the catalogue."""
     catalogue = Path(catalogue)
@@ -61,10 +66,8 @@ def append_failures(path: Path, records: list[dict]) -> None:
     """Append JSON lines under a file lock (several sweeps may share a catalogue)."""
     if not records:
         return
-    from filelock import FileLock
-
     text = "".join(json.dumps(record, sort_keys=True, default=str) + "\n" for record in records)
-    with FileLock(str(path) + ".lock"):
+    with locking.locked(Path(str(path) + ".lock"), FAILURE_LOG_LOCK_TIMEOUT_S):
         with open(path, "a", encoding="utf-8") as handle:
             handle.write(text)
             handle.flush()
