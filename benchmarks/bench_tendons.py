@@ -1,6 +1,6 @@
 """Stroke-driven tendons and run-time parameters on the paper's 16-tendon robot: do random servo
-commands (slack and taut mixed) all converge, and what does a warm solve cost when the loads or
-parameters change instead of the actuation?
+commands (slack and taut mixed) all converge, and what does a warm solve cost when the loads
+(dead, gravity, follower) or parameters change instead of the actuation?
 
     python -m benchmarks.bench_tendons [--samples 200] [--rounds 7]
 
@@ -57,7 +57,9 @@ def random_commands(model, samples: int, seed: int = 0) -> dict:
 
 def warm_solves(model, rounds: int, per_round: int = 200) -> dict:
     """Warm solves from one equilibrium, interleaved per round: a changed actuation, then changed
-    loads (a dead force at the tip and gravity) and parameters (pretension, stiffness scale)."""
+    loads (a dead force at the tip and gravity), a changed follower load at the tip (force and
+    moment in its axes), parameters (pretension, stiffness scale), and — to tell the follower's
+    banded LU from its change — a changed actuation under a fixed follower load."""
     base = model.parameters
     start = model.solve(np.full(model.n_cables, 0.0002))
     rng = np.random.default_rng(1)
@@ -72,13 +74,27 @@ def warm_solves(model, rounds: int, per_round: int = 200) -> dict:
         model.set_parameters(base, dead=dead, gravity=[0.0, rng.uniform(-0.5, 0.5), -9.81])
         model.solve(np.full(model.n_cables, 0.0002), initial=start.state)
 
+    def follower_wrench():
+        return np.r_[rng.uniform(-0.05, 0.05, 3), rng.uniform(-0.002, 0.002, 3)]
+
+    def follower_change():
+        model.set_parameters(base, follower={-1: follower_wrench()})
+        model.solve(np.full(model.n_cables, 0.0002), initial=start.state)
+
+    fixed_follower = model.with_parameters(base, follower={-1: [0.02, -0.02, 0.03, 0.001, 0.0, 0.001]})
+
+    def actuation_change_under_a_follower():
+        model.set_parameters(fixed_follower)
+        model.solve(np.full(model.n_cables, 0.0002) + rng.uniform(-1e-5, 1e-5, model.n_cables), initial=start.state)
+
     def parameter_change():
         model.set_parameters(base, pretension=np.where(model.trunk.actuators.stroke_driven,
                                                        0.5 + rng.uniform(-0.05, 0.05), 0.0),
                              stiffness_scale=[1.0 + rng.uniform(-0.05, 0.05)])
         model.solve(np.full(model.n_cables, 0.0002), initial=start.state)
 
-    cases = {"actuation": actuation_change, "loads": load_change, "parameters": parameter_change}
+    cases = {"actuation": actuation_change, "loads": load_change, "follower": follower_change,
+             "parameters": parameter_change, "actuation_under_follower": actuation_change_under_a_follower}
     medians = {name: [] for name in cases}
     for _ in range(rounds):
         for name, case in cases.items():
@@ -89,7 +105,10 @@ def warm_solves(model, rounds: int, per_round: int = 200) -> dict:
                 times.append(time.thread_time() - t0)
             medians[name].append(float(np.median(times)))
         model.set_parameters(base)
-    ratios = {name: [m / a for m, a in zip(medians[name], medians["actuation"])] for name in ("loads", "parameters")}
+    ratios = {name: [m / a for m, a in zip(medians[name], medians["actuation"])]
+              for name in ("loads", "follower", "parameters", "actuation_under_follower")}
+    ratios["follower_vs_actuation_under_follower"] = [
+        f / a for f, a in zip(medians["follower"], medians["actuation_under_follower"])]
     return {"rounds": rounds, "per_round": per_round,
             "median_s": {name: float(np.median(v)) for name, v in medians.items()},
             "ratio_to_actuation_median": {name: float(np.median(v)) for name, v in ratios.items()},

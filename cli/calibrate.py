@@ -10,6 +10,7 @@ from vertebra.cli.outputs import output_file
 
 MAX_STARTS = 1000              # random starts of one calibration
 MAX_EVALUATIONS = 100_000      # model evaluations per start
+MAX_WORKERS = 64               # worker processes solving the samples
 from vertebra.core.errors import OptionError
 
 
@@ -35,6 +36,9 @@ def add_arguments(parser):
     parser.add_argument("--seed", type=int, default=0, help="seed of the random starts")
     parser.add_argument("--max-evaluations", type=int, default=60, metavar="N",
                         help="model evaluations per start at most (default 60)")
+    parser.add_argument("--workers", type=int, metavar="N",
+                        help="processes solving the samples (default: one per core, at most one per 256 "
+                             "training samples)")
     parser.add_argument("--output", metavar="SCENE.toml", help="write the calibrated scene")
     parser.add_argument("--report", metavar="REPORT.md", help="write a Markdown report (pictures beside it)")
     parser.add_argument("--plots", metavar="DIR", help="write the pictures into DIR (default: beside --report)")
@@ -62,6 +66,8 @@ def run(args) -> int:
         raise OptionError(f"must be 1..{MAX_STARTS}, got {args.starts}", field="--starts")
     if not 0 <= args.seed < 2 ** 63:
         raise OptionError(f"must be 0..2**63-1, got {args.seed}", field="--seed")
+    if args.workers is not None and not 1 <= args.workers <= MAX_WORKERS:
+        raise OptionError(f"must be 1..{MAX_WORKERS}, got {args.workers}", field="--workers")
     if args.max_evaluations > MAX_EVALUATIONS:
         raise OptionError(f"must be at most {MAX_EVALUATIONS}, got {args.max_evaluations}", field="--max-evaluations")
     scene = solver.load_scene(args.scene)
@@ -74,7 +80,7 @@ def run(args) -> int:
 
     cal = calibrate(scene, mapping, train, holdout, args.fit, loss=args.loss, loss_scale=args.loss_scale,
                     method=args.method, starts=args.starts, seed=args.seed, max_evaluations=args.max_evaluations,
-                    progress=progress)
+                    workers=args.workers, progress=progress)
     sources = {"scene": args.scene, "data": args.data, "holdout": args.holdout, "map": args.map}
     sources = {k: v for k, v in sources.items() if v}
     if output is not None:

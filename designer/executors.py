@@ -39,6 +39,7 @@ from typing import Any, Callable, Iterable, Iterator, Protocol, runtime_checkabl
 
 from vertebra.designer.threads import THREAD_VARIABLES, blas_threads, pin_blas_threads, thread_environment
 from vertebra.core.errors import OptionError
+from vertebra.core.processes import exit_with_parent
 
 START_METHODS = ("spawn", "forkserver")
 
@@ -162,61 +163,10 @@ def terminate_pool(pool) -> None:
     pool.shutdown(wait=True, cancel_futures=True)
 
 
-#: seconds between two looks of a pool worker's watchdog at its parent
-PARENT_WATCH_S = 0.5
-
-
-def _gone(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return True
-    except OSError:                                           # exists, not ours to signal
-        return False
-    return False
-
-
-def _exit_with_parent(owner: int) -> None:
-    """Make this process die with ``owner``, the process whose pool started it: on Linux the
-    kernel sends it SIGKILL when its parent dies (``prctl(PR_SET_PDEATHSIG)``); everywhere a
-    daemon thread looks every :data:`PARENT_WATCH_S` whether its parent is still the one that
-    started it (an orphan is adopted by another process) and ``owner`` still exists, and ends
-    the process at once if not. A worker of a killed ``vertebra prepare`` would otherwise go
-    on designing and committing entries."""
-    import threading
-
-    parent = os.getppid()
-    if sys.platform.startswith("linux"):
-        try:
-            import ctypes
-            import signal
-
-            libc = ctypes.CDLL(None, use_errno=True)
-            libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)         # PR_SET_PDEATHSIG = 1
-        except (OSError, AttributeError):
-            pass                                               # the watchdog still acts
-
-    def orphaned() -> bool:
-        return os.getppid() != parent or _gone(owner) or (parent == 1 and owner != 1)
-
-    if orphaned():                                             # the owner died before we started
-        os._exit(1)
-
-    def watch():
-        import time
-
-        while True:
-            time.sleep(PARENT_WATCH_S)
-            if orphaned():
-                os._exit(1)
-
-    threading.Thread(target=watch, name="vertebra-parent-watchdog", daemon=True).start()
-
-
 def start_worker(owner: int) -> None:
     """Initializer of a local pool's worker processes: they die with ``owner`` (the pid of the
     process that made the pool) and run BLAS single-threaded."""
-    _exit_with_parent(owner)
+    exit_with_parent(owner)
     pin_blas_threads()
 
 

@@ -18,12 +18,7 @@ from __future__ import annotations
 
 import os
 
-THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
-
-
-def thread_environment(threads: int = 1) -> dict[str, str]:
-    """The environment that starts a process with ``threads`` BLAS/OpenMP threads."""
-    return {name: str(threads) for name in THREAD_VARIABLES}
+from vertebra.core.processes import THREAD_VARIABLES, thread_environment
 
 
 _limited: int | None = None           # the limit threadpoolctl applied in this process

@@ -7,8 +7,8 @@ are written side by side in one flat array, the *terms* (:meth:`BandAssembler.ne
 * the links' 12×12 tangents, one per link;
 * the cables' 12×12 tangents, summed over the pieces that join the same two frames (one per
   pair of frames, :attr:`BandAssembler.cable_groups`);
-* the turning of the weight's lever arms, a 3×3 block on the rotations of each free frame
-  (when the trunk has gravity);
+* the turning of frame-fixed loads, a 6×3 block of each free frame's force and moment rows on
+  its rotation (when the trunk has gravity — the weight's lever arms turn — or follower loads);
 * one trailing zero.
 
 :class:`BandAssembler` holds the maps, computed once per model, that take the terms to LAPACK
@@ -32,11 +32,11 @@ _NO_PIECES = np.zeros(0, int)
 class BandAssembler:
     """Index maps from the tangent's terms to LAPACK band storage for ``n_blocks`` free frames
     whose couplings reach ``span`` blocks, cable pieces joining frames ``piece_a`` → ``piece_b``
-    (sorted by a, then b) and, with ``gravity``, the weight's blocks (frame 0 is the clamped
-    base, block k is frame k + 1, link k joins frames k and k + 1)."""
+    (sorted by a, then b) and, with ``turning``, the turning blocks of frame-fixed loads (frame 0
+    is the clamped base, block k is frame k + 1, link k joins frames k and k + 1)."""
 
     def __init__(self, n_blocks: int, span: int, piece_a: np.ndarray = _NO_PIECES, piece_b: np.ndarray = _NO_PIECES,
-                 gravity: bool = False):
+                 turning: bool = False):
         if np.any(piece_b - piece_a > span):
             raise ValueError(f"cable pieces couple frames up to {int(np.max(piece_b - piece_a))} apart; span is {span}")
         self.n_blocks = nb = n_blocks
@@ -74,12 +74,12 @@ class BandAssembler:
         counts = np.diff(np.r_[first, piece_a.size])
         slot = np.arange(int(counts.max(initial=0)))
         self.cable_groups = np.where(slot < counts[:, None], first[:, None] + slot, piece_a.size)
-        # the terms: links, cable pairs, weight blocks, a zero
+        # the terms: links, cable pairs, turning blocks, a zero
         self.n_pairs = first.size
         self._cable_start = nb * 144
-        self._weight_start = self._cable_start + self.n_pairs * 144
-        self.gravity = gravity
-        self.terms_size = self._weight_start + (nb * 9 if gravity else 0) + 1
+        self._turning_start = self._cable_start + self.n_pairs * 144
+        self.turning = turning
+        self.terms_size = self._turning_start + (nb * 18 if turning else 0) + 1
         destination = self._term_destinations()
         self._storage_gather, self._band_gather = self._gathers(destination, sym_ij, sym_ji)
         self._offsets = None               # the cable pairs by block offset (symmetric_blocks), when first asked for
@@ -109,10 +109,10 @@ class BandAssembler:
         place(0, links, links - 1, links, links > 0, np.ones(nb, int))
         pairs = np.arange(self.n_pairs)
         place(self._cable_start, pairs, self.pair_a - 1, self.pair_b - 1, self.pair_a > 0, self.pair_b - self.pair_a)
-        if self.gravity:
-            r3, c3 = np.meshgrid(np.arange(3), np.arange(3), indexing="ij")
-            destination[self._weight_start + links[:, None] * 9 + (r3 * 3 + c3).ravel()] = \
-                self._flat(0, links[:, None], 0, 3 + r3.ravel(), 3 + c3.ravel())
+        if self.turning:
+            r6, c3 = np.meshgrid(np.arange(6), np.arange(3), indexing="ij")
+            destination[self._turning_start + links[:, None] * 18 + (r6 * 3 + c3).ravel()] = \
+                self._flat(0, links[:, None], 0, r6.ravel(), 3 + c3.ravel())
         return destination
 
     def _gathers(self, destination: np.ndarray, sym_ij: np.ndarray, sym_ji: np.ndarray) -> tuple:
@@ -150,12 +150,13 @@ class BandAssembler:
 
     def views(self, terms: np.ndarray) -> tuple:
         """The parts of ``terms``: the links' tangents (n_blocks, 12, 12), the cable pairs'
-        (n_pairs, 12, 12) and the weight's blocks (n_blocks, 3, 3; None without gravity)."""
+        (n_pairs, 12, 12) and the turning blocks (n_blocks, 6, 3: each free frame's force and
+        moment rows on its rotation; None without gravity and follower loads)."""
         nb = self.n_blocks
         links = terms[:self._cable_start].reshape(nb, 12, 12)
-        cables = terms[self._cable_start:self._weight_start].reshape(self.n_pairs, 12, 12)
-        weight = terms[self._weight_start:-1].reshape(nb, 3, 3) if self.gravity else None
-        return links, cables, weight
+        cables = terms[self._cable_start:self._turning_start].reshape(self.n_pairs, 12, 12)
+        turning = terms[self._turning_start:-1].reshape(nb, 6, 3) if self.turning else None
+        return links, cables, turning
 
     def storage_of(self, terms: np.ndarray) -> np.ndarray:
         """Flat block storage (with its trailing zero) of the tangent whose terms are ``terms``."""

@@ -35,7 +35,7 @@ import numpy as np
 
 from vertebra.solver import bounds, newton
 from vertebra.solver.banded import factor_block_cholesky
-from vertebra.solver.cables import CablePieces, _spans
+from vertebra.solver.cables import CablePieces, _spans, scatter_rows
 from vertebra.solver.chain import CARRY_ANGLE, chain_poses
 from vertebra.solver.globalise import ARMIJO, NEUTRAL, ROUNDING, SEARCH_FLOOR
 from vertebra.solver.links import Links, link_tangent
@@ -165,36 +165,36 @@ class Loads:
 
 # ----------------------------------------------------------------------------- evaluation
 class _Context:
-    """What a batch of B samples of one trunk reuses: hole offsets and cable groups repeated
-    per sample, the quadratic links' constant material tangents as rows."""
+    """What a batch of samples of one trunk reuses: hole offsets repeated per sample and the
+    quadratic links' constant material tangents as rows, kept for the largest batch asked for
+    (a smaller batch takes their first rows), and each batch's cable groups."""
 
     def __init__(self, trunk):
         self.trunk = trunk
         self._kept = {}
 
-    def _of(self, key, B, make):
-        value = self._kept.get((key, B))
-        if value is None:
-            value = self._kept[(key, B)] = make()
-        return value
+    def _rows(self, key, B, make):
+        """The first rows, for B samples, of what ``make(count)`` builds for ``count`` samples."""
+        value, count = self._kept.get(key, (None, 0))
+        if count < B:
+            value, count = make(B), B
+            self._kept[key] = (value, count)
+        return value[:len(value) // count * B]
 
     def holes(self, B):
         holes = self.trunk.cables.holes
-        return self._of("holes", B, lambda: np.ascontiguousarray(np.broadcast_to(holes, (B,) + holes.shape)
-                                                                   .reshape(-1, 3, 1)))
+        return self._rows("holes", B, lambda count: np.ascontiguousarray(
+            np.broadcast_to(holes, (count,) + holes.shape).reshape(-1, 3, 1)))
 
     def groups(self, B):
+        """Each sample's groups of pieces (``CablePieces.tangent``), offset to its rows; B·m: none."""
         groups, m = self.trunk.assembler.cable_groups, self.trunk.cables.piece_a.size
-
-        def make():
-            offset = (np.arange(B) * m)[:, None, None]
-            return np.where(groups[None] < m, groups[None] + offset, B * m).reshape(-1, groups.shape[1])
-        return self._of("groups", B, make)
+        offset = (np.arange(B) * m)[:, None, None]
+        return np.where(groups[None] < m, groups[None] + offset, B * m).reshape(-1, groups.shape[1])
 
     def material(self, B, energy):
-        return self._of(("material", id(energy)), B,
-                        lambda: np.ascontiguousarray(np.broadcast_to(energy.stiffness, (B,) + energy.stiffness.shape)
-                                                     .reshape(-1, 6, 6)))
+        return self._rows(("material", id(energy)), B, lambda count: np.ascontiguousarray(
+            np.broadcast_to(energy.stiffness, (count,) + energy.stiffness.shape).reshape(-1, 6, 6)))
 
 
 @dataclass
@@ -264,7 +264,8 @@ def evaluate(context: _Context, states: States, load: Loads) -> Evaluation:
             piece_tension = tendon_pieces if piece_tension is None else tendon_pieces + piece_tension
         pieces = CablePieces.of_spans(offsets, d, length)
         forces = (piece_tension.reshape(-1)[:, None] * pieces.unit).reshape(B, 2 * m, 6)
-        grad += cables.to_frames @ forces
+        grad += scatter_rows(cables.ends, forces.transpose(1, 0, 2).reshape(2 * m, -1),
+                             trunk.frames.count).reshape(-1, B, 6).transpose(1, 0, 2)
     if load.weight is not None:
         lever = (R @ trunk.frames.moment[:, :, None])[..., 0]
         energy = energy - np.add.reduce((trunk.frames.mass @ x + np.add.reduce(lever, 1)) * load.weight, 1)
@@ -369,7 +370,7 @@ def tangent(context: _Context, ev: Evaluation) -> Tangent:
     if ev.pieces is not None:
         cables = ev.pieces.tangent(ev.piece_tension.reshape(-1), context.groups(B))
     weight = None
-    if assembler.gravity:
+    if trunk.loads.has_gravity:
         weight = -ev.load.weight_hat[:, None] @ hat(ev.lever[:, 1:])
     blocks = assembler.symmetric_blocks(links, cables, weight)
     if ev.load.tendons is None:
@@ -915,10 +916,11 @@ def _solve_chunk(context: _Context, actuation: np.ndarray, start: np.ndarray | N
     rest_states, _ = compose(trunk, np.broadcast_to(rest_xi, (B,) + rest_xi.shape).copy())
     with np.errstate(all="ignore"):
         reference = _force_scale(trunk, evaluate(context, rest_states, full).gradient)
-    # zero or non-finite references, dead moments (LU factors): the single solve's own cases
+    # zero or non-finite references, dead moments and follower loads (LU factors): the single
+    # solve's own cases
     run.leave(np.flatnonzero(~(reference > 0.0) | ~np.isfinite(reference)), "no load at rest, or not finite")
-    if trunk.loads.has_dead_moments:
-        run.leave(np.arange(B), "dead moments (an unsymmetric tangent: LU factors)")
+    if trunk.loads.unsymmetric:
+        run.leave(np.arange(B), "dead moments or follower loads (an unsymmetric tangent: LU factors)")
     if np.any(trunk.actuators.friction):
         run.leave(np.arange(B), "cable friction (a fixed point of the capstan law over Newton solves)")
     if trunk.contact is not None:
@@ -1101,7 +1103,17 @@ def path_tangents(model, strains: np.ndarray, actuation: np.ndarray) -> tuple[np
     equilibria of link strains ``strains`` (B, n, 6) under ``actuation`` (B, n_act) — what
     ``model.linearise(state, λ)``'s ``solve(actuator_forces)`` gives for one (the tangent's
     factor with the same shifts when it is singular, the actuator forces of cables, tendons and
-    chambers) — and which samples have one (a tangent that no shift factors has none)."""
+    chambers) — and which samples have one (a tangent that no shift factors has none). Taken in
+    chunks of :func:`chunk_size` samples."""
+    size = chunk_size(model.trunk)
+    if strains.shape[0] > size:
+        parts = [_path_tangents(model, strains[k:k + size], actuation[k:k + size])
+                 for k in range(0, strains.shape[0], size)]
+        return np.concatenate([p for p, _ in parts]), np.concatenate([h for _, h in parts])
+    return _path_tangents(model, strains, actuation)
+
+
+def _path_tangents(model, strains: np.ndarray, actuation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     trunk = model.trunk
     context = _Context(trunk)
     B = strains.shape[0]
@@ -1164,7 +1176,12 @@ def actuator_forces(context: _Context, states: States, ev: Evaluation) -> np.nda
 def predicted_strains(model, strains: np.ndarray, paths: np.ndarray, change: np.ndarray) -> np.ndarray:
     """Link strains (B, n, 6) of the equilibria ``strains`` moved along their path tangents
     ``paths`` (B, n_dof, n_act) by the actuation changes ``change`` (B, n_act): the Euler
-    predictor ``q ⊕ K⁻¹B Δλ`` with the strain-space retraction (``model.step``)."""
+    predictor ``q ⊕ K⁻¹B Δλ`` with the strain-space retraction (``model.step``). Taken in chunks
+    of :func:`chunk_size` samples."""
+    size = chunk_size(model.trunk)
+    if strains.shape[0] > size:
+        return np.concatenate([predicted_strains(model, strains[k:k + size], paths[k:k + size], change[k:k + size])
+                               for k in range(0, strains.shape[0], size)])
     trunk = model.trunk
     states, _ = compose(trunk, strains)
     B = strains.shape[0]
@@ -1173,3 +1190,32 @@ def predicted_strains(model, strains: np.ndarray, paths: np.ndarray, change: np.
                              (x[:, 1:] - x[:, :-1]).reshape(-1, 3), states.coefficients)
     dq = (paths @ change[:, :, None])[:, :, 0]
     return strains + _strain_change(links, dq)
+
+
+def actuation_sensitivities(model, result: BatchResult) -> dict:
+    """Per-sample derivatives with respect to the actuation at the equilibria of a batch, from
+    the batched factors (:func:`path_tangents`): ``dq`` (B, n_dof, n_act) — what
+    ``model.sensitivities(state, λ, wrt=("actuation",)).dq`` gives for one — and
+    ``effector_positions`` (B, 3·n_effectors, n_act); ``has`` (B,) marks the samples that have
+    them (converged, with a tangent some shift factors). Other parameter groups and outputs:
+    ``model.sensitivities`` per sample."""
+    trunk = model.trunk
+    B = len(result)
+    n_act = result.actuation.shape[1]
+    dq = np.full((B, trunk.n_dof, n_act), np.nan)
+    has = np.zeros(B, bool)
+    rows = np.flatnonzero(result.converged & np.all(np.isfinite(result.strains.reshape(B, -1)), 1))
+    if rows.size:
+        dq[rows], has[rows] = path_tangents(model, result.strains[rows], result.actuation[rows])
+    effectors = trunk.effectors
+    n_eff = len(effectors.names)
+    jacobian = np.broadcast_to(effectors.translation_jacobian, (B,) + effectors.translation_jacobian.shape).copy()
+    rotations = np.zeros((B, trunk.frames.count, 3, 3))
+    if rows.size:
+        rotations[rows] = compose(trunk, result.strains[rows])[0].rotations
+    for k in range(n_eff):
+        turned = rotations[:, effectors.frames[k]] @ effectors.offsets[k]
+        jacobian[:, k, :, effectors.frames[k], 3:] = -hat(turned)
+    jacobian = jacobian.reshape(B, 3 * n_eff, trunk.frames.count, 6)[:, :, 1:].reshape(B, 3 * n_eff, -1)
+    return {"dq": dq, "effector_positions": jacobian @ np.nan_to_num(dq) * np.where(has, 1.0, np.nan)[:, None, None],
+            "has": has}

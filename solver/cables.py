@@ -141,15 +141,14 @@ def hole_offsets(radius: np.ndarray, angle: np.ndarray) -> np.ndarray:
     return np.stack([radius * np.cos(angle), radius * np.sin(angle), np.zeros_like(radius)], 1)
 
 
-def incidence(rows: np.ndarray, n_rows: int):
-    """(n_rows, len(rows)) matrix with a 1 at (rows[k], k): ``E @ v`` sums the rows of ``v`` into
-    their targets. Dense while small (one BLAS call), sparse beyond."""
-    if n_rows * rows.size <= 200_000:
-        E = np.zeros((n_rows, rows.size))
-        E[rows, np.arange(rows.size)] = 1.0
-        return E
-    from scipy.sparse import csr_matrix
-    return csr_matrix((np.ones(rows.size), (rows, np.arange(rows.size))), shape=(n_rows, rows.size))
+def scatter_rows(rows: np.ndarray, values: np.ndarray, n_rows: int, flat: np.ndarray | None = None) -> np.ndarray:
+    """``E @ values`` for the incidence ``E`` (n_rows, len(rows)) with a 1 at (rows[k], k): the
+    rows of ``values`` (len(rows), c) summed into their targets, by one ``bincount`` (no matrix;
+    ``flat``: the flat targets ``rows·c + column`` when already made)."""
+    c = values.shape[1]
+    if flat is None:
+        flat = (rows[:, None] * c + np.arange(c)).reshape(-1)
+    return np.bincount(flat, values.reshape(-1), minlength=n_rows * c).reshape(n_rows, c)
 
 
 def _jacobian_ends(owner: np.ndarray, a: np.ndarray, b: np.ndarray, n_cables: int, n_frames: int) -> np.ndarray:
@@ -177,7 +176,7 @@ class CableRouting:
     owner: np.ndarray          # (m,) cable of each piece
     ends: np.ndarray           # (2m,) frames a₀ b₀ a₁ b₁ …
     holes: np.ndarray          # (2m, 3, 1) hole offsets in the same order
-    to_frames: object          # incidence (n_frames, 2m): piece-end rows → frame rows
+    frame_targets: np.ndarray  # (2m·6,) flat (frame, component) of each piece end's six entries
     jacobian_ends: np.ndarray  # (2, n_cables·n_frames): the piece-end rows (2m: none) whose length gradients
                                # make each (cable, frame) row of the Jacobian: the piece starting there, the one ending there
 
@@ -196,7 +195,7 @@ class CableRouting:
         owner = np.array(owner, int)[order]
         ends = np.stack([a, b], 1).reshape(-1)
         return cls(len(cables), n_frames, a, b, hole, hole.copy(), owner, ends,
-                   np.stack([hole, hole], 1).reshape(-1, 3, 1), incidence(ends, n_frames),
+                   np.stack([hole, hole], 1).reshape(-1, 3, 1), (ends[:, None] * 6 + np.arange(6)).reshape(-1),
                    _jacobian_ends(owner, a, b, len(cables), n_frames))
 
     def with_holes(self, radius: np.ndarray, angle: np.ndarray) -> "CableRouting":
@@ -227,7 +226,8 @@ class CableRouting:
 
     def frame_forces(self, pieces: CablePieces, piece_tension: np.ndarray) -> np.ndarray:
         """Gradient (n_frames, 6) of ``Σ τ L`` with the tension of each piece."""
-        return self.to_frames @ (piece_tension[:, None] * pieces.unit).reshape(-1, 6)
+        return scatter_rows(self.ends, (piece_tension[:, None] * pieces.unit).reshape(-1, 6), self.n_frames,
+                            self.frame_targets)
 
     def jacobian(self, pieces: CablePieces) -> np.ndarray:
         """``∂L/∂q`` (n_cables, n_frames, 6) of every cable: on each frame, the length gradients of

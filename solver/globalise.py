@@ -1,7 +1,7 @@
 """The globalisation steps of the forward solve beyond the shifted Newton step: a direction of
 negative curvature of an indefinite tangent (to leave saddles and maxima) and the backtracking
-line search on the energy (or, with dead moments, an energy-like merit; with contacts, the
-Lagrangian at the step's contact forces). The stage they act on is
+line search on the energy (or, with loads that have no potential, an energy-like merit; with
+contacts, the Lagrangian at the step's contact forces). The stage they act on is
 :mod:`vertebra.solver.newton`'s.
 """
 
@@ -12,7 +12,7 @@ import math
 import numpy as np
 
 from vertebra.core.lie import qconj, qlog, qmul
-from vertebra.solver.potential import evaluate
+from vertebra.solver.potential import evaluate, nonpotential_forces
 from vertebra.solver.state import retract, strain_change
 
 NEUTRAL = 1e-9        # curvature above −NEUTRAL·D is neutral (a symmetry of the loads), not unstable
@@ -64,12 +64,23 @@ def turned(state, trial) -> np.ndarray:
     return qlog(qmul(trial.quaternions[1:], qconj(state.quaternions[1:]))).reshape(-1)
 
 
+def moved(state, trial) -> np.ndarray:
+    """The displacements and rotation vectors (world axes, :func:`turned`) that take the free
+    frames of ``state`` to those of ``trial``, ``[Δx; Δφ]`` per frame, flattened: the work of loads
+    without a potential from one to the other is ``f · moved`` for constant ``f`` (dead moments:
+    exact along the geodesics) and ``½ (f₀ + f₁) · moved`` to second order for loads that turn
+    with their frames (follower loads)."""
+    return np.concatenate([trial.positions[1:] - state.positions[1:],
+                           turned(state, trial).reshape(-1, 3)], 1).reshape(-1)
+
+
 def line_search(stage, state, ev, residual: float, dq, change, alpha: float, rp: float,
-                 curvature: float, moments):
+                 curvature: float, nonpotential):
     """Backtracking from ``alpha`` along ``dq``: the first fraction that lowers the energy (the
-    merit, with dead moments) by an Armijo share of the quadratic model's prediction ``α r·p −
-    ½α² pᵀHp`` — or, where the prediction is below the energy's rounding, that does not raise
-    the residual. Returns (state, evaluation, α, decrease, prediction, quality) with quality the
+    merit: the energy less the work along the step, :func:`moved`, of the ``nonpotential`` forces
+    at the iterate — dead moments, follower loads) by an Armijo share of the quadratic model's
+    prediction ``α r·p − ½α² pᵀHp`` — or, where the prediction is below the energy's rounding,
+    that does not raise the residual. Returns (state, evaluation, α, decrease, prediction, quality) with quality the
     ratio of actual to predicted decrease of the first (full) trial (1 below rounding, 0 when
     it was cut back), or None."""
     trunk, load = stage.trunk, stage.load
@@ -81,8 +92,9 @@ def line_search(stage, state, ev, residual: float, dq, change, alpha: float, rp:
         ev_trial = evaluate(trunk, trial, load)
         predicted = alpha * rp - 0.5 * alpha * alpha * curvature
         decrease = ev.energy - ev_trial.energy
-        if moments is not None:
-            decrease += float(moments @ turned(state, trial))
+        if nonpotential is not None:       # the work of the loads without a potential along the step
+            at_trial = nonpotential_forces(trunk, trial, load) if trunk.loads.has_follower else nonpotential
+            decrease += 0.5 * float((nonpotential + at_trial) @ moved(state, trial))
         if stage.constraints is not None:        # the Lagrangian E − λᵀg at the step's contact forces
             decrease += stage.constraints.work(trial)
         if predicted <= noise:       # the energy cannot judge this step: the residual does

@@ -92,6 +92,7 @@ class TrunkModel:
     effector_targets = _forward("effectors", "targets", "world targets (nan where none)")
     effector_weights = _forward("effectors", "weights", "effector weights")
     has_dead_moments = _forward("loads", "has_dead_moments", "dead moments act (the tangent is unsymmetric)")
+    has_follower_loads = _forward("loads", "has_follower", "follower loads act (the tangent is unsymmetric)")
 
     def __repr__(self) -> str:
         kinds = Counter()
@@ -131,7 +132,7 @@ class TrunkModel:
     # ------------------------------------------------------------------ parameters
     def with_parameters(self, parameters: Parameters | None = None, **changes) -> Parameters:
         """Parameters: ``parameters`` (default: the current ones) with ``changes`` by name (see
-        :func:`~vertebra.solver.parameters.parameters_of`: ``gravity``, ``dead``,
+        :func:`~vertebra.solver.parameters.parameters_of`: ``gravity``, ``dead``, ``follower``,
         ``cable_stiffness``, ``pretension``, ``stiffness_scale``, ``hole_radius``, ``hole_angle``)."""
         return parameters_of(self.compiled, parameters or self.parameters, changes)
 

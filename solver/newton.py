@@ -8,9 +8,10 @@ Each iteration at a fixed load factor
   the residual ``r = −∇E``, ``D`` the larger of ``|diag H|`` and the diagonal of the unstressed
   tangent (a Marquardt scaling: every DoF in its own units). Conservative loads: banded Cholesky,
   ``μ`` raised tenfold until the shifted matrix is positive definite, so ``p`` descends even on an
-  indefinite tangent (no LU there: it steers Newton towards saddles). Dead moments make ``H``
-  unsymmetric: banded LU of ``H + μ·D``, judged by an energy-like merit (the potential minus the
-  moments' work along the step, exact: :func:`~vertebra.solver.globalise.turned`);
+  indefinite tangent (no LU there: it steers Newton towards saddles). Dead moments and follower
+  loads (no potential) make ``H`` unsymmetric: banded LU of ``H + μ·D`` with their turning in it
+  (the consistent tangent, so that Newton stays quadratic), judged by an energy-like merit (the
+  potential minus those loads' work along the step: :func:`~vertebra.solver.globalise.moved`);
 * where the tangent proved indefinite and the shift needed is large (``μ ≥`` :data:`BEND_SHIFT`),
   or at a stationary point that is a saddle, weighs a step along the direction of most negative
   curvature (inverse iteration with the shifted factor) against the shifted one;
@@ -51,7 +52,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vertebra.solver.potential import LoadCase, LoadCases, evaluate, out_of_range, tangent
+from vertebra.solver.potential import LoadCase, LoadCases, evaluate, nonpotential_forces, out_of_range, tangent
 from vertebra.solver import globalise
 from vertebra.solver.globalise import NEUTRAL
 from vertebra.solver.representable import (COLLAPSE_LIMIT, FOLD_LIMIT, TURN_LIMIT, Unrepresentable,
@@ -126,9 +127,10 @@ def _force_scale(trunk, gradient: np.ndarray) -> float:
 
 def is_stable(trunk, ev, matrix=None) -> bool:
     """Is the equilibrium of ``ev`` stable: is its tangent (``matrix`` when already assembled)
-    positive definite, up to neutral directions (``H + 1e-9·|diag H|`` is)? Only decidable for conservative loads (dead moments make the tangent
-    unsymmetric): then assumed so."""
-    if trunk.loads.has_dead_moments:
+    positive definite, up to neutral directions (``H + 1e-9·|diag H|`` is)? Only decidable for
+    conservative loads (dead moments and follower loads make the tangent unsymmetric): then
+    assumed so."""
+    if trunk.loads.unsymmetric:
         return True
     return (matrix or tangent(trunk, ev)).factor(NEUTRAL, definite=True)[0] is not None
 
@@ -155,7 +157,7 @@ class _Stage:
         self.kinds = kinds                    # factor kinds used, and "rounding-limited" / "unstable" flags
         self.shift = shift                    # μ, carried from stage to stage
         self.weights = residual_weights(trunk)
-        self.symmetric = not trunk.loads.has_dead_moments
+        self.symmetric = not trunk.loads.unsymmetric
         self.axis, self.shortest = trunk.rest.axis, trunk.rest.shortest   # a link's axial stretch is ρ · axis
         self.turn = 0.0                       # largest link rotation of the current state
         self.stretching = True                # the last step may have changed a link's length
@@ -308,7 +310,7 @@ def _newton(stage: _Stage, state: State):
                                f"state given, or the last converged stage) at load factor {load.scale:.3g}")
     stage.represented(state, ev)
     r = -ev.gradient[1:].reshape(-1)
-    moments = load.dead[1:, 3:].reshape(-1) if trunk.loads.has_dead_moments else None
+    work = nonpotential_forces(trunk, state, load)      # (the merit's loads without a potential, here)
     # the last direction came from the unshifted Cholesky factor (a positive definite tangent) at a
     # state already close to equilibrium: the equilibrium reached from it is taken as stable
     trusted = False
@@ -402,7 +404,7 @@ def _newton(stage: _Stage, state: State):
                     escapes += converged
             # (with contacts, the residual a step must not raise is the one at the step's forces)
             before = residual if constraints is None or converged else stage.norm(ev, state)
-            step = globalise.line_search(stage, state, ev, before, dq, change, alpha, rp, curvature, moments)
+            step = globalise.line_search(stage, state, ev, before, dq, change, alpha, rp, curvature, work)
             if step is not None:
                 break
             if kind == "curvature" and converged:
@@ -425,6 +427,7 @@ def _newton(stage: _Stage, state: State):
             raise ConvergenceError(f"non-finite forces appeared after a Newton step at load factor {load.scale:.3g}")
         stage.represented(state, ev)
         r = -ev.gradient[1:].reshape(-1)
+        work = nonpotential_forces(trunk, state, load)
 
 
 def solve(trunk, loads: LoadCases, actuation: np.ndarray, initial: State | None, *, tolerance: float,

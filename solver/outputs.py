@@ -29,6 +29,7 @@ class Linearisation:
     effector_positions: np.ndarray
     actuator_displacements: np.ndarray
     energy: float = 0.0          # total potential at the state (dead moments excluded)
+    shift: float = 0.0           # μ of the factor (0: the tangent itself; > 0: it was singular)
     # actuator_forces = actuator_jacobianᵀ · diag(force_scale): −1 per cable, −k per taut tendon
     # (0 when slack), +1 per chamber
     force_scale: np.ndarray | None = None
@@ -112,7 +113,7 @@ def linearise(trunk, state, actuation: np.ndarray, loads: LoadCases, previous=No
                                "is not finite)")
     matrix = tangent(trunk, ev)
     for shift in LINEARISATION_SHIFTS:
-        factor, _ = matrix.factor(shift, symmetric=not trunk.loads.has_dead_moments)
+        factor, _ = matrix.factor(shift, symmetric=not trunk.loads.unsymmetric)
         if factor is not None:
             break
     if factor is None:
@@ -155,4 +156,4 @@ def linearise(trunk, state, actuation: np.ndarray, loads: LoadCases, previous=No
         effector_jacobian=Je[:, 1:].reshape(3 * len(effectors.names), n_dof),
         effector_positions=positions,
         actuator_displacements=actuator_displacements(trunk, state, actuation, loads, links=links, pieces=pieces),
-        energy=ev.energy, force_scale=scale)
+        energy=ev.energy, force_scale=scale, shift=shift)

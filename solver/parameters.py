@@ -1,7 +1,7 @@
 """Loads and parameters that change between solves without compiling the scene again.
 
 A compiled :class:`~vertebra.solver.trunk.Trunk` is read-only. :class:`Parameters` names what a
-robot's operator or a calibration changes at run time — gravity, dead loads,
+robot's operator or a calibration changes at run time — gravity, dead loads, follower loads,
 the tendons' spring rates and pretensions, a stiffness scale per segment, the cables' hole
 radii and angles — and :func:`reparameterise` returns a new trunk that shares everything else
 with the compiled one (frames, band layout, rest state, link energies), as scikit-fem's mesh
@@ -9,7 +9,7 @@ transforms return new meshes: a new load costs microseconds, not a compilation.
 
 The base pose is not among them: a rigid motion of the base moves the equilibrium rigidly, so a
 measurement frame is an output transform (see docs/calibration.md); gravity and dead loads are
-given in world axes.
+given in world axes, follower loads in their vertebra's own axes.
 """
 
 from __future__ import annotations
@@ -37,6 +37,7 @@ class Parameters:
     hole_radius: np.ndarray         # (n_cables,) m, the holes' distance from the axis
     hole_angle: np.ndarray          # (n_cables,) rad, about local +z from local +x
     friction: np.ndarray            # (n_cables,) μ of the capstan law at the cable's holes (solver/friction.py)
+    follower: np.ndarray            # (n_frames, 6) forces and moments in each frame's own axes, at the frames
 
     def __post_init__(self):
         for field in dataclasses.fields(self):
@@ -53,7 +54,8 @@ class Parameters:
         return cls(gravity, np.array(trunk.loads.dead, float),
                    np.array(trunk.actuators.cable_stiffness), np.array(trunk.actuators.pretension),
                    np.ones(len(trunk.scene.segments)), np.array([c.radius for c in cables], float),
-                   np.array([c.angle for c in cables], float), np.array(trunk.actuators.friction))
+                   np.array([c.angle for c in cables], float), np.array(trunk.actuators.friction),
+                   np.array(trunk.loads.follower, float))
 
     def replace(self, **changes) -> "Parameters":
         """A copy with ``changes`` (whole arrays, shape-checked)."""
@@ -67,8 +69,9 @@ class Parameters:
 
 
 def parameters_of(trunk, base: Parameters, changes: Mapping) -> Parameters:
-    """``base`` with ``changes`` given by name: ``gravity`` (3 values), ``dead``
-    (``{vertebra: [fx, fy, fz, mx, my, mz]}``, replacing that vertebra's load),
+    """``base`` with ``changes`` given by name: ``gravity`` (3 values), ``dead`` and ``follower``
+    (``{vertebra: [fx, fy, fz, mx, my, mz]}``, replacing that vertebra's load; a follower load
+    in the vertebra's own axes),
     ``cable_stiffness`` / ``pretension`` / ``hole_radius`` / ``hole_angle`` / ``friction`` (``{cable name: value}``;
     angles in rad) and ``stiffness_scale`` (``{segment index: value}``), or whole arrays."""
     names = list(trunk.actuators.names[:trunk.actuators.n_cables])
@@ -84,7 +87,7 @@ def parameters_of(trunk, base: Parameters, changes: Mapping) -> Parameters:
             continue
         array = np.array(getattr(base, name))
         for key, item in value.items():
-            if name == "dead":
+            if name in ("dead", "follower"):
                 index = _index(key, n_vertebrae, name, "vertebra")
                 array[trunk.frames.vertebra[index]] = _vector(item, 6, name)
             elif name == "stiffness_scale":
@@ -138,8 +141,7 @@ def reparameterise(trunk, parameters: Parameters):
     compiled = Parameters.of_trunk(trunk.compiled or trunk)
     gravity = parameters.gravity if np.any(parameters.gravity) else None
     dead = parameters.dead
-    changes["loads"] = Loads(dead, gravity, bool(np.any(dead[:, :3])), bool(np.any(dead[:, 3:])),
-                             gravity is not None and bool(np.any(trunk.frames.mass)))
+    changes["loads"] = Loads.of(dead, gravity, parameters.follower, bool(np.any(trunk.frames.mass)))
     changes["actuators"] = dataclasses.replace(trunk.actuators, cable_stiffness=parameters.cable_stiffness,
                                                pretension=parameters.pretension, friction=parameters.friction)
     if not (np.array_equal(parameters.hole_radius, compiled.hole_radius)

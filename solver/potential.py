@@ -2,9 +2,11 @@
 
 The potential is the sum of the links' energies ``Σ ψ(ξ, p)`` (:mod:`vertebra.solver.kinds`),
 the cables' ``Σ τ L``, the weight ``−Σ m g · (x + R s)`` and the dead forces ``−F · x``; dead
-moments are not conservative in 3D and enter the gradient only (as ``−M``). The gradient is
-taken along the solver's chart (``x + dx``, ``exp(dφ) R``, world axes), so the residual of
-equilibrium is ``−gradient`` on the free frames.
+moments are not conservative in 3D and enter the gradient only (as ``−M``), and so do follower
+loads (a force ``f`` and moment ``m`` fixed in a frame's axes: ``−[R f; R m]``, whose turning
+with the frame, ``+[R f]ˣ`` and ``+[R m]ˣ`` on its rotation, makes the tangent unsymmetric).
+The gradient is taken along the solver's chart (``x + dx``, ``exp(dφ) R``, world axes), so the
+residual of equilibrium is ``−gradient`` on the free frames.
 
 Everything here is a function of its arguments: :func:`evaluate` returns an :class:`Evaluation`
 that carries what :func:`tangent` (and a later evaluation of the same state) reuses — the
@@ -43,6 +45,8 @@ class LoadCase:
     frame_weight: np.ndarray | None       # (n_frames, 3) m g
     dead: np.ndarray | None               # (n_frames, 6) scaled dead loads
     dead_forces: np.ndarray | None        # (n_frames, 3), contiguous
+    follower: np.ndarray | None = None    # (k, 6) scaled follower wrenches (frame axes) at frames ``followed``
+    followed: np.ndarray | None = None    # (k,) the frames that carry follower loads
     reference: float | None = None        # the forward solve's force scale (newton.reference_force)
 
     @classmethod
@@ -61,7 +65,8 @@ class LoadCase:
         piece_tension = tensions[trunk.cables.owner] if n_cables and tensions.any() else None
         if previous is not None and previous.scale == scale:
             return cls(actuation, scale, pressures, link_loads, piece_tension, tendons, previous.weight,
-                       previous.weight_hat, previous.frame_weight, previous.dead, previous.dead_forces)
+                       previous.weight_hat, previous.frame_weight, previous.dead, previous.dead_forces,
+                       previous.follower, previous.followed)
         loads = trunk.loads
         weight = weight_hat = frame_weight = dead = dead_forces = None
         if loads.has_gravity:
@@ -71,8 +76,12 @@ class LoadCase:
         if loads.has_dead_forces or loads.has_dead_moments:
             dead = scale * loads.dead
             dead_forces = np.ascontiguousarray(dead[:, :3])
+        follower = followed = None
+        if loads.has_follower:
+            followed = 1 + np.flatnonzero(np.any(loads.follower[1:], axis=1))     # (the base is clamped)
+            follower = scale * loads.follower[followed]
         return cls(actuation, scale, pressures, link_loads, piece_tension, tendons, weight, weight_hat, frame_weight,
-                   dead, dead_forces)
+                   dead, dead_forces, follower, followed)
 
     @property
     def cables(self) -> bool:
@@ -191,6 +200,7 @@ class Evaluation:
     at_rest: bool                 # evaluated at the trunk's rest state
     record: object = None         # the StrainRecord of the state (None: evaluated from its poses)
     parts: "PotentialParts | None" = None
+    follower: np.ndarray | None = None    # (k, 6) the follower loads in world axes at load.followed
 
 
 @dataclass(slots=True)
@@ -227,7 +237,7 @@ def evaluate(trunk, state, load: LoadCase, previous: "Evaluation | Trial | None"
     else:
         q = state.quaternions
         links = Links.of(q[:-1], x[:-1], q[1:], x[1:])
-        rotations = qmatrix(q) if load.cables or load.weight is not None else None
+        rotations = qmatrix(q) if load.cables or load.weight is not None or load.follower is not None else None
     parts = energy = None
     if previous is not None and record is not None and previous.record is record and previous.load is load:
         parts, energy = previous.parts, previous.energy
@@ -252,8 +262,36 @@ def evaluate(trunk, state, load: LoadCase, previous: "Evaluation | Trial | None"
 
     if load.dead is not None:
         grad -= load.dead
+    follower = None
+    if load.follower is not None:
+        follower = follower_wrenches(rotations, load)
+        grad[load.followed] -= follower
     return Evaluation(energy, grad, links, w, kept, g_links, pieces, lever, load,
-                      record is not None and record is trunk.rest_state.strains, record, parts)
+                      record is not None and record is trunk.rest_state.strains, record, parts, follower)
+
+
+def follower_wrenches(rotations: np.ndarray, load: LoadCase) -> np.ndarray:
+    """The follower loads of ``load`` in world axes, ``[R f; R m]`` (k, 6), at the frames
+    ``load.followed`` whose rotations are ``rotations[load.followed]``."""
+    R = rotations[load.followed]
+    return np.concatenate([R @ load.follower[:, :3, None], R @ load.follower[:, 3:, None]], axis=1)[:, :, 0]
+
+
+def nonpotential_forces(trunk, state, load: LoadCase) -> np.ndarray | None:
+    """The generalised forces (n_dof,) on the free frames that have no potential — the dead
+    moments and the follower loads at ``state`` — or None when there are none: a step ``dq``
+    from ``state`` does their linearised work ``f · dq``, which an energy-like merit (the
+    potential minus that work) counts as a decrease."""
+    if not trunk.loads.unsymmetric:
+        return None
+    forces = np.zeros((trunk.frames.count, 6))
+    if load.dead is not None:
+        forces[:, 3:] = load.dead[:, 3:]
+    if load.follower is not None:
+        record = state.carried_strains()
+        rotations = record.chain.rotations if record is not None else qmatrix(state.quaternions)
+        forces[load.followed] += follower_wrenches(rotations, load)
+    return forces[1:].reshape(-1)
 
 
 def potential(trunk, state, load: LoadCase) -> "Trial | Evaluation":
@@ -372,12 +410,12 @@ def link_tangents(trunk, ev: Evaluation, out: np.ndarray) -> np.ndarray:
 
 
 def tangent(trunk, ev: Evaluation) -> Tangent:
-    """Tangent of the potential at the state of ``ev``: its terms side by side — the links',
-    the cables' (summed per pair of frames) and the weight's — from which the assembler gathers
-    the bands. At the unstressed rest state the links' part is a model constant
-    (``trunk.rest.link_tangent``)."""
+    """Tangent of the gradient at the state of ``ev``: its terms side by side — the links',
+    the cables' (summed per pair of frames) and the turning of frame-fixed loads (the weight's
+    lever arms, follower loads) — from which the assembler gathers the bands. At the unstressed
+    rest state the links' part is a model constant (``trunk.rest.link_tangent``)."""
     assembler = trunk.assembler
-    terms, links, cables, weight = assembler.new_terms()
+    terms, links, cables, turning = assembler.new_terms()
     if ev.at_rest and not ev.w.any() and not ev.load.pressures.any():
         links[:] = trunk.rest.link_tangent
     else:
@@ -386,8 +424,12 @@ def tangent(trunk, ev: Evaluation) -> Tangent:
         ev.pieces.tangent(ev.parts.piece_tension, assembler.cable_groups, out=cables)
     else:
         cables[:] = 0.0
-    if weight is not None:                                  # (gravity: the lever arms were evaluated)
-        np.matmul(-ev.load.weight_hat, hat(ev.lever[1:]), out=weight)        # −ĝ l̂: the arm turns
+    if turning is not None:
+        turning[:] = 0.0
+        if ev.load.weight is not None:                      # (the lever arms were evaluated)
+            np.matmul(-ev.load.weight_hat, hat(ev.lever[1:]), out=turning[:, 3:])   # −ĝ l̂: the arm turns
+        if ev.follower is not None:                         # −R f turns to −(R f + dφ × R f): +[R f]ˣ
+            turning[ev.load.followed - 1] += hat(ev.follower.reshape(-1, 3)).reshape(-1, 6, 3)
     return Tangent(assembler, terms, tendon_stiffness(trunk, ev))
 
 
@@ -433,9 +475,9 @@ def rest_constants(trunk) -> RestConstants:
 
 
 def _links_only_terms(assembler, link_tangent: np.ndarray) -> np.ndarray:
-    terms, links, cables, weight = assembler.new_terms()
+    terms, links, cables, turning = assembler.new_terms()
     links[:] = link_tangent
     cables[:] = 0.0
-    if weight is not None:
-        weight[:] = 0.0
+    if turning is not None:
+        turning[:] = 0.0
     return terms

@@ -81,9 +81,13 @@ class ChamberSpec:
 
 @dataclass(frozen=True)
 class LoadSpec:
+    """A wrench at a vertebra's origin: dead (world axes) or, with ``follower``, fixed in the
+    vertebra's own axes (it turns with the vertebra)."""
+
     vertebra: int
     force: tuple = (0.0, 0.0, 0.0)
     moment: tuple = (0.0, 0.0, 0.0)
+    follower: bool = False
 
 
 @dataclass(frozen=True)
@@ -265,9 +269,13 @@ def parse_scene(data: dict, source: str = "<dict>", base_dir=".") -> Scene:
 
     loads = []
     for t in top.tables("load"):
+        follower = t.raw("follower", False)
+        if not isinstance(follower, bool):
+            raise t.error("follower", f"expected true (force and moment in the vertebra's axes, turning with it) "
+                                      f"or false (world axes), got {follower!r}")
         loads.append(LoadSpec(vertebra=vertebra_index(t, "vertebra", allow_base=False),
                               force=t.vector("force", 3, (0.0, 0.0, 0.0)),
-                              moment=t.vector("moment", 3, (0.0, 0.0, 0.0))))
+                              moment=t.vector("moment", 3, (0.0, 0.0, 0.0)), follower=follower))
         t.done()
 
     effectors = []

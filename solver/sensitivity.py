@@ -9,10 +9,11 @@ One factor of ``K`` serves every parameter: the *direct* route solves ``K dq = �
 back-substitution per parameter), the *adjoint* route solves ``Kᵀ Λ = (∂y/∂q)ᵀ`` (one per output
 row) and gives ``dy/dp = −Λᵀ ∂g/∂p + ∂y/∂p`` without ``dq``. ``K`` is the factor the linearisation
 makes (the tendons' dense rank-one terms beside the band included); it is unsymmetric when dead
-moments act, and the adjoint then solves with its transpose.
+moments or follower loads act, and the adjoint then solves with its transpose.
 
 The explicit derivatives ``∂g/∂p`` and ``∂y/∂p`` at the fixed state are analytic: the actuation
-(the actuator forces), gravity (masses and lever arms), dead loads (a unit wrench at a frame),
+(the actuator forces), gravity (masses and lever arms), dead loads (a unit wrench at a frame), follower loads (the
+unit wrench turned into world axes by the frame's rotation, ``R e``),
 the tendons' spring rates and pretensions (taut tendons: ``∂τ/∂k = e − T₀/k``, ``∂τ/∂T₀ = 1``,
 times ``∂L/∂q``), the stiffness scales (a segment's links' gradient divided by its scale) and the
 hole radii and angles (the pieces' length gradients moved with their holes, and the tendons'
@@ -37,10 +38,11 @@ from vertebra.core.errors import ConvergenceError, OptionError
 from vertebra.core.lie import hat, qmatrix
 from vertebra.solver import outputs as outputs_module
 from vertebra.solver.banded import BandedFactor, LowRankFactor
-from vertebra.solver.potential import Evaluation, evaluate, tangent, volume_growth
+from vertebra.solver.cables import scatter_rows
+from vertebra.solver.potential import Evaluation, evaluate, volume_growth
 from vertebra.solver.parameters import reparameterise
 
-PARAMETER_GROUPS = ("actuation", "gravity", "dead", "cable_stiffness", "pretension", "stiffness_scale",
+PARAMETER_GROUPS = ("actuation", "gravity", "dead", "follower", "cable_stiffness", "pretension", "stiffness_scale",
                     "hole_radius", "hole_angle")
 OUTPUTS = ("frame_positions", "frame_rotations", "effector_positions", "cable_tensions", "cable_strokes",
            "chamber_volumes")
@@ -53,7 +55,7 @@ PRESSURE_FLOOR = 1e3         # Pa: the smallest pressure scale of a chamber's di
 @dataclass(frozen=True)
 class Parameter:
     """One column of the sensitivities: ``group`` (one of :data:`PARAMETER_GROUPS`), ``index``
-    (actuator, cable, segment or frame) and ``component`` (gravity's axis, a dead wrench's
+    (actuator, cable, segment or frame) and ``component`` (gravity's axis, a dead or follower wrench's
     component; 0 otherwise)."""
 
     name: str
@@ -115,12 +117,17 @@ def parameters_of(model, wrt: Iterable[str]) -> list[Parameter]:
     gravity's three axes, six components at every free vertebra, the tendons' spring rates and
     pretensions, the scale of every segment without cavities, every cable's hole radius and
     angle) or single parameters (``"actuation:t1"``, ``"gravity:z"``, ``"dead:5:fx"`` or
-    ``"dead:-1"`` (all six), ``"cable_stiffness:t2"``, ``"pretension:t2"``,
-    ``"stiffness_scale:0"``, ``"hole_radius:t3"``, ``"hole_angle:t3"``)."""
+    ``"dead:-1"`` (all six), ``"follower:-1:mz"`` (in the vertebra's axes), ``"cable_stiffness:t2"``,
+    ``"pretension:t2"``, ``"stiffness_scale:0"``, ``"hole_radius:t3"``, ``"hole_angle:t3"``), or :class:`Parameter`
+    columns this function gave before for the same model (taken as they are: a caller asking at
+    many states names its columns once)."""
     if isinstance(wrt, str):
         wrt = (wrt,)
     columns: list[Parameter] = []
     for item in wrt:
+        if isinstance(item, Parameter):
+            columns.append(item)
+            continue
         group, _, rest = str(item).partition(":")
         if group not in PARAMETER_GROUPS:
             raise OptionError(f"unknown parameter {item!r} (groups: {', '.join(PARAMETER_GROUPS)})", field="wrt")
@@ -159,7 +166,7 @@ def _group(model, group: str, keys: list | None) -> list[Parameter]:
         if any(a not in AXES for a in axes) or (keys is not None and len(keys) != 1):
             raise OptionError(f"gravity's axes are x, y, z (got {':'.join(keys)!r})", field="wrt")
         return [Parameter(f"gravity:{a}", group, 0, AXES.index(a)) for a in axes]
-    if group == "dead":
+    if group in ("dead", "follower"):
         n_vertebrae = trunk.frames.vertebra.size
         if keys is None:
             vertebrae, components = range(1, n_vertebrae), WRENCH
@@ -167,7 +174,7 @@ def _group(model, group: str, keys: list | None) -> list[Parameter]:
             try:
                 vertebra = int(keys[0])
             except ValueError:
-                raise OptionError(f"dead loads are named dead:<vertebra>[:<component>], got {keys!r}",
+                raise OptionError(f"{group} loads are named {group}:<vertebra>[:<component>], got {keys!r}",
                                   field="wrt") from None
             if not -n_vertebrae <= vertebra < n_vertebrae or len(keys) > 2:
                 raise OptionError(f"vertebra {keys[0]} out of range (0..{n_vertebrae - 1}, or negative from the end)",
@@ -175,8 +182,8 @@ def _group(model, group: str, keys: list | None) -> list[Parameter]:
             vertebrae = [vertebra % n_vertebrae]
             components = WRENCH if len(keys) == 1 else keys[1:]
             if any(c not in WRENCH for c in components):
-                raise OptionError(f"a dead load's components are {', '.join(WRENCH)}", field="wrt")
-        return [Parameter(f"dead:{v}:{c}", group, int(trunk.frames.vertebra[v]), WRENCH.index(c))
+                raise OptionError(f"a {group} load's components are {', '.join(WRENCH)}", field="wrt")
+        return [Parameter(f"{group}:{v}:{c}", group, int(trunk.frames.vertebra[v]), WRENCH.index(c))
                 for v in vertebrae for c in components]
     if group in ("cable_stiffness", "pretension", "hole_radius", "hole_angle"):
         tendon_only = group in ("cable_stiffness", "pretension")
@@ -247,7 +254,7 @@ def sensitivities(model, state, actuation=None, *, wrt: Iterable[str] = PARAMETE
     trunk = model.trunk
     ev = evaluate(trunk, state, model.loads(values, 1.0))
     lin = outputs_module.linearise(trunk, state, values, model.loads, previous=ev)
-    _check_factor(trunk, ev, lin)
+    _check_factor(lin)
     local = _Local(model, trunk, state, values, ev, lin)
     forces, explicit, differenced = local.explicit(columns, outputs)          # −∂g/∂p, ∂y/∂p
     jacobians = {name: local.output_jacobian(name) for name in outputs}      # ∂y/∂q
@@ -273,11 +280,10 @@ def sensitivities(model, state, actuation=None, *, wrt: Iterable[str] = PARAMETE
                          tuple(differenced), timings)
 
 
-def _check_factor(trunk, ev: Evaluation, lin) -> None:
+def _check_factor(lin) -> None:
     """Refuse a state whose tangent is singular: the linearisation then factors a shifted tangent,
     and the equilibrium has no derivative there (a limit point, or a trunk held by nothing)."""
-    matrix = tangent(trunk, ev)
-    if matrix.factor(0.0, symmetric=not trunk.loads.has_dead_moments)[0] is None:
+    if lin.shift != 0.0:
         raise ConvergenceError("the tangent stiffness is singular at this state: the equilibrium has no "
                                "sensitivities there (a limit point)")
 
@@ -368,6 +374,9 @@ class _Local:
                 forces[:, 3:, j] = lever @ hat(unit)                           # −∂(−(R s) × g)/∂g
             elif group == "dead":
                 forces[i, column.component, j] = 1.0
+            elif group == "follower":                        # −∂(−R e)/∂p = R e, in the frame's axes
+                c = column.component
+                forces[i, 3 * (c // 3):3 * (c // 3) + 3, j] = self._rotations()[i][:, c % 3]
             elif group == "cable_stiffness":                 # ∂τ/∂k = e − T0/k while taut
                 rate = (self.elongation[i] - trunk.actuators.pretension[i] / self.stiffness[i]) * self.taut[i]
                 free[:, j] = -rate * strokes[i]
@@ -381,15 +390,23 @@ class _Local:
                 if link_forces is None:
                     link_forces = self._link_forces()
                 forces[:, :, j] = -link_forces(i) / self.model.parameters.stiffness_scale[i]
-            else:                                            # hole_radius, hole_angle
-                gradient, terms = self._hole_derivative(column)
-                free[:, j] = -gradient
-                for name in ("cable_tensions", "cable_strokes"):
-                    if name in explicit:
-                        explicit[name][:, j] = terms[name]
+        for group in ("hole_radius", "hole_angle"):         # each group's columns at once
+            mine = [j for j, column in enumerate(columns) if column.group == group]
+            if not mine:
+                continue
+            gradient, terms = self._hole_derivatives(group, np.array([columns[j].index for j in mine]))
+            free[:, mine] = -gradient
+            for name in ("cable_tensions", "cable_strokes"):
+                if name in explicit:
+                    explicit[name][:, mine] = terms[name]
         if "chamber_volumes" in explicit and trunk.links.fitted:     # (linear entries: exact)
             differenced.extend(c.name for c in columns if c.group == "actuation" and c.index >= self.n_cables)
         return np.ascontiguousarray(free), explicit, differenced
+
+    def _rotations(self) -> np.ndarray:
+        """Every frame's rotation matrix (n_frames, 3, 3) at the state."""
+        record = self.state.carried_strains()
+        return record.chain.rotations if record is not None else qmatrix(self.state.quaternions)
 
     def _lever(self) -> np.ndarray:
         """``R s`` (n_frames, 3): every frame's first mass moment in world axes."""
@@ -430,49 +447,65 @@ class _Local:
             growth.append(volume_growth(trunk, links, p, tuple(e.prepare(p) for e in trunk.links.energies)))
         return (growth[0] - growth[1]) / (2.0 * h)
 
-    def _hole_derivative(self, column: Parameter) -> tuple[np.ndarray, dict]:
-        """``−∂g/∂p`` on the free frames and the cable tensions' and strokes'
-        explicit terms for one hole parameter of one cable. A change ``δh`` of the cable's hole
-        offset (its vertebrae's axes) moves each piece's ends by ``δs = R δh``; with
-        ``d = P_b − P_a``, ``u = d/|d|`` and ``δu = (I − u uᵀ) δd / |d|`` the piece's length
-        gradient ``[−u; −s_a × u; u; s_b × u]`` changes by
+    def _hole_derivatives(self, group: str, cables_of: np.ndarray) -> tuple[np.ndarray, dict]:
+        """``−∂g/∂p`` on the free frames (n_dof, J) and the cable tensions' and strokes'
+        explicit terms (n_cables, J) for the hole parameters of ``group`` (``hole_radius`` or
+        ``hole_angle``) of the cables ``cables_of`` (J distinct cables), all at once: a piece
+        belongs to one cable, hence to one column. A change ``δh`` of a cable's hole offset (its
+        vertebrae's axes) moves each of its pieces' ends by ``δs = R δh``; with ``d = P_b − P_a``,
+        ``u = d/|d|`` and ``δu = (I − u uᵀ) δd / |d|`` the piece's length gradient
+        ``[−u; −s_a × u; u; s_b × u]`` changes by
         ``[−δu; −δs_a × u − s_a × δu; δu; δs_b × u + s_b × δu]``, its length by ``u · δd`` (at the
         rest state likewise, for ``L0``), and a taut tendon's tension by ``k (δL − δL0)``."""
         trunk, state, ev = self.trunk, self.state, self.ev
         cables = trunk.cables
-        c = column.index
-        radius, angle = self.model.parameters.hole_radius[c], self.model.parameters.hole_angle[c]
-        if column.group == "hole_radius":
-            dh = np.array([np.cos(angle), np.sin(angle), 0.0])
+        J = cables_of.size
+        radius, angle = self.model.parameters.hole_radius[cables_of], self.model.parameters.hole_angle[cables_of]
+        zero = np.zeros(J)
+        if group == "hole_radius":
+            dh = np.stack([np.cos(angle), np.sin(angle), zero], 1)
         else:
-            dh = radius * np.array([-np.sin(angle), np.cos(angle), 0.0])
-        mine = (cables.owner == c)[:, None, None]
-        if self._routing is None:            # the pieces and their ends' rotations, here and at rest
-            record = state.carried_strains()
-            rotations = record.chain.rotations if record is not None else qmatrix(state.quaternions)
-            rest = trunk.rest_state
-            rest_rotations = qmatrix(rest.quaternions)
-            self._routing = (cables.pieces(state.positions, rotations), rotations.take(cables.ends, 0),
-                             cables.pieces(rest.positions, rest_rotations), rest_rotations.take(cables.ends, 0))
-        pieces, ends, rest_pieces, rest_ends = self._routing
-        ds = (ends @ dh).reshape(-1, 2, 3) * mine
+            dh = radius[:, None] * np.stack([-np.sin(angle), np.cos(angle), zero], 1)
+        column_of = np.full(cables.n_cables, -1)
+        column_of[cables_of] = np.arange(J)
+        column = column_of[cables.owner]                          # (m,) the column of each piece, −1: none
+        moved = column >= 0
+        piece_dh = np.where(moved[:, None], dh[column], 0.0)      # (m, 3)
+        if self._routing is None:            # the pieces and their ends' rotations here (the evaluation's)
+            rotations = self._rotations()
+            pieces = ev.pieces if ev.pieces is not None else cables.pieces(state.positions, rotations)
+            self._routing = (pieces, rotations.take(cables.ends, 0))
+        pieces, ends = self._routing
+        rest_pieces, rest_ends = trunk.rest_routing
+        end_dh = np.repeat(piece_dh, 2, axis=0)[:, :, None]       # (2m, 3, 1): a and b ends alike
+        ds = (ends @ end_dh).reshape(-1, 2, 3)
         ds_a, ds_b = ds[:, 0], ds[:, 1]
         dd = ds_b - ds_a
-        rest_ds = (rest_ends @ dh).reshape(-1, 2, 3) * mine
+        rest_ds = (rest_ends @ end_dh).reshape(-1, 2, 3)
         rest_dd = rest_ds[:, 1] - rest_ds[:, 0]
         u = pieces.u
         du = (dd - u * np.einsum("ij,ij->i", u, dd)[:, None]) / pieces.length[:, None]
         s_a, s_b = pieces.offsets[:, :3], pieces.offsets[:, 3:]
-        d_unit = np.concatenate([-du, -np.cross(ds_a, u) - np.cross(s_a, du),
-                                 du, np.cross(ds_b, u) + np.cross(s_b, du)], axis=1)
+        d_unit = np.concatenate([-du, -_cross(ds_a, u) - _cross(s_a, du),
+                                 du, _cross(ds_b, u) + _cross(s_b, du)], axis=1)          # (m, 12)
         d_length = np.bincount(cables.owner, np.einsum("ij,ij->i", u, dd), minlength=cables.n_cables)
         d_rest = np.bincount(cables.owner, np.einsum("ij,ij->i", rest_pieces.u, rest_dd), minlength=cables.n_cables)
-        d_stroke = d_length - d_rest
-        d_tension = self.stiffness * self.taut * d_stroke
-        gradient = np.zeros((trunk.frames.count, 6))
+        d_stroke = np.zeros((cables.n_cables, J))
+        d_stroke[cables_of, np.arange(J)] = (d_length - d_rest)[cables_of]
+        d_tension = (self.stiffness * self.taut)[:, None] * d_stroke
+        gradient = np.zeros((trunk.frames.count, 6, J))
         piece_tension = ev.parts.piece_tension
         if piece_tension is not None:
-            gradient += cables.to_frames @ (piece_tension[:, None] * d_unit).reshape(-1, 6)
+            spread = np.zeros((column.size, 12, J))
+            spread[moved, :, column[moved]] = piece_tension[moved, None] * d_unit[moved]
+            gradient += scatter_rows(cables.ends, spread.reshape(-1, 6 * J), trunk.frames.count).reshape(-1, 6, J)
         if self.taut.any():
-            gradient[1:] += (d_tension @ self.lin.actuator_jacobian[:self.n_cables]).reshape(-1, 6)
-        return gradient[1:].reshape(-1), {"cable_tensions": d_tension, "cable_strokes": d_stroke}
+            gradient[1:] += (self.lin.actuator_jacobian[:self.n_cables].T @ d_tension).reshape(-1, 6, J)
+        return gradient[1:].reshape(-1, J), {"cable_tensions": d_tension, "cable_strokes": d_stroke}
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise ``a × b`` of (n, 3) arrays (numpy's ``cross`` costs more in set-up than in work
+    on small arrays)."""
+    return np.stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                     a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]], 1)

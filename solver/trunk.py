@@ -123,13 +123,33 @@ class Actuators(_Frozen):
 
 @dataclass(frozen=True)
 class Loads(_Frozen):
-    """Dead loads and gravity."""
+    """Dead loads, follower loads and gravity."""
 
     dead: np.ndarray              # (n_frames, 6) world forces and moments
     gravity: np.ndarray | None    # (3,) or None
     has_dead_forces: bool
     has_dead_moments: bool        # not conservative in 3D: the tangent is unsymmetric
     has_gravity: bool
+    follower: np.ndarray          # (n_frames, 6) forces and moments in each frame's own axes
+    has_follower: bool            # not conservative: the tangent is unsymmetric
+
+    @classmethod
+    def of(cls, dead: np.ndarray, gravity: np.ndarray | None, follower: np.ndarray, masses: bool) -> "Loads":
+        """From the wrenches and gravity (None: none); ``masses``: some frame has a mass."""
+        return cls(dead, gravity, bool(np.any(dead[:, :3])), bool(np.any(dead[:, 3:])),
+                   gravity is not None and masses, follower, bool(np.any(follower)))
+
+    @property
+    def unsymmetric(self) -> bool:
+        """Do loads that have no potential act (dead moments, follower loads): the tangent is then
+        unsymmetric (banded LU, an energy-like merit)."""
+        return self.has_dead_moments or self.has_follower
+
+    @property
+    def turning(self) -> bool:
+        """Does the tangent have blocks of frame-fixed loads turning with their frame (the
+        weight's lever arms, follower loads)?"""
+        return self.has_gravity or self.has_follower
 
 
 @dataclass(frozen=True)
@@ -177,6 +197,13 @@ class Trunk:
     def n_dof(self) -> int:
         return 6 * (self.frames.count - 1)
 
+    @functools.cached_property
+    def rest_routing(self) -> tuple:
+        """The cable pieces at the rest state and the rotations of their ends (2m, 3, 3), made
+        when first asked for (a re-parameterised trunk makes its own: its holes may differ)."""
+        rotations = qmatrix(self.rest_state.quaternions)
+        return self.cables.pieces(self.rest_state.positions, rotations), rotations.take(self.cables.ends, 0)
+
 
 def compile_trunk(scene, entries: dict) -> Trunk:
     """Compile a scene whose catalogue entries (by name) are in ``entries``."""
@@ -185,7 +212,7 @@ def compile_trunk(scene, entries: dict) -> Trunk:
     rest_state = compose(frames.base_quaternion, frames.base_position, links.rest)
     rest_pieces = cables.pieces(rest_state.positions, qmatrix(rest_state.quaternions))
     loads = _loads(scene, frames)
-    assembler = BandAssembler(frames.count - 1, cables.span, cables.piece_a, cables.piece_b, loads.has_gravity)
+    assembler = BandAssembler(frames.count - 1, cables.span, cables.piece_a, cables.piece_b, loads.turning)
     rest_lengths = cables.lengths(rest_pieces)
     contact = compile_contact(scene, frames, links.segment)
     if contact is not None:
@@ -208,9 +235,9 @@ def reassemble(trunk: Trunk, changes: dict) -> Trunk:
         changes["rest_cable_lengths"] = cables.lengths(pieces)
         changes["rest_piece_lengths"] = pieces.length
     loads = changes.get("loads", trunk.loads)
-    if loads.has_gravity != trunk.assembler.gravity:
+    if loads.turning != trunk.assembler.turning:
         changes["assembler"] = BandAssembler(trunk.frames.count - 1, cables.span, cables.piece_a, cables.piece_b,
-                                             loads.has_gravity)
+                                             loads.turning)
     new = dataclasses.replace(trunk, compiled=compiled, **changes)
     if "links" in changes or "assembler" in changes:
         object.__setattr__(new, "rest", rest_constants(new))
@@ -316,14 +343,14 @@ def _actuators(scene, rest_volumes, rest_lengths: np.ndarray) -> Actuators:
 
 
 def _loads(scene, frames: Frames) -> Loads:
-    dead = np.zeros((frames.count, 6))
+    dead, follower = np.zeros((frames.count, 6)), np.zeros((frames.count, 6))
     for load in scene.loads:
         frame = frames.vertebra[load.vertebra]
-        dead[frame, :3] += load.force
-        dead[frame, 3:] += load.moment
+        wrench = follower if load.follower else dead
+        wrench[frame, :3] += load.force
+        wrench[frame, 3:] += load.moment
     gravity = None if scene.gravity is None or not any(scene.gravity) else np.array(scene.gravity, float)
-    return Loads(dead, gravity, bool(np.any(dead[:, :3])), bool(np.any(dead[:, 3:])),
-                 gravity is not None and bool(np.any(frames.mass)))
+    return Loads.of(dead, gravity, follower, bool(np.any(frames.mass)))
 
 
 def _effectors(scene, frames: Frames) -> Effectors:

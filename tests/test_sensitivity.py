@@ -20,7 +20,7 @@ from fitted_energies import with_energy
 from test_solver_actuation import synthetic_entry
 from vertebra import solver
 from vertebra.core.errors import OptionError
-from vertebra.core.lie import qconj, qlog, qmul
+from vertebra.core.lie import qconj, qlog, qmatrix, qmul
 
 TOLERANCE = 1e-6
 STEP = 1e-4
@@ -68,11 +68,11 @@ def differences(model, result, column, h):
             gravity = np.array(model.parameters.gravity)
             gravity["xyz".index(key)] += sign * h
             changes["gravity"] = gravity
-        elif group == "dead":
+        elif group in ("dead", "follower"):
             vertebra, component = key.split(":")
-            dead = np.array(model.parameters.dead)
-            dead[model.vertebra_frames[int(vertebra)], solver.sensitivity.WRENCH.index(component)] += sign * h
-            changes["dead"] = dead
+            wrench = np.array(getattr(model.parameters, group))
+            wrench[model.vertebra_frames[int(vertebra)], solver.sensitivity.WRENCH.index(component)] += sign * h
+            changes[group] = wrench
         elif group == "stiffness_scale":
             changes[group] = {int(key): model.parameters.stiffness_scale[int(key)] + sign * h}
         else:
@@ -205,6 +205,34 @@ def test_stroke_driven_tendons_slack_and_taut(moment):
         assert not sens.dq[:, sens.column(name)].any()
     # a taut tendon's tension per unit stroke is below its spring rate (the trunk gives way)
     assert 0.0 < sens["cable_tensions"][0, sens.column("actuation:t1")] < 2000.0
+
+
+def test_follower_loads_with_tendons_and_a_dead_moment():
+    # follower loads (fixed in their vertebra's axes) at the tip and mid-way, beside taut and slack
+    # tendons and a dead moment: the tangent is unsymmetric (their turning), factored by LU, and the
+    # adjoint solves with its transpose; every follower component's column against re-solves
+    cables = [{"name": "t1", "radius": 0.01, "angle_deg": 0.0, "to": 6, "stroke": 0.002, "stiffness": 2000.0,
+               "pretension": 0.5},
+              {"name": "t2", "radius": 0.01, "angle_deg": 250.0, "to": 6, "stroke": -0.004, "stiffness": 1500.0,
+               "pretension": 0.2}]
+    scene = tendon_scene(cables)
+    scene["load"] = [{"vertebra": -1, "force": [0.3, -0.2, 0.1], "moment": [0.002, 0.001, -0.003], "follower": True},
+                     {"vertebra": 3, "force": [0.0, 0.4, 0.0], "follower": True},
+                     {"vertebra": -1, "moment": [0.001, 0.0, 0.002]}]
+    model = solver.build_model(solver.parse_scene(scene))
+    assert model.trunk.loads.unsymmetric and model.trunk.loads.has_follower
+    result = model.solve(tolerance=1e-12)
+    assert model.cable_tensions(result.state)[1] == 0.0          # t2 slack
+    steps = {f"follower:6:{c}": STEP * (1.0 if c[0] == "f" else 0.01) for c in solver.sensitivity.WRENCH}
+    steps.update({"follower:3:fy": STEP, "follower:4:mx": STEP * 0.01, "dead:6:fz": STEP,
+                  "actuation:t1": STEP * 0.002, "pretension:t1": STEP, "hole_angle:t1": STEP})
+    sens, _ = check(model, result, steps)
+    # at the equilibrium, a unit follower force along the tip's own x is the world force R_tip e_x:
+    # its column is the dead force's columns along that direction (one tangent serves both)
+    R_tip = qmatrix(result.state.quaternions[-1:])[0]
+    dead = model.sensitivities(result, wrt=("dead:-1",), outputs=("effector_positions",), method="direct")
+    expected = dead["effector_positions"][:, :3] @ R_tip[:, 0]
+    assert np.allclose(sens["effector_positions"][:, sens.column("follower:6:fx")], expected, rtol=1e-9, atol=0)
 
 
 # ------------------------------------------------------------------ chambers

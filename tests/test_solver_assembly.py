@@ -27,16 +27,16 @@ def _dense(assembler, terms):
     """The tangent (free frames only) written out from its terms, one term at a time."""
     nb, n = assembler.n_blocks, assembler.n
     full = np.zeros((n + 6, n + 6))            # frame 0 (the clamped base) included, dropped below
-    links, cables, weight = assembler.views(terms)
+    links, cables, turning = assembler.views(terms)
     for k in range(nb):
         dofs = np.r_[6 * k:6 * k + 12]
         full[np.ix_(dofs, dofs)] += links[k]
     for p, (a, b) in enumerate(zip(assembler.pair_a, assembler.pair_b)):
         dofs = np.r_[6 * a:6 * a + 6, 6 * b:6 * b + 6]
         full[np.ix_(dofs, dofs)] += cables[p]
-    if weight is not None:
+    if turning is not None:          # each free frame's force and moment rows on its rotation
         for j in range(nb):
-            full[6 * (j + 1) + 3:6 * (j + 1) + 6, 6 * (j + 1) + 3:6 * (j + 1) + 6] += weight[j]
+            full[6 * (j + 1):6 * (j + 1) + 6, 6 * (j + 1) + 3:6 * (j + 1) + 6] += turning[j]
     return full[6:, 6:]
 
 
@@ -64,8 +64,8 @@ def test_bands_gathered_from_the_terms_equal_the_dense_assembly(name):
         assert np.abs(general[2 * kd + d, j] - dense[j + d, j]).max() <= 1e-15 * scale
 
 
-@pytest.mark.parametrize("gravity", [False, True])
-def test_bands_of_overlapping_pairs_and_random_terms_equal_the_dense_assembly(gravity):
+@pytest.mark.parametrize("turning", [False, True])
+def test_bands_of_overlapping_pairs_and_random_terms_equal_the_dense_assembly(turning):
     # pairs of frames that share frames and blocks (any routing, not only consecutive vertebrae)
     from vertebra.solver.assembly import BandAssembler
 
@@ -74,7 +74,7 @@ def test_bands_of_overlapping_pairs_and_random_terms_equal_the_dense_assembly(gr
     a = rng.integers(0, n_blocks, 40)
     b = np.minimum(a + rng.integers(1, span + 1, 40), n_blocks)
     order = np.lexsort((b, a))
-    assembler = BandAssembler(n_blocks, span, a[order], b[order], gravity)
+    assembler = BandAssembler(n_blocks, span, a[order], b[order], turning)
     assert assembler.n_pairs < 40 and np.unique(assembler.pair_a).size < assembler.n_pairs
     terms = rng.normal(size=assembler.terms_size)
     terms[-1] = 0.0

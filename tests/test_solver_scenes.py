@@ -121,7 +121,13 @@ def test_simulate_json_contract(tmp_path, capsys):
     assert {"converged", "iterations", "residual", "vertebrae", "frames", "effectors", "cables", "chambers",
             "timing"} <= set(document)
     assert len(document["vertebrae"]) == 21 and len(document["frames"]) == 41
-    assert set(document["cables"]["s1-0"]) == {"tension", "length", "stroke"}
+    cable = document["cables"]["s1-0"]
+    assert set(cable) == {"tension", "length", "stroke", "route", "tensions", "stick"}
+    # the route runs through the holes (proximal end first): one tension per span, one flag per interior hole
+    assert len(cable["route"]) == len(cable["tensions"]) + 1 == len(cable["stick"]) + 2
+    assert all(len(point) == 3 for point in cable["route"])
+    assert cable["tensions"] == [cable["tension"]] * len(cable["tensions"])   # no friction: one tension
+    assert not any(cable["stick"])
     assert document["timing"]["solve_s"] > 0
     assert (tmp_path / "p.png").stat().st_size > 10000
     from vtk_xml import read_vtp

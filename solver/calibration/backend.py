@@ -9,22 +9,29 @@ measurement frame and, for the elements ``wrt``, their derivatives.
 stroke-driven tendons (tension ``k·max(0, L − L0 + stroke + P/k)``), the element values are
 run-time parameters of the model (:meth:`~vertebra.solver.model.TrunkModel.set_parameters`:
 stiffness scale per segment, hole angles and radii, spring rates, pretensions; no
-recompilation), and each sample's solve starts from the state it had at the previous call (else
-from its predecessor in the file: the data are a sequence of nearby poses).
+recompilation).
 
-Derivatives come from the implicit function theorem at each converged state: with ``g(q, θ)``
-the out-of-balance force (tendon springs included) and ``K`` its tangent,
-``dq/dθ = −K⁻¹ ∂g/∂θ``, one back-substitution per parameter with the converged tangent's
-factor. A tendon's force is ``τ ∂L/∂q`` with ``τ = k·max(0, e)`` and ``e ∋ P/k``, so for its
-pretension and spring rate ``∂g/∂θ = (∂τ/∂θ) ∂L/∂q`` in closed form; for a stiffness scale and
-the hole geometry ``∂g/∂θ`` is a forward difference of ``g`` at the fixed converged state under
-the perturbed parameter (no re-solve: ``g`` is linear in a stiffness scale and smooth in the
-hole geometry). The measurement frame and the marker offsets act after the solve and
-are differentiated in closed form.
+**Derivatives** are the model's exact sensitivities (:mod:`~vertebra.solver.sensitivity`): at
+each converged state one factor of the tangent ``K`` and ``dq/dθ = −K⁻¹ ∂g/∂θ`` for every model
+element at once (the direct route: its ``dq`` also serves the next warm start), the marker's
+``dp = dx_f + dφ_f × (R r)`` of its frame on top. The measurement frame and the marker offsets
+act after the solve and are differentiated in closed form.
+
+**Warm starts.** Each sample's solve starts from its own equilibrium of the previous call, moved
+to first order by the change of the model elements since (``q + dq/dθ Δθ`` where the derivatives
+were taken there, which leaves Newton a second-order residual); a sample never solved starts from
+its predecessor in the file (the data are a sequence of nearby poses).
+
+**Processes.** With ``workers > 1`` the samples are split into that many contiguous blocks,
+each solved by a worker process holding its own compiled model and its blocks' equilibria
+(BLAS pinned to one thread, the workers die with the calling process); only the element values
+go out and the markers and derivatives come back.
 """
 
 from __future__ import annotations
 
+import multiprocessing
+import os
 import time
 from dataclasses import dataclass
 from typing import Protocol
@@ -32,17 +39,26 @@ from typing import Protocol
 import numpy as np
 
 from vertebra.core.errors import ConvergenceError, OptionError
-from vertebra.core.lie import qmatrix, so3_exp
+from vertebra.core.lie import hat, qmatrix, so3_exp
+from vertebra.core.processes import exit_with_parent, pinned_environment
 from vertebra.solver.calibration.fit_parameters import Values
 from vertebra.solver.model import build_model
+from vertebra.solver.sensitivity import parameters_of
 
-__all__ = ["Prediction", "Predictor", "RuntimePredictor"]
+__all__ = ["Prediction", "Predictor", "RuntimePredictor", "default_workers"]
 
-# relative forward-difference steps of the elements differentiated through the model
-# (times the typical size of the element: 1, a radian, the hole radius, the spring rate, k·length)
-FD_STEP = 1e-6
-MODEL_KINDS = ("stiffness", "angle", "radius", "cable_stiffness", "pretension")
-FD_KINDS = ("stiffness", "angle", "radius")      # the others in closed form
+#: the elements that act through the model, and the sensitivity parameter group of each
+MODEL_KINDS = {"stiffness": "stiffness_scale", "angle": "hole_angle", "radius": "hole_radius",
+               "cable_stiffness": "cable_stiffness", "pretension": "pretension"}
+#: the fewest samples per worker process worth starting one for (a process costs ~1 s to start)
+SAMPLES_PER_WORKER = 256
+
+
+def default_workers(n_samples: int) -> int:
+    """Worker processes for ``n_samples``: one per available core, at most one per
+    :data:`SAMPLES_PER_WORKER` samples (1: solve in the calling process)."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, min(cores, n_samples // SAMPLES_PER_WORKER))
 
 
 @dataclass
@@ -51,6 +67,7 @@ class Prediction:
     derivatives: np.ndarray | None  # (n, n_markers, 3, len(wrt))
     solve_s: float = 0.0
     derivative_s: float = 0.0
+    iterations: int = 0             # Newton iterations of the solves
 
 
 class Predictor(Protocol):
@@ -60,7 +77,63 @@ class Predictor(Protocol):
 
 
 class RuntimePredictor:
-    """Servo-driven samples on the runtime's stroke-driven tendons (module docstring)."""
+    """Servo-driven samples on the runtime's stroke-driven tendons (module docstring), in this
+    process or in ``workers`` processes. Use as a context manager (or call :meth:`close`) to end
+    the worker processes."""
+
+    def __init__(self, scene, mapping, model=None, workers: int = 1):
+        self.engine = _Engine(scene, mapping, model)
+        self.model = self.engine.model
+        if not isinstance(workers, int) or isinstance(workers, bool) or workers < 1:
+            raise OptionError(f"expected a positive integer, got {workers!r}", field="workers")
+        self.workers = workers
+        self._pool = None
+        self._scene, self._mapping = scene, mapping
+
+    # the engine's pieces, for predictors built on this one (calibration.sequence)
+    rest_radius = property(lambda self: self.engine.rest_radius)
+
+    def _set(self, values: Values) -> None:
+        self.engine._set(values)
+
+    def _actuation(self, command) -> np.ndarray:
+        return self.engine._actuation(command)
+
+    def _markers(self, state, offsets):
+        return self.engine._markers(state, offsets)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc_info):
+        self.close()
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.close()
+            self._pool = None
+
+    def predict(self, values: Values, samples, wrt=()) -> Prediction:
+        """Markers of every sample under ``values`` and, for the elements ``wrt``, their
+        derivatives. A call with the values and samples of the previous call reuses its
+        equilibria (a least-squares step asks for the residuals, then the Jacobian, at one point)."""
+        wrt = tuple(wrt)
+        blocks = min(self.workers, len(samples))
+        if blocks <= 1:
+            return self.engine.predict(values, samples.commands, samples.source, samples.rows, wrt)
+        if self._pool is None:
+            self._pool = _Pool(self.workers, self._scene, self._mapping)
+        edges = np.linspace(0, len(samples), blocks + 1).round().astype(int)
+        parts = self._pool.map("predict", [(values, samples.commands[a:b], samples.source, samples.rows[a:b], wrt)
+                                           for a, b in zip(edges[:-1], edges[1:])])
+        return Prediction(np.concatenate([p.markers for p in parts]),
+                          None if not wrt else np.concatenate([p.derivatives for p in parts]),
+                          max(p.solve_s for p in parts), max(p.derivative_s for p in parts),
+                          sum(p.iterations for p in parts))
+
+
+class _Engine:
+    """The predictions of one process: a compiled model and the equilibria of its samples."""
 
     def __init__(self, scene, mapping, model=None):
         self.scene, self.mapping = scene, mapping
@@ -88,8 +161,10 @@ class RuntimePredictor:
                                   f"vertebrae 0..{n_vertebrae - 1})", field=mapping.source)
             frames.append(int(self.model.vertebra_frames[v]))
         self.marker_frames = np.array(frames, dtype=int)
-        self._warm: dict = {}            # (samples source, index) -> state
+        self._warm: dict = {}            # (samples source, index) -> _Warm
         self._last = None                # (key, markers, actuations, states) of the previous call
+        self._derived = None             # (key, wrt, derivatives) of the last derivatives taken
+        self._columns: dict = {}         # model elements -> the sensitivities' parameter columns
 
     # ------------------------------------------------------------------ parameters
     def _set(self, values: Values) -> None:
@@ -97,20 +172,21 @@ class RuntimePredictor:
         self.model.set_parameters(stiffness_scale=values.stiffness, hole_angle=self.rest_angle + values.angle,
                                   hole_radius=self.rest_radius + values.radius,
                                   cable_stiffness=values.cable_stiffness,
-                                  pretension=values.pretension)
+                                  pretension=values.pretension, friction=values.friction)
 
-    def _actuation(self, values: Values, command) -> np.ndarray:
+    def _actuation(self, command) -> np.ndarray:
         """The model's actuation for one sample's commands (the strokes of the driven cables)."""
         actuation = self.model.actuation().copy()
         actuation[self.driven] = command
         return actuation
 
-    def _step(self, kind: str, index, values: Values) -> float:
-        typical = {"stiffness": 1.0, "angle": 1.0, "radius": self.rest_radius[index] if kind == "radius" else 1.0,
-                   "cable_stiffness": values.cable_stiffness[index] if kind == "cable_stiffness" else 1.0,
-                   "pretension": values.cable_stiffness[index] * float(self.model.length_scale)
-                   if kind == "pretension" else 1.0}[kind]
-        return FD_STEP * typical
+    def _model_columns(self, elements: tuple):
+        """The sensitivity columns of the model ``elements`` ((kind, index) pairs), made once."""
+        if elements not in self._columns:
+            names = [f"{MODEL_KINDS[kind]}:{index if kind == 'stiffness' else self.scene.cables[index].name}"
+                     for kind, index in elements]
+            self._columns[elements] = parameters_of(self.model, names)
+        return self._columns[elements]
 
     # ------------------------------------------------------------------ markers
     def _markers(self, state, offsets):
@@ -127,102 +203,192 @@ class RuntimePredictor:
                 continue
             c = 6 * (f - 1)
             J[i, :, c:c + 3] = np.eye(3)
-            J[i, :, c + 3:c + 6] = -np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+            J[i, :, c + 3:c + 6] = -hat(a)
         return J
 
     # ------------------------------------------------------------------ predict
-    def predict(self, values: Values, samples, wrt=()) -> Prediction:
-        """Markers of every sample under ``values`` and, for the elements ``wrt``, their
-        derivatives. A call with the values and samples of the previous call reuses its
-        equilibria (a least-squares step asks for the residuals, then the Jacobian, at one point)."""
-        model = self.model
+    def predict(self, values: Values, commands, source, rows, wrt: tuple) -> Prediction:
+        """Markers of the samples ``commands`` (rows ``rows`` of ``source``) under ``values`` and,
+        for the elements ``wrt``, their derivatives."""
         self._set(values)
         Rf = so3_exp(values.frame[3:])
-        key = (samples.source, len(samples), samples.commands.tobytes(),
+        key = (source, rows.tobytes(), commands.tobytes(),
                tuple(getattr(values, f).tobytes() for f in ("stiffness", "angle", "radius", "cable_stiffness",
-                                                            "pretension", "frame", "marker")))
+                                                            "pretension", "frame", "marker", "friction")))
         t0 = time.perf_counter()
+        iterations = 0
         if self._last is not None and self._last[0] == key:
             markers, actuations, states = self._last[1:]
         else:
-            markers, actuations, states = self._solve(values, samples, Rf)
+            markers, actuations, states, iterations = self._solve(values, commands, source, rows, Rf)
             self._last = (key, markers, actuations, states)
         solve_s = time.perf_counter() - t0
         derivatives = None
         if wrt:
-            derivatives = self._derivatives(values, list(wrt), states, actuations, samples.commands, Rf)
-        return Prediction(markers.copy(), derivatives, solve_s, time.perf_counter() - t0 - solve_s)
+            if self._derived is not None and self._derived[:2] == (key, wrt):
+                derivatives = self._derived[2]       # (the optimiser's last Jacobian, asked for again)
+            else:
+                derivatives = self._derivatives(values, wrt, states, actuations, source, rows, Rf)
+                self._derived = (key, wrt, derivatives)
+        return Prediction(markers.copy(), None if derivatives is None else derivatives.copy(), solve_s,
+                          time.perf_counter() - t0 - solve_s, iterations)
 
-    def _solve(self, values, samples, Rf):
+    def _solve(self, values, commands, source, rows, Rf):
         model = self.model
-        n, nm = len(samples), len(self.marker_frames)
+        n, nm = len(commands), len(self.marker_frames)
         markers = np.empty((n, nm, 3))
         actuations, states = [], []
         previous = None
+        iterations = 0
         for i in range(n):
-            actuation = self._actuation(values, samples.commands[i])
-            key = (samples.source, i)
-            start = self._warm.get(key, previous)
-            result = model.solve(actuation, initial=start, raise_on_failure=False)
-            if not result.converged and start is not None:      # a far warm start: from the rest pose
-                result = model.solve(actuation, raise_on_failure=False)
+            actuation = self._actuation(commands[i])
+            warm = self._warm.get((source, int(rows[i])))
+            # from the sample's own equilibrium moved to these values, else as it was, else from
+            # its predecessor's; from the rest pose when those fail (a far warm start)
+            starts = [previous] if warm is None else [warm.predicted(model, values), warm.state]
+            starts = [s for k, s in enumerate(starts) if s is not None and all(s is not t for t in starts[:k])]
+            for start in starts + [None]:
+                result = model.solve(actuation, initial=start, raise_on_failure=False)
+                iterations += result.iterations
+                if result.converged:
+                    break
             if not result.converged:
-                raise ConvergenceError(f"{samples.source}: sample {i}: the equilibrium did not converge "
+                raise ConvergenceError(f"{source}: sample {int(rows[i])}: the equilibrium did not converge "
                                        f"({result.message})", result)
-            self._warm[key] = previous = result.state
+            self._warm[(source, int(rows[i]))] = _Warm(result.state)
+            previous = result.state
             points, _, _ = self._markers(result.state, values.marker)
             markers[i] = points @ Rf.T + values.frame[:3]
             actuations.append(actuation)
             states.append(result.state)
-        return markers, actuations, states
+        return markers, actuations, states, iterations
 
-    def _derivatives(self, values, wrt, states, actuations, commands, Rf):
+    def _derivatives(self, values, wrt, states, actuations, source, rows, Rf):
         model, n = self.model, len(states)
         nm, npar = len(self.marker_frames), len(wrt)
         out = np.zeros((n, nm, 3, npar))
-        inner = [(col, kind, index) for col, (kind, index) in enumerate(wrt) if kind in MODEL_KINDS]
-        G = np.zeros((n, model.n_dof, len(inner)))
-        differenced = [(j, kind, index) for j, (_, kind, index) in enumerate(inner) if kind in FD_KINDS]
-        if differenced:
-            g0 = np.stack([model.evaluate(s, a).gradient[1:].reshape(-1) for s, a in zip(states, actuations)])
-            for j, kind, index in differenced:
-                h = self._step(kind, index, values)
-                changed = values.with_elements([((kind, index), values.get(kind, index) + h)])
-                self._set(changed)
-                for i, s in enumerate(states):
-                    a = self._actuation(changed, commands[i])
-                    G[i, :, j] = (model.evaluate(s, a).gradient[1:].reshape(-1) - g0[i]) / h
-            self._set(values)
-        tendon = [(j, kind, index) for j, (_, kind, index) in enumerate(inner) if kind not in FD_KINDS]
-        k, P = values.cable_stiffness, values.pretension
+        inner = tuple((kind, index) for kind, index in wrt if kind in MODEL_KINDS)
+        where = [col for col, (kind, _) in enumerate(wrt) if kind in MODEL_KINDS]
+        columns = self._model_columns(inner) if inner else ()
+        at = np.array([values.get(kind, index) for kind, index in inner])
+        turns = {index - 3: _rotation_derivative(values.frame[3:], index - 3)
+                 for kind, index in wrt if kind == "frame" and index >= 3}
         for i, (state, actuation) in enumerate(zip(states, actuations)):
             points, arm, R = self._markers(state, values.marker)
             if inner:
-                lin = model.linearise(state, actuation)
-                if tendon:      # τ = k·max(0, e), e ∋ P/k: the force τ ∂L/∂q changes along ∂L/∂q
-                    tension = model.cable_tensions(state, actuation)
-                    for j, kind, index in tendon:
-                        taut = float(tension[index] > 0.0)
-                        rate = taut if kind == "pretension" else tension[index] / k[index] - taut * P[index] / k[index]
-                        G[i, :, j] = rate * lin.actuator_jacobian[index]
-                dq = -lin.solve(np.asfortranarray(G[i]))                      # (n_dof, n_inner)
+                dq = model.sensitivities(state, actuation, wrt=columns, outputs=(), method="direct").dq
+                self._warm[(source, int(rows[i]))] = _Warm(state, inner, at, dq)
                 dm = self._marker_jacobian(arm) @ dq                           # (nm, 3, n_inner)
-                out[i][..., [c for c, _, _ in inner]] = np.einsum("ij,mjp->mip", Rf, dm)
+                out[i][..., where] = np.einsum("ij,mjp->mip", Rf, dm)
             for col, (kind, index) in enumerate(wrt):
                 if kind == "frame":
                     if index < 3:
                         out[i, :, index, col] += 1.0
                     else:
-                        out[i, :, :, col] += _rotation_derivative(values.frame[3:], index - 3, points)
+                        out[i, :, :, col] += points @ turns[index - 3].T
                 elif kind == "marker":
                     mi, c = index
                     out[i, mi, :, col] += Rf @ R[mi][:, c]
         return out
 
 
-def _rotation_derivative(rotvec, axis, points, h=1e-7):
-    """∂(R(ω) p)/∂ω_axis by a central difference of the rotation alone (no solve)."""
+class _Warm:
+    """A sample's last equilibrium and, when its derivatives were taken there, the model elements
+    (``elements`` at values ``at``) and ``dq/dθ`` that move it to first order."""
+
+    __slots__ = ("state", "elements", "at", "dq")
+
+    def __init__(self, state, elements=(), at=None, dq=None):
+        self.state, self.elements, self.at, self.dq = state, elements, at, dq
+
+    def predicted(self, model, values: Values):
+        """The equilibrium moved to first order to ``values`` (the state itself where nothing
+        known changed)."""
+        if self.dq is None:
+            return self.state
+        change = np.array([values.get(kind, index) for kind, index in self.elements]) - self.at
+        if not change.any():
+            return self.state
+        return model.step(self.state, self.dq @ change)
+
+
+def _rotation_derivative(rotvec, axis, h=1e-7):
+    """∂R(ω)/∂ω_axis by a central difference of the rotation alone (no solve)."""
     e = np.zeros(3)
     e[axis] = h
-    plus, minus = so3_exp(rotvec + e), so3_exp(rotvec - e)
-    return points @ ((plus - minus) / (2 * h)).T
+    return (so3_exp(rotvec + e) - so3_exp(rotvec - e)) / (2 * h)
+
+
+# ------------------------------------------------------------------ worker processes
+class _Pool:
+    """``workers`` processes, each an :class:`_Engine` of the scene, called block by block."""
+
+    def __init__(self, workers: int, scene, mapping):
+        context = multiprocessing.get_context("spawn")
+        self.connections, self.processes = [], []
+        with pinned_environment(1):
+            for _ in range(workers):
+                mine, theirs = context.Pipe()
+                process = context.Process(target=_serve, args=(theirs, os.getpid(), scene, mapping), daemon=True,
+                                          name="vertebra-calibration-worker")
+                process.start()
+                theirs.close()
+                self.connections.append(mine)
+                self.processes.append(process)
+
+    def map(self, method: str, calls: list) -> list:
+        """``method(*args)`` of the engines, the k-th call on the k-th worker, all at once."""
+        for connection, args in zip(self.connections, calls):
+            connection.send((method, args))
+        results, error = [], None
+        for connection, process in zip(self.connections[:len(calls)], self.processes):
+            try:
+                ok, value = connection.recv()
+            except EOFError:
+                ok, value = False, RuntimeError(f"a calibration worker process ended (exit code "
+                                                f"{process.exitcode}): out of memory or killed")
+            if not ok and error is None:
+                error = value
+            results.append(value)
+        if error is not None:
+            raise error
+        return results
+
+    def close(self) -> None:
+        for connection in self.connections:
+            try:
+                connection.send(None)
+                connection.close()
+            except OSError:
+                pass
+        for process in self.processes:
+            process.join(timeout=5)
+            if process.is_alive():
+                process.terminate()
+
+
+def _serve(connection, owner: int, scene, mapping) -> None:
+    """A worker process: an engine of ``scene`` answering calls until told to stop."""
+    exit_with_parent(owner)
+    try:
+        engine = _Engine(scene, mapping)
+    except Exception as error:  # noqa: BLE001 - reported to the caller, which raises it
+        engine, failure = None, error
+    while True:
+        try:
+            message = connection.recv()
+        except EOFError:
+            return
+        if message is None:
+            return
+        if engine is None:
+            connection.send((False, failure))
+            continue
+        method, args = message
+        try:
+            connection.send((True, getattr(engine, method)(*args)))
+        except Exception as error:  # noqa: BLE001 - the caller raises it
+            try:
+                connection.send((False, error))
+            except Exception:  # noqa: BLE001 - an error that does not pickle: its message
+                connection.send((False, RuntimeError(f"{type(error).__name__}: {error}")))

@@ -166,18 +166,25 @@ def _parse_mapping(data: dict, source: str) -> Mapping:
 class Samples:
     """Measured static samples in SI units: ``commands`` (n, n_actuators) in metres of pull
     (sign applied), ``markers`` (n, n_markers, 3) in metres in the measurement frame,
-    ``patterns`` the pattern name of each sample (grouped by the mapping's ``pattern_strip``)."""
+    ``patterns`` the pattern name of each sample (grouped by the mapping's ``pattern_strip``),
+    ``rows`` each sample's row in ``source`` (default 0…n−1; a selection keeps them: a sample is
+    the same sample in every selection of its file)."""
 
     commands: np.ndarray
     markers: np.ndarray
     patterns: tuple
     source: str = "<samples>"
+    rows: np.ndarray | None = None
 
     def __post_init__(self):
         n = len(self.commands)
         if self.markers.shape[0] != n or len(self.patterns) != n:
             raise ValueError(f"len(commands) = {n}, but len(markers) = {self.markers.shape[0]} "
                              f"and len(patterns) = {len(self.patterns)}")
+        if self.rows is None:
+            object.__setattr__(self, "rows", np.arange(n))
+        elif len(self.rows) != n:
+            raise ValueError(f"len(commands) = {n}, but len(rows) = {len(self.rows)}")
 
     def __len__(self) -> int:
         return len(self.commands)
@@ -185,7 +192,7 @@ class Samples:
     def take(self, index) -> "Samples":
         index = np.asarray(index)
         return Samples(self.commands[index], self.markers[index], tuple(self.patterns[i] for i in index),
-                       self.source)
+                       self.source, self.rows[index])
 
 
 def load_samples(path, mapping: Mapping) -> Samples:

@@ -18,6 +18,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from vertebra.core.errors import OptionError
+from vertebra.solver.calibration.backend import default_workers
 from vertebra.solver.calibration.sequence import SequencePredictor
 from vertebra.solver.calibration.fit_parameters import ParameterSet, Values, parse_parameters
 
@@ -26,8 +27,8 @@ __all__ = ["Calibration", "LOSSES", "METHODS", "calibrate", "error_metrics"]
 LOSSES = ("linear", "soft_l1", "huber", "cauchy", "arctan")
 METHODS = ("trf", "lm")
 # relative singular value below which a direction of the (column-normalised) Jacobian is
-# taken as unseen by the data: its derivatives carry ~1e-4 relative error (forward
-# differences at fixed state, tolerance-limited equilibria), so smaller values are noise
+# taken as unseen by the data: the derivatives are exact at equilibria converged to the solver's
+# tolerance (~1e-8 relative), so directions this much weaker than the strongest are rounding
 RANK_TOLERANCE = 1e-6
 # a parameter whose weight in the unseen directions exceeds this is reported unidentifiable
 NULL_WEIGHT = 0.1
@@ -117,14 +118,16 @@ def _statistics(J, residual, ps: ParameterSet, x):
 def calibrate(scene, mapping, train, holdout=None, fit=None, *, loss: str = "linear",
               loss_scale: float | None = None, method: str = "trf", starts: int = 1, seed: int = 0,
               max_evaluations: int = 60, ftol: float = 1e-6, xtol: float = 1e-6, predictor=None,
-              progress=None) -> Calibration:
+              workers: int | None = None, progress=None) -> Calibration:
     """Fit ``fit`` (parameter specifications; the mapping's ``[fit]`` list when None) of
     ``scene`` to the ``train`` samples and measure the result on ``holdout``.
 
     ``loss``: one of :data:`LOSSES`; ``loss_scale`` (m): the residual at which a robust loss
     starts to discount (default: 1 % of the trunk length). ``method``: ``trf`` (bounded) or
-    ``lm`` (unbounded; the bounds are then only checked). ``progress``: a callable taking a
-    one-line message."""
+    ``lm`` (unbounded; the bounds are then only checked). ``workers``: processes solving the
+    samples (default: one per core, at most one per
+    :data:`~vertebra.solver.calibration.backend.SAMPLES_PER_WORKER` training samples).
+    ``progress``: a callable taking a one-line message."""
     t_start = time.perf_counter()
     if loss not in LOSSES:
         raise OptionError(f"unknown loss {loss!r}; one of {', '.join(LOSSES)}", field="--loss")
@@ -134,7 +137,19 @@ def calibrate(scene, mapping, train, holdout=None, fit=None, *, loss: str = "lin
         raise OptionError("method lm takes only the linear loss", field="--loss")
     if starts < 1:
         raise OptionError(f"must be at least 1, got {starts}", field="--starts")
-    predictor = predictor or SequencePredictor(scene, mapping)      # RuntimePredictor's own path without friction
+    if predictor is not None:
+        return _calibrate(predictor, scene, mapping, train, holdout, fit, loss, loss_scale, method, starts, seed,
+                          max_evaluations, ftol, xtol, progress, t_start)
+    if workers is None:
+        workers = default_workers(min(len(train), mapping.max_samples or len(train)))
+    # (the runtime predictor's own path without friction, its workers included)
+    with SequencePredictor(scene, mapping, workers=workers) as predictor:
+        return _calibrate(predictor, scene, mapping, train, holdout, fit, loss, loss_scale, method, starts, seed,
+                          max_evaluations, ftol, xtol, progress, t_start)
+
+
+def _calibrate(predictor, scene, mapping, train, holdout, fit, loss, loss_scale, method, starts, seed,
+               max_evaluations, ftol, xtol, progress, t_start) -> Calibration:
     length = float(predictor.model.length_scale)
     ps = parse_parameters(list(fit) if fit else list(mapping.fit), scene, mapping, predictor.model)
     if mapping.max_samples and len(train) > mapping.max_samples:
@@ -146,7 +161,7 @@ def calibrate(scene, mapping, train, holdout=None, fit=None, *, loss: str = "lin
         for e in group:
             gather[column[e], j] = 1.0
     measured = train.markers.reshape(-1)
-    counter = {"fun": 0, "jac": 0, "solve_s": 0.0, "derivative_s": 0.0}
+    counter = {"fun": 0, "jac": 0, "solve_s": 0.0, "derivative_s": 0.0, "newton_iterations": 0}
 
     def values_of(z):
         return ps.values(ps.initial + z * ps.typical)
@@ -155,15 +170,18 @@ def calibrate(scene, mapping, train, holdout=None, fit=None, *, loss: str = "lin
         prediction = predictor.predict(values_of(z), train)
         counter["fun"] += 1
         counter["solve_s"] += prediction.solve_s
+        counter["newton_iterations"] += prediction.iterations
         r = prediction.markers.reshape(-1) - measured
         if progress:
-            progress(f"evaluation {counter['fun']}: train RMSE {1e3 * np.sqrt(np.mean(np.sum(r.reshape(-1, 3) ** 2, 1))):.3f} mm")
+            progress(f"evaluation {counter['fun']}: train RMSE "
+                     f"{1e3 * np.sqrt(np.mean(np.sum(r.reshape(-1, 3) ** 2, 1))):.3f} mm")
         return r
 
     def jac(z):
         prediction = predictor.predict(values_of(z), train, elements)
         counter["jac"] += 1
         counter["solve_s"] += prediction.solve_s
+        counter["newton_iterations"] += prediction.iterations
         counter["derivative_s"] += prediction.derivative_s
         return (prediction.derivatives.reshape(-1, len(elements)) @ gather) * ps.typical
 
@@ -181,13 +199,14 @@ def calibrate(scene, mapping, train, holdout=None, fit=None, *, loss: str = "lin
         z[free] = y
         return z
 
+    lower = (ps.lower - ps.initial) / ps.typical
+    upper = (ps.upper - ps.initial) / ps.typical
+
     def reduced_jac(y):
         z = full(y)
         J = first if not z.any() else jac(z)
         return J[:, free]
 
-    lower = (ps.lower - ps.initial) / ps.typical
-    upper = (ps.upper - ps.initial) / ps.typical
     rng = np.random.default_rng(seed)
     best, runs = None, []
     for start in range(starts):
@@ -224,7 +243,8 @@ def calibrate(scene, mapping, train, holdout=None, fit=None, *, loss: str = "lin
         holdout_prediction = h.markers
         holdout_metrics = error_metrics(h.markers, holdout.markers, holdout.patterns, length)
     optimiser = {"method": method, "loss": loss, "starts": runs, "best_start": runs.index(
-        min(runs, key=lambda r: r["cost"])), "evaluations": counter["fun"], "jacobians": counter["jac"], **rank}
+        min(runs, key=lambda r: r["cost"])), "evaluations": counter["fun"], "jacobians": counter["jac"],
+                 "newton_iterations": counter["newton_iterations"], "workers": getattr(predictor, "workers", 1), **rank}
     timings = {"total_s": time.perf_counter() - t_start, "solve_s": counter["solve_s"],
                "derivative_s": counter["derivative_s"]}
     return Calibration(ps, x, se, corr, identifiable, at_bound, values, length, train_metrics, holdout_metrics,

@@ -106,6 +106,8 @@ def calibrated_scene_toml(cal, scene, mapping) -> str:
     if scene.gravity is not None:
         data["gravity"] = {"vector": (Rf @ np.asarray(scene.gravity)).tolist()}
     for load in data.get("load", []):
+        if load.get("follower", False):          # (in the vertebra's axes: no frame to turn)
+            continue
         for key in ("force", "moment"):
             if key in load:
                 load[key] = (Rf @ np.asarray(load[key], float)).tolist()

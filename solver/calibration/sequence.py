@@ -35,8 +35,8 @@ SOLVED_KINDS = ("stiffness", "angle", "radius", "cable_stiffness", "pretension",
 class SequencePredictor(RuntimePredictor):
     """The samples as one time-ordered sequence of commands (module docstring)."""
 
-    def __init__(self, scene, mapping, model=None):
-        super().__init__(scene, mapping, model)
+    def __init__(self, scene, mapping, model=None, workers: int = 1):
+        super().__init__(scene, mapping, model, workers)
         self._kept = None        # (key, markers, states) of the last sequence solved
 
     def _set(self, values: Values) -> None:
@@ -70,7 +70,7 @@ class SequencePredictor(RuntimePredictor):
         history = state = None
         states = []
         for i, command in enumerate(samples.commands):
-            result = model.solve(self._actuation(values, command), state, history=history, raise_on_failure=False)
+            result = model.solve(self._actuation(command), state, history=history, raise_on_failure=False)
             if not result.converged:
                 raise ConvergenceError(f"{samples.source}: sample {i}: the frictional equilibrium did not converge "
                                        f"({result.message})", result)

@@ -49,6 +49,7 @@ from vertebra.solver.inverse.qp import ConstraintSolution, solve_constraint_prob
 from vertebra.solver.inverse.space import DEFAULT_REGULARISATION, ConstraintSpace
 from vertebra.solver.inverse.trust import GOOD, TrustRegion
 from vertebra.core.errors import ConvergenceError, OptionError, SceneError
+from vertebra.solver.potential import nonpotential_forces
 
 __all__ = ["InverseSettings", "InverseStep", "InverseController", "invert", "MODES", "DEFAULT_TOLERANCE"]
 
@@ -191,7 +192,6 @@ class InverseController:
             except ConvergenceError:
                 self.state, self.equilibrium = model.rest_state.copy(), False
         self.trust = TrustRegion.of_model(model)
-        self._moments = (model.trunk.loads.dead[1:, 3:].reshape(-1) if model.has_dead_moments else None)
         self._judged = None     # the trial of the last state applied (its next linearisation reuses it)
 
     # ------------------------------------------------------------------ pieces
@@ -283,6 +283,7 @@ class InverseController:
         d_energy = float(cables.dot(model.rest_cable_lengths)) + float(cables.dot(lin.actuator_displacements[:n_cables]))
         exact_energy = model.n_chambers or model.n_tendons
         quality = 0.0
+        work = nonpotential_forces(model.trunk, state0, model.loads(lam0, 1.0))
         for _ in range(CUTS):
             lam = lam0 + alpha * d_lam
             # the model of the potential under λ along α·dq: E_λ(q) − r_λ·d + ½ dᵀK d, with
@@ -298,8 +299,8 @@ class InverseController:
                 after = judged.energy
             except ConvergenceError:
                 before = after = math.nan
-            if self._moments is not None:
-                after -= alpha * float(self._moments.dot(dq.reshape(-1, 6)[:, 3:].reshape(-1)))
+            if work is not None:            # loads without a potential: their linearised work
+                after -= alpha * float(work @ dq)
             decrease = before - after
             noise = 1e-12 * abs(before)
             quality = decrease / predicted if predicted > noise else (1.0 if decrease >= -noise else 0.0)
