@@ -46,7 +46,9 @@ from vertebra.solver.workspace import sample_actuations, sample_workspace  # noq
 from vertebra.solver.workspace_order import ORDERINGS, response_coordinates  # noqa: E402
 
 SCENE = "gallery:paper_5v_16t"
-ROOT = Path(__file__).resolve().parents[1]
+import vertebra  # noqa: E402
+
+ROOT = Path(vertebra.__file__).parent          # the package (the repository's root), as imported
 
 
 def cpu_wall(fn):

@@ -36,7 +36,9 @@ class BandAssembler:
     is the clamped base, block k is frame k + 1, link k joins frames k and k + 1)."""
 
     def __init__(self, n_blocks: int, span: int, piece_a: np.ndarray = _NO_PIECES, piece_b: np.ndarray = _NO_PIECES,
-                 turning: bool = False):
+                 turning: bool = False, coupled: np.ndarray = _NO_PIECES):
+        coupled = np.asarray(coupled, int).reshape(-1, 2)          # (k, 2) frames a < b other terms couple
+        span = max(span, int(np.max(coupled[:, 1] - coupled[:, 0], initial=0)))
         if np.any(piece_b - piece_a > span):
             raise ValueError(f"cable pieces couple frames up to {int(np.max(piece_b - piece_a))} apart; span is {span}")
         self.n_blocks = nb = n_blocks
@@ -74,6 +76,16 @@ class BandAssembler:
         counts = np.diff(np.r_[first, piece_a.size])
         slot = np.arange(int(counts.max(initial=0)))
         self.cable_groups = np.where(slot < counts[:, None], first[:, None] + slot, piece_a.size)
+        # pairs of frames that the contacts between vertebra discs couple (solver/contact.py) and
+        # no cable piece joins: a slot of their own among the cable pairs', with no piece
+        joined = set(zip(self.pair_a.tolist(), self.pair_b.tolist()))
+        extra = sorted({(a, b) for a, b in coupled.tolist() if (a, b) not in joined})
+        if extra:
+            self.pair_a = np.r_[self.pair_a, [a for a, _ in extra]]
+            self.pair_b = np.r_[self.pair_b, [b for _, b in extra]]
+            self.cable_groups = np.vstack([self.cable_groups,
+                                           np.full((len(extra), self.cable_groups.shape[1]), piece_a.size)])
+        first = self.pair_a
         # the terms: links, cable pairs, turning blocks, a zero
         self.n_pairs = first.size
         self._cable_start = nb * 144

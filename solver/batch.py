@@ -165,36 +165,36 @@ class Loads:
 
 # ----------------------------------------------------------------------------- evaluation
 class _Context:
-    """What a batch of B samples of one trunk reuses: hole offsets and cable groups repeated
-    per sample, the quadratic links' constant material tangents as rows."""
+    """What a batch of samples of one trunk reuses: hole offsets repeated per sample and the
+    quadratic links' constant material tangents as rows, kept for the largest batch asked for
+    (a smaller batch takes their first rows), and each batch's cable groups."""
 
     def __init__(self, trunk):
         self.trunk = trunk
         self._kept = {}
 
-    def _of(self, key, B, make):
-        value = self._kept.get((key, B))
-        if value is None:
-            value = self._kept[(key, B)] = make()
-        return value
+    def _rows(self, key, B, make):
+        """The first rows, for B samples, of what ``make(count)`` builds for ``count`` samples."""
+        value, count = self._kept.get(key, (None, 0))
+        if count < B:
+            value, count = make(B), B
+            self._kept[key] = (value, count)
+        return value[:len(value) // count * B]
 
     def holes(self, B):
         holes = self.trunk.cables.holes
-        return self._of("holes", B, lambda: np.ascontiguousarray(np.broadcast_to(holes, (B,) + holes.shape)
-                                                                   .reshape(-1, 3, 1)))
+        return self._rows("holes", B, lambda count: np.ascontiguousarray(
+            np.broadcast_to(holes, (count,) + holes.shape).reshape(-1, 3, 1)))
 
     def groups(self, B):
+        """Each sample's groups of pieces (``CablePieces.tangent``), offset to its rows; B·m: none."""
         groups, m = self.trunk.assembler.cable_groups, self.trunk.cables.piece_a.size
-
-        def make():
-            offset = (np.arange(B) * m)[:, None, None]
-            return np.where(groups[None] < m, groups[None] + offset, B * m).reshape(-1, groups.shape[1])
-        return self._of("groups", B, make)
+        offset = (np.arange(B) * m)[:, None, None]
+        return np.where(groups[None] < m, groups[None] + offset, B * m).reshape(-1, groups.shape[1])
 
     def material(self, B, energy):
-        return self._of(("material", id(energy)), B,
-                        lambda: np.ascontiguousarray(np.broadcast_to(energy.stiffness, (B,) + energy.stiffness.shape)
-                                                     .reshape(-1, 6, 6)))
+        return self._rows(("material", id(energy)), B, lambda count: np.ascontiguousarray(
+            np.broadcast_to(energy.stiffness, (count,) + energy.stiffness.shape).reshape(-1, 6, 6)))
 
 
 @dataclass
@@ -1103,7 +1103,17 @@ def path_tangents(model, strains: np.ndarray, actuation: np.ndarray) -> tuple[np
     equilibria of link strains ``strains`` (B, n, 6) under ``actuation`` (B, n_act) — what
     ``model.linearise(state, λ)``'s ``solve(actuator_forces)`` gives for one (the tangent's
     factor with the same shifts when it is singular, the actuator forces of cables, tendons and
-    chambers) — and which samples have one (a tangent that no shift factors has none)."""
+    chambers) — and which samples have one (a tangent that no shift factors has none). Taken in
+    chunks of :func:`chunk_size` samples."""
+    size = chunk_size(model.trunk)
+    if strains.shape[0] > size:
+        parts = [_path_tangents(model, strains[k:k + size], actuation[k:k + size])
+                 for k in range(0, strains.shape[0], size)]
+        return np.concatenate([p for p, _ in parts]), np.concatenate([h for _, h in parts])
+    return _path_tangents(model, strains, actuation)
+
+
+def _path_tangents(model, strains: np.ndarray, actuation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     trunk = model.trunk
     context = _Context(trunk)
     B = strains.shape[0]
@@ -1166,7 +1176,12 @@ def actuator_forces(context: _Context, states: States, ev: Evaluation) -> np.nda
 def predicted_strains(model, strains: np.ndarray, paths: np.ndarray, change: np.ndarray) -> np.ndarray:
     """Link strains (B, n, 6) of the equilibria ``strains`` moved along their path tangents
     ``paths`` (B, n_dof, n_act) by the actuation changes ``change`` (B, n_act): the Euler
-    predictor ``q ⊕ K⁻¹B Δλ`` with the strain-space retraction (``model.step``)."""
+    predictor ``q ⊕ K⁻¹B Δλ`` with the strain-space retraction (``model.step``). Taken in chunks
+    of :func:`chunk_size` samples."""
+    size = chunk_size(model.trunk)
+    if strains.shape[0] > size:
+        return np.concatenate([predicted_strains(model, strains[k:k + size], paths[k:k + size], change[k:k + size])
+                               for k in range(0, strains.shape[0], size)])
     trunk = model.trunk
     states, _ = compose(trunk, strains)
     B = strains.shape[0]
@@ -1175,3 +1190,32 @@ def predicted_strains(model, strains: np.ndarray, paths: np.ndarray, change: np.
                              (x[:, 1:] - x[:, :-1]).reshape(-1, 3), states.coefficients)
     dq = (paths @ change[:, :, None])[:, :, 0]
     return strains + _strain_change(links, dq)
+
+
+def actuation_sensitivities(model, result: BatchResult) -> dict:
+    """Per-sample derivatives with respect to the actuation at the equilibria of a batch, from
+    the batched factors (:func:`path_tangents`): ``dq`` (B, n_dof, n_act) — what
+    ``model.sensitivities(state, λ, wrt=("actuation",)).dq`` gives for one — and
+    ``effector_positions`` (B, 3·n_effectors, n_act); ``has`` (B,) marks the samples that have
+    them (converged, with a tangent some shift factors). Other parameter groups and outputs:
+    ``model.sensitivities`` per sample."""
+    trunk = model.trunk
+    B = len(result)
+    n_act = result.actuation.shape[1]
+    dq = np.full((B, trunk.n_dof, n_act), np.nan)
+    has = np.zeros(B, bool)
+    rows = np.flatnonzero(result.converged & np.all(np.isfinite(result.strains.reshape(B, -1)), 1))
+    if rows.size:
+        dq[rows], has[rows] = path_tangents(model, result.strains[rows], result.actuation[rows])
+    effectors = trunk.effectors
+    n_eff = len(effectors.names)
+    jacobian = np.broadcast_to(effectors.translation_jacobian, (B,) + effectors.translation_jacobian.shape).copy()
+    rotations = np.zeros((B, trunk.frames.count, 3, 3))
+    if rows.size:
+        rotations[rows] = compose(trunk, result.strains[rows])[0].rotations
+    for k in range(n_eff):
+        turned = rotations[:, effectors.frames[k]] @ effectors.offsets[k]
+        jacobian[:, k, :, effectors.frames[k], 3:] = -hat(turned)
+    jacobian = jacobian.reshape(B, 3 * n_eff, trunk.frames.count, 6)[:, :, 1:].reshape(B, 3 * n_eff, -1)
+    return {"dq": dq, "effector_positions": jacobian @ np.nan_to_num(dq) * np.where(has, 1.0, np.nan)[:, None, None],
+            "has": has}

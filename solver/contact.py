@@ -164,6 +164,15 @@ def compile_contact(scene, frames, links_segment: np.ndarray) -> ContactModel | 
     return model
 
 
+def coupled_frames(model: ContactModel | None) -> np.ndarray:
+    """The pairs of frames (k, 2), lower first, that adjacent discs couple more than one link
+    apart: the band gives their contacts' tangent blocks a slot (:class:`~vertebra.solver.assembly.BandAssembler`)."""
+    if model is None or not model.pair.size:
+        return np.zeros((0, 2), int)
+    frames = np.sort(model.disc_frame[model.pair], 1)
+    return frames[frames[:, 1] - frames[:, 0] > 1]
+
+
 def check_rest(model: ContactModel, state, source: str) -> None:
     """Refuse a scene whose discs overlap, or whose trunk is inside an obstacle, at rest."""
     found = evaluate(model, state)
@@ -563,20 +572,36 @@ class Constraints:
         np.add.at(links, (upper[apart] - 1, slice(6, 12), slice(6, 12)), blocks[apart, 6:, 6:])
         return type(matrix)(matrix.assembler, terms, matrix.low_rank)
 
-    def stiffened(self, matrix, state, stiffness: float = STABILITY_SPRING):
+    def released(self, step: "Step") -> bool:
+        """Does ``step`` leave open (no force) a contact that the last springs hold?"""
+        if self.springs is None:
+            return False
+        held = {tuple(k) for k in self.springs[2].tolist()}
+        kept = {tuple(k) for k in step.contacts.key[step.multipliers > 0.0].tolist()}
+        return bool(held - kept)
+
+    def stiffened(self, matrix, state, stiffness: float = STABILITY_SPRING, step: "Step | None" = None):
         """The tangent plus a stiff spring along each pressed contact (``stiffness`` × the
-        stiffness of the tangent's diagonal along the contact's direction): positive definite exactly when the
-        tangent is on the directions the contacts leave free (the constrained equilibrium's
-        stability), up to the spring's finiteness. Kept as the last springs (:meth:`spring_work`)."""
+        stiffness of the tangent's diagonal along the contact's direction; with ``step``, along the
+        contacts it keeps pressed): positive definite exactly when the tangent is on the directions
+        the contacts leave free (the constrained equilibrium's stability), up to the spring's
+        finiteness. Kept as the last springs (:meth:`spring_work`, :meth:`released`)."""
         self.springs = None
-        if not self.multipliers.size:
-            return matrix
-        G = self.pressed(state).jacobian(self.n_frames)
+        if step is None:
+            if not self.multipliers.size:
+                return matrix
+            held = self.pressed(state)
+        else:                    # the contacts that ``step`` keeps pressed
+            keep = step.multipliers > 0.0
+            if not keep.any():
+                return matrix
+            held = step.contacts.select(step.contacts.key[keep])
+        G = held.jacobian(self.n_frames)
         squared = np.maximum(np.add.reduce(G * G, 1), 1e-300)
         # the tangent's stiffness along each contact's direction, from its diagonal
         along = (G * G) @ np.abs(matrix.diagonal()) / squared
         spring = stiffness * along / squared
-        self.springs = (G, spring)
+        self.springs = (G, spring, held.key)
         U, d = (G.T, spring) if matrix.low_rank is None else (np.hstack([matrix.low_rank[0], G.T]),
                                                               np.concatenate([matrix.low_rank[1], spring]))
         return type(matrix)(matrix.assembler, matrix.terms, (U, d))
@@ -585,7 +610,7 @@ class Constraints:
         """``dqᵀ (Σ k_i G_iᵀG_i) dq`` of the springs last added by :meth:`stiffened`."""
         if self.springs is None:
             return 0.0
-        G, spring = self.springs
+        G, spring, _ = self.springs
         along = G @ dq
         return float(spring @ (along * along))
 

@@ -336,6 +336,7 @@ def _newton(stage: _Stage, state: State):
         shift = stage.shift
         scale = None
         indefinite = False       # a factor of this tangent failed: it is not positive definite
+        respringed = False       # the contacts' springs were set again from a step's pressed contacts
         while True:      # until a step is accepted
             if shift > SHIFT_CEILING:
                 return False, state, residual
@@ -362,6 +363,11 @@ def _newton(stage: _Stage, state: State):
                     constrained = constraints.step(factor, r, state)
                     if constrained is None:
                         shift = _raise_shift(shift, 10.0)
+                        continue
+                    if factored is not matrix and not respringed and constraints.released(constrained):
+                        # the step opens a contact that holds a spring: springs on those it keeps
+                        factored = constraints.stiffened(matrix, state, contact.STEP_SPRING, constrained)
+                        respringed = True
                         continue
                     dq, balanced = constrained.dq, constrained.balanced
                     constraints.accept(constrained)

@@ -18,7 +18,7 @@ import numpy as np
 
 from vertebra.solver.assembly import BandAssembler
 from vertebra.solver.cables import CableRouting
-from vertebra.solver.contact import ContactModel, check_rest, compile_contact
+from vertebra.solver.contact import ContactModel, check_rest, compile_contact, coupled_frames
 from vertebra.solver.potential import RestConstants, rest_constants
 from vertebra.solver.kinds import CompiledLinks, kind_for
 from vertebra.core.energy import rest_strain
@@ -212,11 +212,12 @@ def compile_trunk(scene, entries: dict) -> Trunk:
     rest_state = compose(frames.base_quaternion, frames.base_position, links.rest)
     rest_pieces = cables.pieces(rest_state.positions, qmatrix(rest_state.quaternions))
     loads = _loads(scene, frames)
-    assembler = BandAssembler(frames.count - 1, cables.span, cables.piece_a, cables.piece_b, loads.turning)
-    rest_lengths = cables.lengths(rest_pieces)
     contact = compile_contact(scene, frames, links.segment)
     if contact is not None:
         check_rest(contact, rest_state, scene.source)
+    assembler = BandAssembler(frames.count - 1, cables.span, cables.piece_a, cables.piece_b, loads.turning,
+                              coupled_frames(contact))
+    rest_lengths = cables.lengths(rest_pieces)
     trunk = Trunk(scene, frames, links, cables, _actuators(scene, rest_volumes, rest_lengths), loads,
                   _effectors(scene, frames), assembler, rest_state, rest_lengths, rest_pieces.length,
                   contact=contact)
@@ -237,7 +238,7 @@ def reassemble(trunk: Trunk, changes: dict) -> Trunk:
     loads = changes.get("loads", trunk.loads)
     if loads.turning != trunk.assembler.turning:
         changes["assembler"] = BandAssembler(trunk.frames.count - 1, cables.span, cables.piece_a, cables.piece_b,
-                                             loads.turning)
+                                             loads.turning, coupled_frames(trunk.contact))
     new = dataclasses.replace(trunk, compiled=compiled, **changes)
     if "links" in changes or "assembler" in changes:
         object.__setattr__(new, "rest", rest_constants(new))

@@ -42,7 +42,7 @@ from typing import Callable
 
 import numpy as np
 
-from vertebra.solver.batch import path_tangents, predicted_strains
+from vertebra.solver.batch import chunk_size, path_tangents, predicted_strains
 from vertebra.solver.hull import Hull, convex_hull
 from vertebra.solver.workspace_order import ORDERINGS, SolveOrder, generations, response_coordinates
 from vertebra.core.lie import qrotate
@@ -470,9 +470,12 @@ def _solve_generations(model, actuations: np.ndarray, plan: SolveOrder, toleranc
             start[from_parent] = strains[which]
             move = has[which]
             if move.any():
-                at = from_parent[move]
-                start[at] = predicted_strains(model, strains[which[move]], paths[which[move]],
-                                              actuations[wave[at]] - actuations[mine[at]])
+                at, of = from_parent[move], which[move]
+                size = chunk_size(model.trunk)          # (the children's copies of their parents' paths, a chunk at a time)
+                for k in range(0, at.size, size):
+                    rows, parent = at[k:k + size], of[k:k + size]
+                    start[rows] = predicted_strains(model, strains[parent], paths[parent],
+                                                    actuations[wave[rows]] - actuations[mine[rows]])
             warm[wave[from_parent]] = True
             predicted[wave[from_parent[move]]] = True
         size = max(1, min(chunk, -(-wave.size // max(1, executor.workers))))

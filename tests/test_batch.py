@@ -193,3 +193,21 @@ def test_contacts_are_solved_by_the_single_solve_sample_by_sample():
     actuations = np.array([model.actuation() * f for f in (0.5, 1.0)])
     batch = _compare(model, actuations)
     assert batch.single.all() and "contacts" in batch.why[0]
+
+
+def test_actuation_sensitivities_of_a_batch_are_the_single_sensitivities():
+    from vertebra.solver.batch import actuation_sensitivities
+
+    model = solver.build_model(load_scene("gallery:paper_5v_16t"))
+    rng = np.random.default_rng(12)
+    actuations = rng.uniform(0.0, 20.0, (4, model.n_cables))
+    batch = model.solve_batch(actuations)
+    found = actuation_sensitivities(model, batch)
+    assert found["has"].all()
+    for i in range(len(actuations)):
+        single = model.sensitivities(batch.result(i), actuations[i], wrt=("actuation",),
+                                     outputs=("effector_positions",), method="direct")
+        scale = np.abs(single.dq).max()
+        assert np.abs(found["dq"][i] - single.dq).max() <= 1e-8 * scale
+        reference = single["effector_positions"]
+        assert np.abs(found["effector_positions"][i] - reference).max() <= 1e-8 * np.abs(reference).max()
