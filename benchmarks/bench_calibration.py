@@ -75,10 +75,10 @@ def main(argv=None) -> int:
             entry["wall_ratio"] = entry["this"]["wall_s"] / entry["baseline"]["wall_s"]
             entry["cpu_ratio"] = entry["this"]["cpu_s"] / entry["baseline"]["cpu_s"]
         rounds.append(entry)
-    document = {"vertebra_version": vertebra.__version__, "date": now(), "loadavg": loadavg(),
-                "cores": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
-                "command": " ".join(command(extra)[1:]), "baseline": args.baseline, "rounds": rounds}
-    write_json(document, RESULTS / "calibration_v4.json")
+        document = {"vertebra_version": vertebra.__version__, "date": now(), "loadavg": loadavg(),
+                    "cores": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
+                    "command": " ".join(command(extra)[1:]), "baseline": args.baseline, "rounds": rounds}
+        write_json(document, RESULTS / "calibration_v4.json")           # (after every round: runs are long)
     return 0
 
 
