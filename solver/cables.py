@@ -143,11 +143,12 @@ class CablePieces:
         Y[:m, 7:10] = self.d
         Y[:m, 10:] = self.unit
         grouped = Y.take(groups, 0)                           # (g, k, 22)
-        moments = grouped.mT @ (grouped * t.take(groups)[:, :, None])
-        if out is None:
+        weighted = grouped * t.take(groups)[:, :, None]
+        moments = grouped[:, :, :7].mT @ weighted[:, :, :10]  # Σ t x yᵀ (the two products needed, not
+        if out is None:                                       # the whole 22 × 22)
             out = np.empty((groups.shape[0], 12, 12))
-        np.matmul(moments[:, :7, :10].reshape(-1, 70), _GROUP_TABLE, out=out.reshape(-1, 144))
-        out -= moments[:, 10:, 10:]
+        np.matmul(moments.reshape(-1, 70), _GROUP_TABLE, out=out.reshape(-1, 144))
+        out -= grouped[:, :, 10:].mT @ weighted[:, :, 10:]    # Σ t g gᵀ
         return out
 
 
