@@ -456,3 +456,35 @@ def test_the_converged_inverse_releases_from_a_pulled_state_and_reports_where_th
     row = inverse_report(plain, [InverseController(plain).step(targets)], [0.0], scene="rod", mode="converged",
                          backend="x", tolerance=1e-6)["steps"][0]
     assert "stuck" not in row and "stick" not in row["cables"]["t"]
+
+
+def test_friction_with_disc_contact_pull_release_converges_complementary_with_hysteresis():
+    # a 4-vertebra trunk with discs (tests/test_contact.py's disc trunk) whose cable has μ = 0.2:
+    # pulled until every pair of discs presses rim to face, then released. Every command converges,
+    # every contact is complementary, the discs press at the top, and the loop is open at 4 N
+    # (contact-free there) while it closes without friction
+    SPACING, DISC, THICK, HOLE = 0.01, 0.015, 0.002, 0.008
+    def trunk(mu):
+        disc = {"disc_radius": DISC, "disc_thickness": THICK}
+        return solver.build_model(solver.parse_scene({
+            "segment": [{"type": "beam", "count": 4, "length": SPACING, "youngs_modulus": 1e9,
+                         "section": {"area": 1e-3, "Ixx": 1e-12, "Iyy": 1e-12, "J": 2e-12}, "vertebra": disc}],
+            "base": disc,
+            "cable": [{"name": "c", "radius": HOLE, "to": 4, "tension": 0.0, "friction": mu}],
+            "effector": [{"name": "tip", "vertebra": -1}]}))
+    commands = [2.0, 4.0, 8.0, 15.0, 30.0, 15.0, 8.0, 4.0, 2.0, 0.0]
+    widths = {}
+    for mu in (0.0, 0.2):
+        model = trunk(mu)
+        results = model.solve_sequence([[v] for v in commands])
+        for value, result in zip(commands, results):
+            assert result.converged and result.contacts
+            for c in result.contacts:
+                assert c.force >= 0.0 and c.gap >= -1e-9 and abs(c.gap * c.force) <= 1e-12, c
+            if value == 30.0:
+                assert sum(c.force > 0.0 for c in result.contacts) == 4
+                spans = result.friction.tension[route_of(model)]
+                assert np.all(np.diff(spans) < 0.0) if mu else np.all(spans == 30.0)    # capstan along the pull
+        tips = [model.effector_positions(r.state)[0] for r in results]
+        widths[mu] = float(np.linalg.norm(tips[commands.index(4.0)] - tips[len(commands) - 1 - commands[::-1].index(4.0)]))
+    assert widths[0.0] <= 1e-9 and widths[0.2] >= 1e-3
