@@ -44,6 +44,7 @@ import numpy as np
 from vertebra.core.errors import ConvergenceError, OptionError
 from vertebra.core.lie import qmatrix
 from vertebra.solver import newton, outputs
+from vertebra.solver.cables import CablePieces
 from vertebra.solver.potential import LoadCase, Tendons, evaluate
 
 FIXED_POINT = 1e-12     # relative change of the span tensions at which the fixed point has converged
@@ -53,7 +54,7 @@ UNSETTLED = 8           # rounds of changing hole statuses after which the holes
 MAX_SPLITS = 4          # an increment is split into 2^MAX_SPLITS parts at most
 SLIP = 1e-12            # relative excess of a hole's band (or backflow of a sliding hole) that changes its status
 
-__all__ = ["FrictionState", "Routes", "Transmission", "linearise", "routes", "sensitivities", "solve",
+__all__ = ["FrictionState", "Routes", "Transmission", "equilibrium_sensitivities", "linearise", "routes", "sensitivities", "solve",
            "solve_sequence", "transmission", "transmission_ratios", "turning_angles", "secant_forces", "EDGE"]
 
 
@@ -618,3 +619,109 @@ def sensitivities(model, actuations, history: FrictionState | None = None, cable
     finally:
         model.set_parameters(base)
     return {"names": [f"friction:{c}" for c in cables], "effector_positions": positions, "span_tensions": tensions}
+
+
+def _scatter(trunk, rows: np.ndarray) -> np.ndarray:
+    """(n_dof, k) from per-piece-end rows (k, 2m, 6) onto the free frames' DoFs."""
+    cables = trunk.cables
+    k = rows.shape[0]
+    out = np.zeros((k, trunk.frames.count, 6))
+    for i in range(k):
+        np.add.at(out[i], cables.ends, rows[i])
+    return out[:, 1:].reshape(k, -1).T
+
+
+def equilibrium_sensitivities(model, result, history: FrictionState, cables=None) -> dict:
+    """Exact derivatives with respect to the cables' friction coefficients of one frictional
+    equilibrium ``result`` (a :meth:`~vertebra.solver.model.TrunkModel.solve` whose command was
+    applied to ``history``), by the implicit function theorem, the history and the holes'
+    statuses held (a hole on the edge of its band moves with it; one that is stuck keeps its
+    tension). The equilibrium ``∇E(q) + Σ_j T_j(q, μ) ∂L_j/∂q = 0`` with the span tensions of
+    the return map — along a tension-driven cable ``T_j = T_{j−1} e^(−s_j μ Δθ_j(q))`` at a hole
+    sliding in direction ``s_j``, a stuck span's committed tension — gives
+    ``dq/dμ = −(K + Σ_j ∂L_j/∂q ⊗ ∂T_j/∂q)⁻¹ Σ_j ∂T_j/∂μ ∂L_j/∂q``, with ``K`` the tangent at fixed
+    span tensions (its factor) and the rank-m update of the capstan factors' change with the
+    shape solved by Sherman–Morrison–Woodbury. Tension-driven cables only (a stroke-driven
+    tendon's runs would need their material flow: :class:`OptionError`); a hole turned by less
+    than 1e-9 rad has no angle derivative (a straight route: |Δθ| has a kink there). Returns
+    ``{"names", "state": (n_dof, p), "effector_positions": (3·n_effectors, p), "span_tensions":
+    (m, p)}`` — compare :func:`sensitivities` (differences of a whole sequence)."""
+    trunk = model.trunk
+    actuators, routing = trunk.actuators, trunk.cables
+    if actuators.tendons.size:
+        raise OptionError("exact friction sensitivities are implemented for tension-driven cables only "
+                          "(stroke-driven tendons: friction.sensitivities, sequence differences)", field="cables")
+    names = list(model.actuator_names[:model.n_cables])
+    chosen = names if cables is None else list(cables)
+    unknown = [c for c in chosen if c not in names]
+    if unknown:
+        raise OptionError(f"unknown cable(s) {', '.join(unknown)} (cables: {', '.join(names)})", field="cables")
+    state, actuation = result.state, result.friction.actuation
+    lengths, angles = geometry(trunk, state)
+    current = transmission(trunk, history, actuation, lengths, angles, result.friction.slip)
+    lin = outputs.linearise(trunk, state, actuation, _Loads(trunk, current))
+    rotations = qmatrix(state.quaternions)
+    offsets, d, length = routing.spans(state.positions, rotations)
+    pieces = CablePieces.of_spans(offsets, d, length)
+    m, n_dof = length.size, trunk.n_dof
+    u = pieces.u
+    ends = offsets.reshape(m, 2, 3)
+
+    def c_times(w):           # C w = [−w; −s_a × w; w; s_b × w] per piece (m, 12)
+        out = np.empty((m, 4, 3))
+        out[:, 0], out[:, 2] = -w, w
+        out[:, 1], out[:, 3] = -np.cross(ends[:, 0], w), np.cross(ends[:, 1], w)
+        return out.reshape(m, 12)
+
+    # ∂Δθ_j/∂q on the frames of piece j − 1 (via u_{j−1}) and of piece j (via u_j)
+    route = routes(routing)
+    mu = actuators.friction
+    slip = current.slip
+    inner = route.interior
+    a, b = route.previous[inner], inner
+    sin = np.sin(angles[b])
+    ok = sin > 1e-9
+    ua, ub = u[a], u[b]
+    proj_a = (ub - ua * np.sum(ua * ub, 1)[:, None]) / length[a][:, None]       # Π_a u_b
+    proj_b = (ua - ub * np.sum(ua * ub, 1)[:, None]) / length[b][:, None]       # Π_b u_a
+    scale = np.where(ok, -1.0 / np.where(ok, sin, 1.0), 0.0)[:, None]
+    full_a, full_b = np.zeros((m, 3)), np.zeros((m, 3))
+    full_a[a], full_b[b] = scale * proj_a, scale * proj_b
+    # row k of on_prev: the turn at the hole after piece k on piece k's frames; row j of on_own:
+    # the turn at the hole before piece j on piece j's frames
+    on_prev, on_own = c_times(full_a), c_times(full_b)
+    # per span: ∂T_j/∂q as rows on piece ends (m spans × (2m piece ends, 6)), ∂T_j/∂μ of its cable
+    dT_dq = np.zeros((m, 2 * m, 6))
+    dT_dmu = np.zeros(m)
+    for c, run in enumerate(route.pieces):
+        for j in range(1, run.size):
+            p, prev = run[j], run[j - 1]
+            s = int(slip[p])
+            if s == 0:
+                continue                                      # stuck: its committed tension
+            factor = math.exp(-s * mu[c] * angles[p])
+            T = current.tension[p]
+            dT_dq[p] = factor * dT_dq[prev]
+            dT_dq[p, 2 * prev:2 * prev + 2] -= T * s * mu[c] * on_prev[prev].reshape(2, 6)
+            dT_dq[p, 2 * p:2 * p + 2] -= T * s * mu[c] * on_own[p].reshape(2, 6)
+            dT_dmu[p] = factor * dT_dmu[prev] - T * s * angles[p]
+    A = _scatter(trunk, np.stack([np.where((np.arange(2 * m) // 2 == j)[:, None], pieces.unit.reshape(2 * m, 6), 0.0)
+                                  for j in range(m)]))                    # (n_dof, m) ∂L_j/∂q
+    B = _scatter(trunk, dT_dq)                                             # (n_dof, m) ∂T_j/∂q
+    K_inv_A = lin.solve(np.asfortranarray(A))
+    capacitance = np.eye(m) + B.T @ K_inv_A
+
+    def solve(rhs):           # (K + A Bᵀ)⁻¹ rhs (Sherman–Morrison–Woodbury)
+        x = lin.solve(np.asfortranarray(rhs))
+        return x - K_inv_A @ np.linalg.solve(capacitance, B.T @ x)
+
+    owner = routing.owner
+    columns = []
+    for name in chosen:
+        k = names.index(name)
+        columns.append(np.where(owner == k, dT_dmu, 0.0))
+    dT_mu = np.array(columns).T                                           # (m, p) at fixed q
+    dq = -solve(A @ dT_mu)                                                 # (n_dof, p)
+    tensions = dT_mu + B.T @ dq
+    return {"names": [f"friction:{c}" for c in chosen], "state": dq,
+            "effector_positions": lin.effector_jacobian @ dq, "span_tensions": tensions}

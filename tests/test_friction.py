@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from vertebra import solver
+from vertebra.core.errors import OptionError
 from vertebra.solver import friction
 
 E, NU, R_ROD, LINK, N = 54e9, 0.3, 0.0007, 0.02, 10
@@ -488,3 +489,47 @@ def test_friction_with_disc_contact_pull_release_converges_complementary_with_hy
         tips = [model.effector_positions(r.state)[0] for r in results]
         widths[mu] = float(np.linalg.norm(tips[commands.index(4.0)] - tips[len(commands) - 1 - commands[::-1].index(4.0)]))
     assert widths[0.0] <= 1e-9 and widths[0.2] >= 1e-3
+
+
+def test_exact_friction_sensitivities_of_an_equilibrium_match_differences_where_the_statuses_hold():
+    # the implicit-function derivatives by μ (the capstan factors' change with the shape included)
+    # against differences of solves from the same history (tight tolerance, started at the
+    # equilibrium): a pull from rest, a pull on from 3 N and a release that slides every hole —
+    # central differences (statuses the same on both sides); a release that leaves the cable stuck
+    # at its slip front with the distal holes at incipient slip — the one-sided difference on the
+    # side where they keep sliding (more friction sticks them: there the derivative has a kink)
+    model = build(pulled(0.2))
+    rest = friction.FrictionState.rest(model.trunk)
+    pull = model.solve([3.0])
+
+    def solved(command, history, mu, initial=None):
+        model.set_parameters(friction=np.array([mu]))
+        result = model.solve([command], history=history, initial=initial, tolerance=1e-14)
+        return result, model.effector_positions(result.state).reshape(-1)
+
+    for command, history in ((3.0, rest), (3.5, pull.friction), (2.4, pull.friction), (2.6, pull.friction)):
+        result, p0 = solved(command, history, 0.2)
+        exact = friction.equilibrium_sensitivities(model, result, history)
+        assert exact["names"] == ["friction:t"]
+        h = 1e-5
+        (above, p_above), (below, p_below) = (solved(command, history, 0.2 + h, result.state),
+                                              solved(command, history, 0.2 - h, result.state))
+        if command == 2.6:
+            assert not np.array_equal(above.friction.slip, result.friction.slip)
+            assert np.array_equal(below.friction.slip, result.friction.slip)
+            difference = (p0 - p_below) / h
+            tensions = (result.friction.tension - below.friction.tension) / h
+            tolerance = 1e-4                   # one-sided: O(h) against the central differences' O(h²)
+        else:
+            assert np.array_equal(above.friction.slip, result.friction.slip)
+            assert np.array_equal(below.friction.slip, result.friction.slip)
+            difference = (p_above - p_below) / (2 * h)
+            tensions = (above.friction.tension - below.friction.tension) / (2 * h)
+            tolerance = 1e-6
+        assert np.abs(exact["effector_positions"][:, 0] - difference).max() <= tolerance * np.abs(difference).max()
+        assert np.abs(exact["span_tensions"][:, 0] - tensions).max() <= tolerance * np.abs(tensions).max()
+    model.set_parameters(friction=np.array([0.2]))
+    with pytest.raises(OptionError, match="tension-driven"):
+        servo_model = build(servo(0.2))
+        friction.equilibrium_sensitivities(servo_model, servo_model.solve([0.001]),
+                                           friction.FrictionState.rest(servo_model.trunk))
