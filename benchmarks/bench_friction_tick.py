@@ -1,7 +1,9 @@
 """Tracking of the inverse tick (real-time mode) with tendon friction (issue 23, docs/friction.md).
 
 Robots: the two 16-tendon robots of :mod:`benchmarks.bench_tick` (``paper_5v_16t`` from the gallery,
-``outside_6v_16t`` outside it), every cable given the same friction coefficient ``μ``.
+``outside_6v_16t`` outside it), every cable given the same friction coefficient ``μ``; with
+``--robots outside_6v_16t_servo`` the outside robot with stroke-driven tendons (:data:`SERVO`:
+k = 2000 N/m, pretension 1 N, strokes −1 … 3 mm, starting at 0.3 mm).
 
 Protocol (bench_tick's loop): from the equilibrium under 0.3 N on every tendon (with friction: a
 monotone pull from rest), each tick from the state and actuation the last one left, the targets
@@ -38,10 +40,22 @@ import numpy as np  # noqa: E402
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
-def robot(name: str, mu: float):
-    from benchmarks.bench_tick import robot as tick_robot
+SERVO = {"stroke": 0.0, "stiffness": 2000.0, "pretension": 1.0, "min_stroke": -0.001, "max_stroke": 0.003}
+START = {"outside_6v_16t_servo": 0.0003}     # the start command on every tendon (default 0.3 N)
 
-    model = tick_robot(name)
+
+def robot(name: str, mu: float):
+    from benchmarks.bench_tick import OUTSIDE
+    from benchmarks.bench_tick import robot as tick_robot
+    from vertebra import solver
+
+    if name == "outside_6v_16t_servo":        # the outside robot with stroke-driven tendons (SERVO)
+        drive = ("tension", "min_tension", "max_tension")
+        scene = dict(OUTSIDE, cable=[{**{k: v for k, v in c.items() if k not in drive}, **SERVO}
+                                     for c in OUTSIDE["cable"]])
+        model = solver.build_model(solver.parse_scene(scene))
+    else:
+        model = tick_robot(name)
     if mu:
         model.set_parameters(friction=np.full(model.n_cables, mu))
     return model
@@ -54,7 +68,7 @@ def run(name: str, mu: float, ticks: int) -> dict:
     model = robot(name, mu)
     lower, upper = model.actuator_bounds
     change = model.actuator_max_change
-    lam = np.clip(np.full(len(model.actuator_names), 0.3), lower, upper)
+    lam = np.clip(np.full(len(model.actuator_names), START.get(name, 0.3)), lower, upper)
     start = model.solve(lam)
     # (a controller that does not carry a friction state — before issue 23's tick work — gets none)
     carries = "history" in inspect.signature(InverseController).parameters
