@@ -51,7 +51,8 @@ ACTIVE_GAP = 1e-12           # a pressed contact's gap at convergence, per trunk
 REGULARISATION = 1e-12       # of the largest diagonal of W: redundant contacts stay solvable
 STABILITY_SPRING = 1e6       # the springs (× the stiffness along the contact) that judge a constrained
                              # equilibrium's stability …
-STEP_SPRING = 10.0           # … and that convexify a Newton step's model (augmented Lagrangian)
+STEP_SPRING = 10.0           # … and that convexify a Newton step's model (augmented Lagrangian), first …
+SPRING_GROWTH = 100.0        # … then this many times stiffer, up to STABILITY_SPRING, while not convex
 PIVOTS = 200                 # principal pivoting steps per contact before the QP is refused
 
 
@@ -184,6 +185,21 @@ def check_rest(model: ContactModel, state, source: str) -> None:
                          "model needs a state without penetration to start from (check disc_thickness against the "
                          "vertebra spacing, and the obstacles' placement)", file=source,
                          field="obstacle" if found.key[k, 0] != PAIR else "segment")
+
+
+def folded(model: ContactModel, state) -> int | None:
+    """An adjacent disc pair (its index) whose facing sides no longer face each other — one disc
+    turned by more than 90° against the other, past its rim — or None. The pair's gap (a rim
+    against the other's face) is then no longer the distance between the discs: such a state is
+    beyond the contact model."""
+    if not model.pair.size:
+        return None
+    axes = qmatrix(state.quaternions[model.disc_frame])[:, :, 2]
+    rim = model.pair_side[:, 0, None] * axes[model.pair[:, 0]]
+    face = model.pair_side[:, 1, None] * axes[model.pair[:, 1]]
+    facing = np.add.reduce(rim * face, 1)               # −1 at rest: the sides face each other
+    worst = int(np.argmax(facing))
+    return worst if facing[worst] >= 0.0 else None
 
 
 def describe(model: ContactModel, key) -> str:
