@@ -16,7 +16,11 @@ wall time measures the scheduler):
                    solved in a batch and one by one: converged alike, the same equilibria.
 4. ``single``      the 20-link cantilever's forward solve, this tree against ``--baseline`` (a
                    directory holding the base commit's ``vertebra`` package), alternating processes.
-5. ``memory``      peak resident memory of a process solving a 100,000-sample workspace of the
+5. ``batch_ab``    this tree's batch against ``--baseline``'s, alternating processes: the
+                   1,000 cold samples of row 2 (``solve_batch``) and the 10,000-sample workspace
+                   of row 1 (CPU time of each), and the single solve of the same 1,000 samples
+                   (the serial path's own change).
+6. ``memory``      peak resident memory of a process solving a 100,000-sample workspace of the
                    16-tendon robot (batches chunked automatically).
 
 Run: ``OMP_NUM_THREADS=1 .venv/bin/python -m benchmarks.bench_batch [--quick] [--baseline DIR]``.
@@ -186,6 +190,46 @@ def bench_single(baseline: str | None, rounds: int, repeats: int) -> dict | None
             "ratios": [a / b for a, b in zip(times["this"], times["baseline"])]}
 
 
+BATCH_AB = """
+import time, numpy as np
+from vertebra import solver
+from vertebra.solver.workspace import sample_actuations, sample_workspace
+m = solver.build_model(solver.load_scene('gallery:paper_5v_16t'))
+lower, upper = m.actuator_bounds
+act = np.random.default_rng(11).uniform(lower, upper, ({n}, len(lower)))
+m.solve_batch(act[:100]); sample_workspace(m, 70)
+t = time.process_time(); m.solve_batch(act); batch = time.process_time() - t
+t = time.process_time(); [m.solve(a, raise_on_failure=False) for a in act[:{serial}]]; serial = (time.process_time() - t) / {serial}
+ws = sample_actuations(m, {workspace}, seed=0)
+t = time.process_time(); sample_workspace(m, actuations=ws); work = time.process_time() - t
+print(batch, serial, work)
+"""
+
+
+def bench_batch_ab(baseline: str | None, rounds: int, n: int, serial: int, workspace: int) -> dict | None:
+    if baseline is None:
+        return None
+    here = str(ROOT.parent)
+    names = ("batch_s", "serial_per_sample_s", "workspace_s")
+    times = {side: {k: [] for k in names} for side in ("this", "baseline")}
+    env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
+    for r in range(rounds):
+        order = (("this", here), ("baseline", baseline)) if r % 2 == 0 else (("baseline", baseline), ("this", here))
+        for name, path in order:
+            out = subprocess.run([sys.executable, "-c", BATCH_AB.format(n=n, serial=serial, workspace=workspace)],
+                                 capture_output=True, text=True, env=dict(env, PYTHONPATH=path), check=True)
+            for k, v in zip(names, out.stdout.split()):
+                times[name][k].append(float(v))
+        print("   " + ", ".join(f"{k} this/base {times['this'][k][-1]:.3g}/{times['baseline'][k][-1]:.3g}"
+                                 for k in names), flush=True)
+    result = {"rounds": times, "samples": n, "workspace_samples": workspace}
+    for k in names:
+        ratios = [a / b for a, b in zip(times["this"][k], times["baseline"][k])]
+        result[k] = {"this": float(np.median(times["this"][k])), "baseline": float(np.median(times["baseline"][k])),
+                     "ratio_median": float(np.median(ratios)), "ratios": ratios}
+    return result
+
+
 MEMORY = """
 import resource, time, numpy as np
 from vertebra import solver
@@ -230,6 +274,8 @@ def main(argv=None) -> int:
                 ("same_samples", lambda: bench_same_samples(model, 200 if quick else 1000, 1 if quick else 3)),
                 ("robustness", lambda: bench_robustness(10 if quick else 200)),
                 ("single", lambda: bench_single(args.baseline, 2 if quick else 8, 200 if quick else 400)),
+                ("batch_ab", lambda: bench_batch_ab(args.baseline, 2 if quick else 6, 1000, 100 if quick else 300,
+                                                    1000 if quick else 10_000)),
                 ("memory", lambda: bench_memory(10_000 if quick else 100_000))]
     for name, run in sections:
         if only and name not in only:

@@ -132,7 +132,31 @@ def entry_document(entry) -> dict:
                                                                            "held_out_paths") if k in energy.sampling},
                               "sampled": sampled_range(energy)}
         document["timing"].update({k: float(entry.timings[k]) for k in ("sampling_s", "fit_s") if k in entry.timings})
+        warning = fit_warning(energy)
+        if warning:
+            document["energy"]["warnings"] = [warning]
     return document
+
+
+#: held-out load error (a fraction of the load range) above which ``design`` says the fit does
+#: not follow the material within its box
+FIT_WARNING = 0.05
+
+
+def fit_warning(energy) -> str | None:
+    """What to say when a nonlinear entry's energy fit misses its held-out samples by more than
+    :data:`FIT_WARNING` of the load range (None otherwise)."""
+    held = energy.fit_error.get("held_out", {}) if isinstance(energy.fit_error, dict) else {}
+    error = held.get("load_max")
+    if error is None or not error > FIT_WARNING:
+        return None
+    model = energy.material.get("model") if isinstance(energy.material, dict) else None
+    why = (" St Venant–Kirchhoff softens towards a compressive limit point inside this box, which the "
+           "polynomial does not follow;" if model == "svk" else "")
+    return (f"the energy fit misses its held-out samples by up to {error:.3g} of the load range (rms "
+            f"{held.get('load_rms', float('nan')):.3g}): states inside the range carry errors of that order;{why} "
+            f"narrow the sampled box (--sampling strain=…, bending=…), raise the degree, or choose another "
+            f"material model (neo_hookean)")
 
 
 def sampled_range(energy) -> dict:
@@ -274,6 +298,8 @@ def run(args) -> int:
               f"{box['twist_moment_Nm'][0]:.3g}…{box['twist_moment_Nm'][1]:.3g} N·m")
         if "widen" in box:
             print(f"widen     {box['widen']}")
+        for warning in energy.get("warnings", []):
+            print(f"warning   {warning}")
     print(f"timing    mesh {t['mesh_s']:.2f} s, assemble {t['assemble_s']:.2f} s, solve {t['solve_s']:.2f} s, "
           f"total {t['total_s']:.2f} s")
     return 0

@@ -193,28 +193,33 @@ def _update_pairs(span: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.nda
 def _cholesky_blocks(pivot: np.ndarray, ok: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Lower Cholesky factors and their inverses (B, k, k) of symmetric blocks ``pivot``, column
     by column over the batch (a pivot that is not positive — or NaN — refuses the sample in
-    ``ok``, as LAPACK's ``dpotrf``/``dpbtrf`` refuse the matrix; its factor is then meaningless)."""
+    ``ok``, as LAPACK's ``dpotrf``/``dpbtrf`` refuse the matrix; its factor is then meaningless).
+    Worked with the samples as the last axis (k, k, B): every scalar step of the factor is one
+    operation over the batch (a small matrix product per sample would cost more than its
+    arithmetic)."""
     B, size = pivot.shape[0], pivot.shape[1]
-    L = np.zeros_like(pivot)
+    P = np.ascontiguousarray(pivot.transpose(1, 2, 0))
+    L = np.zeros_like(P)
     for j in range(size):
-        d = pivot[:, j, j] - np.add.reduce(L[:, j, :j] * L[:, j, :j], 1) if j else pivot[:, j, j].copy()
+        row = L[j, :j]
+        d = P[j, j] - np.add.reduce(row * row, 0) if j else P[j, j].copy()
         positive = d > 0.0
         if not positive.all():
             ok &= positive
             d[~positive] = 1.0
         root = np.sqrt(d)
-        L[:, j, j] = root
+        L[j, j] = root
         if j + 1 < size:
-            column = pivot[:, j + 1:, j]
+            column = P[j + 1:, j]
             if j:
-                column = column - (L[:, j + 1:, :j] @ L[:, j, :j, None])[..., 0]
-            L[:, j + 1:, j] = column / root[:, None]
-    inverse = np.zeros_like(pivot)
-    diagonal = 1.0 / L[:, np.arange(size), np.arange(size)]
-    inverse[:, np.arange(size), np.arange(size)] = diagonal
+                column = column - np.add.reduce(L[j + 1:, :j] * row, 1)
+            np.divide(column, root, out=L[j + 1:, j])
+    inverse = np.zeros_like(P)
+    diagonal = 1.0 / L[np.arange(size), np.arange(size)]
+    inverse[np.arange(size), np.arange(size)] = diagonal
     for i in range(1, size):          # row i of L⁻¹: −(L[i, :i] L⁻¹[:i, :i]) / L[i, i]
-        inverse[:, i, :i] = -(L[:, i, None, :i] @ inverse[:, :i, :i])[:, 0] * diagonal[:, i, None]
-    return L, inverse
+        inverse[i, :i] = -np.add.reduce(L[i, :i, None] * inverse[:i, :i], 0) * diagonal[i]
+    return L.transpose(2, 0, 1), inverse.transpose(2, 0, 1)
 
 
 def factor_block_cholesky(lower: np.ndarray) -> BlockCholesky:

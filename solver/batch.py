@@ -35,7 +35,7 @@ import numpy as np
 
 from vertebra.solver import bounds, newton
 from vertebra.solver.banded import factor_block_cholesky
-from vertebra.solver.cables import CablePieces, _spans, scatter_rows
+from vertebra.solver.cables import CablePieces, scatter_rows
 from vertebra.solver.chain import CARRY_ANGLE, chain_poses
 from vertebra.solver.globalise import ARMIJO, NEUTRAL, ROUNDING, SEARCH_FLOOR
 from vertebra.solver.links import Links, link_tangent
@@ -165,8 +165,7 @@ class Loads:
 
 # ----------------------------------------------------------------------------- evaluation
 class _Context:
-    """What a batch of samples of one trunk reuses: hole offsets repeated per sample and the
-    quadratic links' constant material tangents as rows, kept for the largest batch asked for
+    """What a batch of samples of one trunk reuses: the quadratic links' constant material tangents as rows, kept for the largest batch asked for
     (a smaller batch takes their first rows), and each batch's cable groups."""
 
     def __init__(self, trunk):
@@ -180,11 +179,6 @@ class _Context:
             value, count = make(B), B
             self._kept[key] = (value, count)
         return value[:len(value) // count * B]
-
-    def holes(self, B):
-        holes = self.trunk.cables.holes
-        return self._rows("holes", B, lambda count: np.ascontiguousarray(
-            np.broadcast_to(holes, (count,) + holes.shape).reshape(-1, 3, 1)))
 
     def groups(self, B):
         """Each sample's groups of pieces (``CablePieces.tangent``), offset to its rows; B·m: none."""
@@ -246,8 +240,7 @@ def evaluate(context: _Context, states: States, load: Loads) -> Evaluation:
     pieces = piece_tension = elongation = lever = None
     if load.cables:
         cables = trunk.cables
-        ends = cables.ends
-        offsets, d, length = _spans(R[:, ends].reshape(-1, 3, 3), x[:, ends].reshape(-1, 3), context.holes(B))
+        offsets, d, length = cables.spans(x, R)
         m = cables.piece_a.size
         piece_tension = load.piece_tension
         if piece_tension is not None:
@@ -498,20 +491,6 @@ def _join(parts: list, counts: list):
     return type(first)(**{f: _join([getattr(p, f) for p in parts], counts) for f in first.__dataclass_fields__})
 
 
-def _gather(pieces: list, total: int):
-    """Join ``pieces`` [(rows, value)] covering the samples ``0 … total − 1`` once each into one
-    batch quantity in sample order."""
-    rows = np.concatenate([r for r, _ in pieces])
-    if len(pieces) == 1:
-        joined = pieces[0][1]
-    else:
-        joined = _join([v for _, v in pieces], [len(r) for r, _ in pieces])
-    order = np.argsort(rows, kind="stable")
-    if np.array_equal(order, np.arange(total)):
-        return joined
-    return _take(joined, order, total)
-
-
 class _Run:
     """The per-sample bookkeeping of one chunk (what :class:`vertebra.solver.newton._Stage` and
     :func:`vertebra.solver.newton.solve` keep for one sample)."""
@@ -574,7 +553,7 @@ class _Run:
             B = dq.shape[0]
             moves = np.zeros((B, self.trunk.frames.count, 6))
             moves[:, 1:] = dq.reshape(B, -1, 6)
-            delta = (moves[:, self.trunk.cables.ends].reshape(-1, 1, 12) @ pieces.C)[:, 0]
+            delta = pieces.change(moves[:, self.trunk.cables.ends].reshape(-1, 12))
             along = np.add.reduce(pieces.d * delta, 1)
             squared = np.add.reduce(delta * delta, 1)
             discriminant = along * along - 0.75 * squared * pieces.length ** 2
@@ -598,72 +577,87 @@ class _Run:
               reference: np.ndarray) -> tuple[np.ndarray, States]:
         """Newton at a fixed load factor per sample (:func:`vertebra.solver.newton._newton`) for the
         run's samples ``rows`` from ``states``. Returns which converged (the others are marked
-        for the single solve) and the states reached."""
+        for the single solve) and the states reached.
+
+        The samples still iterating are kept compacted: their states and evaluation are the
+        working set, taken again only when some finish or leave (no scatter back into the
+        stage's arrays; a converged sample's state is written once)."""
         trunk, context = self.trunk, self.context
         k = len(rows)
         self.stretching[rows] = True
         done = np.zeros(k, bool)
+        trusted = np.zeros(k, bool)
+        taken = np.zeros(k, int)
         ev = evaluate(context, states, load)
         residual = _norm(ev.gradient, reference, self.weights)
         live = np.isfinite(residual + ev.energy)
         live &= self.represented(rows, states, ev)
         self.leave(rows[~live], "start state not finite or not representable")
-        trusted = np.zeros(k, bool)
-        taken = np.zeros(k, int)
+        at = np.arange(k)                  # the working set: local rows of the samples iterating
+        work, work_ev, work_load = states, ev, load
 
         def loads_of(where):
-            return load if where.size == k else load.take(trunk, where)
+            return load if where.size == k and np.array_equal(where, at_start) else load.take(trunk, where)
 
+        at_start = at
         while True:
-            live_at = np.flatnonzero(live)
-            if not live_at.size:
+            keep = np.flatnonzero(live)
+            if keep.size < at.size:        # compact the working set
+                work, work_ev = work.take(keep), _subset(work_ev, keep, at.size, None)
+                at, residual = at[keep], residual[keep]
+                work_load = work_ev.load = loads_of(at)
+            if not at.size:
                 break
-            for i, value in zip(rows[live_at].tolist(), residual[live_at].tolist()):
+            for i, value in zip(rows[at].tolist(), residual.tolist()):
                 self.history[i].append(value)
-            converged = residual[live_at] <= tolerance[live_at]
-            check = live_at[converged & ~trusted[live_at]]
-            stable = live_at[converged & trusted[live_at]]
+            converged = residual <= tolerance[at]
+            check = np.flatnonzero(converged & ~trusted[at])
+            stable = np.flatnonzero(converged & trusted[at])
             if check.size:
-                matrix = tangent(context, _subset(ev, check, k, loads_of(check)))
+                matrix = tangent(context, _subset(work_ev, check, at.size, loads_of(at[check])))
                 factor = matrix.factor(np.full(check.size, NEUTRAL), np.abs(matrix.diagonal()) + 1e-300)
-                self.leave(rows[check[factor.refused_with_tendons]], "a band not positive definite with taut tendons")
+                self.leave(rows[at[check[factor.refused_with_tendons]]], "a band not positive definite with taut tendons")
                 ok = factor.ok
-                self.leave(rows[check[~ok]], "an equilibrium whose tangent is not positive definite")
+                self.leave(rows[at[check[~ok]]], "an equilibrium whose tangent is not positive definite")
                 stable = np.concatenate([stable, check[ok]])
-            done[stable] = True
-            live[live_at[converged]] = False
-            go = live_at[~converged]
-            over = taken[go] >= budget[go]
-            self.leave(rows[go[over]], "the stage's iterations ran out")
-            live[go[over]] = False
-            go = go[~over]
-            if not go.size:
+            if stable.size:
+                done[at[stable]] = True
+                states.put(at[stable], work.take(stable))
+            go = ~converged
+            over = go & (taken[at] >= budget[at])
+            self.leave(rows[at[over]], "the stage's iterations ran out")
+            go &= ~over
+            if not go.all():
+                keep = np.flatnonzero(go)
+                work, work_ev = work.take(keep), _subset(work_ev, keep, at.size, None)
+                at, residual = at[keep], residual[keep]
+                work_load = work_ev.load = loads_of(at)
+            if not at.size:
                 break
-            taken[go] += 1
-            self.iterations[rows[go]] += 1
-            self.stretching[rows[go]] = False
-            sub_load = loads_of(go)
-            moved, new_states, new_ev, new_residual, cholesky = self.iterate(
-                rows[go], _subset(ev, go, k, sub_load), states.take(go), residual[go], sub_load, reference[go])
-            live[go[~moved]] = False
-            ok = go[moved]
+            taken[at] += 1
+            self.iterations[rows[at]] += 1
+            self.stretching[rows[at]] = False
+            moved, new_states, new_ev, new_residual, cholesky = self.iterate(rows[at], work_ev, work, residual,
+                                                                              work_load, reference[at])
+            ok = at[moved]                 # (moved: the local rows of the moved samples, in their new order)
             if not ok.size:
-                continue
-            trusted[ok] = cholesky[moved] & (residual[ok] <= TRUSTED_RESIDUAL)
-            states.put(ok, new_states)
-            _put_evaluation(ev, ok, k, new_ev)
-            residual[ok] = new_residual
-            good = np.isfinite(new_residual) & self.represented(rows[ok], new_states, new_ev)
+                break
+            trusted[ok] = cholesky[moved] & (residual[moved] <= TRUSTED_RESIDUAL)
+            at, work, residual = ok, new_states, new_residual
+            work_load = loads_of(at)
+            work_ev = dataclasses.replace(new_ev, load=work_load)
+            good = np.isfinite(new_residual) & self.represented(rows[ok], new_states, work_ev)
             self.leave(rows[ok[~good]], "a state not finite or not representable")
-            live[ok[~good]] = False
+            live = good
         return done, states
 
     def iterate(self, rows: np.ndarray, ev: Evaluation, states: States, residual: np.ndarray, load: Loads,
                 reference: np.ndarray):
         """One Newton iteration of every sample ``rows`` (the body of the single solve's loop, from
-        the tangent to the accepted step). Returns (moved (B,), then for the moved samples in
-        order: their states, evaluation and residual; and (B,) whether the step's factor was the
-        unshifted Cholesky). Samples not moved leave the batch's path (``single``)."""
+        the tangent to the accepted step). Returns (the local rows of the samples that moved, then
+        for those in that order: their states, evaluation and residual; and (B,) whether the
+        step's factor was the unshifted Cholesky). Samples not moved leave the batch's path
+        (``single``)."""
         trunk, context = self.trunk, self.context
         B = len(rows)
         matrix = tangent(context, ev)
@@ -744,15 +738,16 @@ class _Run:
                                 np.where(q < 0.25, _raise_shift(s, 4.0), s))
         self.shift[rows] = shift
         self.kinds[rows[moved]] |= np.where(curved[moved], 4, np.where(cholesky[moved], 1, 2))
-        count = int(np.count_nonzero(moved))
-        if not count:
-            return moved, None, None, np.zeros(0), cholesky
-        # the accepted trials (local rows, states, evaluation, residual) into the order of the moved samples
-        local = np.flatnonzero(moved)
-        pieces = [(np.searchsorted(local, where), value) for where, value in
-                  ((t[0], (t[1], t[2], t[3])) for t in accepted)]
-        new_states, new_ev, new_residual = _gather(pieces, count)
-        return moved, new_states, new_ev, new_residual, cholesky
+        if not moved.any():
+            return np.zeros(0, int), None, None, np.zeros(0), cholesky
+        # the accepted trials (local rows, states, evaluation, residual) side by side, in the order
+        # they were accepted (the working set needs no particular order: no sorting copy)
+        order = np.concatenate([t[0] for t in accepted])
+        if len(accepted) == 1:
+            new_states, new_ev, new_residual = accepted[0][1:]
+        else:
+            new_states, new_ev, new_residual = _join([t[1:] for t in accepted], [len(t[0]) for t in accepted])
+        return order, new_states, new_ev, new_residual, cholesky
 
     def bend(self, rows, r, factor, shift, scale, links, pieces):
         """:func:`vertebra.solver.globalise.bend` of every sample: (has one, dq, strain change, r·dq,
@@ -1153,9 +1148,7 @@ def actuator_forces(context: _Context, states: States, ev: Evaluation) -> np.nda
     if n_cables:
         pieces = ev.pieces
         if pieces is None:
-            ends = trunk.cables.ends
-            pieces = CablePieces.of_spans(*_spans(states.rotations[:, ends].reshape(-1, 3, 3),
-                                                  states.positions[:, ends].reshape(-1, 3), context.holes(B)))
+            pieces = CablePieces.of_spans(*trunk.cables.spans(states.positions, states.rotations))
         forces[:, :n_cables] = -_cable_jacobian(context, pieces, B)
         if ev.load.tendons is not None:
             cables, k = ev.load.tendons[:2]

@@ -59,6 +59,7 @@ def _group_table() -> np.ndarray:
 
 
 _GROUP_TABLE = _group_table()
+_NEXT, _AFTER = np.array([1, 2, 0]), np.array([2, 0, 1])     # (a × b)_i = a_{i+1} b_{i+2} − a_{i+2} b_{i+1}
 
 
 @dataclass
@@ -67,16 +68,20 @@ class CablePieces:
 
     With ``s = R r``, ``d = P_b − P_a``, ``u = d/|d|`` and ``C = [−I; −ŝ_a; I; ŝ_b]`` (12×3), the
     change of ``d`` under frame increments is ``Cᵀ dq``, so the gradient of the length is
-    ``C u`` and the tangent of ``τ|d|`` is ``τ (C Π Cᵀ − (û ŝ_a on dφ_a) + (û ŝ_b on dφ_b))``,
-    ``Π = (I − uuᵀ)/|d|``: one evaluation serves the forces, the tangent, the actuator Jacobian
-    (unit tension) and the cable lengths."""
+    ``C u = [−u; −s_a × u; u; s_b × u]`` and the tangent of ``τ|d|`` is
+    ``τ (C Π Cᵀ − (û ŝ_a on dφ_a) + (û ŝ_b on dφ_b))``, ``Π = (I − uuᵀ)/|d|``: one evaluation
+    serves the forces, the tangent, the actuator Jacobian (unit tension) and the cable lengths."""
 
-    C: np.ndarray          # (m, 12, 3)
     u: np.ndarray          # (m, 3)
     length: np.ndarray     # (m,)
     unit: np.ndarray       # (m, 12) gradient of the length
     offsets: np.ndarray    # (m, 6) [s_a, s_b]
     d: np.ndarray          # (m, 3) P_b − P_a
+
+    @property
+    def C(self) -> np.ndarray:
+        """(m, 12, 3) ``[−I; −ŝ_a; I; ŝ_b]``: the change of ``d`` is ``Cᵀ dq`` (made when asked)."""
+        return (self.offsets @ _C_TABLE).reshape(-1, 12, 3) + _C_CONST
 
     @classmethod
     def of(cls, Ra, xa, Rb, xb, hole_a, hole_b) -> "CablePieces":
@@ -94,9 +99,30 @@ class CablePieces:
     def of_spans(cls, offsets, d, length) -> "CablePieces":
         """From the pieces' hole offsets ``[s_a, s_b]`` (m, 6), spans (m, 3) and lengths (m,)
         (:meth:`CableRouting.spans`)."""
+        m = d.shape[0]
         u = d / length[:, None]
-        C = (offsets @ _C_TABLE).reshape(-1, 12, 3) + _C_CONST
-        return cls(C, u, length, (C @ u[:, :, None])[:, :, 0], offsets, d)
+        unit = np.empty((m, 4, 3))
+        np.negative(u, out=unit[:, 0])
+        unit[:, 2] = u
+        ends = offsets.reshape(m, 2, 3)                          # s_a × u and s_b × u at once
+        cross = ends[:, :, _NEXT] * u[:, None, _AFTER]
+        cross -= ends[:, :, _AFTER] * u[:, None, _NEXT]
+        np.negative(cross[:, 0], out=unit[:, 1])
+        unit[:, 3] = cross[:, 1]
+        return cls(u, length, unit.reshape(m, 12), offsets, d)
+
+    def change(self, moves: np.ndarray) -> np.ndarray:
+        """``Δd = Cᵀ [dq_a; dq_b]`` (m, 3), the linearised change of every piece's span under the
+        increments ``moves`` (m, 12) of its two frames: ``dx_b − dx_a − dφ_a × s_a + dφ_b × s_b``."""
+        m = moves.shape[0]
+        parts = moves.reshape(m, 4, 3)
+        turns, offsets = parts[:, 1::2], self.offsets.reshape(m, 2, 3)
+        cross = turns[:, :, _NEXT] * offsets[:, :, _AFTER]                    # dφ × s at both ends
+        cross -= turns[:, :, _AFTER] * offsets[:, :, _NEXT]
+        delta = parts[:, 2] - parts[:, 0]
+        delta -= cross[:, 0]
+        delta += cross[:, 1]
+        return delta
 
     def tangent(self, tension: np.ndarray, groups: np.ndarray | None = None, out: np.ndarray | None = None) -> np.ndarray:
         """Tangent (g, 12, 12) of ``Σ τ |d|`` over each group of pieces that join the same two
@@ -117,11 +143,12 @@ class CablePieces:
         Y[:m, 7:10] = self.d
         Y[:m, 10:] = self.unit
         grouped = Y.take(groups, 0)                           # (g, k, 22)
-        moments = grouped.mT @ (grouped * t.take(groups)[:, :, None])
-        if out is None:
+        weighted = grouped * t.take(groups)[:, :, None]
+        moments = grouped[:, :, :7].mT @ weighted[:, :, :10]  # Σ t x yᵀ (the two products needed, not
+        if out is None:                                       # the whole 22 × 22)
             out = np.empty((groups.shape[0], 12, 12))
-        np.matmul(moments[:, :7, :10].reshape(-1, 70), _GROUP_TABLE, out=out.reshape(-1, 144))
-        out -= moments[:, 10:, 10:]
+        np.matmul(moments.reshape(-1, 70), _GROUP_TABLE, out=out.reshape(-1, 144))
+        out -= grouped[:, :, 10:].mT @ weighted[:, :, 10:]    # Σ t g gᵀ
         return out
 
 
@@ -149,6 +176,19 @@ def scatter_rows(rows: np.ndarray, values: np.ndarray, n_rows: int, flat: np.nda
     if flat is None:
         flat = (rows[:, None] * c + np.arange(c)).reshape(-1)
     return np.bincount(flat, values.reshape(-1), minlength=n_rows * c).reshape(n_rows, c)
+
+
+def _turn_index(ends: np.ndarray, holes: np.ndarray, n_frames: int) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct holes (K, 3) of the pieces (``holes`` (m, 3), the same at both ends) and, for
+    every piece end (frames ``ends`` (2m,)), the flat indices (2m, 3) of its turned hole's
+    components among the frames' turned holes (n_frames, 3, K)."""
+    end_holes = np.repeat(holes, 2, axis=0)
+    if not end_holes.size:
+        return np.zeros((1, 3)), np.zeros((0, 3), int)
+    hole_set, which = np.unique(end_holes, axis=0, return_inverse=True)
+    K = hole_set.shape[0]
+    index = ends[:, None] * 3 * K + np.arange(3)[None, :] * K + which.reshape(-1)[:, None]
+    return hole_set, index
 
 
 def _jacobian_ends(owner: np.ndarray, a: np.ndarray, b: np.ndarray, n_cables: int, n_frames: int) -> np.ndarray:
@@ -179,6 +219,9 @@ class CableRouting:
     frame_targets: np.ndarray  # (2m·6,) flat (frame, component) of each piece end's six entries
     jacobian_ends: np.ndarray  # (2, n_cables·n_frames): the piece-end rows (2m: none) whose length gradients
                                # make each (cable, frame) row of the Jacobian: the piece starting there, the one ending there
+    hole_set: np.ndarray       # (K, 3) the distinct hole offsets
+    turn_index: np.ndarray     # (2m, 3) where each piece end's turned hole sits among the frames' turned holes
+                               # (the flat (n_frames, 3, K) products R_f hole_setᵀ: see spans)
 
     @classmethod
     def of(cls, cables, vertebra_frames: np.ndarray, n_frames: int) -> "CableRouting":
@@ -196,14 +239,16 @@ class CableRouting:
         ends = np.stack([a, b], 1).reshape(-1)
         return cls(len(cables), n_frames, a, b, hole, hole.copy(), owner, ends,
                    np.stack([hole, hole], 1).reshape(-1, 3, 1), (ends[:, None] * 6 + np.arange(6)).reshape(-1),
-                   _jacobian_ends(owner, a, b, len(cables), n_frames))
+                   _jacobian_ends(owner, a, b, len(cables), n_frames), *_turn_index(ends, hole, n_frames))
 
     def with_holes(self, radius: np.ndarray, angle: np.ndarray) -> "CableRouting":
         """The routing with every cable's holes at distance ``radius`` (n_cables,) from the axis and
         at ``angle`` (n_cables,) about local +z from local +x, in every vertebra it passes."""
         holes = hole_offsets(radius, angle)[self.owner]
+        hole_set, turn_index = _turn_index(self.ends, holes, self.n_frames)
         return dataclasses.replace(self, hole_a=holes, hole_b=holes.copy(),
-                                   holes=np.stack([holes, holes], 1).reshape(-1, 3, 1))
+                                   holes=np.stack([holes, holes], 1).reshape(-1, 3, 1), hole_set=hole_set,
+                                   turn_index=turn_index)
 
     @property
     def span(self) -> int:
@@ -216,9 +261,18 @@ class CableRouting:
 
     def spans(self, positions: np.ndarray, rotations: np.ndarray) -> tuple:
         """Hole offsets ``[s_a, s_b]`` (m, 6), spans ``d = P_b − P_a`` (m, 3) and lengths (m,) of
-        the pieces at frame ``positions`` and ``rotations``: their lengths without the kinematics
-        (:meth:`CablePieces.of_spans` completes them)."""
-        return _spans(rotations.take(self.ends, 0), positions.take(self.ends, 0), self.holes)
+        the pieces at frame ``positions`` (N, 3) and ``rotations`` (N, 3, 3): their lengths without
+        the kinematics (:meth:`CablePieces.of_spans` completes them). Every frame turns the few
+        distinct holes in one product (``R hole_setᵀ`` for all frames at once), and each piece
+        end takes its own. With leading batch axes (B, N, …): the B·m pieces as rows, sample by sample."""
+        lead = rotations.shape[:-3]
+        turned = (rotations.reshape(-1, 3) @ self.hole_set.T).reshape(lead + (-1,))
+        offsets = turned.take(self.turn_index, axis=-1)                     # (…, 2m, 3)
+        ends = positions.take(self.ends, axis=-2)
+        ends += offsets
+        d = ends[..., 1::2, :] - ends[..., ::2, :]
+        d = d.reshape(-1, 3)
+        return offsets.reshape(-1, 6), d, np.sqrt(np.add.reduce(d * d, 1))
 
     def lengths(self, pieces: CablePieces) -> np.ndarray:
         """Length of each cable (sum of its pieces)."""

@@ -601,7 +601,7 @@ class Constraints:
         stiffness of the tangent's diagonal along the contact's direction; with ``step``, along the
         contacts it keeps pressed): positive definite exactly when the tangent is on the directions
         the contacts leave free (the constrained equilibrium's stability), up to the spring's
-        finiteness. Kept as the last springs (:meth:`spring_work`, :meth:`released`)."""
+        finiteness. Kept as the last springs (:meth:`released`)."""
         self.springs = None
         if step is None:
             if not self.multipliers.size:
@@ -621,14 +621,6 @@ class Constraints:
         U, d = (G.T, spring) if matrix.low_rank is None else (np.hstack([matrix.low_rank[0], G.T]),
                                                               np.concatenate([matrix.low_rank[1], spring]))
         return type(matrix)(matrix.assembler, matrix.terms, (U, d))
-
-    def spring_work(self, dq: np.ndarray) -> float:
-        """``dqᵀ (Σ k_i G_iᵀG_i) dq`` of the springs last added by :meth:`stiffened`."""
-        if self.springs is None:
-            return 0.0
-        G, spring, _ = self.springs
-        along = G @ dq
-        return float(spring @ (along * along))
 
 
 def _hat(v: np.ndarray) -> np.ndarray:

@@ -109,3 +109,28 @@ def line_search(stage, state, ev, residual: float, dq, change, alpha: float, rp:
             return trial, ev_trial, alpha, decrease, predicted, quality
         alpha *= 0.5
     return None
+
+
+def residual_step(stage, state, ev, residual: float, matrix, r: np.ndarray):
+    """Loads without a potential: the full, undamped Newton step (LU of the unshifted, consistent
+    tangent) when it is within the step caps and at least halves the scaled residual — Newton
+    inside its region of convergence, where the energy-like merit can no longer judge it: beyond
+    the load at which the tangent's symmetric part turns indefinite the equilibrium sought is no
+    minimum of that merit, and dead moments do work round a closed loop of rotations, so the
+    merit can keep falling while the frames circle. Returns (state, evaluation, α, decrease,
+    prediction, quality) as :func:`line_search` does (in residual units), or None."""
+    factor, _ = matrix.factor(0.0, symmetric=False)
+    if factor is None:
+        return None
+    dq = factor.solve(r)
+    if not np.all(np.isfinite(dq)):
+        return None
+    change = strain_change(dq, ev.links)
+    if stage.step_limit(dq, change, ev) < 1.0:
+        return None
+    trial = retract(state, dq, ev.links, change)
+    ev_trial = evaluate(stage.trunk, trial, stage.load)
+    after = stage.norm(ev_trial, trial)
+    if not after <= 0.5 * residual:
+        return None
+    return trial, ev_trial, 1.0, residual - after, residual, 1.0

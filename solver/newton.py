@@ -11,7 +11,11 @@ Each iteration at a fixed load factor
   indefinite tangent (no LU there: it steers Newton towards saddles). Dead moments and follower
   loads (no potential) make ``H`` unsymmetric: banded LU of ``H + μ·D`` with their turning in it
   (the consistent tangent, so that Newton stays quadratic), judged by an energy-like merit (the
-  potential minus those loads' work along the step: :func:`~vertebra.solver.globalise.moved`);
+  potential minus those loads' work along the step: :func:`~vertebra.solver.globalise.moved`),
+  after the full Newton step, which is taken first whenever it halves the residual
+  (:func:`~vertebra.solver.globalise.residual_step`: that merit is no merit of these loads —
+  dead moments do work round a closed loop of rotations, and beyond the load at which the
+  symmetric part turns indefinite the equilibrium is no minimum of it);
 * where the tangent proved indefinite and the shift needed is large (``μ ≥`` :data:`BEND_SHIFT`),
   or at a stationary point that is a saddle, weighs a step along the direction of most negative
   curvature (inverse iteration with the shifted factor) against the shifted one;
@@ -247,7 +251,7 @@ class _Stage:
             # root in α of |d|² + 2α d·Δd + α²|Δd|² = ¼|d|², where there is one
             moves = np.zeros((self.trunk.frames.count, 6))
             moves[1:] = dq.reshape(-1, 6)
-            delta = (moves[self.trunk.cables.ends].reshape(-1, 1, 12) @ pieces.C)[:, 0]
+            delta = pieces.change(moves[self.trunk.cables.ends].reshape(-1, 12))
             along = np.add.reduce(pieces.d * delta, 1)                          # d·Δd
             squared = np.add.reduce(delta * delta, 1)                           # |Δd|²
             discriminant = along * along - 0.75 * squared * pieces.length ** 2
@@ -343,10 +347,16 @@ def _newton(stage: _Stage, state: State):
             matrix = factored = constraints.lagrangian(matrix, state)     # the Lagrangian's tangent
         shift = stage.shift
         scale = None
+        step = None
+        if not symmetric and constraints is None and not converged:
+            # loads without a potential: the full Newton step first, taken when it halves the
+            # residual (globalise.residual_step: where the energy-like merit cannot judge it)
+            step = globalise.residual_step(stage, state, ev, residual, matrix, r)
+            kind = "lu"
         indefinite = False       # a factor of this tangent failed: it is not positive definite
         respringed = False       # the contacts' springs were set again from a step's pressed contacts
         spring = 0.0             # the springs' stiffness along the pressed contacts (0: none)
-        while True:      # until a step is accepted
+        while step is None:      # until a step is accepted
             if shift > SHIFT_CEILING:
                 return False, state, residual
             if shift and scale is None:

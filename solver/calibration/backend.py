@@ -17,6 +17,12 @@ element at once (the direct route: its ``dq`` also serves the next warm start), 
 ``dp = dx_f + dφ_f × (R r)`` of its frame on top. The measurement frame and the marker offsets
 act after the solve and are differentiated in closed form.
 
+**Backlash.** With a play in the transmission (the ``backlash`` elements) the strokes that reach
+the tendons are the commands passed through :func:`~vertebra.solver.calibration.data.play`, the
+samples taken as one time-ordered sequence (in the calling process, before the samples are split
+into blocks); a stroke's derivative with respect to its play is ±1 or carried, so the markers'
+derivative is the model's sensitivity to that actuator times it.
+
 **Warm starts.** Each sample's solve starts from its own equilibrium of the previous call, moved
 to first order by the change of the model elements since (``q + dq/dθ Δθ`` where the derivatives
 were taken there, which leaves Newton a second-order residual); a sample never solved starts from
@@ -41,6 +47,7 @@ import numpy as np
 from vertebra.core.errors import ConvergenceError, OptionError
 from vertebra.core.lie import hat, qmatrix, so3_exp
 from vertebra.core.processes import exit_with_parent, pinned_environment
+from vertebra.solver.calibration.data import play
 from vertebra.solver.calibration.fit_parameters import Values
 from vertebra.solver.model import build_model
 from vertebra.solver.sensitivity import parameters_of
@@ -49,7 +56,7 @@ __all__ = ["Prediction", "Predictor", "RuntimePredictor", "default_workers"]
 
 #: the elements that act through the model, and the sensitivity parameter group of each
 MODEL_KINDS = {"stiffness": "stiffness_scale", "angle": "hole_angle", "radius": "hole_radius",
-               "cable_stiffness": "cable_stiffness", "pretension": "pretension"}
+               "cable_stiffness": "cable_stiffness", "pretension": "pretension", "backlash": "actuation"}
 #: the fewest samples per worker process worth starting one for (a process costs ~1 s to start)
 SAMPLES_PER_WORKER = 256
 
@@ -118,13 +125,17 @@ class RuntimePredictor:
         derivatives. A call with the values and samples of the previous call reuses its
         equilibria (a least-squares step asks for the residuals, then the Jacobian, at one point)."""
         wrt = tuple(wrt)
+        commands, slopes = samples.commands, None
+        if values.backlash.any() or any(kind == "backlash" for kind, _ in wrt):
+            commands, slopes = play(commands, values.backlash[self.engine.driven])
         blocks = min(self.workers, len(samples))
         if blocks <= 1:
-            return self.engine.predict(values, samples.commands, samples.source, samples.rows, wrt)
+            return self.engine.predict(values, commands, samples.source, samples.rows, wrt, slopes)
         if self._pool is None:
             self._pool = _Pool(self.workers, self._scene, self._mapping)
         edges = np.linspace(0, len(samples), blocks + 1).round().astype(int)
-        parts = self._pool.map("predict", [(values, samples.commands[a:b], samples.source, samples.rows[a:b], wrt)
+        parts = self._pool.map("predict", [(values, commands[a:b], samples.source, samples.rows[a:b], wrt,
+                                            None if slopes is None else slopes[a:b])
                                            for a, b in zip(edges[:-1], edges[1:])])
         return Prediction(np.concatenate([p.markers for p in parts]),
                           None if not wrt else np.concatenate([p.derivatives for p in parts]),
@@ -207,14 +218,17 @@ class _Engine:
         return J
 
     # ------------------------------------------------------------------ predict
-    def predict(self, values: Values, commands, source, rows, wrt: tuple) -> Prediction:
-        """Markers of the samples ``commands`` (rows ``rows`` of ``source``) under ``values`` and,
-        for the elements ``wrt``, their derivatives."""
+    def predict(self, values: Values, commands, source, rows, wrt: tuple, slopes=None) -> Prediction:
+        """Markers of the samples ``commands`` (rows ``rows`` of ``source``; the strokes that reach
+        the tendons) under ``values`` and, for the elements ``wrt``, their derivatives
+        (``slopes``: the strokes' derivatives with respect to the play of their actuator column,
+        :func:`~vertebra.solver.calibration.data.play`, needed for ``backlash`` elements)."""
         self._set(values)
         Rf = so3_exp(values.frame[3:])
         key = (source, rows.tobytes(), commands.tobytes(),
                tuple(getattr(values, f).tobytes() for f in ("stiffness", "angle", "radius", "cable_stiffness",
-                                                            "pretension", "frame", "marker", "friction")))
+                                                            "pretension", "frame", "marker", "friction",
+                                                            "backlash")))
         t0 = time.perf_counter()
         iterations = 0
         if self._last is not None and self._last[0] == key:
@@ -228,7 +242,7 @@ class _Engine:
             if self._derived is not None and self._derived[:2] == (key, wrt):
                 derivatives = self._derived[2]       # (the optimiser's last Jacobian, asked for again)
             else:
-                derivatives = self._derivatives(values, wrt, states, actuations, source, rows, Rf)
+                derivatives = self._derivatives(values, wrt, states, actuations, source, rows, Rf, slopes)
                 self._derived = (key, wrt, derivatives)
         return Prediction(markers.copy(), None if derivatives is None else derivatives.copy(), solve_s,
                           time.perf_counter() - t0 - solve_s, iterations)
@@ -263,7 +277,7 @@ class _Engine:
             states.append(result.state)
         return markers, actuations, states, iterations
 
-    def _derivatives(self, values, wrt, states, actuations, source, rows, Rf):
+    def _derivatives(self, values, wrt, states, actuations, source, rows, Rf, slopes=None):
         model, n = self.model, len(states)
         nm, npar = len(self.marker_frames), len(wrt)
         out = np.zeros((n, nm, 3, npar))
@@ -273,10 +287,15 @@ class _Engine:
         at = np.array([values.get(kind, index) for kind, index in inner])
         turns = {index - 3: _rotation_derivative(values.frame[3:], index - 3)
                  for kind, index in wrt if kind == "frame" and index >= 3}
+        # a play's column: the actuator's sensitivity times its stroke's slope (per sample)
+        column_of = {int(c): a for a, c in enumerate(self.driven)}
+        played = [(k, column_of[index]) for k, (kind, index) in enumerate(inner) if kind == "backlash"]
         for i, (state, actuation) in enumerate(zip(states, actuations)):
             points, arm, R = self._markers(state, values.marker)
             if inner:
                 dq = model.sensitivities(state, actuation, wrt=columns, outputs=(), method="direct").dq
+                for k, a in played:
+                    dq[:, k] *= slopes[i, a]
                 self._warm[(source, int(rows[i]))] = _Warm(state, inner, at, dq)
                 dm = self._marker_jacobian(arm) @ dq                           # (nm, 3, n_inner)
                 out[i][..., where] = np.einsum("ij,mjp->mip", Rf, dm)

@@ -27,7 +27,7 @@ from vertebra.core.inputs import load_toml, read_text
 from vertebra.solver.tables import Table
 
 __all__ = ["ActuatorMap", "MappingError", "MarkerMap", "Mapping", "Samples", "UNITS", "load_mapping",
-           "load_samples", "parse_mapping"]
+           "load_samples", "parse_mapping", "play"]
 
 #: largest samples file read (a million rows of a dozen numbers)
 MAX_DATA_BYTES = 256 * 2**20
@@ -247,3 +247,22 @@ def load_samples(path, mapping: Mapping) -> Samples:
             patterns.append(name or "(unnamed)")
         patterns = tuple(patterns)
     return Samples(commands, markers, patterns, source)
+
+
+def play(commands: np.ndarray, width: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The strokes that reach the tendons through a transmission with play (backlash) of
+    ``width`` (per actuator column, m) under the time-ordered ``commands`` (n, n_actuators):
+    a stroke stays where it is until the command has moved more than ``width`` away from it,
+    then follows at that distance — it lags the command by ``width`` while the command rises and
+    leads it by ``width`` while it falls. The first row starts where it is commanded. Returns the
+    strokes and their derivatives with respect to each column's width (−1 while pulled, +1 while
+    released, carried along while inside the play)."""
+    commands = np.asarray(commands, float)
+    width = np.broadcast_to(np.asarray(width, float), commands.shape[1:])
+    strokes, slopes = commands.copy(), np.zeros_like(commands)
+    for k in range(1, len(commands)):
+        low, high = commands[k] - width, commands[k] + width
+        behind, ahead = strokes[k - 1] < low, strokes[k - 1] > high
+        strokes[k] = np.where(behind, low, np.where(ahead, high, strokes[k - 1]))
+        slopes[k] = np.where(behind, -1.0, np.where(ahead, 1.0, slopes[k - 1]))
+    return strokes, slopes

@@ -20,7 +20,10 @@ driven cable),
 ``frame`` (members x, y, z in m, rx, ry, rz as a rotation vector in rad), ``marker``
 (offset of a marker, m; members ``NAME.x``, ``NAME.y``, ``NAME.z``), ``friction`` (μ at a driven
 cable's holes, docs/friction.md: a calibration with friction predicts the samples as one
-time-ordered sequence, :mod:`~vertebra.solver.calibration.sequence`).
+time-ordered sequence, :mod:`~vertebra.solver.calibration.sequence`), ``backlash`` (play of a
+driven tendon's transmission, m: the stroke that reaches the tendon lags the command by up to
+this much in the direction it last moved, :func:`~vertebra.solver.calibration.data.play`; the
+samples are then a time-ordered sequence).
 """
 
 from __future__ import annotations
@@ -48,6 +51,7 @@ class Values:
     frame: np.ndarray            # (6,) world origin (m) and rotation vector (rad) in the measurement frame
     marker: np.ndarray           # (n_markers, 3) offsets, m
     friction: np.ndarray         # (n_cables,) μ of the capstan law at a cable's holes (0: frictionless)
+    backlash: np.ndarray         # (n_cables,) play between a driven tendon's command and its stroke, m
 
     def get(self, kind: str, index) -> float:
         return float(getattr(self, kind)[index])
@@ -80,6 +84,8 @@ KINDS = {
     "marker": Kind("m", "offset of a marker on its vertebra"),
     "friction": Kind("", "friction coefficient μ at a driven tendon's holes (capstan law; the samples are "
                          "then a time-ordered sequence)"),
+    "backlash": Kind("m", "play between a driven tendon's command and the stroke that reaches it (the "
+                          "samples are then a time-ordered sequence)"),
 }
 
 
@@ -91,7 +97,8 @@ def initial_values(scene, mapping, model) -> Values:
                   pretension=np.array(model.compiled.actuators.pretension, float),
                   frame=np.array(mapping.frame_position + mapping.frame_rotation),
                   marker=np.array([m.offset for m in mapping.markers]),
-                  friction=np.array(model.compiled.actuators.friction, float))
+                  friction=np.array(model.compiled.actuators.friction, float),
+                  backlash=np.zeros(len(scene.cables)))
 
 
 def _members(kind: str, scene, mapping) -> dict:
@@ -100,7 +107,7 @@ def _members(kind: str, scene, mapping) -> dict:
         return {str(i): i for i in range(len(scene.segments))}
     if kind in ("angle", "radius"):
         return {c.name: i for i, c in enumerate(scene.cables)}
-    if kind in ("cable_stiffness", "pretension", "friction"):
+    if kind in ("cable_stiffness", "pretension", "friction", "backlash"):
         names = [c.name for c in scene.cables]
         return {a.cable: names.index(a.cable) for a in mapping.actuators if a.cable in names}
     if kind == "frame":
@@ -147,6 +154,8 @@ def _typical(kind: str, index, base: Values, scene, length: float) -> float:
         return 0.01 * length if index < 3 else 0.02
     if kind == "friction":
         return 0.05
+    if kind == "backlash":
+        return 1e-3 * length
     return 0.01 * length
 
 
@@ -167,6 +176,8 @@ def _default_bounds(kind: str, index, value: float, base: Values, scene, length:
         return (value - length, value + length) if index < 3 else (value - math.pi / 2, value + math.pi / 2)
     if kind == "friction":
         return 0.0, 1.0
+    if kind == "backlash":
+        return 0.0, 0.05 * length
     return value - 0.5 * length, value + 0.5 * length
 
 
@@ -222,8 +233,8 @@ def parse_parameters(specs, scene, mapping, model, option: str = "--fit") -> Par
                                   field=option) from None
             if not low < high:
                 raise OptionError(f"{spec!r}: lower bound {low:g} is not below upper bound {high:g}", field=option)
-            if k0 == "friction" and value == low:
-                # a frictionless scene: start inside (the bounded optimiser cannot leave a start on its bound)
+            if k0 in ("friction", "backlash") and value == low:
+                # none in the scene: start inside (the bounded optimiser cannot leave a start on its bound)
                 value = min(low + _typical(k0, i0, base, scene, length), 0.5 * (low + high))
             if not low <= value <= high:
                 raise OptionError(f"{spec!r}: the initial value {value:g} lies outside the bounds "

@@ -42,7 +42,8 @@ def _elements(cal, scene, mapping) -> dict:
             "cables": {c.name: {"angle_deg": math.degrees(c.angle + da), "radius": c.radius + dr}
                        for c, da, dr in zip(scene.cables, v.angle, v.radius)},
             "tendons": {a.cable: {"stiffness": float(k), "pretension": float(p),
-                                  "friction": float(v.friction[[c.name for c in scene.cables].index(a.cable)])}
+                                  "friction": float(v.friction[[c.name for c in scene.cables].index(a.cable)]),
+                                  "backlash": float(v.backlash[[c.name for c in scene.cables].index(a.cable)])}
                         for a, k, p in zip(mapping.actuators, v.cable_stiffness, v.pretension)},
             "frame": {"position": v.frame[:3].tolist(), "rotation_vector": v.frame[3:].tolist()},
             "markers": {m.name: {"vertebra": m.vertebra, "offset": o.tolist()}
@@ -123,6 +124,11 @@ def calibrated_scene_toml(cal, scene, mapping) -> str:
     header = (f"{scene.name or Path(scene.source).stem}: calibrated by vertebra {__version__} "
               f"(held-out tip RMSE {_mm(cal.holdout, 'rmse_m')}, train {_mm(cal.train, 'rmse_m')}); "
               "positions in the measurement frame")
+    if v.backlash.any():
+        # (a property of the command path, not of the robot: the runtime takes strokes)
+        header += ("\nthe calibration's transmission play (backlash, mm), to apply to the commands before "
+                   "they become strokes: " + ", ".join(f"{c.name} {1e3 * b:.4g}" for c, b in zip(scene.cables, v.backlash)
+                                                      if b))
     ordered = {k: data[k] for k in data if not isinstance(data[k], (dict, list))}
     ordered.update({k: data[k] for k in data if isinstance(data[k], (dict, list))})
     return scene_toml(ordered, header)

@@ -18,7 +18,7 @@ import time
 
 import numpy as np
 
-from vertebra.core.errors import ConvergenceError
+from vertebra.core.errors import ConvergenceError, OptionError
 from vertebra.core.lie import so3_exp
 from vertebra.solver.calibration.backend import Prediction, RuntimePredictor
 from vertebra.solver.calibration.fit_parameters import Values
@@ -47,6 +47,9 @@ class SequencePredictor(RuntimePredictor):
     def predict(self, values: Values, samples, wrt=()) -> Prediction:
         if not np.any(values.friction) and not any(kind == "friction" for kind, _ in wrt):
             return super().predict(values, samples, wrt)
+        if np.any(values.backlash) or any(kind == "backlash" for kind, _ in wrt):
+            raise OptionError("backlash and friction together are not supported: fit one of them (the "
+                              "frictional sequence does not pass the commands through the play)", field="--fit")
         t0 = time.perf_counter()
         markers, states = self._sequence(values, samples)
         solve_s = time.perf_counter() - t0
