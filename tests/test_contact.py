@@ -139,6 +139,31 @@ def test_discs_stop_the_bend_at_their_geometric_limit(tension):
     assert_complementary(result)
 
 
+def test_bend_beyond_touching_discs_is_the_backbones_compliance():
+    # touching discs fix the gap, not the bend: pulling harder still turns the discs about the
+    # touching rim as far as the flexible backbone between them S-bends. That extra turn per
+    # newton is the backbone's compliance — inversely proportional to its EI (to 3 % from 1 to
+    # 64 GPa) — so the bend angle saturates at the geometric limit only in the rigid-backbone
+    # limit (docs/contact.md, limits). Same pressed state for every E: the tension scales with it.
+    slopes = []
+    for k in (1, 4, 16, 64):
+        angles = []
+        for tension in (10.0 * k, 10.0 * k + 2.0):
+            model = solver.build_model(solver.parse_scene({
+                "segment": [{"type": "beam", "count": 2, "length": SPACING, "youngs_modulus": 1e9 * k,
+                             "section": {"area": 1e-3, "Ixx": 1e-12, "Iyy": 1e-12, "J": 2e-12},
+                             "vertebra": {"disc_radius": DISC, "disc_thickness": THICK}}],
+                "base": {"disc_radius": DISC, "disc_thickness": THICK},
+                "cable": [{"name": "c", "radius": HOLE, "angle_deg": 0.0, "to": 2, "tension": tension}]}))
+            result = model.solve()
+            assert len(pressed(result)) == 2
+            angles.append(relative(result.state, 0)[0])
+        slopes.append((angles[1] - angles[0]) * k)
+    assert slopes[0] > 0.0
+    assert max(slopes) <= 1.03 * min(slopes)
+    assert slopes[-1] / 64 < 1e-5            # rad for 2 N more at 64 GPa
+
+
 def test_disc_contact_force_balances_the_tip_vertebra():
     # moment balance of the last vertebra about its frame: the tendon's pull at its hole, the
     # contact force at the reported point along the reported normal, and the link's wrench (from
@@ -412,11 +437,64 @@ def test_inverse_reaches_targets_beside_a_wall_without_penetration():
         assert found.gap.min() >= -1e-9
 
 
+def test_inverse_leans_on_the_wall_for_targets_only_reachable_so():
+    # only two tendons of the 16 (0 and 4, on the wall's side, ending at vertebrae 5 and 3): the
+    # tip positions where the robot leans on the wall form another surface than the free ones,
+    # so these targets (forward solves with a disc pressed on the wall) are reachable only by
+    # leaning on it. The contact forces are variables of each step's QP (complementary with the
+    # gaps): every target is reached to 1e-6 m, leaning (a contact force > 0), nothing in the
+    # wall. (With the QP on the contact-free linearisation none of them was: closest reach at
+    # 0.3–11 mm after 4 iterations.)
+    import dataclasses
+    from vertebra.solver.inverse import InverseController, InverseSettings
+
+    base = wall_robot(0.02)
+    cables = tuple(dataclasses.replace(c, max_tension=c.max_tension if k in (0, 4) else 0.0)
+                   for k, c in enumerate(base.scene.cables))
+    model = solver.build_model(dataclasses.replace(base.scene, cables=cables))
+    rng = np.random.default_rng(3)
+    targets = []
+    while len(targets) < 6:
+        a = np.zeros(16)
+        a[[0, 4]] = rng.uniform(2.0, 15.0, 2)
+        result = model.solve(a)
+        assert pressed(result)
+        targets.append(model.effector_positions(result.state)[0])
+    for target in targets:
+        controller = InverseController(model, InverseSettings(mode="converged", tolerance=1e-6, time_budget=60.0))
+        step = controller.step(target[None])
+        assert step.reached and step.equilibrium, (step.status, step.errors)
+        result = model.solve(step.actuation, initial=step.state)
+        assert pressed(result)
+        assert_complementary(result)
+
+
+def test_tick_mode_slides_along_the_wall_without_entering_it():
+    # tip targets from rest through the wall (to 2 cm beyond it) and then along it: each tick's QP
+    # has the contact forces as variables (complementary with the linearised gaps), and a tick
+    # that would enter the wall deeper than 1 % of the tolerance is cut back: the robot stops at
+    # the wall and slides along it with the targets. (Ticks on the contact-free linearisation
+    # went 32 mm into the wall on this path.)
+    from vertebra.solver.inverse import InverseController, InverseSettings
+
+    wall = 0.02
+    model = wall_robot(wall)
+    controller = InverseController(model, InverseSettings(mode="tick", tolerance=1e-4))
+    tip = model.effector_positions(controller.state)[0]
+    corner = np.array([wall + 0.02, 0.0, tip[2] - 0.01])
+    path = [tip + s * (corner - tip) for s in np.linspace(0.0, 1.0, 40)[1:]]
+    path += [corner + np.array([0.0, 0.002 * k, 0.0]) for k in range(1, 25)]
+    for k, target in enumerate(path):
+        step = controller.step(target[None])
+        assert contact.evaluate(model.trunk.contact, step.state).gap.min() >= -1e-6, k
+    assert step.positions[0][1] >= 0.04                        # it slid along the wall …
+    assert abs(step.positions[0][1] - path[-1][1]) <= 0.005    # … with the targets
+
+
 def test_tick_mode_along_a_trajectory_that_touches_the_wall():
     # a tip path from rest into the wall and along it (made by forward solves, the last two
     # thirds with a disc pressed on the wall), tracked by control ticks (3 per target): the
-    # ticks' states stay out of the wall and on the path. (Ticks step the state by the
-    # linearisation without the contacts: the robot's redundancy keeps it off the wall here.)
+    # ticks' states stay out of the wall and on the path
     from vertebra.solver.inverse import InverseController, InverseSettings
 
     model = wall_robot()
