@@ -540,6 +540,30 @@ class Constraints:
         self.multipliers = step.multipliers[pressed]
         self.reference = step.contacts.gap[pressed]
 
+    def reestimate(self, gradient: np.ndarray, state, weights: np.ndarray) -> None:
+        """Replace the multipliers by the forces ``λ ≥ 0`` of the pressed contacts that balance
+        ``∇E`` at ``state`` best, ``min ‖w(∇E − Gᵀλ)‖`` (``weights``: 1 for forces, 1/L for
+        moments) — the least-squares multipliers of sequential QP: at an equilibrium they are the
+        step's, away from it they keep an overshooting step's forces out of the next tangent."""
+        if not self.multipliers.size:
+            return
+        from scipy.optimize import nnls
+
+        found = self.pressed(state)
+        rows = found.rows
+        G = np.zeros((self.multipliers.size, self.n_frames, 6))
+        for side in range(2):
+            frame = found.frames[:, side]
+            used = frame > 0
+            np.add.at(G, (np.flatnonzero(used), frame[used]), rows[used, side])
+        A = (G[:, 1:] * weights).reshape(self.multipliers.size, -1).T
+        b = (gradient[1:] * weights).reshape(-1)
+        lam, _ = nnls(A, b)
+        kept = lam > 0.0
+        self.keys, self.multipliers = self.keys[kept], lam[kept]
+        if self.reference is not None:
+            self.reference = self.reference[kept]
+
     def work(self, trial) -> float:
         """``λᵀ(g(trial) − g(start))``: the Lagrangian's change beyond the potential's."""
         if not self.multipliers.size:

@@ -454,6 +454,12 @@ def _newton(stage: _Stage, state: State):
         trusted = kind == "cholesky" and residual <= TRUSTED_RESIDUAL
         kinds.add(kind)
         state, ev = trial, ev_trial
+        if constraints is not None and (kind != "cholesky" or alpha < 1.0 or factored is not matrix):
+            # after a shifted, stiffened or cut-back step: the pressed contacts' forces that
+            # balance the new state best (a step whose complementarity problem overshot must not
+            # carry its forces into the next tangent; a full Newton step's forces are these to
+            # second order)
+            constraints.reestimate(ev.gradient, state, stage.weights)
         residual = stage.norm(ev, state)
         if not math.isfinite(residual):
             raise ConvergenceError(f"non-finite forces appeared after a Newton step at load factor {load.scale:.3g}")

@@ -210,17 +210,18 @@ def random_robot(seed):
 
 def test_random_tendon_robots_with_discs_converge_where_holes_meet():
     # most of these bend until cable holes meet (refused without discs); with discs the discs
-    # touch and the solve converges (3, 8, 26 and 29 took several load stages and hundreds of
-    # iterations before the contacts' springs were stiffened as far as a step needs)
+    # touch and the solve converges (2 stalled at load factor 0.4, and 3, 8, 26 and 29 took
+    # several load stages and hundreds of iterations, before the contacts' springs were stiffened
+    # as far as a step needs and the forces re-estimated after each step)
     refused = 0
-    for seed in (0, 3, 5, 6, 7, 8, 10, 13, 19, 25, 26, 29):
+    for seed in (0, 2, 3, 5, 6, 7, 8, 10, 13, 19, 25, 26, 29):
         plain, with_discs = random_robot(seed)
         refused += "holes of the two vertebrae meet" in solver.build_model(
             solver.parse_scene(plain)).solve(raise_on_failure=False).message
         model = solver.build_model(solver.parse_scene(with_discs))
         result = model.solve(raise_on_failure=False)
         assert result.converged, (seed, result.message)
-        assert result.iterations <= 200, (seed, result.iterations)
+        assert result.iterations <= (200 if seed == 2 else 60), (seed, result.iterations)
         assert pressed(result)
         assert contact.folded(model.trunk.contact, result.state) is None, seed     # every disc faces its neighbour
         # complementarity to the solve's own tolerance (contact.ACTIVE_GAP of the trunk's length):
