@@ -45,6 +45,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vertebra.solver.inverse.backends import DEFAULT_BACKEND, get_backend
+from vertebra.solver.inverse.contacts import ContactProjection, contact_step
 from vertebra.solver.inverse.qp import ConstraintSolution, solve_constraint_problem
 from vertebra.solver.inverse.space import DEFAULT_REGULARISATION, ConstraintSpace
 from vertebra.solver.inverse.trust import GOOD, TrustRegion
@@ -256,8 +257,17 @@ class InverseController:
             damping = 0.0 if aim is targets else DAMPING
         projection = self.space.project(lin, aim, self.actuation, box, damping)
         t2 = time.perf_counter()
-        sol = solve_constraint_problem(projection.problem, self.backend, tolerance=self.settings.qp_tolerance,
-                                       slack=self._slack)
+        found = None
+        if self.model.trunk.contact is not None and base is None:
+            # the contacts' forces as variables of the QP, complementary with their gaps (with
+            # capstan friction on the cables the frictional QP below runs without them)
+            found = contact_step(self.model.trunk, self.state, lin, projection, self.backend,
+                                 tolerance=self.settings.qp_tolerance, slack=self._slack)
+        if found is not None:
+            projection, sol = found
+        else:
+            sol = solve_constraint_problem(projection.problem, self.backend, tolerance=self.settings.qp_tolerance,
+                                           slack=self._slack)
         t3 = time.perf_counter()
         if base is not None:
             n_cables = self.model.n_cables
@@ -385,6 +395,10 @@ class InverseController:
         motion = _largest(lin.effector_jacobian.dot(dq))
         imbalance = _largest(projection.Je_K_inv_r)
         floor = 0.01 * self.settings.tolerance
+        # with contacts: how deep the start lies in an obstacle (a tick may not go deeper than that
+        # or the floor: the QP keeps the linearised gaps, the retraction's second order may not)
+        contacts = projection if isinstance(projection, ContactProjection) else None
+        entered = contacts.penetration(state0) if contacts is not None else 0.0
         # ∂E/∂λ of the cables: their lengths L(q) = L0 + stroke
         cables = d_lam[:n_cables]
         d_energy = float(cables.dot(model.rest_cable_lengths)) + float(cables.dot(lin.actuator_displacements[:n_cables]))
@@ -417,6 +431,8 @@ class InverseController:
             decrease = before - after
             noise = 1e-12 * abs(before)
             quality = decrease / predicted if predicted > noise else (1.0 if decrease >= -noise else 0.0)
+            if contacts is not None and quality >= ACCEPT and contacts.penetration(trial) > max(floor, entered):
+                quality = 0.0            # a trial that enters an obstacle (or disc) deeper than the start is cut back
             if quality >= ACCEPT:        # (False for NaN)
                 # the prediction: the equilibrium under λ lies ≈ Je K⁻¹ r(trial) from the trial state
                 # (the start's factor); a step that lands farther than MISS of its motion from it is
@@ -429,7 +445,10 @@ class InverseController:
                                                           self._incipient)
                         judged = evaluate(trunk, trial, following.load(trunk, lam, 1.0))
                     # (|Je K⁻¹ r|, r = −gradient: the sign does not change the length)
-                    miss = _largest(projection.effector_motion(judged.gradient[1:].reshape(-1)))
+                    imbalance_at = judged.gradient[1:].reshape(-1)
+                    if isinstance(projection, ContactProjection):    # the contacts carry their forces
+                        imbalance_at = imbalance_at - projection.contact_forces(lam)
+                    miss = _largest(projection.effector_motion(imbalance_at))
                 except (ConvergenceError, FloatingPointError):
                     miss = math.inf
                 allowed = MISS * alpha * motion + (1.0 - alpha) * imbalance + floor
