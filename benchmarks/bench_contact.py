@@ -2,14 +2,18 @@
 contact-free solve, and do random tendon robots whose holes would meet converge once their
 discs are declared?
 
-    python -m benchmarks.bench_contact [--rounds 9] [--robots 30]
+    python -m benchmarks.bench_contact [--rounds 9] [--robots 100]
 
 * cost: a 20-vertebra trunk (a capsule backbone) sagging under gravity until its outer part
   lies on a floor (five frames pressed), against the same trunk without the floor (no contact
   model); solves from rest, interleaved A, B, A, B … and medians reported.
+* inverse: the two-tendon wall robot's targets only reachable by leaning (converged, 1e-6 m)
+  and ticks on a path through the wall and along it (how deep a tick state enters the wall).
 * robots: tests/robots.py's random tendon robots with their tensions tripled, without discs
   (how many are refused because cable holes meet) and with discs (1.2 × the widest hole, 20 %
-  of the shortest spacing thick) on every vertebra and the base.
+  of the shortest spacing thick) on every vertebra and the base: how many converge, how many stop
+  because a disc folds past its neighbour's rim (beyond the disc–disc contact model), and why
+  the others stop.
 
 Writes benchmarks/results/contact.json.
 """
@@ -27,6 +31,7 @@ from benchmarks.common import RESULTS, ROOT, loadavg, log, now, write_json
 from vertebra import __version__, solver
 
 VERTEBRAE, SPACING, RADIUS, E = 20, 0.01, 0.001, 2e9
+FOLDED = "turn by more than 90° against each other"   # the solve's message for a disc folded past a rim
 FLOOR = 0.025          # m: the tip would sag 0.168 m; five frames come to lie on the floor
 
 
@@ -91,26 +96,83 @@ def robots(count: int) -> dict:
                      "deepest_gap_m": float(min((c.gap for c in result.contacts), default=0.0)),
                      "solve_s": elapsed, "message": result.message})
         log(f"robot {seed}: converged {result.converged} ({result.iterations} iterations, {elapsed:.2f} s)")
+    folded = [r for r in rows if FOLDED in r["message"]]
     return {"robots": count, "converged": sum(r["converged"] for r in rows),
+            "folded_past_a_rim": len(folded),
+            "other_failures": {r["seed"]: r["message"] for r in rows if not r["converged"] and r not in folded},
             "holes_meet_without_discs": sum(r["holes_meet_without_discs"] for r in rows),
             "converged_of_those": sum(r["converged"] for r in rows if r["holes_meet_without_discs"]),
-            "median_iterations": float(np.median([r["iterations"] for r in rows])), "rows": rows}
+            "median_iterations": float(np.median([r["iterations"] for r in rows if r["converged"]])),
+            "largest_iterations": int(max(r["iterations"] for r in rows if r["converged"])),
+            "single_load_stage": sum(r["converged"] and r["load_stages"] == 1 for r in rows), "rows": rows}
+
+
+def inverse() -> dict:
+    """The inverse with the contact forces in its QP (docs/contact.md): targets only reachable by
+    leaning on a wall (tests/test_contact.py's two-tendon robot), and ticks through the wall and
+    along it."""
+    import dataclasses
+
+    sys.path.insert(0, str(ROOT / "tests"))
+    from test_contact import pressed, wall_robot
+    from vertebra.solver import contact
+    from vertebra.solver.inverse import InverseController, InverseSettings
+
+    base = wall_robot(0.02)
+    cables = tuple(dataclasses.replace(c, max_tension=c.max_tension if k in (0, 4) else 0.0)
+                   for k, c in enumerate(base.scene.cables))
+    model = solver.build_model(dataclasses.replace(base.scene, cables=cables))
+    rng = np.random.default_rng(3)
+    rows = []
+    for _ in range(10):
+        a = np.zeros(16)
+        a[[0, 4]] = rng.uniform(2.0, 15.0, 2)
+        target = model.effector_positions(model.solve(a).state)[0]
+        controller = InverseController(model, InverseSettings(mode="converged", tolerance=1e-6, time_budget=60.0))
+        start = time.perf_counter()
+        step = controller.step(target[None])
+        result = model.solve(step.actuation, initial=step.state)
+        rows.append({"reached": bool(step.reached), "error_m": float(step.errors.max()), "iterations": step.iterations,
+                     "time_s": time.perf_counter() - start, "contact_force_N": max(c.force for c in result.contacts),
+                     "deepest_gap_m": min(c.gap for c in result.contacts), "pressed": len(pressed(result))})
+    wall = 0.02
+    model = wall_robot(wall)
+    controller = InverseController(model, InverseSettings(mode="tick", tolerance=1e-4))
+    tip = model.effector_positions(controller.state)[0]
+    corner = np.array([wall + 0.02, 0.0, tip[2] - 0.01])
+    path = [tip + s * (corner - tip) for s in np.linspace(0.0, 1.0, 40)[1:]]
+    path += [corner + np.array([0.0, 0.002 * k, 0.0]) for k in range(1, 25)]
+    deepest, times = 0.0, []
+    for target in path:
+        start = time.perf_counter()
+        step = controller.step(target[None])
+        times.append(time.perf_counter() - start)
+        deepest = min(deepest, float(contact.evaluate(model.trunk.contact, step.state).gap.min(initial=0.0)))
+    return {"leaning_targets": {"reached": sum(r["reached"] for r in rows), "targets": len(rows), "rows": rows},
+            "ticks_through_the_wall": {"ticks": len(path), "deepest_gap_m": deepest,
+                                       "final_tip": step.positions[0].tolist(), "final_target": path[-1].tolist(),
+                                       "median_tick_s": float(np.median(times))}}
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rounds", type=int, default=9)
-    parser.add_argument("--robots", type=int, default=30)
+    parser.add_argument("--robots", type=int, default=100)
     args = parser.parse_args(argv)
     result = {"vertebra_version": __version__, "date": now(), "loadavg": loadavg(),
               "machine": "2 cores shared with other jobs: ratios are interleaved medians",
-              "cost": cost(args.rounds), "random_robots": robots(args.robots)}
+              "cost": cost(args.rounds), "random_robots": robots(args.robots), "inverse": inverse()}
     c, r = result["cost"], result["random_robots"]
     print(f"cost: {c['pressed_contacts']} pressed contacts, {c['median_s']['contact'] * 1e3:.2f} ms vs "
           f"{c['median_s']['free'] * 1e3:.2f} ms contact-free: {c['ratio']:.2f}x "
           f"({c['iterations']['contact']} vs {c['iterations']['free']} iterations)")
-    print(f"random robots: {r['converged']}/{r['robots']} converge with discs; "
-          f"{r['holes_meet_without_discs']} were refused without (holes meet), {r['converged_of_those']} of them converge")
+    print(f"random robots: {r['converged']}/{r['robots']} converge with discs (median {r['median_iterations']:.0f} "
+          f"iterations, {r['single_load_stage']} in one load stage); {r['folded_past_a_rim']} stop because a disc "
+          f"folds past its neighbour's rim; other failures: {r['other_failures']}; "
+          f"{r['holes_meet_without_discs']} were refused without discs (holes meet), {r['converged_of_those']} of them converge")
+    i = result["inverse"]
+    print(f"inverse: {i['leaning_targets']['reached']}/{i['leaning_targets']['targets']} targets only reachable by "
+          f"leaning reached to 1e-6 m; ticks through the wall: deepest gap {i['ticks_through_the_wall']['deepest_gap_m']:.3g} m")
     write_json(result, RESULTS / "contact.json")
     return 0
 

@@ -120,7 +120,7 @@ def _invert(args, model, scene, settings, trajectory, plot, vtk) -> int:
         # lazy: the parser imports every subcommand module; the libraries load for the command that runs
         from vertebra.solver.paraview import trunk_polydata, write_pvd
 
-        series = [(t, trunk_polydata(model, step.state, step.actuation, step.targets, time=t))
+        series = [(t, trunk_polydata(model, step.state, step.actuation, step.targets, time=t, friction=step.friction))
                   for t, step in zip(trajectory.times if trajectory.timed else range(len(steps)), steps)]
         files = write_pvd(str(vtk), series)
         _log(f"wrote {args.vtk} ({len(files)} steps in {files[0].parent}/)")

@@ -284,6 +284,21 @@ class Tangent:
         U, d = self.low_rank
         return self.symmetric_band()[0] + (U * U) @ d
 
+    def quadratic(self, p: np.ndarray) -> float:
+        """``pᵀHp`` (the symmetric part's: the dense term's included)."""
+        band = self.symmetric_band()
+        n = band.shape[1]
+        Hp = band[0] * p
+        for k in range(1, band.shape[0]):              # row j + k, column j of the lower band, and its mirror
+            Hp[k:] += band[k, :n - k] * p[:n - k]
+            Hp[:n - k] += band[k, :n - k] * p[k:]
+        value = float(p @ Hp)
+        if self.low_rank is not None:
+            U, d = self.low_rank
+            Up = U.T @ p
+            value += float(d @ (Up * Up))
+        return value
+
     def factor(self, shift: float = 0.0, *, symmetric: bool = True, scale: np.ndarray | None = None,
                definite: bool = False) -> tuple[BandedFactor | None, str]:
         """Factor the tangent plus ``shift`` · diag(``scale``) (``scale`` (n,): default |diag|):

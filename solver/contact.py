@@ -51,7 +51,8 @@ ACTIVE_GAP = 1e-12           # a pressed contact's gap at convergence, per trunk
 REGULARISATION = 1e-12       # of the largest diagonal of W: redundant contacts stay solvable
 STABILITY_SPRING = 1e6       # the springs (× the stiffness along the contact) that judge a constrained
                              # equilibrium's stability …
-STEP_SPRING = 10.0           # … and that convexify a Newton step's model (augmented Lagrangian)
+STEP_SPRING = 10.0           # … and that convexify a Newton step's model (augmented Lagrangian), first …
+SPRING_GROWTH = 100.0        # … then this many times stiffer, up to STABILITY_SPRING, while not convex
 PIVOTS = 200                 # principal pivoting steps per contact before the QP is refused
 
 
@@ -184,6 +185,21 @@ def check_rest(model: ContactModel, state, source: str) -> None:
                          "model needs a state without penetration to start from (check disc_thickness against the "
                          "vertebra spacing, and the obstacles' placement)", file=source,
                          field="obstacle" if found.key[k, 0] != PAIR else "segment")
+
+
+def folded(model: ContactModel, state) -> int | None:
+    """An adjacent disc pair (its index) whose facing sides no longer face each other — one disc
+    turned by more than 90° against the other, past its rim — or None. The pair's gap (a rim
+    against the other's face) is then no longer the distance between the discs: such a state is
+    beyond the contact model."""
+    if not model.pair.size:
+        return None
+    axes = qmatrix(state.quaternions[model.disc_frame])[:, :, 2]
+    rim = model.pair_side[:, 0, None] * axes[model.pair[:, 0]]
+    face = model.pair_side[:, 1, None] * axes[model.pair[:, 1]]
+    facing = np.add.reduce(rim * face, 1)               # −1 at rest: the sides face each other
+    worst = int(np.argmax(facing))
+    return worst if facing[worst] >= 0.0 else None
 
 
 def describe(model: ContactModel, key) -> str:
@@ -524,6 +540,30 @@ class Constraints:
         self.multipliers = step.multipliers[pressed]
         self.reference = step.contacts.gap[pressed]
 
+    def reestimate(self, gradient: np.ndarray, state, weights: np.ndarray) -> None:
+        """Replace the multipliers by the forces ``λ ≥ 0`` of the pressed contacts that balance
+        ``∇E`` at ``state`` best, ``min ‖w(∇E − Gᵀλ)‖`` (``weights``: 1 for forces, 1/L for
+        moments) — the least-squares multipliers of sequential QP: at an equilibrium they are the
+        step's, away from it they keep an overshooting step's forces out of the next tangent."""
+        if not self.multipliers.size:
+            return
+        from scipy.optimize import nnls
+
+        found = self.pressed(state)
+        rows = found.rows
+        G = np.zeros((self.multipliers.size, self.n_frames, 6))
+        for side in range(2):
+            frame = found.frames[:, side]
+            used = frame > 0
+            np.add.at(G, (np.flatnonzero(used), frame[used]), rows[used, side])
+        A = (G[:, 1:] * weights).reshape(self.multipliers.size, -1).T
+        b = (gradient[1:] * weights).reshape(-1)
+        lam, _ = nnls(A, b)
+        kept = lam > 0.0
+        self.keys, self.multipliers = self.keys[kept], lam[kept]
+        if self.reference is not None:
+            self.reference = self.reference[kept]
+
     def work(self, trial) -> float:
         """``λᵀ(g(trial) − g(start))``: the Lagrangian's change beyond the potential's."""
         if not self.multipliers.size:
@@ -585,7 +625,7 @@ class Constraints:
         stiffness of the tangent's diagonal along the contact's direction; with ``step``, along the
         contacts it keeps pressed): positive definite exactly when the tangent is on the directions
         the contacts leave free (the constrained equilibrium's stability), up to the spring's
-        finiteness. Kept as the last springs (:meth:`spring_work`, :meth:`released`)."""
+        finiteness. Kept as the last springs (:meth:`released`)."""
         self.springs = None
         if step is None:
             if not self.multipliers.size:
@@ -605,14 +645,6 @@ class Constraints:
         U, d = (G.T, spring) if matrix.low_rank is None else (np.hstack([matrix.low_rank[0], G.T]),
                                                               np.concatenate([matrix.low_rank[1], spring]))
         return type(matrix)(matrix.assembler, matrix.terms, (U, d))
-
-    def spring_work(self, dq: np.ndarray) -> float:
-        """``dqᵀ (Σ k_i G_iᵀG_i) dq`` of the springs last added by :meth:`stiffened`."""
-        if self.springs is None:
-            return 0.0
-        G, spring, _ = self.springs
-        along = G @ dq
-        return float(spring @ (along * along))
 
 
 def _hat(v: np.ndarray) -> np.ndarray:

@@ -44,6 +44,7 @@ import numpy as np
 from vertebra.core.errors import ConvergenceError, OptionError
 from vertebra.core.lie import qmatrix
 from vertebra.solver import newton, outputs
+from vertebra.solver.cables import CablePieces
 from vertebra.solver.potential import LoadCase, Tendons, evaluate
 
 FIXED_POINT = 1e-12     # relative change of the span tensions at which the fixed point has converged
@@ -53,8 +54,8 @@ UNSETTLED = 8           # rounds of changing hole statuses after which the holes
 MAX_SPLITS = 4          # an increment is split into 2^MAX_SPLITS parts at most
 SLIP = 1e-12            # relative excess of a hole's band (or backflow of a sliding hole) that changes its status
 
-__all__ = ["FrictionState", "Routes", "Transmission", "linearise", "routes", "sensitivities", "solve",
-           "solve_sequence", "transmission", "transmission_ratios", "turning_angles"]
+__all__ = ["FrictionState", "Routes", "Transmission", "equilibrium_sensitivities", "linearise", "routes", "sensitivities", "solve",
+           "solve_sequence", "transmission", "transmission_ratios", "turning_angles", "secant_forces", "EDGE"]
 
 
 @dataclass(frozen=True)
@@ -144,6 +145,22 @@ class FrictionState:
     def stick(self, routes: Routes) -> list:
         """Per cable: one flag per interior hole of its route — is the cable stuck there?"""
         return [(self.slip[run[1:]] == 0).tolist() for run in routes.pieces]
+
+    def incipient(self, trunk) -> np.ndarray:
+        """(m,) the slip status each hole would take when the command goes on as it went (for
+        :func:`linearise`): a sliding hole its status; a stuck hole of a tension-driven cable the
+        direction it slid in last (it counts only where its tension sits on that edge of its band:
+        a command that stopped, then goes on); a tendon's stuck hole 0 (its material would flow)."""
+        tendon = trunk.actuators.stroke_driven[trunk.cables.owner]
+        return np.where((self.slip != 0) | tendon, self.slip, self.direction).astype(np.int8)
+
+    @classmethod
+    def after(cls, history: "FrictionState", current: "Transmission", actuation: np.ndarray, state) -> "FrictionState":
+        """The state a command ``actuation`` applied to ``history`` leaves at ``state`` when
+        ``current`` is the return map there (a control tick commits its predicted state so: the
+        next tick starts from it)."""
+        direction = np.where(current.slip != 0, current.slip, history.direction).astype(np.int8)
+        return cls(np.array(actuation, float), state, current.tension, current.material, current.slip, direction)
 
 
 def _shares(trunk, cable: int, run: np.ndarray) -> np.ndarray:
@@ -430,14 +447,25 @@ def _increment(trunk, actuation, history, initial, options, rounds):
     return result
 
 
-def transmission_ratios(trunk, current: Transmission, angles: np.ndarray) -> np.ndarray:
+def transmission_ratios(trunk, current: Transmission, angles: np.ndarray, incipient: np.ndarray | None = None) -> np.ndarray:
     """(m,) how much of a change of each cable's command reaches each span in the current
     sliding direction: a tension-driven cable's ``∂T_j/∂T₀`` (the capstan factors up to the first
     stuck hole, 0 beyond it; a slack cable as if pulled), a tendon's ``∂T_j/∂s`` over the run of
-    spans that holds its first span (``K g_j`` while taut, 0 elsewhere)."""
+    spans that holds its first span (``K g_j`` while taut, 0 elsewhere). ``incipient``: (m,)
+    statuses of holes at incipient slip (:func:`linearise`)."""
+    return _ratios(trunk, current, angles, incipient)[0]
+
+
+EDGE = 1e-9     # relative distance of a stuck hole's tension from its band's edge at which it is at incipient slip
+
+
+def _ratios(trunk, current: Transmission, angles: np.ndarray, incipient: np.ndarray | None):
+    """:func:`transmission_ratios` and, per cable, the slip direction it took for holes at
+    incipient slip (0: none taken) — the direction the command must keep for the ratios to hold."""
     actuators, cables = trunk.actuators, trunk.cables
     mu = actuators.friction
     ratio = np.zeros(cables.owner.size)
+    continued = np.zeros(cables.n_cables, np.int8)
     tendons = current.tendons
     for c, run in enumerate(routes(cables).pieces):
         if not actuators.stroke_driven[c]:
@@ -445,41 +473,92 @@ def transmission_ratios(trunk, current: Transmission, angles: np.ndarray) -> np.
             for j, piece in enumerate(run):
                 if j:
                     status = current.slip[piece]
+                    turn = mu[c] * angles[piece]
+                    if status == 0 and incipient is not None and incipient[piece] and continued[c] in (0, incipient[piece]):
+                        # stuck on the edge of its band towards its last slip: it slides on when
+                        # the command goes on in that direction
+                        before, after = current.tension[run[j - 1]], current.tension[piece]
+                        edge = before * math.exp(-turn if incipient[piece] > 0 else turn)
+                        if abs(after - edge) <= EDGE * max(before, after):
+                            status = continued[c] = incipient[piece]
                     if status == 0 and (current.tension[run[j - 1]] > 0.0 or current.tension[piece] > 0.0):
                         break                                   # stuck: the spans beyond keep their tension
-                    factor *= math.exp(-mu[c] * angles[piece] if status >= 0 else mu[c] * angles[piece])
+                    factor *= math.exp(-turn if status >= 0 else turn)
                 ratio[piece] = factor
         elif tendons is not None and current.tension[run[0]] > 0.0:
             unit = tendons.units[run[0]]
             spans = run[tendons.units[run] == unit]
             ratio[spans] = tendons.stiffness[unit] * tendons.weights[spans]
+            if incipient is not None and run.size > 1 and spans.size > 1:
+                continued[c] = incipient[run[1]] if current.slip[run[1]] == incipient[run[1]] else 0
         elif current.tension[run[0]] > 0.0:                     # a frictionless tendon: k along the cable
             ratio[run] = actuators.cable_stiffness[c]
-    return ratio
+    return ratio, continued
 
 
-def linearise(trunk, state, actuation: np.ndarray, history: FrictionState | None = None):
+def _forces(trunk, state, ratio: np.ndarray) -> np.ndarray:
+    """(n_dof, n_cables) the generalised forces of each cable's spans per unit of its command
+    when span ``j`` changes by ``ratio[j]`` of it (the sign of the linearisation's actuator forces)."""
+    cables = trunk.cables
+    n_cables, n_frames = cables.n_cables, trunk.frames.count
+    pieces = cables.pieces(state.positions, qmatrix(state.quaternions))
+    rows = np.repeat(cables.owner, 2) * n_frames + cables.ends
+    forces = np.zeros((n_cables * n_frames, 6))
+    np.add.at(forces, rows, (ratio[:, None] * pieces.unit).reshape(-1, 6))
+    return -forces.reshape(n_cables, n_frames, 6)[:, 1:].reshape(n_cables, -1).T
+
+
+def linearise(trunk, state, actuation: np.ndarray, history: FrictionState | None = None,
+              incipient: np.ndarray | None = None):
     """The linearisation (:func:`~vertebra.solver.outputs.linearise`) at the equilibrium ``state``
     reached under ``actuation`` from ``history`` (None: from rest — a monotone pull): the tangent
     with every span's own tension, and as each cable's actuator force the forces of its spans per
     unit change of its command in the current sliding direction (:func:`transmission_ratios`) —
-    the frictional transmission the inverse's QP sees. Stuck spans take no part in it."""
+    the frictional transmission the inverse's QP sees. Stuck spans take no part in it.
+
+    ``incipient``: (m,) slip statuses (e.g. ``history.slip``, the direction each hole slid in
+    last) for holes that the return map finds stuck on the edge of their band — at the state a
+    command left, every hole that slid is there: each such hole is taken as sliding on in that
+    direction (a tendon's holes: the active set starts from them). That holds while the cable's
+    command goes on in the direction returned for it (``continued``, (n_cables,): +1 pulled on,
+    −1 paid out on, 0: no hole taken so); a command reversed sticks them (linearise again without
+    them). Returns ``(lin, current, continued)``."""
     if history is None:
         history = FrictionState.rest(trunk)
     lengths, angles = geometry(trunk, state)
-    current = transmission(trunk, history, actuation, lengths, angles)
+    current = transmission(trunk, history, actuation, lengths, angles, incipient)
     lin = outputs.linearise(trunk, state, actuation, _Loads(trunk, current))
-    cables = trunk.cables
-    n_cables, n_frames = cables.n_cables, trunk.frames.count
-    if n_cables:
-        ratio = transmission_ratios(trunk, current, angles)
-        pieces = cables.pieces(state.positions, qmatrix(state.quaternions))
-        rows = np.repeat(cables.owner, 2) * n_frames + cables.ends
-        forces = np.zeros((n_cables * n_frames, 6))
-        np.add.at(forces, rows, (ratio[:, None] * pieces.unit).reshape(-1, 6))
-        lin.actuator_forces[:, :n_cables] = -forces.reshape(n_cables, n_frames, 6)[:, 1:].reshape(n_cables, -1).T
+    continued = np.zeros(trunk.cables.n_cables, np.int8)
+    if trunk.cables.n_cables:
+        ratio, continued = _ratios(trunk, current, angles, incipient)
+        lin.actuator_forces[:, :trunk.cables.n_cables] = _forces(trunk, state, ratio)
         lin.force_scale = None      # the forces are no longer the Jacobian's rows scaled
-    return lin, current
+    return lin, current, continued
+
+
+def secant_forces(trunk, state, history: FrictionState, current: Transmission, actuation: np.ndarray,
+                  target: np.ndarray, incipient: np.ndarray | None, forces: np.ndarray) -> np.ndarray:
+    """The actuator forces (n_dof, n_cables) of the secant of the return map at ``state``'s poses
+    from ``actuation`` (where it gave ``current``) to ``target``: span ``j`` of cable ``c``
+    changes by ``(T_j(target) − T_j(actuation)) / (target_c − actuation_c)`` per unit of the
+    cable's command. The return map is piecewise linear in the command (a hole slides or
+    sticks as its band is reached), so over a change that crosses a kink the secant is the
+    linear model that holds at both ends; cables whose command does not change keep their
+    column of ``forces`` (the tangent's)."""
+    n_cables = trunk.cables.n_cables
+    change = target[:n_cables] - actuation[:n_cables]
+    moved = np.flatnonzero(np.abs(change) > 1e-12 * np.maximum(np.abs(actuation[:n_cables]), 1.0))
+    out = forces.copy()
+    if moved.size:
+        lengths, angles = geometry(trunk, state)
+        command = np.array(actuation, float)
+        command[moved] = target[moved]
+        reached = transmission(trunk, history, command, lengths, angles, incipient)
+        owner = trunk.cables.owner
+        ratio = np.where(np.isin(owner, moved), (reached.tension - current.tension) / np.where(
+            change[owner] != 0.0, change[owner], 1.0), 0.0)
+        out[:, moved] = _forces(trunk, state, ratio)[:, moved]
+    return out
 
 
 def _span_tensions(trunk, state, load: LoadCase) -> np.ndarray:
@@ -540,3 +619,109 @@ def sensitivities(model, actuations, history: FrictionState | None = None, cable
     finally:
         model.set_parameters(base)
     return {"names": [f"friction:{c}" for c in cables], "effector_positions": positions, "span_tensions": tensions}
+
+
+def _scatter(trunk, rows: np.ndarray) -> np.ndarray:
+    """(n_dof, k) from per-piece-end rows (k, 2m, 6) onto the free frames' DoFs."""
+    cables = trunk.cables
+    k = rows.shape[0]
+    out = np.zeros((k, trunk.frames.count, 6))
+    for i in range(k):
+        np.add.at(out[i], cables.ends, rows[i])
+    return out[:, 1:].reshape(k, -1).T
+
+
+def equilibrium_sensitivities(model, result, history: FrictionState, cables=None) -> dict:
+    """Exact derivatives with respect to the cables' friction coefficients of one frictional
+    equilibrium ``result`` (a :meth:`~vertebra.solver.model.TrunkModel.solve` whose command was
+    applied to ``history``), by the implicit function theorem, the history and the holes'
+    statuses held (a hole on the edge of its band moves with it; one that is stuck keeps its
+    tension). The equilibrium ``∇E(q) + Σ_j T_j(q, μ) ∂L_j/∂q = 0`` with the span tensions of
+    the return map — along a tension-driven cable ``T_j = T_{j−1} e^(−s_j μ Δθ_j(q))`` at a hole
+    sliding in direction ``s_j``, a stuck span's committed tension — gives
+    ``dq/dμ = −(K + Σ_j ∂L_j/∂q ⊗ ∂T_j/∂q)⁻¹ Σ_j ∂T_j/∂μ ∂L_j/∂q``, with ``K`` the tangent at fixed
+    span tensions (its factor) and the rank-m update of the capstan factors' change with the
+    shape solved by Sherman–Morrison–Woodbury. Tension-driven cables only (a stroke-driven
+    tendon's runs would need their material flow: :class:`OptionError`); a hole turned by less
+    than 1e-9 rad has no angle derivative (a straight route: |Δθ| has a kink there). Returns
+    ``{"names", "state": (n_dof, p), "effector_positions": (3·n_effectors, p), "span_tensions":
+    (m, p)}`` — compare :func:`sensitivities` (differences of a whole sequence)."""
+    trunk = model.trunk
+    actuators, routing = trunk.actuators, trunk.cables
+    if actuators.tendons.size:
+        raise OptionError("exact friction sensitivities are implemented for tension-driven cables only "
+                          "(stroke-driven tendons: friction.sensitivities, sequence differences)", field="cables")
+    names = list(model.actuator_names[:model.n_cables])
+    chosen = names if cables is None else list(cables)
+    unknown = [c for c in chosen if c not in names]
+    if unknown:
+        raise OptionError(f"unknown cable(s) {', '.join(unknown)} (cables: {', '.join(names)})", field="cables")
+    state, actuation = result.state, result.friction.actuation
+    lengths, angles = geometry(trunk, state)
+    current = transmission(trunk, history, actuation, lengths, angles, result.friction.slip)
+    lin = outputs.linearise(trunk, state, actuation, _Loads(trunk, current))
+    rotations = qmatrix(state.quaternions)
+    offsets, d, length = routing.spans(state.positions, rotations)
+    pieces = CablePieces.of_spans(offsets, d, length)
+    m, n_dof = length.size, trunk.n_dof
+    u = pieces.u
+    ends = offsets.reshape(m, 2, 3)
+
+    def c_times(w):           # C w = [−w; −s_a × w; w; s_b × w] per piece (m, 12)
+        out = np.empty((m, 4, 3))
+        out[:, 0], out[:, 2] = -w, w
+        out[:, 1], out[:, 3] = -np.cross(ends[:, 0], w), np.cross(ends[:, 1], w)
+        return out.reshape(m, 12)
+
+    # ∂Δθ_j/∂q on the frames of piece j − 1 (via u_{j−1}) and of piece j (via u_j)
+    route = routes(routing)
+    mu = actuators.friction
+    slip = current.slip
+    inner = route.interior
+    a, b = route.previous[inner], inner
+    sin = np.sin(angles[b])
+    ok = sin > 1e-9
+    ua, ub = u[a], u[b]
+    proj_a = (ub - ua * np.sum(ua * ub, 1)[:, None]) / length[a][:, None]       # Π_a u_b
+    proj_b = (ua - ub * np.sum(ua * ub, 1)[:, None]) / length[b][:, None]       # Π_b u_a
+    scale = np.where(ok, -1.0 / np.where(ok, sin, 1.0), 0.0)[:, None]
+    full_a, full_b = np.zeros((m, 3)), np.zeros((m, 3))
+    full_a[a], full_b[b] = scale * proj_a, scale * proj_b
+    # row k of on_prev: the turn at the hole after piece k on piece k's frames; row j of on_own:
+    # the turn at the hole before piece j on piece j's frames
+    on_prev, on_own = c_times(full_a), c_times(full_b)
+    # per span: ∂T_j/∂q as rows on piece ends (m spans × (2m piece ends, 6)), ∂T_j/∂μ of its cable
+    dT_dq = np.zeros((m, 2 * m, 6))
+    dT_dmu = np.zeros(m)
+    for c, run in enumerate(route.pieces):
+        for j in range(1, run.size):
+            p, prev = run[j], run[j - 1]
+            s = int(slip[p])
+            if s == 0:
+                continue                                      # stuck: its committed tension
+            factor = math.exp(-s * mu[c] * angles[p])
+            T = current.tension[p]
+            dT_dq[p] = factor * dT_dq[prev]
+            dT_dq[p, 2 * prev:2 * prev + 2] -= T * s * mu[c] * on_prev[prev].reshape(2, 6)
+            dT_dq[p, 2 * p:2 * p + 2] -= T * s * mu[c] * on_own[p].reshape(2, 6)
+            dT_dmu[p] = factor * dT_dmu[prev] - T * s * angles[p]
+    A = _scatter(trunk, np.stack([np.where((np.arange(2 * m) // 2 == j)[:, None], pieces.unit.reshape(2 * m, 6), 0.0)
+                                  for j in range(m)]))                    # (n_dof, m) ∂L_j/∂q
+    B = _scatter(trunk, dT_dq)                                             # (n_dof, m) ∂T_j/∂q
+    K_inv_A = lin.solve(np.asfortranarray(A))
+    capacitance = np.eye(m) + B.T @ K_inv_A
+
+    def solve(rhs):           # (K + A Bᵀ)⁻¹ rhs (Sherman–Morrison–Woodbury)
+        x = lin.solve(np.asfortranarray(rhs))
+        return x - K_inv_A @ np.linalg.solve(capacitance, B.T @ x)
+
+    owner = routing.owner
+    columns = []
+    for name in chosen:
+        k = names.index(name)
+        columns.append(np.where(owner == k, dT_dmu, 0.0))
+    dT_mu = np.array(columns).T                                           # (m, p) at fixed q
+    dq = -solve(A @ dT_mu)                                                 # (n_dof, p)
+    tensions = dT_mu + B.T @ dq
+    return {"names": [f"friction:{c}" for c in chosen], "state": dq,
+            "effector_positions": lin.effector_jacobian @ dq, "span_tensions": tensions}

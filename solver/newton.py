@@ -270,6 +270,14 @@ class _Stage:
         self.turn = math.sqrt(record.chain.largest_turn2) if record is not None else largest_turn(xi)
         if self.turn > TURN_LIMIT:
             raise Unrepresentable(turn_message(self.trunk, xi, self.load.scale, self.linear), state)
+        if self.constraints is not None:
+            pair = contact.folded(self.trunk.contact, state)
+            if pair is not None:
+                raise Unrepresentable(
+                    f"{contact.describe(self.trunk.contact, (contact.PAIR, pair, -1))} turn by more than 90° against "
+                    f"each other at load factor {self.load.scale:.3g}: one has folded past the other's rim, which the "
+                    "disc–disc contact (a rim against the other's face) does not represent; the loads fold the "
+                    "robot further than its discs allow", state)
         pieces = ev.pieces
         if pieces is not None:
             ratio = pieces.length / self.trunk.rest_piece_lengths
@@ -347,17 +355,22 @@ def _newton(stage: _Stage, state: State):
             kind = "lu"
         indefinite = False       # a factor of this tangent failed: it is not positive definite
         respringed = False       # the contacts' springs were set again from a step's pressed contacts
+        spring = 0.0             # the springs' stiffness along the pressed contacts (0: none)
         while step is None:      # until a step is accepted
             if shift > SHIFT_CEILING:
                 return False, state, residual
             if shift and scale is None:
                 scale = np.maximum(np.abs(matrix.diagonal()), trunk.rest.stiffness)
             factor, kind = factored.factor(shift, symmetric=symmetric, scale=scale, definite=symmetric)
-            if factor is None and constraints is not None and factored is matrix and constraints.multipliers.size:
+            if (factor is None and constraints is not None and constraints.multipliers.size
+                    and spring < contact.STABILITY_SPRING and (factored is matrix or constraints.springs is not None)):
                 # springs along the pressed contacts (an augmented Lagrangian): the tangent need
                 # only be definite where the contacts leave the trunk free, and the step's QP
-                # keeps the pressed contacts as they are
-                factored = constraints.stiffened(matrix, state, contact.STEP_SPRING)
+                # keeps the pressed contacts as they are; stiffer springs up to those that judge
+                # stability (a tangent positive definite on the free directions takes them)
+                spring = contact.STEP_SPRING if not spring else min(contact.SPRING_GROWTH * spring,
+                                                                   contact.STABILITY_SPRING)
+                factored = constraints.stiffened(matrix, state, spring)
                 continue
             if factor is None:
                 indefinite = True
@@ -376,7 +389,7 @@ def _newton(stage: _Stage, state: State):
                         continue
                     if factored is not matrix and not respringed and constraints.released(constrained):
                         # the step opens a contact that holds a spring: springs on those it keeps
-                        factored = constraints.stiffened(matrix, state, contact.STEP_SPRING, constrained)
+                        factored = constraints.stiffened(matrix, state, spring, constrained)
                         respringed = True
                         continue
                     dq, balanced = constrained.dq, constrained.balanced
@@ -385,9 +398,12 @@ def _newton(stage: _Stage, state: State):
                 if not rp > 0.0:                    # an LU direction that does not descend (or NaN)
                     shift = _raise_shift(shift, 10.0)
                     continue
-                curvature = rp - shift * float(dq @ (scale * dq)) if shift else rp    # pᵀHp: (H + μD)p = r
-                if constraints is not None:
-                    curvature -= constraints.spring_work(dq)
+                if constraints is None:
+                    curvature = rp - shift * float(dq @ (scale * dq)) if shift else rp    # pᵀHp: (H + μD)p = r
+                else:
+                    # pᵀHp of the Lagrangian's tangent itself: rp less the shift's and the springs'
+                    # shares would leave the springs' rounding (k (Gp)², Gp ≈ 0 to the solve's accuracy)
+                    curvature = matrix.quadratic(dq)
                 change = strain_change(dq, ev.links)
                 if stage.linear is None and ev.at_rest and not shift:
                     # the linear response from rest: what the load asks of each link, to first order
@@ -438,6 +454,12 @@ def _newton(stage: _Stage, state: State):
         trusted = kind == "cholesky" and residual <= TRUSTED_RESIDUAL
         kinds.add(kind)
         state, ev = trial, ev_trial
+        if constraints is not None and (kind != "cholesky" or alpha < 1.0 or factored is not matrix):
+            # after a shifted, stiffened or cut-back step: the pressed contacts' forces that
+            # balance the new state best (a step whose complementarity problem overshot must not
+            # carry its forces into the next tangent; a full Newton step's forces are these to
+            # second order)
+            constraints.reestimate(ev.gradient, state, stage.weights)
         residual = stage.norm(ev, state)
         if not math.isfinite(residual):
             raise ConvergenceError(f"non-finite forces appeared after a Newton step at load factor {load.scale:.3g}")

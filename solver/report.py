@@ -119,12 +119,21 @@ def _inverse_step(model: TrunkModel, t, step) -> dict:
     actuation, displacements = step.actuation, step.displacements
     active = step.qp.diagnostics() if step.qp is not None else None
     predicted, miss = step.predicted_errors, step.prediction_miss
+    # with friction (docs/friction.md) each cable also carries its span tensions and where it sticks
+    friction = getattr(step, "friction", None)
+    if not model.n_tendons:
+        cables = {names[j]: {"tension": float(actuation[j]), "stroke": float(displacements[j])} for j in range(nc)}
+        if friction is not None:
+            for name, run in zip(names, routes(model.trunk.cables).pieces):
+                cables[name].update(tensions=[float(v) for v in friction.tension[run]],
+                                    stick=(friction.slip[run[1:]] == 0).tolist())
+    else:
+        dropped = ("length", "route") if friction is not None else ("length", "route", "tensions", "stick")
+        cables = {name: {k: v for k, v in row.items() if k not in dropped}
+                  for name, row in cables_report(model, step.state, actuation, friction=friction).items()}
     return {
         "t": float(t),
-        "cables": ({names[j]: {"tension": float(actuation[j]), "stroke": float(displacements[j])} for j in range(nc)}
-                   if not model.n_tendons else
-                   {name: {k: v for k, v in row.items() if k not in ("length", "route", "tensions", "stick")}
-                    for name, row in cables_report(model, step.state, actuation).items()}),
+        "cables": cables,
         "chambers": {names[j]: {"pressure": float(actuation[j]), "volume_growth": float(displacements[j])}
                      for j in range(nc, len(names))},
         # an axis effector reports its world direction (unit vector) and a dimensionless error
@@ -139,6 +148,7 @@ def _inverse_step(model: TrunkModel, t, step) -> dict:
         "equilibrium": bool(step.equilibrium),
         "out_of_range": [excess.to_dict() for excess in step.out_of_range],
         "bound_violations": [violation.to_dict() for violation in bound_violations(model, step.state, actuation)],
+        **({"stuck": step.stuck(model)} if friction is not None else {}),
         "status": step.status,
         "iterations": int(step.iterations),
         "fraction": float(step.fraction),

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from vertebra import solver
+from vertebra.core.errors import OptionError
 from vertebra.solver import friction
 
 E, NU, R_ROD, LINK, N = 54e9, 0.3, 0.0007, 0.02, 10
@@ -327,3 +328,208 @@ def test_sensitivities_to_friction_are_differences_of_the_whole_sequence():
     theta = friction.geometry(model.trunk, top.state)[1][route].sum()
     # a pull's distal tension T₀ e^(−μΘ): ∂/∂μ = −T₀ e^(−μΘ) (Θ + μ ∂Θ/∂μ), Θ barely moving
     assert derivative["span_tensions"][0, route[-1], 0] == pytest.approx(-3.0 * math.exp(-0.2 * theta) * theta, rel=0.05)
+
+
+# ---------------------------------------------------------------- the inverse's tick and steps with friction
+def outside(mu, servo=False, **cable):
+    """The 16-tendon robot outside the gallery of benchmarks/bench_tick.py, every cable with μ
+    (``servo``: stroke-driven tendons, k = 2000 N/m, pretension 1 N, strokes −1 … 3 mm)."""
+    drive = ({"stroke": 0.0, "stiffness": 2000.0, "pretension": 1.0, "min_stroke": -0.001, "max_stroke": 0.003}
+             if servo else {"tension": 0.0, "min_tension": 0.0, "max_tension": 12.0})
+    return solver.build_model(solver.parse_scene({
+        "gravity": {"vector": [0.0, -9.81, 0.0]},
+        "segment": [{"type": "beam", "count": 6, "length": 0.022, "elements": 3, "youngs_modulus": 40e9,
+                     "poisson_ratio": 0.3, "section": {"shape": "circle", "radius": 0.0008}, "density": 6450.0,
+                     "vertebra": {"mass": 0.003}}],
+        "cable": [{"name": f"t{4 * g + j + 1}", "radius": 0.007 + 0.002 * g, "angle_deg": 90.0 * j + 22.5 * g,
+                   "from": 1, "to": end, **drive, "friction": mu, **cable}
+                  for g, end in enumerate((2, 3, 5, 6)) for j in range(4)],
+        "effector": [{"name": "mid", "vertebra": 3}, {"name": "tip", "vertebra": -1}]}))
+
+
+def circle_ticks(model, ticks, value=0.3):
+    """A tick controller from the equilibrium under ``value`` on every tendon (with friction: a pull from
+    rest), the targets on a 1 mm circle (100 ticks a turn); the plant solves each tick's command from
+    its own last equilibrium and friction state. Yields (controller, previous actuation, step, plant)."""
+    from vertebra.solver.inverse.controller import InverseController, InverseSettings
+    lam = np.full(model.n_cables, value)
+    start = model.solve(lam)
+    controller = InverseController(model, InverseSettings(mode="tick"), actuation=lam, state=start.state,
+                                   history=start.friction)
+    centre = model.effector_positions(start.state)
+    plant = start
+    for k in range(ticks):
+        target = centre + 1e-3 * np.array([math.cos(0.02 * math.pi * k), math.sin(0.02 * math.pi * k), 0.0])
+        previous, history = controller.actuation, controller.history
+        step = controller.step(target)
+        assert step.history is history and step.friction is controller.history
+        plant = model.solve(step.actuation, initial=plant.state, history=plant.friction)
+        yield controller, previous, step, plant
+
+
+def test_the_tick_carries_the_friction_state_and_the_frictional_robot_follows_its_commands():
+    # μ = 0.2, per-tick changes of 0.2 N: every tick is applied, within the bounds and the per-tick
+    # change, its friction state is the plant's (the tick's command applied to the state the last
+    # one left, solved to equilibrium, lands where the plant does), and the plant — the robot
+    # under the commands in order, with its hysteresis — follows the circle (without the friction
+    # state the ticks were not applied: the robot stayed 1 mm from the targets)
+    model = outside(0.2, max_tension_change=0.2)
+    lower, upper = model.actuator_bounds
+    errors, stuck = [], 0
+    for controller, previous, step, plant in circle_ticks(model, 40):
+        assert step.status == "tick" and step.fraction == 1.0
+        assert np.all(step.actuation >= lower) and np.all(step.actuation <= upper)
+        assert np.all(np.abs(step.actuation - previous) <= 0.2 * (1 + 1e-12))
+        settled = controller.settled(step)
+        assert settled.equilibrium
+        assert np.abs(settled.positions - model.effector_positions(plant.state)).max() <= 1e-6
+        assert np.abs(settled.friction.tension - plant.friction.tension).max() <= 1e-3
+        errors.append(float(np.linalg.norm(model.effector_positions(plant.state) - step.targets, axis=1).max()))
+        stuck += sum(len(holes) for holes in step.stuck(model).values())
+    assert max(errors[10:]) <= 0.4e-3
+    assert stuck > 0                # the circle reverses cables: their holes stick
+
+
+def test_the_tick_without_friction_runs_no_friction_code(monkeypatch):
+    # μ = 0: the tick is today's frictionless one — not a line of solver/friction.py runs
+    model = outside(0.0)
+    def refuse(*args, **kwargs):
+        raise AssertionError("friction code ran without friction")
+    for name in ("transmission", "linearise", "geometry", "secant_forces", "solve", "_ratios"):
+        monkeypatch.setattr(friction, name, refuse)
+    for _, _, step, _ in circle_ticks(model, 5):
+        assert step.status == "tick" and step.history is None and step.friction is None and step.stuck(model) == {}
+
+
+def test_the_tick_with_friction_on_stroke_driven_tendons():
+    # tendons driven by servo strokes (k = 2000 N/m, pretension 1 N), μ = 0.15: the tick carries the
+    # tendons' span materials and statuses (a tick's runs of sliding spans make its tangent); the
+    # ticks are applied, the friction state is the plant's and the plant follows
+    model = outside(0.15, servo=True)
+    errors, applied = [], 0
+    for controller, previous, step, plant in circle_ticks(model, 30, 0.0003):
+        applied += step.fraction > 0.0
+        # (a tick commits the friction state of its predicted state, not of an equilibrium: a
+        # tendon's stuck spans keep the materials of the prediction — measured within 5.1e-6 m of the plant's,
+        # its effectors within 2.3e-5 m; the ticks' own misses ≤ 2.3e-4 m)
+        settled = controller.settled(step)
+        assert np.abs(settled.positions - model.effector_positions(plant.state)).max() <= 3e-5
+        assert np.nanmax(np.abs(settled.friction.material - plant.friction.material)) <= 1e-5
+        errors.append(float(np.linalg.norm(model.effector_positions(plant.state) - step.targets, axis=1).max()))
+    assert applied >= 27
+    assert max(errors[10:]) <= 0.4e-3
+
+
+def test_the_converged_inverse_releases_from_a_pulled_state_and_reports_where_the_cable_sticks():
+    # the 10-link section pulled to 3 N (μ = 0.2); the target is where a release to 2.8 N leaves the
+    # tip. The inverse started from the pulled state (its friction state) finds that release: the
+    # command applied to the pulled state reaches the target, the cable sticks at the slip front
+    # (the holes before it slide out, those beyond still hold the pull's tensions), and the
+    # report (invert --json) carries each cable's span tensions, its stick flags and the stuck holes
+    from vertebra.solver.inverse.controller import InverseController, InverseSettings
+    from vertebra.solver.report import inverse_report
+    model = build(pulled(0.2))
+    pull = model.solve([3.0])
+    release = model.solve([2.8], history=pull.friction)
+    targets = model.effector_positions(release.state)
+    from_rest = model.effector_positions(model.solve([2.8]).state)
+    assert np.linalg.norm(from_rest - targets) > 1e-3              # the hysteresis: a pull to 2.8 N lands elsewhere
+    controller = InverseController(model, InverseSettings(mode="converged"), actuation=[3.0], state=pull.state,
+                                   history=pull.friction)
+    step = controller.step(targets)
+    assert step.reached and step.equilibrium
+    assert step.history.actuation[0] == 3.0 and np.allclose(step.history.tension, pull.friction.tension, rtol=1e-9)
+    assert step.actuation[0] == pytest.approx(2.8, abs=1e-4)
+    check = model.solve(step.actuation, history=pull.friction)
+    assert np.linalg.norm(model.effector_positions(check.state) - targets) <= 1e-6
+    stuck = step.stuck(model)["t"]
+    assert stuck and stuck == (np.flatnonzero(release.friction.slip[route_of(model)[1:]] == 0) + 1).tolist()
+    document = inverse_report(model, [step], [0.0], scene="rod", mode="converged", backend="x", tolerance=1e-6)
+    row = document["steps"][0]
+    assert row["stuck"] == {"t": stuck}
+    cable = row["cables"]["t"]
+    assert len(cable["tensions"]) == N and len(cable["stick"]) == N - 1
+    assert [k + 1 for k, flag in enumerate(cable["stick"]) if flag] == stuck
+    assert cable["tensions"][0] == pytest.approx(2.8, abs=1e-4)
+    assert np.allclose(cable["tensions"], release.friction.tension[route_of(model)], atol=1e-4)
+    # frictionless: neither key
+    plain = build({"name": "t", "radius": 0.01, "to": N, "tension": 0.0})
+    row = inverse_report(plain, [InverseController(plain).step(targets)], [0.0], scene="rod", mode="converged",
+                         backend="x", tolerance=1e-6)["steps"][0]
+    assert "stuck" not in row and "stick" not in row["cables"]["t"]
+
+
+def test_friction_with_disc_contact_pull_release_converges_complementary_with_hysteresis():
+    # a 4-vertebra trunk with discs (tests/test_contact.py's disc trunk) whose cable has μ = 0.2:
+    # pulled until every pair of discs presses rim to face, then released. Every command converges,
+    # every contact is complementary, the discs press at the top, and the loop is open at 4 N
+    # (contact-free there) while it closes without friction
+    SPACING, DISC, THICK, HOLE = 0.01, 0.015, 0.002, 0.008
+    def trunk(mu):
+        disc = {"disc_radius": DISC, "disc_thickness": THICK}
+        return solver.build_model(solver.parse_scene({
+            "segment": [{"type": "beam", "count": 4, "length": SPACING, "youngs_modulus": 1e9,
+                         "section": {"area": 1e-3, "Ixx": 1e-12, "Iyy": 1e-12, "J": 2e-12}, "vertebra": disc}],
+            "base": disc,
+            "cable": [{"name": "c", "radius": HOLE, "to": 4, "tension": 0.0, "friction": mu}],
+            "effector": [{"name": "tip", "vertebra": -1}]}))
+    commands = [2.0, 4.0, 8.0, 15.0, 30.0, 15.0, 8.0, 4.0, 2.0, 0.0]
+    widths = {}
+    for mu in (0.0, 0.2):
+        model = trunk(mu)
+        results = model.solve_sequence([[v] for v in commands])
+        for value, result in zip(commands, results):
+            assert result.converged and result.contacts
+            for c in result.contacts:
+                assert c.force >= 0.0 and c.gap >= -1e-9 and abs(c.gap * c.force) <= 1e-12, c
+            if value == 30.0:
+                assert sum(c.force > 0.0 for c in result.contacts) == 4
+                spans = result.friction.tension[route_of(model)]
+                assert np.all(np.diff(spans) < 0.0) if mu else np.all(spans == 30.0)    # capstan along the pull
+        tips = [model.effector_positions(r.state)[0] for r in results]
+        widths[mu] = float(np.linalg.norm(tips[commands.index(4.0)] - tips[len(commands) - 1 - commands[::-1].index(4.0)]))
+    assert widths[0.0] <= 1e-9 and widths[0.2] >= 1e-3
+
+
+def test_exact_friction_sensitivities_of_an_equilibrium_match_differences_where_the_statuses_hold():
+    # the implicit-function derivatives by μ (the capstan factors' change with the shape included)
+    # against differences of solves from the same history (tight tolerance, started at the
+    # equilibrium): a pull from rest, a pull on from 3 N and a release that slides every hole —
+    # central differences (statuses the same on both sides); a release that leaves the cable stuck
+    # at its slip front with the distal holes at incipient slip — the one-sided difference on the
+    # side where they keep sliding (more friction sticks them: there the derivative has a kink)
+    model = build(pulled(0.2))
+    rest = friction.FrictionState.rest(model.trunk)
+    pull = model.solve([3.0])
+
+    def solved(command, history, mu, initial=None):
+        model.set_parameters(friction=np.array([mu]))
+        result = model.solve([command], history=history, initial=initial, tolerance=1e-14)
+        return result, model.effector_positions(result.state).reshape(-1)
+
+    for command, history in ((3.0, rest), (3.5, pull.friction), (2.4, pull.friction), (2.6, pull.friction)):
+        result, p0 = solved(command, history, 0.2)
+        exact = friction.equilibrium_sensitivities(model, result, history)
+        assert exact["names"] == ["friction:t"]
+        h = 1e-5
+        (above, p_above), (below, p_below) = (solved(command, history, 0.2 + h, result.state),
+                                              solved(command, history, 0.2 - h, result.state))
+        if command == 2.6:
+            assert not np.array_equal(above.friction.slip, result.friction.slip)
+            assert np.array_equal(below.friction.slip, result.friction.slip)
+            difference = (p0 - p_below) / h
+            tensions = (result.friction.tension - below.friction.tension) / h
+            tolerance = 1e-4                   # one-sided: O(h) against the central differences' O(h²)
+        else:
+            assert np.array_equal(above.friction.slip, result.friction.slip)
+            assert np.array_equal(below.friction.slip, result.friction.slip)
+            difference = (p_above - p_below) / (2 * h)
+            tensions = (above.friction.tension - below.friction.tension) / (2 * h)
+            tolerance = 1e-6
+        assert np.abs(exact["effector_positions"][:, 0] - difference).max() <= tolerance * np.abs(difference).max()
+        assert np.abs(exact["span_tensions"][:, 0] - tensions).max() <= tolerance * np.abs(tensions).max()
+    model.set_parameters(friction=np.array([0.2]))
+    with pytest.raises(OptionError, match="tension-driven"):
+        servo_model = build(servo(0.2))
+        friction.equilibrium_sensitivities(servo_model, servo_model.solve([0.001]),
+                                           friction.FrictionState.rest(servo_model.trunk))

@@ -45,11 +45,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vertebra.solver.inverse.backends import DEFAULT_BACKEND, get_backend
+from vertebra.solver.inverse.contacts import ContactProjection, contact_step
 from vertebra.solver.inverse.qp import ConstraintSolution, solve_constraint_problem
 from vertebra.solver.inverse.space import DEFAULT_REGULARISATION, ConstraintSpace
 from vertebra.solver.inverse.trust import GOOD, TrustRegion
 from vertebra.core.errors import ConvergenceError, OptionError, SceneError
-from vertebra.solver.potential import nonpotential_forces
+from vertebra.solver import friction
+from vertebra.solver.potential import evaluate, nonpotential_forces, potential
 
 __all__ = ["InverseSettings", "InverseStep", "InverseController", "invert", "MODES", "DEFAULT_TOLERANCE"]
 
@@ -61,6 +63,9 @@ CUTS = 3        # attempts of one step (the first, then two cut back by ¼ each)
 DAMPING = 1e-4  # Levenberg–Marquardt damping of the QP (ticks, and converged steps towards far targets)
 EFFORTS = ("least", "penalty")   # how the QP resolves redundant actuation (InverseSettings.effort)
 GUARD = DEFAULT_REGULARISATION   # the least-effort QP's first stage: keeps it definite and off the near-null directions (bias ≈ 1e-8 × motion)
+SECANTS = 4     # with friction: QPs again with the secant of the transmission through the last answer
+SECANT_REACH = 2.0
+SECANT_HOLD = 0.01  # … until the answer moves by less than this share of its change
 MISS = 0.5      # a tick is cut back when the equilibrium is farther from its prediction than this share of its motion
 
 
@@ -133,6 +138,19 @@ class InverseStep:
     # state, its prediction; converged: the last QP's prediction) and their errors from the targets
     predicted_positions: np.ndarray | None = None
     predicted_errors: np.ndarray | None = None
+    # with cable friction (docs/friction.md): the friction state the step's command was applied to
+    # and the one it left (a tick: the return map at its predicted state); None without friction
+    history: object = None
+    friction: object = None
+
+    def stuck(self, model) -> dict:
+        """With friction: per cable, the interior holes of its route (1 = the first after the
+        actuated hole) where the cable is stuck in :attr:`friction` (empty without friction)."""
+        if self.friction is None:
+            return {}
+        pieces = friction.routes(model.trunk.cables).pieces
+        return {name: (np.flatnonzero(self.friction.slip[pieces[k][1:]] == 0) + 1).tolist()
+                for k, name in enumerate(model.actuator_names[:model.n_cables])}
 
     @property
     def prediction_miss(self) -> np.ndarray | None:
@@ -176,7 +194,8 @@ class InverseController:
     ``space`` (:class:`ConstraintSpace`) holds the bounds, weights and regulariser, validated
     once; assign a new space to change them."""
 
-    def __init__(self, model, settings: InverseSettings | None = None, *, actuation=None, state=None):
+    def __init__(self, model, settings: InverseSettings | None = None, *, actuation=None, state=None,
+                 history=None):
         source = model.scene.source
         if len(model.actuator_names) == 0:
             raise SceneError("no [[cable]] or [[chamber]] to invert for", file=source, field="cable")
@@ -192,36 +211,115 @@ class InverseController:
         self.actuation = np.clip(start, self.space.lambda_lower, self.space.lambda_upper)
         self.state = (state or model.rest_state).copy()
         self.equilibrium = False
+        # with cable friction: the friction state the robot is in (docs/friction.md) — a tick
+        # commits its predicted state's, a converged step its equilibrium's; given a start state
+        # without one, the state is taken as reached by a pull from rest
+        self.history = history
+        self._incipient = None  # the holes the last frictional linearisation took as sliding on
         if state is None:
             # the robot starts at rest under its start actuation: at that equilibrium (a tick's
             # linear model is only as good as its start), from the rest pose when none is found
             try:
-                self._equilibrate(self.actuation, self.state, {})
+                self._equilibrate(self.actuation, self.state, {}, history)
             except ConvergenceError:
                 self.state, self.equilibrium = model.rest_state.copy(), False
+                self.history = None
         self.trust = TrustRegion.of_model(model)
         self._judged = None     # the trial of the last state applied (its next linearisation reuses it)
 
     # ------------------------------------------------------------------ pieces
-    def _linearised_step(self, targets, timings, box=None, damping=None):
+    def _linearised_step(self, targets, timings, box=None, damping=None, base=None, secants=0):
         """linearise → project → QP at the current state and actuation, the effectors aiming
         within the trust region and λ in ``box`` (None: the actuator limits); the QP is damped
         by ``damping`` (None: :data:`DAMPING` while the trust region holds an effector back from
         its target, else none); adds to ``timings``. Returns the linearisation, the projection,
-        the QP solution and the aim."""
+        the QP solution and the aim.
+
+        ``base``: with cable friction, the friction state the command is applied to; the QP sees
+        the frictional transmission (:func:`~vertebra.solver.friction.linearise`), the holes that
+        slid last taken as sliding on. Where its answer reverses such a cable's command (those
+        holes would stick), the cable is linearised again with them stuck and the QP solved
+        again; then again (``secants`` times at most: a tick's :data:`SECANTS`; a converged step
+        corrects its model by equilibrium solves instead) with each cable's transmission the
+        secant of the return map through the last answer (:func:`~vertebra.solver.friction.secant_forces`),
+        its command kept between its start and that answer. ``self._incipient`` keeps the holes
+        taken as sliding on (the return maps that judge the step start from them)."""
         t0 = time.perf_counter()
-        lin = self.model.linearise(self.state, self.actuation, previous=self._judged)
+        if base is None:
+            lin = self.model.linearise(self.state, self.actuation, previous=self._judged)
+        else:
+            incipient = base.incipient(self.model.trunk)
+            lin, current, continued = friction.linearise(self.model.trunk, self.state, self.actuation, base,
+                                                         incipient)
         t1 = time.perf_counter()
         aim = self.trust.aim(lin.effector_positions, targets, self.model.effector_is_axis)
         if damping is None:
             damping = 0.0 if aim is targets else DAMPING
         projection = self.space.project(lin, aim, self.actuation, box, damping)
         t2 = time.perf_counter()
-        sol = solve_constraint_problem(projection.problem, self.backend, tolerance=self.settings.qp_tolerance,
-                                       slack=self._slack)
+        found = None
+        if self.model.trunk.contact is not None and base is None:
+            # the contacts' forces as variables of the QP, complementary with their gaps (with
+            # capstan friction on the cables the frictional QP below runs without them)
+            found = contact_step(self.model.trunk, self.state, lin, projection, self.backend,
+                                 tolerance=self.settings.qp_tolerance, slack=self._slack)
+        if found is not None:
+            projection, sol = found
+        else:
+            sol = solve_constraint_problem(projection.problem, self.backend, tolerance=self.settings.qp_tolerance,
+                                           slack=self._slack)
         t3 = time.perf_counter()
+        if base is not None:
+            n_cables = self.model.n_cables
+            reversed_ = np.flatnonzero(continued * np.sign(sol.actuation[:n_cables] - self.actuation[:n_cables]) < 0)
+            if reversed_.size:
+                owner = self.model.trunk.cables.owner
+                incipient = np.where(np.isin(owner, reversed_), 0, incipient).astype(np.int8)
+                lin, current, _ = friction.linearise(self.model.trunk, self.state, self.actuation, base, incipient)
+                projection = self.space.project(lin, aim, self.actuation, box, damping)
+                sol = solve_constraint_problem(projection.problem, self.backend,
+                                               tolerance=self.settings.qp_tolerance, slack=self._slack)
+            # the return map is piecewise linear in the commands (holes start or stop sliding as
+            # their bands are reached): the QP again with each cable's transmission the secant
+            # of the return map (at these poses) from its start to the answer, the commands kept
+            # between the two (where the secant is the transmission's chord), until the answer
+            # holds still (``secants`` times at most). A tendon's runs make the tangent too: where
+            # the answer changes its holes' statuses, the tangent is that of the runs at the
+            # answer (the imbalance at the start stays the start's: the secant carries it there)
+            trunk = self.model.trunk
+            tendon_pieces = trunk.actuators.stroke_driven[trunk.cables.owner]
+            tendons = trunk.actuators.stroke_driven
+            poses = friction.geometry(trunk, self.state) if secants else None
+            start, residual = current, lin.residual
+            for _ in range(secants):
+                if tendon_pieces.any():
+                    reached = friction.transmission(trunk, base, sol.actuation, *poses, incipient).slip
+                    if not np.array_equal(reached[tendon_pieces], current.slip[tendon_pieces]):
+                        incipient = np.where(tendon_pieces, reached, incipient).astype(np.int8)
+                        command = self.actuation.copy()
+                        command[:n_cables][tendons] = sol.actuation[:n_cables][tendons]
+                        lin, current, _ = friction.linearise(trunk, self.state, command, base, incipient)
+                        lin.residual = residual
+                tangent = lin.actuator_forces[:, :n_cables].copy()
+                lin.actuator_forces[:, :n_cables] = friction.secant_forces(
+                    trunk, self.state, base, start, self.actuation, sol.actuation, incipient, tangent)
+                lower, upper = (self.space.lambda_lower, self.space.lambda_upper) if box is None else box
+                reach = self.actuation + SECANT_REACH * (sol.actuation - self.actuation)
+                lower = np.maximum(lower, np.minimum(self.actuation, reach))
+                upper = np.minimum(upper, np.maximum(self.actuation, reach))
+                projection = self.space.project(lin, aim, self.actuation, (lower, upper), damping)
+                answer = solve_constraint_problem(projection.problem, self.backend,
+                                                  tolerance=self.settings.qp_tolerance, slack=self._slack)
+                moved = float(np.max(np.abs(answer.actuation - sol.actuation), initial=0.0))
+                sol = answer
+                if moved <= SECANT_HOLD * float(np.max(np.abs(sol.actuation - self.actuation), initial=0.0)):
+                    break
+            self._incipient = incipient
+        t4 = time.perf_counter()
         for key, value in (("linearise_s", t1 - t0), ("W_s", t2 - t1), ("qp_s", t3 - t2), ("inverse_s", t3 - t0)):
             timings[key] = timings.get(key, 0.0) + value
+        if t4 > t3:
+            timings["inverse_s"] += t4 - t3
         return lin, projection, sol, aim
 
     def _result(self, targets, sol, iterations, timings, t_start, equilibrium, status, displacements=None,
@@ -250,10 +348,11 @@ class InverseController:
         targets = self._targets(targets)
         t_start = time.perf_counter()
         timings: dict = {}
+        base = self._friction_base()
         lin, projection, sol, aim = self._linearised_step(targets, timings, self.space.tick_box(self.actuation),
-                                                          DAMPING)
+                                                          DAMPING, base, SECANTS)
         t0 = time.perf_counter()
-        fraction = self._advance(lin, projection, sol.actuation, aim is not targets)
+        fraction = self._advance(lin, projection, sol.actuation, aim is not targets, base)
         self.equilibrium = False
         timings["step_s"] = time.perf_counter() - t0
         status = "tick" if fraction == 1.0 else ("cut back" if fraction > 0.0 else "not applied")
@@ -261,9 +360,11 @@ class InverseController:
                               displacements=sol.delta_a if fraction == 1.0 else
                               projection.problem.predict(self.actuation)[1])
         result.fraction = fraction
+        if base is not None:
+            result.history, result.friction = base, self.history
         return result
 
-    def _advance(self, lin, projection, lam_target, aimed: bool) -> float:
+    def _advance(self, lin, projection, lam_target, aimed: bool, base=None) -> float:
         """Move state and actuation by the largest share ``α`` of the linearised step towards
         ``lam_target`` that the trust region allows and whose prediction holds: the potential
         under the new actuation falls by at least :data:`ACCEPT` of the quadratic model's
@@ -271,7 +372,15 @@ class InverseController:
         motion (plus what is left of the start's own imbalance) from the state reached, by the
         start's tangent: ``|Je K⁻¹ r(state)|``. Cut back by ¼ when it does not (twice); returns
         the share applied (0: none).
-        ``aimed``: the trust region moved an effector's target closer."""
+        ``aimed``: the trust region moved an effector's target closer.
+
+        ``base``: with cable friction, the friction state the command is applied to. There is no
+        potential; the potential judged is that of the span tensions the return map gives under
+        the new actuation at the start's poses (held fixed along the step, as the linearisation
+        holds them), the equilibrium's distance is measured from the imbalance under the return
+        map's tensions at the state reached (the frictional residual given the history), and an
+        applied step commits the friction state there (:meth:`FrictionState.after
+        <vertebra.solver.friction.FrictionState.after>`) for the next tick."""
         model, lam0, state0 = self.model, self.actuation, self.state
         d_lam = lam_target - lam0
         dq = projection.state_change(lam_target)
@@ -286,24 +395,34 @@ class InverseController:
         motion = _largest(lin.effector_jacobian.dot(dq))
         imbalance = _largest(projection.Je_K_inv_r)
         floor = 0.01 * self.settings.tolerance
+        # with contacts: how deep the start lies in an obstacle (a tick may not go deeper than that
+        # or the floor: the QP keeps the linearised gaps, the retraction's second order may not)
+        contacts = projection if isinstance(projection, ContactProjection) else None
+        entered = contacts.penetration(state0) if contacts is not None else 0.0
         # ∂E/∂λ of the cables: their lengths L(q) = L0 + stroke
         cables = d_lam[:n_cables]
         d_energy = float(cables.dot(model.rest_cable_lengths)) + float(cables.dot(lin.actuator_displacements[:n_cables]))
         exact_energy = model.n_chambers or model.n_tendons
         quality = 0.0
         work = nonpotential_forces(model.trunk, state0, model.loads(lam0, 1.0))
+        if base is not None:
+            trunk = model.trunk
+            start = friction.geometry(trunk, state0)
         for _ in range(CUTS):
             lam = lam0 + alpha * d_lam
             # the model of the potential under λ along α·dq: E_λ(q) − r_λ·d + ½ dᵀK d, with
             # r_λ = r + B(λ − λ0) and K dq = r + B d_lam
             predicted = alpha * (1.0 - 0.5 * alpha) * r_dq + 0.5 * alpha * alpha * b_dq
             try:     # (a pressure beyond a chamber's inflation limit point has no potential: not applied)
-                if exact_energy:
+                if base is not None:    # friction: the return map's span tensions under λ at the start's poses
+                    load = friction.transmission(trunk, base, lam, *start, self._incipient).load(trunk, lam, 1.0)
+                    before = potential(trunk, state0, load).energy
+                elif exact_energy:
                     before = model.potential(state0, lam)
                 else:      # the potential is linear in tension-driven cables' tensions: E_λ(q) = E_λ0(q) + (λ − λ0)·L(q)
                     before = lin.energy + alpha * d_energy
                 trial = model.step(state0, alpha * dq)
-                judged = model.trial(trial, lam)
+                judged = model.trial(trial, lam) if base is None else potential(trunk, trial, load)
                 after = judged.energy
             except ConvergenceError:
                 before = after = math.nan
@@ -312,14 +431,24 @@ class InverseController:
             decrease = before - after
             noise = 1e-12 * abs(before)
             quality = decrease / predicted if predicted > noise else (1.0 if decrease >= -noise else 0.0)
+            if contacts is not None and quality >= ACCEPT and contacts.penetration(trial) > max(floor, entered):
+                quality = 0.0            # a trial that enters an obstacle (or disc) deeper than the start is cut back
             if quality >= ACCEPT:        # (False for NaN)
                 # the prediction: the equilibrium under λ lies ≈ Je K⁻¹ r(trial) from the trial state
                 # (the start's factor); a step that lands farther than MISS of its motion from it is
                 # cut back like one whose energy does not fall
                 try:
-                    judged = model.evaluate(trial, lam, previous=judged)
+                    if base is None:
+                        judged = model.evaluate(trial, lam, previous=judged)
+                    else:           # the imbalance under the return map's tensions at the state reached
+                        following = friction.transmission(trunk, base, lam, *friction.geometry(trunk, trial),
+                                                          self._incipient)
+                        judged = evaluate(trunk, trial, following.load(trunk, lam, 1.0))
                     # (|Je K⁻¹ r|, r = −gradient: the sign does not change the length)
-                    miss = _largest(projection.effector_motion(judged.gradient[1:].reshape(-1)))
+                    imbalance_at = judged.gradient[1:].reshape(-1)
+                    if isinstance(projection, ContactProjection):    # the contacts carry their forces
+                        imbalance_at = imbalance_at - projection.contact_forces(lam)
+                    miss = _largest(projection.effector_motion(imbalance_at))
                 except (ConvergenceError, FloatingPointError):
                     miss = math.inf
                 allowed = MISS * alpha * motion + (1.0 - alpha) * imbalance + floor
@@ -327,6 +456,9 @@ class InverseController:
                 held = 1.0 - MISS * miss / allowed
                 if miss <= allowed:
                     self.state, self.actuation, self._judged = trial, lam, judged
+                    if base is not None:
+                        self.history = friction.FrictionState.after(base, following, lam, trial)
+                        self._judged = None
                     self.trust.update(min(quality, held), cut)
                     return alpha
                 quality = min(quality, held)
@@ -346,18 +478,21 @@ class InverseController:
         timings: dict = {"solve_s": 0.0}
         s = self.settings
         if not self.equilibrium:
-            self._equilibrate(self.actuation, self.state, timings)
+            self._equilibrate(self.actuation, self.state, timings, self._friction_base())
+        # with friction: the friction state the robot is in; every equilibrium tried below is the
+        # answer's command applied to it (one increment: the robot receives the answer only)
+        base = self._friction_base()
         error = float(np.max(_errors(self.model.effector_positions(self.state), targets)))
         best, idle, reached_for, change = error, 0, 0, math.nan
-        closest = (error, self.actuation, self.state)
+        closest = (error, self.actuation, self.state, self.history)
         sol, status, iterations, predicted_positions = None, "max_iterations", 0, None
         for iterations in range(1, s.max_iterations + 1):
             if time.perf_counter() > deadline:
                 status, iterations = "budget", iterations - 1
                 break
-            lin, projection, sol, aim = self._linearised_step(targets, timings)
+            lin, projection, sol, aim = self._linearised_step(targets, timings, base=base)
             dq = projection.state_change(sol.actuation)
-            lam_old, state_old = self.actuation, self.state
+            lam_old, state_old, history_old = self.actuation, self.state, self.history
             d_lam = sol.actuation - lam_old
             alpha = self.trust.fraction(dq)
             cut = aim is not targets or alpha < 1.0
@@ -368,7 +503,7 @@ class InverseController:
                 # above the current error)
                 gap = projection.problem.predict(lam)[0].reshape(-1, 3) + (aim - targets)
                 predicted = math.sqrt(float(np.maximum.reduce(np.add.reduce(gap * gap, 1))))
-                if self._settle(lam, self._stepped(state_old, alpha * dq), state_old, timings):
+                if self._settle(lam, self._stepped(state_old, alpha * dq), state_old, timings, base):
                     new_error = float(np.max(_errors(self.model.effector_positions(self.state), targets)))
                     # how much of the promised improvement came (not judged below the tolerance:
                     # there the errors are the equilibrium solves' rounding)
@@ -378,7 +513,7 @@ class InverseController:
                     if new_error <= max(error, 1.1 * predicted + s.tolerance):
                         predicted_positions = targets + gap
                         break
-                self.actuation, self.state = lam_old, state_old
+                self.actuation, self.state, self.history = lam_old, state_old, history_old
                 new_error = math.inf
                 alpha *= 0.25
                 cut = True
@@ -388,7 +523,7 @@ class InverseController:
                 break
             error = new_error
             if error < closest[0]:
-                closest = (error, self.actuation, self.state)
+                closest = (error, self.actuation, self.state, self.history)
             # Relative change of the actuation. Reaching the target is not enough: in the
             # redundant null space the effort settles on the unique regularised fixed point
             # only when λ stops moving (so the answer does not depend on the path taken).
@@ -414,11 +549,13 @@ class InverseController:
                     break
             status = "max_iterations"
         if status == "budget" and closest[0] < error:
-            error, self.actuation, self.state = closest      # the closest reach found in the time given
+            error, self.actuation, self.state, self.history = closest      # the closest reach found in the time given
             predicted_positions = None
         result = self._result(targets, sol, iterations, timings, t_start, self.equilibrium, status,
                               predicted=predicted_positions)
         result.actuation_change = change
+        if base is not None:
+            result.history, result.friction = base, self.history
         return result
 
     def step(self, targets) -> InverseStep:
@@ -429,11 +566,13 @@ class InverseController:
         """``step`` reported at the equilibrium its actuation reaches: a tick's state is a linear
         prediction, so the model is solved under the commanded actuation from it (the controller
         keeps its own state). An equilibrium step is returned as it is; when the solve fails, the
-        step is returned with ``equilibrium_failure`` saying why."""
+        step is returned with ``equilibrium_failure`` saying why. With friction the command is
+        applied to the friction state the tick started from (``step.history``) and the step's
+        ``friction`` is the equilibrium's."""
         if step.equilibrium:
             return step
         try:
-            solved = self.model.solve(step.actuation, initial=step.state)
+            solved = self.model.solve(step.actuation, initial=step.state, history=step.history)
         except ConvergenceError as error:
             return dataclasses.replace(step, equilibrium_failure=str(error))
         state = solved.state
@@ -443,7 +582,8 @@ class InverseController:
         return dataclasses.replace(
             step, state=state, positions=positions, errors=errors, equilibrium=True,
             displacements=self.model.actuator_displacements(state, step.actuation),
-            reached=all(e <= tolerance for e in errors.tolist()), out_of_range=solved.out_of_range)
+            reached=all(e <= tolerance for e in errors.tolist()), out_of_range=solved.out_of_range,
+            friction=solved.friction if step.friction is not None else None)
 
     def track(self, trajectory, *, settle: bool = False, on_step=None) -> list[InverseStep]:
         """Targets (n_steps, n_eff, 3) in order, warm-starting each step from the last. With
@@ -467,28 +607,45 @@ class InverseController:
         except ConvergenceError:
             return None
 
-    def _settle(self, actuation, guess, fallback, timings) -> bool:
-        """Equilibrium under ``actuation`` from ``guess``, else from ``fallback``; False when
-        neither converges (state and actuation then unchanged)."""
+    def _settle(self, actuation, guess, fallback, timings, history=None) -> bool:
+        """Equilibrium under ``actuation`` (applied to the friction state ``history``) from
+        ``guess``, else from ``fallback``; False when neither converges (state and actuation then
+        unchanged)."""
         for start in (guess, fallback):
             if start is None:
                 continue
             try:
-                self._equilibrate(actuation, start, timings)
+                self._equilibrate(actuation, start, timings, history)
                 return True
             except ConvergenceError:
                 continue
         return False
 
-    def _equilibrate(self, actuation, guess, timings):
+    def _equilibrate(self, actuation, guess, timings, history=None):
+        """Equilibrium under ``actuation`` from ``guess`` — with friction, the command applied to
+        ``history`` (None: a pull from rest) — as the controller's state."""
         t0 = time.perf_counter()
         try:
-            result = self.model.solve(actuation, initial=guess)
+            result = self.model.solve(actuation, initial=guess, history=history)
         finally:
             timings["solve_s"] = timings.get("solve_s", 0.0) + time.perf_counter() - t0
         self.actuation = np.asarray(actuation, dtype=float).copy()
         self.state = result.state
+        self.history = result.friction
         self.equilibrium = True
+
+    def _friction_base(self):
+        """With cable friction, the friction state the robot is in (:attr:`history`; made when
+        missing as that of a pull from rest to the controller's state and actuation); None
+        without friction — the frictionless controller runs no friction code."""
+        if not self.model.trunk.actuators.frictional:
+            return None
+        if self.history is None:
+            trunk = self.model.trunk
+            rest = friction.FrictionState.rest(trunk)
+            current = friction.transmission(trunk, rest, self.actuation, *friction.geometry(trunk, self.state))
+            self.history = friction.FrictionState.after(rest, current, self.actuation, self.state)
+        return self.history
 
     def _targets(self, targets) -> np.ndarray:
         """``targets`` as a finite (n_eff, 3) float array (:class:`OptionError` naming what is wrong)."""
