@@ -114,7 +114,7 @@ def inverse() -> dict:
     import dataclasses
 
     sys.path.insert(0, str(ROOT / "tests"))
-    from test_contact import pressed, wall_robot
+    from test_contact import pressed, wall_path, wall_robot
     from vertebra.solver import contact
     from vertebra.solver.inverse import InverseController, InverseSettings
 
@@ -138,10 +138,7 @@ def inverse() -> dict:
     wall = 0.02
     model = wall_robot(wall)
     controller = InverseController(model, InverseSettings(mode="tick", tolerance=1e-4))
-    tip = model.effector_positions(controller.state)[0]
-    corner = np.array([wall + 0.02, 0.0, tip[2] - 0.01])
-    path = [tip + s * (corner - tip) for s in np.linspace(0.0, 1.0, 40)[1:]]
-    path += [corner + np.array([0.0, 0.002 * k, 0.0]) for k in range(1, 25)]
+    path = wall_path(model.effector_positions(controller.state)[0], wall)
     deepest, times = 0.0, []
     for target in path:
         start = time.perf_counter()

@@ -111,15 +111,15 @@ def line_search(stage, state, ev, residual: float, dq, change, alpha: float, rp:
     return None
 
 
-def residual_step(stage, state, ev, residual: float, matrix, r: np.ndarray):
+def residual_step(stage, state, ev, residual: float, factor, r: np.ndarray):
     """Loads without a potential: the full, undamped Newton step (LU of the unshifted, consistent
     tangent) when it is within the step caps and at least halves the scaled residual — Newton
     inside its region of convergence, where the energy-like merit can no longer judge it: beyond
     the load at which the tangent's symmetric part turns indefinite the equilibrium sought is no
     minimum of that merit, and dead moments do work round a closed loop of rotations, so the
     merit can keep falling while the frames circle. Returns (state, evaluation, α, decrease,
-    prediction, quality) as :func:`line_search` does (in residual units), or None."""
-    factor, _ = matrix.factor(0.0, symmetric=False)
+    prediction, quality) as :func:`line_search` does (in residual units), or None. ``factor``: the
+    unshifted tangent's LU factor (None: singular)."""
     if factor is None:
         return None
     dq = factor.solve(r)

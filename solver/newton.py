@@ -347,11 +347,13 @@ def _newton(stage: _Stage, state: State):
             matrix = factored = constraints.lagrangian(matrix, state)     # the Lagrangian's tangent
         shift = stage.shift
         scale = None
-        step = None
+        step = unshifted = None
         if not symmetric and constraints is None and not converged:
             # loads without a potential: the full Newton step first, taken when it halves the
-            # residual (globalise.residual_step: where the energy-like merit cannot judge it)
-            step = globalise.residual_step(stage, state, ev, residual, matrix, r)
+            # residual (globalise.residual_step: where the energy-like merit cannot judge it);
+            # its factor serves the merit's unshifted step when it is not taken
+            unshifted = matrix.factor(0.0, symmetric=False)
+            step = globalise.residual_step(stage, state, ev, residual, unshifted[0], r)
             kind = "lu"
         indefinite = False       # a factor of this tangent failed: it is not positive definite
         respringed = False       # the contacts' springs were set again from a step's pressed contacts
@@ -361,7 +363,10 @@ def _newton(stage: _Stage, state: State):
                 return False, state, residual
             if shift and scale is None:
                 scale = np.maximum(np.abs(matrix.diagonal()), trunk.rest.stiffness)
-            factor, kind = factored.factor(shift, symmetric=symmetric, scale=scale, definite=symmetric)
+            if shift or unshifted is None:
+                factor, kind = factored.factor(shift, symmetric=symmetric, scale=scale, definite=symmetric)
+            else:
+                factor, kind = unshifted
             if (factor is None and constraints is not None and constraints.multipliers.size
                     and spring < contact.STABILITY_SPRING and (factored is matrix or constraints.springs is not None)):
                 # springs along the pressed contacts (an augmented Lagrangian): the tangent need

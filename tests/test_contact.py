@@ -396,6 +396,14 @@ def test_paraview_file_shows_the_contacts(tmp_path):
     assert (data.cell_data["part"] == CONTACT).sum() == len(result.contacts)
 
 
+def wall_path(tip, wall):
+    """Tick targets from ``tip`` into the wall at x = ``wall`` (39 steps to a corner 20 mm beyond
+    it), then 24 steps of 2 mm along it."""
+    corner = np.array([wall + 0.02, 0.0, tip[2] - 0.01])
+    path = [tip + s * (corner - tip) for s in np.linspace(0.0, 1.0, 40)[1:]]
+    return path + [corner + np.array([0.0, 0.002 * k, 0.0]) for k in range(1, 25)]
+
+
 def wall_robot(wall=0.03):
     """The gallery's 16-tendon robot (tip effector) with discs of 12 mm on its vertebrae (its
     holes at 10 mm) beside a wall x = ``wall``."""
@@ -481,10 +489,7 @@ def test_tick_mode_slides_along_the_wall_without_entering_it():
     wall = 0.02
     model = wall_robot(wall)
     controller = InverseController(model, InverseSettings(mode="tick", tolerance=1e-4))
-    tip = model.effector_positions(controller.state)[0]
-    corner = np.array([wall + 0.02, 0.0, tip[2] - 0.01])
-    path = [tip + s * (corner - tip) for s in np.linspace(0.0, 1.0, 40)[1:]]
-    path += [corner + np.array([0.0, 0.002 * k, 0.0]) for k in range(1, 25)]
+    path = wall_path(model.effector_positions(controller.state)[0], wall)
     for k, target in enumerate(path):
         step = controller.step(target[None])
         assert contact.evaluate(model.trunk.contact, step.state).gap.min() >= -1e-6, k
