@@ -55,7 +55,7 @@ MAX_SPLITS = 4          # an increment is split into 2^MAX_SPLITS parts at most
 SLIP = 1e-12            # relative excess of a hole's band (or backflow of a sliding hole) that changes its status
 
 __all__ = ["FrictionState", "Routes", "Transmission", "equilibrium_sensitivities", "linearise", "routes", "sensitivities", "solve",
-           "solve_sequence", "transmission", "transmission_ratios", "turning_angles", "secant_forces", "EDGE"]
+           "solve_sequence", "transmission", "transmission_ratios", "turning_angles", "piecewise", "EDGE"]
 
 
 @dataclass(frozen=True)
@@ -211,6 +211,24 @@ def transmission(trunk, history: FrictionState, actuation: np.ndarray, lengths: 
     frictional = [c for c in actuators.tendons.tolist() if mu[c] > 0.0]
     units, weights = np.full(m, 0), np.ones(m)
     unit_cable, unit_k, unit_rest, unit_shift, unit_scaled = [], [], [], [], []
+    solved = {}
+    if frictional:       # every frictional tendon's return map at once
+        spans = np.concatenate([route.pieces[c] for c in frictional])
+        first = np.zeros(spans.size, bool)
+        first[np.cumsum([0] + [route.pieces[c].size for c in frictional[:-1]])] = True
+        k_span = actuators.cable_stiffness[cables.owner[spans]]
+        compliance = trunk.rest_piece_lengths[spans] / trunk.rest_cable_lengths[cables.owner[spans]] / k_span
+        trial = history.material[spans].copy()
+        trial[first] -= actuation[frictional] - history.actuation[frictional]
+        status, g, tau, new = _tendon_spans(lengths[spans], angles[spans], mu[cables.owner[spans]], trial,
+                                            compliance, first, None if guess is None else guess[spans],
+                                            None if pinned is None else pinned[spans])
+        at = 0
+        for c in frictional:
+            size = route.pieces[c].size
+            part = slice(at, at + size)
+            solved[c] = (status[part], g[part], tau[part], new[part], trial[part], compliance[part])
+            at += size
     for c, run in enumerate(route.pieces):
         if not actuators.stroke_driven[c]:
             T = float(actuation[c])
@@ -226,14 +244,12 @@ def transmission(trunk, history: FrictionState, actuation: np.ndarray, lengths: 
             tension[run], slip[run], driven[run] = out, status, out
             continue
         k = actuators.cable_stiffness[c]
-        compliance = _shares(trunk, c, run) / k
-        trial = history.material[run].copy()
-        trial[0] -= actuation[c] - history.actuation[c]
         if mu[c] > 0.0:
-            status, g, tau, new = _tendon_spans(lengths[run], angles[run], mu[c], trial, compliance,
-                                                None if guess is None else guess[run],
-                                                None if pinned is None else pinned[run])
+            status, g, tau, new, trial, compliance = solved[c]
         else:
+            compliance = _shares(trunk, c, run) / k
+            trial = history.material[run].copy()
+            trial[0] -= actuation[c] - history.actuation[c]
             status = np.ones(run.size, np.int8)
             status[0] = 0
             g = np.ones(run.size)
@@ -271,68 +287,82 @@ def transmission(trunk, history: FrictionState, actuation: np.ndarray, lengths: 
     return Transmission(tension, slip, material, driven if np.any(driven) else None, tendons, scaled)
 
 
-def _tendon_spans(L: np.ndarray, angle: np.ndarray, mu: float, trial: np.ndarray, compliance: np.ndarray,
-                  start: np.ndarray | None = None, pinned: np.ndarray | None = None):
-    """The return map of one stroke-driven tendon at span lengths ``L``: the holes' statuses, the
-    capstan factors ``g`` within each run of spans joined by sliding holes, the spans' tension
-    before the tendon's slack is cut off (``τ g``) and their new unstretched lengths. From the
-    statuses ``start`` (None: every hole stuck, the elastic trial) it frees the hole whose band
-    is exceeded most, or sticks the sliding hole whose material flows against its slip, until
-    none is (plain floats: a tendon has tens of holes); ``pinned`` holes keep their start status."""
+def _tendon_spans(L: np.ndarray, angle: np.ndarray, mu: np.ndarray, trial: np.ndarray, compliance: np.ndarray,
+                  first: np.ndarray, start: np.ndarray | None = None, pinned: np.ndarray | None = None):
+    """The return map of the stroke-driven tendons at span lengths ``L`` (all their spans, each
+    tendon's in route order, ``first`` marking where each starts; ``mu`` per span): the holes'
+    statuses, the capstan factors ``g`` within each run of spans joined by sliding holes, the
+    spans' tension before the tendon's slack is cut off (``τ g``) and their new unstretched
+    lengths. From the statuses ``start`` (None: every hole stuck, the elastic trial) each tendon
+    frees the hole whose band is exceeded most, or sticks the sliding hole whose material flows
+    against its slip, one hole per round, until none is — all tendons at once (arrays over their
+    spans); ``pinned`` holes keep their start status."""
     n = L.size
-    L, trial, compliance = L.tolist(), trial.tolist(), compliance.tolist()
-    factor = [math.exp(mu * a) for a in angle.tolist()]
-    status = [0] * n if start is None else [int(v) for v in start]
-    status[0] = 0
-    fixed = [False] * n if pinned is None else pinned.tolist()
-    for _ in range(4 * n + 4):
-        g, tau, new = _runs(L, factor, trial, compliance, status)
-        T = [max(gj * tj, 0.0) for gj, tj in zip(g, tau)]
-        scale = max(max(T), 1e-300)
-        worst, fix = SLIP, None
-        for j in range(1, n):
-            if status[j] == 0 and not fixed[j]:
-                low, high = T[j - 1] / factor[j], T[j - 1] * factor[j]
-                if (low - T[j]) / scale > worst:
-                    worst, fix = (low - T[j]) / scale, (j, 1)
-                elif (T[j] - high) / scale > worst:
-                    worst, fix = (T[j] - high) / scale, (j, -1)
-        if fix is None:
-            j = 1
-            while j < n:
-                if status[j] and not fixed[j] and T[j - 1] + T[j] > 0.0:
-                    end = j + 1
-                    while end < n and status[end]:
-                        end += 1
-                    flow = sum(trial[j:end]) - sum(new[j:end])
-                    backflow = -status[j] * flow / max(sum(abs(v) for v in trial[j:end]), 1e-300)
-                    if backflow > worst:
-                        worst, fix = backflow, (j, 0)
-                j += 1
-        if fix is None:
-            return np.array(status, np.int8), np.array(g), np.array(tau), np.array(new)
-        status[fix[0]] = fix[1]
+    status = np.zeros(n, np.int8) if start is None else np.array(start, np.int8)
+    status[first] = 0
+    free = ~first if pinned is None else ~(first | pinned)
+    turn = mu * angle
+    factor = np.exp(turn)
+    cable = np.cumsum(first) - 1
+    heads = np.flatnonzero(first)
+    index = np.arange(n)
+    longest = int(np.max(np.diff(np.append(heads, n)), initial=1))
+    for _ in range(4 * longest + 4):
+        g, tau, new, run = _runs(L, turn, trial, compliance, status, first)
+        T = np.maximum(g * tau, 0.0)
+        scale = np.maximum(np.maximum.reduceat(T, heads), 1e-300)[cable]
+        previous = np.roll(T, 1)
+        # a stuck hole's band [T_{j−1} e^(−μΔθ), T_{j−1} e^(+μΔθ)] exceeded: it slides (+1 below, −1 above)
+        low, high = (previous / factor - T) / scale, (T - previous * factor) / scale
+        stuck = free & (status == 0)
+        excess = np.where(stuck, np.maximum(low, high), -np.inf)
+        # a sliding hole through which the run's material flows against its slip sticks: the flow
+        # through hole j is the material the spans from j to the run's end gave up
+        given = trial - new
+        total = np.bincount(run, given)
+        size = np.bincount(run, np.abs(trial))
+        ahead = np.cumsum(given) - given              # given up by the spans before j (whole array)
+        ahead_abs = np.cumsum(np.abs(trial)) - np.abs(trial)
+        begin = np.flatnonzero(status == 0)           # the runs' first spans (every run starts at a stuck hole)
+        flow = total[run] - (ahead - ahead[begin][run])
+        through = size[run] - (ahead_abs - ahead_abs[begin][run])
+        sliding = free & (status != 0) & (previous + T > 0.0)
+        backflow = np.where(sliding, -status * flow / np.maximum(through, 1e-300), -np.inf)
+        # per tendon: the worst band first (one hole per round), else the worst backflow
+        worst_band = _first_largest(excess, heads, cable)
+        worst_flow = _first_largest(backflow, heads, cable)
+        band = excess[worst_band] > SLIP
+        flows = ~band & (backflow[worst_flow] > SLIP)
+        if not (band.any() or flows.any()):
+            return status, g, tau, new
+        j = worst_band[band]
+        status[j] = np.where(low[j] > high[j], 1, -1)
+        status[worst_flow[flows]] = 0
     raise ConvergenceError("the stick/slip states of a tendon's holes did not settle (the return map cycles)")
 
 
-def _runs(L: list, factor: list, trial: list, compliance: list, status: list):
-    """Capstan factors, run tensions (per span, before the slack cut-off) and new unstretched
-    lengths for the holes' ``status`` (runs split at stuck holes; each run keeps its material)."""
-    n = len(L)
-    g, tau, new = [1.0] * n, [0.0] * n, [0.0] * n
-    a = 0
-    while a < n:
-        b = a + 1
-        while b < n and status[b]:
-            g[b] = g[b - 1] / factor[b] if status[b] > 0 else g[b - 1] * factor[b]
-            b += 1
-        weight = sum(c * gj for c, gj in zip(compliance[a:b], g[a:b]))
-        t = (sum(L[a:b]) - sum(trial[a:b])) / weight
-        for j in range(a, b):
-            tau[j] = t
-            new[j] = L[j] - compliance[j] * g[j] * t
-        a = b
-    return g, tau, new
+def _first_largest(values: np.ndarray, heads: np.ndarray, cable: np.ndarray) -> np.ndarray:
+    """Per segment (starting at ``heads``): the index of its largest value, the first of equals."""
+    largest = np.maximum.reduceat(values, heads)
+    hit = values == largest[cable]
+    index = np.flatnonzero(hit)
+    return index[np.searchsorted(cable[index], np.arange(heads.size))]
+
+
+def _runs(L: np.ndarray, turn: np.ndarray, trial: np.ndarray, compliance: np.ndarray, status: np.ndarray,
+          first: np.ndarray):
+    """Capstan factors, run tensions (per span, before the slack cut-off), new unstretched lengths
+    and each span's run for the holes' ``status`` (runs split at stuck holes, which every tendon's
+    first span is; each run keeps its material)."""
+    head = status == 0
+    run = np.cumsum(head) - 1
+    step = np.where(head, 0.0, -status * turn)                  # ln g_j − ln g_{j−1}
+    total = np.cumsum(step)
+    g = np.exp(total - total[np.flatnonzero(head)][run])
+    weight = np.bincount(run, compliance * g)
+    t = (np.bincount(run, L) - np.bincount(run, trial)) / weight
+    tau = t[run]
+    return g, tau, L - compliance * g * tau, run
 
 
 class _Loads:
@@ -536,29 +566,34 @@ def linearise(trunk, state, actuation: np.ndarray, history: FrictionState | None
     return lin, current, continued
 
 
-def secant_forces(trunk, state, history: FrictionState, current: Transmission, actuation: np.ndarray,
-                  target: np.ndarray, incipient: np.ndarray | None, forces: np.ndarray) -> np.ndarray:
-    """The actuator forces (n_dof, n_cables) of the secant of the return map at ``state``'s poses
-    from ``actuation`` (where it gave ``current``) to ``target``: span ``j`` of cable ``c``
-    changes by ``(T_j(target) − T_j(actuation)) / (target_c − actuation_c)`` per unit of the
-    cable's command. The return map is piecewise linear in the command (a hole slides or
-    sticks as its band is reached), so over a change that crosses a kink the secant is the
-    linear model that holds at both ends; cables whose command does not change keep their
-    column of ``forces`` (the tangent's)."""
+def piecewise(trunk, state, history: FrictionState, start: Transmission, actuation: np.ndarray,
+              answer: np.ndarray, incipient: np.ndarray | None, forces: np.ndarray, poses=None):
+    """The return map at ``state``'s poses around a command ``answer``: at fixed poses each
+    cable's span tensions are a piecewise-linear function of its own command alone (a hole slides
+    or sticks as its band is reached: the kinks). Returns ``(reached, chord, slope)`` — the
+    :class:`Transmission` at ``answer``, and as actuator forces (n_dof, n_cables) per unit of each
+    cable's command the *chord* of the return map from ``actuation`` (where it gave ``start``) to
+    ``answer`` and its *slope* there (:func:`transmission_ratios` of the statuses at ``answer``:
+    the capstan factors up to the first stuck hole; a tendon's ``K g_j`` over the run holding its
+    first span). The affine model
+    ``F(λ) = chord·(answer − actuation) + slope·(λ − answer)`` is then the return map's exactly on
+    that piece. Cables whose command does not change keep their column of ``forces`` (the
+    tangent's)."""
     n_cables = trunk.cables.n_cables
-    change = target[:n_cables] - actuation[:n_cables]
+    change = answer[:n_cables] - actuation[:n_cables]
     moved = np.flatnonzero(np.abs(change) > 1e-12 * np.maximum(np.abs(actuation[:n_cables]), 1.0))
-    out = forces.copy()
+    chord, slope = forces.copy(), forces.copy()
+    lengths, angles = geometry(trunk, state) if poses is None else poses
+    command = np.array(actuation, float)
+    command[moved] = answer[moved]
+    reached = transmission(trunk, history, command, lengths, angles, incipient)
     if moved.size:
-        lengths, angles = geometry(trunk, state)
-        command = np.array(actuation, float)
-        command[moved] = target[moved]
-        reached = transmission(trunk, history, command, lengths, angles, incipient)
         owner = trunk.cables.owner
-        ratio = np.where(np.isin(owner, moved), (reached.tension - current.tension) / np.where(
-            change[owner] != 0.0, change[owner], 1.0), 0.0)
-        out[:, moved] = _forces(trunk, state, ratio)[:, moved]
-    return out
+        on = np.isin(owner, moved)
+        per = np.where(on, change[owner], 1.0)
+        chord[:, moved] = _forces(trunk, state, np.where(on, (reached.tension - start.tension) / per, 0.0))[:, moved]
+        slope[:, moved] = _forces(trunk, state, _ratios(trunk, reached, angles, None)[0])[:, moved]
+    return reached, chord, slope
 
 
 def _span_tensions(trunk, state, load: LoadCase) -> np.ndarray:

@@ -395,7 +395,7 @@ def test_the_tick_without_friction_runs_no_friction_code(monkeypatch):
     model = outside(0.0)
     def refuse(*args, **kwargs):
         raise AssertionError("friction code ran without friction")
-    for name in ("transmission", "linearise", "geometry", "secant_forces", "solve", "_ratios"):
+    for name in ("transmission", "linearise", "geometry", "piecewise", "solve", "_ratios", "_tendon_spans"):
         monkeypatch.setattr(friction, name, refuse)
     for _, _, step, _ in circle_ticks(model, 5):
         assert step.status == "tick" and step.history is None and step.friction is None and step.stuck(model) == {}
