@@ -209,81 +209,67 @@ def transmission(trunk, history: FrictionState, actuation: np.ndarray, lengths: 
     material = np.full(m, np.nan)
     driven = np.zeros(m)
     frictional = [c for c in actuators.tendons.tolist() if mu[c] > 0.0]
-    units, weights = np.full(m, 0), np.ones(m)
-    unit_cable, unit_k, unit_rest, unit_shift, unit_scaled = [], [], [], [], []
-    solved = {}
-    if frictional:       # every frictional tendon's return map at once
-        spans = np.concatenate([route.pieces[c] for c in frictional])
-        first = np.zeros(spans.size, bool)
-        first[np.cumsum([0] + [route.pieces[c].size for c in frictional[:-1]])] = True
-        k_span = actuators.cable_stiffness[cables.owner[spans]]
-        compliance = trunk.rest_piece_lengths[spans] / trunk.rest_cable_lengths[cables.owner[spans]] / k_span
-        trial = history.material[spans].copy()
-        trial[first] -= actuation[frictional] - history.actuation[frictional]
-        status, g, tau, new = _tendon_spans(lengths[spans], angles[spans], mu[cables.owner[spans]], trial,
-                                            compliance, first, None if guess is None else guess[spans],
-                                            None if pinned is None else pinned[spans])
-        at = 0
-        for c in frictional:
-            size = route.pieces[c].size
-            part = slice(at, at + size)
-            solved[c] = (status[part], g[part], tau[part], new[part], trial[part], compliance[part])
-            at += size
     for c, run in enumerate(route.pieces):
-        if not actuators.stroke_driven[c]:
-            T = float(actuation[c])
-            old = history.tension[run]
-            out = np.empty(run.size)
-            status = np.zeros(run.size, np.int8)
-            out[0] = T
-            for j in range(1, run.size):
-                turn = mu[c] * angles[run[j]]
-                low, high = out[j - 1] * math.exp(-turn), out[j - 1] * math.exp(turn)
-                status[j] = 1 if old[j] < low else -1 if old[j] > high else 0
-                out[j] = min(max(old[j], low), high)
-            tension[run], slip[run], driven[run] = out, status, out
-            continue
-        k = actuators.cable_stiffness[c]
-        if mu[c] > 0.0:
-            status, g, tau, new, trial, compliance = solved[c]
-        else:
+        if actuators.stroke_driven[c]:
+            if mu[c] > 0.0:
+                continue
+            k = actuators.cable_stiffness[c]         # a frictionless tendon: one run, every factor 1
             compliance = _shares(trunk, c, run) / k
             trial = history.material[run].copy()
             trial[0] -= actuation[c] - history.actuation[c]
             status = np.ones(run.size, np.int8)
             status[0] = 0
-            g = np.ones(run.size)
-            tau = np.full(run.size, (lengths[run].sum() - trial.sum()) / compliance.sum())
-            new = lengths[run] - compliance * tau
-        tension[run], slip[run], material[run] = np.maximum(g * tau, 0.0), status, new
-        if frictional:
-            if mu[c] > 0.0:                 # one unit per run of spans joined by sliding holes
-                first = len(unit_cable)
-                group = np.cumsum(status == 0) - 1
-                count = int(group[-1]) + 1
-                units[run] = first + group
-                weights[run] = g
-                unit_cable.extend([c] * count)
-                unit_k.extend((1.0 / np.bincount(group, compliance * g, count)).tolist())
-                unit_rest.extend((np.bincount(group, trial, count)
-                                  - np.bincount(group, (1.0 - g) * lengths[run], count)).tolist())
-                unit_shift.extend([0.0] * count)
-                unit_scaled.extend([True] * count)
-            else:                         # a frictionless tendon among frictional ones: today's unit
-                units[run] = len(unit_cable)
-                unit_cable.append(c)
-                unit_k.append(k)
-                unit_rest.append(float(trunk.rest_cable_lengths[c]))
-                unit_shift.append(float(actuation[c] + actuators.pretension[c] / k))
-                unit_scaled.append(False)
+            tau = (lengths[run].sum() - trial.sum()) / compliance.sum()
+            tension[run], slip[run], material[run] = max(tau, 0.0), status, lengths[run] - compliance * tau
+            continue
+        T = float(actuation[c])
+        old = history.tension[run]
+        out = np.empty(run.size)
+        status = np.zeros(run.size, np.int8)
+        out[0] = T
+        for j in range(1, run.size):
+            turn = mu[c] * angles[run[j]]
+            low, high = out[j - 1] * math.exp(-turn), out[j - 1] * math.exp(turn)
+            status[j] = 1 if old[j] < low else -1 if old[j] > high else 0
+            out[j] = min(max(old[j], low), high)
+        tension[run], slip[run], driven[run] = out, status, out
     tendons = scaled = None
-    if frictional:
-        n_units = len(unit_cable)
+    if frictional:       # every frictional tendon's return map at once; one unit per run of spans joined by sliding holes
+        spans = np.concatenate([route.pieces[c] for c in frictional])
+        owner = cables.owner[spans]
+        first = np.zeros(spans.size, bool)
+        first[np.cumsum([0] + [route.pieces[c].size for c in frictional[:-1]])] = True
+        compliance = trunk.rest_piece_lengths[spans] / trunk.rest_cable_lengths[owner] / actuators.cable_stiffness[owner]
+        trial = history.material[spans].copy()
+        trial[first] -= actuation[frictional] - history.actuation[frictional]
+        status, g, tau, new, run = _tendon_spans(lengths[spans], angles[spans], mu[owner], trial, compliance, first,
+                                                 None if guess is None else guess[spans],
+                                                 None if pinned is None else pinned[spans])
+        tension[spans], slip[spans], material[spans] = np.maximum(g * tau, 0.0), status, new
+        count = int(run[-1]) + 1
+        units = np.zeros(m, int)
+        weights = np.zeros(m)
+        units[spans], weights[spans] = run, g
+        unit_cable = owner[status == 0]
+        unit_k = 1.0 / np.bincount(run, compliance * g, count)
+        unit_rest = np.bincount(run, trial, count) - np.bincount(run, (1.0 - g) * lengths[spans], count)
+        unit_shift = np.zeros(count)
+        scaled = np.ones(count, bool)
+        others = [c for c in actuators.tendons.tolist() if mu[c] == 0.0]   # frictionless tendons among them: today's units
+        for c in others:
+            units[route.pieces[c]], weights[route.pieces[c]] = count, 1.0
+            count += 1
+        if others:
+            k = actuators.cable_stiffness[others]
+            unit_cable = np.concatenate([unit_cable, others])
+            unit_k = np.concatenate([unit_k, k])
+            unit_rest = np.concatenate([unit_rest, trunk.rest_cable_lengths[others]])
+            unit_shift = np.concatenate([unit_shift, actuation[others] + actuators.pretension[others] / k])
+            scaled = np.concatenate([scaled, np.zeros(len(others), bool)])
         tendon_piece = actuators.stroke_driven[cables.owner]
-        units = np.where(tendon_piece, units, n_units)
-        tendons = Tendons(np.array(unit_cable, int), np.array(unit_k), np.array(unit_rest), np.array(unit_shift),
-                          units, np.where(tendon_piece, weights, 0.0))
-        scaled = np.array(unit_scaled, bool)
+        units = np.where(tendon_piece, units, count)
+        tendons = Tendons(np.asarray(unit_cable, int), unit_k, unit_rest, unit_shift, units,
+                          np.where(tendon_piece, weights, 0.0))
     return Transmission(tension, slip, material, driven if np.any(driven) else None, tendons, scaled)
 
 
@@ -305,13 +291,13 @@ def _tendon_spans(L: np.ndarray, angle: np.ndarray, mu: np.ndarray, trial: np.nd
     factor = np.exp(turn)
     cable = np.cumsum(first) - 1
     heads = np.flatnonzero(first)
-    index = np.arange(n)
     longest = int(np.max(np.diff(np.append(heads, n)), initial=1))
     for _ in range(4 * longest + 4):
         g, tau, new, run = _runs(L, turn, trial, compliance, status, first)
         T = np.maximum(g * tau, 0.0)
         scale = np.maximum(np.maximum.reduceat(T, heads), 1e-300)[cable]
-        previous = np.roll(T, 1)
+        previous = np.empty(n)
+        previous[0], previous[1:] = 0.0, T[:-1]
         # a stuck hole's band [T_{j−1} e^(−μΔθ), T_{j−1} e^(+μΔθ)] exceeded: it slides (+1 below, −1 above)
         low, high = (previous / factor - T) / scale, (T - previous * factor) / scale
         stuck = free & (status == 0)
@@ -334,7 +320,7 @@ def _tendon_spans(L: np.ndarray, angle: np.ndarray, mu: np.ndarray, trial: np.nd
         band = excess[worst_band] > SLIP
         flows = ~band & (backflow[worst_flow] > SLIP)
         if not (band.any() or flows.any()):
-            return status, g, tau, new
+            return status, g, tau, new, run
         j = worst_band[band]
         status[j] = np.where(low[j] > high[j], 1, -1)
         status[worst_flow[flows]] = 0
@@ -666,6 +652,54 @@ def _scatter(trunk, rows: np.ndarray) -> np.ndarray:
     return out[:, 1:].reshape(k, -1).T
 
 
+def _tendon_sensitivities(trunk, current: Transmission, c: int, run: np.ndarray, mu: float, angles: np.ndarray,
+                          on_prev: np.ndarray, on_own: np.ndarray, unit_rows: np.ndarray, dT_dq: np.ndarray,
+                          dT_dmu: np.ndarray, spring: np.ndarray) -> None:
+    """:func:`equilibrium_sensitivities` of a stroke-driven tendon's spans (into ``dT_dq``, rows on
+    the pieces' ends, and ``dT_dmu``), the statuses and the history's materials held: a run of
+    spans joined by sliding holes keeps its material ``M``, so ``T_j = g_j τ`` with
+    ``τ = (Σ L_i − M)/W``, ``W = Σ c_i g_i`` and ``ln g_j`` the sum of ``−s_i μ Δθ_i`` over the run's
+    holes up to ``j``. The linearisation's tangent already holds the run as one spring on
+    ``Σ g_i L_i`` (stiffness ``1/W``): its rank-one part ``(1/W) Σ g L' ⊗ Σ g L'`` goes into
+    ``spring`` (the tangent minus it, plus ``Σ_j L_j' ⊗ ∂T_j/∂q``, is the exact one).
+    A slack run (``τ ≤ 0``) carries nothing and has no stiffness."""
+    tendons = current.tendons
+    k = trunk.actuators.cable_stiffness[c]
+    compliance = _shares(trunk, c, run) / k
+    if tendons is None:                   # today's tendons: one unit per cable, g = 1
+        units, g = np.zeros(run.size, int), np.ones(run.size)
+    else:
+        units, g = tendons.units[run], tendons.weights[run]
+    slip = current.slip
+    for unit in np.unique(units).tolist():
+        where = np.flatnonzero(units == unit)
+        spans = run[where]
+        gs, cs = g[where], compliance[where]
+        tau = current.tension[spans[0]] / gs[0]
+        if not tau > 0.0:
+            continue
+        dlng = np.zeros((spans.size,) + unit_rows.shape[1:])              # ∂ ln g_i/∂q
+        a = np.zeros(spans.size)
+        for i in range(1, spans.size):
+            p, prev = spans[i], spans[i - 1]
+            s = int(slip[p])
+            dlng[i] = dlng[i - 1]
+            dlng[i, 2 * prev:2 * prev + 2] -= s * mu * on_prev[prev].reshape(2, 6)
+            dlng[i, 2 * p:2 * p + 2] -= s * mu * on_own[p].reshape(2, 6)
+            a[i] = a[i - 1] - s * angles[p]
+        W = float(np.sum(cs * gs))
+        weighted = cs * gs
+        dtau_dmu = -tau / W * float(weighted @ a)
+        lengths = unit_rows[spans].sum(axis=0)                            # Σ L_i'
+        capstan = np.tensordot(gs, unit_rows[spans], axes=1)             # Σ g_i L_i'
+        dtau_dq = (lengths - tau * np.tensordot(weighted, dlng, axes=1)) / W
+        for i, p in enumerate(spans.tolist()):
+            T = gs[i] * tau
+            dT_dq[p] = T * dlng[i] + gs[i] * dtau_dq
+            spring[p] = gs[i] / W * capstan
+            dT_dmu[p] = T * a[i] + gs[i] * dtau_dmu
+
+
 def equilibrium_sensitivities(model, result, history: FrictionState, cables=None) -> dict:
     """Exact derivatives with respect to the cables' friction coefficients of one frictional
     equilibrium ``result`` (a :meth:`~vertebra.solver.model.TrunkModel.solve` whose command was
@@ -673,19 +707,19 @@ def equilibrium_sensitivities(model, result, history: FrictionState, cables=None
     statuses held (a hole on the edge of its band moves with it; one that is stuck keeps its
     tension). The equilibrium ``∇E(q) + Σ_j T_j(q, μ) ∂L_j/∂q = 0`` with the span tensions of
     the return map — along a tension-driven cable ``T_j = T_{j−1} e^(−s_j μ Δθ_j(q))`` at a hole
-    sliding in direction ``s_j``, a stuck span's committed tension — gives
+    sliding in direction ``s_j``, a stuck span's committed tension; along a stroke-driven tendon
+    ``T_j = g_j τ`` over each run of spans joined by sliding holes, the run keeping its material
+    (:func:`_tendon_sensitivities`) — gives
     ``dq/dμ = −(K + Σ_j ∂L_j/∂q ⊗ ∂T_j/∂q)⁻¹ Σ_j ∂T_j/∂μ ∂L_j/∂q``, with ``K`` the tangent at fixed
-    span tensions (its factor) and the rank-m update of the capstan factors' change with the
-    shape solved by Sherman–Morrison–Woodbury. Tension-driven cables only (a stroke-driven
-    tendon's runs would need their material flow: :class:`OptionError`); a hole turned by less
+    span tensions (its factor; a tendon run's spring, which the linearisation's tangent holds,
+    taken out of the update) and the rank-m update of the capstan factors' change with the
+    shape solved by Sherman–Morrison–Woodbury. A tendon's holes keep the equilibrium's statuses
+    (those the solve held at incipient slip too); a hole turned by less
     than 1e-9 rad has no angle derivative (a straight route: |Δθ| has a kink there). Returns
     ``{"names", "state": (n_dof, p), "effector_positions": (3·n_effectors, p), "span_tensions":
     (m, p)}`` — compare :func:`sensitivities` (differences of a whole sequence)."""
     trunk = model.trunk
     actuators, routing = trunk.actuators, trunk.cables
-    if actuators.tendons.size:
-        raise OptionError("exact friction sensitivities are implemented for tension-driven cables only "
-                          "(stroke-driven tendons: friction.sensitivities, sequence differences)", field="cables")
     names = list(model.actuator_names[:model.n_cables])
     chosen = names if cables is None else list(cables)
     unknown = [c for c in chosen if c not in names]
@@ -693,7 +727,9 @@ def equilibrium_sensitivities(model, result, history: FrictionState, cables=None
         raise OptionError(f"unknown cable(s) {', '.join(unknown)} (cables: {', '.join(names)})", field="cables")
     state, actuation = result.state, result.friction.actuation
     lengths, angles = geometry(trunk, state)
-    current = transmission(trunk, history, actuation, lengths, angles, result.friction.slip)
+    # (the tendons' holes held at the equilibrium's statuses: a hole the solve held at incipient slip stays so)
+    current = transmission(trunk, history, actuation, lengths, angles, result.friction.slip,
+                           actuators.stroke_driven[routing.owner])
     lin = outputs.linearise(trunk, state, actuation, _Loads(trunk, current))
     rotations = qmatrix(state.quaternions)
     offsets, d, length = routing.spans(state.positions, rotations)
@@ -728,7 +764,15 @@ def equilibrium_sensitivities(model, result, history: FrictionState, cables=None
     # per span: ∂T_j/∂q as rows on piece ends (m spans × (2m piece ends, 6)), ∂T_j/∂μ of its cable
     dT_dq = np.zeros((m, 2 * m, 6))
     dT_dmu = np.zeros(m)
+    spring = np.zeros((m, 2 * m, 6))    # the part of ∂T_j/∂q the tangent holds already (tendons' runs)
+    unit_rows = np.zeros((m, 2 * m, 6))                                   # ∂L_j/∂q on piece ends
+    unit_rows[np.arange(m), 2 * np.arange(m)] = pieces.unit.reshape(2 * m, 6)[0::2]
+    unit_rows[np.arange(m), 2 * np.arange(m) + 1] = pieces.unit.reshape(2 * m, 6)[1::2]
     for c, run in enumerate(route.pieces):
+        if actuators.stroke_driven[c]:
+            _tendon_sensitivities(trunk, current, c, run, mu[c], angles, on_prev, on_own, unit_rows, dT_dq, dT_dmu,
+                                  spring)
+            continue
         for j in range(1, run.size):
             p, prev = run[j], run[j - 1]
             s = int(slip[p])
@@ -740,15 +784,15 @@ def equilibrium_sensitivities(model, result, history: FrictionState, cables=None
             dT_dq[p, 2 * prev:2 * prev + 2] -= T * s * mu[c] * on_prev[prev].reshape(2, 6)
             dT_dq[p, 2 * p:2 * p + 2] -= T * s * mu[c] * on_own[p].reshape(2, 6)
             dT_dmu[p] = factor * dT_dmu[prev] - T * s * angles[p]
-    A = _scatter(trunk, np.stack([np.where((np.arange(2 * m) // 2 == j)[:, None], pieces.unit.reshape(2 * m, 6), 0.0)
-                                  for j in range(m)]))                    # (n_dof, m) ∂L_j/∂q
+    A = _scatter(trunk, unit_rows)                                         # (n_dof, m) ∂L_j/∂q
     B = _scatter(trunk, dT_dq)                                             # (n_dof, m) ∂T_j/∂q
+    update = B - _scatter(trunk, spring) if actuators.tendons.size else B  # what the tangent lacks of it
     K_inv_A = lin.solve(np.asfortranarray(A))
-    capacitance = np.eye(m) + B.T @ K_inv_A
+    capacitance = np.eye(m) + update.T @ K_inv_A
 
     def solve(rhs):           # (K + A Bᵀ)⁻¹ rhs (Sherman–Morrison–Woodbury)
         x = lin.solve(np.asfortranarray(rhs))
-        return x - K_inv_A @ np.linalg.solve(capacitance, B.T @ x)
+        return x - K_inv_A @ np.linalg.solve(capacitance, update.T @ x)
 
     owner = routing.owner
     columns = []
