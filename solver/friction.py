@@ -645,11 +645,10 @@ def sensitivities(model, actuations, history: FrictionState | None = None, cable
 def _scatter(trunk, rows: np.ndarray) -> np.ndarray:
     """(n_dof, k) from per-piece-end rows (k, 2m, 6) onto the free frames' DoFs."""
     cables = trunk.cables
-    k = rows.shape[0]
-    out = np.zeros((k, trunk.frames.count, 6))
-    for i in range(k):
-        np.add.at(out[i], cables.ends, rows[i])
-    return out[:, 1:].reshape(k, -1).T
+    k, ends = rows.shape[0], rows.shape[1]
+    gather = np.zeros((trunk.frames.count, ends))
+    gather[cables.ends, np.arange(ends)] = 1.0          # (every piece end sits at one frame)
+    return np.matmul(gather, rows)[:, 1:].reshape(k, -1).T
 
 
 def _tendon_sensitivities(trunk, current: Transmission, c: int, run: np.ndarray, mu: float, angles: np.ndarray,
@@ -675,9 +674,26 @@ def _tendon_sensitivities(trunk, current: Transmission, c: int, run: np.ndarray,
     else:
         units, g = tendons.units[run], tendons.weights[run]
     slip = current.slip
-    for unit in np.unique(units).tolist():
+    unit_ends = unit_rows[np.arange(unit_rows.shape[0]), 2 * np.arange(unit_rows.shape[0])], \
+        unit_rows[np.arange(unit_rows.shape[0]), 2 * np.arange(unit_rows.shape[0]) + 1]
+    # a span alone in its run (stuck at both ends): g = 1, T = τ = (L − M)/c, ∂T/∂q = L'/c — all
+    # the tangent's spring already (nothing to update), nothing by μ directly
+    counts = np.bincount(units - units.min())
+    alone = counts[units - units.min()] == 1
+    if alone.any():
+        spans, cs = run[alone], compliance[alone]
+        rows = np.stack([unit_ends[0][spans], unit_ends[1][spans]], 1) / cs[:, None, None]     # (k, 2, 6)
+        past = -past_material[spans] / cs[:, None]
+        for i, p in enumerate(spans.tolist()):
+            ends = np.array([2 * p, 2 * p + 1])
+            raw[p] = (ends, rows[i], 0.0, past[i], cs[i])
+            if current.tension[p] > 0.0:
+                dT_dq[p, ends] = spring[p, ends] = rows[i]
+                dT_dmu[p], dT_past[p] = 0.0, past[i]
+    for unit in np.unique(units[~alone]).tolist():
         where = np.flatnonzero(units == unit)
         spans = run[where]
+        n = spans.size
         gs, cs = g[where], compliance[where]
         weighted = cs * gs
         W = float(np.sum(weighted))
@@ -685,27 +701,33 @@ def _tendon_sensitivities(trunk, current: Transmission, c: int, run: np.ndarray,
         # τ from the tension (taut) or from the new material ℓ = L − c g τ of the run's first span (slack)
         tau = (current.tension[spans[0]] / gs[0] if taut
                else (lengths[spans[0]] - current.material[spans[0]]) / weighted[0])
-        dlng = np.zeros((spans.size,) + unit_rows.shape[1:])              # ∂ ln g_i/∂q
-        a = np.zeros(spans.size)
-        for i in range(1, spans.size):
+        # rows on the run's own piece ends (local: 2 per span), scattered into the pieces' at the end
+        ends = np.stack([2 * spans, 2 * spans + 1], 1).reshape(-1)
+        own_rows = np.zeros((n, 2 * n, 6))                                 # ∂L_i/∂q, local
+        own_rows[np.arange(n), 2 * np.arange(n)] = unit_ends[0][spans]
+        own_rows[np.arange(n), 2 * np.arange(n) + 1] = unit_ends[1][spans]
+        step = np.zeros((n, 2 * n, 6))                                    # ∂ ln g_i − ∂ ln g_{i−1}
+        a = np.zeros(n)
+        for i in range(1, n):
             p, prev = spans[i], spans[i - 1]
             s = int(slip[p])
-            dlng[i] = dlng[i - 1]
-            dlng[i, 2 * prev:2 * prev + 2] -= s * mu * on_prev[prev].reshape(2, 6)
-            dlng[i, 2 * p:2 * p + 2] -= s * mu * on_own[p].reshape(2, 6)
+            step[i, 2 * i - 2:2 * i] = -s * mu * on_prev[prev].reshape(2, 6)
+            step[i, 2 * i:2 * i + 2] -= s * mu * on_own[p].reshape(2, 6)
             a[i] = a[i - 1] - s * angles[p]
+        dlng = np.cumsum(step, axis=0)                                     # ∂ ln g_i/∂q
         dtau_dmu = -tau / W * float(weighted @ a)
         dtau_past = -past_material[spans].sum(axis=0) / W                 # (p,)
-        total = unit_rows[spans].sum(axis=0)                              # Σ L_i'
-        capstan = np.tensordot(gs, unit_rows[spans], axes=1)             # Σ g_i L_i'
-        dtau_dq = (total - tau * np.tensordot(weighted, dlng, axes=1)) / W
+        capstan = np.tensordot(gs, own_rows, axes=1)                      # Σ g_i L_i'
+        dtau_dq = (own_rows.sum(axis=0) - tau * np.tensordot(weighted, dlng, axes=1)) / W
+        T = gs * tau
+        rows = T[:, None, None] * dlng + gs[:, None, None] * dtau_dq       # (n, 2n, 6)
+        own, past = T * a + gs * dtau_dmu, gs[:, None] * dtau_past
         for i, p in enumerate(spans.tolist()):
-            T = gs[i] * tau
-            rows, own, past = T * dlng[i] + gs[i] * dtau_dq, T * a[i] + gs[i] * dtau_dmu, gs[i] * dtau_past
-            raw[p] = (rows, own, past, cs[i])
+            raw[p] = (ends, rows[i], own[i], past[i], cs[i])
             if taut:
-                dT_dq[p], dT_dmu[p], dT_past[p] = rows, own, past
-                spring[p] = gs[i] / W * capstan
+                dT_dq[p, ends] = rows[i]
+                dT_dmu[p], dT_past[p] = own[i], past[i]
+                spring[p, ends] = gs[i] / W * capstan
 
 
 def equilibrium_sensitivities(model, result, history: FrictionState, cables=None, history_derivatives=None) -> dict:
@@ -827,12 +849,17 @@ def equilibrium_sensitivities(model, result, history: FrictionState, cables=None
     material = np.zeros((m, p_count))
     if raw:
         spans = np.array(sorted(raw))
-        rows = np.stack([raw[j][0] for j in spans])                       # (k, 2m, 6)
-        own = np.array([raw[j][1] for j in spans])
-        direct = np.stack([raw[j][2] for j in spans]) + np.array(
+        own = np.array([raw[j][2] for j in spans])
+        direct = np.stack([raw[j][3] for j in spans]) + np.array(
             [[own[i] if owner[j] == names.index(name) else 0.0 for name in chosen] for i, j in enumerate(spans)])
-        compliance = np.array([raw[j][3] for j in spans])
-        moved = _scatter(trunk, rows).T @ dq                               # (k, p)
+        compliance = np.array([raw[j][4] for j in spans])
+        moved = B[:, spans].T @ dq                                         # (k, p) the taut spans' rows
+        slack = [i for i, j in enumerate(spans) if not current.tension[j] > 0.0]
+        if slack:               # (a slack run's rows are not in B: its tension is cut off)
+            rows = np.zeros((len(slack), 2 * m, 6))
+            for r, i in enumerate(slack):
+                rows[r, raw[spans[i]][0]] = raw[spans[i]][1]
+            moved[slack] = _scatter(trunk, rows).T @ dq
         material[spans] = (A[:, spans].T @ dq) - compliance[:, None] * (direct + moved)
     return {"names": [f"friction:{c}" for c in chosen], "state": dq,
             "effector_positions": lin.effector_jacobian @ dq, "span_tensions": tensions, "material": material}
