@@ -608,8 +608,8 @@ def sensitivities(model, actuations, history: FrictionState | None = None, cable
     and the span tensions after each command of a sequence (``actuations`` applied in order to
     ``history``; None: from rest). A sequence's result depends on μ through its whole path (the
     holes that stick, the slip fronts), so these are central differences of the whole sequence
-    with a step of ``step`` in μ (one-sided at μ = 0), not the implicit-function derivatives of
-    one equilibrium (:meth:`~vertebra.solver.model.TrunkModel.sensitivities`). ``cables``: names
+    with a step of ``step`` in μ (one-sided at μ = 0); :func:`sequence_sensitivities` gives them
+    exactly where no hole's status changes with μ. ``cables``: names
     (default every cable). Returns ``{"names", "effector_positions": (steps, 3·n_effectors, p),
     "span_tensions": (steps, m, p)}``."""
     names = list(model.actuator_names[:model.n_cables])
