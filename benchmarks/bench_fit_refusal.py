@@ -55,11 +55,11 @@ def main(argv=None) -> int:
         model = solver.build_model(solver.parse_scene(data), {entry.name: linear})
         estimate = estimate_ranges(model)
         level = needed_level(estimate.segments[0], entry.energy.range)
-        error, count = error_up_to(held["by_level"], level)
+        error, count = error_up_to(held["by_level"], *level)
         reason = fit_refusal(entry.energy, level, FIT_LIMIT)
-        rows.append({"force_N": force, "needed_level": level, "error_where_needed": error,
+        rows.append({"force_N": force, "needed_level": level[0], "error_where_needed": error,
                      "held_out_samples_counted": count, "refused": reason is not None, "reason": reason})
-        log(f"  {force} N: needs {level:.3g} of the box, held-out error there {error:.3g} ({count} samples): "
+        log(f"  {force} N: needs {level[0]:.3g} of the box, held-out error there {error:.3g} ({count} samples): "
             f"{'refused' if reason else 'accepted'}")
     write_json({"meta": {"date": now(), "version": __version__, "load": loadavg(), "limit": FIT_LIMIT},
                 "entry": {"name": entry.name, "held_out": held, "design_s": seconds}, "rows": rows},

@@ -444,32 +444,35 @@ def evaluate_fit(result: FitResult, linear: tuple, z: np.ndarray):
     return grad, H
 
 
-def load_levels(samples: Samples, load_bounds: np.ndarray, pressure_top=None) -> np.ndarray:
-    """Per sample, how far into the sampled box it lies: the largest of its load's group
-    coordinates (lateral and axial force, bending and twisting moment) over their bounds and of
-    its pressures over the top sampled ones (``pressure_top``, (m,); None or 0: not counted).
-    1 on the box's boundary; the measure of :func:`error_up_to`."""
-    level = np.max(np.abs(group_coordinates(samples.gradient)) / load_bounds, axis=1)
+def load_levels(samples: Samples, load_bounds: np.ndarray, pressure_top=None) -> tuple[np.ndarray, np.ndarray]:
+    """Per sample, how far into the sampled box it lies: ``(load level, pressure level)``, the
+    largest of its load's group coordinates (lateral and axial force, bending and twisting moment)
+    over their bounds, and of its pressures over the top sampled ones (``pressure_top``, (m,); 0
+    without). 1 on the box's boundary; the measure of :func:`error_up_to`."""
+    load = np.max(np.abs(group_coordinates(samples.gradient)) / load_bounds, axis=1)
+    pressure = np.zeros(samples.size)
     if samples.n_cavities and pressure_top is not None:
         top = np.asarray(pressure_top, dtype=float)
         used = top > 0
         if used.any():
-            level = np.maximum(level, np.max(np.abs(samples.pressure[:, used]) / top[used], axis=1))
-    return level
+            pressure = np.max(np.abs(samples.pressure[:, used]) / top[used], axis=1)
+    return load, pressure
 
 
-def error_up_to(by_level, level: float) -> tuple[float, int] | None:
-    """``(largest load error, samples counted)`` of the held-out samples ``by_level`` (pairs
-    ``[level, load error]``, :func:`fit_errors`) that lie within ``level`` of the sampled box —
-    the fit's error over the part of the box a use needs — or, when none lies that low, of the
-    lowest-lying one (the nearest evidence). None without samples."""
-    rows = np.asarray(by_level, dtype=float).reshape(-1, 2)
-    if not rows.size:
+def error_up_to(by_level, load: float, pressure: float = math.inf) -> tuple[float, int] | None:
+    """``(largest load error, samples counted)`` of the held-out samples ``by_level`` (rows
+    ``[load level, pressure level, load error]``, :func:`fit_errors`) whose load lies within
+    ``load`` and pressures within ``pressure`` of the sampled box — the fit's error over the part
+    of the box a use needs — or, when none lies that low, of the lowest-lying ones (the nearest
+    evidence). None without samples (or rows of another form)."""
+    rows = np.asarray(by_level, dtype=float)
+    if rows.ndim != 2 or rows.shape[1] != 3 or not rows.size:
         return None
-    inside = rows[:, 0] <= level
+    inside = (rows[:, 0] <= load) & (rows[:, 1] <= pressure)
     if not inside.any():
-        inside = rows[:, 0] == rows[:, 0].min()
-    return float(rows[inside, 1].max()), int(inside.sum())
+        height = np.maximum(rows[:, 0] - load, rows[:, 1] - pressure)
+        inside = height == height.min()
+    return float(rows[inside, 2].max()), int(inside.sum())
 
 
 def fit_errors(result: FitResult, linear: tuple, samples: Samples, load_bounds: np.ndarray,
@@ -483,9 +486,9 @@ def fit_errors(result: FitResult, linear: tuple, samples: Samples, load_bounds: 
     * ``tangent``: relative Frobenius error of ∂²ψ/∂s² in the scaled variables.
 
     Reported as ``{"<name>_max", "<name>_rms"}`` plus ``linear_load_max`` and ``samples``; with
-    ``by_level``, also ``by_level``: per sample ``[level, load error]`` sorted by level
-    (:func:`load_levels`, with ``pressure_top``), from which :func:`error_up_to` gives the error
-    over the part of the box a scene needs."""
+    ``by_level``, also ``by_level``: per sample ``[load level, pressure level, load error]``
+    (:func:`load_levels`, with ``pressure_top``), sorted by level, from which :func:`error_up_to`
+    gives the error over the part of the box a scene needs."""
     K, S, V = linear
     z = samples.variables()
     grad, H = evaluate_fit(result, linear, z)
@@ -512,9 +515,10 @@ def fit_errors(result: FitResult, linear: tuple, samples: Samples, load_bounds: 
         out.update(volume_max=float(volume.max()), volume_rms=float(np.sqrt(np.mean(volume ** 2))),
                    linear_volume_max=float(linear_volume.max()))
     if by_level:
-        levels = load_levels(samples, load_bounds, pressure_top)
-        order = np.argsort(levels, kind="stable")
-        out["by_level"] = [[float(f"{levels[i]:.4g}"), float(f"{load[i]:.4g}")] for i in order]
+        levels, pressures = load_levels(samples, load_bounds, pressure_top)
+        order = np.lexsort((pressures, levels))
+        out["by_level"] = [[float(f"{levels[i]:.4g}"), float(f"{pressures[i]:.4g}"), float(f"{load[i]:.4g}")]
+                           for i in order]
     return out
 
 

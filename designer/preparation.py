@@ -572,35 +572,39 @@ def _entries(catalogue, memory: dict):
         yield load
 
 
-def needed_level(estimate, fitted) -> float:
+def needed_level(estimate, fitted) -> tuple[float, float]:
     """How far into an entry's sampled box (``fitted``, its :class:`~vertebra.core.energy.EnergyRange`)
     the scene's estimated range ``estimate`` (:class:`~vertebra.designer.scene_range.SegmentRange`,
     None: unknown) reaches, in the measure of :func:`~vertebra.designer.energy_fit.load_levels`:
-    the largest estimated load group over the fitted load bound and estimated pressure over the
-    top fitted pressure (1: the whole box; inf: an unbounded pressure or no estimate, beyond the box)."""
+    ``(load level, pressure level)``, the largest estimated load group over the fitted load bound
+    and estimated pressure over the top fitted pressure (1: the whole box; inf: an unbounded
+    pressure; no estimate: beyond the box in both)."""
     if estimate is None:
-        return math.inf
+        return math.inf, math.inf
     bounds = np.asarray(fitted.load_upper, dtype=float)
     loads = np.maximum(np.abs(estimate.load_lower), np.abs(estimate.load_upper))
-    level = float(np.max(np.where(bounds > 0, loads / np.where(bounds > 0, bounds, 1.0), 0.0)))
+    load = float(np.max(np.where(bounds > 0, loads / np.where(bounds > 0, bounds, 1.0), 0.0)))
+    pressure = 0.0
     for cavity, (_, high) in estimate.pressures.items():
         if cavity < fitted.n_cavities and float(fitted.pressure_upper[cavity]) > 0:
-            level = max(level, high / float(fitted.pressure_upper[cavity]))
-    return level
+            pressure = max(pressure, high / float(fitted.pressure_upper[cavity]))
+    return load, pressure
 
 
-def fit_refusal(energy, level: float, max_fit_error: float) -> str | None:
+def fit_refusal(energy, level: tuple[float, float], max_fit_error: float) -> str | None:
     """Why an entry's energy cannot serve a scene that needs its sampled box up to ``level``
-    (:func:`needed_level`): its held-out load error over that part of the box
-    (:func:`~vertebra.designer.energy_fit.error_up_to`; entries without the per-sample errors:
-    over the whole box) exceeds ``max_fit_error`` — None when it does not."""
+    (:func:`needed_level`: load and pressure levels): its held-out load error over that part of
+    the box (:func:`~vertebra.designer.energy_fit.error_up_to`; entries without the per-sample
+    errors: over the whole box) exceeds ``max_fit_error`` — None when it does not."""
     held = energy.fit_error.get("held_out", {}) if isinstance(energy.fit_error, dict) else {}
-    found = error_up_to(held["by_level"], level) if held.get("by_level") else None
+    rows = held.get("by_level") or []
+    found = error_up_to(rows, *level) if rows else None
     if found is not None:
         error, count = found
-        where = ("its whole sampled box" if count == len(held["by_level"]) else
-                 f"the {count} of its {len(held['by_level'])} held-out samples within "
-                 f"{min(level, 1.0):.2g} of its sampled box, where the scene goes")
+        where = ("its whole sampled box" if count == len(rows) else
+                 f"the {count} of its {len(rows)} held-out samples within the part of its sampled box the scene "
+                 f"needs (loads to {min(level[0], 1.0):.2g} of its bounds"
+                 + (f", pressures to {min(level[1], 1.0):.2g}" if energy.range.n_cavities else "") + ")")
     elif "load_max" in held:
         error, where = float(held["load_max"]), "its whole sampled box"
     else:
