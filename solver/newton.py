@@ -271,13 +271,12 @@ class _Stage:
         if self.turn > TURN_LIMIT:
             raise Unrepresentable(turn_message(self.trunk, xi, self.load.scale, self.linear), state)
         if self.constraints is not None:
-            pair = contact.folded(self.trunk.contact, state)
+            pair = contact.interpenetrating(self.trunk.contact, self.constraints.at(state))
             if pair is not None:
                 raise Unrepresentable(
-                    f"{contact.describe(self.trunk.contact, (contact.PAIR, pair, -1))} turn by more than 90° against "
-                    f"each other at load factor {self.load.scale:.3g}: one has folded past the other's rim, which the "
-                    "disc–disc contact (a rim against the other's face) does not represent; the loads fold the "
-                    "robot further than its discs allow", state)
+                    f"{contact.describe(self.trunk.contact, (contact.PAIR, pair, -1))} have gone into each other by "
+                    f"more than half their thickness at load factor {self.load.scale:.3g}: a step or a load increment "
+                    "pushed one through the other, which the disc–disc gap cannot follow", state)
         pieces = ev.pieces
         if pieces is not None:
             ratio = pieces.length / self.trunk.rest_piece_lengths
@@ -549,6 +548,15 @@ def solve(trunk, loads: LoadCases, actuation: np.ndarray, initial: State | None,
     stalled = "stalled" in kinds
     kinds -= {"rounding-limited", "unstable", "stalled"}
     final = last_good if converged else state_new
+    if not converged and not message and saddles and residual <= tolerance:
+        # in balance, refused for stability: say that, not the residual
+        message = (f"the equilibrium found at load factor {load.scale:.4g} is unstable and was refused: it is in balance "
+                   f"(scaled residual {residual:.3g} ≤ {tolerance:g}) but its tangent is indefinite"
+                   + (" on the directions the pressed contacts leave free (the robot would buckle or roll sideways off "
+                      "what it touches)" if trunk.contact is not None else " (a saddle: the robot would buckle)")
+                   + f"; no stable equilibrium was found beyond load factor {scale:.4g} in {iterations} iterations and "
+                   f"{stages} load stages. Lower the loads or tensions, stiffen the backbone, or start from another "
+                   "pose (`initial`) on the side the robot should buckle to")
     if not converged and not message:
         message = (f"Newton did not converge: scaled residual {residual:.3g} > {tolerance:g} after {iterations} "
                    f"iterations and {stages} load stages (reached load factor {scale:.4g})"
