@@ -270,7 +270,7 @@ class _Stage:
         self.turn = math.sqrt(record.chain.largest_turn2) if record is not None else largest_turn(xi)
         if self.turn > TURN_LIMIT:
             raise Unrepresentable(turn_message(self.trunk, xi, self.load.scale, self.linear), state)
-        if self.constraints is not None:
+        if self.constraints is not None and self.trunk.contact.pair.size:
             pair = contact.interpenetrating(self.trunk.contact, self.constraints.at(state))
             if pair is not None:
                 raise Unrepresentable(
