@@ -139,7 +139,9 @@ def entry_document(entry) -> dict:
 
 
 #: held-out load error (a fraction of the load range) above which ``design`` says the fit does
-#: not follow the material within its box
+#: not follow the material within its box: the designer's ``energy_fit.FIT_LIMIT``, above which
+#: ``vertebra prepare`` refuses the entry where a scene needs it (not imported: the parser loads
+#: every command's module, the designer only for the command that runs)
 FIT_WARNING = 0.05
 
 
@@ -156,7 +158,8 @@ def fit_warning(energy) -> str | None:
     return (f"the energy fit misses its held-out samples by up to {error:.3g} of the load range (rms "
             f"{held.get('load_rms', float('nan')):.3g}): states inside the range carry errors of that order;{why} "
             f"narrow the sampled box (--sampling strain=…, bending=…), raise the degree, or choose another "
-            f"material model (neo_hookean)")
+            f"material model (neo_hookean); `vertebra prepare` refuses this entry for a scene that goes where "
+            f"the error exceeds {FIT_WARNING:g} (--max-fit-error overrides)")
 
 
 def sampled_range(energy) -> dict:

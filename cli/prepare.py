@@ -4,7 +4,9 @@ Design the entries a scene's ``type = "design"`` segments need and its catalogue
 content key), reuse the rest, and report which were reused and which designed. ``simulate``,
 ``invert`` (and every command that reads a scene with :func:`add_preparation`) take
 ``--prepare`` to do this first. Exit codes: 0 every design segment has its entry; 1 a design
-failed (see the failure log next to the catalogue); 2 bad scene or options; 130 interrupted.
+failed (see the failure log next to the catalogue) or a nonlinear entry was refused (its energy
+fit misses its held-out samples by more than ``--max-fit-error`` where the scene goes); 2 bad
+scene or options; 130 interrupted.
 """
 
 from __future__ import annotations
@@ -28,6 +30,25 @@ def add_preparation(parser, *, command: bool = False) -> None:
     add_executor_arguments(group)
     group.add_argument("--no-accuracy", action="store_true",
                        help="designed entries skip the refined-mesh accuracy estimate")
+    group.add_argument("--max-fit-error", metavar="FRACTION", type=_fit_error, default=None,
+                       help="refuse a nonlinear entry whose fit misses its held-out samples by more than this "
+                            "fraction of its load range where the scene goes (default 0.05; inf accepts any fit)")
+
+
+def _fit_error(text: str) -> float:
+    import argparse
+
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"expected a positive number (inf: accept any fit), got {text!r}")
+    return value
+
+
+def _max_fit_error(args) -> dict:
+    return {} if args.max_fit_error is None else {"max_fit_error": args.max_fit_error}
 
 
 def add_arguments(parser) -> None:
@@ -48,7 +69,7 @@ def _prepare(args, *, dry_run: bool = False, progress: bool = True):
                    executor="dask" if args.scheduler else args.executor,
                    workers=args.workers, scheduler=args.scheduler,
                    start_method=args.start_method, estimate_accuracy=not args.no_accuracy,
-                   progress=progress, dry_run=dry_run)
+                   progress=progress, dry_run=dry_run, **_max_fit_error(args))
 
 
 def prepared_scene(args):
@@ -56,7 +77,8 @@ def prepared_scene(args):
     summary on stderr); without, its design segments resolved to the entries the catalogue
     already holds (an earlier ``vertebra prepare``); with ``--catalogue``, reading its entries
     from that file. Returns
-    ``(scene, exit code)``: a non-zero code means a design failed and the command must stop."""
+    ``(scene, exit code)``: a non-zero code means a design failed (or an entry was refused: its fit
+    cannot serve the scene, ``--max-fit-error``) and the command must stop."""
     import dataclasses
 
     # lazy: the parser imports every subcommand module; the libraries load for the command that runs
@@ -73,7 +95,7 @@ def prepared_scene(args):
         # lazy: the designer (gmsh, scikit-fem) loads only for a scene of design segments
         from vertebra.designer.preparation import resolve_prepared
 
-        scene = resolve_prepared(scene, build_model=solver.build_model)
+        scene = resolve_prepared(scene, build_model=solver.build_model, **_max_fit_error(args))
     return scene, 0
 
 

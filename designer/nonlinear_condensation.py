@@ -232,7 +232,8 @@ def condense_energy(entry, spec, *, radius: float, youngs_modulus: float, symmet
                         fold=fold)
     volume_scale = float(np.abs(samples.pressure_gradient).max()) if pressurised else None
     bounds = energy_range.load_upper
-    errors = {"held_out": fit_errors(result, linear, samples.take(held_out), bounds, volume_scale)
+    top = samples.pressure.max(axis=0) if m else None
+    errors = {"held_out": fit_errors(result, linear, samples.take(held_out), bounds, volume_scale, top, by_level=True)
               if held_out.any() else {"samples": 0},
               "training": fit_errors(result, linear, samples.take(~held_out), bounds, volume_scale),
               "convexity_min_relative_eigenvalue": convexity(result, linear, samples.variables()),

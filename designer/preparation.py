@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import math
 import os
 import sys
 import time
@@ -39,6 +40,7 @@ from typing import TYPE_CHECKING, Any, Callable
 import numpy as np
 
 from vertebra import __version__
+from vertebra.designer.energy_fit import FIT_LIMIT, error_up_to
 from vertebra.designer.energy_sampling import ENTRY_PROGRESS, SamplingSettings
 from vertebra.designer.families import family_of
 from vertebra.designer.scene_range import (RANGE_SETTINGS, SamplingChoice, choose_sampling, estimate_ranges, uncovered,
@@ -77,6 +79,7 @@ class PreparedSegment:
     status: str
     sampling: Any = None              # SamplingChoice (nonlinear designs prepared for a scene)
     warnings: tuple = ()
+    refusal: str | None = None        # status "refused": why the entry's fit cannot serve the scene
 
     def to_json(self) -> dict:
         out = {"segment": self.segment, "family": self.family, "parameters": self.parameters, **self.options,
@@ -85,6 +88,8 @@ class PreparedSegment:
             out["range"] = self.sampling.to_json()
         if self.warnings:
             out["warnings"] = list(self.warnings)
+        if self.refusal is not None:
+            out["refusal"] = self.refusal
         return out
 
 
@@ -125,6 +130,11 @@ class PrepareReport:
         return self._keys("designed")
 
     @property
+    def refused(self) -> list[str]:
+        """Keys of the entries refused: their fit cannot serve the scene (:func:`fit_refusal`)."""
+        return self._keys("refused")
+
+    @property
     def planned(self) -> list[str]:
         """Keys a dry run would design."""
         return self._keys("planned")
@@ -140,8 +150,8 @@ class PrepareReport:
     @property
     def exit_code(self) -> int:
         """0: every design segment has its entry (or, dry run, could be planned); 1: a design
-        failed; 130: interrupted."""
-        codes = [r.exit_code for r in self.runs]
+        failed or an entry was refused (its fit cannot serve the scene); 130: interrupted."""
+        codes = [r.exit_code for r in self.runs] + [1 for s in self.segments if s.status == "refused"]
         return 130 if 130 in codes else max(codes, default=0)
 
     def to_json(self) -> dict:
@@ -150,7 +160,7 @@ class PrepareReport:
         run = self.run or self.linear_run
         out = {"vertebra_version": __version__, "scene": self.scene, "catalogue": self.catalogue,
                "dry_run": self.dry_run, "reused": self.reused, "designed": self.designed, "planned": self.planned,
-               "failed": self._keys("failed"), "segments": [s.to_json() for s in self.segments],
+               "failed": self._keys("failed"), "refused": self.refused, "segments": [s.to_json() for s in self.segments],
                "executor": None if run is None else run.executor, "failures": failures,
                "failure_log": next((r.failure_log for r in self.runs if r.failure_log), None),
                "interrupted": any(r.interrupted for r in self.runs),
@@ -195,6 +205,7 @@ class PrepareReport:
         lines = [f"{head} {self.scene}: {len(self.segments)} design segments, "
                  f"{len(dict.fromkeys(s.key for s in self.segments))} entries: {len(self.reused)} reused, {counts}"
                  + (f", {len(self._keys('failed'))} failed" if self._keys("failed") else "")
+                 + (f", {len(self._keys('refused'))} refused" if self._keys("refused") else "")
                  + f" (catalogue {self.catalogue})"]
         if self.counterparts:
             done = "to design" if self.dry_run else "designed"
@@ -215,6 +226,7 @@ class PrepareReport:
                 lines.append(f"    fit: {fits[s.key]}")
         for s in self.segments:
             lines.extend(f"  warning: segment[{s.segment}]: {w}" for w in s.warnings)
+        lines.extend(f"  segment[{s.segment}] refused: {s.refusal}" for s in self.segments if s.refusal)
         lines.extend(f"  warning: {w}" for w in self.warnings)
         for run in self.runs:
             for f in run.failures:
@@ -340,7 +352,7 @@ def prepare_designs(designs: list[Design], catalogue, *, source: str, label: str
 
 
 def prepare(scene: "Scene", catalogue=None, *, build_model: Callable | None = None,
-            **options) -> tuple["Scene", PrepareReport]:
+            max_fit_error: float = FIT_LIMIT, **options) -> tuple["Scene", PrepareReport]:
     """Design the entries a scene's design segments need and are missing from the catalogue.
 
     ``scene``: a parsed scene (:class:`~vertebra.solver.scene.Scene`: the caller loads it, so
@@ -356,9 +368,17 @@ def prepare(scene: "Scene", catalogue=None, *, build_model: Callable | None = No
     any design) for a missing catalogue, an unknown family, parameters the family refuses or bad
     design options; OptionError for bad executor settings or a nonlinear design segment without
     ``build_model``; CatalogueError when the catalogue's directory does not exist.
+    ``max_fit_error``: a nonlinear entry (designed or reused) whose energy fit misses its held-out
+    samples by more than this fraction of its load range over the part of its box the scene
+    needs is refused (:func:`fit_refusal`: status ``refused``, the segment stays unresolved,
+    ``report.exit_code`` 1); ``math.inf`` accepts any fit.
     ``options`` are those of :func:`prepare_designs` (executor, workers, scheduler,
     start_method, linear_solver, estimate_accuracy, progress, dry_run, designer, store).
     """
+    if not (isinstance(max_fit_error, (int, float)) and not isinstance(max_fit_error, bool)
+            and max_fit_error > 0):
+        raise OptionError(f"expected a positive number (inf: accept any fit), got {max_fit_error!r}",
+                          field="max_fit_error")
     start = time.perf_counter()
     catalogue = catalogue if catalogue is not None else scene.catalogue
     if not scene.design_segments:
@@ -376,19 +396,21 @@ def prepare(scene: "Scene", catalogue=None, *, build_model: Callable | None = No
         if build_model is None:
             raise OptionError("nonlinear design segments need build_model (vertebra.solver.build_model) to estimate "
                               "the range their entries must cover", field="build_model")
-        report = _prepare_nonlinear(scene, designs, catalogue, label, build_model, options)
+        report = _prepare_nonlinear(scene, designs, catalogue, label, build_model, options, max_fit_error)
     report = dataclasses.replace(report, elapsed_s=time.perf_counter() - start)
     keys = {s.segment: s.key for s in report.segments if s.status in ("reused", "designed")}
     return resolve(scene, keys, catalogue), report
 
 
-def resolve_prepared(scene: "Scene", catalogue=None, *, build_model: Callable | None = None) -> "Scene":
+def resolve_prepared(scene: "Scene", catalogue=None, *, build_model: Callable | None = None,
+                     max_fit_error: float = FIT_LIMIT) -> "Scene":
     """The scene with each design segment whose entry ``catalogue`` (default: the scene's)
     already holds resolved to it — what :func:`prepare` returns after designing, without
     designing anything: the content keys come from the same plan (a dry run). A nonlinear
     design segment is keyed by the range its linear counterparts' model spans, so it resolves
     only when every linear counterpart is in the catalogue too and ``build_model`` is given;
-    segments whose entry is missing stay unresolved (``Scene.check_resolved`` names them)."""
+    segments whose entry is missing stay unresolved (``Scene.check_resolved`` names them). An
+    entry :func:`prepare` refuses (``max_fit_error``) is a SceneError naming the segment and why."""
     catalogue = catalogue if catalogue is not None else scene.catalogue
     if not scene.design_segments or catalogue is None or not os.path.isfile(str(catalogue)):
         return scene if catalogue is None else dataclasses.replace(scene, catalogue=str(catalogue))
@@ -402,7 +424,10 @@ def resolve_prepared(scene: "Scene", catalogue=None, *, build_model: Callable | 
             scene_keys = {row.segment: row.key for row in counterparts.segments
                           if row.status == "reused" and row.segment in {d.index for d in designs}}
             return resolve(scene, scene_keys, catalogue)
-    resolved, report = prepare(scene, catalogue, build_model=build_model, **quiet)
+    resolved, report = prepare(scene, catalogue, build_model=build_model, max_fit_error=max_fit_error, **quiet)
+    refused = [s for s in report.segments if s.status == "refused"]
+    if refused:
+        raise SceneError(refused[0].refusal, file=scene.source, field=f"segment[{refused[0].segment}]")
     return resolved
 
 
@@ -436,7 +461,7 @@ def _estimate_progress(progress: bool, every_s: float = 2.0):
 
 
 def _prepare_nonlinear(scene, designs: list[Design], catalogue, label: str, build_model,
-                       options: dict) -> PrepareReport:
+                       options: dict, max_fit_error: float = FIT_LIMIT) -> PrepareReport:
     """The two stages of a scene with nonlinear design segments (module docstring)."""
     progress, dry_run = options.get("progress", True), options.get("dry_run", False)
     designer = options.get("designer", FiniteElementDesigner())
@@ -466,8 +491,11 @@ def _prepare_nonlinear(scene, designs: list[Design], catalogue, label: str, buil
               for d in designs if d.index in nonlinear]
     report = prepare_designs(chosen, catalogue, source=scene.source, label=f"{label}: nonlinear entries", **options)
     fitted = _coverage(report.segments, estimate, catalogue)
+    refused = _fit_checks(report.segments, estimate, catalogue, max_fit_error)
     rows_nl = tuple(dataclasses.replace(row, sampling=choices[row.segment],
-                                        warnings=choices[row.segment].warnings + fitted.get(row.segment, ()))
+                                        warnings=choices[row.segment].warnings + fitted.get(row.segment, ()),
+                                        **({"status": "refused", "refusal": refused[row.segment]}
+                                           if row.segment in refused else {}))
                     for row in report.segments)
     return PrepareReport(segments=_in_order(linear.segments, nonlinear, rows_nl), estimate=estimate,
                          warnings=tuple(warnings), **{**base, "run": report.run})
@@ -542,6 +570,76 @@ def _entries(catalogue, memory: dict):
                 opened.append(stack.enter_context(open_catalogue(catalogue)))
             return opened[0].load(key)
         yield load
+
+
+def needed_level(estimate, fitted) -> tuple[float, float]:
+    """How far into an entry's sampled box (``fitted``, its :class:`~vertebra.core.energy.EnergyRange`)
+    the scene's estimated range ``estimate`` (:class:`~vertebra.designer.scene_range.SegmentRange`,
+    None: unknown) reaches, in the measure of :func:`~vertebra.designer.energy_fit.load_levels`:
+    ``(load level, pressure level)``, the largest estimated load group over the fitted load bound
+    and estimated pressure over the top fitted pressure (1: the whole box; inf: an unbounded
+    pressure; no estimate: beyond the box in both)."""
+    if estimate is None:
+        return math.inf, math.inf
+    bounds = np.asarray(fitted.load_upper, dtype=float)
+    loads = np.maximum(np.abs(estimate.load_lower), np.abs(estimate.load_upper))
+    load = float(np.max(np.where(bounds > 0, loads / np.where(bounds > 0, bounds, 1.0), 0.0)))
+    pressure = 0.0
+    for cavity, (_, high) in estimate.pressures.items():
+        if cavity < fitted.n_cavities and float(fitted.pressure_upper[cavity]) > 0:
+            pressure = max(pressure, high / float(fitted.pressure_upper[cavity]))
+    return load, pressure
+
+
+def fit_refusal(energy, level: tuple[float, float], max_fit_error: float) -> str | None:
+    """Why an entry's energy cannot serve a scene that needs its sampled box up to ``level``
+    (:func:`needed_level`: load and pressure levels): its held-out load error over that part of
+    the box (:func:`~vertebra.designer.energy_fit.error_up_to`; entries without the per-sample
+    errors: over the whole box) exceeds ``max_fit_error`` — None when it does not."""
+    held = energy.fit_error.get("held_out", {}) if isinstance(energy.fit_error, dict) else {}
+    rows = held.get("by_level") or []
+    found = error_up_to(rows, *level) if rows else None
+    if found is not None:
+        error, count = found
+        where = ("its whole sampled box" if count == len(rows) else
+                 f"the {count} of its {len(rows)} held-out samples within the part of its sampled box the scene "
+                 f"needs (loads to {min(level[0], 1.0):.2g} of its bounds"
+                 + (f", pressures to {min(level[1], 1.0):.2g}" if energy.range.n_cavities else "") + ")")
+    elif "load_max" in held:
+        error, where = float(held["load_max"]), "its whole sampled box"
+    else:
+        return None
+    if not error > max_fit_error:
+        return None
+    model = energy.material.get("model") if isinstance(energy.material, dict) else None
+    why = (" (St Venant–Kirchhoff softens towards a compressive limit point, which the polynomial does not "
+           "follow)" if model == "svk" else "")
+    return (f"its energy fit misses its held-out samples by up to {error:.3g} of the load range over {where} "
+            f"(rms over the box {held.get('load_rms', float('nan')):.3g}), more than the {max_fit_error:.3g} "
+            f"allowed{why}: results there would carry errors of that order. Narrow the sampled box "
+            f"(sampling = {{ strain = … }} on the segment, or bending/shear/axial), raise sampling.degree, choose "
+            f"material = \"neo_hookean\", or accept the fit with --max-fit-error {error:.2g} "
+            f"(Python: max_fit_error=)")
+
+
+def _fit_checks(rows, estimate, catalogue, max_fit_error: float) -> dict:
+    """Per nonlinear segment whose entry is in the catalogue: the refusal of :func:`fit_refusal`
+    (segment → reason), for the part of the entry's box the scene's estimate needs."""
+    ready = [r for r in rows if r.status in ("reused", "designed")]
+    if not ready or not math.isfinite(max_fit_error):
+        return {}
+    with _entries(catalogue, {}) as load:
+        energies = {key: load(key).energy for key in {r.key for r in ready}}
+    out = {}
+    for row in ready:
+        energy = energies[row.key]
+        if energy is None:
+            continue
+        segment = None if estimate is None else estimate.segments[row.segment]
+        reason = fit_refusal(energy, needed_level(segment, energy.range), max_fit_error)
+        if reason is not None:
+            out[row.segment] = f"entry {row.key} refused: {reason}"
+    return out
 
 
 def _coverage(rows, estimate, catalogue) -> dict:

@@ -59,7 +59,12 @@ def _group_table() -> np.ndarray:
 
 
 _GROUP_TABLE = _group_table()
-_NEXT, _AFTER = np.array([1, 2, 0]), np.array([2, 0, 1])     # (a × b)_i = a_{i+1} b_{i+2} − a_{i+2} b_{i+1}
+# (a × b)_i = a_{i+1} b_{i+2} − a_{i+2} b_{i+1}: the cross products of the pieces' kinematics as
+# elementwise products of two gathers (one product for all the terms, whatever the number of rows)
+_UNIT_OFFSETS = np.array([1, 2, 0, 4, 5, 3, 2, 0, 1, 5, 3, 4])       # [s_a, s_b] at i+1, then at i+2
+_UNIT_SPAN = np.array([2, 0, 1, 2, 0, 1, 1, 2, 0, 1, 2, 0])          # u at i+2, then at i+1
+_CHANGE_OFFSETS = np.array([1, 2, 0, 2, 0, 1, 5, 3, 4, 4, 5, 3])     # s_a at i+1, i+2; s_b at i+2, i+1
+_CHANGE_MOVES = np.array([5, 3, 4, 4, 5, 3, 10, 11, 9, 11, 9, 10])   # dφ_a at i+2, i+1; dφ_b at i+1, i+2
 
 
 @dataclass
@@ -101,27 +106,25 @@ class CablePieces:
         (:meth:`CableRouting.spans`)."""
         m = d.shape[0]
         u = d / length[:, None]
-        unit = np.empty((m, 4, 3))
-        np.negative(u, out=unit[:, 0])
-        unit[:, 2] = u
-        ends = offsets.reshape(m, 2, 3)                          # s_a × u and s_b × u at once
-        cross = ends[:, :, _NEXT] * u[:, None, _AFTER]
-        cross -= ends[:, :, _AFTER] * u[:, None, _NEXT]
-        np.negative(cross[:, 0], out=unit[:, 1])
-        unit[:, 3] = cross[:, 1]
-        return cls(u, length, unit.reshape(m, 12), offsets, d)
+        terms = offsets.take(_UNIT_OFFSETS, 1)                   # the terms of s_a × u and s_b × u
+        terms *= u.take(_UNIT_SPAN, 1)
+        unit = np.empty((m, 12))
+        np.negative(u, out=unit[:, 0:3])
+        unit[:, 6:9] = u
+        np.subtract(terms[:, 6:9], terms[:, 0:3], out=unit[:, 3:6])      # −s_a × u
+        np.subtract(terms[:, 3:6], terms[:, 9:12], out=unit[:, 9:12])    # s_b × u
+        return cls(u, length, unit, offsets, d)
 
     def change(self, moves: np.ndarray) -> np.ndarray:
         """``Δd = Cᵀ [dq_a; dq_b]`` (m, 3), the linearised change of every piece's span under the
         increments ``moves`` (m, 12) of its two frames: ``dx_b − dx_a − dφ_a × s_a + dφ_b × s_b``."""
-        m = moves.shape[0]
-        parts = moves.reshape(m, 4, 3)
-        turns, offsets = parts[:, 1::2], self.offsets.reshape(m, 2, 3)
-        cross = turns[:, :, _NEXT] * offsets[:, :, _AFTER]                    # dφ × s at both ends
-        cross -= turns[:, :, _AFTER] * offsets[:, :, _NEXT]
-        delta = parts[:, 2] - parts[:, 0]
-        delta -= cross[:, 0]
-        delta += cross[:, 1]
+        terms = self.offsets.take(_CHANGE_OFFSETS, 1)            # the terms of s_a × dφ_a and dφ_b × s_b
+        terms *= moves.take(_CHANGE_MOVES, 1)
+        delta = moves[:, 6:9] - moves[:, 0:3]
+        delta += terms[:, 0:3]
+        delta -= terms[:, 3:6]
+        delta += terms[:, 6:9]
+        delta -= terms[:, 9:12]
         return delta
 
     def tangent(self, tension: np.ndarray, groups: np.ndarray | None = None, out: np.ndarray | None = None) -> np.ndarray:

@@ -55,7 +55,7 @@ MAX_SPLITS = 4          # an increment is split into 2^MAX_SPLITS parts at most
 SLIP = 1e-12            # relative excess of a hole's band (or backflow of a sliding hole) that changes its status
 
 __all__ = ["FrictionState", "Routes", "Transmission", "equilibrium_sensitivities", "linearise", "routes", "sensitivities", "solve",
-           "solve_sequence", "transmission", "transmission_ratios", "turning_angles", "secant_forces", "EDGE"]
+           "solve_sequence", "transmission", "transmission_ratios", "turning_angles", "piecewise", "EDGE"]
 
 
 @dataclass(frozen=True)
@@ -209,130 +209,146 @@ def transmission(trunk, history: FrictionState, actuation: np.ndarray, lengths: 
     material = np.full(m, np.nan)
     driven = np.zeros(m)
     frictional = [c for c in actuators.tendons.tolist() if mu[c] > 0.0]
-    units, weights = np.full(m, 0), np.ones(m)
-    unit_cable, unit_k, unit_rest, unit_shift, unit_scaled = [], [], [], [], []
     for c, run in enumerate(route.pieces):
-        if not actuators.stroke_driven[c]:
-            T = float(actuation[c])
-            old = history.tension[run]
-            out = np.empty(run.size)
-            status = np.zeros(run.size, np.int8)
-            out[0] = T
-            for j in range(1, run.size):
-                turn = mu[c] * angles[run[j]]
-                low, high = out[j - 1] * math.exp(-turn), out[j - 1] * math.exp(turn)
-                status[j] = 1 if old[j] < low else -1 if old[j] > high else 0
-                out[j] = min(max(old[j], low), high)
-            tension[run], slip[run], driven[run] = out, status, out
-            continue
-        k = actuators.cable_stiffness[c]
-        compliance = _shares(trunk, c, run) / k
-        trial = history.material[run].copy()
-        trial[0] -= actuation[c] - history.actuation[c]
-        if mu[c] > 0.0:
-            status, g, tau, new = _tendon_spans(lengths[run], angles[run], mu[c], trial, compliance,
-                                                None if guess is None else guess[run],
-                                                None if pinned is None else pinned[run])
-        else:
+        if actuators.stroke_driven[c]:
+            if mu[c] > 0.0:
+                continue
+            k = actuators.cable_stiffness[c]         # a frictionless tendon: one run, every factor 1
+            compliance = _shares(trunk, c, run) / k
+            trial = history.material[run].copy()
+            trial[0] -= actuation[c] - history.actuation[c]
             status = np.ones(run.size, np.int8)
             status[0] = 0
-            g = np.ones(run.size)
-            tau = np.full(run.size, (lengths[run].sum() - trial.sum()) / compliance.sum())
-            new = lengths[run] - compliance * tau
-        tension[run], slip[run], material[run] = np.maximum(g * tau, 0.0), status, new
-        if frictional:
-            if mu[c] > 0.0:                 # one unit per run of spans joined by sliding holes
-                first = len(unit_cable)
-                group = np.cumsum(status == 0) - 1
-                count = int(group[-1]) + 1
-                units[run] = first + group
-                weights[run] = g
-                unit_cable.extend([c] * count)
-                unit_k.extend((1.0 / np.bincount(group, compliance * g, count)).tolist())
-                unit_rest.extend((np.bincount(group, trial, count)
-                                  - np.bincount(group, (1.0 - g) * lengths[run], count)).tolist())
-                unit_shift.extend([0.0] * count)
-                unit_scaled.extend([True] * count)
-            else:                         # a frictionless tendon among frictional ones: today's unit
-                units[run] = len(unit_cable)
-                unit_cable.append(c)
-                unit_k.append(k)
-                unit_rest.append(float(trunk.rest_cable_lengths[c]))
-                unit_shift.append(float(actuation[c] + actuators.pretension[c] / k))
-                unit_scaled.append(False)
+            tau = (lengths[run].sum() - trial.sum()) / compliance.sum()
+            tension[run], slip[run], material[run] = max(tau, 0.0), status, lengths[run] - compliance * tau
+            continue
+        T = float(actuation[c])
+        old = history.tension[run]
+        out = np.empty(run.size)
+        status = np.zeros(run.size, np.int8)
+        out[0] = T
+        for j in range(1, run.size):
+            turn = mu[c] * angles[run[j]]
+            low, high = out[j - 1] * math.exp(-turn), out[j - 1] * math.exp(turn)
+            status[j] = 1 if old[j] < low else -1 if old[j] > high else 0
+            out[j] = min(max(old[j], low), high)
+        tension[run], slip[run], driven[run] = out, status, out
     tendons = scaled = None
-    if frictional:
-        n_units = len(unit_cable)
+    if frictional:       # every frictional tendon's return map at once; one unit per run of spans joined by sliding holes
+        spans = np.concatenate([route.pieces[c] for c in frictional])
+        owner = cables.owner[spans]
+        first = np.zeros(spans.size, bool)
+        first[np.cumsum([0] + [route.pieces[c].size for c in frictional[:-1]])] = True
+        compliance = trunk.rest_piece_lengths[spans] / trunk.rest_cable_lengths[owner] / actuators.cable_stiffness[owner]
+        trial = history.material[spans].copy()
+        trial[first] -= actuation[frictional] - history.actuation[frictional]
+        status, g, tau, new, run = _tendon_spans(lengths[spans], angles[spans], mu[owner], trial, compliance, first,
+                                                 None if guess is None else guess[spans],
+                                                 None if pinned is None else pinned[spans])
+        tension[spans], slip[spans], material[spans] = np.maximum(g * tau, 0.0), status, new
+        count = int(run[-1]) + 1
+        units = np.zeros(m, int)
+        weights = np.zeros(m)
+        units[spans], weights[spans] = run, g
+        unit_cable = owner[status == 0]
+        unit_k = 1.0 / np.bincount(run, compliance * g, count)
+        unit_rest = np.bincount(run, trial, count) - np.bincount(run, (1.0 - g) * lengths[spans], count)
+        unit_shift = np.zeros(count)
+        scaled = np.ones(count, bool)
+        others = [c for c in actuators.tendons.tolist() if mu[c] == 0.0]   # frictionless tendons among them: today's units
+        for c in others:
+            units[route.pieces[c]], weights[route.pieces[c]] = count, 1.0
+            count += 1
+        if others:
+            k = actuators.cable_stiffness[others]
+            unit_cable = np.concatenate([unit_cable, others])
+            unit_k = np.concatenate([unit_k, k])
+            unit_rest = np.concatenate([unit_rest, trunk.rest_cable_lengths[others]])
+            unit_shift = np.concatenate([unit_shift, actuation[others] + actuators.pretension[others] / k])
+            scaled = np.concatenate([scaled, np.zeros(len(others), bool)])
         tendon_piece = actuators.stroke_driven[cables.owner]
-        units = np.where(tendon_piece, units, n_units)
-        tendons = Tendons(np.array(unit_cable, int), np.array(unit_k), np.array(unit_rest), np.array(unit_shift),
-                          units, np.where(tendon_piece, weights, 0.0))
-        scaled = np.array(unit_scaled, bool)
+        units = np.where(tendon_piece, units, count)
+        tendons = Tendons(np.asarray(unit_cable, int), unit_k, unit_rest, unit_shift, units,
+                          np.where(tendon_piece, weights, 0.0))
     return Transmission(tension, slip, material, driven if np.any(driven) else None, tendons, scaled)
 
 
-def _tendon_spans(L: np.ndarray, angle: np.ndarray, mu: float, trial: np.ndarray, compliance: np.ndarray,
-                  start: np.ndarray | None = None, pinned: np.ndarray | None = None):
-    """The return map of one stroke-driven tendon at span lengths ``L``: the holes' statuses, the
-    capstan factors ``g`` within each run of spans joined by sliding holes, the spans' tension
-    before the tendon's slack is cut off (``τ g``) and their new unstretched lengths. From the
-    statuses ``start`` (None: every hole stuck, the elastic trial) it frees the hole whose band
-    is exceeded most, or sticks the sliding hole whose material flows against its slip, until
-    none is (plain floats: a tendon has tens of holes); ``pinned`` holes keep their start status."""
+def _tendon_spans(L: np.ndarray, angle: np.ndarray, mu: np.ndarray, trial: np.ndarray, compliance: np.ndarray,
+                  first: np.ndarray, start: np.ndarray | None = None, pinned: np.ndarray | None = None):
+    """The return map of the stroke-driven tendons at span lengths ``L`` (all their spans, each
+    tendon's in route order, ``first`` marking where each starts; ``mu`` per span): the holes'
+    statuses, the capstan factors ``g`` within each run of spans joined by sliding holes, the
+    spans' tension before the tendon's slack is cut off (``τ g``) and their new unstretched
+    lengths. From the statuses ``start`` (None: every hole stuck, the elastic trial) each tendon
+    frees the hole whose band is exceeded most, or sticks the sliding hole whose material flows
+    against its slip, one hole per round, until none is — all tendons at once (arrays over their
+    spans); ``pinned`` holes keep their start status."""
     n = L.size
-    L, trial, compliance = L.tolist(), trial.tolist(), compliance.tolist()
-    factor = [math.exp(mu * a) for a in angle.tolist()]
-    status = [0] * n if start is None else [int(v) for v in start]
-    status[0] = 0
-    fixed = [False] * n if pinned is None else pinned.tolist()
-    for _ in range(4 * n + 4):
-        g, tau, new = _runs(L, factor, trial, compliance, status)
-        T = [max(gj * tj, 0.0) for gj, tj in zip(g, tau)]
-        scale = max(max(T), 1e-300)
-        worst, fix = SLIP, None
-        for j in range(1, n):
-            if status[j] == 0 and not fixed[j]:
-                low, high = T[j - 1] / factor[j], T[j - 1] * factor[j]
-                if (low - T[j]) / scale > worst:
-                    worst, fix = (low - T[j]) / scale, (j, 1)
-                elif (T[j] - high) / scale > worst:
-                    worst, fix = (T[j] - high) / scale, (j, -1)
-        if fix is None:
-            j = 1
-            while j < n:
-                if status[j] and not fixed[j] and T[j - 1] + T[j] > 0.0:
-                    end = j + 1
-                    while end < n and status[end]:
-                        end += 1
-                    flow = sum(trial[j:end]) - sum(new[j:end])
-                    backflow = -status[j] * flow / max(sum(abs(v) for v in trial[j:end]), 1e-300)
-                    if backflow > worst:
-                        worst, fix = backflow, (j, 0)
-                j += 1
-        if fix is None:
-            return np.array(status, np.int8), np.array(g), np.array(tau), np.array(new)
-        status[fix[0]] = fix[1]
+    status = np.zeros(n, np.int8) if start is None else np.array(start, np.int8)
+    status[first] = 0
+    free = ~first if pinned is None else ~(first | pinned)
+    turn = mu * angle
+    factor = np.exp(turn)
+    cable = np.cumsum(first) - 1
+    heads = np.flatnonzero(first)
+    longest = int(np.max(np.diff(np.append(heads, n)), initial=1))
+    for _ in range(4 * longest + 4):
+        g, tau, new, run = _runs(L, turn, trial, compliance, status, first)
+        T = np.maximum(g * tau, 0.0)
+        scale = np.maximum(np.maximum.reduceat(T, heads), 1e-300)[cable]
+        previous = np.empty(n)
+        previous[0], previous[1:] = 0.0, T[:-1]
+        # a stuck hole's band [T_{j−1} e^(−μΔθ), T_{j−1} e^(+μΔθ)] exceeded: it slides (+1 below, −1 above)
+        low, high = (previous / factor - T) / scale, (T - previous * factor) / scale
+        stuck = free & (status == 0)
+        excess = np.where(stuck, np.maximum(low, high), -np.inf)
+        # a sliding hole through which the run's material flows against its slip sticks: the flow
+        # through hole j is the material the spans from j to the run's end gave up
+        given = trial - new
+        total = np.bincount(run, given)
+        size = np.bincount(run, np.abs(trial))
+        ahead = np.cumsum(given) - given              # given up by the spans before j (whole array)
+        ahead_abs = np.cumsum(np.abs(trial)) - np.abs(trial)
+        begin = np.flatnonzero(status == 0)           # the runs' first spans (every run starts at a stuck hole)
+        flow = total[run] - (ahead - ahead[begin][run])
+        through = size[run] - (ahead_abs - ahead_abs[begin][run])
+        sliding = free & (status != 0) & (previous + T > 0.0)
+        backflow = np.where(sliding, -status * flow / np.maximum(through, 1e-300), -np.inf)
+        # per tendon: the worst band first (one hole per round), else the worst backflow
+        worst_band = _first_largest(excess, heads, cable)
+        worst_flow = _first_largest(backflow, heads, cable)
+        band = excess[worst_band] > SLIP
+        flows = ~band & (backflow[worst_flow] > SLIP)
+        if not (band.any() or flows.any()):
+            return status, g, tau, new, run
+        j = worst_band[band]
+        status[j] = np.where(low[j] > high[j], 1, -1)
+        status[worst_flow[flows]] = 0
     raise ConvergenceError("the stick/slip states of a tendon's holes did not settle (the return map cycles)")
 
 
-def _runs(L: list, factor: list, trial: list, compliance: list, status: list):
-    """Capstan factors, run tensions (per span, before the slack cut-off) and new unstretched
-    lengths for the holes' ``status`` (runs split at stuck holes; each run keeps its material)."""
-    n = len(L)
-    g, tau, new = [1.0] * n, [0.0] * n, [0.0] * n
-    a = 0
-    while a < n:
-        b = a + 1
-        while b < n and status[b]:
-            g[b] = g[b - 1] / factor[b] if status[b] > 0 else g[b - 1] * factor[b]
-            b += 1
-        weight = sum(c * gj for c, gj in zip(compliance[a:b], g[a:b]))
-        t = (sum(L[a:b]) - sum(trial[a:b])) / weight
-        for j in range(a, b):
-            tau[j] = t
-            new[j] = L[j] - compliance[j] * g[j] * t
-        a = b
-    return g, tau, new
+def _first_largest(values: np.ndarray, heads: np.ndarray, cable: np.ndarray) -> np.ndarray:
+    """Per segment (starting at ``heads``): the index of its largest value, the first of equals."""
+    largest = np.maximum.reduceat(values, heads)
+    hit = values == largest[cable]
+    index = np.flatnonzero(hit)
+    return index[np.searchsorted(cable[index], np.arange(heads.size))]
+
+
+def _runs(L: np.ndarray, turn: np.ndarray, trial: np.ndarray, compliance: np.ndarray, status: np.ndarray,
+          first: np.ndarray):
+    """Capstan factors, run tensions (per span, before the slack cut-off), new unstretched lengths
+    and each span's run for the holes' ``status`` (runs split at stuck holes, which every tendon's
+    first span is; each run keeps its material)."""
+    head = status == 0
+    run = np.cumsum(head) - 1
+    step = np.where(head, 0.0, -status * turn)                  # ln g_j − ln g_{j−1}
+    total = np.cumsum(step)
+    g = np.exp(total - total[np.flatnonzero(head)][run])
+    weight = np.bincount(run, compliance * g)
+    t = (np.bincount(run, L) - np.bincount(run, trial)) / weight
+    tau = t[run]
+    return g, tau, L - compliance * g * tau, run
 
 
 class _Loads:
@@ -536,29 +552,34 @@ def linearise(trunk, state, actuation: np.ndarray, history: FrictionState | None
     return lin, current, continued
 
 
-def secant_forces(trunk, state, history: FrictionState, current: Transmission, actuation: np.ndarray,
-                  target: np.ndarray, incipient: np.ndarray | None, forces: np.ndarray) -> np.ndarray:
-    """The actuator forces (n_dof, n_cables) of the secant of the return map at ``state``'s poses
-    from ``actuation`` (where it gave ``current``) to ``target``: span ``j`` of cable ``c``
-    changes by ``(T_j(target) − T_j(actuation)) / (target_c − actuation_c)`` per unit of the
-    cable's command. The return map is piecewise linear in the command (a hole slides or
-    sticks as its band is reached), so over a change that crosses a kink the secant is the
-    linear model that holds at both ends; cables whose command does not change keep their
-    column of ``forces`` (the tangent's)."""
+def piecewise(trunk, state, history: FrictionState, start: Transmission, actuation: np.ndarray,
+              answer: np.ndarray, incipient: np.ndarray | None, forces: np.ndarray, poses=None):
+    """The return map at ``state``'s poses around a command ``answer``: at fixed poses each
+    cable's span tensions are a piecewise-linear function of its own command alone (a hole slides
+    or sticks as its band is reached: the kinks). Returns ``(reached, chord, slope)`` — the
+    :class:`Transmission` at ``answer``, and as actuator forces (n_dof, n_cables) per unit of each
+    cable's command the *chord* of the return map from ``actuation`` (where it gave ``start``) to
+    ``answer`` and its *slope* there (:func:`transmission_ratios` of the statuses at ``answer``:
+    the capstan factors up to the first stuck hole; a tendon's ``K g_j`` over the run holding its
+    first span). The affine model
+    ``F(λ) = chord·(answer − actuation) + slope·(λ − answer)`` is then the return map's exactly on
+    that piece. Cables whose command does not change keep their column of ``forces`` (the
+    tangent's)."""
     n_cables = trunk.cables.n_cables
-    change = target[:n_cables] - actuation[:n_cables]
+    change = answer[:n_cables] - actuation[:n_cables]
     moved = np.flatnonzero(np.abs(change) > 1e-12 * np.maximum(np.abs(actuation[:n_cables]), 1.0))
-    out = forces.copy()
+    chord, slope = forces.copy(), forces.copy()
+    lengths, angles = geometry(trunk, state) if poses is None else poses
+    command = np.array(actuation, float)
+    command[moved] = answer[moved]
+    reached = transmission(trunk, history, command, lengths, angles, incipient)
     if moved.size:
-        lengths, angles = geometry(trunk, state)
-        command = np.array(actuation, float)
-        command[moved] = target[moved]
-        reached = transmission(trunk, history, command, lengths, angles, incipient)
         owner = trunk.cables.owner
-        ratio = np.where(np.isin(owner, moved), (reached.tension - current.tension) / np.where(
-            change[owner] != 0.0, change[owner], 1.0), 0.0)
-        out[:, moved] = _forces(trunk, state, ratio)[:, moved]
-    return out
+        on = np.isin(owner, moved)
+        per = np.where(on, change[owner], 1.0)
+        chord[:, moved] = _forces(trunk, state, np.where(on, (reached.tension - start.tension) / per, 0.0))[:, moved]
+        slope[:, moved] = _forces(trunk, state, _ratios(trunk, reached, angles, None)[0])[:, moved]
+    return reached, chord, slope
 
 
 def _span_tensions(trunk, state, load: LoadCase) -> np.ndarray:
@@ -631,6 +652,54 @@ def _scatter(trunk, rows: np.ndarray) -> np.ndarray:
     return out[:, 1:].reshape(k, -1).T
 
 
+def _tendon_sensitivities(trunk, current: Transmission, c: int, run: np.ndarray, mu: float, angles: np.ndarray,
+                          on_prev: np.ndarray, on_own: np.ndarray, unit_rows: np.ndarray, dT_dq: np.ndarray,
+                          dT_dmu: np.ndarray, spring: np.ndarray) -> None:
+    """:func:`equilibrium_sensitivities` of a stroke-driven tendon's spans (into ``dT_dq``, rows on
+    the pieces' ends, and ``dT_dmu``), the statuses and the history's materials held: a run of
+    spans joined by sliding holes keeps its material ``M``, so ``T_j = g_j τ`` with
+    ``τ = (Σ L_i − M)/W``, ``W = Σ c_i g_i`` and ``ln g_j`` the sum of ``−s_i μ Δθ_i`` over the run's
+    holes up to ``j``. The linearisation's tangent already holds the run as one spring on
+    ``Σ g_i L_i`` (stiffness ``1/W``): its rank-one part ``(1/W) Σ g L' ⊗ Σ g L'`` goes into
+    ``spring`` (the tangent minus it, plus ``Σ_j L_j' ⊗ ∂T_j/∂q``, is the exact one).
+    A slack run (``τ ≤ 0``) carries nothing and has no stiffness."""
+    tendons = current.tendons
+    k = trunk.actuators.cable_stiffness[c]
+    compliance = _shares(trunk, c, run) / k
+    if tendons is None:                   # today's tendons: one unit per cable, g = 1
+        units, g = np.zeros(run.size, int), np.ones(run.size)
+    else:
+        units, g = tendons.units[run], tendons.weights[run]
+    slip = current.slip
+    for unit in np.unique(units).tolist():
+        where = np.flatnonzero(units == unit)
+        spans = run[where]
+        gs, cs = g[where], compliance[where]
+        tau = current.tension[spans[0]] / gs[0]
+        if not tau > 0.0:
+            continue
+        dlng = np.zeros((spans.size,) + unit_rows.shape[1:])              # ∂ ln g_i/∂q
+        a = np.zeros(spans.size)
+        for i in range(1, spans.size):
+            p, prev = spans[i], spans[i - 1]
+            s = int(slip[p])
+            dlng[i] = dlng[i - 1]
+            dlng[i, 2 * prev:2 * prev + 2] -= s * mu * on_prev[prev].reshape(2, 6)
+            dlng[i, 2 * p:2 * p + 2] -= s * mu * on_own[p].reshape(2, 6)
+            a[i] = a[i - 1] - s * angles[p]
+        W = float(np.sum(cs * gs))
+        weighted = cs * gs
+        dtau_dmu = -tau / W * float(weighted @ a)
+        lengths = unit_rows[spans].sum(axis=0)                            # Σ L_i'
+        capstan = np.tensordot(gs, unit_rows[spans], axes=1)             # Σ g_i L_i'
+        dtau_dq = (lengths - tau * np.tensordot(weighted, dlng, axes=1)) / W
+        for i, p in enumerate(spans.tolist()):
+            T = gs[i] * tau
+            dT_dq[p] = T * dlng[i] + gs[i] * dtau_dq
+            spring[p] = gs[i] / W * capstan
+            dT_dmu[p] = T * a[i] + gs[i] * dtau_dmu
+
+
 def equilibrium_sensitivities(model, result, history: FrictionState, cables=None) -> dict:
     """Exact derivatives with respect to the cables' friction coefficients of one frictional
     equilibrium ``result`` (a :meth:`~vertebra.solver.model.TrunkModel.solve` whose command was
@@ -638,19 +707,19 @@ def equilibrium_sensitivities(model, result, history: FrictionState, cables=None
     statuses held (a hole on the edge of its band moves with it; one that is stuck keeps its
     tension). The equilibrium ``∇E(q) + Σ_j T_j(q, μ) ∂L_j/∂q = 0`` with the span tensions of
     the return map — along a tension-driven cable ``T_j = T_{j−1} e^(−s_j μ Δθ_j(q))`` at a hole
-    sliding in direction ``s_j``, a stuck span's committed tension — gives
+    sliding in direction ``s_j``, a stuck span's committed tension; along a stroke-driven tendon
+    ``T_j = g_j τ`` over each run of spans joined by sliding holes, the run keeping its material
+    (:func:`_tendon_sensitivities`) — gives
     ``dq/dμ = −(K + Σ_j ∂L_j/∂q ⊗ ∂T_j/∂q)⁻¹ Σ_j ∂T_j/∂μ ∂L_j/∂q``, with ``K`` the tangent at fixed
-    span tensions (its factor) and the rank-m update of the capstan factors' change with the
-    shape solved by Sherman–Morrison–Woodbury. Tension-driven cables only (a stroke-driven
-    tendon's runs would need their material flow: :class:`OptionError`); a hole turned by less
+    span tensions (its factor; a tendon run's spring, which the linearisation's tangent holds,
+    taken out of the update) and the rank-m update of the capstan factors' change with the
+    shape solved by Sherman–Morrison–Woodbury. A tendon's holes keep the equilibrium's statuses
+    (those the solve held at incipient slip too); a hole turned by less
     than 1e-9 rad has no angle derivative (a straight route: |Δθ| has a kink there). Returns
     ``{"names", "state": (n_dof, p), "effector_positions": (3·n_effectors, p), "span_tensions":
     (m, p)}`` — compare :func:`sensitivities` (differences of a whole sequence)."""
     trunk = model.trunk
     actuators, routing = trunk.actuators, trunk.cables
-    if actuators.tendons.size:
-        raise OptionError("exact friction sensitivities are implemented for tension-driven cables only "
-                          "(stroke-driven tendons: friction.sensitivities, sequence differences)", field="cables")
     names = list(model.actuator_names[:model.n_cables])
     chosen = names if cables is None else list(cables)
     unknown = [c for c in chosen if c not in names]
@@ -658,7 +727,9 @@ def equilibrium_sensitivities(model, result, history: FrictionState, cables=None
         raise OptionError(f"unknown cable(s) {', '.join(unknown)} (cables: {', '.join(names)})", field="cables")
     state, actuation = result.state, result.friction.actuation
     lengths, angles = geometry(trunk, state)
-    current = transmission(trunk, history, actuation, lengths, angles, result.friction.slip)
+    # (the tendons' holes held at the equilibrium's statuses: a hole the solve held at incipient slip stays so)
+    current = transmission(trunk, history, actuation, lengths, angles, result.friction.slip,
+                           actuators.stroke_driven[routing.owner])
     lin = outputs.linearise(trunk, state, actuation, _Loads(trunk, current))
     rotations = qmatrix(state.quaternions)
     offsets, d, length = routing.spans(state.positions, rotations)
@@ -693,7 +764,15 @@ def equilibrium_sensitivities(model, result, history: FrictionState, cables=None
     # per span: ∂T_j/∂q as rows on piece ends (m spans × (2m piece ends, 6)), ∂T_j/∂μ of its cable
     dT_dq = np.zeros((m, 2 * m, 6))
     dT_dmu = np.zeros(m)
+    spring = np.zeros((m, 2 * m, 6))    # the part of ∂T_j/∂q the tangent holds already (tendons' runs)
+    unit_rows = np.zeros((m, 2 * m, 6))                                   # ∂L_j/∂q on piece ends
+    unit_rows[np.arange(m), 2 * np.arange(m)] = pieces.unit.reshape(2 * m, 6)[0::2]
+    unit_rows[np.arange(m), 2 * np.arange(m) + 1] = pieces.unit.reshape(2 * m, 6)[1::2]
     for c, run in enumerate(route.pieces):
+        if actuators.stroke_driven[c]:
+            _tendon_sensitivities(trunk, current, c, run, mu[c], angles, on_prev, on_own, unit_rows, dT_dq, dT_dmu,
+                                  spring)
+            continue
         for j in range(1, run.size):
             p, prev = run[j], run[j - 1]
             s = int(slip[p])
@@ -705,15 +784,15 @@ def equilibrium_sensitivities(model, result, history: FrictionState, cables=None
             dT_dq[p, 2 * prev:2 * prev + 2] -= T * s * mu[c] * on_prev[prev].reshape(2, 6)
             dT_dq[p, 2 * p:2 * p + 2] -= T * s * mu[c] * on_own[p].reshape(2, 6)
             dT_dmu[p] = factor * dT_dmu[prev] - T * s * angles[p]
-    A = _scatter(trunk, np.stack([np.where((np.arange(2 * m) // 2 == j)[:, None], pieces.unit.reshape(2 * m, 6), 0.0)
-                                  for j in range(m)]))                    # (n_dof, m) ∂L_j/∂q
+    A = _scatter(trunk, unit_rows)                                         # (n_dof, m) ∂L_j/∂q
     B = _scatter(trunk, dT_dq)                                             # (n_dof, m) ∂T_j/∂q
+    update = B - _scatter(trunk, spring) if actuators.tendons.size else B  # what the tangent lacks of it
     K_inv_A = lin.solve(np.asfortranarray(A))
-    capacitance = np.eye(m) + B.T @ K_inv_A
+    capacitance = np.eye(m) + update.T @ K_inv_A
 
     def solve(rhs):           # (K + A Bᵀ)⁻¹ rhs (Sherman–Morrison–Woodbury)
         x = lin.solve(np.asfortranarray(rhs))
-        return x - K_inv_A @ np.linalg.solve(capacitance, B.T @ x)
+        return x - K_inv_A @ np.linalg.solve(capacitance, update.T @ x)
 
     owner = routing.owner
     columns = []

@@ -12,7 +12,7 @@ import math
 import numpy as np
 
 from vertebra.core.lie import qconj, qlog, qmul
-from vertebra.solver.potential import evaluate, nonpotential_forces
+from vertebra.solver.potential import Evaluation, evaluate, nonpotential_forces, potential
 from vertebra.solver.state import retract, strain_change
 
 NEUTRAL = 1e-9        # curvature above −NEUTRAL·D is neutral (a symmetry of the loads), not unstable
@@ -74,6 +74,12 @@ def moved(state, trial) -> np.ndarray:
                            turned(state, trial).reshape(-1, 3)], 1).reshape(-1)
 
 
+def _completed(trunk, trial, load, judged) -> Evaluation:
+    """The evaluation of a trial whose potential :func:`potential` gave (``judged``: what it
+    computed reused; a state given by its poses was evaluated in full already)."""
+    return judged if isinstance(judged, Evaluation) else evaluate(trunk, trial, load, judged)
+
+
 def line_search(stage, state, ev, residual: float, dq, change, alpha: float, rp: float,
                  curvature: float, nonpotential):
     """Backtracking from ``alpha`` along ``dq``: the first fraction that lowers the energy (the
@@ -89,15 +95,17 @@ def line_search(stage, state, ev, residual: float, dq, change, alpha: float, rp:
     while alpha >= SEARCH_FLOOR:
         step, strains = (dq, change) if alpha == 1.0 else (alpha * dq, alpha * change)
         trial = retract(state, step, ev.links, strains)
-        ev_trial = evaluate(trunk, trial, load)
+        judged = potential(trunk, trial, load)       # the energy first: a refused trial needs no gradient
         predicted = alpha * rp - 0.5 * alpha * alpha * curvature
-        decrease = ev.energy - ev_trial.energy
+        decrease = ev.energy - judged.energy
         if nonpotential is not None:       # the work of the loads without a potential along the step
             at_trial = nonpotential_forces(trunk, trial, load) if trunk.loads.has_follower else nonpotential
             decrease += 0.5 * float((nonpotential + at_trial) @ moved(state, trial))
         if stage.constraints is not None:        # the Lagrangian E − λᵀg at the step's contact forces
             decrease += stage.constraints.work(trial)
+        ev_trial = None
         if predicted <= noise:       # the energy cannot judge this step: the residual does
+            ev_trial = _completed(trunk, trial, load, judged)
             good = stage.norm(ev_trial, trial) <= residual
             ratio = 1.0
         else:
@@ -106,6 +114,8 @@ def line_search(stage, state, ev, residual: float, dq, change, alpha: float, rp:
         if quality is None:
             quality = ratio if good else 0.0
         if good:
+            if ev_trial is None:
+                ev_trial = _completed(trunk, trial, load, judged)     # the gradient of the accepted trial
             return trial, ev_trial, alpha, decrease, predicted, quality
         alpha *= 0.5
     return None

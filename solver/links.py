@@ -44,6 +44,20 @@ from vertebra.core.lie import (
 _LAMBDA_TABLE = block_table({(0, 1): 0, (1, 0): 0, (1, 1): 1})    # Λ(u) = [[0, u_f^], [u_f^, u_m^]]
 
 
+def _zw_table() -> np.ndarray:
+    """(18, 72): ``Zw = [[−R, 0], [0, −R], [R, 0], [−ŝR, R]] = ([R, ŝR] flattened) @ T``:
+    ``diag(R, R)[−I; Pᵀ]`` with ``Pᵀ = [[I, 0], [−p̂, I]]`` and ``R p̂ = ŝ R`` (s = R p)."""
+    table = np.zeros((2, 3, 3, 12, 6))
+    for r in range(3):
+        for c in range(3):
+            table[0, r, c, r, c] = -1.0           # −R (force at a)
+            table[0, r, c, 3 + r, 3 + c] = -1.0   # −R (moment at a)
+            table[0, r, c, 6 + r, c] = 1.0        # R (force at b)
+            table[0, r, c, 9 + r, 3 + c] = 1.0    # R (moment at b)
+            table[1, r, c, 9 + r, c] = -1.0       # −ŝR (moment at b of the force)
+    return table.reshape(18, 72)
+
+
 def _geometric_table() -> np.ndarray:
     """(21, 144): geometric stiffness of a link (world axes) from ``[g, span ⊗ f_b]``, where
     ``g`` is the link's gradient (forces/moments on a, b) and ``f_b = g[6:9]``. Rotating the
@@ -64,7 +78,7 @@ def _geometric_table() -> np.ndarray:
     return table.reshape(21, 144)
 
 
-_MINUS_HAT = -HAT_TABLE                  # (3, 9): s ↦ −ŝ flattened
+_ZW_TABLE = _zw_table()
 _GEOMETRIC_TABLE = _geometric_table()
 
 
@@ -109,13 +123,10 @@ class Links:
     def _complete(cls, Ra, xi, coef, span) -> "Links":
         n = xi.shape[0]
         flat = ad_powers(xi)
-        # Zw = [[−R, 0], [0, −R], [R, 0], [−ŝR, R]] with s = x_b − x_a, written block by block
-        Zw = np.zeros((n, 12, 6))
-        np.negative(Ra, out=Zw[:, 0:3, 0:3])
-        np.negative(Ra, out=Zw[:, 3:6, 3:6])
-        Zw[:, 6:9, 0:3] = Ra
-        Zw[:, 9:12, 3:6] = Ra
-        np.matmul((span @ _MINUS_HAT).reshape(n, 3, 3), Ra, out=Zw[:, 9:12, 0:3])
+        features = np.empty((n, 18))                   # [R_a, ŝ R_a] with s = x_b − x_a
+        features[:, :9] = Ra.reshape(n, 9)
+        np.matmul((span @ HAT_TABLE).reshape(n, 3, 3), Ra, out=features[:, 9:].reshape(n, 3, 3))
+        Zw = (features @ _ZW_TABLE).reshape(n, 12, 6)
         Jl_inv = left_jacobian_inverse(coef, flat)
         return cls(Zw, xi, flat.reshape(n, 5, 6, 6), Jl_inv, coef, span, Jl_inv @ Zw.mT)
 

@@ -42,6 +42,11 @@ def segment_of(trunk, link: int) -> tuple[int, int]:
     raise IndexError(link)
 
 
+def _fitted(trunk, link: int) -> bool:
+    """Is the link's energy fitted on a range (a nonlinear entry's)?"""
+    return any(energy.fitted and link in energy.links for energy in trunk.links.energies)
+
+
 def turn_message(trunk, xi: np.ndarray, scale: float, linear: np.ndarray | None) -> str:
     """Which link turns towards π, and how many links per repetition its segment would need to
     turn at most :data:`REPRESENTED_TURN` each. The rotation a repetition needs is estimated as
@@ -66,10 +71,10 @@ def turn_message(trunk, xi: np.ndarray, scale: float, linear: np.ndarray | None)
                 "(its elements cannot be raised); a repetition of the segment turns about "
                 f"{math.degrees(needed):.0f}° under this load. Build the segment from a shorter entry repeated more "
                 f"often (about {repetitions} repetitions instead of {count}, "
-                f"≤ {math.degrees(REPRESENTED_TURN):.0f}° each), or lower the load; "
-                "for a nonlinear entry whose fitted range the state leaves (the out-of-range diagnostics), widen "
-                "the sampled range with `vertebra design … --sampling bending=… --sampling strain=…` or let "
-                "`vertebra prepare` size it from the scene")
+                f"≤ {math.degrees(REPRESENTED_TURN):.0f}° each), or lower the load"
+                + ("; where the state leaves the nonlinear entry's fitted range (the out-of-range diagnostics), "
+                   "widen the sampled range with `vertebra design … --sampling bending=… --sampling strain=…` or "
+                   "let `vertebra prepare` size it from the scene" if _fitted(trunk, k) else ""))
     return (f"link {k} (segment {segment}) turns {math.degrees(float(np.linalg.norm(xi[k, 3:]))):.0f}° at load "
             f"factor {scale:.3g}: the deformation cannot be represented with {elements} link(s) per repetition "
             f"(a link's rotation must stay below 180°); a repetition of the segment turns about "

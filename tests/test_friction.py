@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 from vertebra import solver
-from vertebra.core.errors import OptionError
 from vertebra.solver import friction
 
 E, NU, R_ROD, LINK, N = 54e9, 0.3, 0.0007, 0.02, 10
@@ -395,7 +394,7 @@ def test_the_tick_without_friction_runs_no_friction_code(monkeypatch):
     model = outside(0.0)
     def refuse(*args, **kwargs):
         raise AssertionError("friction code ran without friction")
-    for name in ("transmission", "linearise", "geometry", "secant_forces", "solve", "_ratios"):
+    for name in ("transmission", "linearise", "geometry", "piecewise", "solve", "_ratios", "_tendon_spans"):
         monkeypatch.setattr(friction, name, refuse)
     for _, _, step, _ in circle_ticks(model, 5):
         assert step.status == "tick" and step.history is None and step.friction is None and step.stuck(model) == {}
@@ -528,8 +527,35 @@ def test_exact_friction_sensitivities_of_an_equilibrium_match_differences_where_
             tolerance = 1e-6
         assert np.abs(exact["effector_positions"][:, 0] - difference).max() <= tolerance * np.abs(difference).max()
         assert np.abs(exact["span_tensions"][:, 0] - tensions).max() <= tolerance * np.abs(tensions).max()
-    model.set_parameters(friction=np.array([0.2]))
-    with pytest.raises(OptionError, match="tension-driven"):
-        servo_model = build(servo(0.2))
-        friction.equilibrium_sensitivities(servo_model, servo_model.solve([0.001]),
-                                           friction.FrictionState.rest(servo_model.trunk))
+
+
+def test_exact_friction_sensitivities_of_stroke_driven_tendons_match_central_differences():
+    # a tendon's runs keep their material: T_j = g_j τ, τ = (Σ L − M)/Σ c g, the capstan factors
+    # g changing with μ and the shape. Against central differences of solves from the same
+    # history (statuses the same on both sides): a pull from rest, a pull on, a release that pays
+    # out at every hole, releases whose holes slide both ways (the solve held some at incipient
+    # slip: the sensitivities hold them too) — measured 5e-10 … 5e-8
+    model = build(servo(0.2, pretension=0.5))
+    rest = friction.FrictionState.rest(model.trunk)
+    pull = model.solve([0.002])
+
+    def solved(command, history, mu, initial=None):
+        model.set_parameters(friction=np.array([mu]))
+        result = model.solve([command], history=history, initial=initial, tolerance=1e-14)
+        return result, model.effector_positions(result.state).reshape(-1)
+
+    for command, history in ((0.002, rest), (0.0025, pull.friction), (0.0017, pull.friction),
+                             (0.00195, pull.friction), (0.00198, pull.friction)):
+        result, p0 = solved(command, history, 0.2)
+        exact = friction.equilibrium_sensitivities(model, result, history)
+        h = 1e-4
+        (above, p_above), (below, p_below) = (solved(command, history, 0.2 + h, result.state),
+                                              solved(command, history, 0.2 - h, result.state))
+        assert np.array_equal(above.friction.slip, result.friction.slip)
+        assert np.array_equal(below.friction.slip, result.friction.slip)
+        difference = (p_above - p_below) / (2 * h)
+        tensions = (above.friction.tension - below.friction.tension) / (2 * h)
+        assert np.abs(exact["effector_positions"][:, 0] - difference).max() <= 1e-6 * np.abs(difference).max()
+        assert np.abs(exact["span_tensions"][:, 0] - tensions).max() <= 1e-6 * np.abs(tensions).max()
+    assert np.any(friction.equilibrium_sensitivities(model, solved(0.00195, pull.friction, 0.2)[0],
+                                                     pull.friction)["span_tensions"] != 0.0)

@@ -304,3 +304,33 @@ def test_nonlinear_segments_need_the_model_builder_and_valid_sampling(tmp_path):
     assert info.value.field == "segment[0].sampling.degree"
     assert dataclasses.asdict(solver.parse_scene(twisted_rods(rod_segment())).segments[0].design)["sampling"] == \
         tuple(sorted(FIT.items()))
+
+
+def test_prepare_refuses_an_entry_whose_fit_misses_where_the_scene_goes(prepared, capsys):
+    """An entry whose held-out fit error where the scene goes exceeds ``max_fit_error`` is refused
+    (reused or designed): status ``refused`` with the segment, the entry, the error and what to
+    change; the segment stays unresolved, the exit code is 1; ``simulate`` without ``--prepare``
+    stops with the same reason; ``inf`` accepts the fit (the coarse entry's held-out error is
+    ~1e-3, so 1e-6 refuses it)."""
+    directory, scene, _, first = prepared
+    resolved, report = prepare(scene, max_fit_error=1e-6, **FAST)
+    assert report.exit_code == 1 and report.refused == first.designed and report.designed == []
+    row = report.segments[0]
+    assert row.status == "refused" and row.key in row.refusal and "--max-fit-error" in row.refusal
+    assert "held-out samples" in row.refusal and "more than the 1e-06 allowed" in row.refusal
+    assert resolved.segments[0].type == "design"                              # not resolved to the refused entry
+    summary = report.summary()
+    assert "2 refused" not in summary and "1 refused" in summary and "segment[0] refused: entry" in summary
+    assert report.to_json()["refused"] == first.designed and report.to_json()["segments"][0]["refusal"] == row.refusal
+    with pytest.raises(SceneError, match=r"refused") as info:
+        designer.preparation.resolve_prepared(scene, build_model=solver.build_model, max_fit_error=1e-6)
+    assert info.value.field == "segment[0]"
+    resolved, report = prepare(scene, max_fit_error=math.inf, **FAST)
+    assert report.exit_code == 0 and report.refused == [] and resolved.segments[0].type == "entry"
+    path = directory / "twisted.toml"
+    path.write_text(scene_toml(twisted_rods(rod_segment(), rod_segment())))
+    assert main(["prepare", str(path), "--executor", "serial", "--max-fit-error", "1e-6"]) == 1
+    assert "refused" in capsys.readouterr().out
+    assert main(["simulate", str(path), "--max-fit-error", "1e-6"]) == 2
+    assert "refused" in capsys.readouterr().err
+    assert main(["prepare", str(path), "--executor", "serial"]) == 0       # the default limit accepts it

@@ -185,6 +185,12 @@ def test_an_entry_segment_turning_towards_pi_is_told_what_applies_to_an_entry():
     message = str(info.value)
     assert "one link per repetition" in message and "shorter entry repeated more often" in message
     assert "elements =" not in message
+    assert "--sampling" not in message          # a linear entry has no sampled range to widen
+    fitted = with_energy(entry)
+    model = solver.build_model(solver.parse_scene(data), {entry.name: fitted})
+    with pytest.raises(ConvergenceError) as info:
+        model.solve()
+    assert "shorter entry repeated more often" in str(info.value) and "--sampling bending=" in str(info.value)
 
 
 def test_design_says_when_the_energy_fit_misses_its_held_out_samples():
@@ -205,3 +211,50 @@ def test_design_says_when_the_energy_fit_misses_its_held_out_samples():
     assert "0.28" in svk and "compressive limit point" in svk and "--sampling" in svk
     assert "compressive" not in fit_warning(energy(0.2, "neo_hookean"))
     assert fit_warning(SimpleNamespace(fit_error={}, material={})) is None
+
+
+def test_prepare_refuses_a_fit_by_its_error_where_the_scene_goes():
+    """The refusal reads the held-out errors by load and pressure level: only the samples within
+    the part of the sampled box the scene needs count (the lowest-lying ones when none lies that
+    low); an entry without them is judged by its error over the whole box; a scene beyond the
+    box, an unbounded pressure or no estimate needs the whole box."""
+    from types import SimpleNamespace
+
+    from vertebra.core.energy import EnergyRange
+    from vertebra.designer.energy_fit import FIT_LIMIT, error_up_to
+    from vertebra.designer.preparation import fit_refusal, needed_level
+    from vertebra.designer.scene_range import SegmentRange
+    from vertebra.cli.design import FIT_WARNING
+
+    assert FIT_WARNING == FIT_LIMIT
+    by_level = [[0.17, 0.0, 0.001], [0.5, 0.0, 0.01], [0.83, 0.0, 0.12], [1.0, 0.0, 0.28]]
+    assert error_up_to(by_level, 0.6) == (0.01, 2)
+    assert error_up_to(by_level, 0.1) == (0.001, 1) and error_up_to(by_level, 2.0) == (0.28, 4)
+    assert error_up_to([], 1.0) is None and error_up_to([[0.1, 0.001]], 1.0) is None    # an older form
+    # pressurised: large loads at the top pressure miss, a pressure-driven use (small loads) does not
+    pneumatic = [[0.1, 1.0, 0.002], [0.2, 0.5, 0.001], [1.0, 1.0, 0.11], [1.0, 0.2, 0.03]]
+    assert error_up_to(pneumatic, 0.2, 1.0) == (0.002, 2) and error_up_to(pneumatic, 1.0, 1.0) == (0.11, 4)
+    assert error_up_to(pneumatic, 1.0, 0.3) == (0.03, 1) and error_up_to(pneumatic, 0.05, 0.1) == (0.001, 1)
+    fitted = EnergyRange(np.zeros(4), np.ones(4), np.array([0.0, -2.0, 0.0, -1.0]), np.array([4.0, 2.0, 0.5, 1.0]),
+                         np.zeros(1), np.array([1e5]))
+    half = SegmentRange(0, np.zeros(4), np.ones(4), np.array([0.0, -0.5, 0.0, 0.0]), np.array([1.0, 0.2, 0.3, 0.0]),
+                        {0: (0.0, 2e4)})
+    assert needed_level(half, fitted) == pytest.approx((0.6, 0.2))           # the bending moment: 0.3 / 0.5
+    assert needed_level(dataclasses.replace(half, pressures={0: (0.0, np.inf)}), fitted)[1] == np.inf
+    assert needed_level(dataclasses.replace(half, pressures={}), fitted) == pytest.approx((0.6, 0.0))
+    assert needed_level(None, fitted) == (np.inf, np.inf)
+
+    def energy(held, model="svk"):
+        return SimpleNamespace(fit_error={"held_out": held}, material={"model": model}, range=SimpleNamespace(n_cavities=0))
+
+    svk = energy({"load_max": 0.28, "load_rms": 0.08, "by_level": by_level})
+    assert fit_refusal(svk, (0.6, 0.0), FIT_LIMIT) is None                  # the scene stays where the fit holds
+    reason = fit_refusal(svk, (1.2, 0.0), FIT_LIMIT)
+    assert "0.28" in reason and "whole sampled box" in reason and "compressive limit point" in reason
+    assert "--max-fit-error" in reason and "strain" in reason and "neo_hookean" in reason
+    assert "3 of its 4 held-out samples" in fit_refusal(svk, (0.9, 0.0), FIT_LIMIT)
+    assert fit_refusal(svk, (1.2, 0.0), 0.3) is None
+    old = energy({"load_max": 0.28, "load_rms": 0.08}, "neo_hookean")       # stored before the per-sample errors
+    assert "whole sampled box" in fit_refusal(old, (0.1, 0.0), FIT_LIMIT)
+    assert "compressive" not in fit_refusal(old, (0.1, 0.0), FIT_LIMIT)
+    assert fit_refusal(energy({"samples": 0}), (1.0, 0.0), FIT_LIMIT) is None

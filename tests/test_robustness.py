@@ -229,14 +229,14 @@ def test_a_solve_whose_steps_stall_below_resolution_is_not_converged(monkeypatch
                                 "poisson_ratio": 0.3, "section": {"shape": "circle", "radius": 1e-3}}],
                    "load": [{"vertebra": -1, "force": [0.5, 0.0, 0.0]}]})
     assert model.solve().converged
-    real = globalise.evaluate
+    real = globalise.potential          # what the line search judges a trial by
 
-    def overflowing(trunk, state, load, previous=None):
-        ev = real(trunk, state, load, previous)
-        ev.energy = math.inf
-        return ev
+    def overflowing(trunk, state, load):
+        judged = real(trunk, state, load)
+        judged.energy = math.inf
+        return judged
 
-    monkeypatch.setattr(globalise, "evaluate", overflowing)
+    monkeypatch.setattr(globalise, "potential", overflowing)
     result = model.solve(raise_on_failure=False)
     assert not result.converged and not result.rounding_limited
     assert "floating-point resolution" in result.message

@@ -63,9 +63,8 @@ CUTS = 3        # attempts of one step (the first, then two cut back by ¼ each)
 DAMPING = 1e-4  # Levenberg–Marquardt damping of the QP (ticks, and converged steps towards far targets)
 EFFORTS = ("least", "penalty")   # how the QP resolves redundant actuation (InverseSettings.effort)
 GUARD = DEFAULT_REGULARISATION   # the least-effort QP's first stage: keeps it definite and off the near-null directions (bias ≈ 1e-8 × motion)
-SECANTS = 4     # with friction: QPs again with the secant of the transmission through the last answer
-SECANT_REACH = 2.0
-SECANT_HOLD = 0.01  # … until the answer moves by less than this share of its change
+SECANTS = 4     # with friction: QPs again with the return map's affine piece at the best answer
+HALVINGS = (1.0, 0.5, 0.25, 0.125, 0.0625)   # … each answer taken as far along as it lowers the merit
 MISS = 0.5      # a tick is cut back when the equilibrium is farther from its prediction than this share of its motion
 
 
@@ -167,6 +166,11 @@ def _errors(positions: np.ndarray, targets: np.ndarray) -> np.ndarray:
     d = positions - targets
     d *= d
     return np.sqrt(d.dot(_THREE))
+
+
+def _close(a: np.ndarray, b: np.ndarray) -> bool:
+    """``a`` equals ``b`` to 1e-9 of ``a``'s largest value (a piece's model and the return map)."""
+    return float(np.abs(a - b).max(initial=0.0)) <= 1e-9 * float(np.abs(a).max(initial=0.0))
 
 
 _THREE = np.ones(3)
@@ -272,7 +276,7 @@ class InverseController:
         if base is not None:
             n_cables = self.model.n_cables
             reversed_ = np.flatnonzero(continued * np.sign(sol.actuation[:n_cables] - self.actuation[:n_cables]) < 0)
-            if reversed_.size:
+            if reversed_.size and not secants:      # (a tick's pieces below take the reversal exactly)
                 owner = self.model.trunk.cables.owner
                 incipient = np.where(np.isin(owner, reversed_), 0, incipient).astype(np.int8)
                 lin, current, _ = friction.linearise(self.model.trunk, self.state, self.actuation, base, incipient)
@@ -280,40 +284,20 @@ class InverseController:
                 sol = solve_constraint_problem(projection.problem, self.backend,
                                                tolerance=self.settings.qp_tolerance, slack=self._slack)
             # the return map is piecewise linear in the commands (holes start or stop sliding as
-            # their bands are reached): the QP again with each cable's transmission the secant
-            # of the return map (at these poses) from its start to the answer, the commands kept
-            # between the two (where the secant is the transmission's chord), until the answer
-            # holds still (``secants`` times at most). A tendon's runs make the tangent too: where
-            # the answer changes its holes' statuses, the tangent is that of the runs at the
-            # answer (the imbalance at the start stays the start's: the secant carries it there)
-            trunk = self.model.trunk
-            tendon_pieces = trunk.actuators.stroke_driven[trunk.cables.owner]
-            tendons = trunk.actuators.stroke_driven
-            poses = friction.geometry(trunk, self.state) if secants else None
-            start, residual = current, lin.residual
-            for _ in range(secants):
-                if tendon_pieces.any():
-                    reached = friction.transmission(trunk, base, sol.actuation, *poses, incipient).slip
-                    if not np.array_equal(reached[tendon_pieces], current.slip[tendon_pieces]):
-                        incipient = np.where(tendon_pieces, reached, incipient).astype(np.int8)
-                        command = self.actuation.copy()
-                        command[:n_cables][tendons] = sol.actuation[:n_cables][tendons]
-                        lin, current, _ = friction.linearise(trunk, self.state, command, base, incipient)
-                        lin.residual = residual
-                tangent = lin.actuator_forces[:, :n_cables].copy()
-                lin.actuator_forces[:, :n_cables] = friction.secant_forces(
-                    trunk, self.state, base, start, self.actuation, sol.actuation, incipient, tangent)
-                lower, upper = (self.space.lambda_lower, self.space.lambda_upper) if box is None else box
-                reach = self.actuation + SECANT_REACH * (sol.actuation - self.actuation)
-                lower = np.maximum(lower, np.minimum(self.actuation, reach))
-                upper = np.minimum(upper, np.maximum(self.actuation, reach))
-                projection = self.space.project(lin, aim, self.actuation, (lower, upper), damping)
-                answer = solve_constraint_problem(projection.problem, self.backend,
-                                                  tolerance=self.settings.qp_tolerance, slack=self._slack)
-                moved = float(np.max(np.abs(answer.actuation - sol.actuation), initial=0.0))
-                sol = answer
-                if moved <= SECANT_HOLD * float(np.max(np.abs(sol.actuation - self.actuation), initial=0.0)):
-                    break
+            # their bands are reached), and at these poses each cable's pieces depend on its own
+            # command alone. A tick solves the QP of that exact piecewise-linear transmission by
+            # Newton's method on the pieces: each answer is judged by the effectors' gap the
+            # linearisation predicts for the return map's exact forces there (the merit), and the
+            # QP solved again with each cable's transmission the return map's own affine piece at
+            # the best answer (its chord from the start plus its slope there), the new answer taken
+            # as far along the way as it lowers the merit (halving), until an answer lies on the
+            # pieces its model was made of (the model is exact there), ``secants`` times at most.
+            # A tendon's runs make the tangent too: where an answer changes its holes' statuses,
+            # the tangent is that of the runs at the answer (the imbalance at the start stays the
+            # start's). The step's linear model is then the chord to the answer (exact there).
+            if secants:
+                lin, projection, sol, incipient = self._pieces(lin, projection, sol, current, base, incipient, aim,
+                                                               box, damping, secants, continued)
             self._incipient = incipient
         t4 = time.perf_counter()
         for key, value in (("linearise_s", t1 - t0), ("W_s", t2 - t1), ("qp_s", t3 - t2), ("inverse_s", t3 - t0)):
@@ -321,6 +305,76 @@ class InverseController:
         if t4 > t3:
             timings["inverse_s"] += t4 - t3
         return lin, projection, sol, aim
+
+    def _pieces(self, lin, projection, sol, current, base, incipient, aim, box, damping, rounds, continued):
+        """A tick's QP on the exact piecewise-linear frictional transmission (:meth:`_linearised_step`).
+        Every cable whose holes slid last sits at a kink at its start: pulled on, they slide on;
+        reversed, they stick. Each cable is therefore kept on the side of its start that the first
+        answer chose (a cable it left unchanged: the side its holes slide on, ``continued``), and
+        the pieces on that side are walked."""
+        trunk = self.model.trunk
+        n_cables = self.model.n_cables
+        tendon_pieces = trunk.actuators.stroke_driven[trunk.cables.owner]
+        tendons = trunk.actuators.stroke_driven
+        poses = friction.geometry(trunk, self.state)
+        start, residual = current, lin.residual
+        lam0 = self.actuation
+        gap0 = (lin.effector_positions - aim).reshape(-1)
+
+        def piece(answer, forces):
+            """The return map at ``answer``: its exact forces there, its piece, and the merit."""
+            reached, chord, slope = friction.piecewise(trunk, self.state, base, start, lam0, answer, incipient,
+                                                       forces, poses)
+            exact = chord @ (answer[:n_cables] - lam0[:n_cables])
+            gap = gap0 + projection.effector_motion(residual + exact)
+            return [float(gap @ gap), answer, reached, chord, slope, exact]
+
+        model_forces = lin.actuator_forces[:, :n_cables].copy()
+        offset = np.zeros(model_forces.shape[0])
+        best = piece(sol.actuation, model_forces)
+        lower, upper = (self.space.lambda_lower, self.space.lambda_upper) if box is None else box
+        side = np.sign(sol.actuation - lam0)
+        side[:n_cables] = np.where(side[:n_cables] == 0, continued, side[:n_cables])
+        box = (np.where(side > 0, np.maximum(lower, lam0), lower), np.where(side < 0, np.minimum(upper, lam0), upper))
+        for _ in range(rounds):
+            merit, answer, reached, chord, slope, exact = best
+            change = answer[:n_cables] - lam0[:n_cables]
+            tendon_moved = tendon_pieces.any() and not np.array_equal(reached.slip[tendon_pieces],
+                                                                      current.slip[tendon_pieces])
+            # the answer lies on the pieces its model was made of: the model is exact there
+            if (not tendon_moved and _close(slope, model_forces)
+                    and _close(model_forces @ change + offset, exact)):
+                break
+            if tendon_moved:
+                incipient = np.where(tendon_pieces, reached.slip, incipient).astype(np.int8)
+                command = lam0.copy()
+                command[:n_cables][tendons] = answer[:n_cables][tendons]
+                lin, current, _ = friction.linearise(trunk, self.state, command, base, incipient)
+                best = piece(answer, lin.actuator_forces[:, :n_cables])
+                merit, answer, reached, chord, slope, exact = best
+            # F(λ) = chord·change + slope·(λ − answer) = slope·(λ − λ0) + (chord − slope)·change
+            model_forces, offset = slope, exact - slope @ change
+            lin.residual = residual + offset
+            lin.actuator_forces[:, :n_cables] = slope
+            projection = self.space.project(lin, aim, lam0, box, damping)
+            target = solve_constraint_problem(projection.problem, self.backend, tolerance=self.settings.qp_tolerance,
+                                              slack=self._slack).actuation
+            improved = False
+            for share in HALVINGS:
+                trial = piece(answer + share * (target - answer), model_forces)
+                if trial[0] < merit:
+                    best, improved = trial, True
+                    break
+            if not improved:
+                break
+        merit, answer, reached, chord, slope, exact = best
+        lin.residual = residual
+        lin.actuator_forces[:, :n_cables] = chord
+        projection = self.space.project(lin, aim, lam0, box, damping)
+        de, da = projection.problem.predict(answer)
+        sol = dataclasses.replace(sol, actuation=answer, delta_e=de, delta_a=da, problem=projection.problem,
+                                  effector_error=math.sqrt(float(de @ de)))
+        return lin, projection, sol, incipient
 
     def _result(self, targets, sol, iterations, timings, t_start, equilibrium, status, displacements=None,
                 predicted=None):
