@@ -203,6 +203,31 @@ def interpenetrating(model: ContactModel, contacts: ContactSet) -> int | None:
     return int(contacts.key[pair[worst], 1]) if depth[worst] < -1.0 else None
 
 
+def overlapping(model: ContactModel, state) -> tuple[int, int, float] | None:
+    """The deepest overlap of two non-adjacent discs at ``state`` — (vertebra, vertebra, depth in
+    m) — or None. Their contact is not modelled (docs/contact.md): a trunk folding onto itself
+    passes through its own discs, and an equilibrium where it does is not one. Pairs whose
+    bounding spheres (the outer radius about the frame) meet get the exact gap."""
+    count = model.disc_frame.size
+    if count < 3:
+        return None
+    first, second = np.triu_indices(count, 1)
+    adjacent = {tuple(sorted(p)) for p in model.pair.tolist()}
+    keep = np.array([(a, b) not in adjacent for a, b in zip(first.tolist(), second.tolist())], bool)
+    first, second = first[keep], second[keep]
+    centre = state.positions[model.disc_frame]
+    apart = np.sqrt(np.add.reduce((centre[first] - centre[second]) ** 2, 1))
+    near = apart < model.disc_radius[first] + model.disc_radius[second]
+    if not near.any():
+        return None
+    first, second = first[near], second[near]
+    gap = disc_gaps(model, state, first, second)
+    k = int(np.argmin(gap))
+    if gap[k] >= -GAP_TOLERANCE * model.length:
+        return None
+    return int(model.disc_vertebra[first[k]]), int(model.disc_vertebra[second[k]]), float(-gap[k])
+
+
 def describe(model: ContactModel, key) -> str:
     """The bodies of a contact in words."""
     kind, feature, obstacle = (int(v) for v in key)

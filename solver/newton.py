@@ -543,6 +543,15 @@ def solve(trunk, loads: LoadCases, actuation: np.ndarray, initial: State | None,
             increment *= 0.5
             if increment < 1e-4 or iterations >= BUDGET * max_iterations:
                 break
+    if converged and trunk.contact is not None:
+        overlap = contact.overlapping(trunk.contact, last_good)
+        if overlap is not None:
+            # non-adjacent discs are not in the contact model: an equilibrium through them is not one
+            converged, state_new = False, last_good
+            message = (f"the discs of vertebrae {overlap[0]} and {overlap[1]} overlap by {overlap[2]:.3g} m at the "
+                       "equilibrium found: the robot folds onto itself, and contact between discs that are not "
+                       "neighbours is not modelled (docs/contact.md), so it is not an equilibrium; lower the loads "
+                       "or tensions, or declare smaller discs")
     limited = "rounding-limited" in kinds
     saddles = "unstable" in kinds
     stalled = "stalled" in kinds

@@ -241,8 +241,13 @@ def test_random_tendon_robots_with_discs_converge_where_holes_meet():
             solver.parse_scene(plain)).solve(raise_on_failure=False).message
         model = solver.build_model(solver.parse_scene(with_discs))
         result = model.solve(raise_on_failure=False)
+        if seed in (2, 29):
+            # these fold onto themselves: non-adjacent discs overlap (not modelled), which the
+            # solve says instead of converging (2 "converged" through its own discs before)
+            assert not result.converged and "overlap by" in result.message, (seed, result.message)
+            continue
         assert result.converged, (seed, result.message)
-        assert result.iterations <= (200 if seed == 2 else 60), (seed, result.iterations)
+        assert result.iterations <= 60, (seed, result.iterations)
         assert pressed(result)
         # complementarity to the solve's own tolerance (contact.ACTIVE_GAP of the trunk's length):
         # these robots' contact forces range from 0.01 N to thousands of newtons, so the gaps of
@@ -262,10 +267,10 @@ def assert_solved_with_discs_touching(result, scene):
         assert c.force == 0.0 or abs(c.gap) <= contact.ACTIVE_GAP * length, c
 
 
-@pytest.mark.parametrize("seed", [22, 38, 51])
+@pytest.mark.parametrize("seed", [38, 51])
 def test_random_robot_folding_a_disc_past_its_neighbours_rim_converges(seed):
     # a soft backbone under a compressive tip load folds one vertebra round its neighbour's rim
-    # (its disc turns by 140–170° against the neighbour): the discs' rounded rims meet rim on
+    # (its disc turns by 140–160° against the neighbour): the discs' rounded rims meet rim on
     # rim and the solve converges with them touching. The rim-against-face model stopped here
     # ("turn by more than 90° against each other"; before that check 38 "converged" to a fold
     # whose rim lay on the other face's plane from the wrong side).
@@ -278,6 +283,16 @@ def test_random_robot_folding_a_disc_past_its_neighbours_rim_converges(seed):
     axes = qmatrix(result.state.quaternions)[model.trunk.contact.disc_frame][:, :, 2]
     assert np.min(np.add.reduce(axes[1:] * axes[:-1], 1)) < math.cos(math.radians(140.0))
     assert_solved_with_discs_touching(result, with_discs)
+
+
+def test_a_robot_folding_onto_itself_through_non_adjacent_discs_says_so():
+    # random robot 22 folds one disc past its neighbour's rim (166°) and on until the discs of
+    # vertebrae 2 and 4 overlap by 2.3 mm: contact between non-neighbours is not modelled, so
+    # that is not an equilibrium and the solve says so (it "converged" through them before)
+    _, with_discs = random_robot(22)
+    result = solver.build_model(solver.parse_scene(with_discs)).solve(raise_on_failure=False)
+    assert not result.converged
+    assert "the discs of vertebrae 2 and 4 overlap by" in result.message, result.message
 
 
 def test_an_unstable_contact_equilibrium_says_what_is_unstable():
