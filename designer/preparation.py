@@ -427,7 +427,7 @@ def resolve_prepared(scene: "Scene", catalogue=None, *, build_model: Callable | 
     resolved, report = prepare(scene, catalogue, build_model=build_model, max_fit_error=max_fit_error, **quiet)
     refused = [s for s in report.segments if s.status == "refused"]
     if refused:
-        raise SceneError(refused[0].refusal, file=scene.source, field=f"segment[{refused[0].segment}]")
+        raise SceneError(f"refused: {refused[0].refusal}", file=scene.source, field=f"segment[{refused[0].segment}]")
     return resolved
 
 
@@ -638,7 +638,7 @@ def _fit_checks(rows, estimate, catalogue, max_fit_error: float) -> dict:
         segment = None if estimate is None else estimate.segments[row.segment]
         reason = fit_refusal(energy, needed_level(segment, energy.range), max_fit_error)
         if reason is not None:
-            out[row.segment] = f"entry {row.key} refused: {reason}"
+            out[row.segment] = f"entry {row.key}: {reason}"
     return out
 
 

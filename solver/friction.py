@@ -54,7 +54,7 @@ UNSETTLED = 8           # rounds of changing hole statuses after which the holes
 MAX_SPLITS = 4          # an increment is split into 2^MAX_SPLITS parts at most
 SLIP = 1e-12            # relative excess of a hole's band (or backflow of a sliding hole) that changes its status
 
-__all__ = ["FrictionState", "Routes", "Transmission", "equilibrium_sensitivities", "linearise", "routes", "sensitivities", "solve",
+__all__ = ["FrictionState", "Routes", "Transmission", "equilibrium_sensitivities", "linearise", "routes", "sensitivities", "sequence_sensitivities", "solve",
            "solve_sequence", "transmission", "transmission_ratios", "turning_angles", "piecewise", "EDGE"]
 
 
@@ -608,8 +608,8 @@ def sensitivities(model, actuations, history: FrictionState | None = None, cable
     and the span tensions after each command of a sequence (``actuations`` applied in order to
     ``history``; None: from rest). A sequence's result depends on μ through its whole path (the
     holes that stick, the slip fronts), so these are central differences of the whole sequence
-    with a step of ``step`` in μ (one-sided at μ = 0), not the implicit-function derivatives of
-    one equilibrium (:meth:`~vertebra.solver.model.TrunkModel.sensitivities`). ``cables``: names
+    with a step of ``step`` in μ (one-sided at μ = 0); :func:`sequence_sensitivities` gives them
+    exactly where no hole's status changes with μ. ``cables``: names
     (default every cable). Returns ``{"names", "effector_positions": (steps, 3·n_effectors, p),
     "span_tensions": (steps, m, p)}``."""
     names = list(model.actuator_names[:model.n_cables])
@@ -645,16 +645,16 @@ def sensitivities(model, actuations, history: FrictionState | None = None, cable
 def _scatter(trunk, rows: np.ndarray) -> np.ndarray:
     """(n_dof, k) from per-piece-end rows (k, 2m, 6) onto the free frames' DoFs."""
     cables = trunk.cables
-    k = rows.shape[0]
-    out = np.zeros((k, trunk.frames.count, 6))
-    for i in range(k):
-        np.add.at(out[i], cables.ends, rows[i])
-    return out[:, 1:].reshape(k, -1).T
+    k, ends = rows.shape[0], rows.shape[1]
+    gather = np.zeros((trunk.frames.count, ends))
+    gather[cables.ends, np.arange(ends)] = 1.0          # (every piece end sits at one frame)
+    return np.matmul(gather, rows)[:, 1:].reshape(k, -1).T
 
 
 def _tendon_sensitivities(trunk, current: Transmission, c: int, run: np.ndarray, mu: float, angles: np.ndarray,
                           on_prev: np.ndarray, on_own: np.ndarray, unit_rows: np.ndarray, dT_dq: np.ndarray,
-                          dT_dmu: np.ndarray, spring: np.ndarray) -> None:
+                          dT_dmu: np.ndarray, spring: np.ndarray, past_material: np.ndarray, dT_past: np.ndarray,
+                          raw: dict, lengths: np.ndarray) -> None:
     """:func:`equilibrium_sensitivities` of a stroke-driven tendon's spans (into ``dT_dq``, rows on
     the pieces' ends, and ``dT_dmu``), the statuses and the history's materials held: a run of
     spans joined by sliding holes keeps its material ``M``, so ``T_j = g_j τ`` with
@@ -662,7 +662,10 @@ def _tendon_sensitivities(trunk, current: Transmission, c: int, run: np.ndarray,
     holes up to ``j``. The linearisation's tangent already holds the run as one spring on
     ``Σ g_i L_i`` (stiffness ``1/W``): its rank-one part ``(1/W) Σ g L' ⊗ Σ g L'`` goes into
     ``spring`` (the tangent minus it, plus ``Σ_j L_j' ⊗ ∂T_j/∂q``, is the exact one).
-    A slack run (``τ ≤ 0``) carries nothing and has no stiffness."""
+    A slack run (``τ ≤ 0``) carries nothing and has no stiffness. Through the history (the
+    derivatives ``past_material`` (m, p) of its materials) ``∂τ = −Σ ∂M/W`` (into ``dT_past``).
+    ``raw[j]``: the rows, the direct derivatives (p,) of the unclipped ``g_j τ`` and ``c_j`` (the
+    span's new material follows them, slack or not)."""
     tendons = current.tendons
     k = trunk.actuators.cable_stiffness[c]
     compliance = _shares(trunk, c, run) / k
@@ -671,36 +674,63 @@ def _tendon_sensitivities(trunk, current: Transmission, c: int, run: np.ndarray,
     else:
         units, g = tendons.units[run], tendons.weights[run]
     slip = current.slip
-    for unit in np.unique(units).tolist():
+    unit_ends = unit_rows[np.arange(unit_rows.shape[0]), 2 * np.arange(unit_rows.shape[0])], \
+        unit_rows[np.arange(unit_rows.shape[0]), 2 * np.arange(unit_rows.shape[0]) + 1]
+    # a span alone in its run (stuck at both ends): g = 1, T = τ = (L − M)/c, ∂T/∂q = L'/c — all
+    # the tangent's spring already (nothing to update), nothing by μ directly
+    counts = np.bincount(units - units.min())
+    alone = counts[units - units.min()] == 1
+    if alone.any():
+        spans, cs = run[alone], compliance[alone]
+        rows = np.stack([unit_ends[0][spans], unit_ends[1][spans]], 1) / cs[:, None, None]     # (k, 2, 6)
+        past = -past_material[spans] / cs[:, None]
+        for i, p in enumerate(spans.tolist()):
+            ends = np.array([2 * p, 2 * p + 1])
+            raw[p] = (ends, rows[i], 0.0, past[i], cs[i])
+            if current.tension[p] > 0.0:
+                dT_dq[p, ends] = spring[p, ends] = rows[i]
+                dT_dmu[p], dT_past[p] = 0.0, past[i]
+    for unit in np.unique(units[~alone]).tolist():
         where = np.flatnonzero(units == unit)
         spans = run[where]
+        n = spans.size
         gs, cs = g[where], compliance[where]
-        tau = current.tension[spans[0]] / gs[0]
-        if not tau > 0.0:
-            continue
-        dlng = np.zeros((spans.size,) + unit_rows.shape[1:])              # ∂ ln g_i/∂q
-        a = np.zeros(spans.size)
-        for i in range(1, spans.size):
+        weighted = cs * gs
+        W = float(np.sum(weighted))
+        taut = current.tension[spans[0]] > 0.0
+        # τ from the tension (taut) or from the new material ℓ = L − c g τ of the run's first span (slack)
+        tau = (current.tension[spans[0]] / gs[0] if taut
+               else (lengths[spans[0]] - current.material[spans[0]]) / weighted[0])
+        # rows on the run's own piece ends (local: 2 per span), scattered into the pieces' at the end
+        ends = np.stack([2 * spans, 2 * spans + 1], 1).reshape(-1)
+        own_rows = np.zeros((n, 2 * n, 6))                                 # ∂L_i/∂q, local
+        own_rows[np.arange(n), 2 * np.arange(n)] = unit_ends[0][spans]
+        own_rows[np.arange(n), 2 * np.arange(n) + 1] = unit_ends[1][spans]
+        step = np.zeros((n, 2 * n, 6))                                    # ∂ ln g_i − ∂ ln g_{i−1}
+        a = np.zeros(n)
+        for i in range(1, n):
             p, prev = spans[i], spans[i - 1]
             s = int(slip[p])
-            dlng[i] = dlng[i - 1]
-            dlng[i, 2 * prev:2 * prev + 2] -= s * mu * on_prev[prev].reshape(2, 6)
-            dlng[i, 2 * p:2 * p + 2] -= s * mu * on_own[p].reshape(2, 6)
+            step[i, 2 * i - 2:2 * i] = -s * mu * on_prev[prev].reshape(2, 6)
+            step[i, 2 * i:2 * i + 2] -= s * mu * on_own[p].reshape(2, 6)
             a[i] = a[i - 1] - s * angles[p]
-        W = float(np.sum(cs * gs))
-        weighted = cs * gs
+        dlng = np.cumsum(step, axis=0)                                     # ∂ ln g_i/∂q
         dtau_dmu = -tau / W * float(weighted @ a)
-        lengths = unit_rows[spans].sum(axis=0)                            # Σ L_i'
-        capstan = np.tensordot(gs, unit_rows[spans], axes=1)             # Σ g_i L_i'
-        dtau_dq = (lengths - tau * np.tensordot(weighted, dlng, axes=1)) / W
+        dtau_past = -past_material[spans].sum(axis=0) / W                 # (p,)
+        capstan = np.tensordot(gs, own_rows, axes=1)                      # Σ g_i L_i'
+        dtau_dq = (own_rows.sum(axis=0) - tau * np.tensordot(weighted, dlng, axes=1)) / W
+        T = gs * tau
+        rows = T[:, None, None] * dlng + gs[:, None, None] * dtau_dq       # (n, 2n, 6)
+        own, past = T * a + gs * dtau_dmu, gs[:, None] * dtau_past
         for i, p in enumerate(spans.tolist()):
-            T = gs[i] * tau
-            dT_dq[p] = T * dlng[i] + gs[i] * dtau_dq
-            spring[p] = gs[i] / W * capstan
-            dT_dmu[p] = T * a[i] + gs[i] * dtau_dmu
+            raw[p] = (ends, rows[i], own[i], past[i], cs[i])
+            if taut:
+                dT_dq[p, ends] = rows[i]
+                dT_dmu[p], dT_past[p] = own[i], past[i]
+                spring[p, ends] = gs[i] / W * capstan
 
 
-def equilibrium_sensitivities(model, result, history: FrictionState, cables=None) -> dict:
+def equilibrium_sensitivities(model, result, history: FrictionState, cables=None, history_derivatives=None) -> dict:
     """Exact derivatives with respect to the cables' friction coefficients of one frictional
     equilibrium ``result`` (a :meth:`~vertebra.solver.model.TrunkModel.solve` whose command was
     applied to ``history``), by the implicit function theorem, the history and the holes'
@@ -717,7 +747,12 @@ def equilibrium_sensitivities(model, result, history: FrictionState, cables=None
     (those the solve held at incipient slip too); a hole turned by less
     than 1e-9 rad has no angle derivative (a straight route: |Δθ| has a kink there). Returns
     ``{"names", "state": (n_dof, p), "effector_positions": (3·n_effectors, p), "span_tensions":
-    (m, p)}`` — compare :func:`sensitivities` (differences of a whole sequence)."""
+    (m, p), "material": (m, p)}`` (``material``: the tendons' span materials, 0 elsewhere).
+
+    ``history_derivatives``: the derivatives of the history itself (``{"span_tensions",
+    "material"}`` of the equilibrium it was left by, :func:`sequence_sensitivities`): a stuck
+    span's committed tension and a run's material then move with μ too (forward mode along a
+    sequence); None: the history held fixed."""
     trunk = model.trunk
     actuators, routing = trunk.actuators, trunk.cables
     names = list(model.actuator_names[:model.n_cables])
@@ -764,6 +799,12 @@ def equilibrium_sensitivities(model, result, history: FrictionState, cables=None
     # per span: ∂T_j/∂q as rows on piece ends (m spans × (2m piece ends, 6)), ∂T_j/∂μ of its cable
     dT_dq = np.zeros((m, 2 * m, 6))
     dT_dmu = np.zeros(m)
+    p_count = len(chosen)
+    past = history_derivatives or {}
+    past_tension = np.asarray(past.get("span_tensions", np.zeros((m, p_count))), float)
+    past_material = np.nan_to_num(np.asarray(past.get("material", np.zeros((m, p_count))), float))
+    dT_past = np.zeros((m, p_count))        # ∂T_j/∂μ at fixed q through the history
+    raw = {}                                # tendons' spans: the unclipped g τ's rows (their material follows it)
     spring = np.zeros((m, 2 * m, 6))    # the part of ∂T_j/∂q the tangent holds already (tendons' runs)
     unit_rows = np.zeros((m, 2 * m, 6))                                   # ∂L_j/∂q on piece ends
     unit_rows[np.arange(m), 2 * np.arange(m)] = pieces.unit.reshape(2 * m, 6)[0::2]
@@ -771,14 +812,16 @@ def equilibrium_sensitivities(model, result, history: FrictionState, cables=None
     for c, run in enumerate(route.pieces):
         if actuators.stroke_driven[c]:
             _tendon_sensitivities(trunk, current, c, run, mu[c], angles, on_prev, on_own, unit_rows, dT_dq, dT_dmu,
-                                  spring)
+                                  spring, past_material, dT_past, raw, length)
             continue
         for j in range(1, run.size):
             p, prev = run[j], run[j - 1]
             s = int(slip[p])
             if s == 0:
-                continue                                      # stuck: its committed tension
+                dT_past[p] = past_tension[p]                  # stuck: its committed tension
+                continue
             factor = math.exp(-s * mu[c] * angles[p])
+            dT_past[p] = factor * dT_past[prev]
             T = current.tension[p]
             dT_dq[p] = factor * dT_dq[prev]
             dT_dq[p, 2 * prev:2 * prev + 2] -= T * s * mu[c] * on_prev[prev].reshape(2, 6)
@@ -799,8 +842,45 @@ def equilibrium_sensitivities(model, result, history: FrictionState, cables=None
     for name in chosen:
         k = names.index(name)
         columns.append(np.where(owner == k, dT_dmu, 0.0))
-    dT_mu = np.array(columns).T                                           # (m, p) at fixed q
+    dT_mu = np.array(columns).T.reshape(m, p_count) + dT_past            # (m, p) at fixed q
     dq = -solve(A @ dT_mu)                                                 # (n_dof, p)
     tensions = dT_mu + B.T @ dq
+    # a tendon span's new material ℓ_j = L_j − c_j g_j τ: dℓ_j = L_j'·dq − c_j d(g_j τ)
+    material = np.zeros((m, p_count))
+    if raw:
+        spans = np.array(sorted(raw))
+        own = np.array([raw[j][2] for j in spans])
+        direct = np.stack([raw[j][3] for j in spans]) + np.array(
+            [[own[i] if owner[j] == names.index(name) else 0.0 for name in chosen] for i, j in enumerate(spans)])
+        compliance = np.array([raw[j][4] for j in spans])
+        moved = B[:, spans].T @ dq                                         # (k, p) the taut spans' rows
+        slack = [i for i, j in enumerate(spans) if not current.tension[j] > 0.0]
+        if slack:               # (a slack run's rows are not in B: its tension is cut off)
+            rows = np.zeros((len(slack), 2 * m, 6))
+            for r, i in enumerate(slack):
+                rows[r, raw[spans[i]][0]] = raw[spans[i]][1]
+            moved[slack] = _scatter(trunk, rows).T @ dq
+        material[spans] = (A[:, spans].T @ dq) - compliance[:, None] * (direct + moved)
     return {"names": [f"friction:{c}" for c in chosen], "state": dq,
-            "effector_positions": lin.effector_jacobian @ dq, "span_tensions": tensions}
+            "effector_positions": lin.effector_jacobian @ dq, "span_tensions": tensions, "material": material}
+
+
+def sequence_sensitivities(model, results, history: FrictionState | None = None, cables=None) -> dict:
+    """Exact derivatives with respect to the cables' friction coefficients of the equilibria of a
+    sequence (``results``: each a :meth:`~vertebra.solver.model.TrunkModel.solve` of its command
+    applied to the friction state the one before left, the first to ``history``; None: rest), in
+    forward mode along it: each equilibrium's derivative (:func:`equilibrium_sensitivities`)
+    with the derivatives of the history it was applied to — the committed span tensions and the
+    tendons' materials the one before left — the holes' statuses held throughout. Returns
+    ``{"names", "state": [(n_dof, p)] per step, "effector_positions": (steps, 3·n_effectors, p),
+    "span_tensions": (steps, m, p)}`` — the exact counterpart of :func:`sensitivities` where no
+    status changes under a small change of μ."""
+    history = FrictionState.rest(model.trunk) if history is None else history
+    past, out = None, []
+    for result in results:
+        step = equilibrium_sensitivities(model, result, history, cables, past)
+        out.append(step)
+        history, past = result.friction, step
+    return {"names": out[0]["names"] if out else [], "state": [step["state"] for step in out],
+            "effector_positions": np.stack([step["effector_positions"] for step in out]),
+            "span_tensions": np.stack([step["span_tensions"] for step in out])}

@@ -360,3 +360,26 @@ def test_backlash_derivatives_match_resolved_differences_and_a_play_is_recovered
     assert cal.identifiable[i]
     assert abs(cal.x[i] - 1.3e-4) <= 3.0 * cal.standard_errors[i], (cal.x[i], cal.standard_errors[i])
     assert cal.standard_errors[i] < 5e-5
+
+
+def test_the_statistical_stop_measures_the_gauss_newton_step_in_standard_errors():
+    from vertebra.solver.calibration.fit import _step_in_standard_errors
+    rng = np.random.default_rng(3)
+    J = rng.normal(size=(200, 4))
+    noise = rng.normal(size=200)
+    noise -= J @ np.linalg.lstsq(J, noise, rcond=None)[0]          # the residual at the optimum, ⟂ J
+    offset = np.array([0.3, -0.2, 0.1, 0.05])                       # the point is the optimum + offset
+    r = noise + J @ offset
+    sigma = math.sqrt(float(r @ r) / (200 - 4))
+    wide = np.full(4, 10.0)
+    # a linear problem: the step is −offset, its size ‖J offset‖/σ, the bound on any one
+    # parameter's step in its standard errors
+    step = _step_in_standard_errors(J, r, np.zeros(4), -wide, wide)
+    assert step == pytest.approx(np.linalg.norm(J @ offset) / sigma, rel=1e-9)
+    se = sigma * np.sqrt(np.diag(np.linalg.inv(J.T @ J)))
+    assert np.all(np.abs(offset) / se <= step * (1 + 1e-9))
+    # a bound in the way: the step to the bounded minimum, smaller
+    lower = np.array([-0.1, -10.0, -10.0, -10.0])
+    bounded = _step_in_standard_errors(J, r, np.zeros(4), lower, wide)
+    assert 0.0 < bounded < step
+    assert _step_in_standard_errors(J, noise, np.zeros(4), -wide, wide) == pytest.approx(0.0, abs=1e-9)

@@ -559,3 +559,67 @@ def test_exact_friction_sensitivities_of_stroke_driven_tendons_match_central_dif
         assert np.abs(exact["span_tensions"][:, 0] - tensions).max() <= 1e-6 * np.abs(tensions).max()
     assert np.any(friction.equilibrium_sensitivities(model, solved(0.00195, pull.friction, 0.2)[0],
                                                      pull.friction)["span_tensions"] != 0.0)
+
+
+def test_sequence_sensitivities_carry_the_history_forward_and_match_differences_of_the_sequence():
+    # forward mode along a pull/release sequence: each equilibrium's derivative with those of the
+    # friction state the one before left (stuck spans' committed tensions, tendons' materials);
+    # against central differences of the whole sequence (tight tolerance, statuses the same on
+    # both sides): measured ≤ 1e-8 (tension-driven), ≤ 2e-7 (stroke-driven)
+    for cable, commands in ((pulled(0.2), [3.0, 3.5, 2.4, 2.6, 3.2, 1.0]),
+                            (servo(0.2, pretension=0.5), [0.002, 0.0025, 0.0017, 0.00195, 0.0021, 0.0005])):
+        model = build(cable)
+
+        def run(mu):
+            model.set_parameters(friction=np.array([mu]))
+            results, history = [], friction.FrictionState.rest(model.trunk)
+            for command in commands:
+                results.append(model.solve([command], history=history, tolerance=1e-14))
+                history = results[-1].friction
+            return results
+
+        results = run(0.2)
+        exact = friction.sequence_sensitivities(model, results)
+        h = 1e-4
+        above, below = run(0.2 + h), run(0.2 - h)
+        for i, result in enumerate(results):
+            assert np.array_equal(above[i].friction.slip, result.friction.slip)
+            assert np.array_equal(below[i].friction.slip, result.friction.slip)
+            difference = (model.effector_positions(above[i].state) - model.effector_positions(below[i].state)) / (2 * h)
+            tensions = (above[i].friction.tension - below[i].friction.tension) / (2 * h)
+            assert np.abs(exact["effector_positions"][i][:, 0] - difference.reshape(-1)).max() \
+                <= 1e-6 * np.abs(difference).max()
+            assert np.abs(exact["span_tensions"][i][:, 0] - tensions).max() <= 1e-6 * np.abs(tensions).max()
+        if "tension" in cable:     # held history: the 2.6 N release misses what its stuck spans owe the past
+            held = friction.equilibrium_sensitivities(model, results[3], results[2].friction)
+            assert np.abs(held["effector_positions"][:, 0] - exact["effector_positions"][3][:, 0]).max() > 1e-3 * \
+                np.abs(exact["effector_positions"][3]).max()
+
+
+def test_calibration_derivatives_by_friction_are_exact_along_the_sequence():
+    # SequencePredictor's μ columns: forward mode along the samples (no sequence per μ) against
+    # central differences of the whole sequence (h = 1e-3): measured 6e-8
+    import sys
+    sys.path.insert(0, str(__import__("pathlib").Path(__file__).parent))
+    from test_calibration import MAPPING, SCENE
+    from vertebra.solver.calibration import Samples, parse_mapping, parse_parameters
+    from vertebra.solver.calibration.sequence import SequencePredictor
+    scene = solver.parse_scene(__import__("tomllib").loads(SCENE))
+    mapping = parse_mapping(MAPPING, "map.toml")
+    up = np.linspace(0.0, 3.0, 5)
+    loop = np.r_[up, up[::-1][1:]]
+    commands = 1e-3 * np.array([(u, -1.0, -1.0) for u in loop] + [(-1.0, u, 0.5 * u - 1.0) for u in loop])
+    samples = Samples(commands, np.zeros((len(commands), 1, 3)), ("a",) * len(loop) + ("b",) * len(loop), "synthetic")
+    ps = parse_parameters(["friction.*"], scene, mapping, solver.build_model(scene))
+    predictor = SequencePredictor(scene, mapping)
+    values = ps.values(np.full(len(ps.names), 0.1))
+    elements = [e for es in ps.elements for e in es]
+    solved = []
+    predictor._difference = lambda *args: solved.append(args) or 1 / 0      # no sequence per μ
+    exact = predictor.predict(values, samples, elements).derivatives
+    assert not solved
+    h = 1e-3
+    difference = np.stack([(predictor._sequence(values.with_elements([(e, values.get(*e) + h)]), samples, keep=False)[0]
+                            - predictor._sequence(values.with_elements([(e, values.get(*e) - h)]), samples, keep=False)[0])
+                           / (2 * h) for e in elements], -1)
+    assert np.abs(exact - difference).max() <= 1e-6 * np.abs(difference).max()

@@ -49,7 +49,9 @@ from vertebra.core.lie import hat, qmatrix, so3_exp
 from vertebra.core.processes import exit_with_parent, pinned_environment
 from vertebra.solver.calibration.data import play
 from vertebra.solver.calibration.fit_parameters import Values
+from vertebra.solver.batch import predicted_strains
 from vertebra.solver.model import build_model
+from vertebra.solver.state import compose
 from vertebra.solver.sensitivity import parameters_of
 
 __all__ = ["Prediction", "Predictor", "RuntimePredictor", "default_workers"]
@@ -173,7 +175,7 @@ class _Engine:
             frames.append(int(self.model.vertebra_frames[v]))
         self.marker_frames = np.array(frames, dtype=int)
         self._warm: dict = {}            # (samples source, index) -> _Warm
-        self._last = None                # (key, markers, actuations, states) of the previous call
+        self._last = None                # (key, markers, actuations, Solved) of the previous call
         self._derived = None             # (key, wrt, derivatives) of the last derivatives taken
         self._columns: dict = {}         # model elements -> the sensitivities' parameter columns
 
@@ -248,37 +250,93 @@ class _Engine:
                           time.perf_counter() - t0 - solve_s, iterations)
 
     def _solve(self, values, commands, source, rows, Rf):
+        """Every sample's equilibrium. The samples solved before, in one batch
+        (:meth:`~vertebra.solver.model.TrunkModel.solve_batch`, each sample the single solve's
+        result from its start), each from its own equilibrium of the previous call moved to first
+        order to ``values``; one that fails tries its unmoved equilibrium, then rest, by the single
+        solve. A sample never solved, by the single solve from its predecessor's equilibrium (the
+        data are a sequence of nearby poses; the batch from rest costs more here: load stages, and
+        samples whose rest pose no load moves leave the batch's path), then from rest."""
         model = self.model
-        n, nm = len(commands), len(self.marker_frames)
-        markers = np.empty((n, nm, 3))
-        actuations, states = [], []
-        previous = None
+        n = len(commands)
+        actuations = np.repeat(model.actuation()[None], n, 0)
+        actuations[:, self.driven] = commands
+        warm = [self._warm.get((source, int(row))) for row in rows]
+        known = np.array([w is not None for w in warm], bool)
+        trunk = model.trunk
+        rest = trunk.rest_state
+        solved = Solved(np.full((n, trunk.frames.count, 3), np.nan), np.full((n, trunk.frames.count, 4), np.nan),
+                        np.full((n, trunk.links.count, 6), np.nan), {})
         iterations = 0
-        for i in range(n):
-            actuation = self._actuation(commands[i])
-            warm = self._warm.get((source, int(rows[i])))
-            # from the sample's own equilibrium moved to these values, else as it was, else from
-            # its predecessor's; from the rest pose when those fail (a far warm start)
-            starts = [previous] if warm is None else [warm.predicted(model, values), warm.state]
-            starts = [s for k, s in enumerate(starts) if s is not None and all(s is not t for t in starts[:k])]
-            for start in starts + [None]:
-                result = model.solve(actuation, initial=start, raise_on_failure=False)
+        if known.any():
+            at = np.flatnonzero(known)
+            found = model.solve_batch(actuations[at], self._starts(values, [warm[i] for i in at]))
+            iterations += int(found.iterations.sum())
+            solved.positions[at], solved.quaternions[at], solved.strains[at] = (found.positions, found.quaternions,
+                                                                                found.strains)
+            for j, result in found.results.items():
+                solved.put(int(at[j]), result.state)
+            for j in np.flatnonzero(~found.converged).tolist():
+                i = int(at[j])           # the single solve from the unmoved equilibrium, then from rest
+                for start in (compose(rest.quaternions[0], rest.positions[0], warm[i].xi.copy()), None):
+                    result = model.solve(actuations[i], initial=start, raise_on_failure=False)
+                    iterations += result.iterations
+                    if result.converged:
+                        break
+                if not result.converged:
+                    raise ConvergenceError(f"{source}: sample {int(rows[i])}: the equilibrium did not converge "
+                                           f"({result.message})", result)
+                solved.put(i, result.state)
+        for i in np.flatnonzero(~known).tolist():
+            previous = solved.state(i - 1, rest) if i > 0 and np.isfinite(solved.positions[i - 1, 0, 0]) else None
+            for start in ([previous] if previous is not None else []) + [None]:
+                result = model.solve(actuations[i], initial=start, raise_on_failure=False)
                 iterations += result.iterations
                 if result.converged:
                     break
             if not result.converged:
                 raise ConvergenceError(f"{source}: sample {int(rows[i])}: the equilibrium did not converge "
                                        f"({result.message})", result)
-            self._warm[(source, int(rows[i]))] = _Warm(result.state)
-            previous = result.state
-            points, _, _ = self._markers(result.state, values.marker)
-            markers[i] = points @ Rf.T + values.frame[:3]
-            actuations.append(actuation)
-            states.append(result.state)
-        return markers, actuations, states, iterations
+            solved.put(i, result.state)
+        for i, row in enumerate(rows.tolist()):
+            if np.all(np.isfinite(solved.strains[i])):
+                self._warm[(source, row)] = _Warm(solved.strains[i])
+            else:                        # (a state that does not carry its strains: the next starts from rest)
+                self._warm.pop((source, row), None)
+        markers = self._batch_markers(solved.positions, solved.quaternions, values.marker) @ Rf.T + values.frame[:3]
+        return markers, actuations, solved, iterations
 
-    def _derivatives(self, values, wrt, states, actuations, source, rows, Rf, slopes=None):
-        model, n = self.model, len(states)
+    def _starts(self, values: Values, warm: list) -> np.ndarray:
+        """Start strains (n, n_links, 6) of the samples whose last equilibria are ``warm`` (None:
+        never solved, a row of nan: from rest): each moved to first order to ``values`` where its
+        derivatives were taken (``q ⊕ dq/dθ Δθ``, the strain-space retraction of ``model.step``)."""
+        trunk = self.model.trunk
+        start = np.full((len(warm), trunk.links.count, 6), np.nan)
+        moved = {}
+        for i, w in enumerate(warm):
+            if w is None:
+                continue
+            start[i] = w.xi
+            if w.dq is not None:
+                moved.setdefault((w.elements, w.at.tobytes()), []).append(i)
+        for (elements, _), members in moved.items():
+            at = warm[members[0]].at
+            change = np.array([values.get(kind, index) for kind, index in elements]) - at
+            if not change.any():
+                continue
+            dq = np.stack([warm[i].dq for i in members])
+            start[members] = predicted_strains(self.model, start[members], dq,
+                                               np.broadcast_to(change, (len(members), change.size)))
+        return start
+
+    def _batch_markers(self, positions, quaternions, offsets):
+        """Robot-frame marker points (n, n_markers, 3) of a batch of poses."""
+        R = qmatrix(quaternions[:, self.marker_frames])
+        return positions[:, self.marker_frames] + np.einsum("bmij,mj->bmi", R, offsets)
+
+    def _derivatives(self, values, wrt, solved, actuations, source, rows, Rf, slopes=None):
+        model, n = self.model, len(actuations)
+        rest = model.trunk.rest_state
         nm, npar = len(self.marker_frames), len(wrt)
         out = np.zeros((n, nm, 3, npar))
         inner = tuple((kind, index) for kind, index in wrt if kind in MODEL_KINDS)
@@ -290,13 +348,15 @@ class _Engine:
         # a play's column: the actuator's sensitivity times its stroke's slope (per sample)
         column_of = {int(c): a for a, c in enumerate(self.driven)}
         played = [(k, column_of[index]) for k, (kind, index) in enumerate(inner) if kind == "backlash"]
-        for i, (state, actuation) in enumerate(zip(states, actuations)):
+        for i, actuation in enumerate(actuations):
+            state = solved.state(i, rest)
             points, arm, R = self._markers(state, values.marker)
             if inner:
                 dq = model.sensitivities(state, actuation, wrt=columns, outputs=(), method="direct").dq
                 for k, a in played:
                     dq[:, k] *= slopes[i, a]
-                self._warm[(source, int(rows[i]))] = _Warm(state, inner, at, dq)
+                if np.all(np.isfinite(solved.strains[i])):
+                    self._warm[(source, int(rows[i]))] = _Warm(solved.strains[i], inner, at, dq)
                 dm = self._marker_jacobian(arm) @ dq                           # (nm, 3, n_inner)
                 out[i][..., where] = np.einsum("ij,mjp->mip", Rf, dm)
             for col, (kind, index) in enumerate(wrt):
@@ -312,23 +372,34 @@ class _Engine:
 
 
 class _Warm:
-    """A sample's last equilibrium and, when its derivatives were taken there, the model elements
-    (``elements`` at values ``at``) and ``dq/dθ`` that move it to first order."""
+    """A sample's last equilibrium (its link strains ``xi``) and, when its derivatives were taken
+    there, the model elements (``elements`` at values ``at``) and ``dq/dθ`` that move it to first
+    order (:meth:`_Engine._starts`)."""
 
-    __slots__ = ("state", "elements", "at", "dq")
+    __slots__ = ("xi", "elements", "at", "dq")
 
-    def __init__(self, state, elements=(), at=None, dq=None):
-        self.state, self.elements, self.at, self.dq = state, elements, at, dq
+    def __init__(self, xi, elements=(), at=None, dq=None):
+        self.xi, self.elements, self.at, self.dq = xi, elements, at, dq
 
-    def predicted(self, model, values: Values):
-        """The equilibrium moved to first order to ``values`` (the state itself where nothing
-        known changed)."""
-        if self.dq is None:
-            return self.state
-        change = np.array([values.get(kind, index) for kind, index in self.elements]) - self.at
-        if not change.any():
-            return self.state
-        return model.step(self.state, self.dq @ change)
+
+class Solved:
+    """The equilibria of a batch of samples: every frame's poses, the link strains (nan where a
+    state does not carry them) and the single solves' states by sample."""
+
+    def __init__(self, positions, quaternions, strains, states: dict):
+        self.positions, self.quaternions, self.strains, self.states = positions, quaternions, strains, states
+
+    def put(self, i: int, state) -> None:
+        self.positions[i], self.quaternions[i] = state.positions, state.quaternions
+        record = state.carried_strains()
+        self.strains[i] = record.xi if record is not None else np.nan
+        self.states[i] = state
+
+    def state(self, i: int, rest):
+        """Sample ``i``'s state (composed from its strains unless a single solve gave it)."""
+        if i in self.states:
+            return self.states[i]
+        return compose(rest.quaternions[0], rest.positions[0], self.strains[i].copy())
 
 
 def _rotation_derivative(rotvec, axis, h=1e-7):

@@ -15,7 +15,7 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares
+from scipy.optimize import OptimizeResult, least_squares, lsq_linear
 
 from vertebra.core.errors import OptionError
 from vertebra.solver.calibration.backend import default_workers
@@ -34,6 +34,8 @@ RANK_TOLERANCE = 1e-6
 NULL_WEIGHT = 0.1
 # a parameter whose standard error exceeds this share of its bound interval is unidentifiable
 SE_SHARE = 0.5
+# the fit stops when the Gauss–Newton step is below this many standard errors (module docstring)
+STEP_TOLERANCE = 0.1
 
 
 @dataclass
@@ -117,8 +119,9 @@ def _statistics(J, residual, ps: ParameterSet, x):
 
 def calibrate(scene, mapping, train, holdout=None, fit=None, *, loss: str = "linear",
               loss_scale: float | None = None, method: str = "trf", starts: int = 1, seed: int = 0,
-              max_evaluations: int = 60, ftol: float = 1e-6, xtol: float = 1e-6, predictor=None,
-              workers: int | None = None, progress=None) -> Calibration:
+              max_evaluations: int = 60, ftol: float = 1e-6, xtol: float = 1e-6,
+              step_tolerance: float = STEP_TOLERANCE, predictor=None, workers: int | None = None,
+              progress=None) -> Calibration:
     """Fit ``fit`` (parameter specifications; the mapping's ``[fit]`` list when None) of
     ``scene`` to the ``train`` samples and measure the result on ``holdout``.
 
@@ -127,6 +130,8 @@ def calibrate(scene, mapping, train, holdout=None, fit=None, *, loss: str = "lin
     ``lm`` (unbounded; the bounds are then only checked). ``workers``: processes solving the
     samples (default: one per core, at most one per
     :data:`~vertebra.solver.calibration.backend.SAMPLES_PER_WORKER` training samples).
+    ``step_tolerance``: stop when the Gauss–Newton step is below this many standard errors
+    (module docstring; 0: scipy's ``ftol``/``xtol`` alone; linear loss only).
     ``progress``: a callable taking a one-line message."""
     t_start = time.perf_counter()
     if loss not in LOSSES:
@@ -137,19 +142,44 @@ def calibrate(scene, mapping, train, holdout=None, fit=None, *, loss: str = "lin
         raise OptionError("method lm takes only the linear loss", field="--loss")
     if starts < 1:
         raise OptionError(f"must be at least 1, got {starts}", field="--starts")
+    if not 0.0 <= step_tolerance < float("inf"):
+        raise OptionError(f"must be a finite number >= 0, got {step_tolerance}", field="step_tolerance")
+    options = (loss, loss_scale, method, starts, seed, max_evaluations, ftol, xtol, step_tolerance, progress, t_start)
     if predictor is not None:
-        return _calibrate(predictor, scene, mapping, train, holdout, fit, loss, loss_scale, method, starts, seed,
-                          max_evaluations, ftol, xtol, progress, t_start)
+        return _calibrate(predictor, scene, mapping, train, holdout, fit, *options)
     if workers is None:
         workers = default_workers(min(len(train), mapping.max_samples or len(train)))
     # (the runtime predictor's own path without friction, its workers included)
     with SequencePredictor(scene, mapping, workers=workers) as predictor:
-        return _calibrate(predictor, scene, mapping, train, holdout, fit, loss, loss_scale, method, starts, seed,
-                          max_evaluations, ftol, xtol, progress, t_start)
+        return _calibrate(predictor, scene, mapping, train, holdout, fit, *options)
+
+
+class _Converged(Exception):
+    """Raised from the Jacobian when the Gauss–Newton step is below the step tolerance."""
+
+    def __init__(self, y, cost):
+        super().__init__()
+        self.y, self.cost = y, cost
+
+
+def _step_in_standard_errors(J, r, y, lower, upper) -> float:
+    """``‖J δ‖ / σ`` of the Gauss–Newton step ``δ`` of the linearised residuals ``r + J δ`` from
+    ``y`` within the bounds (module docstring), ``σ² = |r|² / (m − p)``."""
+    m, p = J.shape
+    sigma2 = float(r @ r) / max(m - p, 1)
+    if not sigma2 > 0.0:
+        return 0.0
+    delta = np.linalg.lstsq(J, -r, rcond=None)[0]
+    if np.any(y + delta < lower) or np.any(y + delta > upper):
+        # (a bound in the way: the step to the bounded minimum; the bounds made a little wider so
+        # that a parameter sitting on one stays a feasible start)
+        delta = lsq_linear(J, -r, bounds=(np.minimum(lower - y, 0.0), np.maximum(upper - y, 0.0)),
+                           method="bvls").x
+    return float(np.linalg.norm(J @ delta) / np.sqrt(sigma2))
 
 
 def _calibrate(predictor, scene, mapping, train, holdout, fit, loss, loss_scale, method, starts, seed,
-               max_evaluations, ftol, xtol, progress, t_start) -> Calibration:
+               max_evaluations, ftol, xtol, step_tolerance, progress, t_start) -> Calibration:
     length = float(predictor.model.length_scale)
     ps = parse_parameters(list(fit) if fit else list(mapping.fit), scene, mapping, predictor.model)
     if mapping.max_samples and len(train) > mapping.max_samples:
@@ -162,6 +192,7 @@ def _calibrate(predictor, scene, mapping, train, holdout, fit, loss, loss_scale,
             gather[column[e], j] = 1.0
     measured = train.markers.reshape(-1)
     counter = {"fun": 0, "jac": 0, "solve_s": 0.0, "derivative_s": 0.0, "newton_iterations": 0}
+    last = {}                      # the residuals of the last evaluation, by point
 
     def values_of(z):
         return ps.values(ps.initial + z * ps.typical)
@@ -172,6 +203,7 @@ def _calibrate(predictor, scene, mapping, train, holdout, fit, loss, loss_scale,
         counter["solve_s"] += prediction.solve_s
         counter["newton_iterations"] += prediction.iterations
         r = prediction.markers.reshape(-1) - measured
+        last["z"], last["r"] = z.copy(), r
         if progress:
             progress(f"evaluation {counter['fun']}: train RMSE "
                      f"{1e3 * np.sqrt(np.mean(np.sum(r.reshape(-1, 3) ** 2, 1))):.3f} mm")
@@ -202,11 +234,22 @@ def _calibrate(predictor, scene, mapping, train, holdout, fit, loss, loss_scale,
     lower = (ps.lower - ps.initial) / ps.typical
     upper = (ps.upper - ps.initial) / ps.typical
 
+    steps = []                     # the Gauss–Newton step in standard errors at every point
+
     def reduced_jac(y):
         z = full(y)
-        J = first if not z.any() else jac(z)
-        return J[:, free]
+        J = (first if not z.any() else jac(z))[:, free]
+        if measured_steps and "z" in last and np.array_equal(last["z"], z):
+            steps.append(_step_in_standard_errors(J, last["r"], y, lower[free], upper[free]))
+            if progress:
+                progress(f"Gauss-Newton step {steps[-1]:.3g} standard errors")
+            if steps[-1] < step_tolerance:
+                raise _Converged(y.copy(), 0.5 * float(last["r"] @ last["r"]))
+        return J
 
+    # the statistical stop needs the residuals the Jacobian belongs to (linear loss: robust losses
+    # weigh the residuals, and their statistics are not σ²(JᵀJ)⁻¹)
+    measured_steps = loss == "linear"
     rng = np.random.default_rng(seed)
     best, runs = None, []
     for start in range(starts):
@@ -219,7 +262,12 @@ def _calibrate(predictor, scene, mapping, train, holdout, fit, loss, loss_scale,
         if method == "trf":
             options.update(bounds=(lower[free], upper[free]), loss=loss,
                            f_scale=loss_scale if loss_scale is not None else 0.01 * length)
-        result = least_squares(lambda y: fun(full(y)), z0[free], **options)
+        evaluations = counter["fun"]
+        try:
+            result = least_squares(lambda y: fun(full(y)), z0[free], **options)
+        except _Converged as done:
+            result = OptimizeResult(x=done.y, cost=done.cost, nfev=counter["fun"] - evaluations, status=5,
+                                    message=f"the Gauss-Newton step is below {step_tolerance:g} standard errors")
         result.x = full(result.x)
         runs.append({"start": start, "cost": float(result.cost), "nfev": int(result.nfev),
                      "status": int(result.status), "message": str(result.message)})
@@ -244,7 +292,8 @@ def _calibrate(predictor, scene, mapping, train, holdout, fit, loss, loss_scale,
         holdout_metrics = error_metrics(h.markers, holdout.markers, holdout.patterns, length)
     optimiser = {"method": method, "loss": loss, "starts": runs, "best_start": runs.index(
         min(runs, key=lambda r: r["cost"])), "evaluations": counter["fun"], "jacobians": counter["jac"],
-                 "newton_iterations": counter["newton_iterations"], "workers": getattr(predictor, "workers", 1), **rank}
+                 "newton_iterations": counter["newton_iterations"], "workers": getattr(predictor, "workers", 1),
+                 "step_tolerance_se": step_tolerance if measured_steps else 0.0, "steps_se": steps, **rank}
     timings = {"total_s": time.perf_counter() - t_start, "solve_s": counter["solve_s"],
                "derivative_s": counter["derivative_s"]}
     return Calibration(ps, x, se, corr, identifiable, at_bound, values, length, train_metrics, holdout_metrics,

@@ -6,9 +6,12 @@ before left, the first from rest), solved with the friction state carried from r
 (:meth:`~vertebra.solver.model.TrunkModel.solve` with ``history``). Without friction (every
 ``friction`` element 0) :class:`SequencePredictor` is the :class:`RuntimePredictor` itself.
 
-Derivatives with friction are forward differences of the whole sequence (a parameter changes
-the path, not only the equilibrium at one command): one sequence per model parameter
-(stiffness, hole geometry, tendon spring rate and pretension, friction); the measurement frame
+Derivatives with friction: by μ exact, in forward mode along the sequence (each equilibrium's
+implicit-function derivative with those of the friction state the sample before left, the
+holes' statuses held: :func:`~vertebra.solver.friction.sequence_sensitivities`; at μ = 0, the
+bound, differences); by the other model parameters forward differences of the whole sequence (a
+parameter changes the path, not only the equilibrium at one command): one sequence per model
+parameter (stiffness, hole geometry, tendon spring rate and pretension); the measurement frame
 and the marker offsets act after the solve and are differenced on the solved states.
 """
 
@@ -21,6 +24,7 @@ import numpy as np
 from vertebra.core.errors import ConvergenceError, OptionError
 from vertebra.core.lie import so3_exp
 from vertebra.solver.calibration.backend import Prediction, RuntimePredictor
+from vertebra.solver import friction
 from vertebra.solver.calibration.fit_parameters import Values
 
 __all__ = ["SequencePredictor"]
@@ -38,6 +42,7 @@ class SequencePredictor(RuntimePredictor):
     def __init__(self, scene, mapping, model=None, workers: int = 1):
         super().__init__(scene, mapping, model, workers)
         self._kept = None        # (key, markers, states) of the last sequence solved
+        self._results = None     # … and its solves (their friction states)
 
     def _set(self, values: Values) -> None:
         super()._set(values)
@@ -55,7 +60,9 @@ class SequencePredictor(RuntimePredictor):
         solve_s = time.perf_counter() - t0
         derivatives = None
         if wrt:
-            derivatives = np.stack([self._difference(values, samples, element, markers, states)
+            exact = self._friction_derivatives(values, wrt, markers, states)
+            derivatives = np.stack([exact[element] if element in exact else
+                                    self._difference(values, samples, element, markers, states)
                                     for element in wrt], -1)
             self._set(values)
         return Prediction(markers.copy(), derivatives, solve_s, time.perf_counter() - t0 - solve_s)
@@ -71,7 +78,7 @@ class SequencePredictor(RuntimePredictor):
         self._set(values)
         model = self.model
         history = state = None
-        states = []
+        states, results = [], []
         for i, command in enumerate(samples.commands):
             result = model.solve(self._actuation(command), state, history=history, raise_on_failure=False)
             if not result.converged:
@@ -79,10 +86,34 @@ class SequencePredictor(RuntimePredictor):
                                        f"({result.message})", result)
             history, state = result.friction, result.state
             states.append(state)
+            results.append(result)
         markers = self._observe(values, states)
         if keep:
-            self._kept = (key, markers, states)
+            self._kept, self._results = (key, markers, states), results
         return markers, states
+
+    def _friction_derivatives(self, values: Values, wrt, markers, states) -> dict:
+        """``{element: (n, n_markers, 3)}``: the markers' exact derivatives by the friction
+        elements of ``wrt`` whose μ is > 0, in forward mode along the sequence
+        (:func:`~vertebra.solver.friction.sequence_sensitivities`: each equilibrium with the
+        derivatives of the friction state the sample before left, the holes' statuses held); the
+        sequence last solved at ``values`` (its results kept). At μ = 0 (the bound; without any
+        friction the solves carry no friction state) they are left to the differences."""
+        elements = [(kind, index) for kind, index in wrt if kind == "friction" and values.friction[index] > 0.0]
+        results = self._results
+        if not elements or not results or len(results) != len(states) or any(
+                r.friction is None or r.state is not s for r, s in zip(results, states)):
+            return {}
+        self._set(values)
+        model = self.model
+        names = [model.actuator_names[index] for _, index in elements]
+        exact = friction.sequence_sensitivities(model, results, None, names)
+        Rf = so3_exp(values.frame[3:])
+        out = np.empty((len(states),) + markers.shape[1:] + (len(elements),))
+        for i, (state, dq) in enumerate(zip(states, exact["state"])):
+            _, arm, _ = self._markers(state, values.marker)
+            out[i] = np.einsum("ij,mjp->mip", Rf, self.engine._marker_jacobian(arm) @ dq)
+        return {element: out[..., k] for k, element in enumerate(elements)}
 
     def _observe(self, values: Values, states) -> np.ndarray:
         Rf = so3_exp(values.frame[3:])

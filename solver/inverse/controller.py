@@ -241,13 +241,13 @@ class InverseController:
 
         ``base``: with cable friction, the friction state the command is applied to; the QP sees
         the frictional transmission (:func:`~vertebra.solver.friction.linearise`), the holes that
-        slid last taken as sliding on. Where its answer reverses such a cable's command (those
-        holes would stick), the cable is linearised again with them stuck and the QP solved
-        again; then again (``secants`` times at most: a tick's :data:`SECANTS`; a converged step
-        corrects its model by equilibrium solves instead) with each cable's transmission the
-        secant of the return map through the last answer (:func:`~vertebra.solver.friction.secant_forces`),
-        its command kept between its start and that answer. ``self._incipient`` keeps the holes
-        taken as sliding on (the return maps that judge the step start from them)."""
+        slid last taken as sliding on. A tick (``secants`` > 0: :data:`SECANTS`) then solves the QP
+        of the exact piecewise-linear transmission by Newton's method on the return map's pieces
+        (:meth:`_pieces`, at most ``secants`` QPs more); a converged step (``secants`` = 0), where
+        its answer reverses such a cable's command (those holes would stick), linearises the
+        cable again with them stuck and solves the QP again — its equilibrium solves correct the
+        rest. ``self._incipient`` keeps the holes taken as sliding on (the return maps that judge
+        the step start from them)."""
         t0 = time.perf_counter()
         if base is None:
             lin = self.model.linearise(self.state, self.actuation, previous=self._judged)
