@@ -45,6 +45,8 @@ SAMPLES = 16                 # starting samples of the golden-section search on 
 CHORD_SAMPLES = 8            # … and on a chord
 GOLDEN = 0.5 * (math.sqrt(5.0) - 1.0)
 GOLDEN_STEPS = 48            # shrinks the bracket by 1e-10
+BISECTIONS = 52              # of a rim's angle between discs: the bracket (2·2π/16) to the rounding of an angle
+DIFFERENCE = 1e-6            # the step (rad; × the disc radius in m) of the disc pairs' curvature by central differences
 MARGIN = 0.25                # candidate contacts: a gap below this share of the trunk's length
 GAP_TOLERANCE = 1e-10        # a converged state's deepest penetration, per trunk length
 ACTIVE_GAP = 1e-12           # a pressed contact's gap at convergence, per trunk length
@@ -187,19 +189,43 @@ def check_rest(model: ContactModel, state, source: str) -> None:
                          field="obstacle" if found.key[k, 0] != PAIR else "segment")
 
 
-def folded(model: ContactModel, state) -> int | None:
-    """An adjacent disc pair (its index) whose facing sides no longer face each other — one disc
-    turned by more than 90° against the other, past its rim — or None. The pair's gap (a rim
-    against the other's face) is then no longer the distance between the discs: such a state is
-    beyond the contact model."""
-    if not model.pair.size:
+def interpenetrating(model: ContactModel, contacts: ContactSet) -> int | None:
+    """An adjacent disc pair (its index) of ``contacts`` (the candidates at a state) that has gone
+    more than half its discs' thicknesses into each other — beyond what a Newton iterate's
+    penetration can be, near where the pucks' flat cores meet and the gap loses its direction —
+    or None."""
+    pair = np.flatnonzero(contacts.key[:, 0] == PAIR)
+    if not pair.size:
         return None
-    axes = qmatrix(state.quaternions[model.disc_frame])[:, :, 2]
-    rim = model.pair_side[:, 0, None] * axes[model.pair[:, 0]]
-    face = model.pair_side[:, 1, None] * axes[model.pair[:, 1]]
-    facing = np.add.reduce(rim * face, 1)               # −1 at rest: the sides face each other
-    worst = int(np.argmax(facing))
-    return worst if facing[worst] >= 0.0 else None
+    first, second = pair_discs(model, contacts.key[pair])
+    depth = contacts.gap[pair] / (0.5 * (model.disc_thickness[first] + model.disc_thickness[second]))
+    worst = int(np.argmin(depth))
+    return int(contacts.key[pair[worst], 1]) if depth[worst] < -1.0 else None
+
+
+def overlapping(model: ContactModel, state) -> tuple[int, int, float] | None:
+    """The deepest overlap of two non-adjacent discs at ``state`` — (vertebra, vertebra, depth in
+    m) — or None. Their contact is not modelled (docs/contact.md): a trunk folding onto itself
+    passes through its own discs, and an equilibrium where it does is not one. Pairs whose
+    bounding spheres (the outer radius about the frame) meet get the exact gap."""
+    count = model.disc_frame.size
+    if count < 3:
+        return None
+    first, second = np.triu_indices(count, 1)
+    adjacent = {tuple(sorted(p)) for p in model.pair.tolist()}
+    keep = np.array([(a, b) not in adjacent for a, b in zip(first.tolist(), second.tolist())], bool)
+    first, second = first[keep], second[keep]
+    centre = state.positions[model.disc_frame]
+    apart = np.sqrt(np.add.reduce((centre[first] - centre[second]) ** 2, 1))
+    near = apart < model.disc_radius[first] + model.disc_radius[second]
+    if not near.any():
+        return None
+    first, second = first[near], second[near]
+    gap = disc_gaps(model, state, first, second)
+    k = int(np.argmin(gap))
+    if gap[k] >= -GAP_TOLERANCE * model.length:
+        return None
+    return int(model.disc_vertebra[first[k]]), int(model.disc_vertebra[second[k]]), float(-gap[k])
 
 
 def describe(model: ContactModel, key) -> str:
@@ -346,23 +372,81 @@ def _chords(model, R, x, features, obstacle, ends=False):
             np.stack([b - a, np.zeros_like(a)], 1))
 
 
+def _to_disk(p, center, axis, radius):
+    """The point of each flat disk (``center``, unit ``axis``, ``radius``) nearest ``p``."""
+    v = p - center
+    w = v - np.add.reduce(v * axis, -1)[..., None] * axis
+    rho = np.sqrt(np.add.reduce(w * w, -1))
+    return center + np.minimum(1.0, radius / np.maximum(rho, 1e-300))[..., None] * w
+
+
+def _rim_to_disk(center, e1, e2, radius, other_center, other_axis, other_radius):
+    """The point of each rim circle (``center``, in-plane axes ``e1``, ``e2``, ``radius``) nearest
+    the flat disk ``other_*``: 16 samples, then bisection on the derivative of the squared
+    distance (``(p − q)·∂p/∂s``, continuous: the distance to a convex set is smooth outside it)
+    to the rounding of the angle. Returns (distance, p, q)."""
+    def at(s):
+        c, sn = np.cos(s)[..., None], np.sin(s)[..., None]
+        p = center + radius[..., None] * (c * e1 + sn * e2)
+        q = _to_disk(p, other_center, other_axis, other_radius)
+        return p, q, radius[..., None] * (c * e2 - sn * e1)
+
+    samples = 2.0 * math.pi * np.arange(SAMPLES) / SAMPLES
+    n = center.shape[0]
+    p, q, _ = at(np.broadcast_to(samples, (n, SAMPLES)).T)           # (SAMPLES, n, 3)
+    d2 = np.add.reduce((p - q) ** 2, -1)
+    width = 2.0 * math.pi / SAMPLES
+    low = samples[np.argmin(d2, 0)] - width
+    high = low + 2.0 * width
+    for _ in range(BISECTIONS):
+        middle = 0.5 * (low + high)
+        p, q, tau = at(middle)
+        falling = np.add.reduce((p - q) * tau, -1) < 0.0
+        low, high = np.where(falling, middle, low), np.where(falling, high, middle)
+    p, q, _ = at(0.5 * (low + high))
+    return np.sqrt(np.add.reduce((p - q) ** 2, -1)), p, q
+
+
+def _disc_pairs(model, R, x, first, second):
+    """Disc ``first`` against disc ``second`` (index arrays). Each disc is a puck: the flat disk of
+    radius ``R − t/2`` in its frame's x–y plane swept by a ball of radius ``t/2`` (thickness
+    ``t``, outer radius ``R``, a rounded rim). The gap is the distance between the two flat
+    disks less the two half thicknesses: the nearer of each rim against the other's disk (the
+    distance between two convex sets has a nearest point on a rim of one of them). Rim against
+    face, rim against rim and the discs folded past each other's rim are the same smooth gap."""
+    fa, fb = model.disc_frame[first], model.disc_frame[second]
+    ha, hb = 0.5 * model.disc_thickness[first], 0.5 * model.disc_thickness[second]
+    ra, rb = model.disc_radius[first] - ha, model.disc_radius[second] - hb
+    return _puck_gap(x[fa], R[fa], ra, ha, x[fb], R[fb], rb, hb) + (np.stack([fa, fb], 1),)
+
+
+def _puck_gap(xa, Ra, ra, ha, xb, Rb, rb, hb):
+    """(gap, point on the first puck, unit normal pushing it away, rows (k, 2, 6)) of two pucks
+    on frames at ``xa``, ``xb`` with rotations ``Ra``, ``Rb`` (core radii ``r``, half thicknesses ``h``)."""
+    da, pa, qa = _rim_to_disk(xa, Ra[..., 0], Ra[..., 1], ra, xb, Rb[..., 2], rb)
+    db, pb, qb = _rim_to_disk(xb, Rb[..., 0], Rb[..., 1], rb, xa, Ra[..., 2], ra)
+    first = (da <= db)[..., None]
+    p, q = np.where(first, pa, qb), np.where(first, qa, pb)          # on the first core, on the second
+    distance = np.minimum(da, db)
+    normal = (p - q) / np.maximum(distance, 1e-300)[..., None]
+    rows = np.empty(p.shape[:-1] + (2, 6))
+    rows[..., 0, :3] = normal
+    rows[..., 0, 3:] = _cross(p - xa, normal)
+    rows[..., 1, :3] = -normal
+    rows[..., 1, 3:] = -_cross(q - xb, normal)
+    return distance - ha - hb, p - ha[..., None] * normal, normal, rows
+
+
+def disc_gaps(model: ContactModel, state, first: np.ndarray, second: np.ndarray) -> np.ndarray:
+    """The gaps (m) between discs ``first`` and ``second`` (index arrays, any two discs) at ``state``."""
+    return _disc_pairs(model, qmatrix(state.quaternions), state.positions, first, second)[0]
+
+
 def _pairs(model, R, x, features):
-    """Adjacent discs: the rim of one against the plane of the other's facing side."""
-    rim, face = model.pair[features, 0], model.pair[features, 1]
-    rim_side, face_side = model.pair_side[features, 0], model.pair_side[features, 1]
-    fa, fb = model.disc_frame[rim], model.disc_frame[face]
-    rim_axis, face_axis = R[fa][:, :, 2], R[fb][:, :, 2]
-    m = face_side[:, None] * face_axis                        # the face's outward normal
-    face_point = x[fb] + (0.5 * face_side * model.disc_thickness[face])[:, None] * face_axis
-    center = x[fa] + (0.5 * rim_side * model.disc_thickness[rim])[:, None] * rim_axis
-    point = _lowest_on_rim(center, rim_axis, R[fa][:, :, 0], model.disc_radius[rim], m)
-    gap = np.add.reduce((point - face_point) * m, -1)
-    rows = np.empty((features.size, 2, 6))
-    rows[:, 0, :3] = m
-    rows[:, 0, 3:] = _cross(point - x[fa], m)
-    rows[:, 1, :3] = -m
-    rows[:, 1, 3:] = -_cross(point - x[fb], m)
-    return gap, point, m, np.stack([fa, fb], 1), rows, np.stack([_cross(rim_axis, point - center), center - point], 1)
+    """Adjacent discs (:func:`_disc_pairs`); the sliding of the nearest points is in the
+    curvature's differences (:func:`_pair_curvature`), not in ``slide``."""
+    gap, point, normal, rows, frames = _disc_pairs(model, R, x, model.pair[features, 0], model.pair[features, 1])
+    return gap, point, normal, frames, rows, np.zeros((features.size, 2, 3))
 
 
 _FEATURES = {RIM: _rims, BALL: _balls, CHORD: _chords}
@@ -589,7 +673,7 @@ class Constraints:
         blocks on the diagonal)."""
         if not self.multipliers.size:
             return matrix
-        frames, blocks = curvature(self.model, self.pressed(state), self.multipliers)
+        frames, blocks = curvature(self.model, self.pressed(state), self.multipliers, state)
         terms = matrix.terms.copy()
         links = matrix.assembler.views(terms)[0]
         a, b = frames[:, 0], frames[:, 1]
@@ -667,7 +751,52 @@ def _surface_curvature(obstacle, point: np.ndarray, scale: float) -> np.ndarray:
     return 0.5 * (S + np.swapaxes(S, 1, 2))
 
 
-def curvature(model: ContactModel, contacts: ContactSet, multipliers: np.ndarray):
+def _rotation(axis: int, angle: float) -> np.ndarray:
+    """The rotation by ``angle`` about the world axis ``axis``."""
+    c, s = math.cos(angle), math.sin(angle)
+    i, j = (axis + 1) % 3, (axis + 2) % 3
+    out = np.eye(3)
+    out[i, i] = out[j, j] = c
+    out[j, i], out[i, j] = s, -s
+    return out
+
+
+def pair_discs(model: ContactModel, key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The two discs (first, second) of disc–disc contacts ``key`` (m, 3)."""
+    return model.pair[key[:, 1], 0], model.pair[key[:, 1], 1]
+
+
+def _pair_curvature(model: ContactModel, state, key: np.ndarray, lam: np.ndarray) -> np.ndarray:
+    """``−λ ∂²g`` (k, 12, 12) of disc–disc contacts on their frames ``[a; b]``: central differences
+    of the gap's rows (the contact force's generalised force, its nearest points found again at
+    each moved pose: the sliding of the points along the rims is in it) under moves of each frame
+    along the world axes (``DIFFERENCE`` × the disc radius) and turns about them (``DIFFERENCE`` rad)."""
+    first, second = pair_discs(model, key)
+    fa, fb = model.disc_frame[first], model.disc_frame[second]
+    ha, hb = 0.5 * model.disc_thickness[first], 0.5 * model.disc_thickness[second]
+    ra, rb = model.disc_radius[first] - ha, model.disc_radius[second] - hb
+    x, R = state.positions, qmatrix(state.quaternions)
+    k = key.shape[0]
+    moved = [np.repeat(v[None], 24, 0) for v in (x[fa], R[fa], x[fb], R[fb])]
+    step = np.empty((12, k))
+    for c in range(12):
+        body, what = divmod(c, 6)
+        for sign, row in ((1.0, 2 * c), (-1.0, 2 * c + 1)):
+            if what < 3:
+                h = DIFFERENCE * model.disc_radius[first if body == 0 else second]
+                moved[2 * body][row, :, what] += sign * h
+            else:
+                h = np.full(k, DIFFERENCE)
+                moved[2 * body + 1][row] = _rotation(what - 3, sign * DIFFERENCE) @ moved[2 * body + 1][row]
+        step[c] = h
+    flat = [v.reshape((24 * k,) + v.shape[2:]) for v in moved]
+    rows = _puck_gap(flat[0], flat[1], np.tile(ra, 24), np.tile(ha, 24), flat[2], flat[3], np.tile(rb, 24),
+                     np.tile(hb, 24))[3].reshape(12, 2, k, 12)
+    derivative = (rows[:, 0] - rows[:, 1]) / (2.0 * step[:, :, None])              # (12 moves, k, 12 rows)
+    return -lam[:, None, None] * np.transpose(derivative, (1, 2, 0))
+
+
+def curvature(model: ContactModel, contacts: ContactSet, multipliers: np.ndarray, state=None):
     """``−λ_i ∂²g_i`` of each contact as a 12×12 block on its frames ``[a; b]`` (the derivative of
     the contact forces' generalised forces with the contact point held on the body: the turning
     of the lever arms, the turning of a disc's face normal and the obstacle's surface curvature;
@@ -688,7 +817,10 @@ def curvature(model: ContactModel, contacts: ContactSet, multipliers: np.ndarray
     for j in np.unique(key[~pair, 2]):
         chosen = (~pair) & (key[:, 2] == j)
         S[chosen] = _surface_curvature(model.obstacles[j], point[chosen], model.length)
-    return frames, _blocks(contacts, lam, S, point, n, pair, chord)
+    blocks = _blocks(contacts, lam, S, point, n, pair, chord)
+    if pair.any():
+        blocks[pair] = _pair_curvature(model, state, key[pair], multipliers[pair])
+    return frames, blocks
 
 
 def _blocks(contacts, lam, S, point, n, pair, chord):
@@ -712,22 +844,7 @@ def _blocks(contacts, lam, S, point, n, pair, chord):
             for k in range(2):
                 blocks[chord, 6 * i:6 * i + 3, 6 * k:6 * k + 3] = -(lam[chord] * S[chord]
                                                                    * (weights[:, i] * weights[:, k])[:, None, None])
-    # a rim on frame a (X) against the face of frame b (Y), m = n
-    if pair.any():
-        lp, m = l[pair], n[pair]
-        d = point[pair] - origin[pair, 1]
-        hm, hl, hd = _hat(m), _hat(lp), _hat(d)
-        lam_p = lam[pair]
-        B = np.zeros((lp.shape[0], 12, 12))
-        B[:, 0:3, 9:12] = lam_p * hm                  # X force  / Y turn
-        B[:, 3:6, 3:6] = -lam_p * hm @ hl             # X moment / X turn
-        B[:, 3:6, 9:12] = lam_p * hl @ hm             # X moment / Y turn
-        B[:, 6:9, 9:12] = -lam_p * hm                 # Y force  / Y turn
-        B[:, 9:12, 0:3] = -lam_p * hm                 # Y moment / X move
-        B[:, 9:12, 3:6] = lam_p * hm @ hl             # Y moment / X turn
-        B[:, 9:12, 6:9] = lam_p * hm                  # Y moment / Y move
-        B[:, 9:12, 9:12] = -lam_p * hd @ hm           # Y moment / Y turn
-        blocks[pair] = B
+    # (disc pairs: :func:`_pair_curvature`, by differences)
     # the closest point sliding along its rim or chord: g = min_s f(s, q) adds −f_qs f_sqᵀ / f_ss
     # to ∂²g, so −λ∂²g gains λ v vᵀ / f_ss with v = ∂f_s/∂q
     tau, second = contacts.slide[:, 0], contacts.slide[:, 1]
@@ -741,8 +858,6 @@ def _blocks(contacts, lam, S, point, n, pair, chord):
         t = np.add.reduce(contacts.rows[chord, 1, :3] * n[chord], -1)[:, None]
         v[chord, :3] = (1.0 - t) * S_tau[chord] - n[chord]
         v[chord, 6:9] = t * S_tau[chord] + n[chord]
-    v[pair, 3:6] = _cross(tau[pair], n[pair])
-    v[pair, 9:12] = -v[pair, 3:6]
     sliding = f_ss > 1e-12 * np.sqrt(np.add.reduce(tau * tau, -1)) * (np.abs(S).max(axis=(1, 2)) * np.sqrt(
         np.add.reduce(tau * tau, -1)) + np.sqrt(np.add.reduce(second * second, -1)) + 1e-300)
     scale = np.where(sliding, lam[:, 0, 0] / np.where(sliding, f_ss, 1.0), 0.0)

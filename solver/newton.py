@@ -270,14 +270,13 @@ class _Stage:
         self.turn = math.sqrt(record.chain.largest_turn2) if record is not None else largest_turn(xi)
         if self.turn > TURN_LIMIT:
             raise Unrepresentable(turn_message(self.trunk, xi, self.load.scale, self.linear), state)
-        if self.constraints is not None:
-            pair = contact.folded(self.trunk.contact, state)
+        if self.constraints is not None and self.trunk.contact.pair.size:
+            pair = contact.interpenetrating(self.trunk.contact, self.constraints.at(state))
             if pair is not None:
                 raise Unrepresentable(
-                    f"{contact.describe(self.trunk.contact, (contact.PAIR, pair, -1))} turn by more than 90° against "
-                    f"each other at load factor {self.load.scale:.3g}: one has folded past the other's rim, which the "
-                    "disc–disc contact (a rim against the other's face) does not represent; the loads fold the "
-                    "robot further than its discs allow", state)
+                    f"{contact.describe(self.trunk.contact, (contact.PAIR, pair, -1))} have gone into each other by "
+                    f"more than half their thickness at load factor {self.load.scale:.3g}: a step or a load increment "
+                    "pushed one through the other, which the disc–disc gap cannot follow", state)
         pieces = ev.pieces
         if pieces is not None:
             ratio = pieces.length / self.trunk.rest_piece_lengths
@@ -544,11 +543,29 @@ def solve(trunk, loads: LoadCases, actuation: np.ndarray, initial: State | None,
             increment *= 0.5
             if increment < 1e-4 or iterations >= BUDGET * max_iterations:
                 break
+    if converged and trunk.contact is not None:
+        overlap = contact.overlapping(trunk.contact, last_good)
+        if overlap is not None:
+            # non-adjacent discs are not in the contact model: an equilibrium through them is not one
+            converged, state_new = False, last_good
+            message = (f"the discs of vertebrae {overlap[0]} and {overlap[1]} overlap by {overlap[2]:.3g} m at the "
+                       "equilibrium found: the robot folds onto itself, and contact between discs that are not "
+                       "neighbours is not modelled (docs/contact.md), so it is not an equilibrium; lower the loads "
+                       "or tensions, or declare smaller discs")
     limited = "rounding-limited" in kinds
     saddles = "unstable" in kinds
     stalled = "stalled" in kinds
     kinds -= {"rounding-limited", "unstable", "stalled"}
     final = last_good if converged else state_new
+    if not converged and not message and saddles and residual <= tolerance:
+        # in balance, refused for stability: say that, not the residual
+        message = (f"the equilibrium found at load factor {load.scale:.4g} is unstable and was refused: it is in balance "
+                   f"(scaled residual {residual:.3g} ≤ {tolerance:g}) but its tangent is indefinite"
+                   + (" on the directions the pressed contacts leave free (the robot would buckle or roll sideways off "
+                      "what it touches)" if trunk.contact is not None else " (a saddle: the robot would buckle)")
+                   + f"; no stable equilibrium was found beyond load factor {scale:.4g} in {iterations} iterations and "
+                   f"{stages} load stages. Lower the loads or tensions, stiffen the backbone, or start from another "
+                   "pose (`initial`) on the side the robot should buckle to")
     if not converged and not message:
         message = (f"Newton did not converge: scaled residual {residual:.3g} > {tolerance:g} after {iterations} "
                    f"iterations and {stages} load stages (reached load factor {scale:.4g})"

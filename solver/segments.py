@@ -102,6 +102,10 @@ def parse_disc(t: Table) -> dict:
     thickness = t.number("disc_thickness", 0.0, nonneg=True)
     if thickness > 0.0 and radius == 0.0:
         raise t.error("disc_thickness", "a disc needs its `disc_radius` too")
+    if radius > 0.0 and not 0.0 < thickness <= 2.0 * radius:
+        raise t.error("disc_thickness", f"a disc needs a thickness above 0 and at most twice its radius, got "
+                      f"{thickness:g} m with disc_radius {radius:g} m (its rim is rounded by half its thickness: "
+                      "docs/contact.md)")
     return {"disc_radius": radius, "disc_thickness": thickness}
 
 

@@ -114,14 +114,31 @@ def relative(state, k):
     return angle, R.T @ (state.positions[k + 1] - state.positions[k])
 
 
-def geometric_limit(d):
-    """The bend angle at which the lower rim of a disc at ``d`` (in the frame below, bent about y
-    toward +x) touches the upper face of the disc below: d_z − (t/2)cos θ − R sin θ + … = t/2."""
-    def gap(theta):
-        axis = np.array([math.sin(theta), 0.0, math.cos(theta)])
-        rim = d - 0.5 * THICK * axis + DISC * np.array([math.cos(theta), 0.0, -math.sin(theta)])
-        return rim[2] - 0.5 * THICK
-    return brentq(gap, 1e-6, 1.4)
+def puck_gap(d, theta, radius=DISC, thickness=THICK):
+    """The gap between two discs (pucks: a flat disk of radius R − t/2 swept by a ball of radius
+    t/2, docs/contact.md), the lower in its own frame, the upper at ``d`` turned by ``theta``
+    about y — independently of solver/contact.py: the distance between the two flat disks as a
+    convex program (SLSQP on the points' in-plane coordinates), less the thickness."""
+    from scipy.optimize import minimize
+    core = radius - 0.5 * thickness
+    c, s = math.cos(theta), math.sin(theta)
+    R = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+    def squared(u):
+        return float(np.sum((np.array([u[0], u[1], 0.0]) - d - R @ np.array([u[2], u[3], 0.0])) ** 2))
+
+    inside = [{"type": "ineq", "fun": lambda u: core ** 2 - u[0] ** 2 - u[1] ** 2},
+              {"type": "ineq", "fun": lambda u: core ** 2 - u[2] ** 2 - u[3] ** 2}]
+    best = min((minimize(squared, start, constraints=inside, method="SLSQP", options={"ftol": 1e-20, "maxiter": 500})
+                for start in ([core, 0.0, -core, 0.0], [0.5 * core, 0.0, -0.5 * core, 0.0], [0.0, 0.0, 0.0, 0.0])),
+               key=lambda r: r.fun)
+    return math.sqrt(best.fun) - thickness
+
+
+def at_geometric_limit(d, angle, tolerance=1e-6):
+    """Is ``angle`` within ``tolerance`` of the bend at which a disc at ``d`` (in the frame below,
+    bent about y toward +x) touches the disc below (:func:`puck_gap` changes sign between)?"""
+    return puck_gap(d, angle - tolerance) > 0.0 > puck_gap(d, angle + tolerance)
 
 
 @pytest.mark.parametrize("tension", [10.0, 30.0])
@@ -135,16 +152,19 @@ def test_discs_stop_the_bend_at_their_geometric_limit(tension):
     assert len(pressed(result)) == 2
     for k in range(2):
         angle, d = relative(result.state, k)
-        assert abs(angle - geometric_limit(d)) <= 1e-6
+        assert at_geometric_limit(d, angle)
     assert_complementary(result)
 
 
 def test_bend_beyond_touching_discs_is_the_backbones_compliance():
     # touching discs fix the gap, not the bend: pulling harder still turns the discs about the
-    # touching rim as far as the flexible backbone between them S-bends. That extra turn per
-    # newton is the backbone's compliance — inversely proportional to its EI (to 3 % from 1 to
-    # 64 GPa) — so the bend angle saturates at the geometric limit only in the rigid-backbone
-    # limit (docs/contact.md, limits). Same pressed state for every E: the tension scales with it.
+    # touching rims as far as the flexible backbone between them deforms. With the discs' rounded
+    # rims meeting rim on rim (equal discs: the upper disc's centre moves outward as it bends) the
+    # contact force's line passes close to the backbone and that extra turn is tiny: 2.9e-7 rad/N
+    # at 1 GPa (it closes slightly), inversely proportional to EI (to 3 % from 1 to 64 GPa) — the
+    # angle saturates at its geometric limit to < 1e-6 rad for 2 N more (docs/contact.md). (The
+    # rim of the old model, on the lower face's plane extended beyond its rim, turned 1.9e-4 rad/N.)
+    # Same pressed state for every E: the tension scales with it.
     slopes = []
     for k in (1, 4, 16, 64):
         angles = []
@@ -159,9 +179,10 @@ def test_bend_beyond_touching_discs_is_the_backbones_compliance():
             assert len(pressed(result)) == 2
             angles.append(relative(result.state, 0)[0])
         slopes.append((angles[1] - angles[0]) * k)
+    slopes = np.abs(slopes)
     assert slopes[0] > 0.0
     assert max(slopes) <= 1.03 * min(slopes)
-    assert slopes[-1] / 64 < 1e-5            # rad for 2 N more at 64 GPa
+    assert slopes[0] < 1e-6                  # rad for 2 N more at 1 GPa
 
 
 def test_disc_contact_force_balances_the_tip_vertebra():
@@ -220,10 +241,14 @@ def test_random_tendon_robots_with_discs_converge_where_holes_meet():
             solver.parse_scene(plain)).solve(raise_on_failure=False).message
         model = solver.build_model(solver.parse_scene(with_discs))
         result = model.solve(raise_on_failure=False)
+        if seed in (2, 29):
+            # these fold onto themselves: non-adjacent discs overlap (not modelled), which the
+            # solve says instead of converging (2 "converged" through its own discs before)
+            assert not result.converged and "overlap by" in result.message, (seed, result.message)
+            continue
         assert result.converged, (seed, result.message)
-        assert result.iterations <= (200 if seed == 2 else 60), (seed, result.iterations)
+        assert result.iterations <= 60, (seed, result.iterations)
         assert pressed(result)
-        assert contact.folded(model.trunk.contact, result.state) is None, seed     # every disc faces its neighbour
         # complementarity to the solve's own tolerance (contact.ACTIVE_GAP of the trunk's length):
         # these robots' contact forces range from 0.01 N to thousands of newtons, so the gaps of
         # the pressed contacts are judged in metres, not as gap·force in joules
@@ -234,18 +259,51 @@ def test_random_tendon_robots_with_discs_converge_where_holes_meet():
     assert refused >= 8
 
 
-@pytest.mark.parametrize("seed", [36, 38, 51])
-def test_random_robot_folding_past_a_disc_rim_says_so(seed):
-    # a soft backbone under a compressive tip load folds one vertebra past its neighbour's rim
-    # (it turns by 180° against it): the disc–disc contact (a rim against the other's face)
-    # cannot represent that, and the solve must say so — not that the holes meet, or that the
-    # discs would collide, and not converge to the folded state as if the discs faced each other
-    # (38 did: its discs 1 and 2 ended turned by 180°, the "gap" between them closed)
+def assert_solved_with_discs_touching(result, scene):
+    # complementarity to the solve's own tolerance (contact.ACTIVE_GAP of the trunk's length)
+    length = sum(s["count"] * s["length"] for s in scene["segment"])
+    for c in result.contacts:
+        assert c.force >= 0.0 and c.gap >= -contact.ACTIVE_GAP * length, c
+        assert c.force == 0.0 or abs(c.gap) <= contact.ACTIVE_GAP * length, c
+
+
+@pytest.mark.parametrize("seed", [38, 51])
+def test_random_robot_folding_a_disc_past_its_neighbours_rim_converges(seed):
+    # a soft backbone under a compressive tip load folds one vertebra round its neighbour's rim
+    # (its disc turns by 140–160° against the neighbour): the discs' rounded rims meet rim on
+    # rim and the solve converges with them touching. The rim-against-face model stopped here
+    # ("turn by more than 90° against each other"; before that check 38 "converged" to a fold
+    # whose rim lay on the other face's plane from the wrong side).
+    from vertebra.core.lie import qmatrix
     _, with_discs = random_robot(seed)
+    model = solver.build_model(solver.parse_scene(with_discs))
+    result = model.solve(raise_on_failure=False)
+    assert result.converged, result.message
+    assert pressed(result)
+    axes = qmatrix(result.state.quaternions)[model.trunk.contact.disc_frame][:, :, 2]
+    assert np.min(np.add.reduce(axes[1:] * axes[:-1], 1)) < math.cos(math.radians(140.0))
+    assert_solved_with_discs_touching(result, with_discs)
+
+
+def test_a_robot_folding_onto_itself_through_non_adjacent_discs_says_so():
+    # random robot 22 folds one disc past its neighbour's rim (166°) and on until the discs of
+    # vertebrae 2 and 4 overlap by 2.3 mm: contact between non-neighbours is not modelled, so
+    # that is not an equilibrium and the solve says so (it "converged" through them before)
+    _, with_discs = random_robot(22)
     result = solver.build_model(solver.parse_scene(with_discs)).solve(raise_on_failure=False)
     assert not result.converged
-    assert "turn by more than 90° against each other" in result.message, result.message
-    assert "holes" not in result.message
+    assert "the discs of vertebrae 2 and 4 overlap by" in result.message, result.message
+
+
+def test_an_unstable_contact_equilibrium_says_what_is_unstable():
+    # random robot 88 finds an equilibrium in balance that is a saddle on the directions its
+    # pressed contacts leave free: the message says so and what to change, and does not print the
+    # residual as if it were above the tolerance
+    _, with_discs = random_robot(88)
+    result = solver.build_model(solver.parse_scene(with_discs)).solve(raise_on_failure=False)
+    assert not result.converged
+    assert "is unstable and was refused" in result.message and "Lower the loads" in result.message, result.message
+    assert "> 1e-09" not in result.message
 
 
 # --- leaning on obstacles -------------------------------------------------------------------------
@@ -342,6 +400,8 @@ def scene_with(**changes):
     ({"obstacle": [{"type": "mesh", "vertices": [[0, 0, 0]], "triangles": [[0, 1, 2]]}]}, "obstacle[0].triangles",
      "indices"),
     ({"base": {"disc_thickness": 0.001}}, "base.disc_thickness", "disc_radius"),
+    ({"base": {"disc_radius": 0.01}}, "base.disc_thickness", "thickness above 0"),
+    ({"base": {"disc_radius": 0.01, "disc_thickness": 0.03}}, "base.disc_thickness", "at most twice its radius"),
 ])
 def test_bad_obstacles_and_discs_name_the_field(changes, field, words):
     with pytest.raises(SceneError) as error:
