@@ -24,13 +24,14 @@ class BandedFactor:
     kd: int
     pivots: np.ndarray | None = None
 
-    def solve(self, rhs: np.ndarray, *, overwrite: bool = False) -> np.ndarray:
-        """``A⁻¹ rhs`` for ``rhs`` of shape (n,) or (n, k). With ``overwrite`` a Fortran-ordered
-        float ``rhs`` is overwritten by the solution (no copy)."""
+    def solve(self, rhs: np.ndarray, *, overwrite: bool = False, transposed: bool = False) -> np.ndarray:
+        """``A⁻¹ rhs`` (``A⁻ᵀ rhs`` with ``transposed``) for ``rhs`` of shape (n,) or (n, k). With
+        ``overwrite`` a Fortran-ordered float ``rhs`` is overwritten by the solution (no copy)."""
         if self.pivots is None:
             x, info = dpbtrs(self.data, rhs, lower=1, overwrite_b=overwrite)
         else:
-            x, info = dgbtrs(self.data, self.kd, self.kd, rhs, self.pivots, overwrite_b=overwrite)
+            x, info = dgbtrs(self.data, self.kd, self.kd, rhs, self.pivots, trans=int(transposed),
+                             overwrite_b=overwrite)
         if info:
             raise np.linalg.LinAlgError(f"banded solve failed (LAPACK info {info})")
         return x

@@ -144,3 +144,31 @@ def residual_step(stage, state, ev, residual: float, factor, r: np.ndarray):
     if not after <= 0.5 * residual:
         return None
     return trial, ev_trial, 1.0, residual - after, residual, 1.0
+
+
+def smallest_singular_value(matrix, scale: np.ndarray, iterations: int = 30) -> tuple | None:
+    """The smallest singular value ``σ`` of the tangent ``H`` (``matrix``) in the metric of
+    ``scale`` (``S H S``, ``S = diag(scale)^{-1/2}``: every DoF in its own units) and its left
+    singular vector ``u`` (``uᵀ S H S ≈ σ vᵀ``, ``|u| = 1``: the direction in which ``S H S``
+    is nearly singular from the left), by inverse iteration on ``(S H S)⁻ᵀ (S H S)⁻¹`` with the
+    unshifted banded LU factor: (σ, u); σ = 0 (u None) when the tangent is singular; None when its
+    factor has no transposed solve (a dense term beside the band). σ falls to 0 where an
+    equilibrium path reaches a limit point or a bifurcation: what continuation reports when it
+    cannot go on."""
+    factor, _ = matrix.factor(0.0, symmetric=False)
+    if factor is None:
+        return 0.0, None
+    if not hasattr(factor, "pivots"):
+        return None
+    root = np.sqrt(scale)
+    u = np.random.default_rng(scale.size).standard_normal(scale.size)     # a deterministic start
+    u /= np.linalg.norm(u)
+    growth = 0.0
+    for _ in range(iterations):
+        y = root * factor.solve(root * u)                     # (S H S)⁻¹ u
+        z = root * factor.solve(root * y, transposed=True)    # (S H S)⁻ᵀ (S H S)⁻¹ u
+        growth = float(np.linalg.norm(z))
+        if not (growth > 0.0 and math.isfinite(growth)):
+            return 0.0, None
+        u = z / growth
+    return 1.0 / math.sqrt(growth), u

@@ -61,7 +61,7 @@ from vertebra.solver import globalise
 from vertebra.solver.globalise import NEUTRAL
 from vertebra.solver.representable import (COLLAPSE_LIMIT, FOLD_LIMIT, TURN_LIMIT, Unrepresentable,
                                            largest_turn, segment_of, turn_message)
-from vertebra.solver.state import State, kinematics, strain_change
+from vertebra.solver.state import State, compose, kinematics, strain_change
 from vertebra.solver import contact
 from vertebra.core.errors import ConvergenceError
 
@@ -78,6 +78,13 @@ SQRT3 = math.sqrt(3.0)
 STRETCHING = 1e-3      # a step changing a translation strain by more than this share of the shortest link
 SMALL_INCREMENT = 1.0 / 16.0   # a load increment this small that reaches an unrepresentable state: say so
 BUDGET = 10            # a solve stops after BUDGET × max_iterations Newton iterations
+# continuation under loads without a potential, where the stepping above gives up (_continuation)
+PATIENCE = 8           # a continuation stage fails after this many iterations without a new best residual
+STAGE_ITERATIONS = 30  # iterations of one continuation stage at most
+FINEST = 1e-6          # the smallest load increment continuation tries
+LIMIT_POINT = 1e-2     # the tangent's smallest singular value, over its value at rest, below which
+                       # the path is taken to end (a limit point or a bifurcation)
+TRANSVERSAL = 1e-2     # the load's share along the singular direction from which the end is a limit point
 
 
 @dataclass
@@ -165,6 +172,8 @@ class _Stage:
         self.axis, self.shortest = trunk.rest.axis, trunk.rest.shortest   # a link's axial stretch is ρ · axis
         self.turn = 0.0                       # largest link rotation of the current state
         self.stretching = True                # the last step may have changed a link's length
+        self.patience = None                  # iterations without a new best residual before the
+                                              # stage fails (None: only max_iterations ends it)
         # unilateral contacts (None: the trunk declares none and no contact code runs)
         self.constraints = contact.Constraints(trunk) if trunk.contact is not None else None
 
@@ -326,6 +335,7 @@ def _newton(stage: _Stage, state: State):
     # state already close to equilibrium: the equilibrium reached from it is taken as stable
     trusted = False
     escapes = 0
+    best, best_at = math.inf, 0       # the smallest residual of the stage and its iteration
     while True:
         stage.history.append(residual)
         converged = stage.converged(residual, state)
@@ -339,6 +349,10 @@ def _newton(stage: _Stage, state: State):
                 return False, state, residual
         if stage.iterations >= stage.max_iterations:
             return False, state, residual
+        if residual < best:
+            best, best_at = residual, stage.iterations
+        elif stage.patience is not None and stage.iterations - best_at >= stage.patience:
+            return False, state, residual       # circling: no new best residual for a while
         stage.iterations += 1
         stage.stretching = False
         matrix = factored = tangent(trunk, ev)
@@ -472,6 +486,128 @@ def _newton(stage: _Stage, state: State):
         work = nonpotential_forces(trunk, state, load)
 
 
+@dataclass
+class _Continued:
+    """What :func:`_continuation` reached."""
+
+    converged: bool
+    reached: tuple            # (load factor, state) of the last equilibrium on the path
+    state: State              # the state returned: the last equilibrium, or where a stage found a state the
+                              # links cannot represent
+    residual: float           # and its residual
+    load: LoadCase            # and its load case
+    iterations: int
+    stages: int
+    message: str              # why it stopped ("" when converged)
+
+
+def _predicted(trunk, path: tuple, target: float) -> State:
+    """The start of the stage at load factor ``target``: the secant through the last two
+    equilibria on the path (``path``: (earlier, last), each (load factor, state); earlier None:
+    the last one itself), extrapolated in the links' strains and composed from the base."""
+    earlier, (scale, state) = path
+    if earlier is None or earlier[0] >= scale:
+        return state
+    xi, xi_before = kinematics(state).xi, kinematics(earlier[1]).xi
+    t = (target - scale) / (scale - earlier[0])
+    return compose(state.quaternions[0], state.positions[0], xi + t * (xi - xi_before))
+
+
+def _continuation(trunk, loads: LoadCases, actuation: np.ndarray, path: tuple, reference: float, tolerance: float,
+                  max_iterations: int, history: list, kinds: set, shift: float, linear) -> _Continued:
+    """Load continuation from the last equilibrium of ``path`` ((earlier, last), each (load factor,
+    state); :func:`_predicted`) where the load stepping of :func:`solve` gave up under loads without
+    a potential. Dead moments and follower loads make the equilibria non-unique and Newton from a
+    distant start may circle (their work round a closed loop of rotations is not zero): each stage
+    starts from the secant predictor through the last two equilibria, fails once :data:`PATIENCE`
+    iterations bring no new best residual (or after :data:`STAGE_ITERATIONS`), and the increment
+    halves on failure and doubles on success, down to :data:`FINEST`, within ``BUDGET ×
+    max_iterations / 2`` iterations. Where it cannot go on, the reason is named: a state the links
+    cannot represent (as in :func:`solve`); a limit point, where the tangent's smallest singular
+    value (:func:`~vertebra.solver.globalise.smallest_singular_value`) has fallen below
+    :data:`LIMIT_POINT` of its value at rest — the equilibrium path turns back and the trunk would
+    snap through, which continuation in the load factor cannot follow; or stages that do not
+    converge although the tangent stays regular."""
+    budget = BUDGET * max_iterations // 2
+    earlier, (scale, state) = path
+    increment = min(1.0 / 16.0, 1.0 - scale)
+    iterations = stages = 0
+    residual, why = math.inf, ""
+    while iterations < budget:
+        target = min(1.0, scale + increment)
+        load = loads(actuation, target)
+        stage = _Stage(trunk, load, tolerance if target >= 1.0 else max(tolerance, 1e-6),
+                       min(max_iterations, STAGE_ITERATIONS, budget - iterations), reference * target, history,
+                       kinds, shift, linear)
+        stage.patience = PATIENCE
+        try:
+            ok, stopped, residual = _newton(stage, _predicted(trunk, (earlier, (scale, state)), target))
+            why = ""
+        except Unrepresentable as error:
+            ok, stopped, why = False, error.state, str(error)
+        iterations += stage.iterations
+        stages += 1
+        shift, linear = stage.shift, stage.linear
+        if ok:
+            earlier, scale, state = (scale, state), target, stopped
+            if scale >= 1.0:
+                return _Continued(True, (scale, state), state, residual, load, iterations, stages, "")
+            increment = min(2.0 * increment, 1.0 - scale)
+        else:
+            increment *= 0.5
+            if increment < FINEST:
+                break
+    if why and increment < SMALL_INCREMENT:
+        return _Continued(False, (scale, state), stopped, residual, load, iterations, stages, why)
+    # the last equilibrium on the path is what is returned, with why the path ends there
+    load = loads(actuation, scale)
+    residual = residual_norm(evaluate(trunk, state, load).gradient[1:], reference * max(scale, 1e-300),
+                             residual_weights(trunk))
+    return _Continued(False, (scale, state), state, residual, load, iterations, stages,
+                      _turning_back(trunk, loads, actuation, scale, state, increment, iterations, budget))
+
+
+def _turning_back(trunk, loads: LoadCases, actuation: np.ndarray, scale: float, state: State, increment: float,
+                  iterations: int, budget: int) -> str:
+    """Why continuation stopped at the equilibrium ``state`` at load factor ``scale``. Where the
+    tangent ``K`` is near singular against the one at rest (smallest singular value below
+    :data:`LIMIT_POINT` of it, in the rest stiffness's metric ``S``) the path ends in one of two
+    ways: a limit point, where the load's derivative ``f = ∂r/∂λ`` has a part along the left
+    singular direction ``u`` (``uᵀSf ≠ 0``: no equilibrium ``x(λ)`` continues beyond, the load
+    factor turns back), or a bifurcation (``uᵀSf ≈ 0``: branches cross). Else: what was tried."""
+    metric = trunk.rest.stiffness
+    load = loads(actuation, scale)
+    ev = evaluate(trunk, state, load)
+    found = globalise.smallest_singular_value(tangent(trunk, ev), metric)
+    at_rest = globalise.smallest_singular_value(
+        tangent(trunk, evaluate(trunk, trunk.rest_state, loads(actuation, 0.0))), metric)
+    tried = (f"in increments down to {increment:.2g} of the load" if increment < FINEST
+             else f"within {iterations} continuation iterations (of {budget})")
+    ratio = None if found is None or at_rest is None or not at_rest[0] else found[0] / at_rest[0]
+    if ratio is not None and ratio < LIMIT_POINT:
+        u = found[1]
+        # the load's derivative in the metric: the gradient at no load less the one at this load factor
+        f = ((evaluate(trunk, state, loads(actuation, 0.0)).gradient - ev.gradient)[1:].reshape(-1) / scale
+             / np.sqrt(metric))
+        along = abs(float(u @ f)) / max(float(np.linalg.norm(f)), 1e-300) if u is not None else 1.0
+        if along >= TRANSVERSAL:
+            return (f"no equilibrium found by continuation past load factor {scale:.4g} ({tried}): the equilibrium "
+                    f"path turns back there (a limit point: the tangent's smallest singular value has fallen to "
+                    f"{ratio:.2g} of its value at rest, and the load pushes along its singular direction), so beyond "
+                    "it the trunk would snap through to another pose, which load continuation cannot follow; lower "
+                    f"the loads to below {scale:.3g} of them, or solve from another pose (`initial`) on the side the "
+                    "trunk should snap to")
+        return (f"no equilibrium found by continuation past load factor {scale:.4g} ({tried}): the equilibrium path "
+                f"branches there (a bifurcation: the tangent's smallest singular value has fallen to {ratio:.2g} of its "
+                f"value at rest, and the load has no part along its singular direction: {along:.2g}); lower the loads "
+                f"to below {scale:.3g} of them, or solve from another pose (`initial`) on the branch the trunk should take")
+    regular = (f" although the tangent there stays regular (smallest singular value {ratio:.2g} of its value at "
+               "rest: the path does not turn back)" if ratio is not None else "")
+    return (f"no equilibrium found by continuation past load factor {scale:.4g} ({tried}){regular}: Newton from the "
+            "equilibria reached does not converge at the next load factors (loads without a potential — dead moments, "
+            "follower loads — have non-unique equilibria); lower the loads, or solve from another pose (`initial`)")
+
+
 def solve(trunk, loads: LoadCases, actuation: np.ndarray, initial: State | None, *, tolerance: float,
           max_iterations: int, load_steps: int, raise_on_failure: bool = True) -> StaticResult:
     """Equilibrium under ``actuation`` from ``initial`` (a warm start; None: the rest state, with
@@ -505,6 +641,10 @@ def solve(trunk, loads: LoadCases, actuation: np.ndarray, initial: State | None,
     residual = math.inf
     shift, linear = 0.0, None
     message = ""
+    # the equilibrium before last_good on the loading path, (load factor, state), for continuation's
+    # predictor (None: last_good is the first, or a warm start that is no equilibrium at 0)
+    previous = None
+    from_rest = initial is None
     while True:
         target = min(1.0, scale + increment)
         load = loads(actuation, target)
@@ -530,6 +670,8 @@ def solve(trunk, loads: LoadCases, actuation: np.ndarray, initial: State | None,
         if stage.constraints is not None:
             pressed = stage.constraints
         if ok:
+            if from_rest or scale > 0.0:
+                previous = (scale, last_good)
             last_good, scale = state_new, target
             if scale >= 1.0:
                 converged = True
@@ -538,11 +680,21 @@ def solve(trunk, loads: LoadCases, actuation: np.ndarray, initial: State | None,
         else:
             if initial is not None and scale == 0.0 and last_good is not trunk.rest_state and stages == 1:
                 last_good = trunk.rest_state.copy()   # warm start failed: step the load from rest
+                from_rest = True
                 increment = 1.0 / load_steps
                 continue
             increment *= 0.5
             if increment < 1e-4 or iterations >= BUDGET * max_iterations:
                 break
+    if not converged and not message and trunk.loads.unsymmetric and trunk.contact is None and "unstable" not in kinds:
+        # loads without a potential, where the stepping above gave up: continuation
+        continued = _continuation(trunk, loads, actuation, (previous, (scale, last_good)), reference,
+                                  tolerance, max_iterations, history, kinds, shift, linear)
+        iterations += continued.iterations
+        stages += continued.stages
+        converged, message, residual, load = continued.converged, continued.message, continued.residual, continued.load
+        scale, last_good = continued.reached
+        state_new = last_good if converged else continued.state
     if converged and trunk.contact is not None:
         overlap = contact.overlapping(trunk.contact, last_good)
         if overlap is not None:
