@@ -25,7 +25,6 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
-import math  # noqa: E402
 import re  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
@@ -35,9 +34,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from benchmarks.common import RESULTS, loadavg, log, now, write_json  # noqa: E402
-
-E, RADIUS, LENGTH, COUNT = 1e6, 0.01, 0.02, 8
-EI = E * math.pi * RADIUS ** 4 / 4
+from tests.test_dead_moments import COUNT, EI, LENGTH, RADIUS, E, _compressed  # noqa: E402
 
 TRUNK = """
 import math, time, numpy as np
@@ -73,17 +70,6 @@ print(single, time.process_time() - t, its)
 """
 
 
-def compressed(seed: int, count: int):
-    """Dead tip forces compressing the trunk at 0.5–6 × its Euler load (with a sideways part of
-    0.3 of it) and dead tip moments of 0.5–12 EI/L."""
-    rng = np.random.default_rng(seed)
-    length = COUNT * LENGTH
-    for _ in range(count):
-        axial = -rng.uniform(0.5, 6.0) * math.pi ** 2 * EI / (4 * length ** 2)
-        force = np.array([0.3 * abs(axial) * rng.normal(), 0.3 * abs(axial) * rng.normal(), axial])
-        yield force, rng.normal(size=3) * rng.uniform(0.5, 12.0) * EI / length
-
-
 def outcome(result, budget: int) -> str:
     if result.converged:
         return "continued" if result.iterations > budget else "stepped"
@@ -104,7 +90,7 @@ def bench_compressed(seeds, count: int) -> dict:
     exec(TRUNK.format(E=E, RADIUS=RADIUS, LENGTH=LENGTH, COUNT=COUNT), namespace)
     rows = []
     for seed in seeds:
-        for k, (force, moment) in enumerate(compressed(seed, count)):
+        for k, (force, moment) in enumerate(_compressed(seed, count, euler=6.0, sideways=0.3, moments=12.0)):
             model = namespace["trunk"](force, moment)
             start = time.process_time()
             result = model.solve(raise_on_failure=False)

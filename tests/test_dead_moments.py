@@ -77,15 +77,16 @@ def test_dead_tip_moments_that_turn_links_far_converge_fast(seed):
                                                                 np.abs(moment).max() / model.trunk.frames.length_scale)
 
 
-def _compressed(seed: int, count: int):
-    """Dead tip forces that compress the trunk at 0.5–3 times its Euler load (with a small
-    sideways part) together with dead moments of 0.5–6 EI/L."""
+def _compressed(seed: int, count: int, euler: float = 3.0, sideways: float = 0.1, moments: float = 6.0):
+    """Dead tip forces that compress the trunk at 0.5–``euler`` times its Euler load (with a
+    sideways part of ``sideways`` times the axial one) together with dead moments of
+    0.5–``moments`` EI/L."""
     rng = np.random.default_rng(seed)
     length = COUNT * LENGTH
     for _ in range(count):
-        axial = -rng.uniform(0.5, 3.0) * math.pi ** 2 * EI / (4 * length ** 2)
-        force = np.array([0.1 * abs(axial) * rng.normal(), 0.1 * abs(axial) * rng.normal(), axial])
-        yield force, rng.normal(size=3) * rng.uniform(0.5, 6.0) * EI / length
+        axial = -rng.uniform(0.5, euler) * math.pi ** 2 * EI / (4 * length ** 2)
+        force = np.array([sideways * abs(axial) * rng.normal(), sideways * abs(axial) * rng.normal(), axial])
+        yield force, rng.normal(size=3) * rng.uniform(0.5, moments) * EI / length
 
 
 def test_compressed_trunks_under_dead_moments_converge_past_the_merits_reach():
