@@ -1216,8 +1216,9 @@ def actuation_sensitivities(model, result: BatchResult) -> dict:
     the batched factors (:func:`path_tangents`): ``dq`` (B, n_dof, n_act) — what
     ``model.sensitivities(state, λ, wrt=("actuation",)).dq`` gives for one — and
     ``effector_positions`` (B, 3·n_effectors, n_act); ``has`` (B,) marks the samples that have
-    them (converged, with a tangent some shift factors). Other parameter groups and outputs:
-    ``model.sensitivities`` per sample."""
+    them (converged, with a tangent some shift factors: the path tangents of the workspace's
+    predictor). Every parameter group and output, each sample's ``model.sensitivities`` to
+    rounding: :func:`vertebra.solver.sensitivity.batch_sensitivities`."""
     trunk = model.trunk
     B = len(result)
     n_act = result.actuation.shape[1]
