@@ -20,8 +20,11 @@ hole radii and angles (the pieces' length gradients moved with their holes, and 
 elongations through ``L`` and ``L0``). One term is a central difference at the fixed state: a
 chamber's own pressure term of its volume growth, ``−∂²ψ/∂p²`` (exact to rounding for linear
 entries, where the growth is linear in the pressure; ``O(h²)`` with ``h = PRESSURE_STEP`` × the
-pressure scale, about 1e-10 relative, for fitted entries). No parameter needs a new solve. See
-docs/sensitivities.md.
+pressure scale, about 1e-10 relative, for fitted entries). No parameter needs a new solve.
+
+:func:`batch_sensitivities` gives those of many equilibria at once: the batch's factors
+(:mod:`vertebra.solver.batch`) and the same explicit terms, which take a leading sample axis (the
+single route passes one sample). See docs/sensitivities.md.
 """
 
 from __future__ import annotations
@@ -75,7 +78,8 @@ class Sensitivities:
     rotation increment ``dφ``), ``effector_positions`` (3 rows per effector), ``cable_tensions``,
     ``cable_strokes`` (``L − L0``) and ``chamber_volumes`` (volume growths), one row each.
     ``differenced``: the parameters with an explicit term that is a central difference at the
-    fixed state (a fitted chamber's own pressure term of its volume growth; module docstring)."""
+    fixed state (a fitted chamber's own pressure term of its volume growth; module docstring).
+    ``effector_jacobian`` of many states (:class:`BatchSensitivities`) keeps their sample axis."""
 
     parameters: tuple
     outputs: dict
@@ -109,7 +113,7 @@ class Sensitivities:
         if unknown:
             raise OptionError(f"unknown effector(s) {', '.join(map(repr, unknown))}", field="effectors")
         rows = np.array([3 * self.effector_names.index(name) + k for name in effectors for k in range(3)], int)
-        return jacobian[rows]
+        return jacobian[..., rows, :]
 
 
 # ------------------------------------------------------------------ the parameters asked for
@@ -273,36 +277,18 @@ def sensitivities(model, state, actuation=None, *, wrt: Iterable[str] = PARAMETE
 
 
 @dataclass
-class BatchSensitivities:
-    """:class:`Sensitivities` of B equilibria (:func:`batch_sensitivities`): ``dq`` (B, n_dof, P)
-    (None on the adjoint route), ``outputs``: name → (B, n_out, P); ``single`` (B,) marks the
-    samples whose sensitivities the single :func:`sensitivities` gave (``why`` says for which
-    reason), the others come from the batched factors."""
+class BatchSensitivities(Sensitivities):
+    """:class:`Sensitivities` of B equilibria (:func:`batch_sensitivities`), every array with a
+    leading sample axis: ``dq`` (B, n_dof, P) (None on the adjoint route), ``outputs``: name →
+    (B, n_out, P); ``single`` (B,) marks the samples whose sensitivities the single
+    :func:`sensitivities` gave (``why``: sample → the reason), the others come from the batched
+    factors."""
 
-    parameters: tuple
-    outputs: dict
-    dq: np.ndarray | None
-    method: str
-    effector_names: tuple = ()
-    differenced: tuple = ()
     single: np.ndarray | None = None
     why: dict = field(default_factory=dict)
-    timings: dict = field(default_factory=dict)
 
     def __len__(self) -> int:
         return 0 if self.single is None else self.single.size
-
-    def __getitem__(self, output: str) -> np.ndarray:
-        try:
-            return self.outputs[output]
-        except KeyError:
-            raise OptionError(f"no output {output!r} (computed: {', '.join(self.outputs)})", field="outputs") from None
-
-    def column(self, parameter: str) -> int:
-        try:
-            return self.parameters.index(parameter)
-        except ValueError:
-            raise OptionError(f"no parameter {parameter!r} among the sensitivities", field="wrt") from None
 
 
 def batch_sensitivities(model, strains, actuation, *, wrt: Iterable[str] = PARAMETER_GROUPS,
@@ -390,7 +376,7 @@ def batch_sensitivities(model, strains, actuation, *, wrt: Iterable[str] = PARAM
             result[name][i] = one.outputs[name]
         differenced = list(one.differenced) or differenced
     return BatchSensitivities(tuple(c.name for c in columns), result, dq, method, tuple(trunk.effectors.names),
-                              tuple(differenced), single, why, {"total_s": time.perf_counter() - start})
+                              tuple(differenced), {"total_s": time.perf_counter() - start}, single, why)
 
 
 def _batch_chunk(model, context, strains, actuation, columns, outputs, method):

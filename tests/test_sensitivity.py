@@ -361,7 +361,8 @@ def test_batch_sensitivities_of_beams_under_gravity_are_the_single_ones():
                           {"name": "heading", "vertebra": -1, "axis": [1.0, 0.0, 0.0]}]}
     model = solver.build_model(solver.parse_scene(scene))
     batch = check_batch(model, [None, None])
-    assert not batch.single.any()
+    assert not batch.single.any() and len(batch) == 2
+    assert batch.effector_jacobian(["mid"]).shape == (2, 3, len(batch.parameters))
     assert {_kind(p) for p in batch.parameters} >= {"gravity", "deadf", "deadm", "followerf", "followerm",
                                                     "stiffness_scale"}
 
