@@ -39,6 +39,7 @@ from scipy.linalg.lapack import dgbtrs
 
 from vertebra.core.errors import ConvergenceError, OptionError
 from vertebra.core.lie import hat, qmatrix
+from vertebra.solver import batch as batch_module
 from vertebra.solver import outputs as outputs_module
 from vertebra.solver.banded import BandedFactor, LowRankFactor
 from vertebra.solver.cables import CablePieces, scatter_rows
@@ -308,8 +309,6 @@ def batch_sensitivities(model, strains, actuation, *, wrt: Iterable[str] = PARAM
     per sample). Errors of those samples (a singular tangent) are raised as by the single route.
     ``chunk``: samples per batch (default: a working memory of about
     :data:`~vertebra.solver.batch.MEMORY_BUDGET`)."""
-    from vertebra.solver import batch as batch_module
-
     start = time.perf_counter()
     trunk = model.trunk
     strains = np.asarray(strains, float)
@@ -382,8 +381,6 @@ def batch_sensitivities(model, strains, actuation, *, wrt: Iterable[str] = PARAM
 def _batch_chunk(model, context, strains, actuation, columns, outputs, method):
     """One chunk of :func:`batch_sensitivities`: which samples the batch serves, their outputs'
     derivatives, ``dq`` (direct route) and the differenced parameters."""
-    from vertebra.solver import batch as batch_module
-
     trunk = model.trunk
     B = strains.shape[0]
     with np.errstate(all="ignore"):
@@ -498,8 +495,6 @@ class Fixed:
 
     @classmethod
     def of_batch(cls, context, states, ev) -> "Fixed":
-        from vertebra.solver import batch as batch_module
-
         trunk = context.trunk
         B = len(states)
         jacobian, forces = batch_module.actuator_jacobians(context, states, ev)
