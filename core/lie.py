@@ -303,8 +303,7 @@ def ad_powers(xi: np.ndarray) -> np.ndarray:
     np.matmul(xi, AD_TABLE, out=flat[:, 1])
     Apow = flat.reshape(n, 5, 6, 6)
     np.matmul(Apow[:, 1], Apow[:, 1], out=Apow[:, 2])
-    np.matmul(Apow[:, 2], Apow[:, 1], out=Apow[:, 3])
-    np.matmul(Apow[:, 2], Apow[:, 2], out=Apow[:, 4])
+    np.matmul(Apow[:, 2:3], Apow[:, 1:3], out=Apow[:, 3:5])        # A³ = A²A, A⁴ = A²A²
     return flat
 
 
