@@ -155,14 +155,26 @@ def test_a_tip_force_on_a_straight_cantilever_gives_the_timoshenko_compliance():
 
 # ------------------------------------------------------------------ cables
 def tendon_scene(cables):
-    return {"segment": [rod(6, elements=2)], "cable": cables,
+    return {"segment": [rod(6, elements=2)], "cable": [dict(c) for c in cables],
             "effector": [{"name": "tip", "vertebra": -1, "offset": [0.004, 0.0, 0.0]}]}
 
 
+CABLES = ({"name": "t1", "radius": 0.01, "angle_deg": 0.0, "to": 6, "tension": 2.0},
+          {"name": "t2", "radius": 0.008, "angle_deg": 100.0, "to": 4, "tension": 1.5},
+          {"name": "t3", "radius": 0.012, "angle_deg": 220.0, "from": 2, "to": 5, "tension": 0.3})
+# t1, t2 taut (t2 with its pretension), t3 slack (its stroke pays out more than its elongation),
+# t4 tension-driven
+TENDONS = ({"name": "t1", "radius": 0.01, "angle_deg": 0.0, "to": 6, "stroke": 0.002, "stiffness": 2000.0,
+            "pretension": 0.5},
+           {"name": "t2", "radius": 0.009, "angle_deg": 130.0, "to": 4, "stroke": 0.0005, "stiffness": 800.0,
+            "pretension": 1.0},
+           {"name": "t3", "radius": 0.01, "angle_deg": 250.0, "to": 6, "stroke": -0.004, "stiffness": 1500.0,
+            "pretension": 0.2},
+           {"name": "t4", "radius": 0.007, "angle_deg": 300.0, "to": 5, "tension": 0.8})
+
+
 def test_tension_driven_cables_and_their_holes():
-    cables = [{"name": "t1", "radius": 0.01, "angle_deg": 0.0, "to": 6, "tension": 2.0},
-              {"name": "t2", "radius": 0.008, "angle_deg": 100.0, "to": 4, "tension": 1.5},
-              {"name": "t3", "radius": 0.012, "angle_deg": 220.0, "from": 2, "to": 5, "tension": 0.3}]
+    cables = CABLES
     model = solver.build_model(solver.parse_scene(tendon_scene(cables)))
     result = model.solve(tolerance=1e-12)
     steps = {"actuation:t1": STEP * 2.0, "actuation:t2": STEP * 2.0, "actuation:t3": STEP * 2.0,
@@ -179,13 +191,7 @@ def test_stroke_driven_tendons_slack_and_taut(moment):
     # t1, t2 taut (t2 with its pretension), t3 slack (its stroke pays out more than its elongation),
     # t4 tension-driven; with a dead moment the band is factored by LU and the adjoint solves with
     # the transpose of the band and of the tendons' Woodbury update
-    cables = [{"name": "t1", "radius": 0.01, "angle_deg": 0.0, "to": 6, "stroke": 0.002, "stiffness": 2000.0,
-               "pretension": 0.5},
-              {"name": "t2", "radius": 0.009, "angle_deg": 130.0, "to": 4, "stroke": 0.0005, "stiffness": 800.0,
-               "pretension": 1.0},
-              {"name": "t3", "radius": 0.01, "angle_deg": 250.0, "to": 6, "stroke": -0.004, "stiffness": 1500.0,
-               "pretension": 0.2},
-              {"name": "t4", "radius": 0.007, "angle_deg": 300.0, "to": 5, "tension": 0.8}]
+    cables = TENDONS
     scene = tendon_scene(cables)
     if moment:
         scene["load"] = [{"vertebra": -1, "force": [0.0, 0.0, 0.0], "moment": [0.002, -0.003, 0.001]}]
@@ -370,20 +376,12 @@ def test_batch_sensitivities_of_beams_under_gravity_are_the_single_ones():
 @pytest.mark.parametrize("method", ["direct", "adjoint"])
 def test_batch_sensitivities_of_cables_and_tendons_are_the_single_ones(method):
     rng = np.random.default_rng(3)
-    cables = [{"name": "t1", "radius": 0.01, "angle_deg": 0.0, "to": 6, "tension": 2.0},
-              {"name": "t2", "radius": 0.008, "angle_deg": 100.0, "to": 4, "tension": 1.5},
-              {"name": "t3", "radius": 0.012, "angle_deg": 220.0, "from": 2, "to": 5, "tension": 0.3}]
+    cables = CABLES
     model = solver.build_model(solver.parse_scene(tendon_scene(cables)))
     assert not check_batch(model, [rng.uniform(0.0, 3.0, 3) for _ in range(4)] + [np.zeros(3)],
                            method=method).single.any()
     # taut and slack stroke-driven tendons beside a tension-driven cable; chunks of two samples
-    cables = [{"name": "t1", "radius": 0.01, "angle_deg": 0.0, "to": 6, "stroke": 0.002, "stiffness": 2000.0,
-               "pretension": 0.5},
-              {"name": "t2", "radius": 0.009, "angle_deg": 130.0, "to": 4, "stroke": 0.0005, "stiffness": 800.0,
-               "pretension": 1.0},
-              {"name": "t3", "radius": 0.01, "angle_deg": 250.0, "to": 6, "stroke": -0.004, "stiffness": 1500.0,
-               "pretension": 0.2},
-              {"name": "t4", "radius": 0.007, "angle_deg": 300.0, "to": 5, "tension": 0.8}]
+    cables = TENDONS
     model = solver.build_model(solver.parse_scene(tendon_scene(cables)))
     actuations = [np.array([0.002, 0.0005, -0.004, 0.8])] + [
         np.concatenate([rng.uniform(-0.003, 0.003, 3), rng.uniform(0.0, 1.0, 1)]) for _ in range(5)]
