@@ -142,11 +142,15 @@ def section_design(results: dict, fine: float, coarse: list, rounds: int, worker
             runs[name].append(row)
             log(f"  wall {row['wall_s']:.1f} s, cpu {row['cpu_s']:.1f} s, held-out {row['held_out'].get('load_max')}")
             _save(results, "design")
-    full = runs[label({"mesh_mm": fine, "coarse_mm": None})]
-    results["design"]["ratio_full_over"] = {
-        name: {key: float(np.median([f[key] / o[key] for f, o in zip(full, rows)])) for key in ("wall_s", "cpu_s")}
-        for name, rows in runs.items() if rows and name != label({"mesh_mm": fine, "coarse_mm": None})}
-    _save(results, "design")
+
+
+def ratios(design_results: dict) -> dict:
+    """Per entry, the full fine entry's wall and CPU time over its own (median over the rounds
+    both ran in)."""
+    runs = design_results["runs"]
+    full = runs.get(label({"mesh_mm": design_results["fine_mm"], "coarse_mm": None}), [])
+    return {name: {key: float(np.median([f[key] / o[key] for f, o in zip(full, rows)])) for key in ("wall_s", "cpu_s")}
+            for name, rows in runs.items() if rows and full and rows is not full}
 
 
 def _reference(fine_mm: float, cache: Path) -> list:
@@ -242,7 +246,7 @@ def markdown(results: dict) -> str:
                              f"{row['cpu_s']:.0f} | {row['solves']} (+{row['check_solves']}) | "
                              f"{_err(row['held_out'])} | {_err(row['nonlinear_mesh_held_out'])} | "
                              f"{row['held_out'].get('linear_load_max', math.nan):.3g} | {row['load_before']} |")
-        for name, ratio in d.get("ratio_full_over", {}).items():
+        for name, ratio in ratios(d).items():
             lines.append(f"\nFull {d['fine_mm']:g} mm entry / {name}: wall {ratio['wall_s']:.2f}×, "
                          f"CPU {ratio['cpu_s']:.2f}× (median over rounds).")
         lines.append("")
