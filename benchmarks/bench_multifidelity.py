@@ -34,9 +34,7 @@ import hashlib
 import json
 import math
 import os
-import platform
 import resource
-import socket
 import subprocess
 import sys
 import time
@@ -47,7 +45,7 @@ for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import numpy as np  # noqa: E402
 
-from benchmarks.common import RESULTS, loadavg, log, now  # noqa: E402
+from benchmarks.common import RESULTS, loadavg, log, machine  # noqa: E402
 
 ROD = dict(radius=0.01, length=0.04, youngs_modulus=1e6, poisson_ratio=0.3)
 MATERIAL = "neo_hookean"
@@ -115,8 +113,7 @@ def _save(results: dict, section: str) -> None:
     """Write ``section`` of ``results``, keeping the other sections as another run saved them."""
     merged = _load()
     merged[section] = results[section]
-    merged["machine"] = {"host": socket.gethostname(), "python": platform.python_version(), "date": now(),
-                         "cores": os.cpu_count(), "load": loadavg()}
+    merged["machine"] = machine()
     OUT.parent.mkdir(parents=True, exist_ok=True)
     OUT.write_text(json.dumps(merged, indent=1, default=float) + "\n")
     OUT.with_suffix(".md").write_text(markdown(merged))
