@@ -33,9 +33,7 @@ import argparse
 import json
 import math
 import os
-import platform
 import resource
-import socket
 import subprocess
 import sys
 import time
@@ -46,7 +44,7 @@ for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import numpy as np  # noqa: E402
 
-from benchmarks.common import RESULTS, loadavg, log, now  # noqa: E402
+from benchmarks.common import RESULTS, loadavg, log, machine  # noqa: E402
 
 ROD = dict(radius=0.01, length=0.04, youngs_modulus=1e6, poisson_ratio=0.3)
 CBHA = dict(outer_radius=0.04, chamber_radius=0.01, chamber_offset=0.0215, length=0.03, chambers=3,
@@ -134,8 +132,7 @@ def _save(results: dict) -> None:
     parallel processes each own theirs)."""
     for key, value in _load().items():
         results.setdefault(key, value)
-    results["machine"] = {"host": socket.gethostname(), "python": platform.python_version(), "date": now(),
-                          "cores": os.cpu_count(), "load": loadavg()}
+    results["machine"] = machine()
     OUT.parent.mkdir(parents=True, exist_ok=True)
     OUT.write_text(json.dumps(results, indent=1, default=float) + "\n")
     OUT.with_suffix(".md").write_text(markdown(results))

@@ -26,6 +26,15 @@ def loadavg() -> list[float] | None:
         return None
 
 
+def machine() -> dict:
+    """Host, Python, date, cores and load: the record a result file's rows were measured on."""
+    import platform
+    import socket
+
+    return {"host": socket.gethostname(), "python": platform.python_version(), "date": now(),
+            "cores": os.cpu_count(), "load": loadavg()}
+
+
 def now() -> str:
     """The UTC date and time, ISO 8601 to the second."""
     return datetime.now(timezone.utc).isoformat(timespec="seconds")

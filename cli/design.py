@@ -50,6 +50,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--pressurised", default=None, metavar="none|all|I,J,...",
                         help="cavities a nonlinear entry is sampled under pressure in (default all): 'none' skips "
                              "the inflation-limit search and fits ψ at zero pressure (sampling.cavities)")
+    parser.add_argument("--nonlinear-mesh-size", type=float, default=None, metavar="H",
+                        help="multi-fidelity: sample and fit the energy's nonlinear part on this coarser mesh "
+                             "(m), keep this mesh's exact linear part and check the entry on it "
+                             "(sampling.nonlinear_mesh_size; sampling.check_paths paths, default 2)")
     parser.add_argument("--executor", default="local", help="where nonlinear FE solves run: serial | local | dask")
     parser.add_argument("--workers", type=int, default=None, help="worker processes (default: one per core)")
     parser.add_argument("--scheduler", default=None, help="dask scheduler address (with --executor dask)")
@@ -129,9 +133,12 @@ def entry_document(entry) -> dict:
                               "fit_error": energy.fit_error, "range": energy.range.to_dict(),
                               "fold_pressure": energy.fold_pressure, "material": energy.material,
                               "sampling": {k: energy.sampling[k] for k in ("samples", "solves", "paths",
-                                                                           "held_out_paths") if k in energy.sampling},
+                                                                           "held_out_paths", "nonlinear_mesh",
+                                                                           "entry_mesh_check")
+                                           if k in energy.sampling},
                               "sampled": sampled_range(energy)}
-        document["timing"].update({k: float(entry.timings[k]) for k in ("sampling_s", "fit_s") if k in entry.timings})
+        document["timing"].update({k: float(entry.timings[k]) for k in ("sampling_s", "fit_s", "nonlinear_mesh_s",
+                                                                         "check_s") if k in entry.timings})
         warning = fit_warning(energy)
         if warning:
             document["energy"]["warnings"] = [warning]
@@ -160,6 +167,12 @@ def fit_warning(energy) -> str | None:
             f"narrow the sampled box (--sampling strain=…, bending=…), raise the degree, or choose another "
             f"material model (neo_hookean); `vertebra prepare` refuses this entry for a scene that goes where "
             f"the error exceeds {FIT_WARNING:g} (--max-fit-error overrides)")
+
+
+def held_out_on_nonlinear_mesh(energy) -> float:
+    """A multi-fidelity entry's held-out load error on the coarser mesh its nonlinear part came from."""
+    held = energy.fit_error.get("nonlinear_mesh_held_out", {}) if isinstance(energy.fit_error, dict) else {}
+    return float(held.get("load_max", math.nan))
 
 
 def sampled_range(energy) -> dict:
@@ -233,6 +246,11 @@ def run(args) -> int:
     sampling = parse_sampling(args.sampling) if args.material != "linear" else None
     if args.pressurised is not None and sampling is not None:
         sampling["cavities"] = parse_pressurised(args.pressurised)
+    if args.nonlinear_mesh_size is not None:
+        if sampling is None:
+            raise OptionError("a linear entry has no nonlinear part: choose a hyperelastic --material",
+                              field="--nonlinear-mesh-size")
+        sampling["nonlinear_mesh_size"] = args.nonlinear_mesh_size
     key = designer.entry_key(family, parameters, mesh_size=args.mesh_size, order=args.order, material=args.material,
                              sampling=sampling)
 
@@ -287,6 +305,11 @@ def run(args) -> int:
               f"{energy['sampling']['samples']} samples; held-out load error {held.get('load_max', float('nan')):.3g} "
               f"of the range (linear entry {held.get('linear_load_max', float('nan')):.3g})"
               + (f", volume {held['volume_max']:.3g}" if "volume_max" in held else ""))
+        coarse = entry.energy.sampling.get("nonlinear_mesh")
+        if coarse:
+            own = held_out_on_nonlinear_mesh(entry.energy)
+            print(f"nonlinear part sampled on a coarser mesh: h = {coarse['mesh_size']:g} m, {coarse['dofs']} dofs "
+                  f"(held-out load error there {own:.3g}); linear part and held-out check on this mesh")
         rng, box = energy["range"], energy["sampled"]
         print(f"range     per segment: bending ≤ {box['bending_deg']:.3g}°, twist {box['twist_deg'][0]:.3g}…"
               f"{box['twist_deg'][1]:.3g}°, lateral ≤ {box['lateral_mm']:.3g} mm, axial {box['axial_mm'][0]:.3g}…"

@@ -194,7 +194,7 @@ def exp_coefficients(theta2: np.ndarray) -> np.ndarray:
 # ----------------------------------------------------------------------------- quaternions
 def hat(v: np.ndarray) -> np.ndarray:
     """Skew-symmetric matrices of vectors ``(..., 3) -> (..., 3, 3)`` (one small matrix product)."""
-    return (v.reshape(-1, 3) @ HAT_TABLE).reshape(v.shape[:-1] + (3, 3))
+    return v.reshape(-1, 3).dot(HAT_TABLE).reshape(v.shape[:-1] + (3, 3))
 
 
 def qmul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -303,8 +303,7 @@ def ad_powers(xi: np.ndarray) -> np.ndarray:
     np.matmul(xi, AD_TABLE, out=flat[:, 1])
     Apow = flat.reshape(n, 5, 6, 6)
     np.matmul(Apow[:, 1], Apow[:, 1], out=Apow[:, 2])
-    np.matmul(Apow[:, 2], Apow[:, 1], out=Apow[:, 3])
-    np.matmul(Apow[:, 2], Apow[:, 2], out=Apow[:, 4])
+    np.matmul(Apow[:, 2:3], Apow[:, 1:3], out=Apow[:, 3:5])        # A³ = A²A, A⁴ = A²A²
     return flat
 
 
@@ -326,7 +325,7 @@ def se3_log(q: np.ndarray, p: np.ndarray):
 
 def exp_translation(expc: np.ndarray, phi: np.ndarray, rho: np.ndarray) -> np.ndarray:
     """``V(φ) ρ`` (n, 3) from the exponential coefficients ``expc`` (n, 5)."""
-    Phi = (phi @ HAT_TABLE).reshape(-1, 3, 3)
+    Phi = phi.dot(HAT_TABLE).reshape(-1, 3, 3)
     T = np.empty((phi.shape[0], 3, 3))                 # rows ρ, Φρ, Φ²ρ: V ρ = [1, b, c] · T
     T[:, 0] = rho
     np.matmul(Phi, rho[:, :, None], out=T[:, 1, :, None])

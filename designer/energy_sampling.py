@@ -110,7 +110,7 @@ SOFTENING_STRAIN = {"svk": 0.25}
 
 #: the largest counts a sampling may ask for (each path is a chain of nonlinear FE solves: the
 #: defaults are 18-30 paths of 6-10 steps)
-SAMPLING_LIMITS = {"paths": 1000, "steps": 100, "held_out": 1000}
+SAMPLING_LIMITS = {"paths": 1000, "steps": 100, "held_out": 1000, "check_paths": 1000}
 
 
 @dataclass(frozen=True)
@@ -133,6 +133,8 @@ class SamplingSettings:
     hessian_weight: float = 0.3      # weight of the tangent rows in the least squares
     seed: int = 0
     cavities: tuple | None = None    # cavities sampled under pressure (None: all; (): none, see pressurised)
+    nonlinear_mesh_size: float | None = None   # m, coarser mesh the nonlinear part is sampled on (None: the entry's)
+    check_paths: int = 2             # with nonlinear_mesh_size: held-out paths solved on the entry's mesh
 
     def __post_init__(self):
         for name, limit in SAMPLING_LIMITS.items():     # counts that size the sampling's arrays
@@ -140,7 +142,7 @@ class SamplingSettings:
             if isinstance(value, int) and not isinstance(value, bool) and value > limit:
                 raise OptionError(f"at most {limit:,}; got {value:,}", field=f"sampling.{name}")
         numbers = [name for name in ("bending", "twist", "strain", "shear", "axial", "pressure", "limit_fraction",
-                                     "hessian_weight") if getattr(self, name) is not None]
+                                     "hessian_weight", "nonlinear_mesh_size") if getattr(self, name) is not None]
         for name in numbers:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
@@ -165,19 +167,25 @@ class SamplingSettings:
             "cavities": self.cavities is None or (isinstance(self.cavities, tuple) and all(
                 isinstance(c, int) and not isinstance(c, bool) and c >= 0 for c in self.cavities)
                 and len(set(self.cavities)) == len(self.cavities)),
+            "nonlinear_mesh_size": self.nonlinear_mesh_size is None or self.nonlinear_mesh_size > 0,
+            "check_paths": isinstance(self.check_paths, int) and not isinstance(self.check_paths, bool)
+            and self.check_paths >= 1,
         }
         bad = [name for name, ok in checks.items() if not ok]
         if bad:
             raise OptionError(f"{getattr(self, bad[0])!r} is out of range", field=f"sampling.{bad[0]}")
 
     def describe(self) -> dict:
-        """The settings as JSON (``cavities`` only when set: the keys of entries sampled under
-        every cavity's pressure are those of the settings before it existed)."""
+        """The settings as JSON (``cavities`` only when set, ``nonlinear_mesh_size`` and
+        ``check_paths`` only with a nonlinear mesh: the keys of the entries without them are
+        those of the settings before they existed)."""
         out = asdict(self)
         if self.cavities is None:
             del out["cavities"]
         else:
             out["cavities"] = list(self.cavities)
+        if self.nonlinear_mesh_size is None:
+            del out["nonlinear_mesh_size"], out["check_paths"]
         return out
 
     def pressurised(self, n_cavities: int) -> tuple[int, ...]:

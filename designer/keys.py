@@ -116,6 +116,11 @@ class SegmentDesign:
         h = resolve_mesh_size(fam, p, mesh_size)
         check_material(material)
         settings = sampling_settings(sampling) if material != LINEAR else None
+        coarse = settings.nonlinear_mesh_size if settings is not None else None
+        if coarse is not None and not coarse > h:
+            raise OptionError(f"{coarse!r} m is not coarser than the entry's mesh (mesh size {h!r} m): the "
+                              f"nonlinear part is sampled on a coarser mesh of the same segment",
+                              field="sampling.nonlinear_mesh_size")
         key = entry_key(fam, p, mesh_size=h, order=order, material=material, sampling=settings)
         return cls(family=fam, parameters=p, mesh_size=h, order=order, material=material, sampling=settings,
                    key=key, name=name or f"{fam.name}-{key[:8]}", started=started)

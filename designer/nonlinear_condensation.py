@@ -16,7 +16,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from vertebra.designer.energy_fit import (SegmentSymmetry, Samples, convexity, fit_energy, fit_errors,
+from vertebra.designer.energy_fit import (FitResult, SegmentSymmetry, Samples, convexity, fit_energy, fit_errors,
                                           symmetry_group)
 from vertebra.designer.energy_sampling import (LoadBox, PathTask, PressureTask, SamplingSettings, load_box,
                                                path_endpoints, run_paths, run_pressure_ramp)
@@ -135,12 +135,15 @@ def pressure_range(executor, spec, entry, linear, settings: SamplingSettings, yo
         "ramp_reason": outcome.reason, "ramp_fold_estimate": outcome.fold}
 
 
-def _tasks(spec, entry, linear, box: LoadBox, caps, endpoints, settings, workers: int) -> list[PathTask]:
+def _tasks(spec, entry, linear, box: LoadBox, caps, endpoints, settings, workers: int,
+           indices=None) -> list[PathTask]:
+    """The tasks following the paths to ``endpoints`` (numbered ``indices``, by default their rows)."""
     K, S, _ = linear
-    per_task = max(1, math.ceil(len(endpoints) / (3 * max(1, workers))))
+    indices = list(range(len(endpoints)) if indices is None else indices)
+    per_task = max(1, math.ceil(len(indices) / (3 * max(1, workers))))
     tasks = []
-    for lo in range(0, len(endpoints), per_task):
-        paths = tuple((i, tuple(endpoints[i])) for i in range(lo, min(lo + per_task, len(endpoints))))
+    for lo in range(0, len(indices), per_task):
+        paths = tuple((i, tuple(endpoints[i])) for i in indices[lo:lo + per_task])
         tasks.append(PathTask(spec=spec, rest_translation=tuple(entry.rest_translation),
                               rest_volumes=tuple(entry.cavity_volumes), stiffness=tuple(K.ravel()),
                               mixed=tuple((-K @ S).ravel()), box=box, caps=tuple(caps), paths=paths,
@@ -257,13 +260,67 @@ def condense_energy(entry, spec, *, radius: float, youngs_modulus: float, symmet
     return Condensed(energy=energy, samples=samples, held_out=held_out, timings=timings)
 
 
+def check_on_mesh(entry, condensed: Condensed, spec, settings: SamplingSettings, *, executor: str = "serial",
+                  workers: int | None = None, scheduler: str | None = None, progress=None) -> tuple[EnergyFit, dict]:
+    """Multi-fidelity: the energy ``condensed`` fitted on a coarser mesh (its ψ_nl, on that mesh's
+    linear part), checked on ``entry``'s mesh (the FE of ``spec``). ψ = ψ_lin of ``entry`` (its
+    exact compliance: stiffness, cavity coupling and volume compliance) + the coarse ψ_nl.
+    ``settings.check_paths`` of the sampling's loading paths (its held-out ones first) are
+    followed with the FE of ``entry``'s mesh through the same load box; their samples give the
+    entry's held-out error (``fit_error["held_out"]``, the one ``prepare --max-fit-error``
+    reads), the coarse sampling's own one stays as ``nonlinear_mesh_held_out``. The range, the
+    fold map and the inflation limit point are those of the coarse sampling.
+    Returns ``(energy, {"check_s": seconds})``."""
+    start = time.perf_counter()
+    coarse = condensed.energy
+    m = entry.n_cavities
+    linear = linear_terms(entry.compliance, entry.rest_translation)
+    endpoints, held_paths = path_endpoints(m, settings)
+    order = np.concatenate([np.flatnonzero(held_paths), np.flatnonzero(~held_paths)])
+    chosen = [int(i) for i in order[:settings.check_paths]]
+    box = LoadBox(**coarse.sampling["load_box"])
+    caps = np.array(coarse.sampling["pose_caps"], dtype=float)
+    with make_executor(executor, workers=workers, scheduler=scheduler) as pool:
+        tasks = _tasks(spec, entry, linear, box, caps, endpoints, settings, pool.workers, indices=chosen)
+        _say(progress, f"check on the entry's mesh (h = {spec.mesh_size:g} m): {len(chosen)} loading path(s) "
+                       f"× {settings.steps} steps ({pool.name} executor, {pool.workers} worker(s))")
+        outcomes = list(_results(pool, run_paths, tasks))
+    parts = [o.samples for o in outcomes if o.samples is not None]
+    if not parts:
+        raise ConvergenceError(f"multi-fidelity check: no FE solve converged on the entry's mesh "
+                               f"(h = {spec.mesh_size:g} m) along the coarse sampling's paths")
+    samples = Samples.concatenate(parts)
+    stopped = {i: r for o in outcomes for i, r in o.stopped.items()}
+    result = FitResult(exponents=coarse.exponents, coefficients=coarse.coefficients, scales=coarse.scales,
+                       unknowns=int(coarse.fit_error.get("unknowns", 0)), errors={}, fold=coarse.fold_pressure)
+    pressurised = settings.pressurised(m)
+    coarse_samples = condensed.samples
+    volume_scale = float(np.abs(coarse_samples.pressure_gradient).max()) if pressurised else None
+    top = coarse_samples.pressure.max(axis=0) if m else None
+    held = fit_errors(result, linear, samples, coarse.range.load_upper, volume_scale, top, by_level=True)
+    fit_error = {**coarse.fit_error, "held_out": held, "nonlinear_mesh_held_out": coarse.fit_error["held_out"],
+                 "convexity_min_relative_eigenvalue": convexity(result, linear, coarse_samples.variables())}
+    seconds = time.perf_counter() - start
+    check = {"mesh_size": float(spec.mesh_size), "paths": chosen, "samples": int(samples.size),
+             "solves": int(sum(o.solves for o in outcomes)), "stopped": {str(i): r for i, r in sorted(stopped.items())},
+             "seconds": seconds}
+    _say(progress, f"held-out load error on the entry's mesh {held['load_max']:.3g} of the range (linear entry "
+                   f"{held['linear_load_max']:.3g}; on the nonlinear mesh "
+                   f"{coarse.fit_error['held_out'].get('load_max', float('nan')):.3g})"
+                   + (f"; {len(stopped)} path(s) stopped early" if stopped else ""))
+    sampling = {**coarse.sampling, "entry_mesh_check": check}
+    return replace(coarse, fit_error=fit_error, sampling=sampling), {"check_s": seconds}
+
+
 @dataclass(frozen=True)
 class NonlinearCondenser:
     """The condenser of a hyperelastic material (:data:`designer.nonlinear.MATERIALS`): the
     ``linear`` condenser's entry of the design (its compliance on the same mesh), with the
     energy :func:`condense_energy` samples and fits with the design's sampling settings, the FE
     solves running on ``executor`` (``serial``, ``local`` with ``workers``, ``dask`` with
-    ``scheduler``)."""
+    ``scheduler``). With ``sampling.nonlinear_mesh_size`` (multi-fidelity), the energy is
+    sampled and fitted on that coarser mesh of the segment (its ψ_nl on its own linear part),
+    joined to the entry's exact linear part and checked on the entry's mesh (:func:`check_on_mesh`)."""
 
     linear: LinearCondenser
     executor: str = "serial"
@@ -273,17 +330,38 @@ class NonlinearCondenser:
     def condense(self, design: SegmentDesign, progress=None) -> SegmentEntry:
         entry = self.linear.condense(design, progress)
         fam, p = design.family, design.parameters
+        coarse_h = design.sampling.nonlinear_mesh_size if design.sampling is not None else None
+        timings = dict(entry.timings)
+        sampled = entry
+        if coarse_h is not None:
+            t0 = time.perf_counter()
+            _say(progress, f"{fam.name}: the nonlinear part on a coarser mesh (h = {coarse_h:g} m), the linear "
+                           f"part from this one (h = {design.mesh_size:g} m)")
+            coarse_linear = replace(self.linear, estimate_accuracy=False, estimate_alongside=False)
+            sampled = coarse_linear.condense(replace(design, mesh_size=coarse_h), progress)
+            timings["nonlinear_mesh_s"] = time.perf_counter() - t0
         _say(progress, f"{fam.name}: nonlinear condensation with the {design.material} material")
-        spec = FamilySolid(family=fam.name, parameters=json.dumps(p, sort_keys=True), mesh_size=design.mesh_size,
-                           order=design.order, material=design.material, linear_solver=self.linear.linear_solver)
-        condensed = condense_energy(entry, spec, radius=fam.outer_radius(p), youngs_modulus=p["youngs_modulus"],
-                                    symmetry=fam.symmetry(p), material=material_constants(design.material, p),
+        options = dict(family=fam.name, parameters=json.dumps(p, sort_keys=True), order=design.order,
+                       material=design.material, linear_solver=self.linear.linear_solver)
+        spec = FamilySolid(mesh_size=sampled.mesh["mesh_size"], **options)
+        material = material_constants(design.material, p)
+        condensed = condense_energy(sampled, spec, radius=fam.outer_radius(p), youngs_modulus=p["youngs_modulus"],
+                                    symmetry=fam.symmetry(p), material=material,
                                     settings=design.sampling, executor=self.executor, workers=self.workers,
                                     scheduler=self.scheduler, progress=progress)
-        timings = dict(entry.timings)
+        energy = condensed.energy
         timings.update({k: v for k, v in condensed.timings.items() if k != "total_s"})
+        nonlinear = {"executor": self.executor, "workers": self.workers, "version": NONLINEAR_VERSION}
+        if coarse_h is not None:
+            settings = design.sampling.resolved(entry.n_cavities, design.material)
+            energy, checked = check_on_mesh(entry, condensed, FamilySolid(mesh_size=design.mesh_size, **options),
+                                            settings, executor=self.executor, workers=self.workers,
+                                            scheduler=self.scheduler, progress=progress)
+            timings.update(checked)
+            energy = replace(energy, sampling={**energy.sampling, "nonlinear_mesh": {
+                k: sampled.mesh[k] for k in ("mesh_size", "dofs", "elements", "nodes", "order")}})
+            nonlinear["nonlinear_mesh_size"] = float(coarse_h)
         timings["total_s"] = time.perf_counter() - design.started
-        provenance = {**entry.provenance,
-                      "nonlinear": {"executor": self.executor, "workers": self.workers, "version": NONLINEAR_VERSION}}
-        return replace(entry, energy=condensed.energy, timings={k: float(v) for k, v in timings.items()},
+        provenance = {**entry.provenance, "nonlinear": nonlinear}
+        return replace(entry, energy=energy, timings={k: float(v) for k, v in timings.items()},
                        provenance=provenance)

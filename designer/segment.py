@@ -18,7 +18,8 @@ import time
 import warnings
 from typing import Protocol
 
-from vertebra.designer.keys import LINEAR, SegmentDesign
+from vertebra.core.errors import OptionError
+from vertebra.designer.keys import LINEAR, SegmentDesign, sampling_settings
 from vertebra.designer.linear import LinearCondenser, LockingWarning, locking_message
 from vertebra.designer.nonlinear_condensation import NonlinearCondenser
 from vertebra.designer.threads import pin_blas_threads
@@ -42,11 +43,25 @@ def condenser_for(material: str, *, linear_solver: str = "auto", amg_threshold: 
     return NonlinearCondenser(linear, executor=executor, workers=workers, scheduler=scheduler)
 
 
+def with_nonlinear_mesh(sampling, nonlinear_mesh_size: float, material: str):
+    """``sampling`` (None, a dict or ``SamplingSettings``) with ``nonlinear_mesh_size`` set; an
+    OptionError for a linear material (nothing nonlinear to sample) or a conflicting setting."""
+    if material == LINEAR:
+        raise OptionError("a linear entry has no nonlinear part: choose a hyperelastic --material",
+                          field="nonlinear_mesh_size")
+    settings = sampling_settings(sampling)
+    if settings.nonlinear_mesh_size not in (None, nonlinear_mesh_size):
+        raise OptionError(f"{nonlinear_mesh_size!r} differs from sampling.nonlinear_mesh_size = "
+                          f"{settings.nonlinear_mesh_size!r}", field="nonlinear_mesh_size")
+    return dataclasses.replace(settings, nonlinear_mesh_size=nonlinear_mesh_size)
+
+
 def design_segment(family, parameters: dict, *, mesh_size=None, order: int = 2, name: str | None = None,
                    linear_solver: str = "auto", estimate_accuracy: bool = True, progress=None,
                    amg_threshold: int | None = None, max_elements: int | None = None, material: str = LINEAR,
                    sampling=None, executor: str = "serial", workers: int | None = None,
-                   scheduler: str | None = None, estimate_alongside: bool = False) -> SegmentEntry:
+                   scheduler: str | None = None, estimate_alongside: bool = False,
+                   nonlinear_mesh_size: float | None = None) -> SegmentEntry:
     """Condensed catalogue entry of one segment (docs/catalogue.md).
 
     ``progress``: optional callable receiving one-line status messages.
@@ -65,8 +80,14 @@ def design_segment(family, parameters: dict, *, mesh_size=None, order: int = 2, 
     (``entry.energy``, designer.nonlinear_condensation) with ``sampling`` settings
     (``designer.energy_sampling.SamplingSettings`` or a dict of them), the FE solves running
     on ``executor`` (``serial``, ``local`` with ``workers``, ``dask`` with ``scheduler``).
+    ``nonlinear_mesh_size`` (m, ``sampling.nonlinear_mesh_size``): multi-fidelity, the energy's
+    nonlinear part sampled and fitted on this coarser mesh of the segment, its linear part
+    the exact one of ``mesh_size``'s mesh, its held-out error measured on ``mesh_size``'s mesh
+    (``sampling.check_paths`` paths; designer.nonlinear_condensation.check_on_mesh).
     """
     pin_blas_threads(1)
+    if nonlinear_mesh_size is not None:
+        sampling = with_nonlinear_mesh(sampling, nonlinear_mesh_size, material)
     design = SegmentDesign.resolve(family, parameters, mesh_size=mesh_size, order=order, material=material,
                                    sampling=sampling, name=name, started=time.perf_counter())
     message = locking_message(design.parameters, order)

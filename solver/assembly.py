@@ -93,7 +93,8 @@ class BandAssembler:
         self.turning = turning
         self.terms_size = self._turning_start + (nb * 18 if turning else 0) + 1
         destination = self._term_destinations()
-        self._storage_gather, self._band_gather = self._gathers(destination, sym_ij, sym_ji)
+        self._storage_gather, band_gather = self._gathers(destination, sym_ij, sym_ji)
+        self._band_matrix = self._summing_matrix(band_gather, 0.5)
         self._offsets = None               # the cable pairs by block offset (symmetric_blocks), when first asked for
 
     def _flat(self, band, c, offset, r, col):
@@ -153,6 +154,22 @@ class BandAssembler:
 
         return gather(np.arange(positions)), gather(sym_ij, sym_ji)
 
+    def _summing_matrix(self, gather: np.ndarray, weight: float):
+        """The sparse matrix (CSR, entries × terms) whose product with the terms is ``weight`` times
+        the sums of a gather (:meth:`_gathers`): each row keeps its column's indices in the gather's
+        order, without those of the terms' zero. With ``weight`` a power of two its products are
+        the gather's sums scaled, to the bit: the same additions in the same order, without the
+        padding (most of a band's gather: an entry of a block coupling a cable pair sums up to 10
+        terms, most entries one or two)."""
+        from scipy.sparse import csr_array
+
+        real = gather != self.terms_size - 1
+        entry, row = np.nonzero(real.T)           # entry by entry, each in the gather's order
+        indptr = np.zeros(gather.shape[1] + 1, dtype=np.int32)
+        np.cumsum(real.sum(axis=0), out=indptr[1:])
+        return csr_array((np.full(entry.size, weight), gather[row, entry].astype(np.int32), indptr),
+                         shape=(gather.shape[1], self.terms_size))
+
     # ------------------------------------------------------------------ terms
     def new_terms(self) -> tuple:
         """Uninitialised terms (their trailing zero set) and the views to fill (:meth:`views`)."""
@@ -179,9 +196,7 @@ class BandAssembler:
 
     def symmetric_band_of(self, terms: np.ndarray) -> np.ndarray:
         """Lower band (kd + 1, n) of the symmetric part of the tangent whose terms are ``terms``."""
-        band = np.add.reduce(terms.take(self._band_gather), axis=0)
-        band *= 0.5
-        return band.reshape(self.kd + 1, self.n)
+        return (self._band_matrix @ terms).reshape(self.kd + 1, self.n)
 
     def symmetric_blocks(self, links: np.ndarray, cables: np.ndarray | None, weight: np.ndarray | None) -> np.ndarray:
         """Lower block band (B, n_blocks, span + 1, 6, 6), ``[:, c, s] = ½(A + Aᵀ)[c + s, c]``, of the

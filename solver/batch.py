@@ -891,14 +891,14 @@ _KINDS = {bits: "+".join(name for bit, name in ((1, "cholesky"), (4, "curvature"
           or "none" for bits in range(8)}
 
 
-def chunk_size(trunk, budget: int = MEMORY_BUDGET) -> int:
+def chunk_size(trunk, budget: int = MEMORY_BUDGET, extra: int = 0) -> int:
     """Samples per chunk whose working arrays stay within ``budget`` bytes: per sample, about
     1,600 numbers per link (kinematics, tangents, their temporaries), 120 per cable piece, 900 per
     pair of frames joined by cables and 650 per block of the band (the terms, the blocks, the
-    factor and its copies)."""
+    factor and its copies), and ``extra`` numbers of the caller's own."""
     assembler = trunk.assembler
     numbers = (1600 * trunk.links.count + 120 * trunk.cables.piece_a.size + 900 * assembler.n_pairs
-               + 650 * assembler.n_blocks * (assembler.span + 1) + 200)
+               + 650 * assembler.n_blocks * (assembler.span + 1) + 200 + extra)
     return int(max(1, min(4096, budget // (8 * numbers))))
 
 
@@ -1141,31 +1141,55 @@ def actuator_forces(context: _Context, states: States, ev: Evaluation) -> np.nda
     """``∂r/∂λ`` (B, n_act, n_dof) of every sample (:func:`vertebra.solver.outputs.linearise`'s
     actuator forces): a cable's ``−∂L/∂q``, a tendon's ``−k ∂L/∂q`` while taut, a chamber's
     ``(∂ξ/∂q)ᵀ(−∂²ψ/∂ξ∂p)``."""
+    return actuator_jacobians(context, states, ev)[1]
+
+
+def actuator_jacobians(context: _Context, states: States, ev: Evaluation) -> tuple[np.ndarray, np.ndarray]:
+    """The actuators' Jacobians (B, n_act, n_dof) of every sample — ``∂L/∂q`` of the cables, the
+    chambers' volume growth ``∂ΔV/∂q`` — and the actuator forces ``∂r/∂λ`` made of them
+    (:func:`actuator_forces`): −1, −k (taut tendon) or 0 (slack tendon) times a cable's row, a
+    chamber's as it is (:func:`vertebra.solver.outputs.linearise`'s ``actuator_jacobian`` and
+    ``actuator_forces``)."""
     trunk = context.trunk
     B = len(states)
     actuators = trunk.actuators
     n_cables, n_chambers = actuators.n_cables, actuators.n_chambers
     N = trunk.frames.count
-    forces = np.zeros((B, n_cables + n_chambers, N, 6))
+    jacobian = np.zeros((B, n_cables + n_chambers, N, 6))
+    scale = np.ones((B, n_cables + n_chambers))
     if n_cables:
         pieces = ev.pieces
         if pieces is None:
             pieces = CablePieces.of_spans(*trunk.cables.spans(states.positions, states.rotations))
-        forces[:, :n_cables] = -_cable_jacobian(context, pieces, B)
+        jacobian[:, :n_cables] = _cable_jacobian(context, pieces, B)
+        scale[:, :n_cables] = -1.0
         if ev.load.tendons is not None:
             cables, k = ev.load.tendons[:2]
-            forces[:, cables] *= (k * (ev.elongation > 0.0))[:, :, None, None]
+            scale[:, cables] = -k * (ev.elongation > 0.0)
     if n_chambers:
         xi = states.xi
         per_link = np.empty((B, trunk.links.count, n_chambers, 6))
         for energy, prepared, kept in zip(trunk.links.energies, ev.load.link_loads, ev.kept):
             per_link[:, energy.links] = energy.chamber_forces(xi[:, energy.links], prepared, kept)
         g = ev.links.gradient(per_link.reshape(-1, n_chambers, 6)).reshape(B, -1, n_chambers, 12)
-        chambers = np.zeros((B, n_chambers, N, 6))
+        chambers = jacobian[:, n_cables:]
         chambers[:, :, :-1] += np.moveaxis(g[..., :6], 2, 1)
         chambers[:, :, 1:] += np.moveaxis(g[..., 6:], 2, 1)
-        forces[:, n_cables:] = chambers
-    return forces[:, :, 1:].reshape(B, n_cables + n_chambers, -1)
+    jacobian = jacobian[:, :, 1:].reshape(B, n_cables + n_chambers, trunk.n_dof)
+    return jacobian, jacobian * scale[:, :, None]
+
+
+def effector_jacobian(trunk, rotations: np.ndarray) -> np.ndarray:
+    """``∂(effector positions)/∂q`` (B, 3·n_effectors, n_dof) at frame rotations (B, N, 3, 3)
+    (:func:`vertebra.solver.outputs.linearise`'s ``effector_jacobian``: a point's ``dx_f − (R r)^ dφ_f``,
+    an axis's ``−(R a)^ dφ_f``)."""
+    effectors = trunk.effectors
+    B, n_eff = rotations.shape[0], len(effectors.names)
+    jacobian = np.broadcast_to(effectors.translation_jacobian, (B,) + effectors.translation_jacobian.shape).copy()
+    for k in range(n_eff):
+        turned = rotations[:, effectors.frames[k]] @ effectors.offsets[k]
+        jacobian[:, k, :, effectors.frames[k], 3:] = -hat(turned)
+    return jacobian.reshape(B, 3 * n_eff, trunk.frames.count, 6)[:, :, 1:].reshape(B, 3 * n_eff, trunk.n_dof)
 
 
 def predicted_strains(model, strains: np.ndarray, paths: np.ndarray, change: np.ndarray) -> np.ndarray:
@@ -1192,8 +1216,9 @@ def actuation_sensitivities(model, result: BatchResult) -> dict:
     the batched factors (:func:`path_tangents`): ``dq`` (B, n_dof, n_act) — what
     ``model.sensitivities(state, λ, wrt=("actuation",)).dq`` gives for one — and
     ``effector_positions`` (B, 3·n_effectors, n_act); ``has`` (B,) marks the samples that have
-    them (converged, with a tangent some shift factors). Other parameter groups and outputs:
-    ``model.sensitivities`` per sample."""
+    them (converged, with a tangent some shift factors: the path tangents of the workspace's
+    predictor). Every parameter group and output, each sample's ``model.sensitivities`` to
+    rounding: :func:`vertebra.solver.sensitivity.batch_sensitivities`."""
     trunk = model.trunk
     B = len(result)
     n_act = result.actuation.shape[1]
@@ -1202,15 +1227,9 @@ def actuation_sensitivities(model, result: BatchResult) -> dict:
     rows = np.flatnonzero(result.converged & np.all(np.isfinite(result.strains.reshape(B, -1)), 1))
     if rows.size:
         dq[rows], has[rows] = path_tangents(model, result.strains[rows], result.actuation[rows])
-    effectors = trunk.effectors
-    n_eff = len(effectors.names)
-    jacobian = np.broadcast_to(effectors.translation_jacobian, (B,) + effectors.translation_jacobian.shape).copy()
     rotations = np.zeros((B, trunk.frames.count, 3, 3))
     if rows.size:
         rotations[rows] = compose(trunk, result.strains[rows])[0].rotations
-    for k in range(n_eff):
-        turned = rotations[:, effectors.frames[k]] @ effectors.offsets[k]
-        jacobian[:, k, :, effectors.frames[k], 3:] = -hat(turned)
-    jacobian = jacobian.reshape(B, 3 * n_eff, trunk.frames.count, 6)[:, :, 1:].reshape(B, 3 * n_eff, -1)
+    jacobian = effector_jacobian(trunk, rotations)
     return {"dq": dq, "effector_positions": jacobian @ np.nan_to_num(dq) * np.where(has, 1.0, np.nan)[:, None, None],
             "has": has}

@@ -150,7 +150,7 @@ class CablePieces:
         moments = grouped[:, :, :7].mT @ weighted[:, :, :10]  # Σ t x yᵀ (the two products needed, not
         if out is None:                                       # the whole 22 × 22)
             out = np.empty((groups.shape[0], 12, 12))
-        np.matmul(moments.reshape(-1, 70), _GROUP_TABLE, out=out.reshape(-1, 144))
+        np.dot(moments.reshape(-1, 70), _GROUP_TABLE, out=out.reshape(-1, 144))
         out -= grouped[:, :, 10:].mT @ weighted[:, :, 10:]    # Σ t g gᵀ
         return out
 
@@ -269,7 +269,7 @@ class CableRouting:
         distinct holes in one product (``R hole_setᵀ`` for all frames at once), and each piece
         end takes its own. With leading batch axes (B, N, …): the B·m pieces as rows, sample by sample."""
         lead = rotations.shape[:-3]
-        turned = (rotations.reshape(-1, 3) @ self.hole_set.T).reshape(lead + (-1,))
+        turned = rotations.reshape(-1, 3).dot(self.hole_set.T).reshape(lead + (-1,))
         offsets = turned.take(self.turn_index, axis=-1)                     # (…, 2m, 3)
         ends = positions.take(self.ends, axis=-2)
         ends += offsets

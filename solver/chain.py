@@ -87,7 +87,7 @@ def chain_poses(q0: np.ndarray, x0: np.ndarray, xi: np.ndarray) -> Chain:
     if largest <= EXP_SERIES_LIMIT:
         carry = largest < CARRY_ANGLE ** 2
         count = max(terms(largest) if carry else 0, 16 if largest > 1e-2 else 8)
-        coef = powers(theta2, count) @ _CHAIN_TABLE[:count]
+        coef = powers(theta2, count).dot(_CHAIN_TABLE[:count])
         expc = coef[:, 31:]
         if carry:
             link_coef = coef[:, :31]
@@ -120,13 +120,13 @@ def chain_poses(q0: np.ndarray, x0: np.ndarray, xi: np.ndarray) -> Chain:
         for k in range(1, N):
             M[..., k, :, :] = M[..., k - 1, :, :] @ M[..., k, :, :]
     elif doubling:
-        M = (F @ _POSE_TABLE).reshape(lead + (N, 8, 8))
+        M = F.dot(_POSE_TABLE).reshape(N, 8, 8)
         shift = 1
         while shift < N:
             M[..., shift:, :, :] = M[..., :-shift, :, :] @ M[..., shift:, :, :]
             shift *= 2
     else:
-        M = (F @ _POSE_TABLE).reshape(lead + (m, c, 8, 8))
+        M = F.dot(_POSE_TABLE).reshape(m, c, 8, 8)
         for j in range(1, c):
             M[..., j, :, :] = M[..., j - 1, :, :] @ M[..., j, :, :]
         for i in range(1, m):

@@ -125,8 +125,8 @@ class Links:
         flat = ad_powers(xi)
         features = np.empty((n, 18))                   # [R_a, ŝ R_a] with s = x_b − x_a
         features[:, :9] = Ra.reshape(n, 9)
-        np.matmul((span @ HAT_TABLE).reshape(n, 3, 3), Ra, out=features[:, 9:].reshape(n, 3, 3))
-        Zw = (features @ _ZW_TABLE).reshape(n, 12, 6)
+        np.matmul(span.dot(HAT_TABLE).reshape(n, 3, 3), Ra, out=features[:, 9:].reshape(n, 3, 3))
+        Zw = features.dot(_ZW_TABLE).reshape(n, 12, 6)
         Jl_inv = left_jacobian_inverse(coef, flat)
         return cls(Zw, xi, flat.reshape(n, 5, 6, 6), Jl_inv, coef, span, Jl_inv @ Zw.mT)
 
@@ -171,12 +171,12 @@ def link_tangent(links: Links, w: np.ndarray, material: np.ndarray, gradient: np
     V = links.coef[:, 6:].reshape(n, 5, 5) @ W   # the four Λ arguments and the coefficient term
     # ∂(J_l⁻ᵀ)/∂ξ [w] = Λ(v₃) + AᵀΛ(v₂) + A²ᵀΛ(v₁) + A³ᵀΛ(v₀): one product of the stacks
     # [I, Aᵀ, A²ᵀ, A³ᵀ] (the transposed vertical stack of powers) and [Λ(v₃); …; Λ(v₀)]
-    D = links.Apow[:, :4].reshape(n, 24, 6).mT @ (V[:, :4] @ _LAMBDA_TABLE).reshape(n, 24, 6)
+    D = links.Apow[:, :4].reshape(n, 24, 6).mT @ V[:, :4].reshape(4 * n, 6).dot(_LAMBDA_TABLE).reshape(n, 24, 6)
     D += links.Jl_inv.mT @ material
     D[:, :, 3:] += V[:, 4, :, None] * links.xi[:, None, 3:]
     H = np.matmul(links.Zw, D @ links.G, out=out)
     features = np.empty((n, 21))                # [g (12), span ⊗ f_b (9)]
     features[:, :12] = gradient
     np.multiply(links.span[:, :, None], gradient[:, None, 6:9], out=features[:, 12:].reshape(n, 3, 3))
-    H += (features @ _GEOMETRIC_TABLE).reshape(n, 12, 12)
+    H += features.dot(_GEOMETRIC_TABLE).reshape(n, 12, 12)
     return H

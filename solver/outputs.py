@@ -3,6 +3,7 @@ linearisation the inverse uses (paper eqs. 10–12)."""
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -11,7 +12,7 @@ import numpy as np
 from vertebra.solver.banded import BandedFactor
 from vertebra.solver.potential import Evaluation, LoadCases, chamber_forces, evaluate, tangent, volume_growth
 from vertebra.solver.state import kinematics
-from vertebra.core.lie import hat, qmatrix, qrotate
+from vertebra.core.lie import HAT_TABLE, qmatrix, qrotate
 from vertebra.core.errors import ConvergenceError
 
 LINEARISATION_SHIFTS = (0.0, 1e-8, 1e-6, 1e-4)   # μ tried when the tangent at a state is singular
@@ -98,6 +99,19 @@ def actuator_displacements(trunk, state, actuation: np.ndarray, loads: LoadCases
     return np.concatenate([strokes, growth])
 
 
+_NEGATIVE_HAT = -HAT_TABLE       # (−v̂).ravel() = v @ _NEGATIVE_HAT
+
+
+@functools.lru_cache(maxsize=32)
+def _unit_scale(n_cables: int, n_chambers: int) -> np.ndarray:
+    """The actuator forces' scale per unit of each actuator's value without taut tendons: −1 per
+    cable, +1 per chamber (read-only)."""
+    scale = np.ones(n_cables + n_chambers)
+    scale[:n_cables] = -1.0
+    scale.flags.writeable = False
+    return scale
+
+
 def linearise(trunk, state, actuation: np.ndarray, loads: LoadCases, previous=None) -> Linearisation:
     """Tangent stiffness factor, actuator and effector Jacobians at ``state`` under ``actuation``
     (``previous``: an evaluation or trial the caller holds, reused where it is of the same state
@@ -138,22 +152,22 @@ def linearise(trunk, state, actuation: np.ndarray, loads: LoadCases, previous=No
     jacobian = jac[:, 1:].reshape(n_act, n_dof)
     # per unit of each actuator's value: a cable −τ ∂L/∂q, a tendon −k ∂L/∂q per unit stroke while
     # taut, a chamber ∂r/∂p = (∂ξ/∂q)ᵀ (−∂²ψ/∂ξ∂p) = Jaᵀ
-    scale = np.ones(n_act)
-    scale[:n_cables] = -1.0
     tendons = ev.load.tendons
+    scale = _unit_scale(n_cables, n_chambers)
     if tendons is not None:
+        scale = scale.copy()
         scale[tendons.cables] = -tendons.stiffness * (ev.parts.elongation > 0.0)
-    forces = jacobian * scale[:, None]      # a new C-ordered array: its transpose is in the banded solves' order
-    effectors = trunk.effectors
-    Je = effectors.translation_jacobian.copy()
+    # (new C-ordered arrays: their transposes are in the banded solves' order)
+    forces = np.negative(jacobian) if n_chambers == 0 and tendons is None else jacobian * scale[:, None]
+    free, where, turning = trunk.effectors.free_jacobian
+    Je = free.copy()
     turned, positions = effector_points(trunk, state)
-    Je[np.arange(len(effectors.names)), :, effectors.frames, 3:] = -hat(turned)
-    Je = Je.reshape(3 * len(effectors.names), n_frames, 6)
+    Je.put(where, (turned if turning is None else turned[turning]).dot(_NEGATIVE_HAT))    # −[R r]ˣ on dφ
     return Linearisation(
         residual=-ev.gradient[1:].reshape(-1), factor=factor,
         actuator_forces=forces.T,
         actuator_jacobian=jacobian,
-        effector_jacobian=Je[:, 1:].reshape(3 * len(effectors.names), n_dof),
+        effector_jacobian=Je,
         effector_positions=positions,
         actuator_displacements=actuator_displacements(trunk, state, actuation, loads, links=links, pieces=pieces),
         energy=ev.energy, force_scale=scale, shift=shift)

@@ -258,7 +258,7 @@ def evaluate(trunk, state, load: LoadCase, previous: "Evaluation | Trial | None"
     lever = parts.lever
     if load.weight is not None:
         grad[:, :3] -= load.frame_weight
-        grad[:, 3:] -= lever @ load.weight_hat                 # moment (R s) × m g at the frame
+        grad[:, 3:] -= lever.dot(load.weight_hat)                 # moment (R s) × m g at the frame
 
     if load.dead is not None:
         grad -= load.dead

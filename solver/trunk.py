@@ -165,6 +165,21 @@ class Effectors(_Frozen):
     point_mask: np.ndarray        # (n, 1) 1 for points (which move with their frame's translation)
     translation_jacobian: np.ndarray   # (n, 3, n_frames, 6): the Jacobian's constant translation part
 
+    @functools.cached_property
+    def free_jacobian(self) -> tuple:
+        """What the linearisation's effector Jacobian (3n, n_dof: the free frames' columns) is made
+        of: its constant translation part (read-only), the flat indices (k, 9) in it of the turning
+        blocks ``−[R r]ˣ`` of the k effectors whose frame turns (not the clamped base) and those
+        effectors (None: all of them)."""
+        n, _, n_frames, _ = self.translation_jacobian.shape
+        n_dof = 6 * (n_frames - 1)
+        free = _read_only(self.translation_jacobian[:, :, 1:].reshape(3 * n, n_dof).copy())
+        turning = np.flatnonzero(self.frames > 0)
+        rows = 3 * turning[:, None, None] + np.arange(3)[:, None]
+        columns = 6 * (self.frames[turning] - 1)[:, None, None] + 3 + np.arange(3)
+        where = _read_only((rows * n_dof + columns).reshape(-1, 9))
+        return free, where, (None if turning.size == n else _read_only(turning))
+
 
 @dataclass(frozen=True)
 class Trunk:

@@ -155,14 +155,26 @@ def test_a_tip_force_on_a_straight_cantilever_gives_the_timoshenko_compliance():
 
 # ------------------------------------------------------------------ cables
 def tendon_scene(cables):
-    return {"segment": [rod(6, elements=2)], "cable": cables,
+    return {"segment": [rod(6, elements=2)], "cable": [dict(c) for c in cables],
             "effector": [{"name": "tip", "vertebra": -1, "offset": [0.004, 0.0, 0.0]}]}
 
 
+CABLES = ({"name": "t1", "radius": 0.01, "angle_deg": 0.0, "to": 6, "tension": 2.0},
+          {"name": "t2", "radius": 0.008, "angle_deg": 100.0, "to": 4, "tension": 1.5},
+          {"name": "t3", "radius": 0.012, "angle_deg": 220.0, "from": 2, "to": 5, "tension": 0.3})
+# t1, t2 taut (t2 with its pretension), t3 slack (its stroke pays out more than its elongation),
+# t4 tension-driven
+TENDONS = ({"name": "t1", "radius": 0.01, "angle_deg": 0.0, "to": 6, "stroke": 0.002, "stiffness": 2000.0,
+            "pretension": 0.5},
+           {"name": "t2", "radius": 0.009, "angle_deg": 130.0, "to": 4, "stroke": 0.0005, "stiffness": 800.0,
+            "pretension": 1.0},
+           {"name": "t3", "radius": 0.01, "angle_deg": 250.0, "to": 6, "stroke": -0.004, "stiffness": 1500.0,
+            "pretension": 0.2},
+           {"name": "t4", "radius": 0.007, "angle_deg": 300.0, "to": 5, "tension": 0.8})
+
+
 def test_tension_driven_cables_and_their_holes():
-    cables = [{"name": "t1", "radius": 0.01, "angle_deg": 0.0, "to": 6, "tension": 2.0},
-              {"name": "t2", "radius": 0.008, "angle_deg": 100.0, "to": 4, "tension": 1.5},
-              {"name": "t3", "radius": 0.012, "angle_deg": 220.0, "from": 2, "to": 5, "tension": 0.3}]
+    cables = CABLES
     model = solver.build_model(solver.parse_scene(tendon_scene(cables)))
     result = model.solve(tolerance=1e-12)
     steps = {"actuation:t1": STEP * 2.0, "actuation:t2": STEP * 2.0, "actuation:t3": STEP * 2.0,
@@ -179,13 +191,7 @@ def test_stroke_driven_tendons_slack_and_taut(moment):
     # t1, t2 taut (t2 with its pretension), t3 slack (its stroke pays out more than its elongation),
     # t4 tension-driven; with a dead moment the band is factored by LU and the adjoint solves with
     # the transpose of the band and of the tendons' Woodbury update
-    cables = [{"name": "t1", "radius": 0.01, "angle_deg": 0.0, "to": 6, "stroke": 0.002, "stiffness": 2000.0,
-               "pretension": 0.5},
-              {"name": "t2", "radius": 0.009, "angle_deg": 130.0, "to": 4, "stroke": 0.0005, "stiffness": 800.0,
-               "pretension": 1.0},
-              {"name": "t3", "radius": 0.01, "angle_deg": 250.0, "to": 6, "stroke": -0.004, "stiffness": 1500.0,
-               "pretension": 0.2},
-              {"name": "t4", "radius": 0.007, "angle_deg": 300.0, "to": 5, "tension": 0.8}]
+    cables = TENDONS
     scene = tendon_scene(cables)
     if moment:
         scene["load"] = [{"vertebra": -1, "force": [0.0, 0.0, 0.0], "moment": [0.002, -0.003, 0.001]}]
@@ -306,3 +312,115 @@ def test_gravity_sensitivity_of_a_trunk_without_gravity():
     result = model.solve(tolerance=1e-12)
     check(model, result, {"gravity:x": STEP * 9.81, "gravity:y": STEP * 9.81, "gravity:z": STEP * 9.81},
           outputs=("frame_positions", "frame_rotations", "effector_positions"))
+
+
+# ------------------------------------------------------------------ many states at once
+BATCH_TOLERANCE = 1e-9
+
+
+def _kind(name: str) -> str:
+    """A parameter's kind for the comparison's scale: columns of one kind share their units (a
+    dead or follower load's forces and its moments are two kinds)."""
+    group, *rest = name.split(":")
+    return group + (rest[-1][0] if group in ("dead", "follower") else "")
+
+
+def check_batch(model, actuations, *, wrt=solver.sensitivity.PARAMETER_GROUPS, outputs=solver.sensitivity.OUTPUTS,
+                method="direct", chunk=None, drop=()):
+    """``batch_sensitivities`` of the equilibria of ``actuations`` against ``model.sensitivities``
+    of each, every output and ``dq``: the batch sums in another order (block Cholesky, the
+    explicit terms over a sample axis), so they agree to rounding amplified by the tangent's
+    condition — a column that nearly cancels in an output (a cable's stroke per unit moment at
+    the base) has its rounding relative to the larger columns of its kind, whose scale it is
+    compared at (measured ≤ 1.1e-10 on these robots; the tolerance leaves an order above).
+    ``drop``: samples given to the batch with non-finite strains and their state instead."""
+    results = [model.solve(a, tolerance=1e-12) for a in actuations]
+    strains = np.stack([r.state.carried_strains().xi for r in results])
+    states = [r.state for r in results]
+    for i in drop:
+        strains[i] = np.nan
+    values = np.array([model.actuation(a) for a in actuations])
+    batch = solver.sensitivity.batch_sensitivities(model, strains, values, wrt=wrt, outputs=outputs, method=method,
+                                                   states=states, chunk=chunk)
+    for i, result in enumerate(results):
+        single = model.sensitivities(result, wrt=wrt, outputs=outputs, method=method)
+        assert batch.parameters == single.parameters
+        kinds = [_kind(p) for p in single.parameters]
+        pairs = [(batch[name][i], single[name]) for name in outputs]
+        if method == "direct":
+            pairs.append((batch.dq[i], single.dq))
+        else:
+            assert batch.dq is None
+        for found, expected in pairs:
+            largest = np.abs(expected).max(0) if expected.size else np.zeros(len(kinds))
+            scale = np.array([max(largest[j] for j in range(len(kinds)) if kinds[j] == k) for k in kinds])
+            assert np.all(np.abs(found - expected) <= BATCH_TOLERANCE * scale + 1e-300)
+    return batch
+
+
+def test_batch_sensitivities_of_beams_under_gravity_are_the_single_ones():
+    scene = {"segment": [rod(3, density=7800.0, mass=0.002, center=(0.004, -0.002, 0.001)),
+                         rod(2, elements=3, density=2700.0, mass=0.001, center=(0.0, 0.003, 0.0))],
+             "gravity": {"vector": [0.0, 0.0, -9.81]},
+             "load": [{"vertebra": -1, "force": [0.3, -0.1, 0.0]}],
+             "effector": [{"name": "tip", "vertebra": -1, "offset": [0.0, 0.005, 0.0]}, {"name": "mid", "vertebra": 2},
+                          {"name": "heading", "vertebra": -1, "axis": [1.0, 0.0, 0.0]}]}
+    model = solver.build_model(solver.parse_scene(scene))
+    batch = check_batch(model, [None, None])
+    assert not batch.single.any() and len(batch) == 2
+    assert batch.effector_jacobian(["mid"]).shape == (2, 3, len(batch.parameters))
+    assert {_kind(p) for p in batch.parameters} >= {"gravity", "deadf", "deadm", "followerf", "followerm",
+                                                    "stiffness_scale"}
+
+
+@pytest.mark.parametrize("method", ["direct", "adjoint"])
+def test_batch_sensitivities_of_cables_and_tendons_are_the_single_ones(method):
+    rng = np.random.default_rng(3)
+    cables = CABLES
+    model = solver.build_model(solver.parse_scene(tendon_scene(cables)))
+    assert not check_batch(model, [rng.uniform(0.0, 3.0, 3) for _ in range(4)] + [np.zeros(3)],
+                           method=method).single.any()
+    # taut and slack stroke-driven tendons beside a tension-driven cable; chunks of two samples
+    cables = TENDONS
+    model = solver.build_model(solver.parse_scene(tendon_scene(cables)))
+    actuations = [np.array([0.002, 0.0005, -0.004, 0.8])] + [
+        np.concatenate([rng.uniform(-0.003, 0.003, 3), rng.uniform(0.0, 1.0, 1)]) for _ in range(5)]
+    tensions = np.array([model.cable_tensions(model.solve(a).state, a) for a in actuations])
+    assert np.any(tensions[:, :3] == 0.0) and np.any(tensions[:, :3] > 0.0)
+    batch = check_batch(model, actuations, method=method, chunk=2, drop=(3,))
+    assert batch.single.tolist() == [False, False, False, True, False, False]
+    assert batch.why[3] == "strains not finite"
+    # a dead moment makes the tangent unsymmetric: every sample by the single route, the same numbers
+    scene = tendon_scene(cables)
+    scene["load"] = [{"vertebra": -1, "moment": [0.002, -0.003, 0.001]}]
+    model = solver.build_model(solver.parse_scene(scene))
+    assert check_batch(model, actuations[:2], method=method).single.all()
+
+
+def test_batch_sensitivities_of_gallery_and_example_robots_are_the_single_ones():
+    from vertebra.solver.scene import load_scene
+
+    rng = np.random.default_rng(4)
+    model = solver.build_model(load_scene("gallery:paper_5v_16t"))
+    check_batch(model, rng.uniform(0.0, 4.0, (4, model.n_cables)),
+                wrt=("actuation", "hole_angle", "hole_radius", "dead:-1", "stiffness_scale"),
+                outputs=("effector_positions", "cable_strokes"))
+    # the calibration example: three sections, nine stroke-driven tendons, some slack
+    from pathlib import Path
+    example = Path(solver.__file__).parent.parent / "examples" / "calibration" / "ftdcr_v4" / "scene.toml"
+    model = solver.build_model(load_scene(example))
+    batch = check_batch(model, rng.uniform(-0.001, 0.003, (4, model.n_cables)),
+                        wrt=("stiffness_scale", "cable_stiffness", "pretension", "hole_angle", "hole_radius",
+                             "actuation"), outputs=("effector_positions", "cable_tensions", "cable_strokes"))
+    assert not batch.single.any()
+
+
+@pytest.mark.parametrize("fitted", [False, True], ids=["linear", "nonlinear"])
+def test_batch_sensitivities_of_chamber_robots(fitted):
+    entry = synthetic_entry()
+    model = chamber_model(with_energy(entry, strength=0.3) if fitted else entry)
+    actuations = [None, np.array([2e4, 5e4])]
+    assert not check_batch(model, actuations, outputs=("effector_positions", "frame_rotations")).single.any()
+    # a chamber's volume growth by its pressure is a difference per sample: the single route's
+    batch = check_batch(model, actuations)
+    assert batch.single.all() and bool(batch.differenced) == fitted

@@ -45,14 +45,14 @@ from typing import Protocol
 import numpy as np
 
 from vertebra.core.errors import ConvergenceError, OptionError
-from vertebra.core.lie import hat, qmatrix, so3_exp
+from vertebra.core.lie import qmatrix, so3_exp
 from vertebra.core.processes import exit_with_parent, pinned_environment
 from vertebra.solver.calibration.data import play
 from vertebra.solver.calibration.fit_parameters import Values
 from vertebra.solver.batch import predicted_strains
 from vertebra.solver.model import build_model
 from vertebra.solver.state import compose
-from vertebra.solver.sensitivity import parameters_of
+from vertebra.solver.sensitivity import batch_sensitivities, parameters_of
 
 __all__ = ["Prediction", "Predictor", "RuntimePredictor", "default_workers"]
 
@@ -208,16 +208,16 @@ class _Engine:
         arm = np.einsum("mij,mj->mi", R, offsets)
         return state.positions[self.marker_frames] + arm, arm, R
 
-    def _marker_jacobian(self, arm):
-        """(n_markers, 3, n_dof): ``dp = dx_f + dφ_f × (R r)`` of each marker's frame."""
-        J = np.zeros((len(arm), 3, self.model.n_dof))
-        for i, (f, a) in enumerate(zip(self.marker_frames, arm)):
+    def _marker_moves(self, dq, arm):
+        """(n, n_markers, 3, P): ``dp = dx_f + dφ_f × (R r)`` of each marker's frame, for the
+        frames' moves ``dq`` (n, n_dof, P) and the markers' lever arms ``arm`` (n, n_markers, 3)."""
+        moved = np.zeros(arm.shape + dq.shape[-1:])
+        for m, f in enumerate(self.marker_frames.tolist()):
             if f == 0:
                 continue
-            c = 6 * (f - 1)
-            J[i, :, c:c + 3] = np.eye(3)
-            J[i, :, c + 3:c + 6] = -hat(a)
-        return J
+            moves = dq[:, 6 * (f - 1):6 * f]                                       # (n, 6, P)
+            moved[:, m] = moves[:, :3] + np.cross(moves[:, 3:], arm[:, m, :, None], axis=1)
+        return moved
 
     # ------------------------------------------------------------------ predict
     def predict(self, values: Values, commands, source, rows, wrt: tuple, slopes=None) -> Prediction:
@@ -335,40 +335,52 @@ class _Engine:
         return positions[:, self.marker_frames] + np.einsum("bmij,mj->bmi", R, offsets)
 
     def _derivatives(self, values, wrt, solved, actuations, source, rows, Rf, slopes=None):
+        """The markers' derivatives (n, n_markers, 3, len(wrt)): the model elements' from every
+        sample's ``dq/dθ`` at once (:func:`~vertebra.solver.sensitivity.batch_sensitivities`, the
+        batched factors), the measurement frame's and the marker offsets' in closed form."""
         model, n = self.model, len(actuations)
-        rest = model.trunk.rest_state
         nm, npar = len(self.marker_frames), len(wrt)
         out = np.zeros((n, nm, 3, npar))
         inner = tuple((kind, index) for kind, index in wrt if kind in MODEL_KINDS)
         where = [col for col, (kind, _) in enumerate(wrt) if kind in MODEL_KINDS]
-        columns = self._model_columns(inner) if inner else ()
-        at = np.array([values.get(kind, index) for kind, index in inner])
-        turns = {index - 3: _rotation_derivative(values.frame[3:], index - 3)
-                 for kind, index in wrt if kind == "frame" and index >= 3}
-        # a play's column: the actuator's sensitivity times its stroke's slope (per sample)
-        column_of = {int(c): a for a, c in enumerate(self.driven)}
-        played = [(k, column_of[index]) for k, (kind, index) in enumerate(inner) if kind == "backlash"]
-        for i, actuation in enumerate(actuations):
-            state = solved.state(i, rest)
-            points, arm, R = self._markers(state, values.marker)
-            if inner:
-                dq = model.sensitivities(state, actuation, wrt=columns, outputs=(), method="direct").dq
-                for k, a in played:
-                    dq[:, k] *= slopes[i, a]
+        R = qmatrix(solved.quaternions[:, self.marker_frames])                     # (n, nm, 3, 3)
+        arm = np.einsum("bmij,mj->bmi", R, values.marker)                          # R r
+        if inner:
+            rest = model.trunk.rest_state
+            sens = batch_sensitivities(model, solved.strains, actuations, wrt=self._model_columns(inner), outputs=(),
+                                       method="direct", states=_States(solved, rest))
+            dq = sens.dq
+            # a play's column: the actuator's sensitivity times its stroke's slope (per sample)
+            column_of = {int(c): a for a, c in enumerate(self.driven)}
+            for k, (kind, index) in enumerate(inner):
+                if kind == "backlash":
+                    dq[:, :, k] *= slopes[:, column_of[index]][:, None]
+            at = np.array([values.get(kind, index) for kind, index in inner])
+            for i, row in enumerate(rows.tolist()):
                 if np.all(np.isfinite(solved.strains[i])):
-                    self._warm[(source, int(rows[i]))] = _Warm(solved.strains[i], inner, at, dq)
-                dm = self._marker_jacobian(arm) @ dq                           # (nm, 3, n_inner)
-                out[i][..., where] = np.einsum("ij,mjp->mip", Rf, dm)
-            for col, (kind, index) in enumerate(wrt):
-                if kind == "frame":
-                    if index < 3:
-                        out[i, :, index, col] += 1.0
-                    else:
-                        out[i, :, :, col] += points @ turns[index - 3].T
-                elif kind == "marker":
-                    mi, c = index
-                    out[i, mi, :, col] += Rf @ R[mi][:, c]
+                    self._warm[(source, int(row))] = _Warm(solved.strains[i], inner, at, dq[i])
+            out[..., where] = np.einsum("ij,bmjp->bmip", Rf, self._marker_moves(dq, arm))
+        points = self._batch_markers(solved.positions, solved.quaternions, values.marker)
+        for col, (kind, index) in enumerate(wrt):
+            if kind == "frame":
+                if index < 3:
+                    out[:, :, index, col] += 1.0
+                else:
+                    out[:, :, :, col] += points @ _rotation_derivative(values.frame[3:], index - 3).T
+            elif kind == "marker":
+                mi, c = index
+                out[:, mi, :, col] += R[:, mi, :, c] @ Rf.T
         return out
+
+
+class _States:
+    """Sample ``i``'s state of a :class:`Solved` on demand (the samples that leave the batch)."""
+
+    def __init__(self, solved, rest):
+        self.solved, self.rest = solved, rest
+
+    def __getitem__(self, i: int):
+        return self.solved.state(i, self.rest)
 
 
 class _Warm:

@@ -112,7 +112,7 @@ class SequencePredictor(RuntimePredictor):
         out = np.empty((len(states),) + markers.shape[1:] + (len(elements),))
         for i, (state, dq) in enumerate(zip(states, exact["state"])):
             _, arm, _ = self._markers(state, values.marker)
-            out[i] = np.einsum("ij,mjp->mip", Rf, self.engine._marker_jacobian(arm) @ dq)
+            out[i] = np.einsum("ij,mjp->mip", Rf, self.engine._marker_moves(dq[None], arm[None])[0])
         return {element: out[..., k] for k, element in enumerate(elements)}
 
     def _observe(self, values: Values, states) -> np.ndarray:
