@@ -28,9 +28,11 @@ from vertebra.designer.linsolve import AMG, Direct
 from vertebra.core.errors import ConvergenceError, VertebraError
 
 #: interior unknowns above which "auto" uses AMG: a reused SuperLU factor beat AMG-CG per pose by 1.6× at
-#: 10k DoFs and 2.5× at 20k (P2 rod, benchmarks/results/nonlinear_fe.md); higher than the linear
-#: designer's threshold because one factor serves many tangents here
-AUTO_THRESHOLD = 30_000
+#: 10k DoFs and 2.5× at 20k (P2 rod, benchmarks/results/nonlinear_fe.md) and 3.9× at 47k (CPU 8.5 s
+#: against 33 s for a 0.2 rad bend, factor 20 s, 2.3 GB resident); at 97k the factor takes 120 s and
+#: 6.4 GB per process, a pose 27 s. Higher than the linear designer's threshold because one factor
+#: serves many tangents here; the bound is the factor's memory (one per worker), not its speed
+AUTO_THRESHOLD = 60_000
 #: fewest and most preconditioned-CG iterations before refactoring (within them, the timed budget)
 MIN_ITERATIONS, MAX_ITERATIONS = 3, 60
 #: SuperLU diagonal pivot threshold: small, so symmetric matrices keep perm_r == perm_c (inertia known)
