@@ -17,9 +17,11 @@ The line search judges steps on the Lagrangian ``E − λᵀg`` at the new multi
 which ``p`` descends (``−(r + Gᵀλ)ᵀp = −pᵀKp``).
 
 Shapes. A vertebra with ``disc_radius > 0`` carries a disc of that radius and
-``disc_thickness`` centred on its frame in the frame's x–y plane. Adjacent discs touch rim
-to face: the rim of the smaller disc (the upper one when equal) against the plane of the
-other's facing side. A disc meets obstacles through the rims of its two faces (the closest
+``disc_thickness`` centred on its frame in the frame's x–y plane. Between discs it is a puck
+(a flat disk swept by a ball of half the thickness, :func:`_puck_gap`): adjacent discs are
+always candidates, any two others once their bounding spheres come near each other (a k-d
+tree of the discs' centres at each state, :func:`fold_pairs`: a trunk folding onto itself).
+A disc meets obstacles through the rims of its two faces (the closest
 point of each rim circle). A segment with ``contact_radius`` is a chain of capsules along the
 chords between its frames: its frames are balls of that radius, and a chord's interior meets
 an obstacle where it is closer than both ends. The closest point of a rim or a chord to an
@@ -39,15 +41,17 @@ from vertebra.core.errors import SceneError
 from vertebra.core.lie import qmatrix
 from vertebra.solver.obstacles import Plane, Sphere
 
-RIM, BALL, CHORD, PAIR = 0, 1, 2, 3          # kinds of contact
-KIND_NAMES = ("disc", "frame", "segment", "disc")
+RIM, BALL, CHORD, PAIR, FOLD = 0, 1, 2, 3, 4   # kinds of contact (PAIR: adjacent discs, FOLD: any other two)
+KIND_NAMES = ("disc", "frame", "segment", "disc", "disc")
+DISCS = (PAIR, FOLD)         # the kinds between two discs
 SAMPLES = 16                 # starting samples of the golden-section search on a rim
 CHORD_SAMPLES = 8            # … and on a chord
 GOLDEN = 0.5 * (math.sqrt(5.0) - 1.0)
 GOLDEN_STEPS = 48            # shrinks the bracket by 1e-10
 BISECTIONS = 52              # of a rim's angle between discs: the bracket (2·2π/16) to the rounding of an angle
 DIFFERENCE = 1e-6            # the step (rad; × the disc radius in m) of the disc pairs' curvature by central differences
-MARGIN = 0.25                # candidate contacts: a gap below this share of the trunk's length
+MARGIN = 0.25                # candidate contacts: a gap below this share of the trunk's length …
+FOLD_REACH = 1.0             # … and, for non-adjacent discs, bounding spheres apart by less than this × the sum of their radii
 GAP_TOLERANCE = 1e-10        # a converged state's deepest penetration, per trunk length
 ACTIVE_GAP = 1e-12           # a pressed contact's gap at convergence, per trunk length
 REGULARISATION = 1e-12       # of the largest diagonal of W: redundant contacts stay solvable
@@ -186,41 +190,56 @@ def check_rest(model: ContactModel, state, source: str) -> None:
         raise SceneError(f"at rest {describe(model, found.key[k])} overlap by {-found.gap[k]:.3g} m: the contact "
                          "model needs a state without penetration to start from (check disc_thickness against the "
                          "vertebra spacing, and the obstacles' placement)", file=source,
-                         field="obstacle" if found.key[k, 0] != PAIR else "segment")
+                         field="segment" if found.key[k, 0] in DISCS else "obstacle")
 
 
-def interpenetrating(model: ContactModel, contacts: ContactSet) -> int | None:
-    """An adjacent disc pair (its index) of ``contacts`` (the candidates at a state) that has gone
-    more than half its discs' thicknesses into each other — beyond what a Newton iterate's
-    penetration can be, near where the pucks' flat cores meet and the gap loses its direction —
-    or None."""
-    pair = np.flatnonzero(contacts.key[:, 0] == PAIR)
+def interpenetrating(model: ContactModel, contacts: ContactSet) -> np.ndarray | None:
+    """The key of a disc pair of ``contacts`` (the candidates at a state) that has gone more than
+    half their thickness into each other (half the sum of their half thicknesses: half way to
+    where the pucks' flat cores meet, the gap's floor, and its direction is lost) — beyond what a
+    Newton iterate's penetration can be — or None."""
+    pair = np.flatnonzero(np.isin(contacts.key[:, 0], DISCS))
     if not pair.size:
         return None
     first, second = pair_discs(model, contacts.key[pair])
-    depth = contacts.gap[pair] / (0.5 * (model.disc_thickness[first] + model.disc_thickness[second]))
+    depth = contacts.gap[pair] / (0.25 * (model.disc_thickness[first] + model.disc_thickness[second]))
     worst = int(np.argmin(depth))
-    return int(contacts.key[pair[worst], 1]) if depth[worst] < -1.0 else None
+    return contacts.key[pair[worst]] if depth[worst] < -1.0 else None
+
+
+def fold_pairs(model: ContactModel, x: np.ndarray, reach: float = FOLD_REACH) -> tuple[np.ndarray, np.ndarray]:
+    """The broad phase of discs that are not neighbours (frame positions ``x``): the pairs
+    (first, second; first < second) whose bounding spheres (the outer radius about the frame)
+    come within ``reach`` × the sum of their radii of each other — the pairs of a k-d tree of the
+    discs' centres within the widest such distance, then each pair's own: near-linear in the discs."""
+    count = model.disc_frame.size
+    none = np.zeros(0, int), np.zeros(0, int)
+    if count < 3:
+        return none
+    from scipy.spatial import cKDTree
+
+    centre = x[model.disc_frame]
+    pairs = cKDTree(centre).query_pairs(2.0 * (1.0 + reach) * float(model.disc_radius.max()), output_type="ndarray")
+    if not pairs.size:
+        return none
+    first, second = pairs.min(1), pairs.max(1)
+    apart = np.sqrt(np.add.reduce((centre[first] - centre[second]) ** 2, 1))
+    near = apart < (1.0 + reach) * (model.disc_radius[first] + model.disc_radius[second])
+    code = first * count + second
+    adjacent = np.sort(model.pair, 1) @ np.array([count, 1]) if model.pair.size else np.zeros(0, int)
+    keep = near & ~np.isin(code, adjacent)
+    order = np.argsort(code[keep], kind="stable")
+    return first[keep][order], second[keep][order]
 
 
 def overlapping(model: ContactModel, state) -> tuple[int, int, float] | None:
     """The deepest overlap of two non-adjacent discs at ``state`` — (vertebra, vertebra, depth in
-    m) — or None. Their contact is not modelled (docs/contact.md): a trunk folding onto itself
-    passes through its own discs, and an equilibrium where it does is not one. Pairs whose
-    bounding spheres (the outer radius about the frame) meet get the exact gap."""
-    count = model.disc_frame.size
-    if count < 3:
+    m) — or None: the safety net behind their contacts (a state in which two discs overlap that
+    the contacts did not hold apart is not an equilibrium). Pairs whose bounding spheres meet
+    get the exact gap."""
+    first, second = fold_pairs(model, state.positions, 0.0)
+    if not first.size:
         return None
-    first, second = np.triu_indices(count, 1)
-    adjacent = {tuple(sorted(p)) for p in model.pair.tolist()}
-    keep = np.array([(a, b) not in adjacent for a, b in zip(first.tolist(), second.tolist())], bool)
-    first, second = first[keep], second[keep]
-    centre = state.positions[model.disc_frame]
-    apart = np.sqrt(np.add.reduce((centre[first] - centre[second]) ** 2, 1))
-    near = apart < model.disc_radius[first] + model.disc_radius[second]
-    if not near.any():
-        return None
-    first, second = first[near], second[near]
     gap = disc_gaps(model, state, first, second)
     k = int(np.argmin(gap))
     if gap[k] >= -GAP_TOLERANCE * model.length:
@@ -231,8 +250,8 @@ def overlapping(model: ContactModel, state) -> tuple[int, int, float] | None:
 def describe(model: ContactModel, key) -> str:
     """The bodies of a contact in words."""
     kind, feature, obstacle = (int(v) for v in key)
-    if kind == PAIR:
-        a, b = model.disc_vertebra[model.pair[feature]]
+    if kind in DISCS:
+        a, b = (int(model.disc_vertebra[d[0]]) for d in pair_discs(model, np.array([key], int)))
         return f"the discs of vertebrae {min(a, b)} and {max(a, b)}"
     if kind == RIM:
         body = f"the disc of vertebra {int(model.disc_vertebra[feature // 2])}"
@@ -246,8 +265,8 @@ def describe(model: ContactModel, key) -> str:
 def bodies(model: ContactModel, key) -> tuple[str, str]:
     """The two bodies of a contact as short labels (JSON)."""
     kind, feature, obstacle = (int(v) for v in key)
-    if kind == PAIR:
-        a, b = sorted(int(v) for v in model.disc_vertebra[model.pair[feature]])
+    if kind in DISCS:
+        a, b = sorted(int(model.disc_vertebra[d[0]]) for d in pair_discs(model, np.array([key], int)))
         return f"vertebra {a} disc", f"vertebra {b} disc"
     if kind == RIM:
         body = f"vertebra {int(model.disc_vertebra[feature // 2])} disc"
@@ -442,11 +461,11 @@ def disc_gaps(model: ContactModel, state, first: np.ndarray, second: np.ndarray)
     return _disc_pairs(model, qmatrix(state.quaternions), state.positions, first, second)[0]
 
 
-def _pairs(model, R, x, features):
-    """Adjacent discs (:func:`_disc_pairs`); the sliding of the nearest points is in the
-    curvature's differences (:func:`_pair_curvature`), not in ``slide``."""
-    gap, point, normal, rows, frames = _disc_pairs(model, R, x, model.pair[features, 0], model.pair[features, 1])
-    return gap, point, normal, frames, rows, np.zeros((features.size, 2, 3))
+def _discs(model, R, x, key):
+    """Disc–disc contacts ``key`` (m, 3; adjacent or not: :func:`_disc_pairs`); the sliding of the
+    nearest points is in the curvature's differences (:func:`_pair_curvature`), not in ``slide``."""
+    gap, point, normal, rows, frames = _disc_pairs(model, R, x, *pair_discs(model, key))
+    return gap, point, normal, frames, rows, np.zeros((key.shape[0], 2, 3))
 
 
 _FEATURES = {RIM: _rims, BALL: _balls, CHORD: _chords}
@@ -465,8 +484,13 @@ def evaluate(model: ContactModel, state, keys: np.ndarray | None = None) -> Cont
     if keys is None:
         if model.pair.size:
             features = np.arange(model.pair.shape[0])
-            parts.append((np.column_stack([np.full(features.size, PAIR), features, np.full(features.size, -1)]),
-                          _pairs(model, R, x, features)))
+            key = np.column_stack([np.full(features.size, PAIR), features, np.full(features.size, -1)])
+            parts.append((key, _discs(model, R, x, key)))
+        first, second = fold_pairs(model, x)
+        if first.size:
+            key = np.column_stack([np.full(first.size, FOLD), first * model.disc_frame.size + second,
+                                   np.full(first.size, -1)])
+            parts.append((key, _discs(model, R, x, key)))
         for j, obstacle in enumerate(model.obstacles):
             near = _near(model, x, obstacle)
             for kind, function in _FEATURES.items():
@@ -480,7 +504,7 @@ def evaluate(model: ContactModel, state, keys: np.ndarray | None = None) -> Cont
         for kind, j in sorted(set(zip(keys[:, 0].tolist(), keys[:, 2].tolist()))):
             chosen = keys[(keys[:, 0] == kind) & (keys[:, 2] == j)]
             features = chosen[:, 1]
-            found = (_pairs(model, R, x, features) if kind == PAIR
+            found = (_discs(model, R, x, chosen) if kind in DISCS
                      else _chords(model, R, x, features, model.obstacles[j], ends=True) if kind == CHORD
                      else _FEATURES[kind](model, R, x, features, model.obstacles[j]))
             parts.append((chosen, found))
@@ -669,8 +693,8 @@ class Constraints:
     def lagrangian(self, matrix, state):
         """The tangent of the Lagrangian ``E − λᵀg``: ``matrix`` plus ``−Σ λ_i ∂²g_i`` of the
         pressed contacts (:func:`curvature`), added to the band's terms of the link or the cable
-        pieces that join its frames (a contact between frames neither joins keeps only its
-        blocks on the diagonal)."""
+        pieces that join its frames; a contact between frames that neither joins (discs of a
+        trunk folded onto itself) puts its coupling beside the band (:func:`_split_coupling`)."""
         if not self.multipliers.size:
             return matrix
         frames, blocks = curvature(self.model, self.pressed(state), self.multipliers, state)
@@ -691,10 +715,23 @@ class Constraints:
         if cabled.any():
             np.add.at(matrix.assembler.views(terms)[1], slot[cabled], blocks[cabled])
         apart = (upper >= 0) & ~joined & ~cabled
-        first = apart & (lower > 0)
-        np.add.at(links, (lower[first] - 1, slice(6, 12), slice(6, 12)), blocks[first, :6, :6])
+        low_rank = matrix.low_rank
+        both = apart & (lower > 0)
+        if both.any():
+            first, _ = pair_discs(self.model, self.keys[both])
+            diagonal, U = _split_coupling(blocks[both], self.model.disc_radius[first])
+            blocks = blocks.copy()
+            blocks[both] = diagonal
+            columns = np.zeros((self.n_frames, 6, U.shape[0], 6))       # frame, dof, contact, column
+            contact_index = np.arange(U.shape[0])
+            columns[lower[both], :, contact_index] = U[:, :6]
+            columns[upper[both], :, contact_index] = U[:, 6:]
+            U = columns[1:].reshape(6 * (self.n_frames - 1), -1)
+            low_rank = ((U, np.ones(U.shape[1])) if low_rank is None
+                        else (np.hstack([low_rank[0], U]), np.concatenate([low_rank[1], np.ones(U.shape[1])])))
+        np.add.at(links, (lower[both] - 1, slice(6, 12), slice(6, 12)), blocks[both, :6, :6])
         np.add.at(links, (upper[apart] - 1, slice(6, 12), slice(6, 12)), blocks[apart, 6:, 6:])
-        return type(matrix)(matrix.assembler, terms, matrix.low_rank)
+        return type(matrix)(matrix.assembler, terms, low_rank)
 
     def released(self, step: "Step") -> bool:
         """Does ``step`` leave open (no force) a contact that the last springs hold?"""
@@ -721,14 +758,40 @@ class Constraints:
                 return matrix
             held = step.contacts.select(step.contacts.key[keep])
         G = held.jacobian(self.n_frames)
-        squared = np.maximum(np.add.reduce(G * G, 1), 1e-300)
+        moving = np.add.reduce(G * G, 1) > 0.0         # (a contact on clamped frames only holds nothing)
+        G, key = G[moving], held.key[moving]
+        if not G.shape[0]:
+            return matrix
+        squared = np.add.reduce(G * G, 1)
         # the tangent's stiffness along each contact's direction, from its diagonal
         along = (G * G) @ np.abs(matrix.diagonal()) / squared
         spring = stiffness * along / squared
-        self.springs = (G, spring, held.key)
+        self.springs = (G, spring, key)
         U, d = (G.T, spring) if matrix.low_rank is None else (np.hstack([matrix.low_rank[0], G.T]),
                                                               np.concatenate([matrix.low_rank[1], spring]))
         return type(matrix)(matrix.assembler, matrix.terms, (U, d))
+
+
+def _split_coupling(blocks: np.ndarray, length: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``blocks`` (k, 12, 12) on two frames ``[a; b]`` that no band term joins, as diagonal blocks
+    (k, 12, 12; zero coupling) plus a positive semi-definite term ``U Uᵀ`` (``U`` (k, 12, 6)) that
+    holds the coupling: with ``C`` the (symmetrised) coupling and a positive diagonal ``D``,
+    ``[[A, C], [Cᵀ, B]] = [[A − D, 0], [0, B − Cᵀ D⁻¹ C]] + [D^½; Cᵀ D^-½][D^½; Cᵀ D^-½]ᵀ``.
+    ``D`` is ``s`` on the turns and ``s/ℓ²`` on the moves (``length`` ℓ (k,): the moves' scale, a
+    disc's radius; ``s`` the coupling's norm in those units), which takes as much from each
+    frame's block as from the other's."""
+    C = 0.5 * (blocks[:, :6, 6:] + np.swapaxes(blocks[:, 6:, :6], 1, 2))
+    scale = np.ones((blocks.shape[0], 6))
+    scale[:, :3] = length[:, None]
+    s = np.linalg.norm(scale[:, :, None] * C * scale[:, None, :], ord=2, axis=(1, 2))
+    D = np.maximum(s, 1e-300)[:, None] / (scale * scale)                    # (k, 6)
+    U = np.zeros((blocks.shape[0], 12, 6))
+    U[:, :6] = np.sqrt(D)[:, :, None] * np.eye(6)
+    U[:, 6:] = np.swapaxes(C, 1, 2) / np.sqrt(D)[:, None, :]
+    diagonal = np.zeros_like(blocks)
+    diagonal[:, :6, :6] = blocks[:, :6, :6] - D[:, :, None] * np.eye(6)
+    diagonal[:, 6:, 6:] = blocks[:, 6:, 6:] - np.swapaxes(C, 1, 2) @ (C / D[:, :, None])
+    return diagonal, U
 
 
 def _hat(v: np.ndarray) -> np.ndarray:
@@ -762,8 +825,14 @@ def _rotation(axis: int, angle: float) -> np.ndarray:
 
 
 def pair_discs(model: ContactModel, key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The two discs (first, second) of disc–disc contacts ``key`` (m, 3)."""
-    return model.pair[key[:, 1], 0], model.pair[key[:, 1], 1]
+    """The two discs (first, second) of disc–disc contacts ``key`` (m, 3): an adjacent pair's
+    feature is its index in ``model.pair``, another's ``first · discs + second``."""
+    feature = key[:, 1]
+    first, second = np.divmod(feature, max(model.disc_frame.size, 1))
+    adjacent = key[:, 0] == PAIR
+    if adjacent.any():
+        first[adjacent], second[adjacent] = model.pair[feature[adjacent]].T
+    return first, second
 
 
 def _pair_curvature(model: ContactModel, state, key: np.ndarray, lam: np.ndarray) -> np.ndarray:
@@ -812,7 +881,7 @@ def curvature(model: ContactModel, contacts: ContactSet, multipliers: np.ndarray
     chord = key[:, 0] == CHORD
     radius[chord] = model.chord_radius[key[chord, 1]]
     point = contacts.point + radius[:, None] * n
-    pair = key[:, 0] == PAIR
+    pair = np.isin(key[:, 0], DISCS)
     S = np.zeros((key.shape[0], 3, 3))
     for j in np.unique(key[~pair, 2]):
         chosen = (~pair) & (key[:, 2] == j)

@@ -270,11 +270,11 @@ class _Stage:
         self.turn = math.sqrt(record.chain.largest_turn2) if record is not None else largest_turn(xi)
         if self.turn > TURN_LIMIT:
             raise Unrepresentable(turn_message(self.trunk, xi, self.load.scale, self.linear), state)
-        if self.constraints is not None and self.trunk.contact.pair.size:
+        if self.constraints is not None and self.trunk.contact.disc_frame.size > 1:
             pair = contact.interpenetrating(self.trunk.contact, self.constraints.at(state))
             if pair is not None:
                 raise Unrepresentable(
-                    f"{contact.describe(self.trunk.contact, (contact.PAIR, pair, -1))} have gone into each other by "
+                    f"{contact.describe(self.trunk.contact, pair)} have gone into each other by "
                     f"more than half their thickness at load factor {self.load.scale:.3g}: a step or a load increment "
                     "pushed one through the other, which the disc–disc gap cannot follow", state)
         pieces = ev.pieces
@@ -546,12 +546,12 @@ def solve(trunk, loads: LoadCases, actuation: np.ndarray, initial: State | None,
     if converged and trunk.contact is not None:
         overlap = contact.overlapping(trunk.contact, last_good)
         if overlap is not None:
-            # non-adjacent discs are not in the contact model: an equilibrium through them is not one
+            # the safety net behind the contacts of non-adjacent discs: an equilibrium through two
+            # discs that its contacts did not hold apart is not one
             converged, state_new = False, last_good
             message = (f"the discs of vertebrae {overlap[0]} and {overlap[1]} overlap by {overlap[2]:.3g} m at the "
-                       "equilibrium found: the robot folds onto itself, and contact between discs that are not "
-                       "neighbours is not modelled (docs/contact.md), so it is not an equilibrium; lower the loads "
-                       "or tensions, or declare smaller discs")
+                       "equilibrium found, which their contact did not prevent (docs/contact.md), so it is not an "
+                       "equilibrium; lower the loads or tensions, or declare smaller discs")
     limited = "rounding-limited" in kinds
     saddles = "unstable" in kinds
     stalled = "stalled" in kinds
