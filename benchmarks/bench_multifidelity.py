@@ -216,7 +216,7 @@ def section_trunk(results: dict, fine: float, cache: Path) -> None:
 def section_large(results: dict, large: float, coarse: float, workers: int, cache: Path) -> None:
     log(f"multi-fidelity entry at {large} mm with the nonlinear part from {coarse} mm")
     row = _child(large, coarse, workers, cache / "multifidelity-large.h5")
-    results["large"] = {"rows": [row]}
+    results["large"] = {"rows": results.get("large", {}).get("rows", []) + [row]}   # every run kept
     _save(results, "large")
 
 

@@ -270,7 +270,8 @@ def check_on_mesh(entry, condensed: Condensed, spec, settings: SamplingSettings,
     entry's held-out error (``fit_error["held_out"]``, the one ``prepare --max-fit-error``
     reads), the coarse sampling's own one stays as ``nonlinear_mesh_held_out``. The range, the
     fold map and the inflation limit point are those of the coarse sampling.
-    Returns ``(energy, {"check_s": seconds})``."""
+    Returns ``(energy, {"check_s": seconds})`` (the seconds in the entry's timings, not in its
+    energy: the same design gives the same energy)."""
     start = time.perf_counter()
     coarse = condensed.energy
     m = entry.n_cavities
@@ -302,8 +303,7 @@ def check_on_mesh(entry, condensed: Condensed, spec, settings: SamplingSettings,
                  "convexity_min_relative_eigenvalue": convexity(result, linear, coarse_samples.variables())}
     seconds = time.perf_counter() - start
     check = {"mesh_size": float(spec.mesh_size), "paths": chosen, "samples": int(samples.size),
-             "solves": int(sum(o.solves for o in outcomes)), "stopped": {str(i): r for i, r in sorted(stopped.items())},
-             "seconds": seconds}
+             "solves": int(sum(o.solves for o in outcomes)), "stopped": {str(i): r for i, r in sorted(stopped.items())}}
     _say(progress, f"held-out load error on the entry's mesh {held['load_max']:.3g} of the range (linear entry "
                    f"{held['linear_load_max']:.3g}; on the nonlinear mesh "
                    f"{coarse.fit_error['held_out'].get('load_max', float('nan')):.3g})"
