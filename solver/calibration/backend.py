@@ -278,25 +278,15 @@ class _Engine:
                 solved.put(int(at[j]), result.state)
             for j in np.flatnonzero(~found.converged).tolist():
                 i = int(at[j])           # the single solve from the unmoved equilibrium, then from rest
-                for start in (compose(rest.quaternions[0], rest.positions[0], warm[i].xi.copy()), None):
-                    result = model.solve(actuations[i], initial=start, raise_on_failure=False)
-                    iterations += result.iterations
-                    if result.converged:
-                        break
-                if not result.converged:
-                    raise ConvergenceError(f"{source}: sample {int(rows[i])}: the equilibrium did not converge "
-                                           f"({result.message})", result)
+                starts = (compose(rest.quaternions[0], rest.positions[0], warm[i].xi.copy()), None)
+                result, spent = _first_converged(model, actuations[i], starts, f"{source}: sample {int(rows[i])}")
+                iterations += spent
                 solved.put(i, result.state)
         for i in np.flatnonzero(~known).tolist():
             previous = solved.state(i - 1, rest) if i > 0 and np.isfinite(solved.positions[i - 1, 0, 0]) else None
-            for start in ([previous] if previous is not None else []) + [None]:
-                result = model.solve(actuations[i], initial=start, raise_on_failure=False)
-                iterations += result.iterations
-                if result.converged:
-                    break
-            if not result.converged:
-                raise ConvergenceError(f"{source}: sample {int(rows[i])}: the equilibrium did not converge "
-                                       f"({result.message})", result)
+            starts = ([previous] if previous is not None else []) + [None]
+            result, spent = _first_converged(model, actuations[i], starts, f"{source}: sample {int(rows[i])}")
+            iterations += spent
             solved.put(i, result.state)
         for i, row in enumerate(rows.tolist()):
             if np.all(np.isfinite(solved.strains[i])):
@@ -412,6 +402,20 @@ class Solved:
         if i in self.states:
             return self.states[i]
         return compose(rest.quaternions[0], rest.positions[0], self.strains[i].copy())
+
+
+def _first_converged(model, actuation, starts, where: str):
+    """``(result, iterations)``: the first converged solve of ``actuation`` from ``starts`` in turn (None:
+    from rest) and the Newton iterations of every attempt; ConvergenceError if none converges."""
+    spent = 0
+    for start in starts:
+        result = model.solve(actuation, initial=start, raise_on_failure=False)
+        spent += result.iterations
+        if result.converged:
+            break
+    if not result.converged:
+        raise ConvergenceError(f"{where}: the equilibrium did not converge ({result.message})", result)
+    return result, spent
 
 
 def _rotation_derivative(rotvec, axis, h=1e-7):
