@@ -1,6 +1,6 @@
 """Batched forward solves (``model.solve_batch``, ``vertebra workspace``) against the single solve.
 
-Rows of issue 24, each measured against the serial path in the same run, interleaved
+Rows of the batching acceptance table (docs/batch.md), each measured against the serial path in the same run, interleaved
 (batch, serial, batch, serial …; medians), CPU time of this process (the machine is shared:
 wall time measures the scheduler):
 

@@ -1,4 +1,4 @@
-"""Design cost of nonlinear entries (issue 26): what one entry costs at production meshes.
+"""Design cost of nonlinear entries: what one entry costs at production meshes.
 
 Sections (all by default; name some to run only those):
 

@@ -1,4 +1,4 @@
-"""Tracking of the inverse tick (real-time mode) with tendon friction (issue 23, docs/friction.md).
+"""Tracking of the inverse tick (real-time mode) with tendon friction (docs/friction.md).
 
 Robots: the two 16-tendon robots of :mod:`benchmarks.bench_tick` (``paper_5v_16t`` from the gallery,
 ``outside_6v_16t`` outside it), every cable given the same friction coefficient ``μ``; with
@@ -70,7 +70,7 @@ def run(name: str, mu: float, ticks: int) -> dict:
     change = model.actuator_max_change
     lam = np.clip(np.full(len(model.actuator_names), START.get(name, 0.3)), lower, upper)
     start = model.solve(lam)
-    # (a controller that does not carry a friction state — before issue 23's tick work — gets none)
+    # (a controller that does not carry a friction state — as before the frictional tick — gets none)
     carries = "history" in inspect.signature(InverseController).parameters
     controller = InverseController(model, InverseSettings(mode="tick"), actuation=lam, state=start.state,
                                    **({"history": start.friction} if carries else {}))

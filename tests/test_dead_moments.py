@@ -8,7 +8,7 @@ near an equilibrium, where the potential's gradient equals the moments, the seco
 difference between the two made the merit disagree with Newton's quadratic model (the ratio of
 actual to predicted decrease stuck near 0.6). The damping then never fell and Newton crept
 along at a linear rate, running out of iterations on trunks with large link rotations
-(issue 27's random trunks: 546 iterations for a linear-entry trunk, failures for its
+(the range-extension study's random trunks: 546 iterations for a linear-entry trunk, failures for its
 nonlinear entries).
 """
 
