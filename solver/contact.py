@@ -482,14 +482,7 @@ def _rim_point_gap(xa, Ra, ra, ha, xb, Rb, rb, hb, second, angle):
     on_disk = _to_disk(on_rim, other_x, other_R[..., 2], other_r)
     p = np.where(second[..., None], on_disk, on_rim)                # on the first core, on the second
     q = np.where(second[..., None], on_rim, on_disk)
-    distance = np.sqrt(np.add.reduce((p - q) ** 2, -1))
-    normal = (p - q) / np.maximum(distance, 1e-300)[..., None]
-    rows = np.empty(p.shape[:-1] + (2, 6))
-    rows[..., 0, :3] = normal
-    rows[..., 0, 3:] = _cross(p - xa, normal)
-    rows[..., 1, :3] = -normal
-    rows[..., 1, 3:] = -_cross(q - xb, normal)
-    return distance - ha - hb, p - ha[..., None] * normal, normal, rows
+    return _core_gap(p, q, np.sqrt(np.add.reduce((p - q) ** 2, -1)), xa, ha, xb, hb)
 
 
 def _face_point(point):
@@ -548,7 +541,13 @@ def _puck_gap(xa, Ra, ra, ha, xb, Rb, rb, hb):
     db, pb, qb = _rim_to_disk(xb, Rb[..., 0], Rb[..., 1], rb, xa, Ra[..., 2], ra)
     first = (da <= db)[..., None]
     p, q = np.where(first, pa, qb), np.where(first, qa, pb)          # on the first core, on the second
-    distance = np.minimum(da, db)
+    return _core_gap(p, q, np.minimum(da, db), xa, ha, xb, hb)
+
+
+def _core_gap(p, q, distance, xa, ha, xb, hb):
+    """(gap, point on the first puck, unit normal pushing it away, rows (k, 2, 6)) of two pucks
+    whose cores (on frames at ``xa``, ``xb``; half thicknesses ``h``) come nearest at ``p`` (on the
+    first) and ``q``, ``distance`` apart: the rows of the nearest points held on their bodies."""
     normal = (p - q) / np.maximum(distance, 1e-300)[..., None]
     rows = np.empty(p.shape[:-1] + (2, 6))
     rows[..., 0, :3] = normal

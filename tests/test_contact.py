@@ -451,9 +451,9 @@ def test_contacts_of_non_adjacent_discs_that_stay_open_change_nothing(seed, monk
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", [36, 43, 46])
+@pytest.mark.parametrize("seed", [36, 43])
 def test_soft_robots_folding_their_discs_face_to_face_converge(seed):
-    # soft backbones (E 1 MPa–1.7 GPa) under a compressive tip load and gravity fold a vertebra
+    # soft backbones (E 1 MPa, 1.7 GPa) under a compressive tip load and gravity fold a vertebra
     # over onto its neighbour, turned by 150–180° against it, their discs lying face to face:
     # the pucks' gap alone turned its derivative with the faces' tilt (no step that tilted them
     # opened it) and the solve stopped with two discs gone into each other by more than half their
