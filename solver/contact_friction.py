@@ -36,16 +36,20 @@ chains them. With ``μ = 0`` on every obstacle none of this runs.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from vertebra.core.lie import qmatrix
-from vertebra.solver import contact
+from vertebra.solver import contact, newton
 from vertebra.solver.contact import BALL, CHORD, RIM, TANGENTIAL, ContactSet, Step
 
 OBSTACLE_KINDS = (RIM, BALL, CHORD)   # the contacts that friction acts at (a body against an obstacle)
 STATUS_CHANGES = 60                   # active-set changes per frictional contact before the step is refused
+QUICK_CHANGES = 12                    # … tried first, from the last step's statuses and from the sweeps' statuses
+SWEEPS = 300                          # projected Gauss–Seidel sweeps at most
+SWEEP_TOLERANCE = 1e-10               # their forces' change per sweep, of the largest, that ends them
 DIRECTION_ITERATIONS = 30             # Newton iterations on the slip directions of one active set
 DIRECTION_TOLERANCE = 1e-14           # |w_t × d| relative to the rows' scale: the slip along its direction
 
@@ -247,6 +251,101 @@ def _directions(W, b, m, fr, mu, status: Friction, scale: float) -> np.ndarray:
 
 def coulomb(W: np.ndarray, b: np.ndarray, m: int, fr: np.ndarray, mu: np.ndarray,
             start: Friction | None = None) -> tuple[np.ndarray, Friction] | None:
+    """The frictional complementarity problem on ``w = b + Wλ`` (:func:`_active_set`): from
+    ``start`` by the active set; where that does not settle within :data:`QUICK_CHANGES` changes
+    (near-redundant contacts, e.g. both rims of a disc on a wall, can make it cycle), from the
+    statuses of projected Gauss–Seidel sweeps (:func:`_sweeps`) — and where it still does not
+    settle, the sweeps' answer itself when it satisfies the law to :data:`SWEEP_TOLERANCE`."""
+    found = _active_set(W, b, m, fr, mu, start, QUICK_CHANGES)
+    if found is not None:
+        return found
+    lam, status, converged = _sweeps(W, b, m, fr, mu)
+    found = _active_set(W, b, m, fr, mu, status, QUICK_CHANGES)
+    if found is not None:
+        return found
+    return (lam, status) if converged else None
+
+
+def _local(A: np.ndarray, q: np.ndarray, mu: float) -> tuple[np.ndarray, bool, np.ndarray]:
+    """One frictional contact's problem ``w = q + Aλ`` (rows: gap, two slips): open, stuck or
+    slipping (the slip direction by its angle: 64 samples, then bisection on ``w_t × d``).
+    Returns (λ, slips, direction)."""
+    none = np.array([1.0, 0.0])
+    if q[0] >= 0.0:
+        return np.zeros(3), False, none
+    try:
+        lam = np.linalg.solve(A, -q)
+    except np.linalg.LinAlgError:
+        lam = np.linalg.lstsq(A, -q, rcond=1e-13)[0]
+    if lam[0] > 0.0 and math.hypot(lam[1], lam[2]) <= mu * lam[0]:
+        return lam, False, none
+
+    def at(theta):
+        d = np.stack([np.cos(theta), np.sin(theta)], -1)
+        f_n = -q[0] / (A[0, 0] - mu * (d @ A[0, 1:]))
+        lam_t = -mu * f_n[..., None] * d
+        w_t = q[1:] + A[1:, 0] * f_n[..., None] + lam_t @ A[1:, 1:].T
+        return f_n, lam_t, w_t, d
+
+    theta = 2.0 * math.pi * np.arange(64) / 64
+    f_n, _, w_t, d = at(theta)
+    cross = w_t[:, 0] * d[:, 1] - w_t[:, 1] * d[:, 0]
+    along = np.add.reduce(w_t * d, 1)
+    good = (f_n > 0.0) & (along >= 0.0)
+    best = None
+    for k in np.flatnonzero(good & (np.sign(cross) != np.sign(np.roll(cross, -1)))).tolist():
+        low, high = theta[k], theta[k] + 2.0 * math.pi / 64
+        sign = np.sign(cross[k])
+        for _ in range(60):
+            middle = 0.5 * (low + high)
+            value = at(np.array([middle]))
+            c = value[2][0, 0] * value[3][0, 1] - value[2][0, 1] * value[3][0, 0]
+            low, high = (middle, high) if np.sign(c) == sign else (low, middle)
+        value = at(np.array([0.5 * (low + high)]))
+        if value[0][0] > 0.0 and float(value[2][0] @ value[3][0]) >= 0.0:
+            best = value
+            break
+    if best is None:
+        k = int(np.argmin(np.where(good, np.abs(cross), np.inf))) if good.any() else 0
+        best = at(theta[k:k + 1])
+    f_n, lam_t, _, d = best
+    return np.array([f_n[0], lam_t[0, 0], lam_t[0, 1]]), True, d[0]
+
+
+def _sweeps(W, b, m, fr, mu) -> tuple[np.ndarray, Friction, bool]:
+    """Projected (block) Gauss–Seidel on the contacts: each in turn solves its own problem
+    (:func:`_local`; a frictionless one its gap) with the others' forces held, until the forces
+    change by less than :data:`SWEEP_TOLERANCE` of their largest. Returns (λ, the statuses, converged)."""
+    n = b.size
+    lam = np.zeros(n)
+    blocks = []
+    owner = {int(i): c for c, i in enumerate(fr.tolist())}
+    for i in range(m):
+        c = owner.get(i)
+        blocks.append(np.array([i] if c is None else [i, m + 2 * c, m + 2 * c + 1]))
+    status = Friction(np.zeros(m, bool), np.zeros(fr.size, bool), np.tile([1.0, 0.0], (fr.size, 1)))
+    converged = False
+    for _ in range(SWEEPS):
+        change = 0.0
+        for i, rows in enumerate(blocks):
+            q = b[rows] + W[rows] @ lam - W[np.ix_(rows, rows)] @ lam[rows]
+            if rows.size == 1:
+                new = np.array([max(0.0, -q[0] / W[i, i])])
+            else:
+                c = owner[i]
+                new, slips, direction = _local(W[np.ix_(rows, rows)], q, mu[c])
+                status.slip[c], status.direction[c] = slips, direction
+            status.closed[i] = new[0] > 0.0
+            change = max(change, float(np.abs(new - lam[rows]).max()))
+            lam[rows] = new
+        if change <= SWEEP_TOLERANCE * max(float(np.abs(lam).max()), 1e-300):
+            converged = True
+            break
+    return lam, status, converged
+
+
+def _active_set(W: np.ndarray, b: np.ndarray, m: int, fr: np.ndarray, mu: np.ndarray,
+                start: Friction | None = None, changes: int | None = None) -> tuple[np.ndarray, Friction] | None:
     """The frictional complementarity problem on ``w = b + Wλ``: rows ``0…m−1`` the contacts'
     gaps (``w ≥ 0, λ ≥ 0, wᵀλ = 0``), then two slip rows for each frictional contact ``fr`` (its
     index among the first ``m``) with its ``μ``: a pressed contact sticks (``w_t = 0``,
@@ -264,7 +363,7 @@ def coulomb(W: np.ndarray, b: np.ndarray, m: int, fr: np.ndarray, mu: np.ndarray
     status = (start if start is not None else
               Friction(b[:m] < 0.0, np.zeros(fr.size, bool), np.tile([1.0, 0.0], (fr.size, 1))))
     status = Friction(status.closed.copy(), status.slip.copy(), status.direction.copy())
-    for _ in range(STATUS_CHANGES * (m + fr.size) + 10):
+    for _ in range(changes if changes is not None else STATUS_CHANGES * (m + fr.size) + 10):
         lam = _directions(W, b, m, fr, mu, status, scale)
         w = b + W @ lam
         worst, change = 0.0, None
@@ -529,6 +628,12 @@ class ContactFriction:
     force: np.ndarray
 
 
+def at_state(state) -> ContactFriction:
+    """A friction state at ``state`` with nothing known of how it was reached (the next increment
+    anchors its contacts there)."""
+    return ContactFriction(state, np.zeros((0, 3), int), np.zeros(0, bool), np.zeros((0, 3)), np.zeros((0, 3)))
+
+
 class Session:
     """The friction state along one forward solve: the increment's start (anchors are taken
     there), committed after every load stage that converges."""
@@ -574,7 +679,7 @@ class Session:
     def state_of(self, constraints: FrictionalConstraints | None, state) -> ContactFriction:
         """The friction state at ``state`` reached with ``constraints``' forces."""
         if constraints is None or not constraints.multipliers.size:
-            return ContactFriction(state, np.zeros((0, 3), int), np.zeros(0, bool), np.zeros((0, 3)), np.zeros((0, 3)))
+            return at_state(state)
         keys, lam = constraints.keys, constraints.multipliers
         found = constraints.pressed(state)
         rows = np.flatnonzero(keys[:, 0] >= TANGENTIAL)[::2]
@@ -588,12 +693,13 @@ class Session:
 
 def solve(trunk, loads, actuation: np.ndarray, initial, history: ContactFriction | None, **options):
     """The forward solve with friction at obstacle contacts: ``actuation`` applied to ``history``
-    (one increment from its state; None: from rest, or from ``initial`` taken as the start, the
-    load stepped in the solve's load stages, each committed). ``result.friction`` is the state after it."""
-    from vertebra.solver import newton
-
+    (one increment from its state, Newton started from ``initial`` when given, else from that
+    state; None: from rest, or from ``initial`` taken as the start, the load stepped in the solve's
+    load stages, each committed). ``result.friction`` is the state after it."""
     if history is not None:
-        initial = history.state
-    start = initial if initial is not None else trunk.rest_state
+        start = history.state
+        initial = initial if initial is not None else history.state
+    else:
+        start = initial if initial is not None else trunk.rest_state
     session = Session(trunk, start, history)
     return newton.solve(trunk, loads, actuation, initial, friction=session, **options)

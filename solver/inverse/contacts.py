@@ -53,12 +53,19 @@ class ContactProjection:
     G: np.ndarray                 # (m, n_dof) ∂g/∂q of the candidates
     W_ec: np.ndarray              # (n_rows, m) Je K⁻¹Gᵀ
     model: object                 # contact.ContactModel
+    normal: np.ndarray | None = None   # with friction: which of the rows are gaps (the others slip rows)
+    law: object = None            # with friction: the statuses of the chosen set (contact_friction.Friction)
 
     def forces(self, actuation: np.ndarray) -> np.ndarray:
-        """The contact forces ``μ`` (m,) of the candidates under ``actuation``."""
-        mu = np.zeros(self.contacts.count)
+        """The contact forces ``μ`` of the candidates' rows under ``actuation`` (normal forces ≥ 0;
+        with friction, after them the tangential forces of the frictional contacts)."""
+        mu = np.zeros(self.G.shape[0])
         F0, F1 = self.force_of
-        mu[self.active] = np.maximum(F0 + F1 @ actuation, 0.0)
+        forces = F0 + F1 @ actuation
+        if self.normal is None:
+            mu[self.active] = np.maximum(forces, 0.0)
+        else:
+            mu[self.active] = np.where(self.normal[self.active], np.maximum(forces, 0.0), forces)
         return mu
 
     def state_change(self, actuation: np.ndarray) -> np.ndarray:
@@ -86,7 +93,8 @@ def contact_step(trunk, state, lin, projection, backend, *, tolerance: float, sl
     """The QP of one inverse step with the contacts of ``state`` (module docstring): returns the
     :class:`ContactProjection` and the :class:`~vertebra.solver.inverse.qp.ConstraintSolution`
     (``slack``: the least-effort second stage, as :func:`~vertebra.solver.inverse.qp.solve_constraint_problem`).
-    None when no contact is near."""
+    None when no contact is near. (With friction at obstacles:
+    :func:`~vertebra.solver.inverse.friction_contacts.frictional_step`.)"""
     model = trunk.contact
     found = contact.evaluate(model, state)
     if not found.count:
@@ -164,7 +172,7 @@ def _with_rows(form, rows, low, scaled: bool):
 
 def _solve_with(problem, backend, tolerance, slack, active, c, W_ca, W_cc, W_ec, W_ac):
     """The QP with the contacts ``active`` pressed (condensed) and the others open."""
-    space, n = problem.space, problem.n_actuators
+    n = problem.n_actuators
     m = c.size
     inactive = np.setdiff1d(np.arange(m), active)
     if active.size:
@@ -176,6 +184,18 @@ def _solve_with(problem, backend, tolerance, slack, active, c, W_ca, W_cc, W_ec,
             return None
     else:
         F0, F1 = np.zeros(0), np.zeros((0, n))
+    # rows: the pressed contacts' forces μ_A(λ) ≥ 0 and the open ones' gaps w_I(λ) ≥ 0
+    rows = np.vstack([F1, W_ca[inactive] + W_cc[np.ix_(inactive, active)] @ F1])
+    low = np.concatenate([-F0, -(c[inactive] + W_cc[np.ix_(inactive, active)] @ F0)])
+    return condensed_qp(problem, backend, tolerance, slack, active, F0, F1, rows, low, c, W_ca, W_cc, W_ec, W_ac)
+
+
+def condensed_qp(problem, backend, tolerance, slack, active, F0, F1, rows, low, c, W_ca, W_cc, W_ec, W_ac):
+    """The QP with the forces of the rows ``active`` condensed in (``μ_A(λ) = F0 + F1 λ``) and the
+    rows ``rows λ ≥ low`` (their forces' signs, the open gaps, …). Returns (λ, μ_A, the rows'
+    linearised gaps w, the condensed problem, (F0, F1), the solution, ``active``), or None."""
+    space, n = problem.space, problem.n_actuators
+    m = c.size
     W_eA, W_aA = W_ec[:, active], W_ac[:, active]
     W_ea = problem.W_ea + W_eA @ F1
     delta_e = problem.delta_e_free + W_eA @ F0
@@ -184,9 +204,6 @@ def _solve_with(problem, backend, tolerance, slack, active, c, W_ca, W_cc, W_ec,
         W_aa = problem.W_aa + W_aA @ F1
         delta_a = problem.delta_a_free + W_aA @ F0
     condensed = ConstraintProblem(space, W_ea, delta_e, W_aa, delta_a, problem.lambda0, problem.box, problem.damping)
-    # rows: the pressed contacts' forces μ_A(λ) ≥ 0 and the open ones' gaps w_I(λ) ≥ 0
-    rows = np.vstack([F1, W_ca[inactive] + W_cc[np.ix_(inactive, active)] @ F1])
-    low = np.concatenate([-F0, -(c[inactive] + W_cc[np.ix_(inactive, active)] @ F0)])
     form = _with_rows(quadratic_form(condensed, scaled=backend.scaled), rows, low, backend.scaled)
     tol = max(tolerance * math.sqrt(2.0 * form.c), 1e-300)
     out = backend.solve(form, condensed.start() / form.scale, tolerance=tol,
