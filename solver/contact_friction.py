@@ -47,8 +47,7 @@ from vertebra.solver.contact import BALL, CHORD, RIM, TANGENTIAL, ContactSet, St
 
 OBSTACLE_KINDS = (RIM, BALL, CHORD)   # the contacts that friction acts at (a body against an obstacle)
 STATUS_CHANGES = 60                   # active-set changes per frictional contact before the step is refused
-QUICK_CHANGES = 12                    # … tried first, from the last step's statuses and from the sweeps' statuses
-SWEEPS = 300                          # projected Gauss–Seidel sweeps at most
+SWEEPS = 25                           # projected Gauss–Seidel sweeps at most
 SWEEP_TOLERANCE = 1e-10               # their forces' change per sweep, of the largest, that ends them
 DIRECTION_ITERATIONS = 30             # Newton iterations on the slip directions of one active set
 DIRECTION_TOLERANCE = 1e-14           # |w_t × d| relative to the rows' scale: the slip along its direction
@@ -252,15 +251,15 @@ def _directions(W, b, m, fr, mu, status: Friction, scale: float) -> np.ndarray:
 def coulomb(W: np.ndarray, b: np.ndarray, m: int, fr: np.ndarray, mu: np.ndarray,
             start: Friction | None = None) -> tuple[np.ndarray, Friction] | None:
     """The frictional complementarity problem on ``w = b + Wλ`` (:func:`_active_set`): from
-    ``start`` by the active set; where that does not settle within :data:`QUICK_CHANGES` changes
-    (near-redundant contacts, e.g. both rims of a disc on a wall, can make it cycle), from the
-    statuses of projected Gauss–Seidel sweeps (:func:`_sweeps`) — and where it still does not
-    settle, the sweeps' answer itself when it satisfies the law to :data:`SWEEP_TOLERANCE`."""
-    found = _active_set(W, b, m, fr, mu, start, QUICK_CHANGES)
+    ``start`` by the active set; where its statuses run in a cycle (near-redundant contacts, e.g.
+    both rims of a disc on a wall, can make them), from the statuses of projected Gauss–Seidel
+    sweeps (:func:`_sweeps`) — and where that cycles too, the sweeps' answer itself when they
+    converged to :data:`SWEEP_TOLERANCE`."""
+    found = _active_set(W, b, m, fr, mu, start)
     if found is not None:
         return found
     lam, status, converged = _sweeps(W, b, m, fr, mu)
-    found = _active_set(W, b, m, fr, mu, status, QUICK_CHANGES)
+    found = _active_set(W, b, m, fr, mu, status)
     if found is not None:
         return found
     return (lam, status) if converged else None
@@ -293,15 +292,26 @@ def _local(A: np.ndarray, q: np.ndarray, mu: float) -> tuple[np.ndarray, bool, n
     along = np.add.reduce(w_t * d, 1)
     good = (f_n > 0.0) & (along >= 0.0)
     best = None
-    for k in np.flatnonzero(good & (np.sign(cross) != np.sign(np.roll(cross, -1)))).tolist():
-        low, high = theta[k], theta[k] + 2.0 * math.pi / 64
-        sign = np.sign(cross[k])
+    following = np.roll(cross, -1)
+    for k in np.flatnonzero(good & (np.sign(cross) != np.sign(following))).tolist():
+        # regula falsi (Illinois) on the bracket's cross product, to the rounding of the angle
+        low, high, f_low, f_high = theta[k], theta[k] + 2.0 * math.pi / 64, cross[k], following[k]
+        side = 0
         for _ in range(60):
-            middle = 0.5 * (low + high)
+            middle = (low * f_high - high * f_low) / (f_high - f_low) if f_high != f_low else 0.5 * (low + high)
             value = at(np.array([middle]))
             c = value[2][0, 0] * value[3][0, 1] - value[2][0, 1] * value[3][0, 0]
-            low, high = (middle, high) if np.sign(c) == sign else (low, middle)
-        value = at(np.array([0.5 * (low + high)]))
+            if c == 0.0 or high - low <= 1e-15:
+                break
+            if np.sign(c) == np.sign(f_low):
+                low, f_low = middle, c
+                f_high = 0.5 * f_high if side == -1 else f_high
+                side = -1
+            else:
+                high, f_high = middle, c
+                f_low = 0.5 * f_low if side == 1 else f_low
+                side = 1
+        value = at(np.array([middle]))
         if value[0][0] > 0.0 and float(value[2][0] @ value[3][0]) >= 0.0:
             best = value
             break
@@ -363,7 +373,12 @@ def _active_set(W: np.ndarray, b: np.ndarray, m: int, fr: np.ndarray, mu: np.nda
     status = (start if start is not None else
               Friction(b[:m] < 0.0, np.zeros(fr.size, bool), np.tile([1.0, 0.0], (fr.size, 1))))
     status = Friction(status.closed.copy(), status.slip.copy(), status.direction.copy())
+    visited = set()
     for _ in range(changes if changes is not None else STATUS_CHANGES * (m + fr.size) + 10):
+        seen = (status.closed.tobytes(), status.slip.tobytes())
+        if seen in visited:
+            return None                  # the statuses run in a cycle
+        visited.add(seen)
         lam = _directions(W, b, m, fr, mu, status, scale)
         w = b + W @ lam
         worst, change = 0.0, None
@@ -440,24 +455,45 @@ class FrictionalConstraints(contact.Constraints):
         return self._pressed[2]
 
     def step(self, factor, r: np.ndarray, state) -> Step | None:
+        """The sequential-QP step with friction (module docstring). Only the frictional contacts
+        that can press carry slip rows — those pressed at the last step or by the frictionless
+        problem, and any the frictional answer presses (then solved again): an open contact has
+        no tangential force."""
         normal = self.at(state)
         p = factor.solve(r)
         if not normal.count:
             return Step(p, np.zeros(0), normal, r)
-        contacts, fr = self._rows(state, normal)
         m = normal.count
-        mu = coefficients(self.model, normal.key)[fr]
-        G = contacts.jacobian(self.n_frames)
-        Z = factor.solve(np.asfortranarray(G.T))
-        W = G @ Z
-        b = contacts.gap + G @ p
-        regularised = W.copy()
-        regularised[np.diag_indices_from(W)] += contact.REGULARISATION * max(float(np.abs(np.diag(W)).max()), 1e-300)
-        start = self._start(normal.key, fr, b[:m])
-        found = coulomb(regularised, b, m, fr, mu, start)
-        if found is None:
-            return None
-        lam, status = found
+        mu_all = coefficients(self.model, normal.key)
+        G_n = normal.jacobian(self.n_frames)
+        Z_n = factor.solve(np.asfortranarray(G_n.T))
+        W_n = G_n @ Z_n
+        b_n = normal.gap + G_n @ p
+        floor = contact.REGULARISATION * max(float(np.abs(np.diag(W_n)).max()), 1e-300)
+        frictionless = contact.complementarity(W_n + floor * np.eye(m), b_n)
+        pressed = {tuple(k) for k in self.keys[self.keys[:, 0] < TANGENTIAL].tolist()}
+        relevant = (mu_all > 0.0) & ((b_n < 0.0) | np.array([tuple(k) in pressed for k in normal.key.tolist()], bool)
+                                     | (frictionless > 0.0 if frictionless is not None else True))
+        for _ in range(m + 1):
+            fr = np.flatnonzero(relevant)
+            slip = self.session.anchors(normal.key[fr]).rows(state)
+            contacts = _joined(normal, slip)
+            G_t = slip.jacobian(self.n_frames)
+            Z = np.hstack([Z_n, factor.solve(np.asfortranarray(G_t.T))]) if fr.size else Z_n
+            G = np.vstack([G_n, G_t])
+            W = G @ Z
+            b = np.concatenate([b_n, slip.gap + G_t @ p])
+            regularised = W.copy()
+            regularised[np.diag_indices_from(W)] += floor
+            mu = mu_all[fr]
+            found = coulomb(regularised, b, m, fr, mu, self._start(normal.key, fr, b[:m]))
+            if found is None:
+                return None
+            lam, status = found
+            missing = status.closed & (mu_all > 0.0) & ~relevant
+            if not missing.any():
+                break
+            relevant |= missing
         exact = _directions(W, b, m, fr, mu, Friction(status.closed, status.slip, status.direction.copy()),
                             float(np.abs(b).max()) + 1e-300)
         if np.all(exact[:m][status.closed] > 0.0):

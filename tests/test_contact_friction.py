@@ -242,3 +242,73 @@ def test_json_reports_friction_and_sliding():
     assert tip["sliding"] == "stick" and math.isclose(-tip["friction"][1], 0.15 * P, rel_tol=1e-9)
     assert all(c["sliding"] == "open" and c["friction"] == [0.0, 0.0, 0.0]
                for c in document["contacts"] if c["force"] == 0.0)
+
+
+# --- inverse and control ticks ----------------------------------------------------------------------
+
+
+def wall_robot(mu, wall=0.02, tendons=None):
+    """The gallery's 16-tendon robot with 12 mm discs beside a wall x = ``wall`` with friction μ
+    (``tendons``: the only ones allowed to pull)."""
+    import dataclasses
+
+    from test_contact import wall_robot as frictionless_wall
+
+    scene = frictionless_wall(wall).scene
+    cables = scene.cables if tendons is None else tuple(
+        dataclasses.replace(c, max_tension=c.max_tension if k in tendons else 0.0) for k, c in enumerate(scene.cables))
+    obstacles = tuple(dataclasses.replace(o, friction=mu) for o in scene.obstacles)
+    return solver.build_model(dataclasses.replace(scene, cables=cables, obstacles=obstacles))
+
+
+def test_inverse_reaches_targets_that_need_friction():
+    # tendons 0 and 4 pull the robot onto a wall with μ = 0.5: its discs hold where they touched,
+    # so the tip ends where the frictionless robot's two tendons cannot take it (its inverse stops
+    # 2–15 µm short). The converged inverse, each equilibrium the command applied to the friction
+    # state it started from and the contacts' tangential forces in its QP, reaches them to 1e-6 m,
+    # leaning on the wall with friction, nothing in it
+    from vertebra.solver import contact
+    from vertebra.solver.inverse import InverseController, InverseSettings
+
+    model, free = wall_robot(0.5, tendons=(0, 4)), wall_robot(0.0, tendons=(0, 4))
+    rng = np.random.default_rng(3)
+    commands = []
+    for _ in range(3):
+        a = np.zeros(16)
+        a[[0, 4]] = rng.uniform(2.0, 15.0, 2)
+        commands.append(a)
+    for a in (commands[0], commands[2]):
+        result = model.solve(a)
+        target = model.effector_positions(result.state)[0]
+        assert any(c.force > 0.0 and np.linalg.norm(c.friction) > 0.0 for c in result.contacts)
+        controller = InverseController(model, InverseSettings(mode="converged", tolerance=1e-6, time_budget=120.0))
+        step = controller.step(target[None])
+        assert step.reached and step.equilibrium, (step.status, step.errors)
+        assert contact.evaluate(model.trunk.contact, step.state).gap.min() >= -1e-9
+        reached = model.solve(step.actuation, history=contact_friction.at_state(model.rest_state))
+        assert any(c.force > 0.0 and np.linalg.norm(c.friction) > 0.0 for c in reached.contacts)
+        frictionless = InverseController(free, InverseSettings(mode="converged", tolerance=1e-6, time_budget=120.0))
+        assert not frictionless.step(target[None]).reached
+
+
+def test_tick_mode_on_a_frictional_wall_does_not_enter_it():
+    # tip targets from rest through a wall with μ = 0.3 (2 cm beyond it) and along it: every tick
+    # (an increment from the last, the contacts' tangential forces in its QP) stays out of the
+    # wall to 1e-6 m, and the robot reaches the wall
+    from test_contact import wall_path
+
+    from vertebra.solver import contact
+    from vertebra.solver.inverse import InverseController, InverseSettings
+
+    wall = 0.02
+    model = wall_robot(0.3, wall)
+    controller = InverseController(model, InverseSettings(mode="tick", tolerance=1e-4))
+    path = wall_path(model.effector_positions(controller.state)[0], wall)[:44]
+    touched = False
+    for k, target in enumerate(path):
+        step = controller.step(target[None])
+        gaps = contact.evaluate(model.trunk.contact, step.state).gap
+        assert gaps.min() >= -1e-6, k
+        touched |= bool(gaps.min() <= 1e-6)
+        assert isinstance(step.friction, contact_friction.ContactFriction)
+    assert touched
