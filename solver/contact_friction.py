@@ -478,7 +478,7 @@ class FrictionalConstraints(contact.Constraints):
             fr = np.flatnonzero(relevant)
             slip = self.session.anchors(normal.key[fr]).rows(state)
             contacts = _joined(normal, slip)
-            G_t = slip.jacobian(self.n_frames)
+            G_t = slip.jacobian(self.n_frames) if fr.size else np.zeros((0, G_n.shape[1]))
             Z = np.hstack([Z_n, factor.solve(np.asfortranarray(G_t.T))]) if fr.size else Z_n
             G = np.vstack([G_n, G_t])
             W = G @ Z
