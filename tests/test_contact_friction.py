@@ -52,6 +52,17 @@ def pressed(mu):
     return model, first
 
 
+def loaded(mu, share):
+    """The pressed rod (:func:`pressed`) then loaded by ``F = share·μP`` along +y: (the pressed
+    result, F, the result, its tip contact)."""
+    model, first = pressed(mu)
+    F = share * mu * P
+    load(model, [P, F, 0.0])
+    result = model.solve(history=first.friction)
+    assert result.converged
+    return first, F, result, tip_contact(result)
+
+
 def test_mu_zero_is_the_frictionless_solve_bit_for_bit(monkeypatch):
     results = []
     for mu in (None, 0.0):
@@ -79,12 +90,7 @@ def test_mu_zero_is_the_frictionless_solve_bit_for_bit(monkeypatch):
 def test_tip_sticks_below_the_threshold(mu, share):
     # pinned by the plane and friction, the tip carries the whole tangential load: f_t = F, f_n = P,
     # nothing moves, for F below the threshold μP
-    model, first = pressed(mu)
-    F = share * mu * P
-    load(model, [P, F, 0.0])
-    result = model.solve(history=first.friction)
-    assert result.converged
-    c = tip_contact(result)
+    first, F, result, c = loaded(mu, share)
     assert c.sliding == "stick"
     assert np.max(np.abs(result.state.positions - first.state.positions)) <= 1e-12
     assert math.isclose(c.force, P, rel_tol=1e-9)
@@ -95,12 +101,7 @@ def test_tip_sticks_below_the_threshold(mu, share):
 @pytest.mark.parametrize("mu", [0.2, 0.5])
 @pytest.mark.parametrize("share", [1.02, 1.5, 3.0])
 def test_tip_slips_on_the_cone_above_the_threshold(mu, share):
-    model, first = pressed(mu)
-    F = share * mu * P
-    load(model, [P, F, 0.0])
-    result = model.solve(history=first.friction)
-    assert result.converged
-    c = tip_contact(result)
+    first, F, result, c = loaded(mu, share)
     friction = np.array(c.friction)
     assert c.sliding == "slip"
     assert math.isclose(np.linalg.norm(friction), mu * c.force, rel_tol=1e-9)

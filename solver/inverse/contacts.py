@@ -100,20 +100,10 @@ def contact_step(trunk, state, lin, projection, backend, *, tolerance: float, sl
     if not found.count:
         return None
     problem = projection.problem
-    n = problem.n_actuators
     G = found.jacobian(trunk.frames.count)
     m = G.shape[0]
-    rhs = np.empty((G.shape[1], 1 + n + m), order="F")
-    rhs[:, 0] = lin.residual
-    rhs[:, 1:1 + n] = lin.actuator_forces
-    rhs[:, 1 + n:] = G.T
-    X = lin.solve(rhs, overwrite=True)
-    Kr, KB, KG = X[:, 0], X[:, 1:1 + n], X[:, 1 + n:]
-    W_ec = lin.effector_jacobian @ KG
-    W_ac = lin.actuator_jacobian @ KG
-    W_ca, W_cc = G @ KB, G @ KG
+    KG, W_ec, W_ac, W_ca, W_cc, c = project_rows(lin, problem, G, found.gap)
     lam0 = problem.lambda0
-    c = found.gap + G @ Kr - W_ca @ lam0
     solve = lambda chosen: _solve_with(problem, backend, tolerance, slack, chosen, c, W_ca, W_cc, W_ec, W_ac)  # noqa: E731
     # the contacts pressed under the current efforts: the complementarity problem at λ0 (whose
     # set makes λ0 itself feasible: every step's QP has an answer)
@@ -136,26 +126,53 @@ def contact_step(trunk, state, lin, projection, backend, *, tolerance: float, sl
     return ContactProjection(projection, condensed, chosen, found, force_of, KG, G, W_ec, model), sol
 
 
-def _settle(solve, active, m: int, length: float):
-    """The active-set rounds from ``active`` (module docstring): the last complementary answer."""
-    seen, answer = set(), None
-    for _ in range(ROUNDS):
-        key = tuple(active.tolist())
-        if key in seen:
+def project_rows(lin, problem, G: np.ndarray, gap: np.ndarray):
+    """The contacts' rows ``G`` (with their gaps) in constraint space, one banded solve
+    ``K⁻¹[r, B, Gᵀ]``: (K⁻¹Gᵀ, W_ec, W_ac, W_ca, W_cc, c) of the module docstring."""
+    n = problem.n_actuators
+    rhs = np.empty((G.shape[1], 1 + n + G.shape[0]), order="F")
+    rhs[:, 0] = lin.residual
+    rhs[:, 1:1 + n] = lin.actuator_forces
+    rhs[:, 1 + n:] = G.T
+    X = lin.solve(rhs, overwrite=True)
+    Kr, KB, KG = X[:, 0], X[:, 1:1 + n], X[:, 1 + n:]
+    W_ca = G @ KB
+    return (KG, lin.effector_jacobian @ KG, lin.actuator_jacobian @ KG, W_ca, G @ KG,
+            gap + G @ Kr - W_ca @ problem.lambda0)
+
+
+def settle(solve, start, key, change, rounds: int = ROUNDS):
+    """The active-set rounds from the set ``start`` (module docstring): ``solve(set)`` answers a
+    set (None: no answer), ``change(set, answer)`` gives the next set or None when the answer
+    rests on no row, ``key(set)`` identifies a set (a set seen before ends the rounds). Returns
+    the last answer."""
+    seen, answer, current = set(), None, start
+    for _ in range(rounds):
+        if key(current) in seen:
             break
-        seen.add(key)
-        found = solve(active)
+        seen.add(key(current))
+        found = solve(current)
         if found is None:
             break
         answer = found
+        current = change(current, found)
+        if current is None:
+            break
+    return answer
+
+
+def _settle(solve, active, m: int, length: float):
+    """The rounds on sets of pressed contacts: the last complementary answer."""
+    def change(active, found):
         mu_A, w = found[1], found[2]
         released = active[mu_A <= 1e-12 * max(float(np.abs(mu_A).max(initial=0.0)), 1e-300)]
         inactive = np.setdiff1d(np.arange(m), active)
         closed = inactive[w[inactive] <= 1e-12 * length]
         if not released.size and not closed.size:
-            break
-        active = np.union1d(np.setdiff1d(active, released), closed)
-    return answer
+            return None
+        return np.union1d(np.setdiff1d(active, released), closed)
+
+    return settle(solve, active, lambda active: tuple(active.tolist()), change)
 
 
 def _with_rows(form, rows, low, scaled: bool):

@@ -30,7 +30,7 @@ import numpy as np
 
 from vertebra.solver import contact, contact_friction
 from vertebra.solver.contact_friction import Friction, coefficients, coulomb
-from vertebra.solver.inverse.contacts import ROUNDS, ContactProjection, condensed_qp
+from vertebra.solver.inverse.contacts import ROUNDS, ContactProjection, condensed_qp, project_rows, settle
 
 FACETS = 16                # sides of the polygon inscribed in each stuck contact's cone (in the QP)
 
@@ -50,19 +50,9 @@ def frictional_step(trunk, state, lin, projection, backend, history, *, toleranc
     rows = contact_friction._joined(found, anchors.rows(state))
     m, total = found.count, rows.count
     problem = projection.problem
-    n = problem.n_actuators
     G = rows.jacobian(trunk.frames.count)
-    rhs = np.empty((G.shape[1], 1 + n + total), order="F")
-    rhs[:, 0] = lin.residual
-    rhs[:, 1:1 + n] = lin.actuator_forces
-    rhs[:, 1 + n:] = G.T
-    X = lin.solve(rhs, overwrite=True)
-    Kr, KB, KG = X[:, 0], X[:, 1:1 + n], X[:, 1 + n:]
-    W_ec = lin.effector_jacobian @ KG
-    W_ac = lin.actuator_jacobian @ KG
-    W_ca, W_cc = G @ KB, G @ KG
+    KG, W_ec, W_ac, W_ca, W_cc, c = project_rows(lin, problem, G, rows.gap)
     lam0 = problem.lambda0
-    c = rows.gap + G @ Kr - W_ca @ lam0
     law = (m, fr, mu)
 
     def solve(status):
@@ -160,16 +150,8 @@ def _solve_set(problem, backend, tolerance, slack, status: Friction, law, c, W_c
 def _settle(solve, status: Friction, law, length: float):
     """The active-set rounds from ``status`` (module docstring): the last answer consistent with it."""
     m, fr, mu = law
-    seen, answer = set(), None
-    for _ in range(2 * ROUNDS):
-        key = (tuple(status.closed.tolist()), tuple(status.slip.tolist()))
-        if key in seen:
-            break
-        seen.add(key)
-        found = solve(status)
-        if found is None:
-            break
-        answer = found
+
+    def change(status, found):
         _, mu_A, w, _, _, _, active, _ = found
         force = np.zeros(w.size)
         force[active] = mu_A
@@ -193,7 +175,6 @@ def _settle(solve, status: Friction, law, length: float):
                     new.direction[c] = -f_t / max(math.hypot(*f_t), 1e-300)
             elif float(w_t @ status.direction[c]) <= 1e-12 * length:
                 new.slip[c], changed = False, True              # its slip reversed: sticks
-        if not changed:
-            break
-        status = new
-    return answer
+        return new if changed else None
+
+    return settle(solve, status, lambda s: (tuple(s.closed.tolist()), tuple(s.slip.tolist())), change, 2 * ROUNDS)
