@@ -347,73 +347,76 @@ class NonlinearCondenser:
             ramp = pressure_range(pool, spec, entry, linear, settings, youngs_modulus, progress, cavity=pressurised[0])
         return (*ramp[:4], {**ramp[4], "ramp_mesh_size": float(spec.mesh_size)})
 
+    def _on_coarser_mesh(self, design, entry, fine, common, timings, progress):
+        """``(energy, ramp, fallback)`` of a multi-fidelity design: the fine ramp, the coarse
+        sampling and fit, the check on ``entry``'s mesh. ``energy`` is None when a chosen mesh
+        (or one with a ``check_tolerance``) failed its check: ``fallback`` says why."""
+        fam, p, settings = design.family, design.parameters, design.sampling
+        coarse_h = settings.nonlinear_mesh_size
+        resolved = settings.resolved(entry.n_cavities, design.material)
+        how = "chosen for this mesh" if settings.nonlinear_mesh_chosen else "asked for"
+        _say(progress, f"{fam.name}: the nonlinear part on a coarser mesh (h = {coarse_h:g} m, {how}), the "
+                       f"linear part from this one (h = {design.mesh_size:g} m, {entry.mesh['dofs']} dofs)")
+        t0 = time.perf_counter()
+        ramp = self._ramp(entry, fine, resolved, p["youngs_modulus"], progress)
+        if ramp is not None:
+            timings["ramp_s"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        coarse_linear = replace(self.linear, estimate_accuracy=False, estimate_alongside=False)
+        sampled = coarse_linear.condense(replace(design, mesh_size=coarse_h), progress)
+        timings["nonlinear_mesh_s"] = time.perf_counter() - t0
+        _say(progress, f"{fam.name}: nonlinear condensation with the {design.material} material on the "
+                       f"coarser mesh ({sampled.mesh['dofs']} dofs)")
+        condensed = condense_energy(sampled, replace(fine, mesh_size=sampled.mesh["mesh_size"]), ramp=ramp, **common)
+        timings.update({k: v for k, v in condensed.timings.items() if k != "total_s"})
+        energy, checked = check_on_mesh(entry, condensed, fine, resolved, executor=self.executor,
+                                        workers=self.workers, scheduler=self.scheduler, progress=progress)
+        timings.update(checked)
+        coarse_mesh = {k: sampled.mesh[k] for k in ("mesh_size", "dofs", "elements", "nodes", "order")}
+        if settings.nonlinear_mesh_chosen:
+            estimate = multifidelity.estimated_dofs(fam, p, design.mesh_size, design.order)
+            coarse_mesh.update(chosen=True, estimated_entry_dofs=estimate, auto_dofs=multifidelity.AUTO_DOFS)
+        check = energy.sampling["entry_mesh_check"]
+        if not (settings.nonlinear_mesh_chosen or settings.check_tolerance is not None):
+            return replace(energy, sampling={**energy.sampling, "nonlinear_mesh": coarse_mesh}), ramp, None
+        tolerance = settings.check_tolerance
+        passed, why = multifidelity.check_verdict({"held": energy.fit_error["held_out"], "stopped": check["stopped"]},
+                                                  energy.fit_error["nonlinear_mesh_held_out"], tolerance)
+        verdict = {"passed": passed, "why": why, "tolerance": tolerance,
+                   "factor": None if tolerance is not None else multifidelity.CHECK_FACTOR}
+        check = {**check, "verdict": verdict}
+        _say(progress, f"{fam.name}: the check on this mesh {'passed' if passed else 'failed'}: {why}"
+             + ("" if passed else "; sampling this mesh instead (the coarser mesh's fit is dropped)"))
+        if passed:
+            return replace(energy, sampling={**energy.sampling, "nonlinear_mesh": coarse_mesh,
+                                             "entry_mesh_check": check}), ramp, None
+        return None, ramp, {"nonlinear_mesh": coarse_mesh, "entry_mesh_check": check,
+                            "held_out": energy.fit_error["held_out"],
+                            "nonlinear_mesh_held_out": energy.fit_error["nonlinear_mesh_held_out"]}
+
     def condense(self, design: SegmentDesign, progress=None) -> SegmentEntry:
         entry = self.linear.condense(design, progress)
         fam, p = design.family, design.parameters
-        settings = design.sampling
-        coarse_h = settings.nonlinear_mesh_size if settings is not None else None
         timings = dict(entry.timings)
         options = dict(family=fam.name, parameters=json.dumps(p, sort_keys=True), order=design.order,
                        material=design.material, linear_solver=self.linear.linear_solver)
         fine = FamilySolid(mesh_size=entry.mesh["mesh_size"], **options)
-        material = material_constants(design.material, p)
         common = dict(radius=fam.outer_radius(p), youngs_modulus=p["youngs_modulus"], symmetry=fam.symmetry(p),
-                      material=material, settings=settings, executor=self.executor, workers=self.workers,
-                      scheduler=self.scheduler, progress=progress)
+                      material=material_constants(design.material, p), settings=design.sampling,
+                      executor=self.executor, workers=self.workers, scheduler=self.scheduler, progress=progress)
         nonlinear = {"executor": self.executor, "workers": self.workers, "version": NONLINEAR_VERSION}
-        ramp, energy = None, None
-        if coarse_h is not None:
-            resolved = settings.resolved(entry.n_cavities, design.material)
-            how = "chosen for this mesh" if settings.nonlinear_mesh_chosen else "asked for"
-            _say(progress, f"{fam.name}: the nonlinear part on a coarser mesh (h = {coarse_h:g} m, {how}), the "
-                           f"linear part from this one (h = {design.mesh_size:g} m, {entry.mesh['dofs']} dofs)")
-            t0 = time.perf_counter()
-            ramp = self._ramp(entry, fine, resolved, p["youngs_modulus"], progress)
-            if ramp is not None:
-                timings["ramp_s"] = time.perf_counter() - t0
-            t0 = time.perf_counter()
-            coarse_linear = replace(self.linear, estimate_accuracy=False, estimate_alongside=False)
-            sampled = coarse_linear.condense(replace(design, mesh_size=coarse_h), progress)
-            timings["nonlinear_mesh_s"] = time.perf_counter() - t0
-            _say(progress, f"{fam.name}: nonlinear condensation with the {design.material} material on the "
-                           f"coarser mesh ({sampled.mesh['dofs']} dofs)")
-            condensed = condense_energy(sampled, replace(fine, mesh_size=sampled.mesh["mesh_size"]), ramp=ramp,
-                                        **common)
-            timings.update({k: v for k, v in condensed.timings.items() if k != "total_s"})
-            energy, checked = check_on_mesh(entry, condensed, fine, resolved, executor=self.executor,
-                                            workers=self.workers, scheduler=self.scheduler, progress=progress)
-            timings.update(checked)
-            coarse_mesh = {k: sampled.mesh[k] for k in ("mesh_size", "dofs", "elements", "nodes", "order")}
-            if settings.nonlinear_mesh_chosen:
-                coarse_mesh.update(chosen=True, estimated_entry_dofs=multifidelity.estimated_dofs(fam, p, design.mesh_size,
-                                                                                     design.order),
-                                   auto_dofs=multifidelity.AUTO_DOFS)
-            energy = replace(energy, sampling={**energy.sampling, "nonlinear_mesh": coarse_mesh})
-            nonlinear["nonlinear_mesh_size"] = float(coarse_h)
-            if settings.nonlinear_mesh_chosen or settings.check_tolerance is not None:
-                check = energy.sampling["entry_mesh_check"]
-                passed, why = multifidelity.check_verdict({"held": energy.fit_error["held_out"], "stopped": check["stopped"]},
-                                            energy.fit_error["nonlinear_mesh_held_out"], settings.check_tolerance)
-                verdict = {"passed": passed, "why": why, "tolerance": settings.check_tolerance,
-                           "factor": None if settings.check_tolerance is not None else multifidelity.CHECK_FACTOR}
-                _say(progress, f"{fam.name}: the check on this mesh {'passed' if passed else 'failed'}: {why}"
-                     + ("" if passed else "; sampling this mesh instead (the coarser mesh's fit is dropped)"))
-                if passed:
-                    energy = replace(energy, sampling={**energy.sampling,
-                                                       "entry_mesh_check": {**check, "verdict": verdict}})
-                else:
-                    fallback = {"nonlinear_mesh": coarse_mesh, "entry_mesh_check": {**check, "verdict": verdict},
-                                "held_out": energy.fit_error["held_out"],
-                                "nonlinear_mesh_held_out": energy.fit_error["nonlinear_mesh_held_out"]}
-                    energy = None
-                    del nonlinear["nonlinear_mesh_size"]
+        energy, ramp, fallback = None, None, None
+        if design.sampling is not None and design.sampling.nonlinear_mesh_size is not None:
+            energy, ramp, fallback = self._on_coarser_mesh(design, entry, fine, common, timings, progress)
+            if energy is not None:
+                nonlinear["nonlinear_mesh_size"] = float(design.sampling.nonlinear_mesh_size)
         if energy is None:
             _say(progress, f"{fam.name}: nonlinear condensation with the {design.material} material")
             t0 = time.perf_counter()
             condensed = condense_energy(entry, fine, ramp=ramp, **common)
             energy = condensed.energy
             timings.update({k: v for k, v in condensed.timings.items() if k != "total_s"})
-            if coarse_h is not None:
+            if fallback is not None:
                 timings["fallback_s"] = time.perf_counter() - t0
                 energy = replace(energy, sampling={**energy.sampling, "nonlinear_mesh_fallback": fallback})
         timings["total_s"] = time.perf_counter() - design.started
