@@ -288,6 +288,18 @@ def load_box(K: np.ndarray, length: float, radius: float, settings: SamplingSett
     return box, caps + np.abs(np.asarray(free_pose, dtype=float))
 
 
+#: the load-box axes every sampling follows first: (load coordinate, sign) — lateral force,
+#: tension, compression, bending, twist; then (:func:`path_endpoints`) one pressurised cavity
+#: alone and all of them
+AXES = ((0, 1.0), (2, 1.0), (2, -1.0), (3, 1.0), (5, 1.0))
+
+
+def pressure_path(n_cavities: int, settings: SamplingSettings) -> int | None:
+    """The index in :func:`path_endpoints` of the path that inflates the first pressurised
+    cavity alone, the segment otherwise free (None without a pressurised cavity)."""
+    return len(AXES) if settings.pressurised(n_cavities) else None
+
+
 def path_endpoints(n_cavities: int, settings: SamplingSettings) -> tuple[np.ndarray, np.ndarray]:
     """``(endpoints (P, 6+m) on the unit box's boundary, held_out (P,) bool)``: the box axes (pure
     lateral force, tension, compression, bending, twist; one cavity, all cavities), then
@@ -299,7 +311,7 @@ def path_endpoints(n_cavities: int, settings: SamplingSettings) -> tuple[np.ndar
     used = np.zeros(m, dtype=bool)
     used[list(settings.pressurised(m))] = True
     axes = []
-    for index, value in ((0, 1.0), (2, 1.0), (2, -1.0), (3, 1.0), (5, 1.0)):
+    for index, value in AXES:
         e = np.zeros(6 + m)
         e[index] = value
         axes.append(e)

@@ -19,7 +19,7 @@ import numpy as np
 from vertebra.designer.energy_fit import (FitResult, SegmentSymmetry, Samples, convexity, fit_energy, fit_errors,
                                           symmetry_group)
 from vertebra.designer.energy_sampling import (LoadBox, PathTask, PressureTask, SamplingSettings, load_box,
-                                               path_endpoints, run_paths, run_pressure_ramp)
+                                               path_endpoints, pressure_path, run_paths, run_pressure_ramp)
 from vertebra.designer.executors import Crash, make_executor
 from vertebra.designer.keys import NONLINEAR_VERSION, SegmentDesign
 from vertebra.designer.linear import LinearCondenser
@@ -271,11 +271,13 @@ def check_on_mesh(entry, condensed: Condensed, spec, settings: SamplingSettings,
     """Multi-fidelity: the energy ``condensed`` fitted on a coarser mesh (its ψ_nl, on that mesh's
     linear part), checked on ``entry``'s mesh (the FE of ``spec``). ψ = ψ_lin of ``entry`` (its
     exact compliance: stiffness, cavity coupling and volume compliance) + the coarse ψ_nl.
-    ``settings.check_paths`` of the sampling's loading paths (its held-out ones first) are
+    ``settings.check_paths`` of the sampling's loading paths (its held-out ones first), and for
+    a segment with a pressurised cavity the path inflating it alone up to the top pressure, are
     followed with the FE of ``entry``'s mesh through the same load box; their samples give the
     entry's held-out error (``fit_error["held_out"]``, the one ``prepare --max-fit-error``
-    reads), the coarse sampling's own one stays as ``nonlinear_mesh_held_out``. The range, the
-    fold map and the inflation limit point are those of the coarse sampling.
+    reads), the coarse sampling's own one stays as ``nonlinear_mesh_held_out``. The range is the
+    coarse sampling's; its pressures, fold map and inflation limit point come from the ramp on
+    the entry's mesh (:class:`NonlinearCondenser`).
     Returns ``(energy, {"check_s": seconds})`` (the seconds in the entry's timings, not in its
     energy: the same design gives the same energy)."""
     start = time.perf_counter()
@@ -285,6 +287,9 @@ def check_on_mesh(entry, condensed: Condensed, spec, settings: SamplingSettings,
     endpoints, held_paths = path_endpoints(m, settings)
     order = np.concatenate([np.flatnonzero(held_paths), np.flatnonzero(~held_paths)])
     chosen = [int(i) for i in order[:settings.check_paths]]
+    inflation = pressure_path(m, settings)
+    if inflation is not None and inflation not in chosen:
+        chosen.append(inflation)
     box = LoadBox(**coarse.sampling["load_box"])
     caps = np.array(coarse.sampling["pose_caps"], dtype=float)
     with make_executor(executor, workers=workers, scheduler=scheduler) as pool:

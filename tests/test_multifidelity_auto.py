@@ -14,6 +14,8 @@ from vertebra.designer.families import canonical_parameters, family_of
 from fitted_energies import ROD
 
 FINE = 0.006                              # P2 rod: 2.1k DoFs (estimated 1.5k)
+CBHA = {"outer_radius": 0.04, "chamber_radius": 0.01, "chamber_offset": 0.0215, "length": 0.03, "chambers": 3,
+        "youngs_modulus": 5e5, "poisson_ratio": 0.45}
 SAMPLING = {"paths": 4, "steps": 3, "degree": 4, "check_paths": 1}
 
 
@@ -27,7 +29,8 @@ def low_threshold(monkeypatch):
 def test_choice_threshold_and_unchanged_keys_below_it():
     """Below AUTO_DOFS the settings and keys are those of the policy switched off (and of the
     settings before the policy existed: no new field in the description); above it the chosen
-    coarser mesh is in the key; an explicit mesh or auto_nonlinear_mesh=False is kept."""
+    coarser mesh is in the key; an explicit mesh or auto_nonlinear_mesh=False is kept, and a
+    segment with a cavity sampled under pressure is not given a coarser mesh."""
     fam = family_of("rod")
     p = canonical_parameters(fam, ROD)
     below, above = 0.0035, 0.0018                   # estimated 7.3k and 54k DoFs (P2)
@@ -47,6 +50,12 @@ def test_choice_threshold_and_unchanged_keys_below_it():
     assert multifidelity.choose_nonlinear_mesh(fam, p, above, 2, explicit) is explicit
     off = SamplingSettings(auto_nonlinear_mesh=False)
     assert multifidelity.choose_nonlinear_mesh(fam, p, above, 2, off) is off
+    pneumatic = family_of("pneumatic")
+    q = canonical_parameters(pneumatic, CBHA)
+    assert multifidelity.estimated_dofs(pneumatic, q, 0.005, 2) >= multifidelity.AUTO_DOFS
+    assert multifidelity.choose_nonlinear_mesh(pneumatic, q, 0.005, 2, default) is default    # pressurised
+    unpressurised = multifidelity.choose_nonlinear_mesh(pneumatic, q, 0.005, 2, SamplingSettings(cavities=()))
+    assert unpressurised.nonlinear_mesh_chosen and unpressurised.nonlinear_mesh_size > 0.005
     key = dict(material="neo_hookean")
     for h in (None, 0.008, 0.005, below):
         assert designer.entry_key("rod", ROD, mesh_size=h, **key) == designer.entry_key(
