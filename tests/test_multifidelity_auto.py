@@ -108,3 +108,18 @@ def test_chosen_mesh_is_recorded_and_a_failed_check_falls_back(low_threshold):
            or default.energy.sampling.get("nonlinear_mesh_fallback", {}).get("nonlinear_mesh_held_out"))
     passed = held["load_max"] <= multifidelity.CHECK_FACTOR * own["load_max"]
     assert check["verdict"]["passed"] == passed and check["verdict"]["factor"] == multifidelity.CHECK_FACTOR
+
+
+def test_the_check_path_that_inflates_a_cavity_alone():
+    """For a segment with a pressurised cavity the check adds the path that inflates the first
+    pressurised cavity alone (no load, top pressure); none without one."""
+    from vertebra.designer.energy_sampling import path_endpoints, pressure_path
+
+    settings = SamplingSettings().resolved(3, "neo_hookean")
+    endpoints, held = path_endpoints(3, settings)
+    index = pressure_path(3, settings)
+    assert not held[index] and np.array_equal(endpoints[index], [0, 0, 0, 0, 0, 0, 1, 0, 0])
+    second = SamplingSettings(cavities=(1, 2)).resolved(3, "neo_hookean")
+    endpoints, _ = path_endpoints(3, second)
+    assert np.array_equal(endpoints[pressure_path(3, second)], [0, 0, 0, 0, 0, 0, 0, 1, 0])
+    assert pressure_path(3, SamplingSettings(cavities=())) is None and pressure_path(0, SamplingSettings()) is None
