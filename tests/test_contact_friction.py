@@ -313,3 +313,20 @@ def test_tick_mode_on_a_frictional_wall_does_not_enter_it():
         touched |= bool(gaps.min() <= 1e-6)
         assert isinstance(step.friction, contact_friction.ContactFriction)
     assert touched
+
+
+def test_a_cabled_robot_on_a_frictional_wall_reports_and_writes():
+    # result.friction is the contacts' state, not a cable's: the JSON lists the cables with their
+    # tension, the contacts with their friction, and the ParaView file is written
+    from vertebra.solver.paraview import trunk_polydata
+    from vertebra.solver.report import static_report
+
+    model = wall_robot(0.5, tendons=(0, 4))
+    a = np.zeros(16)
+    a[[0, 4]] = 3.0, 5.0
+    result = model.solve(a)
+    document = static_report(model, result)
+    assert len(document["cables"]) == 16
+    assert any(c["force"] > 0.0 and c["sliding"] in ("stick", "slip") for c in document["contacts"])
+    data = trunk_polydata(model, result.state, result.actuation, friction=result.friction, contacts=result.contacts)
+    assert data is not None
