@@ -755,14 +755,14 @@ class Constraints:
         self.multipliers = step.multipliers[pressed]
         self.reference = step.contacts.gap[pressed]
 
-    def held(self) -> tuple:
+    def current(self) -> tuple:
         """The current multipliers (keys, values), to return to them (:meth:`resume`)."""
         return self.keys, self.multipliers
 
-    def resume(self, held: tuple, state) -> None:
-        """Take the multipliers ``held`` (:meth:`held`) again for a step from ``state`` that no
+    def resume(self, current: tuple, state) -> None:
+        """Take the multipliers ``current`` (:meth:`current`) again for a step from ``state`` that no
         complementarity problem gave (a negative-curvature step, which keeps the pressed contacts)."""
-        self.keys, self.multipliers = held
+        self.keys, self.multipliers = current
         self.reference = self.pressed(state).gap
 
     def reestimate(self, gradient: np.ndarray, state, weights: np.ndarray) -> None:

@@ -79,7 +79,8 @@ def bend(stage, ev, r: np.ndarray, factor, shift: float, scale: np.ndarray, matr
     turned downhill and stretched to the strain-space caps: (dq, strain change, r·dq, dqᵀH dq,
     predicted decrease), or None when the curvature is not negative. With contacts
     (``stage.constraints``) the direction is that of the Lagrangian's tangent ``matrix`` on the
-    directions the pressed contacts leave free (:func:`projected_curvature`), and its length is
+    directions the contacts that hold the trunk leave free (``Constraints.held``: the pressed
+    ones, with friction the stuck ones' slip rows too; :func:`projected_curvature`), and its length is
     also capped where it would close another candidate contact (:func:`gap_limit`: it cannot step
     through a disc or into an obstacle); of its two senses the one that predicts the larger
     decrease of the Lagrangian is taken (``r·v`` is the Lagrangian's: ``v`` moves no pressed
@@ -95,12 +96,14 @@ def bend(stage, ev, r: np.ndarray, factor, shift: float, scale: np.ndarray, matr
         change = strain_change(v, ev.links)
         limit = stage.step_limit(v, change, ev)
     else:
-        pressed, candidates = constraints.pressed(state), constraints.at(state)
-        found = projected_curvature(factor, shift, scale, matrix, pressed.jacobian(constraints.n_frames))
+        holding, candidates = constraints.held(state), constraints.at(state)
+        rows = (holding.jacobian(constraints.n_frames) if holding is not None
+                else np.zeros((0, r.size)))
+        found = projected_curvature(factor, shift, scale, matrix, rows)
         if found is None:
             return None
         v, curvature = found
-        held = set(map(tuple, pressed.key.tolist()))
+        held = set(map(tuple, constraints.keys.tolist()))
         free = np.array([tuple(k) not in held for k in candidates.key.tolist()], bool)
         rows = candidates.jacobian(constraints.n_frames)[free]
         best = None

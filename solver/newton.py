@@ -369,7 +369,7 @@ def _newton(stage: _Stage, state: State):
             unshifted = matrix.factor(0.0, symmetric=False)
             step = globalise.residual_step(stage, state, ev, residual, unshifted[0], r)
             kind = "lu"
-        held = constraints.held() if constraints is not None else None    # the forces the tangent has
+        forces = constraints.current() if constraints is not None else None    # the forces the tangent has
         indefinite = False       # a factor of this tangent failed: it is not positive definite
         respringed = False       # the contacts' springs were set again from a step's pressed contacts
         spring = 0.0             # the springs' stiffness along the pressed contacts (0: none)
@@ -457,8 +457,8 @@ def _newton(stage: _Stage, state: State):
                 if constraints is not None:
                     if scale is None:
                         scale = np.maximum(np.abs(matrix.diagonal()), trunk.rest.stiffness)
-                    taken = constraints.held()
-                    constraints.resume(held, state)
+                    taken = constraints.current()
+                    constraints.resume(forces, state)
                 bend = globalise.bend(stage, ev, r, factor, shift, scale, matrix, state)
                 if bend is None and converged:
                     if constraints is None:
