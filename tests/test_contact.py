@@ -420,15 +420,22 @@ def test_a_robot_folding_onto_itself_converges_with_non_adjacent_discs_touching(
     # base's): those discs touch and the solve converges, complementary at every contact (they
     # overlapped by 1, 2.3 and 2.5 mm when only neighbours touched). No two discs overlap
     # anywhere (every pair, exact gaps).
+    result = solved_with_discs_apart(seed)
+    assert touching in {c.bodies for c in pressed(result)}
+
+
+def solved_with_discs_apart(seed):
+    # random robot ``seed`` with discs solved: converged, complementary at every contact, and no two
+    # discs overlapping anywhere (every pair, exact gaps)
     _, with_discs = random_robot(seed)
     model = solver.build_model(solver.parse_scene(with_discs))
     result = model.solve(raise_on_failure=False)
     assert result.converged, result.message
-    assert touching in {c.bodies for c in pressed(result)}
     assert_complementary(result)
     discs = model.trunk.contact
     first, second = np.triu_indices(discs.disc_frame.size, 1)
     assert contact.disc_gaps(discs, result.state, first, second).min() >= -1e-9
+    return result
 
 
 @pytest.mark.parametrize("seed", [0, 13])
@@ -460,15 +467,7 @@ def test_soft_robots_folding_their_discs_face_to_face_converge(seed):
     # thickness. With points round the facing rims, negative-curvature steps on the contacts'
     # free directions and steps that take no discs that deep, they converge, complementary at
     # every contact, no two discs overlapping (every pair, exact gaps)
-    _, with_discs = random_robot(seed)
-    model = solver.build_model(solver.parse_scene(with_discs))
-    result = model.solve(raise_on_failure=False)
-    assert result.converged, result.message
-    assert pressed(result)
-    assert_complementary(result)
-    discs = model.trunk.contact
-    first, second = np.triu_indices(discs.disc_frame.size, 1)
-    assert contact.disc_gaps(discs, result.state, first, second).min() >= -1e-9
+    assert pressed(solved_with_discs_apart(seed))
 
 
 def test_a_saddle_with_discs_declared_is_left_along_negative_curvature():
