@@ -21,7 +21,11 @@ act after the solve and are differentiated in closed form.
 the tendons are the commands passed through :func:`~vertebra.solver.calibration.data.play`, the
 samples taken as one time-ordered sequence (in the calling process, before the samples are split
 into blocks); a stroke's derivative with respect to its play is ±1 or carried, so the markers'
-derivative is the model's sensitivity to that actuator times it.
+derivative is the model's sensitivity to that actuator times it. A **lag** (the ``lag``
+elements: the stroke relaxes towards what the play passes on with a time constant, between the
+samples' times, :func:`~vertebra.solver.calibration.data.lag`) acts the same way: the strokes
+and their derivatives by the time constants and the plays come from
+:func:`~vertebra.solver.calibration.data.transmission`.
 
 **Warm starts.** Each sample's solve starts from its own equilibrium of the previous call, moved
 to first order by the change of the model elements since (``q + dq/dθ Δθ`` where the derivatives
@@ -47,7 +51,7 @@ import numpy as np
 from vertebra.core.errors import ConvergenceError, OptionError
 from vertebra.core.lie import qmatrix, so3_exp
 from vertebra.core.processes import exit_with_parent, pinned_environment
-from vertebra.solver.calibration.data import play
+from vertebra.solver.calibration.data import transmission
 from vertebra.solver.calibration.fit_parameters import Values
 from vertebra.solver.batch import predicted_strains
 from vertebra.solver.model import build_model
@@ -58,7 +62,10 @@ __all__ = ["Prediction", "Predictor", "RuntimePredictor", "default_workers"]
 
 #: the elements that act through the model, and the sensitivity parameter group of each
 MODEL_KINDS = {"stiffness": "stiffness_scale", "angle": "hole_angle", "radius": "hole_radius",
-               "cable_stiffness": "cable_stiffness", "pretension": "pretension", "backlash": "actuation"}
+               "cable_stiffness": "cable_stiffness", "pretension": "pretension", "backlash": "actuation",
+               "lag": "actuation"}
+#: the elements that act through the strokes (:func:`~vertebra.solver.calibration.data.transmission`)
+STROKE_KINDS = ("backlash", "lag")
 #: the fewest samples per worker process worth starting one for (a process costs ~1 s to start)
 SAMPLES_PER_WORKER = 256
 
@@ -128,8 +135,12 @@ class RuntimePredictor:
         equilibria (a least-squares step asks for the residuals, then the Jacobian, at one point)."""
         wrt = tuple(wrt)
         commands, slopes = samples.commands, None
-        if values.backlash.any() or any(kind == "backlash" for kind, _ in wrt):
-            commands, slopes = play(commands, values.backlash[self.engine.driven])
+        if values.backlash.any() or values.lag.any() or any(kind in STROKE_KINDS for kind, _ in wrt):
+            driven = self.engine.driven
+            if (values.lag.any() or any(kind == "lag" for kind, _ in wrt)) and samples.times is None:
+                raise OptionError(f"{samples.source}: a lag needs each sample's time: name the time column in the "
+                                  f"mapping's [data] table (time = \"COLUMN\", time_unit = \"s\")", field="--fit")
+            commands, slopes = transmission(commands, samples.times, values.backlash[driven], values.lag[driven])
         blocks = min(self.workers, len(samples))
         if blocks <= 1:
             return self.engine.predict(values, commands, samples.source, samples.rows, wrt, slopes)
@@ -137,7 +148,7 @@ class RuntimePredictor:
             self._pool = _Pool(self.workers, self._scene, self._mapping)
         edges = np.linspace(0, len(samples), blocks + 1).round().astype(int)
         parts = self._pool.map("predict", [(values, commands[a:b], samples.source, samples.rows[a:b], wrt,
-                                            None if slopes is None else slopes[a:b])
+                                            None if slopes is None else {kind: d[a:b] for kind, d in slopes.items()})
                                            for a, b in zip(edges[:-1], edges[1:])])
         return Prediction(np.concatenate([p.markers for p in parts]),
                           None if not wrt else np.concatenate([p.derivatives for p in parts]),
@@ -194,11 +205,13 @@ class _Engine:
         return actuation
 
     def _model_columns(self, elements: tuple):
-        """The sensitivity columns of the model ``elements`` ((kind, index) pairs), made once."""
+        """The sensitivity columns of the model ``elements`` ((kind, index) pairs), made once, and
+        each element's column among them (a tendon's play and lag share its actuator's)."""
         if elements not in self._columns:
             names = [f"{MODEL_KINDS[kind]}:{index if kind == 'stiffness' else self.scene.cables[index].name}"
                      for kind, index in elements]
-            self._columns[elements] = parameters_of(self.model, names)
+            unique = list(dict.fromkeys(names))
+            self._columns[elements] = (parameters_of(self.model, unique), [unique.index(n) for n in names])
         return self._columns[elements]
 
     # ------------------------------------------------------------------ markers
@@ -223,14 +236,15 @@ class _Engine:
     def predict(self, values: Values, commands, source, rows, wrt: tuple, slopes=None) -> Prediction:
         """Markers of the samples ``commands`` (rows ``rows`` of ``source``; the strokes that reach
         the tendons) under ``values`` and, for the elements ``wrt``, their derivatives
-        (``slopes``: the strokes' derivatives with respect to the play of their actuator column,
-        :func:`~vertebra.solver.calibration.data.play`, needed for ``backlash`` elements)."""
+        (``slopes``: the strokes' derivatives by the play and the lag of their actuator column,
+        :func:`~vertebra.solver.calibration.data.transmission`, needed for ``backlash`` and ``lag``
+        elements)."""
         self._set(values)
         Rf = so3_exp(values.frame[3:])
         key = (source, rows.tobytes(), commands.tobytes(),
                tuple(getattr(values, f).tobytes() for f in ("stiffness", "angle", "radius", "cable_stiffness",
                                                             "pretension", "frame", "marker", "friction",
-                                                            "backlash")))
+                                                            "backlash", "lag")))
         t0 = time.perf_counter()
         iterations = 0
         if self._last is not None and self._last[0] == key:
@@ -337,14 +351,15 @@ class _Engine:
         arm = np.einsum("bmij,mj->bmi", R, values.marker)                          # R r
         if inner:
             rest = model.trunk.rest_state
-            sens = batch_sensitivities(model, solved.strains, actuations, wrt=self._model_columns(inner), outputs=(),
+            columns, which = self._model_columns(inner)
+            sens = batch_sensitivities(model, solved.strains, actuations, wrt=columns, outputs=(),
                                        method="direct", states=_States(solved, rest))
-            dq = sens.dq
-            # a play's column: the actuator's sensitivity times its stroke's slope (per sample)
+            dq = sens.dq if which == list(range(len(columns))) else sens.dq[:, :, which]
+            # a play's or a lag's column: the actuator's sensitivity times its stroke's derivative (per sample)
             column_of = {int(c): a for a, c in enumerate(self.driven)}
             for k, (kind, index) in enumerate(inner):
-                if kind == "backlash":
-                    dq[:, :, k] *= slopes[:, column_of[index]][:, None]
+                if kind in STROKE_KINDS:
+                    dq[:, :, k] *= slopes[kind][:, column_of[index]][:, None]
             at = np.array([values.get(kind, index) for kind, index in inner])
             for i, row in enumerate(rows.tolist()):
                 if np.all(np.isfinite(solved.strains[i])):
