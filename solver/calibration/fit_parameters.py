@@ -25,7 +25,9 @@ driven tendon's transmission, m: the stroke that reaches the tendon lags the com
 this much in the direction it last moved, :func:`~vertebra.solver.calibration.data.play`; the
 samples are then a time-ordered sequence), ``lag`` (time constant of a driven tendon's stroke, s:
 the stroke relaxes towards the command at this rate between the samples' times,
-:func:`~vertebra.solver.calibration.data.lag`; the mapping names a time column).
+:func:`~vertebra.solver.calibration.data.lag`; the mapping names a time column),
+``backlash_rate`` (growth of the play with the tendon's tension, m/N: the play is
+``backlash + backlash_rate·T``, :mod:`~vertebra.solver.calibration.tension_play`).
 """
 
 from __future__ import annotations
@@ -55,6 +57,7 @@ class Values:
     friction: np.ndarray         # (n_cables,) μ of the capstan law at a cable's holes (0: frictionless)
     backlash: np.ndarray         # (n_cables,) play between a driven tendon's command and its stroke, m
     lag: np.ndarray              # (n_cables,) time constant of a driven tendon's stroke behind its command, s
+    backlash_rate: np.ndarray    # (n_cables,) growth of a driven tendon's play with its tension, m/N
 
     def get(self, kind: str, index) -> float:
         return float(getattr(self, kind)[index])
@@ -89,6 +92,8 @@ KINDS = {
                          "then a time-ordered sequence)"),
     "backlash": Kind("m", "play between a driven tendon's command and the stroke that reaches it (the "
                           "samples are then a time-ordered sequence)"),
+    "backlash_rate": Kind("m/N", "growth of a driven tendon's play with the tension it carries (the samples are "
+                                 "then a time-ordered sequence)"),
     "lag": Kind("s", "time constant with which a driven tendon's stroke follows its command (the samples are "
                      "then a time-ordered sequence with times)"),
 }
@@ -103,7 +108,8 @@ def initial_values(scene, mapping, model) -> Values:
                   frame=np.array(mapping.frame_position + mapping.frame_rotation),
                   marker=np.array([m.offset for m in mapping.markers]),
                   friction=np.array(model.compiled.actuators.friction, float),
-                  backlash=np.zeros(len(scene.cables)), lag=np.zeros(len(scene.cables)))
+                  backlash=np.zeros(len(scene.cables)), lag=np.zeros(len(scene.cables)),
+                  backlash_rate=np.zeros(len(scene.cables)))
 
 
 def _members(kind: str, scene, mapping) -> dict:
@@ -112,7 +118,7 @@ def _members(kind: str, scene, mapping) -> dict:
         return {str(i): i for i in range(len(scene.segments))}
     if kind in ("angle", "radius"):
         return {c.name: i for i, c in enumerate(scene.cables)}
-    if kind in ("cable_stiffness", "pretension", "friction", "backlash", "lag"):
+    if kind in ("cable_stiffness", "pretension", "friction", "backlash", "backlash_rate", "lag"):
         names = [c.name for c in scene.cables]
         return {a.cable: names.index(a.cable) for a in mapping.actuators if a.cable in names}
     if kind == "frame":
@@ -163,6 +169,8 @@ def _typical(kind: str, index, base: Values, scene, length: float) -> float:
         return 1e-3 * length
     if kind == "lag":
         return 0.1
+    if kind == "backlash_rate":
+        return 1.0 / base.cable_stiffness[index]        # a play of 1 mm per the tension of a 1 mm stretch
     return 0.01 * length
 
 
@@ -187,6 +195,8 @@ def _default_bounds(kind: str, index, value: float, base: Values, scene, length:
         return 0.0, 0.05 * length
     if kind == "lag":
         return 0.0, 60.0
+    if kind == "backlash_rate":
+        return 0.0, 10.0 / base.cable_stiffness[index]
     return value - 0.5 * length, value + 0.5 * length
 
 
@@ -242,7 +252,7 @@ def parse_parameters(specs, scene, mapping, model, option: str = "--fit") -> Par
                                   field=option) from None
             if not low < high:
                 raise OptionError(f"{spec!r}: lower bound {low:g} is not below upper bound {high:g}", field=option)
-            if k0 in ("friction", "backlash", "lag") and value == low:
+            if k0 in ("friction", "backlash", "backlash_rate", "lag") and value == low:
                 # none in the scene: start inside (the bounded optimiser cannot leave a start on its bound)
                 value = min(low + _typical(k0, i0, base, scene, length), 0.5 * (low + high))
             if not low <= value <= high:
