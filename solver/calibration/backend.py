@@ -113,6 +113,7 @@ class RuntimePredictor:
         self._pool = None
         self._scene, self._mapping = scene, mapping
         self._tension_state: dict = {}   # the last strokes through a tension-dependent play, tensions, ∂T/∂s
+        self.play_passes = 0             # Newton passes of the tension-dependent play (solves of every sample)
 
     # the engine's pieces, for predictors built on this one (calibration.sequence)
     rest_radius = property(lambda self: self.engine.rest_radius)
@@ -197,9 +198,13 @@ class RuntimePredictor:
         if known is None:           # (the plain play's strokes to start from)
             strokes = play(samples.commands, b0)[0]
         elif known[0] == at:        # (the same values: the strokes, tensions and ∂T/∂s of the last call)
-            strokes, tension, gradient = known[1:]
-        else:                       # (other values: the last call's strokes to start from)
+            strokes, tension, gradient = known[1:4]
+        else:                       # (other values: the last call's strokes moved to first order by their change)
             strokes = known[1]
+            if known[4] is not None:
+                elements, was, d_strokes = known[4]
+                change = np.array([values.get(kind, index) for kind, index in elements]) - was
+                strokes = strokes + d_strokes @ change
         solve_s = derivative_s = 0.0
         iterations = 0
         for _ in range(PLAY_PASSES):
@@ -209,13 +214,15 @@ class RuntimePredictor:
                     break
                 strokes = moved
             found = self._blocks(values, strokes, samples, strokes_wrt, tensions=True)
+            self.play_passes += 1
             solve_s, derivative_s = solve_s + found.solve_s, derivative_s + found.derivative_s
             iterations += found.iterations
             tension, gradient = found.tensions, found.tension_derivatives
         else:
             raise ConvergenceError(f"{samples.source}: the strokes through the tension-dependent play did not "
                                    f"converge in {PLAY_PASSES} passes", None)
-        self._tension_state[key] = (at, strokes, tension, gradient)
+        first_order = None if known is None else known[4]
+        self._tension_state[key] = (at, strokes, tension, gradient, first_order)
         found = self._blocks(values, strokes, samples, inner + strokes_wrt if wrt else (), tensions=bool(wrt))
         derivatives = None
         if wrt:
@@ -236,6 +243,10 @@ class RuntimePredictor:
             derivatives = np.zeros(found.markers.shape + (P,))
             derivatives[..., where] = found.derivatives[..., :m]
             derivatives += np.einsum("bmxa,bap->bmxp", found.derivatives[..., m:], d_strokes)
+            moved_by = [j for j, (kind, _) in enumerate(wrt) if kind not in ("frame", "marker")]   # (the strokes')
+            self._tension_state[key] = (at, strokes, tension, gradient,
+                                        (tuple(wrt[j] for j in moved_by),
+                                         np.array([values.get(*wrt[j]) for j in moved_by]), d_strokes[..., moved_by]))
             solve_s, derivative_s = solve_s + found.solve_s, derivative_s + found.derivative_s
         return Prediction(found.markers, derivatives, solve_s, derivative_s, iterations + found.iterations)
 
