@@ -50,7 +50,10 @@ def run(root: str, extra=()) -> dict:
             "holdout_rmse_pct_length": document["holdout"]["rmse_pct_length"],
             "train_rmse_m": document["train"]["rmse_m"], "evaluations": optimiser["evaluations"],
             "jacobians": optimiser["jacobians"], "workers": optimiser.get("workers", 1),
-            "values": {p["name"]: p["value"] for p in document["parameters"]}}
+            "values": {p["name"]: p["value"] for p in document["parameters"]},
+            "standard_errors": {p["name"]: p["standard_error"] for p in document["parameters"]},
+            "unidentifiable": document.get("unidentifiable", []),
+            "offset_removed_holdout_rmse_m": document["holdout"]["offset_removed"]["rmse_m"]}
 
 
 def main(argv=None) -> int:

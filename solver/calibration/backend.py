@@ -67,6 +67,8 @@ MODEL_KINDS = {"stiffness": "stiffness_scale", "angle": "hole_angle", "radius": 
                "lag": "actuation", "stroke": "actuation"}
 #: the elements that act through the strokes (:func:`~vertebra.solver.calibration.data.transmission`)
 STROKE_KINDS = ("backlash", "lag")
+#: the elements of a play that depends on the tension (:mod:`~vertebra.solver.calibration.tension_play`)
+TENSION_KINDS = ("backlash_rate", "entry_friction")
 #: strokes through a tension-dependent play are consistent when the last Newton pass moves none
 #: by more than this share of the trunk's length; at most this many passes
 PLAY_TOLERANCE = 1e-9
@@ -143,7 +145,8 @@ class RuntimePredictor:
         derivatives. A call with the values and samples of the previous call reuses its
         equilibria (a least-squares step asks for the residuals, then the Jacobian, at one point)."""
         wrt = tuple(wrt)
-        if values.backlash_rate.any() or any(kind == "backlash_rate" for kind, _ in wrt):
+        if (values.backlash_rate.any() or values.entry_friction.any()
+                or any(kind in TENSION_KINDS for kind, _ in wrt)):
             return self._predict_tension_play(values, samples, wrt)
         commands, slopes = samples.commands, None
         if values.backlash.any() or values.lag.any() or any(kind in STROKE_KINDS for kind, _ in wrt):
@@ -182,17 +185,18 @@ class RuntimePredictor:
         the tensions linearised — until no stroke moves by more than :data:`PLAY_TOLERANCE` of the
         trunk's length; the derivatives by the strokes' recursion."""
         if values.lag.any() or any(kind == "lag" for kind, _ in wrt):
-            raise OptionError("a play that grows with the tension (backlash_rate) and a lag together are not "
-                              "supported: fit one of them", field="--fit")
+            raise OptionError("a play that depends on the tension (backlash_rate, entry_friction) and a lag "
+                              "together are not supported: fit one of them", field="--fit")
         driven = self.engine.driven
         a = len(driven)
-        b0, b1 = values.backlash[driven], values.backlash_rate[driven]
+        b0, b1, hold = values.backlash[driven], values.backlash_rate[driven], values.entry_friction[driven]
         strokes_wrt = tuple(("stroke", int(c)) for c in driven)
-        inner = tuple(e for e in wrt if e[0] not in ("backlash", "backlash_rate"))
+        inner = tuple(e for e in wrt if e[0] not in ("backlash",) + TENSION_KINDS)
         tolerance = PLAY_TOLERANCE * float(self.model.length_scale)
         key = (samples.source, samples.rows.tobytes(), samples.commands.tobytes())
         at = tuple(getattr(values, f).tobytes() for f in ("stiffness", "angle", "radius", "cable_stiffness",
-                                                          "pretension", "backlash", "backlash_rate"))
+                                                          "pretension", "backlash", "backlash_rate",
+                                                          "entry_friction"))
         known = self._tension_state.get(key)
         tension = gradient = None
         if known is None:           # (the plain play's strokes to start from)
@@ -209,7 +213,7 @@ class RuntimePredictor:
         iterations = 0
         for _ in range(PLAY_PASSES):
             if gradient is not None:
-                moved, status = march(samples.commands, b0, b1, tension, gradient, strokes)
+                moved, status = march(samples.commands, b0, b1, tension, gradient, strokes, hold)
                 if np.abs(moved - strokes).max() <= tolerance:
                     break
                 strokes = moved
@@ -228,18 +232,17 @@ class RuntimePredictor:
         if wrt:
             P = len(wrt)
             column = {e: j for j, e in enumerate(wrt)}
-            d_b0, d_b1 = np.zeros((a, P)), np.zeros((a, P))
+            d_b0, d_b1, d_hold = np.zeros((a, P)), np.zeros((a, P)), np.zeros((a, P))
             for i, c in enumerate(driven.tolist()):
-                if ("backlash", c) in column:
-                    d_b0[i, column[("backlash", c)]] = 1.0
-                if ("backlash_rate", c) in column:
-                    d_b1[i, column[("backlash_rate", c)]] = 1.0
+                for kind, d in (("backlash", d_b0), ("backlash_rate", d_b1), ("entry_friction", d_hold)):
+                    if (kind, c) in column:
+                        d[i, column[(kind, c)]] = 1.0
             where = [column[e] for e in inner]
             m = len(inner)
             d_tension = np.zeros((len(samples), a, P))
             d_tension[..., where] = found.tension_derivatives[..., :m]
             d_strokes = stroke_derivatives(status, b1, found.tensions, found.tension_derivatives[..., m:],
-                                           d_tension, d_b0, d_b1)
+                                           d_tension, d_b0, d_b1, d_hold)
             derivatives = np.zeros(found.markers.shape + (P,))
             derivatives[..., where] = found.derivatives[..., :m]
             derivatives += np.einsum("bmxa,bap->bmxp", found.derivatives[..., m:], d_strokes)
@@ -341,7 +344,7 @@ class _Engine:
         key = (source, rows.tobytes(), commands.tobytes(),
                tuple(getattr(values, f).tobytes() for f in ("stiffness", "angle", "radius", "cable_stiffness",
                                                             "pretension", "frame", "marker", "friction",
-                                                            "backlash", "lag", "backlash_rate")))
+                                                            "backlash", "lag", "backlash_rate", "entry_friction")))
         t0 = time.perf_counter()
         iterations = 0
         if self._last is not None and self._last[0] == key:

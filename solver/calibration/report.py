@@ -45,7 +45,8 @@ def _elements(cal, scene, mapping) -> dict:
             "tendons": {a.cable: {name: float(getattr(v, kind)[index[a.cable]])
                                   for name, kind in (("stiffness", "cable_stiffness"), ("pretension", "pretension"),
                                                      ("friction", "friction"), ("backlash", "backlash"),
-                                                     ("backlash_rate", "backlash_rate"), ("lag", "lag"))}
+                                                     ("backlash_rate", "backlash_rate"),
+                                                     ("entry_friction", "entry_friction"), ("lag", "lag"))}
                         for a in mapping.actuators},
             "frame": {"position": v.frame[:3].tolist(), "rotation_vector": v.frame[3:].tolist()},
             "markers": {m.name: {"vertebra": m.vertebra, "offset": o.tolist()}
@@ -134,6 +135,9 @@ def calibrated_scene_toml(cal, scene, mapping) -> str:
     if v.backlash_rate.any():
         header += ("\nthe play grows with the tendon's tension (backlash_rate, mm/N): "
                    + ", ".join(f"{c.name} {1e3 * b:.4g}" for c, b in zip(scene.cables, v.backlash_rate) if b))
+    if v.entry_friction.any():
+        header += ("\na released tendon keeps up to this tension, held by the friction at its entry (N): "
+                   + ", ".join(f"{c.name} {f:.4g}" for c, f in zip(scene.cables, v.entry_friction) if f))
     if v.lag.any():
         header += ("\nthe strokes follow the commands with a lag (time constant, s): "
                    + ", ".join(f"{c.name} {t:.4g}" for c, t in zip(scene.cables, v.lag) if t))

@@ -53,7 +53,8 @@ class SequencePredictor(RuntimePredictor):
         if not np.any(values.friction) and not any(kind == "friction" for kind, _ in wrt):
             return super().predict(values, samples, wrt)
         if (np.any(values.backlash) or np.any(values.lag) or np.any(values.backlash_rate)
-                or any(kind in ("backlash", "lag", "backlash_rate") for kind, _ in wrt)):
+                or np.any(values.entry_friction)
+                or any(kind in ("backlash", "lag", "backlash_rate", "entry_friction") for kind, _ in wrt)):
             raise OptionError("backlash or lag and friction together are not supported: fit one of them (the "
                               "frictional sequence does not pass the commands through the play and the lag)",
                               field="--fit")

@@ -37,14 +37,23 @@ def _widths(b0, b1, tension):
     return b0 + b1 * np.maximum(tension, 0.0)
 
 
-def march(commands, b0, b1, tension, gradient, at):
-    """Strokes (n, a) and statuses (n, a: +1 trailing a rising command, −1 leading a falling one,
-    0 held) of the time-ordered ``commands`` (n, a) through the play ``b0 + b1·T`` with each
-    row's tensions linearised about the strokes ``at`` (n, a): ``T(s) = tension + gradient
-    (s − at)`` (``tension`` (n, a), ``gradient`` (n, a, a)). The first row starts where it is
-    commanded."""
+#: a tendon's status in a row: trailing a rising command, leading a falling one, held where it was,
+#: held by the friction at its entry at the tension it can hold
+RISING, FALLING, HELD, HOLDING = 1, -1, 0, -2
+
+
+def march(commands, b0, b1, tension, gradient, at, hold=None):
+    """Strokes (n, a) and statuses (n, a: :data:`RISING`, :data:`FALLING`, :data:`HELD`,
+    :data:`HOLDING`) of the time-ordered ``commands`` (n, a) through the play ``b0 + b1·T``
+    with each row's tensions linearised about the strokes ``at`` (n, a): ``T(s) = tension +
+    gradient (s − at)`` (``tension`` (n, a), ``gradient`` (n, a, a)). ``hold`` (a,) N: the
+    friction at each tendon's entry — a released tendon slides back into the robot only while
+    its tension there exceeds ``hold``, so a falling stroke stops where ``T(s) = hold``
+    (None: no such friction). The first row starts where it is commanded."""
     commands = np.asarray(commands, float)
     n, a = commands.shape
+    hold = np.zeros(a) if hold is None else np.asarray(hold, float)
+    holding = bool(np.any(hold > 0.0))
     strokes, status = commands.copy(), np.zeros((n, a), int)
     eye = np.eye(a)
     for k in range(1, n):
@@ -53,38 +62,56 @@ def march(commands, b0, b1, tension, gradient, at):
         guess = at[k]
         sigma = None
         for _ in range(ROW_ITERATIONS):
-            w = _widths(b0, b1, offset + G @ guess)
-            new = np.where(previous < c - w, 1, np.where(previous > c + w, -1, 0))
+            T = offset + G @ guess
+            w = _widths(b0, b1, T)
+            new = np.where(previous < c - w, RISING, np.where(previous > c + w, FALLING, HELD))
+            if holding:
+                # a falling tendon's own tension where it was and where the play would take it (the
+                # others' strokes at the guess): held below ``hold``, stopped at ``T = hold`` between
+                diagonal = np.diag(G)
+                there = T + diagonal * (previous - guess)
+                played = T + diagonal * (c + w - guess)
+                falling = new == FALLING
+                new = np.where(falling & (hold > 0.0) & (there <= hold), HELD,
+                               np.where(falling & (hold > 0.0) & (played < hold), HOLDING, new))
             if sigma is not None and np.array_equal(new, sigma):
                 break
             sigma = new
-            moving = sigma != 0
-            # moving rows: s_i + σ_i b1_i (G s)_i = c_i − σ_i (b0_i + b1_i offset_i); held rows: s_i = previous_i
-            A = eye + (moving * sigma * b1)[:, None] * G
-            rhs = np.where(moving, c - sigma * (b0 + b1 * offset), previous)
+            moving = (sigma == RISING) | (sigma == FALLING)
+            sign = np.where(moving, sigma, 0)
+            # moving rows: s_i + σ_i b1_i (G s)_i = c_i − σ_i (b0_i + b1_i offset_i); holding rows:
+            # (G s)_i = hold_i − offset_i; held rows: s_i = previous_i
+            A = eye + (sign * b1)[:, None] * G
+            A[sigma == HOLDING] = G[sigma == HOLDING]
+            rhs = np.where(moving, c - sign * (b0 + b1 * offset),
+                           np.where(sigma == HOLDING, hold - offset, previous))
             guess = np.linalg.solve(A, rhs)
         strokes[k], status[k] = guess, sigma
     return strokes, status
 
 
-def stroke_derivatives(status, b1, tension, gradient, d_tension, d_b0, d_b1):
+def stroke_derivatives(status, b1, tension, gradient, d_tension, d_b0, d_b1, d_hold=None):
     """(n, a, P): the strokes' derivatives by P parameters along the sequence, for the statuses
     of :func:`march` and the sample's exact tensions ``tension`` (n, a), their derivatives by the
     strokes ``gradient`` (n, a, a) and by the parameters at fixed strokes ``d_tension`` (n, a, P);
-    ``d_b0``, ``d_b1`` (a, P): each tendon's play and rate as functions of the parameters (1
-    where a column is that element)."""
+    ``d_b0``, ``d_b1``, ``d_hold`` (a, P): each tendon's play, rate and entry friction as
+    functions of the parameters (1 where a column is that element)."""
     n, a = status.shape
     P = d_tension.shape[-1]
+    d_hold = np.zeros((a, P)) if d_hold is None else d_hold
     out = np.zeros((n, a, P))
     eye = np.eye(a)
     for k in range(1, n):
         sigma = status[k]
-        moving = sigma != 0
-        A = eye + (moving * sigma * b1)[:, None] * gradient[k]
+        moving = (sigma == RISING) | (sigma == FALLING)
+        sign = np.where(moving, sigma, 0)
+        A = eye + (sign * b1)[:, None] * gradient[k]
+        holds = sigma == HOLDING
+        A[holds] = gradient[k][holds]
         taut = (tension[k] > 0.0)[:, None]
         rhs = np.where(moving[:, None],
-                       -sigma[:, None] * (d_b0 + np.maximum(tension[k], 0.0)[:, None] * d_b1
-                                          + b1[:, None] * taut * d_tension[k]),
-                       out[k - 1])
+                       -sign[:, None] * (d_b0 + np.maximum(tension[k], 0.0)[:, None] * d_b1
+                                         + b1[:, None] * taut * d_tension[k]),
+                       np.where(holds[:, None], d_hold - d_tension[k], out[k - 1]))
         out[k] = np.linalg.solve(A, rhs)
     return out
