@@ -465,13 +465,14 @@ def test_march_is_the_play_at_zero_rate_and_solves_the_linearised_play():
     assert np.all(np.abs(strokes[1:] - commands[1:])[~moving[1:]] <= w[1:][~moving[1:]] + 1e-12)
 
 
-def _tension_played(robot, b0: float, b1: float, noise: float, seed: int):
-    """Synthetic samples through a play of ``b0 + b1·T`` on every tendon (the truth's other values
-    as in TRUTH)."""
+def _tension_played(robot, b0: float, b1: float, noise: float, seed: int, hold: float = 0.0):
+    """Synthetic samples through a play of ``b0 + b1·T`` on every tendon and an entry friction
+    ``hold`` (the truth's other values as in TRUTH)."""
     scene, mapping, _ = robot
     ps, x = _truth_values(robot)
     values = ps.values(x).with_elements([(("backlash", i), b0) for i in range(3)]
-                                        + [(("backlash_rate", i), b1) for i in range(3)])
+                                        + [(("backlash_rate", i), b1) for i in range(3)]
+                                        + [(("entry_friction", i), hold) for i in range(3)])
     commands = _commands()
     empty = Samples(commands, np.zeros((len(commands), 1, 3)), ("pulls",) * len(commands), "synthetic")
     markers = RuntimePredictor(scene, mapping).predict(values, empty).markers
@@ -529,6 +530,46 @@ def test_tension_play_derivatives_match_resolved_differences_and_a_rate_is_recov
         assert cal.identifiable[i], name
         assert abs(cal.x[i] - truth) <= 3.0 * cal.standard_errors[i], (name, cal.x[i], cal.standard_errors[i])
     assert cal.standard_errors[names.index("backlash_rate.a+b")] < 3e-5
+
+
+def test_entry_friction_holds_a_released_tendon_and_is_recovered(robot, tmp_path):
+    """Friction at the entry: a tendon released below its slack keeps the tension it can hold
+    there (the robot stays bent) — exactly ``hold`` where it slid back in, less where it stopped
+    before; the markers' derivatives by it against re-solved differences to 1e-6 (equilibria to
+    1e-13); 0.8 N in the synthetic data recovered within three standard errors."""
+    scene, mapping, _ = robot
+    (tmp_path / "tight.toml").write_text(SCENE.replace("tolerance = 1e-10", "tolerance = 1e-13"))
+    tight = solver.load_scene(tmp_path / "tight.toml")
+    values, samples = _tension_played(robot, 5e-5, 0.0, 0.0, 0, hold=0.8)
+    wrt = [("entry_friction", 0), ("entry_friction", 1), ("backlash", 0)]
+    predictor = RuntimePredictor(tight, mapping)
+    analytic = predictor.predict(values, samples, wrt).derivatives
+    strokes = predictor._tension_state[next(iter(predictor._tension_state))][1]
+    model = predictor.model
+    released = samples.commands[:, :2] < 0.0            # a and b at −2 mm, after a pull
+    tensions = np.array([model.cable_tensions(model.solve(command).state, command) for command in strokes])
+    assert released.sum() >= 10
+    assert np.all(tensions[:, :2][released] <= 0.8 + 1e-9)
+    assert np.sum(np.abs(tensions[:, :2][released] - 0.8) < 1e-9) >= 6
+    plain = RuntimePredictor(scene, mapping).predict(values.with_elements(
+        [(("entry_friction", i), 0.0) for i in range(3)]), samples).markers
+    assert np.abs(predictor.predict(values, samples).markers - plain).max() > 1e-3   # it holds the robot bent
+    for j, (kind, index) in enumerate(wrt):
+        h = 1e-4 * (1.0 if kind == "entry_friction" else 5e-5)
+        moved = [RuntimePredictor(tight, mapping).predict(
+            values.with_elements([((kind, index), values.get(kind, index) + sign * h)]), samples).markers
+            for sign in (1.0, -1.0)]
+        numeric = (moved[0] - moved[1]) / (2 * h)
+        scale = np.abs(numeric).max()
+        assert scale > 0.0, kind
+        assert np.abs(analytic[..., j] - numeric).max() <= 1e-6 * scale, (kind, index)
+    _, noisy = _tension_played(robot, 5e-5, 0.0, 5e-5, 1, hold=0.8)
+    cal = calibrate(scene, mapping, noisy, fit=FIT + ["backlash.a+b", "entry_friction.a+b"])
+    names = list(cal.parameters.names)
+    i = names.index("entry_friction.a+b")
+    assert cal.identifiable[i]
+    assert abs(cal.x[i] - 0.8) <= 3.0 * cal.standard_errors[i], (cal.x[i], cal.standard_errors[i])
+    assert cal.standard_errors[i] < 0.1
 
 
 def test_time_column_is_read_and_checked(robot, tmp_path):

@@ -211,11 +211,17 @@ class RuntimePredictor:
                 strokes = strokes + d_strokes @ change
         solve_s = derivative_s = 0.0
         iterations = 0
+        changes = []
         for _ in range(PLAY_PASSES):
             if gradient is not None:
                 moved, status = march(samples.commands, b0, b1, tension, gradient, strokes, hold)
-                if np.abs(moved - strokes).max() <= tolerance:
+                changes.append(float(np.abs(moved - strokes).max()))
+                if changes[-1] <= tolerance:
                     break
+                if len(changes) > 1 and changes[-1] > 0.5 * changes[-2]:
+                    # (not contracting: a tendon's tension has a kink where it goes slack, and Newton
+                    # from the slack side sees no slope — half a step, then the slope of the taut side)
+                    moved = strokes + 0.5 * (moved - strokes)
                 strokes = moved
             found = self._blocks(values, strokes, samples, strokes_wrt, tensions=True)
             self.play_passes += 1
@@ -224,7 +230,8 @@ class RuntimePredictor:
             tension, gradient = found.tensions, found.tension_derivatives
         else:
             raise ConvergenceError(f"{samples.source}: the strokes through the tension-dependent play did not "
-                                   f"converge in {PLAY_PASSES} passes", None)
+                                   f"converge in {PLAY_PASSES} passes (largest change of a stroke in each: "
+                                   f"{', '.join(f'{c:.3g}' for c in changes)} m)", None)
         first_order = None if known is None else known[4]
         self._tension_state[key] = (at, strokes, tension, gradient, first_order)
         found = self._blocks(values, strokes, samples, inner + strokes_wrt if wrt else (), tensions=bool(wrt))
