@@ -572,6 +572,18 @@ def test_entry_friction_holds_a_released_tendon_and_is_recovered(robot, tmp_path
     assert cal.standard_errors[i] < 0.1
 
 
+def test_memory_terms_that_do_not_combine_are_refused(robot):
+    scene, mapping, _ = robot
+    values, samples = _lagged(robot, 0.3, 0.0, 0)
+    with pytest.raises(OptionError, match="and a lag together are not supported"):
+        RuntimePredictor(scene, mapping).predict(values.with_elements([(("entry_friction", 0), 0.5)]), samples)
+    with pytest.raises(OptionError, match="and a lag together are not supported"):
+        RuntimePredictor(scene, mapping).predict(values, samples, [("backlash_rate", 1)])
+    ps = parse_parameters(["lag.a=0:2", "entry_friction.b"], scene, mapping, solver.build_model(scene))
+    assert ps.units() == ["s", "N"] and (ps.lower[0], ps.upper[0]) == (0.0, 2.0)
+    assert ps.initial[1] > 0.0                      # (started inside its bounds: 0 is the lower one)
+
+
 def test_time_column_is_read_and_checked(robot, tmp_path):
     scene, mapping, _ = robot
     timed = parse_mapping(dict(MAPPING, data={"pattern": "pattern", "time": "t", "time_unit": "ms"}), "map.toml")
