@@ -115,7 +115,11 @@ def design(family: str, mesh_mm: float, executor: str, workers: int | None, coun
            "solves": int(sampling.get("solves", 0)), "paths": int(sampling.get("paths", 0)),
            "ramp_solves": sampling.get("ramp_solves"), "ramp_s": sampling.get("ramp_s"),
            "limit_pressure": energy.range.limit_pressure, "terms": int(energy.coefficients.size),
-           "held_out": energy.fit_error.get("held_out", {})}
+           "held_out": energy.fit_error.get("held_out", {}),
+           "nonlinear_mesh": sampling.get("nonlinear_mesh"), "entry_mesh_check": sampling.get("entry_mesh_check"),
+           "nonlinear_mesh_fallback": sampling.get("nonlinear_mesh_fallback"),
+           "nonlinear_mesh_held_out": energy.fit_error.get("nonlinear_mesh_held_out"),
+           "timings": {k: float(v) for k, v in entry.timings.items()}}
     if count:
         row["operations"] = dict(_COUNTS)
     return row
@@ -182,23 +186,23 @@ def _exponent(rows: list) -> float | None:
     return float(np.polyfit(x, y, 1)[0])
 
 
-def section_rod(results: dict, meshes: list, workers: int) -> None:
-    rows = [r for r in results.get("rod", {}).get("rows", []) if r["mesh_mm"] not in meshes]
+def section_rod(results: dict, meshes: list, workers: int, label: str = "rod") -> None:
+    rows = [r for r in results.get(label, {}).get("rows", []) if r["mesh_mm"] not in meshes]
     for h in meshes:
         log(f"rod entry at {h} mm on {workers} local workers")
         rows.append(design("rod", h, "local", workers))
         rows.sort(key=lambda r: r["dofs"])
-        results["rod"] = {"rows": rows, "exponent_wall": _exponent(rows),
+        results[label] = {"rows": rows, "exponent_wall": _exponent(rows),
                           "exponent_cpu": _exponent([dict(r, wall_s=r["cpu_s"]) for r in rows]),
                           "before": BEFORE["rod"]}
         _save(results)
 
 
-def section_cbha(results: dict, mesh_mm: float, workers: int) -> None:
+def section_cbha(results: dict, mesh_mm: float, workers: int, label: str = "cbha") -> None:
     log(f"CBHA-like slice at {mesh_mm} mm on {workers} local workers")
-    rows = [r for r in results.get("cbha", {}).get("rows", []) if r["mesh_mm"] != mesh_mm]
+    rows = [r for r in results.get(label, {}).get("rows", []) if r["mesh_mm"] != mesh_mm]
     rows.append(design("cbha", mesh_mm, "local", workers))
-    results["cbha"] = {"rows": sorted(rows, key=lambda r: r["dofs"])}
+    results[label] = {"rows": sorted(rows, key=lambda r: r["dofs"])}
     _save(results)
 
 
@@ -210,6 +214,20 @@ def _held(row: dict) -> str:
     if "volume_max" in held:
         text += f" (volume {held['volume_max']:.3g})"
     return text
+
+
+def _coarse(row: dict) -> str:
+    """The nonlinear mesh of a row: none (the entry's), the one kept (its check's seconds), or the
+    one dropped after a failed check."""
+    mesh, fallback = row.get("nonlinear_mesh"), row.get("nonlinear_mesh_fallback")
+    if fallback:
+        return (f"{fallback['nonlinear_mesh']['mesh_size'] * 1e3:.3g} mm dropped: "
+                f"{fallback['entry_mesh_check']['verdict']['why']}")
+    if not mesh:
+        return "–"
+    own = (row.get("nonlinear_mesh_held_out") or {}).get("load_max", math.nan)
+    return (f"{mesh['mesh_size'] * 1e3:.3g} mm, {mesh['dofs']:,} DoFs, own held-out {own:.3g} "
+            f"(check {row.get('timings', {}).get('check_s', math.nan):.0f} s)")
 
 
 def markdown(results: dict) -> str:
@@ -230,15 +248,19 @@ def markdown(results: dict) -> str:
                              f"{o['factor_columns']} | {_held(row)} |")
         ratio = ab["median_ratio_old_over_new"]
         lines += ["", f"Median old/new: wall {ratio['wall_s']:.2f}×, CPU {ratio['cpu_s']:.2f}×.", ""]
-    for key, title in (("rod", "Rod entries (P2, default sampling)"), ("cbha", "CBHA-like slice (P2, default sampling)")):
+    for key, title in (("rod", "Rod entries (P2, default sampling)"), ("cbha", "CBHA-like slice (P2, default sampling)"),
+                       ("growth", "Rod entries, the default path (nonlinear mesh chosen above the threshold)"),
+                       ("cbha_default", "CBHA-like slice, the default path (nonlinear mesh chosen above the "
+                                        "threshold)")):
         if key not in results:
             continue
         lines += [f"## {title}", "", "| mesh | DoFs | wall s | CPU s | solves | ramp solves / s | held-out load error | "
-                  "load |", "|---|---|---|---|---|---|---|---|"]
+                  "nonlinear mesh (check) | load before / after |", "|---|---|---|---|---|---|---|---|---|"]
         for row in results[key]["rows"]:
             ramp = "–" if row.get("ramp_solves") is None else f"{row['ramp_solves']} / {row['ramp_s']:.0f}"
             lines.append(f"| {row['mesh_mm']} mm | {row['dofs']:,} | {row['wall_s']:.0f} | {row['cpu_s']:.0f} | "
-                         f"{row['solves']} | {ramp} | {_held(row)} | {row.get('load_before')} |")
+                         f"{row['solves']} | {ramp} | {_held(row)} | {_coarse(row)} | {row.get('load_before')} / "
+                         f"{row.get('load_after')} |")
         if results[key].get("exponent_wall") is not None:
             lines += ["", f"Growth exponent of the design time with the DoFs: wall {results[key]['exponent_wall']:.2f}, "
                           f"CPU {results[key]['exponent_cpu']:.2f}."]
@@ -257,9 +279,9 @@ def main(argv=None) -> int:
     parser.add_argument("--workers", type=int, default=2)
     args = parser.parse_args(argv)
     sections = args.sections or ["ab", "rod", "cbha"]
-    unknown = sorted(set(sections) - {"ab", "rod", "cbha"})
+    unknown = sorted(set(sections) - {"ab", "rod", "cbha", "growth", "cbha_default"})
     if unknown:
-        parser.error(f"unknown section {unknown[0]!r} (known: ab, rod, cbha)")
+        parser.error(f"unknown section {unknown[0]!r} (known: ab, rod, cbha, growth, cbha_default)")
     results = _load()
     if "ab" in sections:
         if args.baseline is None:
@@ -269,6 +291,10 @@ def main(argv=None) -> int:
         section_rod(results, args.rod_meshes, args.workers)
     if "cbha" in sections:
         section_cbha(results, args.cbha_mesh, args.workers)
+    if "growth" in sections:
+        section_rod(results, args.rod_meshes, args.workers, label="growth")
+    if "cbha_default" in sections:
+        section_cbha(results, args.cbha_mesh, args.workers, label="cbha_default")
     print(markdown(results))
     return 0
 

@@ -20,6 +20,13 @@ on a few loading paths solved with the FE of the entry's mesh. Sections (all by 
 ``large``
     A multi-fidelity entry on ``--large`` mm (47k DoFs at 1.83 mm) with the nonlinear part
     from ``--large-coarse`` mm: design time and the held-out check on the large mesh.
+``chambered``
+    The CBHA-like slice of the acceptance study (outer radius 40 mm, 3 chambers r 10 mm at
+    21.5 mm, L 30 mm, E 0.5 MPa, ν 0.45, sampled to 1.5 bar at 95 % of the limit) at
+    ``--cbha-fine`` mm with the nonlinear part from ``--cbha-coarse`` mm: the check on the
+    fine mesh (held-out paths and the inflation path), its verdict by the default rule
+    (``designer.multifidelity.check_verdict``), the cost. The trunk built from such entries:
+    ``benchmarks/bench_nonlinear_acceptance.py --cases cbha4_pneumatic_nh --nonlinear-mesh-size H``.
 
 Results: benchmarks/results/multifidelity.json and .md (each row saved as it finishes).
 
@@ -220,6 +227,44 @@ def section_large(results: dict, large: float, coarse: float, workers: int, cach
     _save(results, "large")
 
 
+CBHA = dict(outer_radius=0.04, chamber_radius=0.01, chamber_offset=0.0215, length=0.03, chambers=3,
+            youngs_modulus=5e5, poisson_ratio=0.45)
+
+
+def section_chambered(results: dict, fine: float, coarse: float, workers: int) -> None:
+    from vertebra import designer
+    from vertebra.designer import multifidelity
+
+    log(f"CBHA-like slice at {fine} mm with the nonlinear part from {coarse} mm")
+    self0, children0 = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    load0, start = loadavg(), time.perf_counter()
+    entry = designer.design_segment("pneumatic", CBHA, mesh_size=fine / 1e3, material=MATERIAL,
+                                    estimate_accuracy=False, sampling={"pressure": 1.5e5, "limit_fraction": 0.95},
+                                    nonlinear_mesh_size=coarse / 1e3, executor="local", workers=workers,
+                                    progress=lambda m: log(f"  [{time.perf_counter() - start:7.1f} s] {m}"))
+    wall = time.perf_counter() - start
+    self1, children1 = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    energy = entry.energy
+    check = energy.sampling["entry_mesh_check"]
+    passed, why = multifidelity.check_verdict({"held": energy.fit_error["held_out"], "stopped": check["stopped"]},
+                                              energy.fit_error["nonlinear_mesh_held_out"], None)
+
+    def strip(held: dict) -> dict:
+        return {k: v for k, v in held.items() if k != "by_level"}
+
+    results["chambered"] = {
+        "fine_mm": fine, "coarse_mm": coarse, "dofs": int(entry.mesh["dofs"]),
+        "nonlinear_dofs": int(energy.sampling["nonlinear_mesh"]["dofs"]), "wall_s": wall,
+        "cpu_s": sum(b.ru_utime + b.ru_stime - a.ru_utime - a.ru_stime
+                     for a, b in ((self0, self1), (children0, children1))),
+        "load_before": load0, "load_after": loadavg(), "check": check,
+        "held_out": strip(energy.fit_error["held_out"]),
+        "nonlinear_mesh_held_out": strip(energy.fit_error["nonlinear_mesh_held_out"]),
+        "limit_pressure": energy.range.limit_pressure, "ramp_mesh_size": energy.sampling.get("ramp_mesh_size"),
+        "default_rule": {"passed": passed, "why": why}, "timings": dict(entry.timings)}
+    _save(results, "chambered")
+
+
 # ------------------------------------------------------------------ report
 
 def _err(held: dict | None) -> str:
@@ -270,24 +315,36 @@ def markdown(results: dict) -> str:
                          f"{_err(row['nonlinear_mesh_held_out'])} | "
                          f"{row['held_out'].get('linear_load_max', math.nan):.3g} | {row['load_before']} |")
         lines.append("")
+    if "chambered" in results:
+        c = results["chambered"]
+        held, own = c["held_out"], c["nonlinear_mesh_held_out"]
+        lines += [f"## CBHA-like slice at {c['fine_mm']:g} mm, nonlinear part from {c['coarse_mm']:g} mm", "",
+                  f"{c['dofs']:,} DoFs ({c['nonlinear_dofs']:,} in the nonlinear part); {c['wall_s']:.0f} s wall, "
+                  f"{c['cpu_s']:.0f} s CPU at load {c['load_before']} → {c['load_after']}; check paths "
+                  f"{c['check']['paths']} ({c['check']['solves']} solves on the fine mesh). Held-out on the fine mesh: "
+                  f"load {held['load_max']:.3g}, volume {held.get('volume_max', math.nan):.3g}; the coarse fit's own: "
+                  f"load {own['load_max']:.3g}, volume {own.get('volume_max', math.nan):.3g}. Default rule: "
+                  f"{'passed' if c['default_rule']['passed'] else 'failed'} ({c['default_rule']['why']}).", ""]
     return "\n".join(lines)
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("sections", nargs="*", help="design, trunk, large (default: all)")
+    parser.add_argument("sections", nargs="*", help="design, trunk, large, chambered (default: all)")
     parser.add_argument("--fine", type=float, default=3.5, help="mm")
     parser.add_argument("--coarse", type=float, nargs="+", default=[8.0, 5.0], help="mm")
     parser.add_argument("--rounds", type=int, default=1)
     parser.add_argument("--large", type=float, default=1.83, help="mm")
     parser.add_argument("--large-coarse", type=float, default=3.5, help="mm")
+    parser.add_argument("--cbha-fine", type=float, default=12.0, help="mm")
+    parser.add_argument("--cbha-coarse", type=float, default=16.0, help="mm")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--cache", type=Path, default=CACHE)
     args = parser.parse_args(argv)
-    sections = args.sections or ["design", "trunk", "large"]
-    unknown = sorted(set(sections) - {"design", "trunk", "large"})
+    sections = args.sections or ["design", "trunk", "large", "chambered"]
+    unknown = sorted(set(sections) - {"design", "trunk", "large", "chambered"})
     if unknown:
-        parser.error(f"unknown section {unknown[0]!r} (known: design, trunk, large)")
+        parser.error(f"unknown section {unknown[0]!r} (known: design, trunk, large, chambered)")
     args.cache.mkdir(parents=True, exist_ok=True)
     results = _load()
     if "design" in sections:
@@ -296,6 +353,8 @@ def main(argv=None) -> int:
         section_trunk(results, args.fine, args.cache)
     if "large" in sections:
         section_large(results, args.large, args.large_coarse, args.workers, args.cache)
+    if "chambered" in sections:
+        section_chambered(results, args.cbha_fine, args.cbha_coarse, args.workers)
     print(markdown(_load()))
     return 0
 

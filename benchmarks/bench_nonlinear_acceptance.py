@@ -56,13 +56,19 @@ LIMITS = ((50.0, 0.1), (90.0, 0.2))    # (tip rotation up to, tip error allowed 
 
 
 
+#: ``--nonlinear-mesh-size``: the entries' nonlinear part sampled on this coarser mesh (multi-fidelity)
+NONLINEAR_MESH = {}
+
+
 def sampling_of(case, spec) -> dict:
     """The sampling settings of a case's entry: the defaults, and for segments with cavities the
-    case's largest pressure (at most 1.5 bar), as ``vertebra prepare`` takes a scene's bound."""
+    case's largest pressure (at most 1.5 bar), as ``vertebra prepare`` takes a scene's bound;
+    with ``--nonlinear-mesh-size`` the coarser mesh of the nonlinear part."""
+    out = dict(NONLINEAR_MESH)
     if not n_cavities(spec):
-        return {}
+        return out
     largest = max(float(np.max(p)) for p in case.pressures.values()) * max(case.levels)
-    return {"pressure": min(largest, MAX_PRESSURE), "limit_fraction": 0.95}
+    return {**out, "pressure": min(largest, MAX_PRESSURE), "limit_fraction": 0.95}
 
 
 def designed(case, spec, path: Path):
@@ -222,7 +228,11 @@ def main(argv=None) -> int:
     parser.add_argument("--entries", type=Path, default=Path(tempfile.gettempdir()) / "vertebra-acceptance",
                         help="directory of the designed entries' catalogue (kept between runs)")
     parser.add_argument("--out", type=Path, default=RESULTS)
+    parser.add_argument("--nonlinear-mesh-size", type=float, default=None, metavar="H",
+                        help="multi-fidelity entries: their nonlinear part sampled on this coarser mesh (m)")
     args = parser.parse_args(argv)
+    if args.nonlinear_mesh_size is not None:
+        NONLINEAR_MESH["nonlinear_mesh_size"] = args.nonlinear_mesh_size
     args.entries.mkdir(parents=True, exist_ok=True)
     path = args.entries / "entries.h5"
     document = {"meta": {"date": datetime.now(timezone.utc).replace(microsecond=0).isoformat(),

@@ -13,6 +13,7 @@ import numpy as np
 import sys
 
 from vertebra.cli.documents import print_document
+from vertebra.cli.nonlinear_mesh import nonlinear_mesh_lines
 from vertebra.core.errors import CatalogueError, OptionError
 from vertebra.core.inputs import MAX_DEPTH
 
@@ -131,12 +132,8 @@ def _show(args) -> int:
             held = fit.fit_error.get("held_out", {}) if isinstance(fit.fit_error, dict) else {}
             print(f"energy     degree {fit.degree}, {fit.exponents.shape[0]} terms; held-out load error "
                   f"{held.get('load_max', float('nan')):.3g} (linear entry {held.get('linear_load_max', float('nan')):.3g})")
-            coarse = fit.sampling.get("nonlinear_mesh")
-            if isinstance(coarse, dict):
-                own = fit.fit_error.get("nonlinear_mesh_held_out", {}) if isinstance(fit.fit_error, dict) else {}
-                print(f"multi-fidelity  nonlinear part sampled on a coarser mesh (h = {coarse.get('mesh_size')} m, "
-                      f"{coarse.get('dofs')} DoFs; held-out load error there {own.get('load_max', float('nan')):.3g}); "
-                      f"linear part and the held-out error above from this entry's mesh")
+            for line in nonlinear_mesh_lines(fit):
+                print(f"multi-fidelity  {line}")
             print(f"fitted on  {fitted_range(entry)}")
         for field in ("mesh", "accuracy", "timings", "provenance"):
             print(f"{field:10} {json.dumps(getattr(entry, field), sort_keys=True)}")

@@ -19,6 +19,7 @@ import time
 
 from vertebra.cli.documents import print_document
 from vertebra.cli.main import main as vertebra
+from vertebra.cli.nonlinear_mesh import nonlinear_mesh_lines
 from vertebra.cli.outputs import output_file
 from vertebra.core import plausibility
 from vertebra.core.errors import OptionError
@@ -134,11 +135,12 @@ def entry_document(entry) -> dict:
                               "fold_pressure": energy.fold_pressure, "material": energy.material,
                               "sampling": {k: energy.sampling[k] for k in ("samples", "solves", "paths",
                                                                            "held_out_paths", "nonlinear_mesh",
-                                                                           "entry_mesh_check")
+                                                                           "entry_mesh_check", "nonlinear_mesh_fallback")
                                            if k in energy.sampling},
                               "sampled": sampled_range(energy)}
         document["timing"].update({k: float(entry.timings[k]) for k in ("sampling_s", "fit_s", "nonlinear_mesh_s",
-                                                                         "check_s") if k in entry.timings})
+                                                                         "check_s", "ramp_s", "fallback_s")
+                                  if k in entry.timings})
         warning = fit_warning(energy)
         if warning:
             document["energy"]["warnings"] = [warning]
@@ -167,12 +169,6 @@ def fit_warning(energy) -> str | None:
             f"narrow the sampled box (--sampling strain=…, bending=…), raise the degree, or choose another "
             f"material model (neo_hookean); `vertebra prepare` refuses this entry for a scene that goes where "
             f"the error exceeds {FIT_WARNING:g} (--max-fit-error overrides)")
-
-
-def held_out_on_nonlinear_mesh(energy) -> float:
-    """A multi-fidelity entry's held-out load error on the coarser mesh its nonlinear part came from."""
-    held = energy.fit_error.get("nonlinear_mesh_held_out", {}) if isinstance(energy.fit_error, dict) else {}
-    return float(held.get("load_max", math.nan))
 
 
 def sampled_range(energy) -> dict:
@@ -305,11 +301,8 @@ def run(args) -> int:
               f"{energy['sampling']['samples']} samples; held-out load error {held.get('load_max', float('nan')):.3g} "
               f"of the range (linear entry {held.get('linear_load_max', float('nan')):.3g})"
               + (f", volume {held['volume_max']:.3g}" if "volume_max" in held else ""))
-        coarse = entry.energy.sampling.get("nonlinear_mesh")
-        if coarse:
-            own = held_out_on_nonlinear_mesh(entry.energy)
-            print(f"nonlinear part sampled on a coarser mesh: h = {coarse['mesh_size']:g} m, {coarse['dofs']} dofs "
-                  f"(held-out load error there {own:.3g}); linear part and held-out check on this mesh")
+        for line in nonlinear_mesh_lines(entry.energy):
+            print(line)
         rng, box = energy["range"], energy["sampled"]
         print(f"range     per segment: bending ≤ {box['bending_deg']:.3g}°, twist {box['twist_deg'][0]:.3g}…"
               f"{box['twist_deg'][1]:.3g}°, lateral ≤ {box['lateral_mm']:.3g} mm, axial {box['axial_mm'][0]:.3g}…"

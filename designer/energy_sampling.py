@@ -135,6 +135,9 @@ class SamplingSettings:
     cavities: tuple | None = None    # cavities sampled under pressure (None: all; (): none, see pressurised)
     nonlinear_mesh_size: float | None = None   # m, coarser mesh the nonlinear part is sampled on (None: the entry's)
     check_paths: int = 2             # with nonlinear_mesh_size: held-out paths solved on the entry's mesh
+    auto_nonlinear_mesh: bool = True     # above designer.multifidelity.AUTO_DOFS: choose nonlinear_mesh_size
+    nonlinear_mesh_chosen: bool = False  # nonlinear_mesh_size set by that choice (falls back on a failed check)
+    check_tolerance: float | None = None  # held-out error the entry-mesh check must meet (None: the default rule)
 
     def __post_init__(self):
         for name, limit in SAMPLING_LIMITS.items():     # counts that size the sampling's arrays
@@ -142,7 +145,8 @@ class SamplingSettings:
             if isinstance(value, int) and not isinstance(value, bool) and value > limit:
                 raise OptionError(f"at most {limit:,}; got {value:,}", field=f"sampling.{name}")
         numbers = [name for name in ("bending", "twist", "strain", "shear", "axial", "pressure", "limit_fraction",
-                                     "hessian_weight", "nonlinear_mesh_size") if getattr(self, name) is not None]
+                                     "hessian_weight", "nonlinear_mesh_size", "check_tolerance")
+                   if getattr(self, name) is not None]
         for name in numbers:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
@@ -170,6 +174,10 @@ class SamplingSettings:
             "nonlinear_mesh_size": self.nonlinear_mesh_size is None or self.nonlinear_mesh_size > 0,
             "check_paths": isinstance(self.check_paths, int) and not isinstance(self.check_paths, bool)
             and self.check_paths >= 1,
+            "auto_nonlinear_mesh": isinstance(self.auto_nonlinear_mesh, bool),
+            "nonlinear_mesh_chosen": isinstance(self.nonlinear_mesh_chosen, bool)
+            and (not self.nonlinear_mesh_chosen or self.nonlinear_mesh_size is not None),
+            "check_tolerance": self.check_tolerance is None or self.check_tolerance > 0,
         }
         bad = [name for name, ok in checks.items() if not ok]
         if bad:
@@ -177,15 +185,22 @@ class SamplingSettings:
 
     def describe(self) -> dict:
         """The settings as JSON (``cavities`` only when set, ``nonlinear_mesh_size`` and
-        ``check_paths`` only with a nonlinear mesh: the keys of the entries without them are
-        those of the settings before they existed)."""
+        ``check_paths`` only with a nonlinear mesh, ``nonlinear_mesh_chosen`` only when the
+        automatic choice set it, ``check_tolerance`` only when given: the keys of the entries
+        without them are those of the settings before they existed). ``auto_nonlinear_mesh`` is
+        a policy, not a setting of the entry: what it chooses is described."""
         out = asdict(self)
+        del out["auto_nonlinear_mesh"]
         if self.cavities is None:
             del out["cavities"]
         else:
             out["cavities"] = list(self.cavities)
         if self.nonlinear_mesh_size is None:
             del out["nonlinear_mesh_size"], out["check_paths"]
+        if not self.nonlinear_mesh_chosen:
+            del out["nonlinear_mesh_chosen"]
+        if self.check_tolerance is None or self.nonlinear_mesh_size is None:
+            del out["check_tolerance"]
         return out
 
     def pressurised(self, n_cavities: int) -> tuple[int, ...]:
@@ -273,6 +288,18 @@ def load_box(K: np.ndarray, length: float, radius: float, settings: SamplingSett
     return box, caps + np.abs(np.asarray(free_pose, dtype=float))
 
 
+#: the load-box axes every sampling follows first: (load coordinate, sign) — lateral force,
+#: tension, compression, bending, twist; then (:func:`path_endpoints`) one pressurised cavity
+#: alone and all of them
+AXES = ((0, 1.0), (2, 1.0), (2, -1.0), (3, 1.0), (5, 1.0))
+
+
+def pressure_path(n_cavities: int, settings: SamplingSettings) -> int | None:
+    """The index in :func:`path_endpoints` of the path that inflates the first pressurised
+    cavity alone, the segment otherwise free (None without a pressurised cavity)."""
+    return len(AXES) if settings.pressurised(n_cavities) else None
+
+
 def path_endpoints(n_cavities: int, settings: SamplingSettings) -> tuple[np.ndarray, np.ndarray]:
     """``(endpoints (P, 6+m) on the unit box's boundary, held_out (P,) bool)``: the box axes (pure
     lateral force, tension, compression, bending, twist; one cavity, all cavities), then
@@ -284,7 +311,7 @@ def path_endpoints(n_cavities: int, settings: SamplingSettings) -> tuple[np.ndar
     used = np.zeros(m, dtype=bool)
     used[list(settings.pressurised(m))] = True
     axes = []
-    for index, value in ((0, 1.0), (2, 1.0), (2, -1.0), (3, 1.0), (5, 1.0)):
+    for index, value in AXES:
         e = np.zeros(6 + m)
         e[index] = value
         axes.append(e)

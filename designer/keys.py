@@ -11,6 +11,7 @@ from importlib import metadata
 from vertebra.core.errors import GeometryError, OptionError
 from vertebra.designer.energy_sampling import SamplingSettings
 from vertebra.designer.families import Family, canonical_parameters, family_of, resolve_mesh_size
+from vertebra.designer.multifidelity import choose_nonlinear_mesh
 from vertebra.designer.nonlinear.materials import MATERIALS
 from vertebra.store.entry import content_key
 
@@ -61,17 +62,19 @@ def key_payload(family, parameters: dict, *, mesh_size=None, order: int = 2, mat
                 sampling=None) -> dict:
     """What the content key hashes. A nonlinear material adds ``material`` and ``nonlinear``
     (the sampling and fit settings and the nonlinear algorithm version); a linear entry's
-    payload (and key) is the same as before nonlinear entries existed."""
+    payload (and key) is the same as before nonlinear entries existed. Above
+    ``designer.multifidelity.AUTO_DOFS`` the nonlinear mesh chosen is part of the settings."""
     fam = family_of(family)
     p = canonical_parameters(fam, parameters)
     if order not in (1, 2):
         raise GeometryError(f"parameter 'order': must be 1 or 2, got {order!r}")
-    payload = {"family": fam.name, "parameters": p,
-               "mesh": {"mesh_size": resolve_mesh_size(fam, p, mesh_size), "order": int(order)},
+    h = resolve_mesh_size(fam, p, mesh_size)
+    payload = {"family": fam.name, "parameters": p, "mesh": {"mesh_size": h, "order": int(order)},
                "versions": result_versions()}
     if check_material(material) != LINEAR:
         payload["material"] = material
-        settings = sampling_settings(sampling).resolved(fam.n_cavities(p), material)
+        settings = choose_nonlinear_mesh(fam, p, h, order, sampling_settings(sampling))
+        settings = settings.resolved(fam.n_cavities(p), material)
         payload["nonlinear"] = {"sampling": settings.describe(), "version": NONLINEAR_VERSION}
     return payload
 
@@ -116,6 +119,8 @@ class SegmentDesign:
         h = resolve_mesh_size(fam, p, mesh_size)
         check_material(material)
         settings = sampling_settings(sampling) if material != LINEAR else None
+        if settings is not None:
+            settings = choose_nonlinear_mesh(fam, p, h, order, settings)
         coarse = settings.nonlinear_mesh_size if settings is not None else None
         if coarse is not None and not coarse > h:
             raise OptionError(f"{coarse!r} m is not coarser than the entry's mesh (mesh size {h!r} m): the "

@@ -19,10 +19,11 @@ import numpy as np
 from vertebra.designer.energy_fit import (FitResult, SegmentSymmetry, Samples, convexity, fit_energy, fit_errors,
                                           symmetry_group)
 from vertebra.designer.energy_sampling import (LoadBox, PathTask, PressureTask, SamplingSettings, load_box,
-                                               path_endpoints, run_paths, run_pressure_ramp)
+                                               path_endpoints, pressure_path, run_paths, run_pressure_ramp)
 from vertebra.designer.executors import Crash, make_executor
 from vertebra.designer.keys import NONLINEAR_VERSION, SegmentDesign
 from vertebra.designer.linear import LinearCondenser
+from vertebra.designer import multifidelity
 from vertebra.designer.nonlinear import NonlinearSegment
 from vertebra.designer.nonlinear.fe_newton import NewtonSettings
 from vertebra.designer.nonlinear.fe_segment import SegmentSettings
@@ -171,9 +172,12 @@ def sampled_range(samples: Samples, box: LoadBox, load_fraction: float, limit: f
 
 def condense_energy(entry, spec, *, radius: float, youngs_modulus: float, symmetry: SegmentSymmetry,
                     material: dict, settings: SamplingSettings | None = None, executor: str = "serial",
-                    workers: int | None = None, scheduler: str | None = None, progress=None) -> Condensed:
+                    workers: int | None = None, scheduler: str | None = None, progress=None,
+                    ramp: tuple | None = None) -> Condensed:
     """Sample and fit the energy of the segment of the linear ``entry`` (same mesh) with the
-    nonlinear FE described by ``spec`` (:class:`designer.energy_sampling.ModelSpec`)."""
+    nonlinear FE described by ``spec`` (:class:`designer.energy_sampling.ModelSpec`).
+    ``ramp``: the outcome of :func:`pressure_range` run already (on another mesh of the segment:
+    a multi-fidelity entry's pressures are those of its own mesh), instead of running it here."""
     m = entry.n_cavities
     settings = (settings or SamplingSettings()).resolved(m, material["model"])
     start = time.perf_counter()
@@ -184,7 +188,9 @@ def condense_energy(entry, spec, *, radius: float, youngs_modulus: float, symmet
     pressurised = settings.pressurised(m)
     with make_executor(executor, workers=workers, scheduler=scheduler) as pool:
         pressure_info, limit, fold_estimate, p_top, free_pose = {}, None, None, 0.0, np.zeros(4)
-        if pressurised:
+        if pressurised and ramp is not None:
+            p_top, limit, fold_estimate, free_pose, pressure_info = ramp
+        elif pressurised:
             p_top, limit, fold_estimate, free_pose, pressure_info = pressure_range(
                 pool, spec, entry, linear, settings, youngs_modulus, progress, cavity=pressurised[0])
         elif m:
@@ -265,11 +271,13 @@ def check_on_mesh(entry, condensed: Condensed, spec, settings: SamplingSettings,
     """Multi-fidelity: the energy ``condensed`` fitted on a coarser mesh (its ψ_nl, on that mesh's
     linear part), checked on ``entry``'s mesh (the FE of ``spec``). ψ = ψ_lin of ``entry`` (its
     exact compliance: stiffness, cavity coupling and volume compliance) + the coarse ψ_nl.
-    ``settings.check_paths`` of the sampling's loading paths (its held-out ones first) are
+    ``settings.check_paths`` of the sampling's loading paths (its held-out ones first), and for
+    a segment with a pressurised cavity the path inflating it alone up to the top pressure, are
     followed with the FE of ``entry``'s mesh through the same load box; their samples give the
     entry's held-out error (``fit_error["held_out"]``, the one ``prepare --max-fit-error``
-    reads), the coarse sampling's own one stays as ``nonlinear_mesh_held_out``. The range, the
-    fold map and the inflation limit point are those of the coarse sampling.
+    reads), the coarse sampling's own one stays as ``nonlinear_mesh_held_out``. The range is the
+    coarse sampling's; its pressures, fold map and inflation limit point come from the ramp on
+    the entry's mesh (:class:`NonlinearCondenser`).
     Returns ``(energy, {"check_s": seconds})`` (the seconds in the entry's timings, not in its
     energy: the same design gives the same energy)."""
     start = time.perf_counter()
@@ -279,6 +287,9 @@ def check_on_mesh(entry, condensed: Condensed, spec, settings: SamplingSettings,
     endpoints, held_paths = path_endpoints(m, settings)
     order = np.concatenate([np.flatnonzero(held_paths), np.flatnonzero(~held_paths)])
     chosen = [int(i) for i in order[:settings.check_paths]]
+    inflation = pressure_path(m, settings)
+    if inflation is not None and inflation not in chosen:
+        chosen.append(inflation)
     box = LoadBox(**coarse.sampling["load_box"])
     caps = np.array(coarse.sampling["pose_caps"], dtype=float)
     with make_executor(executor, workers=workers, scheduler=scheduler) as pool:
@@ -318,49 +329,101 @@ class NonlinearCondenser:
     ``linear`` condenser's entry of the design (its compliance on the same mesh), with the
     energy :func:`condense_energy` samples and fits with the design's sampling settings, the FE
     solves running on ``executor`` (``serial``, ``local`` with ``workers``, ``dask`` with
-    ``scheduler``). With ``sampling.nonlinear_mesh_size`` (multi-fidelity), the energy is
-    sampled and fitted on that coarser mesh of the segment (its ψ_nl on its own linear part),
-    joined to the entry's exact linear part and checked on the entry's mesh (:func:`check_on_mesh`)."""
+    ``scheduler``). With ``sampling.nonlinear_mesh_size`` (multi-fidelity; chosen by the design
+    above ``designer.multifidelity.AUTO_DOFS``), the energy is sampled and fitted on that coarser
+    mesh of the segment (its ψ_nl on its own linear part), joined to the entry's exact linear
+    part and checked on the entry's mesh (:func:`check_on_mesh`); the inflation-limit ramp runs
+    on the entry's mesh. A chosen mesh (or one with ``sampling.check_tolerance``) whose check
+    fails (``designer.multifidelity.check_verdict``) is dropped: the entry is sampled on its own
+    mesh, as without a nonlinear mesh, and records why."""
 
     linear: LinearCondenser
     executor: str = "serial"
     workers: int | None = None
     scheduler: str | None = None
 
+    def _ramp(self, entry, spec, settings, youngs_modulus, progress):
+        """The inflation-limit ramp on ``entry``'s mesh (None without a pressurised cavity)."""
+        pressurised = settings.pressurised(entry.n_cavities)
+        if not pressurised:
+            return None
+        linear = linear_terms(entry.compliance, entry.rest_translation)
+        with make_executor(self.executor, workers=self.workers, scheduler=self.scheduler) as pool:
+            ramp = pressure_range(pool, spec, entry, linear, settings, youngs_modulus, progress, cavity=pressurised[0])
+        return (*ramp[:4], {**ramp[4], "ramp_mesh_size": float(spec.mesh_size)})
+
+    def _on_coarser_mesh(self, design, entry, fine, common, timings, progress):
+        """``(energy, ramp, fallback)`` of a multi-fidelity design: the fine ramp, the coarse
+        sampling and fit, the check on ``entry``'s mesh. ``energy`` is None when a chosen mesh
+        (or one with a ``check_tolerance``) failed its check: ``fallback`` says why."""
+        fam, p, settings = design.family, design.parameters, design.sampling
+        coarse_h = settings.nonlinear_mesh_size
+        resolved = settings.resolved(entry.n_cavities, design.material)
+        how = "chosen for this mesh" if settings.nonlinear_mesh_chosen else "asked for"
+        _say(progress, f"{fam.name}: the nonlinear part on a coarser mesh (h = {coarse_h:g} m, {how}), the "
+                       f"linear part from this one (h = {design.mesh_size:g} m, {entry.mesh['dofs']} dofs)")
+        t0 = time.perf_counter()
+        ramp = self._ramp(entry, fine, resolved, p["youngs_modulus"], progress)
+        if ramp is not None:
+            timings["ramp_s"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        coarse_linear = replace(self.linear, estimate_accuracy=False, estimate_alongside=False)
+        sampled = coarse_linear.condense(replace(design, mesh_size=coarse_h), progress)
+        timings["nonlinear_mesh_s"] = time.perf_counter() - t0
+        _say(progress, f"{fam.name}: nonlinear condensation with the {design.material} material on the "
+                       f"coarser mesh ({sampled.mesh['dofs']} dofs)")
+        condensed = condense_energy(sampled, replace(fine, mesh_size=sampled.mesh["mesh_size"]), ramp=ramp, **common)
+        timings.update({k: v for k, v in condensed.timings.items() if k != "total_s"})
+        energy, checked = check_on_mesh(entry, condensed, fine, resolved, executor=self.executor,
+                                        workers=self.workers, scheduler=self.scheduler, progress=progress)
+        timings.update(checked)
+        coarse_mesh = {k: sampled.mesh[k] for k in ("mesh_size", "dofs", "elements", "nodes", "order")}
+        if settings.nonlinear_mesh_chosen:
+            estimate = multifidelity.estimated_dofs(fam, p, design.mesh_size, design.order)
+            coarse_mesh.update(chosen=True, estimated_entry_dofs=estimate, auto_dofs=multifidelity.AUTO_DOFS)
+        check = energy.sampling["entry_mesh_check"]
+        if not (settings.nonlinear_mesh_chosen or settings.check_tolerance is not None):
+            return replace(energy, sampling={**energy.sampling, "nonlinear_mesh": coarse_mesh}), ramp, None
+        tolerance = settings.check_tolerance
+        passed, why = multifidelity.check_verdict({"held": energy.fit_error["held_out"], "stopped": check["stopped"]},
+                                                  energy.fit_error["nonlinear_mesh_held_out"], tolerance)
+        verdict = {"passed": passed, "why": why, "tolerance": tolerance,
+                   "factor": None if tolerance is not None else multifidelity.CHECK_FACTOR}
+        check = {**check, "verdict": verdict}
+        _say(progress, f"{fam.name}: the check on this mesh {'passed' if passed else 'failed'}: {why}"
+             + ("" if passed else "; sampling this mesh instead (the coarser mesh's fit is dropped)"))
+        if passed:
+            return replace(energy, sampling={**energy.sampling, "nonlinear_mesh": coarse_mesh,
+                                             "entry_mesh_check": check}), ramp, None
+        return None, ramp, {"nonlinear_mesh": coarse_mesh, "entry_mesh_check": check,
+                            "held_out": energy.fit_error["held_out"],
+                            "nonlinear_mesh_held_out": energy.fit_error["nonlinear_mesh_held_out"]}
+
     def condense(self, design: SegmentDesign, progress=None) -> SegmentEntry:
         entry = self.linear.condense(design, progress)
         fam, p = design.family, design.parameters
-        coarse_h = design.sampling.nonlinear_mesh_size if design.sampling is not None else None
         timings = dict(entry.timings)
-        sampled = entry
-        if coarse_h is not None:
-            t0 = time.perf_counter()
-            _say(progress, f"{fam.name}: the nonlinear part on a coarser mesh (h = {coarse_h:g} m), the linear "
-                           f"part from this one (h = {design.mesh_size:g} m)")
-            coarse_linear = replace(self.linear, estimate_accuracy=False, estimate_alongside=False)
-            sampled = coarse_linear.condense(replace(design, mesh_size=coarse_h), progress)
-            timings["nonlinear_mesh_s"] = time.perf_counter() - t0
-        _say(progress, f"{fam.name}: nonlinear condensation with the {design.material} material")
         options = dict(family=fam.name, parameters=json.dumps(p, sort_keys=True), order=design.order,
                        material=design.material, linear_solver=self.linear.linear_solver)
-        spec = FamilySolid(mesh_size=sampled.mesh["mesh_size"], **options)
-        material = material_constants(design.material, p)
-        condensed = condense_energy(sampled, spec, radius=fam.outer_radius(p), youngs_modulus=p["youngs_modulus"],
-                                    symmetry=fam.symmetry(p), material=material,
-                                    settings=design.sampling, executor=self.executor, workers=self.workers,
-                                    scheduler=self.scheduler, progress=progress)
-        energy = condensed.energy
-        timings.update({k: v for k, v in condensed.timings.items() if k != "total_s"})
+        fine = FamilySolid(mesh_size=entry.mesh["mesh_size"], **options)
+        common = dict(radius=fam.outer_radius(p), youngs_modulus=p["youngs_modulus"], symmetry=fam.symmetry(p),
+                      material=material_constants(design.material, p), settings=design.sampling,
+                      executor=self.executor, workers=self.workers, scheduler=self.scheduler, progress=progress)
         nonlinear = {"executor": self.executor, "workers": self.workers, "version": NONLINEAR_VERSION}
-        if coarse_h is not None:
-            settings = design.sampling.resolved(entry.n_cavities, design.material)
-            energy, checked = check_on_mesh(entry, condensed, FamilySolid(mesh_size=design.mesh_size, **options),
-                                            settings, executor=self.executor, workers=self.workers,
-                                            scheduler=self.scheduler, progress=progress)
-            timings.update(checked)
-            energy = replace(energy, sampling={**energy.sampling, "nonlinear_mesh": {
-                k: sampled.mesh[k] for k in ("mesh_size", "dofs", "elements", "nodes", "order")}})
-            nonlinear["nonlinear_mesh_size"] = float(coarse_h)
+        energy, ramp, fallback = None, None, None
+        if design.sampling is not None and design.sampling.nonlinear_mesh_size is not None:
+            energy, ramp, fallback = self._on_coarser_mesh(design, entry, fine, common, timings, progress)
+            if energy is not None:
+                nonlinear["nonlinear_mesh_size"] = float(design.sampling.nonlinear_mesh_size)
+        if energy is None:
+            _say(progress, f"{fam.name}: nonlinear condensation with the {design.material} material")
+            t0 = time.perf_counter()
+            condensed = condense_energy(entry, fine, ramp=ramp, **common)
+            energy = condensed.energy
+            timings.update({k: v for k, v in condensed.timings.items() if k != "total_s"})
+            if fallback is not None:
+                timings["fallback_s"] = time.perf_counter() - t0
+                energy = replace(energy, sampling={**energy.sampling, "nonlinear_mesh_fallback": fallback})
         timings["total_s"] = time.perf_counter() - design.started
         provenance = {**entry.provenance, "nonlinear": nonlinear}
         return replace(entry, energy=energy, timings={k: float(v) for k, v in timings.items()},

@@ -81,7 +81,7 @@ def test_option_round_trips_in_the_catalogue(entries, tmp_path):
     shown = subprocess.run([sys.executable, "-m", "vertebra", "catalogue", "show", str(path), multi.key],
                            capture_output=True, text=True, timeout=120)
     assert shown.returncode == 0, shown.stderr
-    assert f"coarser mesh (h = {COARSE} m" in shown.stdout
+    assert f"coarser mesh, asked for: h = {COARSE} m" in shown.stdout
 
 
 def test_default_key_and_bad_options():
