@@ -70,8 +70,11 @@ STROKE_KINDS = ("backlash", "lag")
 #: the elements of a play that depends on the tension (:mod:`~vertebra.solver.calibration.tension_play`)
 TENSION_KINDS = ("backlash_rate", "entry_friction")
 #: strokes through a tension-dependent play are consistent when the last Newton pass moves none
-#: by more than this share of the trunk's length; at most this many passes
+#: by more than this share of the trunk's length, or when the passes stop contracting below
+#: PLAY_RESOLUTION of it (the equilibria's tensions resolve the strokes to about 1e-9 m on the v4
+#: robot: far below what a marker measures); at most this many passes
 PLAY_TOLERANCE = 1e-9
+PLAY_RESOLUTION = 1e-6
 PLAY_PASSES = 30
 #: the fewest samples per worker process worth starting one for (a process costs ~1 s to start)
 SAMPLES_PER_WORKER = 256
@@ -183,7 +186,8 @@ class RuntimePredictor:
         (:mod:`~vertebra.solver.calibration.tension_play`): Newton over the sequence — every
         sample's equilibrium with its tensions' derivatives by the strokes, the rows marched with
         the tensions linearised — until no stroke moves by more than :data:`PLAY_TOLERANCE` of the
-        trunk's length; the derivatives by the strokes' recursion."""
+        trunk's length (or the passes stall below :data:`PLAY_RESOLUTION` of it); the derivatives
+        by the strokes' recursion."""
         if values.lag.any() or any(kind == "lag" for kind, _ in wrt):
             raise OptionError("a play that depends on the tension (backlash_rate, entry_friction) and a lag "
                               "together are not supported: fit one of them", field="--fit")
@@ -193,6 +197,7 @@ class RuntimePredictor:
         strokes_wrt = tuple(("stroke", int(c)) for c in driven)
         inner = tuple(e for e in wrt if e[0] not in ("backlash",) + TENSION_KINDS)
         tolerance = PLAY_TOLERANCE * float(self.model.length_scale)
+        resolution = PLAY_RESOLUTION * float(self.model.length_scale)
         key = (samples.source, samples.rows.tobytes(), samples.commands.tobytes())
         at = tuple(getattr(values, f).tobytes() for f in ("stiffness", "angle", "radius", "cable_stiffness",
                                                           "pretension", "backlash", "backlash_rate",
@@ -216,9 +221,10 @@ class RuntimePredictor:
             if gradient is not None:
                 moved, status = march(samples.commands, b0, b1, tension, gradient, strokes, hold)
                 changes.append(float(np.abs(moved - strokes).max()))
-                if changes[-1] <= tolerance:
-                    break
-                if len(changes) > 1 and changes[-1] > 0.5 * changes[-2]:
+                stalled = len(changes) > 1 and changes[-1] > 0.5 * changes[-2]
+                if changes[-1] <= tolerance or (stalled and changes[-1] <= resolution):
+                    break           # (consistent, or at the resolution of the equilibria's tensions)
+                if stalled:
                     # (not contracting: a tendon's tension has a kink where it goes slack, and Newton
                     # from the slack side sees no slope — half a step, then the slope of the taut side)
                     moved = strokes + 0.5 * (moved - strokes)
