@@ -246,7 +246,7 @@ def section_chambered(results: dict, fine: float, coarse: float, workers: int) -
     self1, children1 = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
     energy = entry.energy
     check = energy.sampling["entry_mesh_check"]
-    passed, why = multifidelity.check_verdict({"held": energy.fit_error["held_out"], "stopped": check["stopped"]},
+    passed, why = multifidelity.check_verdict({**check, "held": energy.fit_error["held_out"]},
                                               energy.fit_error["nonlinear_mesh_held_out"], None)
 
     def strip(held: dict) -> dict:
