@@ -42,6 +42,7 @@ from vertebra.core.lie import qmatrix
 from vertebra.solver.obstacles import Plane, Sphere
 
 RIM, BALL, CHORD, PAIR, FOLD = 0, 1, 2, 3, 4   # kinds of contact (PAIR: adjacent discs, FOLD: any other two)
+TANGENTIAL = 16              # kinds from here on: the tangential rows of frictional contacts (contact_friction)
 KIND_NAMES = ("disc", "frame", "segment", "disc", "disc")
 DISCS = (PAIR, FOLD)         # the kinds between two discs
 SAMPLES = 16                 # starting samples of the golden-section search on a rim
@@ -738,8 +739,20 @@ class Constraints:
         if self.springs is None:
             return False
         held = {tuple(k) for k in self.springs[2].tolist()}
-        kept = {tuple(k) for k in step.contacts.key[step.multipliers > 0.0].tolist()}
-        return bool(held - kept)
+        kept = self.held(None, step)
+        return bool(held - ({tuple(k) for k in kept.key.tolist()} if kept is not None else set()))
+
+    def held(self, state, step: "Step | None" = None) -> "ContactSet | None":
+        """The contacts that hold the trunk (springs along them judge stability): the pressed ones
+        at ``state``, or those ``step`` keeps pressed; None when there are none."""
+        if step is None:
+            return self.pressed(state) if self.multipliers.size else None
+        keep = step.multipliers > 0.0
+        return step.contacts.select(step.contacts.key[keep]) if keep.any() else None
+
+    def report(self, state) -> tuple:
+        """Every candidate contact of ``state`` with its force (:func:`report`)."""
+        return report(self.model, state, self.keys, self.multipliers)
 
     def stiffened(self, matrix, state, stiffness: float = STABILITY_SPRING, step: "Step | None" = None):
         """The tangent plus a stiff spring along each pressed contact (``stiffness`` × the
@@ -748,15 +761,9 @@ class Constraints:
         the contacts leave free (the constrained equilibrium's stability), up to the spring's
         finiteness. Kept as the last springs (:meth:`released`)."""
         self.springs = None
-        if step is None:
-            if not self.multipliers.size:
-                return matrix
-            held = self.pressed(state)
-        else:                    # the contacts that ``step`` keeps pressed
-            keep = step.multipliers > 0.0
-            if not keep.any():
-                return matrix
-            held = step.contacts.select(step.contacts.key[keep])
+        held = self.held(state, step)
+        if held is None:
+            return matrix
         G = held.jacobian(self.n_frames)
         moving = np.add.reduce(G * G, 1) > 0.0         # (a contact on clamped frames only holds nothing)
         G, key = G[moving], held.key[moving]
@@ -883,8 +890,9 @@ def curvature(model: ContactModel, contacts: ContactSet, multipliers: np.ndarray
     point = contacts.point + radius[:, None] * n
     pair = np.isin(key[:, 0], DISCS)
     S = np.zeros((key.shape[0], 3, 3))
-    for j in np.unique(key[~pair, 2]):
-        chosen = (~pair) & (key[:, 2] == j)
+    surface = ~pair & (key[:, 0] < TANGENTIAL)       # (a tangential row's directions are held: no curvature)
+    for j in np.unique(key[surface, 2]):
+        chosen = surface & (key[:, 2] == j)
         S[chosen] = _surface_curvature(model.obstacles[j], point[chosen], model.length)
     blocks = _blocks(contacts, lam, S, point, n, pair, chord)
     if pair.any():
@@ -943,14 +951,20 @@ class Contact:
     normal: tuple         # unit, pushing the body away
     gap: float            # m (≥ 0 up to the solve's tolerance)
     force: float          # N (≥ 0)
+    friction: tuple | None = None     # at an obstacle with friction: the tangential force on the body (N, world)
+    sliding: str | None = None        # … and "stick", "slip" or "open" (None: a frictionless contact)
 
     def as_dict(self) -> dict:
-        return {"bodies": list(self.bodies), "point": list(self.point), "normal": list(self.normal),
-                "gap": self.gap, "force": self.force}
+        out = {"bodies": list(self.bodies), "point": list(self.point), "normal": list(self.normal),
+               "gap": self.gap, "force": self.force}
+        if self.sliding is not None:
+            out.update(friction=list(self.friction), sliding=self.sliding)
+        return out
 
 
-def report(model: ContactModel, state, keys: np.ndarray, multipliers: np.ndarray) -> tuple:
-    """Every candidate contact of ``state`` with its force (the pressed ones first)."""
+def report(model: ContactModel, state, keys: np.ndarray, multipliers: np.ndarray, tangential=None) -> tuple:
+    """Every candidate contact of ``state`` with its force (the pressed ones first); ``tangential``
+    (a function of the contacts' keys, or None) gives each one's friction fields."""
     found = evaluate(model, state)
     force = np.zeros(found.count)
     index = {tuple(k): i for i, k in enumerate(found.key.tolist())}
@@ -967,5 +981,6 @@ def report(model: ContactModel, state, keys: np.ndarray, multipliers: np.ndarray
             (more.key, more.gap, more.point, more.normal, more.frames, more.rows, more.origin, more.slide))))
         force = np.concatenate([force, [lam for _, lam in extra]])
     order = np.lexsort((found.gap, -force))
+    fields = tangential(found.key[order]) if tangential is not None else [{}] * order.size
     return tuple(Contact(bodies(model, found.key[i]), tuple(found.point[i].tolist()), tuple(found.normal[i].tolist()),
-                         float(found.gap[i]), float(force[i])) for i in order)
+                         float(found.gap[i]), float(force[i]), **more) for i, more in zip(order, fields))

@@ -19,7 +19,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from vertebra.solver import batch, bounds, compliance, friction, newton, outputs, sensitivity
+from vertebra.solver import batch, bounds, compliance, contact_friction, friction, newton, outputs, sensitivity
 from vertebra.solver.potential import Evaluation, LoadCases, Trial, cable_tensions, evaluate, out_of_range, potential
 from vertebra.solver.newton import StaticResult
 from vertebra.solver.outputs import Linearisation
@@ -160,24 +160,39 @@ class TrunkModel:
         to ``history`` (a :class:`~vertebra.solver.friction.FrictionState`, e.g. an earlier
         result's ``friction``; None: the rest state — a single command is a monotone pull) and
         ``result.friction`` is the state after it (:mod:`~vertebra.solver.friction`,
-        docs/friction.md); :meth:`solve_sequence` chains commands."""
+        docs/friction.md); :meth:`solve_sequence` chains commands. With friction at obstacle
+        contacts (an obstacle's ``friction``) the same holds with a
+        :class:`~vertebra.solver.contact_friction.ContactFriction` history (docs/contact.md)."""
         settings = self.scene.solver
         values = self.actuation(actuation)
         bounds.check_pushing(self, values, from_scene=actuation is None)
-        frictional = history is not None or self.trunk.actuators.frictional
+        at_contacts = self._contact_friction(history)
+        frictional = not at_contacts and (history is not None or self.trunk.actuators.frictional)
+        options = dict(tolerance=settings.tolerance if tolerance is None else tolerance,
+                       max_iterations=settings.max_iterations if max_iterations is None else max_iterations,
+                       load_steps=settings.load_steps if load_steps is None else load_steps,
+                       raise_on_failure=raise_on_failure)
         try:
-            result = (friction.solve if frictional else newton.solve)(
-                self.trunk, *((values, history) if frictional else (self.loads, values)), initial,
-                tolerance=settings.tolerance if tolerance is None else tolerance,
-                max_iterations=settings.max_iterations if max_iterations is None else max_iterations,
-                load_steps=settings.load_steps if load_steps is None else load_steps,
-                raise_on_failure=raise_on_failure)
+            if at_contacts:
+                result = contact_friction.solve(self.trunk, self.loads, values, initial, history, **options)
+            else:
+                result = (friction.solve if frictional else newton.solve)(
+                    self.trunk, *((values, history) if frictional else (self.loads, values)), initial, **options)
         except ConvergenceError as error:
             if error.result is not None:
                 error.result.bound_violations = bounds.bound_violations(self, error.result.state, values)
             raise
         result.bound_violations = bounds.bound_violations(self, result.state, values)
         return result
+
+    def _contact_friction(self, history) -> bool:
+        """Does a solve run friction at obstacle contacts (docs/contact.md)? Refused together with
+        cable friction, which it is not combined with."""
+        at_contacts = contact_friction.frictional(self.trunk) or isinstance(history, contact_friction.ContactFriction)
+        if at_contacts and (self.trunk.actuators.frictional or isinstance(history, friction.FrictionState)):
+            raise OptionError("friction at obstacle contacts and cable friction are not combined: give the "
+                              "obstacles or the cables friction = 0", field="friction")
+        return at_contacts
 
     def solve_batch(self, actuations, initial=None, *, tolerance=None, max_iterations=None, load_steps=None,
                     chunk=None, progress=None) -> "batch.BatchResult":
@@ -209,6 +224,12 @@ class TrunkModel:
         """Solve the commands ``actuations`` (each as for :meth:`solve`) in order, each applied to
         the friction state the one before left (``history``: where the sequence starts; None: at
         rest): a pull then a release traces the hysteresis loop. Returns the results."""
+        if self._contact_friction(history):
+            results = []
+            for actuation in actuations:
+                results.append(self.solve(actuation, initial, history=history, **options))
+                history, initial = results[-1].friction, None
+            return results
         return friction.solve_sequence(self, [self.actuation(a) for a in actuations], history, initial, **options)
 
     def evaluate(self, state: State, actuation=None, *, scale: float = 1.0, previous=None) -> Evaluation:

@@ -158,7 +158,7 @@ class _Stage:
     """One Newton run at a fixed load factor: its inputs and what it found."""
 
     def __init__(self, trunk, load: LoadCase, tolerance: float, max_iterations: int, reference: float,
-                 history: list, kinds: set, shift: float, linear: np.ndarray | None = None):
+                 history: list, kinds: set, shift: float, linear: np.ndarray | None = None, friction=None):
         self.iterations = 0
         self.linear = linear                  # the links' rotations in the linear response to the full load
         self.trunk, self.load = trunk, load
@@ -175,7 +175,9 @@ class _Stage:
         self.patience = None                  # iterations without a new best residual before the
                                               # stage fails (None: only max_iterations ends it)
         # unilateral contacts (None: the trunk declares none and no contact code runs)
-        self.constraints = contact.Constraints(trunk) if trunk.contact is not None else None
+        # (with friction at obstacles, solver/contact_friction.py: their slip rows join the contacts')
+        self.constraints = (None if trunk.contact is None else contact.Constraints(trunk) if friction is None
+                            else friction.constraints(trunk))
 
     def norm(self, ev, state=None) -> float:
         """The scaled residual of ``ev`` (with contacts: of the Lagrangian at ``state``, the
@@ -330,7 +332,8 @@ def _newton(stage: _Stage, state: State):
                                f"state given, or the last converged stage) at load factor {load.scale:.3g}")
     stage.represented(state, ev)
     r = -ev.gradient[1:].reshape(-1)
-    work = nonpotential_forces(trunk, state, load)      # (the merit's loads without a potential, here)
+    # (the merit's loads without a potential, here; None when the loads are conservative)
+    work = None if symmetric else nonpotential_forces(trunk, state, load)
     # the last direction came from the unshifted Cholesky factor (a positive definite tangent) at a
     # state already close to equilibrium: the equilibrium reached from it is taken as stable
     trusted = False
@@ -432,6 +435,10 @@ def _newton(stage: _Stage, state: State):
                     # the step is below the floating-point resolution of the poses: either the
                     # residual left is rounding (stop here and report it as it is), or the
                     # damping or a cap made the step short and the solve has stalled
+                    if constraints is not None:
+                        # (with contacts: the residual at the step's forces — a load that a contact
+                        # touching at the start takes whole moves nothing)
+                        residual = stage.norm(ev, state)
                     verdict = stage.at_resolution(state, ev, matrix, balanced, dq if not shift and alpha == 1.0 else None,
                                                   kind, residual)
                     kinds.add(verdict)
@@ -483,7 +490,7 @@ def _newton(stage: _Stage, state: State):
             raise ConvergenceError(f"non-finite forces appeared after a Newton step at load factor {load.scale:.3g}")
         stage.represented(state, ev)
         r = -ev.gradient[1:].reshape(-1)
-        work = nonpotential_forces(trunk, state, load)
+        work = None if symmetric else nonpotential_forces(trunk, state, load)
 
 
 @dataclass
@@ -609,9 +616,11 @@ def _turning_back(trunk, loads: LoadCases, actuation: np.ndarray, scale: float, 
 
 
 def solve(trunk, loads: LoadCases, actuation: np.ndarray, initial: State | None, *, tolerance: float,
-          max_iterations: int, load_steps: int, raise_on_failure: bool = True) -> StaticResult:
+          max_iterations: int, load_steps: int, raise_on_failure: bool = True, friction=None) -> StaticResult:
     """Equilibrium under ``actuation`` from ``initial`` (a warm start; None: the rest state, with
     the load stepped in ``load_steps`` stages); ``loads`` makes (and keeps) the load cases.
+    ``friction``: a :class:`~vertebra.solver.contact_friction.Session` (friction at obstacle
+    contacts: each converged stage is committed to it, and ``result.friction`` is its state).
     Raises :class:`ConvergenceError` (carrying the partial result) on failure unless
     ``raise_on_failure`` is False."""
     start = time.perf_counter()
@@ -629,7 +638,8 @@ def solve(trunk, loads: LoadCases, actuation: np.ndarray, initial: State | None,
         gradient = evaluate(trunk, state, full).gradient
         if not np.any(gradient[1:]):
             return StaticResult(True, 0, 0.0, state, actuation, [0.0], 1, "none",
-                                {"solve_s": time.perf_counter() - start}, largest_turn=_turn(state))
+                                {"solve_s": time.perf_counter() - start}, largest_turn=_turn(state),
+                                friction=None if friction is None else friction.state_of(None, state))
         reference = _force_scale(trunk, gradient)
 
     scale, increment = 0.0, 1.0 / load_steps
@@ -650,7 +660,7 @@ def solve(trunk, loads: LoadCases, actuation: np.ndarray, initial: State | None,
         load = loads(actuation, target)
         stage = _Stage(trunk, load, tolerance if target >= 1.0 else max(tolerance, 1e-6),
                        min(max_iterations, BUDGET * max_iterations - iterations),
-                       reference * max(target, 1e-300), history, kinds, shift, linear)
+                       reference * max(target, 1e-300), history, kinds, shift, linear, friction)
         try:
             ok, state_new, residual = _newton(stage, last_good)
         except Unrepresentable as why:
@@ -670,6 +680,8 @@ def solve(trunk, loads: LoadCases, actuation: np.ndarray, initial: State | None,
         if stage.constraints is not None:
             pressed = stage.constraints
         if ok:
+            if friction is not None:
+                friction.commit(stage.constraints, state_new)
             if from_rest or scale > 0.0:
                 previous = (scale, last_good)
             last_good, scale = state_new, target
@@ -678,9 +690,12 @@ def solve(trunk, loads: LoadCases, actuation: np.ndarray, initial: State | None,
                 break
             increment = min(2.0 * increment, 1.0 - scale)
         else:
-            if initial is not None and scale == 0.0 and last_good is not trunk.rest_state and stages == 1:
+            if (initial is not None and scale == 0.0 and last_good is not trunk.rest_state and stages == 1
+                    and (friction is None or friction.history is None)):
                 last_good = trunk.rest_state.copy()   # warm start failed: step the load from rest
                 from_rest = True
+                if friction is not None:
+                    friction.restart(last_good)
                 increment = 1.0 / load_steps
                 continue
             increment *= 0.5
@@ -736,12 +751,13 @@ def solve(trunk, loads: LoadCases, actuation: np.ndarray, initial: State | None,
                     "`vertebra prepare` size it from the scene")
     contacts = ()
     if trunk.contact is not None:
-        contacts = (contact.report(trunk.contact, final, pressed.keys, pressed.multipliers) if pressed is not None
+        contacts = (pressed.report(final) if pressed is not None
                     else contact.report(trunk.contact, final, np.zeros((0, 3), int), np.zeros(0)))
     result = StaticResult(converged, iterations, float(residual), final, actuation, history, stages,
                           "+".join(sorted(kinds)) or "none", {"solve_s": time.perf_counter() - start},
                           rounding_limited=limited and converged, largest_turn=_turn(final),
-                          message=message, out_of_range=excess, contacts=contacts)
+                          message=message, out_of_range=excess, contacts=contacts,
+                          friction=None if friction is None else friction.state_of(pressed, final))
     if not converged and raise_on_failure:
         raise ConvergenceError(message, result)
     return result

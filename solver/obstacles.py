@@ -11,6 +11,7 @@ runtime does not import meshio), or given inline as ``vertices`` and ``triangles
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -41,6 +42,7 @@ class Plane:
 
     point: np.ndarray
     normal: np.ndarray
+    friction: float = 0.0                 # Coulomb's μ at contacts with it (contact_friction)
     type = "plane"
 
     @classmethod
@@ -62,6 +64,7 @@ class Sphere:
 
     center: np.ndarray
     radius: float
+    friction: float = 0.0
     type = "sphere"
 
     @classmethod
@@ -89,6 +92,7 @@ class Capsule:
     a: np.ndarray
     b: np.ndarray
     radius: float
+    friction: float = 0.0
     type = "capsule"
 
     @classmethod
@@ -113,6 +117,7 @@ class Box:
     center: np.ndarray
     half: np.ndarray
     rotation: np.ndarray
+    friction: float = 0.0
     type = "box"
 
     @classmethod
@@ -157,6 +162,7 @@ class Mesh:
     vertices: np.ndarray
     triangles: np.ndarray
     source: str = ""
+    friction: float = 0.0
     type = "mesh"
 
     @classmethod
@@ -324,6 +330,8 @@ OBSTACLE_TYPES = {cls.type: cls for cls in (Plane, Sphere, Capsule, Box, Mesh)}
 def parse_obstacle(t, base_dir):
     kind = t.string("type", required=True, choices=tuple(OBSTACLE_TYPES))
     obstacle = OBSTACLE_TYPES[kind].parse(t, base_dir)
+    # Coulomb friction at the obstacle's contacts (μ ≥ 0; 0: frictionless, docs/contact.md)
+    mu = t.number("friction", 0.0, nonneg=True)
     t.done()
-    return obstacle
+    return dataclasses.replace(obstacle, friction=float(mu)) if mu else obstacle
 

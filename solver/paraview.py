@@ -22,6 +22,7 @@ import numpy as np
 
 from vertebra import __version__
 from vertebra.solver import display
+from vertebra.solver.friction import FrictionState
 from vertebra.solver.friction import routes as friction_routes
 from vertebra.core.lie import qmatrix
 
@@ -95,7 +96,10 @@ def trunk_polydata(model, state, actuation=None, targets=None, *, time: float | 
     span's own tension and each cable point ``stick`` (1: the cable is stuck at that hole). With
     ``contacts`` (``result.contacts``, docs/contact.md) each contact is a vertex (part
     ``contact``) at its point on the body with ``contact_force`` (N), ``contact_gap`` (m) and
-    ``contact_normal``."""
+    ``contact_normal`` (friction at obstacles: ``result.friction`` is no cable state, and ignored
+    here; the contacts' tangential forces are in the JSON)."""
+    if not isinstance(friction, FrictionState):
+        friction = None
     actuation = model.actuation(actuation)
     targets = model.effector_targets if targets is None else np.asarray(targets, dtype=float)
     n_frames, nc = model.n_frames, model.n_cables

@@ -46,7 +46,8 @@ def static_report(model: TrunkModel, result: StaticResult) -> dict:
                                 else {"position": [float(v) for v in effectors[k]]}),
                              "compliance": compliance.get(name)}
                       for k, name in enumerate(model.effector_names)},
-        "cables": cables_report(model, state, actuation, lengths, result.friction),
+        "cables": cables_report(model, state, actuation, lengths,
+                                result.friction if isinstance(result.friction, FrictionState) else None),
         "chambers": {chamber.name: {"pressure": float(actuation[model.n_cables + k]),
                                     "volume_growth": float(volume[k]),
                                     "rest_volume": float(model.chamber_rest_volumes[k])}

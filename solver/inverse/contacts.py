@@ -53,12 +53,19 @@ class ContactProjection:
     G: np.ndarray                 # (m, n_dof) ∂g/∂q of the candidates
     W_ec: np.ndarray              # (n_rows, m) Je K⁻¹Gᵀ
     model: object                 # contact.ContactModel
+    normal: np.ndarray | None = None   # with friction: which of the rows are gaps (the others slip rows)
+    law: object = None            # with friction: the statuses of the chosen set (contact_friction.Friction)
 
     def forces(self, actuation: np.ndarray) -> np.ndarray:
-        """The contact forces ``μ`` (m,) of the candidates under ``actuation``."""
-        mu = np.zeros(self.contacts.count)
+        """The contact forces ``μ`` of the candidates' rows under ``actuation`` (normal forces ≥ 0;
+        with friction, after them the tangential forces of the frictional contacts)."""
+        mu = np.zeros(self.G.shape[0])
         F0, F1 = self.force_of
-        mu[self.active] = np.maximum(F0 + F1 @ actuation, 0.0)
+        forces = F0 + F1 @ actuation
+        if self.normal is None:
+            mu[self.active] = np.maximum(forces, 0.0)
+        else:
+            mu[self.active] = np.where(self.normal[self.active], np.maximum(forces, 0.0), forces)
         return mu
 
     def state_change(self, actuation: np.ndarray) -> np.ndarray:
@@ -86,26 +93,17 @@ def contact_step(trunk, state, lin, projection, backend, *, tolerance: float, sl
     """The QP of one inverse step with the contacts of ``state`` (module docstring): returns the
     :class:`ContactProjection` and the :class:`~vertebra.solver.inverse.qp.ConstraintSolution`
     (``slack``: the least-effort second stage, as :func:`~vertebra.solver.inverse.qp.solve_constraint_problem`).
-    None when no contact is near."""
+    None when no contact is near. (With friction at obstacles:
+    :func:`~vertebra.solver.inverse.friction_contacts.frictional_step`.)"""
     model = trunk.contact
     found = contact.evaluate(model, state)
     if not found.count:
         return None
     problem = projection.problem
-    n = problem.n_actuators
     G = found.jacobian(trunk.frames.count)
     m = G.shape[0]
-    rhs = np.empty((G.shape[1], 1 + n + m), order="F")
-    rhs[:, 0] = lin.residual
-    rhs[:, 1:1 + n] = lin.actuator_forces
-    rhs[:, 1 + n:] = G.T
-    X = lin.solve(rhs, overwrite=True)
-    Kr, KB, KG = X[:, 0], X[:, 1:1 + n], X[:, 1 + n:]
-    W_ec = lin.effector_jacobian @ KG
-    W_ac = lin.actuator_jacobian @ KG
-    W_ca, W_cc = G @ KB, G @ KG
+    KG, W_ec, W_ac, W_ca, W_cc, c = project_rows(lin, problem, G, found.gap)
     lam0 = problem.lambda0
-    c = found.gap + G @ Kr - W_ca @ lam0
     solve = lambda chosen: _solve_with(problem, backend, tolerance, slack, chosen, c, W_ca, W_cc, W_ec, W_ac)  # noqa: E731
     # the contacts pressed under the current efforts: the complementarity problem at λ0 (whose
     # set makes λ0 itself feasible: every step's QP has an answer)
@@ -128,26 +126,53 @@ def contact_step(trunk, state, lin, projection, backend, *, tolerance: float, sl
     return ContactProjection(projection, condensed, chosen, found, force_of, KG, G, W_ec, model), sol
 
 
-def _settle(solve, active, m: int, length: float):
-    """The active-set rounds from ``active`` (module docstring): the last complementary answer."""
-    seen, answer = set(), None
-    for _ in range(ROUNDS):
-        key = tuple(active.tolist())
-        if key in seen:
+def project_rows(lin, problem, G: np.ndarray, gap: np.ndarray):
+    """The contacts' rows ``G`` (with their gaps) in constraint space, one banded solve
+    ``K⁻¹[r, B, Gᵀ]``: (K⁻¹Gᵀ, W_ec, W_ac, W_ca, W_cc, c) of the module docstring."""
+    n = problem.n_actuators
+    rhs = np.empty((G.shape[1], 1 + n + G.shape[0]), order="F")
+    rhs[:, 0] = lin.residual
+    rhs[:, 1:1 + n] = lin.actuator_forces
+    rhs[:, 1 + n:] = G.T
+    X = lin.solve(rhs, overwrite=True)
+    Kr, KB, KG = X[:, 0], X[:, 1:1 + n], X[:, 1 + n:]
+    W_ca = G @ KB
+    return (KG, lin.effector_jacobian @ KG, lin.actuator_jacobian @ KG, W_ca, G @ KG,
+            gap + G @ Kr - W_ca @ problem.lambda0)
+
+
+def settle(solve, start, key, change, rounds: int = ROUNDS):
+    """The active-set rounds from the set ``start`` (module docstring): ``solve(set)`` answers a
+    set (None: no answer), ``change(set, answer)`` gives the next set or None when the answer
+    rests on no row, ``key(set)`` identifies a set (a set seen before ends the rounds). Returns
+    the last answer."""
+    seen, answer, current = set(), None, start
+    for _ in range(rounds):
+        if key(current) in seen:
             break
-        seen.add(key)
-        found = solve(active)
+        seen.add(key(current))
+        found = solve(current)
         if found is None:
             break
         answer = found
+        current = change(current, found)
+        if current is None:
+            break
+    return answer
+
+
+def _settle(solve, active, m: int, length: float):
+    """The rounds on sets of pressed contacts: the last complementary answer."""
+    def change(active, found):
         mu_A, w = found[1], found[2]
         released = active[mu_A <= 1e-12 * max(float(np.abs(mu_A).max(initial=0.0)), 1e-300)]
         inactive = np.setdiff1d(np.arange(m), active)
         closed = inactive[w[inactive] <= 1e-12 * length]
         if not released.size and not closed.size:
-            break
-        active = np.union1d(np.setdiff1d(active, released), closed)
-    return answer
+            return None
+        return np.union1d(np.setdiff1d(active, released), closed)
+
+    return settle(solve, active, lambda active: tuple(active.tolist()), change)
 
 
 def _with_rows(form, rows, low, scaled: bool):
@@ -164,7 +189,7 @@ def _with_rows(form, rows, low, scaled: bool):
 
 def _solve_with(problem, backend, tolerance, slack, active, c, W_ca, W_cc, W_ec, W_ac):
     """The QP with the contacts ``active`` pressed (condensed) and the others open."""
-    space, n = problem.space, problem.n_actuators
+    n = problem.n_actuators
     m = c.size
     inactive = np.setdiff1d(np.arange(m), active)
     if active.size:
@@ -176,6 +201,18 @@ def _solve_with(problem, backend, tolerance, slack, active, c, W_ca, W_cc, W_ec,
             return None
     else:
         F0, F1 = np.zeros(0), np.zeros((0, n))
+    # rows: the pressed contacts' forces μ_A(λ) ≥ 0 and the open ones' gaps w_I(λ) ≥ 0
+    rows = np.vstack([F1, W_ca[inactive] + W_cc[np.ix_(inactive, active)] @ F1])
+    low = np.concatenate([-F0, -(c[inactive] + W_cc[np.ix_(inactive, active)] @ F0)])
+    return condensed_qp(problem, backend, tolerance, slack, active, F0, F1, rows, low, c, W_ca, W_cc, W_ec, W_ac)
+
+
+def condensed_qp(problem, backend, tolerance, slack, active, F0, F1, rows, low, c, W_ca, W_cc, W_ec, W_ac):
+    """The QP with the forces of the rows ``active`` condensed in (``μ_A(λ) = F0 + F1 λ``) and the
+    rows ``rows λ ≥ low`` (their forces' signs, the open gaps, …). Returns (λ, μ_A, the rows'
+    linearised gaps w, the condensed problem, (F0, F1), the solution, ``active``), or None."""
+    space, n = problem.space, problem.n_actuators
+    m = c.size
     W_eA, W_aA = W_ec[:, active], W_ac[:, active]
     W_ea = problem.W_ea + W_eA @ F1
     delta_e = problem.delta_e_free + W_eA @ F0
@@ -184,9 +221,6 @@ def _solve_with(problem, backend, tolerance, slack, active, c, W_ca, W_cc, W_ec,
         W_aa = problem.W_aa + W_aA @ F1
         delta_a = problem.delta_a_free + W_aA @ F0
     condensed = ConstraintProblem(space, W_ea, delta_e, W_aa, delta_a, problem.lambda0, problem.box, problem.damping)
-    # rows: the pressed contacts' forces μ_A(λ) ≥ 0 and the open ones' gaps w_I(λ) ≥ 0
-    rows = np.vstack([F1, W_ca[inactive] + W_cc[np.ix_(inactive, active)] @ F1])
-    low = np.concatenate([-F0, -(c[inactive] + W_cc[np.ix_(inactive, active)] @ F0)])
     form = _with_rows(quadratic_form(condensed, scaled=backend.scaled), rows, low, backend.scaled)
     tol = max(tolerance * math.sqrt(2.0 * form.c), 1e-300)
     out = backend.solve(form, condensed.start() / form.scale, tolerance=tol,

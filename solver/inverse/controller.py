@@ -46,11 +46,12 @@ import numpy as np
 
 from vertebra.solver.inverse.backends import DEFAULT_BACKEND, get_backend
 from vertebra.solver.inverse.contacts import ContactProjection, contact_step
+from vertebra.solver.inverse.friction_contacts import frictional_step
 from vertebra.solver.inverse.qp import ConstraintSolution, solve_constraint_problem
 from vertebra.solver.inverse.space import DEFAULT_REGULARISATION, ConstraintSpace
 from vertebra.solver.inverse.trust import GOOD, TrustRegion
 from vertebra.core.errors import ConvergenceError, OptionError, SceneError
-from vertebra.solver import friction
+from vertebra.solver import contact_friction, friction
 from vertebra.solver.potential import evaluate, nonpotential_forces, potential
 
 __all__ = ["InverseSettings", "InverseStep", "InverseController", "invert", "MODES", "DEFAULT_TOLERANCE"]
@@ -232,7 +233,8 @@ class InverseController:
         self._judged = None     # the trial of the last state applied (its next linearisation reuses it)
 
     # ------------------------------------------------------------------ pieces
-    def _linearised_step(self, targets, timings, box=None, damping=None, base=None, secants=0):
+    def _linearised_step(self, targets, timings, box=None, damping=None, base=None, secants=0,
+                         contact_history=None):
         """linearise → project → QP at the current state and actuation, the effectors aiming
         within the trust region and λ in ``box`` (None: the actuator limits); the QP is damped
         by ``damping`` (None: :data:`DAMPING` while the trust region holds an effector back from
@@ -264,9 +266,14 @@ class InverseController:
         found = None
         if self.model.trunk.contact is not None and base is None:
             # the contacts' forces as variables of the QP, complementary with their gaps (with
-            # capstan friction on the cables the frictional QP below runs without them)
-            found = contact_step(self.model.trunk, self.state, lin, projection, self.backend,
-                                 tolerance=self.settings.qp_tolerance, slack=self._slack)
+            # capstan friction on the cables the frictional QP below runs without them; with
+            # friction at obstacles, their tangential forces too, the contacts anchored where the
+            # step starts: docs/contact.md)
+            started = self._contact_base(contact_history)
+            found = (contact_step(self.model.trunk, self.state, lin, projection, self.backend,
+                                  tolerance=self.settings.qp_tolerance, slack=self._slack) if started is None else
+                     frictional_step(self.model.trunk, self.state, lin, projection, self.backend, started,
+                                     tolerance=self.settings.qp_tolerance, slack=self._slack))
         if found is not None:
             projection, sol = found
         else:
@@ -403,10 +410,13 @@ class InverseController:
         t_start = time.perf_counter()
         timings: dict = {}
         base = self._friction_base()
+        started = self._contact_base()         # (friction at obstacles: the tick is an increment from here)
         lin, projection, sol, aim = self._linearised_step(targets, timings, self.space.tick_box(self.actuation),
-                                                          DAMPING, base, SECANTS)
+                                                          DAMPING, base, SECANTS, started)
         t0 = time.perf_counter()
         fraction = self._advance(lin, projection, sol.actuation, aim is not targets, base)
+        if started is not None and fraction > 0.0:
+            self.history = contact_friction.at_state(self.state)      # the next tick anchors where this one ends
         self.equilibrium = False
         timings["step_s"] = time.perf_counter() - t0
         status = "tick" if fraction == 1.0 else ("cut back" if fraction > 0.0 else "not applied")
@@ -414,8 +424,8 @@ class InverseController:
                               displacements=sol.delta_a if fraction == 1.0 else
                               projection.problem.predict(self.actuation)[1])
         result.fraction = fraction
-        if base is not None:
-            result.history, result.friction = base, self.history
+        if base is not None or started is not None:
+            result.history, result.friction = base if base is not None else started, self.history
         return result
 
     def _advance(self, lin, projection, lam_target, aimed: bool, base=None) -> float:
@@ -458,7 +468,8 @@ class InverseController:
         d_energy = float(cables.dot(model.rest_cable_lengths)) + float(cables.dot(lin.actuator_displacements[:n_cables]))
         exact_energy = model.n_chambers or model.n_tendons
         quality = 0.0
-        work = nonpotential_forces(model.trunk, state0, model.loads(lam0, 1.0))
+        work = (nonpotential_forces(model.trunk, state0, model.loads(lam0, 1.0)) if model.trunk.loads.unsymmetric
+                else None)
         if base is not None:
             trunk = model.trunk
             start = friction.geometry(trunk, state0)
@@ -532,10 +543,12 @@ class InverseController:
         timings: dict = {"solve_s": 0.0}
         s = self.settings
         if not self.equilibrium:
-            self._equilibrate(self.actuation, self.state, timings, self._friction_base())
+            self._equilibrate(self.actuation, self.state, timings, self._friction_base() or self._contact_base())
         # with friction: the friction state the robot is in; every equilibrium tried below is the
         # answer's command applied to it (one increment: the robot receives the answer only)
         base = self._friction_base()
+        started = self._contact_base()
+        history = base if base is not None else started
         error = float(np.max(_errors(self.model.effector_positions(self.state), targets)))
         best, idle, reached_for, change = error, 0, 0, math.nan
         closest = (error, self.actuation, self.state, self.history)
@@ -544,7 +557,7 @@ class InverseController:
             if time.perf_counter() > deadline:
                 status, iterations = "budget", iterations - 1
                 break
-            lin, projection, sol, aim = self._linearised_step(targets, timings, base=base)
+            lin, projection, sol, aim = self._linearised_step(targets, timings, base=base, contact_history=started)
             dq = projection.state_change(sol.actuation)
             lam_old, state_old, history_old = self.actuation, self.state, self.history
             d_lam = sol.actuation - lam_old
@@ -557,7 +570,7 @@ class InverseController:
                 # above the current error)
                 gap = projection.problem.predict(lam)[0].reshape(-1, 3) + (aim - targets)
                 predicted = math.sqrt(float(np.maximum.reduce(np.add.reduce(gap * gap, 1))))
-                if self._settle(lam, self._stepped(state_old, alpha * dq), state_old, timings, base):
+                if self._settle(lam, self._stepped(state_old, alpha * dq), state_old, timings, history):
                     new_error = float(np.max(_errors(self.model.effector_positions(self.state), targets)))
                     # how much of the promised improvement came (not judged below the tolerance:
                     # there the errors are the equilibrium solves' rounding)
@@ -608,8 +621,8 @@ class InverseController:
         result = self._result(targets, sol, iterations, timings, t_start, self.equilibrium, status,
                               predicted=predicted_positions)
         result.actuation_change = change
-        if base is not None:
-            result.history, result.friction = base, self.history
+        if history is not None:
+            result.history, result.friction = history, self.history
         return result
 
     def step(self, targets) -> InverseStep:
@@ -700,6 +713,17 @@ class InverseController:
             current = friction.transmission(trunk, rest, self.actuation, *friction.geometry(trunk, self.state))
             self.history = friction.FrictionState.after(rest, current, self.actuation, self.state)
         return self.history
+
+    def _contact_base(self, given=None):
+        """With friction at obstacle contacts, the friction state the robot is in (``given``, else
+        :attr:`history`, else the controller's state taken as reached there); None without it."""
+        if not contact_friction.frictional(self.model.trunk):
+            return None
+        if given is not None:
+            return given
+        if isinstance(self.history, contact_friction.ContactFriction):
+            return self.history
+        return contact_friction.at_state(self.state)
 
     def _targets(self, targets) -> np.ndarray:
         """``targets`` as a finite (n_eff, 3) float array (:class:`OptionError` naming what is wrong)."""

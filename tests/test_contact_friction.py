@@ -1,0 +1,332 @@
+"""Coulomb friction at obstacle contacts (docs/contact.md, "Friction"): μ = 0 is the frictionless
+solve, a tip pressed on a plane sticks below μ f_n and slips on the cone above it, loading and
+unloading shows hysteresis, the work balances, the scene's field is validated."""
+
+import math
+
+import numpy as np
+import pytest
+
+from vertebra import solver
+from vertebra.core.errors import OptionError, SceneError
+from vertebra.solver import contact_friction
+from vertebra.solver.timoshenko import Section, timoshenko_compliance
+
+E, NU, RADIUS, LENGTH = 200e9, 0.3, 1e-3, 0.5
+EI = E * math.pi * RADIUS ** 4 / 4
+P = 1e-3 * EI / LENGTH ** 2          # the press: small deflection (geometric coupling ~1e-6)
+C = timoshenko_compliance(LENGTH, E, E / (2 * (1 + NU)), Section.circle(RADIUS, NU))[0, 0]   # tip compliance
+
+
+def rod(mu=None, obstacle=None, **segment):
+    """A steel rod along +z, its frames points (capsule radius 0), its tip touching the face x = 0
+    of a box (x from 0 to 2 cm, 2 mm high about the tip: no other frame is near it) at rest, with
+    a dead tip force."""
+    plane = obstacle or {"type": "box", "center": [0.01, 0.0, LENGTH], "half_extents": [0.01, 0.05, 0.001]}
+    if mu is not None:
+        plane = dict(plane, friction=mu)
+    return solver.build_model(solver.parse_scene({
+        "segment": [dict({"type": "beam", "count": 1, "elements": 20, "length": LENGTH, "youngs_modulus": E,
+                          "poisson_ratio": NU, "section": {"shape": "circle", "radius": RADIUS},
+                          "contact_radius": 0.0}, **segment)],
+        "load": [{"vertebra": -1, "force": [0.0, 0.0, 0.0]}], "obstacle": [plane]}))
+
+
+def load(model, force):
+    dead = model.parameters.dead.copy()
+    dead[-1, :3] = force
+    model.set_parameters(dead=dead)
+
+
+def tip_contact(result):
+    (found,) = [c for c in result.contacts if c.force > 0.0]
+    return found
+
+
+def pressed(mu):
+    """The rod pressed on the plane by P (from rest), then its history."""
+    model = rod(mu)
+    load(model, [P, 0.0, 0.0])
+    first = model.solve()
+    assert first.converged and tip_contact(first).sliding == "stick"
+    return model, first
+
+
+def loaded(mu, share):
+    """The pressed rod (:func:`pressed`) then loaded by ``F = share·μP`` along +y: (the pressed
+    result, F, the result, its tip contact)."""
+    model, first = pressed(mu)
+    F = share * mu * P
+    load(model, [P, F, 0.0])
+    result = model.solve(history=first.friction)
+    assert result.converged
+    return first, F, result, tip_contact(result)
+
+
+def test_mu_zero_is_the_frictionless_solve_bit_for_bit(monkeypatch):
+    results = []
+    for mu in (None, 0.0):
+        model = rod(mu)
+        load(model, [P, 0.3 * P, 0.1 * P])
+        results.append(model.solve())
+    # friction = 0 compiles the same obstacle: the friction module is never called
+    def refuse(*args, **kwargs):
+        raise AssertionError("contact friction code ran at μ = 0")
+    for name in ("solve", "Session", "coulomb", "FrictionalConstraints"):
+        monkeypatch.setattr(contact_friction, name, refuse)
+    model = rod(0.0)
+    load(model, [P, 0.3 * P, 0.1 * P])
+    again = model.solve()
+    for other in (results[1], again):
+        assert np.array_equal(other.state.positions, results[0].state.positions)
+        assert np.array_equal(other.state.quaternions, results[0].state.quaternions)
+        assert other.iterations == results[0].iterations and other.friction is None
+        assert [c.as_dict() for c in other.contacts] == [c.as_dict() for c in results[0].contacts]
+    assert "friction" not in again.contacts[0].as_dict()
+
+
+@pytest.mark.parametrize("mu", [0.2, 0.5])
+@pytest.mark.parametrize("share", [0.3, 0.98])
+def test_tip_sticks_below_the_threshold(mu, share):
+    # pinned by the plane and friction, the tip carries the whole tangential load: f_t = F, f_n = P,
+    # nothing moves, for F below the threshold μP
+    first, F, result, c = loaded(mu, share)
+    assert c.sliding == "stick"
+    assert np.max(np.abs(result.state.positions - first.state.positions)) <= 1e-12
+    assert math.isclose(c.force, P, rel_tol=1e-9)
+    assert math.isclose(-c.friction[1], F, rel_tol=1e-9) and abs(c.friction[2]) <= 1e-12 * P
+    assert math.hypot(*c.friction) <= mu * c.force
+
+
+@pytest.mark.parametrize("mu", [0.2, 0.5])
+@pytest.mark.parametrize("share", [1.02, 1.5, 3.0])
+def test_tip_slips_on_the_cone_above_the_threshold(mu, share):
+    first, F, result, c = loaded(mu, share)
+    friction = np.array(c.friction)
+    assert c.sliding == "slip"
+    assert math.isclose(np.linalg.norm(friction), mu * c.force, rel_tol=1e-9)
+    slide = result.state.positions[-1] - first.state.positions[-1]
+    slide[0] = 0.0                                           # (along the face)
+    # the tip slides along the load, the friction opposes the sliding (maximum dissipation)
+    assert slide[1] > 0.0
+    assert np.linalg.norm(np.cross(friction, slide)) <= 1e-9 * np.linalg.norm(friction) * np.linalg.norm(slide)
+    assert float(friction @ slide) < 0.0
+    # the cantilever bent by what friction leaves of the load: (F − μ f_n)·c (Timoshenko tip compliance)
+    assert math.isclose(slide[1], (F - mu * c.force) * C, rel_tol=1e-5)
+    # and exactly the frictionless rod under the load less the friction force (a dead force at the tip)
+    frictionless = rod()
+    load(frictionless, np.array([P, F, 0.0]) + friction)
+    reference = frictionless.solve(tolerance=1e-12)
+    assert np.max(np.abs(reference.state.positions - result.state.positions)) <= 1e-12
+
+
+def test_from_rest_the_load_path_decides():
+    # a single solve from rest under (P, F): proportional loading, so the tip sticks exactly when F ≤ μP
+    for share, sliding in ((0.9, "stick"), (1.1, "slip")):
+        model = rod(0.3)
+        load(model, [P, share * 0.3 * P, 0.0])
+        result = model.solve()
+        c = tip_contact(result)
+        assert result.converged and c.sliding == sliding
+        moved = abs(result.state.positions[-1][1])
+        assert moved <= 1e-12 if sliding == "stick" else math.isclose(moved, 0.1 * 0.3 * P * C, rel_tol=1e-5)
+
+
+def test_loading_and_unloading_shows_hysteresis():
+    # F: 0 → 1.5μP → 0 → −0.4μP → −1.5μP → 0 with the press held. Out: slides to (F − μP)c = ½μPc;
+    # back it sticks there while F − ½μP stays within the cone (F ≥ −½μP); at −1.5μP it slides to −½μPc
+    mu = 0.3
+    model, first = pressed(mu)
+    path = [0.0, 0.5, 1.0, 1.5, 1.0, 0.5, 0.0, -0.4, -1.5, -1.0, 0.0]
+    history, tips, states = first.friction, [], []
+    for share in path:
+        load(model, [P, share * mu * P, 0.0])
+        result = model.solve(history=history)
+        assert result.converged
+        history = result.friction
+        tips.append(result.state.positions[-1][1])
+        states.append(tip_contact(result).sliding)
+    tips = np.array(tips)
+    unit = mu * P * C
+    assert np.allclose(tips[:3], 0.0, atol=1e-12)                           # stuck until μP
+    assert math.isclose(tips[3], 0.5 * unit, rel_tol=1e-5) and states[3] == "slip"
+    assert np.allclose(tips[4:7], tips[3], atol=1e-12, rtol=0.0)           # unloading: stuck where it slid
+    assert abs(tips[6] - tips[0]) >= 0.49 * unit                              # F = 0, two equilibria
+    assert np.allclose(tips[7], tips[3], atol=1e-12, rtol=0.0)              # reversed within 2μP of the peak: stuck
+    assert math.isclose(tips[8], -0.5 * unit, rel_tol=1e-5) and states[8] == "slip"
+    assert np.allclose(tips[9:], tips[8], atol=1e-12, rtol=0.0)             # and stuck again on the way back
+    assert all(s == "stick" for i, s in enumerate(states) if i not in (3, 8))
+
+
+def test_work_of_the_load_is_the_strain_energy_plus_the_friction_dissipation():
+    # F raised from the threshold to 3μP in steps, the tip sliding: ∫F dy = ΔU + ∫|f_t| ds
+    mu = 0.3
+    model, first = pressed(mu)
+    load(model, [P, mu * P, 0.0])
+    start = model.solve(history=first.friction)
+    history, tip, force = start.friction, [start.state.positions[-1].copy()], [mu * P]
+    friction = [np.linalg.norm(tip_contact(start).friction)]
+    for F in np.linspace(mu * P, 3 * mu * P, 9)[1:]:
+        load(model, [P, F, 0.0])
+        result = model.solve(history=history)
+        history = result.friction
+        tip.append(result.state.positions[-1].copy())
+        force.append(F)
+        friction.append(np.linalg.norm(tip_contact(result).friction))
+    tip, force, friction = np.array(tip), np.array(force), np.array(friction)
+    work = float(np.sum(0.5 * (force[1:] + force[:-1]) * np.diff(tip[:, 1])))
+    dissipated = float(np.sum(0.5 * (friction[1:] + friction[:-1]) * np.linalg.norm(np.diff(tip[:, 1:], axis=0), axis=1)))
+
+    def strain_energy(result_state, F):
+        load(model, [P, F, 0.0])
+        return model.potential(result_state) + float(np.array([P, F, 0.0]) @ result_state.positions[-1])
+
+    energy = strain_energy(result.state, force[-1]) - strain_energy(start.state, force[0])
+    assert dissipated > 0.5 * work
+    assert math.isclose(work, energy + dissipated, rel_tol=1e-6)
+
+
+def test_a_tip_on_a_sphere_slips_against_its_motion():
+    # a curved obstacle: the tip on a sphere beside it, pushed along a tangent at an angle — the
+    # friction force is on the cone and opposite the slip along the surface
+    sphere = {"type": "sphere", "center": [0.05, 0.0, LENGTH], "radius": 0.05}
+    model = rod(0.25, obstacle=sphere)
+    load(model, [P, 0.0, 0.0])
+    first = model.solve()
+    load(model, [P, 0.5 * P, 0.2 * P])
+    result = model.solve(history=first.friction)
+    assert result.converged
+    slide = result.state.positions[-1] - first.state.positions[-1]
+    touching = [c for c in result.contacts if c.force > 0.0]       # (the tip's frame, and its link's chord beside it)
+    assert touching
+    for c in touching:
+        friction = np.array(c.friction)
+        assert c.sliding == "slip" and math.isclose(np.linalg.norm(friction), 0.25 * c.force, rel_tol=1e-9)
+        # in the tangent plane of the anchor (held through the increment), so off the end state's
+        # tangent plane by the normal's turn along the slide (|slide| / R)
+        assert abs(friction[0]) <= 1e-12 * np.linalg.norm(friction)
+        turn = np.linalg.norm(slide) / 0.05
+        assert abs(friction @ np.array(c.normal)) <= 1.01 * turn * np.linalg.norm(friction)
+        assert float(friction @ slide) < -0.99 * np.linalg.norm(friction) * np.linalg.norm(slide)
+        assert c.gap >= -1e-9 and abs(c.gap * c.force) <= 1e-12
+
+
+def test_friction_field_is_validated():
+    for value, reason in ((-0.1, "must be >= 0"), ("high", "expected a number")):
+        with pytest.raises(SceneError) as error:
+            rod(value)
+        assert "obstacle[0].friction" in str(error.value) and reason in str(error.value)
+    with pytest.raises(SceneError, match="did you mean `friction`"):
+        solver.parse_scene({"segment": [{"type": "beam", "count": 1, "length": 0.1, "youngs_modulus": E,
+                                         "section": {"shape": "circle", "radius": RADIUS}, "contact_radius": 0.0}],
+                            "obstacle": [{"type": "plane", "point": [1, 0, 0], "normal": [-1, 0, 0], "frictoin": 0.2}]})
+
+
+def test_not_combined_with_cable_friction():
+    model = solver.build_model(solver.parse_scene({
+        "segment": [{"type": "beam", "count": 4, "length": 0.01, "youngs_modulus": 1e9,
+                     "section": {"shape": "circle", "radius": RADIUS}, "contact_radius": 0.0}],
+        "cable": [{"name": "c", "radius": 0.005, "angle_deg": 0.0, "to": 4, "tension": 1.0, "friction": 0.1}],
+        "obstacle": [{"type": "plane", "point": [0.02, 0, 0], "normal": [-1, 0, 0], "friction": 0.2}]}))
+    with pytest.raises(OptionError, match="not combined"):
+        model.solve()
+
+
+def test_json_reports_friction_and_sliding():
+    from vertebra.solver.report import static_report
+
+    model, first = pressed(0.3)
+    load(model, [P, 0.5 * 0.3 * P, 0.0])
+    result = model.solve(history=first.friction)
+    document = static_report(model, result)
+    (tip,) = [c for c in document["contacts"] if c["force"] > 0.0]
+    assert tip["sliding"] == "stick" and math.isclose(-tip["friction"][1], 0.15 * P, rel_tol=1e-9)
+    assert all(c["sliding"] == "open" and c["friction"] == [0.0, 0.0, 0.0]
+               for c in document["contacts"] if c["force"] == 0.0)
+
+
+# --- inverse and control ticks ----------------------------------------------------------------------
+
+
+def wall_robot(mu, wall=0.02, tendons=None):
+    """The gallery's 16-tendon robot with 12 mm discs beside a wall x = ``wall`` with friction μ
+    (``tendons``: the only ones allowed to pull)."""
+    import dataclasses
+
+    from test_contact import wall_robot as frictionless_wall
+
+    scene = frictionless_wall(wall).scene
+    cables = scene.cables if tendons is None else tuple(
+        dataclasses.replace(c, max_tension=c.max_tension if k in tendons else 0.0) for k, c in enumerate(scene.cables))
+    obstacles = tuple(dataclasses.replace(o, friction=mu) for o in scene.obstacles)
+    return solver.build_model(dataclasses.replace(scene, cables=cables, obstacles=obstacles))
+
+
+def test_inverse_reaches_targets_that_need_friction():
+    # tendons 0 and 4 pull the robot onto a wall with μ = 0.5: its discs hold where they touched,
+    # so the tip ends where the frictionless robot's two tendons cannot take it (its inverse stops
+    # 2–15 µm short). The converged inverse, each equilibrium the command applied to the friction
+    # state it started from and the contacts' tangential forces in its QP, reaches them to 1e-6 m,
+    # leaning on the wall with friction, nothing in it
+    from vertebra.solver import contact
+    from vertebra.solver.inverse import InverseController, InverseSettings
+
+    model, free = wall_robot(0.5, tendons=(0, 4)), wall_robot(0.0, tendons=(0, 4))
+    rng = np.random.default_rng(3)
+    commands = []
+    for _ in range(3):
+        a = np.zeros(16)
+        a[[0, 4]] = rng.uniform(2.0, 15.0, 2)
+        commands.append(a)
+    for a in (commands[0], commands[2]):
+        result = model.solve(a)
+        target = model.effector_positions(result.state)[0]
+        assert any(c.force > 0.0 and np.linalg.norm(c.friction) > 0.0 for c in result.contacts)
+        controller = InverseController(model, InverseSettings(mode="converged", tolerance=1e-6, time_budget=120.0))
+        step = controller.step(target[None])
+        assert step.reached and step.equilibrium, (step.status, step.errors)
+        assert contact.evaluate(model.trunk.contact, step.state).gap.min() >= -1e-9
+        reached = model.solve(step.actuation, history=contact_friction.at_state(model.rest_state))
+        assert any(c.force > 0.0 and np.linalg.norm(c.friction) > 0.0 for c in reached.contacts)
+        frictionless = InverseController(free, InverseSettings(mode="converged", tolerance=1e-6, time_budget=120.0))
+        assert not frictionless.step(target[None]).reached
+
+
+def test_tick_mode_on_a_frictional_wall_does_not_enter_it():
+    # tip targets from rest through a wall with μ = 0.3 (2 cm beyond it) and along it: every tick
+    # (an increment from the last, the contacts' tangential forces in its QP) stays out of the
+    # wall to 1e-6 m, and the robot reaches the wall
+    from test_contact import wall_path
+
+    from vertebra.solver import contact
+    from vertebra.solver.inverse import InverseController, InverseSettings
+
+    wall = 0.02
+    model = wall_robot(0.3, wall)
+    controller = InverseController(model, InverseSettings(mode="tick", tolerance=1e-4))
+    path = wall_path(model.effector_positions(controller.state)[0], wall)[:44]
+    touched = False
+    for k, target in enumerate(path):
+        step = controller.step(target[None])
+        gaps = contact.evaluate(model.trunk.contact, step.state).gap
+        assert gaps.min() >= -1e-6, k
+        touched |= bool(gaps.min() <= 1e-6)
+        assert isinstance(step.friction, contact_friction.ContactFriction)
+    assert touched
+
+
+def test_a_cabled_robot_on_a_frictional_wall_reports_and_writes():
+    # result.friction is the contacts' state, not a cable's: the JSON lists the cables with their
+    # tension, the contacts with their friction, and the ParaView file is written
+    from vertebra.solver.paraview import trunk_polydata
+    from vertebra.solver.report import static_report
+
+    model = wall_robot(0.5, tendons=(0, 4))
+    a = np.zeros(16)
+    a[[0, 4]] = 3.0, 5.0
+    result = model.solve(a)
+    document = static_report(model, result)
+    assert len(document["cables"]) == 16
+    assert any(c["force"] > 0.0 and c["sliding"] in ("stick", "slip") for c in document["contacts"])
+    data = trunk_polydata(model, result.state, result.actuation, friction=result.friction, contacts=result.contacts)
+    assert data is not None
