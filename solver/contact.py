@@ -964,8 +964,11 @@ def _pair_curvature(model: ContactModel, state, key: np.ndarray, lam: np.ndarray
     each moved pose: the sliding of the points along the rims is in it) under moves of each frame
     along the world axes (``DIFFERENCE`` × the disc radius) and turns about them (``DIFFERENCE`` rad).
     Face points (:func:`_face_points`) are held on their rims; so is the pucks' nearest point of
-    discs lying face to face (:func:`_facing`), where it would jump across the rims with the
-    faces' tilt (a difference across that jump is no curvature)."""
+    discs folded over onto each other (lying face to face, :func:`_facing`, with their faces
+    turned more than 90° apart), where it would jump across the rims with the faces' tilt (a
+    difference across that jump is no curvature). Discs lying face to face the same way up (a
+    trunk pressed together along its axis) keep the differences of the moving nearest point:
+    holding it there made random robots 71 and 99 stall (docs/contact.md)."""
     first, second = pair_discs(model, key)
     fa, fb = model.disc_frame[first], model.disc_frame[second]
     ha, hb = 0.5 * model.disc_thickness[first], 0.5 * model.disc_thickness[second]
@@ -975,7 +978,8 @@ def _pair_curvature(model: ContactModel, state, key: np.ndarray, lam: np.ndarray
     point = -2 - key[:, 2]
     on_second, angle = _face_point(np.maximum(point, 0))
     fixed = point >= 0
-    held = ~fixed & _facing(model, R, first, second)
+    folded = np.add.reduce(R[fa, :, 2] * R[fb, :, 2], -1) < 0.0
+    held = ~fixed & folded & _facing(model, R, first, second)
     if held.any():
         on_second[held], angle[held] = _nearest_rim_point(x[fa[held]], R[fa[held]], ra[held], x[fb[held]],
                                                           R[fb[held]], rb[held])

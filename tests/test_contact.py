@@ -470,6 +470,16 @@ def test_soft_robots_folding_their_discs_face_to_face_converge(seed):
     assert pressed(solved_with_discs_apart(seed))
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [71, 99])
+def test_robots_folding_onto_themselves_converge_with_the_folded_pairs_nearest_points_held_only(seed):
+    # random robots 71 and 99 fold onto themselves; holding the pucks' nearest point in the
+    # curvature of every pair lying face to face, the same way up too, made both stall near load
+    # factor 0.75 (1000 iterations). Held only for pairs folded over onto each other, they
+    # converge, complementary at every contact, no two discs overlapping
+    solved_with_discs_apart(seed)
+
+
 def test_a_saddle_with_discs_declared_is_left_along_negative_curvature():
     # random robot 88 comes, at load factor 0.767, to an equilibrium in balance whose tangent has
     # two negative eigenvalues (−5.1e-9 of its diagonal: it buckles sideways) with no disc pressed.
