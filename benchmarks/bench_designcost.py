@@ -18,13 +18,18 @@ Sections (all by default; name some to run only those):
     The CBHA-like pneumatic slice (outer radius 40 mm, 3 chambers r 10 mm at 21.5 mm, L 30 mm,
     E 0.5 MPa, ν 0.45) at ``--cbha-mesh`` (P2, neo-Hookean, default sampling): the same numbers
     plus the inflation-limit ramp's solves and seconds.
+``growth``
+    The ``rod`` section's entries by the default path of ``vertebra design`` (above
+    ``designer.multifidelity.AUTO_DOFS`` the nonlinear part on the chosen coarser mesh, checked
+    on the entry's mesh), e.g. ``--rod-meshes 8 5 3.5 1.83``: the growth exponent of the default
+    path; each run kept under ``--label`` (growth, growth-2, …).
 
 Each finished row is saved at once (benchmarks/results/designcost.json and .md), so a long run
 that is stopped keeps what it measured. Record the machine's load with the numbers: on a
 shared machine compare the ``ab`` ratios, not wall times across runs.
 
     OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 python -m benchmarks.bench_designcost [SECTION ...] \\
-        [--baseline /tmp/old] [--rounds 2] [--rod-meshes 8 5 3.5] [--cbha-mesh 6] [--workers 2]
+        [--baseline /tmp/old] [--rounds 2] [--rod-meshes 8 5 3.5] [--cbha-mesh 6] [--workers 2] [--label growth]
 """
 
 from __future__ import annotations
@@ -198,11 +203,11 @@ def section_rod(results: dict, meshes: list, workers: int, label: str = "rod") -
         _save(results)
 
 
-def section_cbha(results: dict, mesh_mm: float, workers: int, label: str = "cbha") -> None:
+def section_cbha(results: dict, mesh_mm: float, workers: int) -> None:
     log(f"CBHA-like slice at {mesh_mm} mm on {workers} local workers")
-    rows = [r for r in results.get(label, {}).get("rows", []) if r["mesh_mm"] != mesh_mm]
+    rows = [r for r in results.get("cbha", {}).get("rows", []) if r["mesh_mm"] != mesh_mm]
     rows.append(design("cbha", mesh_mm, "local", workers))
-    results[label] = {"rows": sorted(rows, key=lambda r: r["dofs"])}
+    results["cbha"] = {"rows": sorted(rows, key=lambda r: r["dofs"])}
     _save(results)
 
 
@@ -248,10 +253,10 @@ def markdown(results: dict) -> str:
                              f"{o['factor_columns']} | {_held(row)} |")
         ratio = ab["median_ratio_old_over_new"]
         lines += ["", f"Median old/new: wall {ratio['wall_s']:.2f}×, CPU {ratio['cpu_s']:.2f}×.", ""]
+    growth = [(key, f"Rod entries, the default path (nonlinear mesh chosen above the threshold), run {key!r}")
+              for key in sorted(results) if key.startswith("growth")]
     for key, title in (("rod", "Rod entries (P2, default sampling)"), ("cbha", "CBHA-like slice (P2, default sampling)"),
-                       ("growth", "Rod entries, the default path (nonlinear mesh chosen above the threshold)"),
-                       ("cbha_default", "CBHA-like slice, the default path (nonlinear mesh chosen above the "
-                                        "threshold)")):
+                       *growth):
         if key not in results:
             continue
         lines += [f"## {title}", "", "| mesh | DoFs | wall s | CPU s | solves | ramp solves / s | held-out load error | "
@@ -277,11 +282,14 @@ def main(argv=None) -> int:
     parser.add_argument("--rod-meshes", type=float, nargs="+", default=[8.0, 5.0, 3.5], help="mm")
     parser.add_argument("--cbha-mesh", type=float, default=6.0, help="mm")
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--label", default="growth", help="results key of a growth run (growth…; each run kept)")
     args = parser.parse_args(argv)
+    if not args.label.startswith("growth"):
+        parser.error(f"--label {args.label!r}: must start with 'growth'")
     sections = args.sections or ["ab", "rod", "cbha"]
-    unknown = sorted(set(sections) - {"ab", "rod", "cbha", "growth", "cbha_default"})
+    unknown = sorted(set(sections) - {"ab", "rod", "cbha", "growth"})
     if unknown:
-        parser.error(f"unknown section {unknown[0]!r} (known: ab, rod, cbha, growth, cbha_default)")
+        parser.error(f"unknown section {unknown[0]!r} (known: ab, rod, cbha, growth)")
     results = _load()
     if "ab" in sections:
         if args.baseline is None:
@@ -292,9 +300,7 @@ def main(argv=None) -> int:
     if "cbha" in sections:
         section_cbha(results, args.cbha_mesh, args.workers)
     if "growth" in sections:
-        section_rod(results, args.rod_meshes, args.workers, label="growth")
-    if "cbha_default" in sections:
-        section_cbha(results, args.cbha_mesh, args.workers, label="cbha_default")
+        section_rod(results, args.rod_meshes, args.workers, label=args.label)
     print(markdown(results))
     return 0
 

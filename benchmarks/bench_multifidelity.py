@@ -27,6 +27,8 @@ on a few loading paths solved with the FE of the entry's mesh. Sections (all by 
     fine mesh (held-out paths and the inflation path), its verdict by the default rule
     (``designer.multifidelity.check_verdict``), the cost. The trunk built from such entries:
     ``benchmarks/bench_nonlinear_acceptance.py --cases cbha4_pneumatic_nh --nonlinear-mesh-size H``.
+    For comparison, the full entry at ``--cbha-fine`` mm (designed once into ``--cache``): its
+    own free inflation response errors, on its inflation path.
 
 Results: benchmarks/results/multifidelity.json and .md (each row saved as it finishes).
 
@@ -231,7 +233,7 @@ CBHA = dict(outer_radius=0.04, chamber_radius=0.01, chamber_offset=0.0215, lengt
             youngs_modulus=5e5, poisson_ratio=0.45)
 
 
-def section_chambered(results: dict, fine: float, coarse: float, workers: int) -> None:
+def section_chambered(results: dict, fine: float, coarse: float, workers: int, cache: Path) -> None:
     from vertebra import designer
     from vertebra.designer import multifidelity
 
@@ -246,7 +248,7 @@ def section_chambered(results: dict, fine: float, coarse: float, workers: int) -
     self1, children1 = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
     energy = entry.energy
     check = energy.sampling["entry_mesh_check"]
-    passed, why = multifidelity.check_verdict({"held": energy.fit_error["held_out"], "stopped": check["stopped"]},
+    passed, why = multifidelity.check_verdict({**check, "held": energy.fit_error["held_out"]},
                                               energy.fit_error["nonlinear_mesh_held_out"], None)
 
     def strip(held: dict) -> dict:
@@ -262,13 +264,59 @@ def section_chambered(results: dict, fine: float, coarse: float, workers: int) -
         "nonlinear_mesh_held_out": strip(energy.fit_error["nonlinear_mesh_held_out"]),
         "limit_pressure": energy.range.limit_pressure, "ramp_mesh_size": energy.sampling.get("ramp_mesh_size"),
         "default_rule": {"passed": passed, "why": why}, "timings": dict(entry.timings)}
+    results["chambered"]["full_entry_inflation"] = _full_inflation(fine, workers, cache)
     _save(results, "chambered")
+
+
+def _full_inflation(fine: float, workers: int, cache: Path) -> dict:
+    """The free inflation response errors of the full CBHA-like entry at ``fine`` mm on its own
+    inflation path (the entry designed once into ``cache``)."""
+    from vertebra import designer
+    from vertebra.core.energy import linear_terms
+    from vertebra.designer.energy_fit import FitResult, inflation_errors
+    from vertebra.designer.energy_sampling import LoadBox, SamplingSettings, path_endpoints, pressure_path, run_paths
+    from vertebra.designer.nonlinear_condensation import FamilySolid, _tasks
+    from vertebra.store import catalogue
+
+    options = dict(mesh_size=fine / 1e3, material=MATERIAL, sampling={"pressure": 1.5e5, "limit_fraction": 0.95})
+    key = designer.entry_key("pneumatic", CBHA, **options)
+    path = cache / "multifidelity-chambered-full.h5"
+    if catalogue.has_entry(path, key):
+        with catalogue.open_catalogue(path) as cat:
+            entry = cat.load(key)
+    else:
+        log(f"the full CBHA-like entry at {fine} mm")
+        entry = designer.design_segment("pneumatic", CBHA, estimate_accuracy=False, executor="local",
+                                        workers=workers, **options)
+        catalogue.add_entry(path, entry)
+    energy = entry.energy
+    settings = SamplingSettings.from_dict(energy.sampling["settings"]).resolved(entry.n_cavities, MATERIAL)
+    spec = FamilySolid(family="pneumatic", parameters=json.dumps(entry.parameters, sort_keys=True),
+                       mesh_size=fine / 1e3, order=2, material=MATERIAL)
+    linear = linear_terms(entry.compliance, entry.rest_translation)
+    endpoints, _ = path_endpoints(entry.n_cavities, settings)
+    task = _tasks(spec, entry, linear, LoadBox(**energy.sampling["load_box"]),
+                  np.array(energy.sampling["pose_caps"], dtype=float), endpoints, settings, 1,
+                  indices=[pressure_path(entry.n_cavities, settings)])[0]
+    fit = FitResult(exponents=energy.exponents, coefficients=energy.coefficients, scales=energy.scales, unknowns=0,
+                    errors={}, fold=energy.fold_pressure)
+    return inflation_errors(fit, linear, run_paths(task).samples, 0)
 
 
 # ------------------------------------------------------------------ report
 
 def _err(held: dict | None) -> str:
     return "–" if not held else f"{held.get('load_max', math.nan):.3g}"
+
+
+def _inflation(inflation: dict | None) -> str:
+    """The free inflation response's errors of a chambered check, as a sentence."""
+    if not inflation:
+        return ""
+    fine, own = inflation.get("entry_mesh", {}), inflation.get("nonlinear_mesh", {})
+    return (f" Free inflation response: pose error {fine.get('pose_max', math.nan):.3g}, volume growth error "
+            f"{fine.get('volume_max', math.nan):.3g} on the fine mesh; {own.get('pose_max', math.nan):.3g} and "
+            f"{own.get('volume_max', math.nan):.3g} on the coarse mesh's own path.")
 
 
 def markdown(results: dict) -> str:
@@ -324,7 +372,11 @@ def markdown(results: dict) -> str:
                   f"{c['check']['paths']} ({c['check']['solves']} solves on the fine mesh). Held-out on the fine mesh: "
                   f"load {held['load_max']:.3g}, volume {held.get('volume_max', math.nan):.3g}; the coarse fit's own: "
                   f"load {own['load_max']:.3g}, volume {own.get('volume_max', math.nan):.3g}. Default rule: "
-                  f"{'passed' if c['default_rule']['passed'] else 'failed'} ({c['default_rule']['why']}).", ""]
+                  f"{'passed' if c['default_rule']['passed'] else 'failed'} ({c['default_rule']['why']})."
+                  + _inflation(c["check"].get("inflation"))
+                  + (f" The full {c['fine_mm']:g} mm entry's own: pose {c['full_entry_inflation']['pose_max']:.3g}, "
+                     f"volume {c['full_entry_inflation']['volume_max']:.3g}." if "full_entry_inflation" in c else ""),
+                  ""]
     return "\n".join(lines)
 
 
@@ -354,7 +406,7 @@ def main(argv=None) -> int:
     if "large" in sections:
         section_large(results, args.large, args.large_coarse, args.workers, args.cache)
     if "chambered" in sections:
-        section_chambered(results, args.cbha_fine, args.cbha_coarse, args.workers)
+        section_chambered(results, args.cbha_fine, args.cbha_coarse, args.workers, args.cache)
     print(markdown(_load()))
     return 0
 

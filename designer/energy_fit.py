@@ -475,6 +475,30 @@ def error_up_to(by_level, load: float, pressure: float = math.inf) -> tuple[floa
     return float(rows[inside, 2].max()), int(inside.sum())
 
 
+def inflation_errors(result: FitResult, linear: tuple, samples: Samples, cavity: int) -> dict:
+    """Errors of the fit in the free inflation response, on ``samples`` of the path that inflates
+    ``cavity`` alone (no load; :func:`designer.energy_sampling.pressure_path`), at the inflated
+    ones: ``pose`` — the pose the fit puts the free segment in, Δs = −H⁻¹ (∂ψ/∂s − load), in the
+    stiffness norm relative to the sampled pose (‖Δs‖_K / ‖s‖_K); ``volume`` — the volume growth
+    relative to the sampled one. Unlike :func:`fit_errors`' normalisation by the whole box,
+    these are relative to the response itself: what a trunk's bending angle and chamber volume
+    under pressure alone inherit."""
+    inflated = samples.take(samples.pressure[:, cavity] > 0)
+    if not inflated.size:
+        return {"samples": 0}
+    K = linear[0]
+    grad, H = evaluate_fit(result, linear, inflated.variables())
+    step = -np.linalg.solve(H[:, :6, :6], (grad[:, :6] - inflated.gradient)[:, :, None])[:, :, 0]
+
+    def norm(x):
+        return np.sqrt(np.einsum("ni,ij,nj->n", x, K, x))
+
+    pose = norm(step) / np.maximum(norm(inflated.strain), 1e-300)
+    growth = inflated.pressure_gradient[:, cavity]
+    volume = np.abs(grad[:, 6 + cavity] - growth) / np.maximum(np.abs(growth), 1e-300)
+    return {"samples": int(inflated.size), "pose_max": float(pose.max()), "volume_max": float(volume.max())}
+
+
 def fit_errors(result: FitResult, linear: tuple, samples: Samples, load_bounds: np.ndarray,
                volume_scale: float | None, pressure_top=None, by_level: bool = False) -> dict:
     """Errors of the fit (and of ψ_lin alone, for comparison) on ``samples``:

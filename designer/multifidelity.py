@@ -69,20 +69,25 @@ def choose_nonlinear_mesh(family, p: dict, mesh_size: float, order: int, setting
 
 def check_verdict(check: dict, coarse_held: dict, tolerance: float | None) -> tuple[bool, str]:
     """``(passed, why)`` of a multi-fidelity entry's check on its mesh: ``check`` its held-out
-    errors there (``fit_errors``' dict) and ``stopped`` paths, ``coarse_held`` the coarse fit's
-    own held-out errors. The load (and, for cavities, volume) errors must be at most
-    ``tolerance`` (a fraction of the range), or by default :data:`CHECK_FACTOR` times the coarse
-    fit's; a check path that stopped on a failed solve (not at a pose cap) fails it."""
+    errors there (``held``: ``fit_errors``' dict), ``stopped`` paths and, for a pressurised
+    cavity, ``inflation`` (``entry_mesh`` and ``nonlinear_mesh``: ``inflation_errors``' dicts);
+    ``coarse_held`` the coarse fit's own held-out errors. The load (and, for cavities, volume)
+    errors and the free inflation response's pose and volume errors must be at most
+    ``tolerance``, or by default :data:`CHECK_FACTOR` times the coarse fit's own; a check path
+    that stopped on a failed solve (not at a pose cap) fails it."""
     failed = [f"path {i} stopped on the entry's mesh ({reason})" for i, reason in check["stopped"].items()
               if not reason.startswith("pose")]
-    held = check["held"]
-    for name in ("load_max", "volume_max"):
-        if name not in held:
-            continue
-        bound = tolerance if tolerance is not None else CHECK_FACTOR * coarse_held.get(name, math.inf)
-        what = "the tolerance" if tolerance is not None else f"{CHECK_FACTOR:g} × the coarse fit's"
-        if not held[name] <= bound:
-            failed.append(f"held-out {name.split('_')[0]} error {held[name]:.3g} > {bound:.3g} ({what})")
+    what = "the tolerance" if tolerance is not None else f"{CHECK_FACTOR:g} × the coarse fit's"
+    inflation = check.get("inflation") or {}
+    comparisons = [("held-out", check["held"], coarse_held),
+                   ("free inflation", inflation.get("entry_mesh", {}), inflation.get("nonlinear_mesh", {}))]
+    for label, fine, own in comparisons:
+        for name in ("load_max", "volume_max", "pose_max"):
+            if name not in fine:
+                continue
+            bound = tolerance if tolerance is not None else CHECK_FACTOR * own.get(name, math.inf)
+            if not fine[name] <= bound:
+                failed.append(f"{label} {name.split('_')[0]} error {fine[name]:.3g} > {bound:.3g} ({what})")
     if failed:
         return False, "; ".join(failed)
     return True, "held-out errors within " + ("the tolerance" if tolerance is not None

@@ -17,7 +17,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from vertebra.designer.energy_fit import (FitResult, SegmentSymmetry, Samples, convexity, fit_energy, fit_errors,
-                                          symmetry_group)
+                                          inflation_errors, symmetry_group)
 from vertebra.designer.energy_sampling import (LoadBox, PathTask, PressureTask, SamplingSettings, load_box,
                                                path_endpoints, pressure_path, run_paths, run_pressure_ramp)
 from vertebra.designer.executors import Crash, make_executor
@@ -267,7 +267,8 @@ def condense_energy(entry, spec, *, radius: float, youngs_modulus: float, symmet
 
 
 def check_on_mesh(entry, condensed: Condensed, spec, settings: SamplingSettings, *, executor: str = "serial",
-                  workers: int | None = None, scheduler: str | None = None, progress=None) -> tuple[EnergyFit, dict]:
+                  workers: int | None = None, scheduler: str | None = None, progress=None,
+                  sampled=None) -> tuple[EnergyFit, dict]:
     """Multi-fidelity: the energy ``condensed`` fitted on a coarser mesh (its ψ_nl, on that mesh's
     linear part), checked on ``entry``'s mesh (the FE of ``spec``). ψ = ψ_lin of ``entry`` (its
     exact compliance: stiffness, cavity coupling and volume compliance) + the coarse ψ_nl.
@@ -275,7 +276,10 @@ def check_on_mesh(entry, condensed: Condensed, spec, settings: SamplingSettings,
     a segment with a pressurised cavity the path inflating it alone up to the top pressure, are
     followed with the FE of ``entry``'s mesh through the same load box; their samples give the
     entry's held-out error (``fit_error["held_out"]``, the one ``prepare --max-fit-error``
-    reads), the coarse sampling's own one stays as ``nonlinear_mesh_held_out``. The range is the
+    reads), the coarse sampling's own one stays as ``nonlinear_mesh_held_out``. On the
+    inflation path, the free inflation response's errors (:func:`designer.energy_fit.inflation_errors`)
+    on the entry's mesh and — with ``sampled``, the coarse entry — on the coarser mesh are
+    recorded as ``entry_mesh_check["inflation"]``. The range is the
     coarse sampling's; its pressures, fold map and inflation limit point come from the ramp on
     the entry's mesh (:class:`NonlinearCondenser`).
     Returns ``(energy, {"check_s": seconds})`` (the seconds in the entry's timings, not in its
@@ -315,6 +319,18 @@ def check_on_mesh(entry, condensed: Condensed, spec, settings: SamplingSettings,
     seconds = time.perf_counter() - start
     check = {"mesh_size": float(spec.mesh_size), "paths": chosen, "samples": int(samples.size),
              "solves": int(sum(o.solves for o in outcomes)), "stopped": {str(i): r for i, r in sorted(stopped.items())}}
+    if inflation is not None:
+        cavity = pressurised[0]
+        check["inflation"] = {"entry_mesh": inflation_errors(result, linear, samples.take(samples.path == inflation),
+                                                             cavity)}
+        if sampled is not None:
+            own = coarse_samples.take(coarse_samples.path == inflation)
+            check["inflation"]["nonlinear_mesh"] = inflation_errors(
+                result, linear_terms(sampled.compliance, sampled.rest_translation), own, cavity)
+        fine = check["inflation"]["entry_mesh"]
+        if fine.get("samples"):
+            _say(progress, f"free inflation response on the entry's mesh: pose error {fine['pose_max']:.3g}, "
+                           f"volume growth error {fine['volume_max']:.3g} (relative)")
     _say(progress, f"held-out load error on the entry's mesh {held['load_max']:.3g} of the range (linear entry "
                    f"{held['linear_load_max']:.3g}; on the nonlinear mesh "
                    f"{coarse.fit_error['held_out'].get('load_max', float('nan')):.3g})"
@@ -375,7 +391,8 @@ class NonlinearCondenser:
         condensed = condense_energy(sampled, replace(fine, mesh_size=sampled.mesh["mesh_size"]), ramp=ramp, **common)
         timings.update({k: v for k, v in condensed.timings.items() if k != "total_s"})
         energy, checked = check_on_mesh(entry, condensed, fine, resolved, executor=self.executor,
-                                        workers=self.workers, scheduler=self.scheduler, progress=progress)
+                                        workers=self.workers, scheduler=self.scheduler, progress=progress,
+                                        sampled=sampled)
         timings.update(checked)
         coarse_mesh = {k: sampled.mesh[k] for k in ("mesh_size", "dofs", "elements", "nodes", "order")}
         if settings.nonlinear_mesh_chosen:
@@ -385,7 +402,7 @@ class NonlinearCondenser:
         if not (settings.nonlinear_mesh_chosen or settings.check_tolerance is not None):
             return replace(energy, sampling={**energy.sampling, "nonlinear_mesh": coarse_mesh}), ramp, None
         tolerance = settings.check_tolerance
-        passed, why = multifidelity.check_verdict({"held": energy.fit_error["held_out"], "stopped": check["stopped"]},
+        passed, why = multifidelity.check_verdict({**check, "held": energy.fit_error["held_out"]},
                                                   energy.fit_error["nonlinear_mesh_held_out"], tolerance)
         verdict = {"passed": passed, "why": why, "tolerance": tolerance,
                    "factor": None if tolerance is not None else multifidelity.CHECK_FACTOR}

@@ -88,11 +88,10 @@ def bound_violations(model, state, actuation) -> tuple:
     driven = actuators.stroke_driven
     cables = model.scene.cables
     outside = (actuation < lower) | (actuation > upper)
-    on_state = bool(np.maximum.reduce(dlo, initial=-math.inf) > -math.inf
-                    or np.minimum.reduce(dhi, initial=math.inf) < math.inf)
-    tendons = [k for k in np.flatnonzero(driven).tolist()
-               if math.isfinite(cables[k].max_tension) or cables[k].min_tension > 0.0] if driven.any() else []
-    if not (outside.any() or on_state or tendons):
+    on_state = actuators.state_bounded
+    tendons = [k for k in actuators.tendons.tolist()
+               if math.isfinite(cables[k].max_tension) or cables[k].min_tension > 0.0] if actuators.tendons.size else []
+    if not (on_state or tendons or outside.any()):
         return ()
     found: list = []
     tension_max = max((c.max_tension for c in cables if math.isfinite(c.max_tension)), default=0.0)

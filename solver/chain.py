@@ -119,19 +119,19 @@ def chain_poses(q0: np.ndarray, x0: np.ndarray, xi: np.ndarray) -> Chain:
         M[..., 7, 7] = 1.0
         for k in range(1, N):
             M[..., k, :, :] = M[..., k - 1, :, :] @ M[..., k, :, :]
-    elif doubling:
+    elif doubling:           # (one chain: plain indexing, cheaper than an ellipsis)
         M = F.dot(_POSE_TABLE).reshape(N, 8, 8)
         shift = 1
         while shift < N:
-            M[..., shift:, :, :] = M[..., :-shift, :, :] @ M[..., shift:, :, :]
+            M[shift:] = M[:-shift] @ M[shift:]
             shift *= 2
     else:
         M = F.dot(_POSE_TABLE).reshape(m, c, 8, 8)
         for j in range(1, c):
-            M[..., j, :, :] = M[..., j - 1, :, :] @ M[..., j, :, :]
+            M[:, j] = M[:, j - 1] @ M[:, j]
         for i in range(1, m):
-            M[..., i, :, :, :] = M[..., i - 1, -1:, :, :] @ M[..., i, :, :, :]
-        M = M.reshape(lead + (m * c, 8, 8))[..., :N, :, :]
+            M[i] = M[i - 1, -1] @ M[i]
+        M = M.reshape(m * c, 8, 8)[:N]
     quaternions = M[..., :4, 0]
     quaternions = quaternions / np.sqrt(quaternions[..., None, :] @ quaternions[..., :, None])[..., 0]
     chain = Chain(quaternions, M[..., 4:7, 7].copy(), M[..., 4:7, 4:7], F[..., 1:N, 20:23], link_coef, largest)

@@ -332,7 +332,8 @@ def _newton(stage: _Stage, state: State):
                                f"state given, or the last converged stage) at load factor {load.scale:.3g}")
     stage.represented(state, ev)
     r = -ev.gradient[1:].reshape(-1)
-    work = nonpotential_forces(trunk, state, load)      # (the merit's loads without a potential, here)
+    # (the merit's loads without a potential, here; None when the loads are conservative)
+    work = None if symmetric else nonpotential_forces(trunk, state, load)
     # the last direction came from the unshifted Cholesky factor (a positive definite tangent) at a
     # state already close to equilibrium: the equilibrium reached from it is taken as stable
     trusted = False
@@ -489,7 +490,7 @@ def _newton(stage: _Stage, state: State):
             raise ConvergenceError(f"non-finite forces appeared after a Newton step at load factor {load.scale:.3g}")
         stage.represented(state, ev)
         r = -ev.gradient[1:].reshape(-1)
-        work = nonpotential_forces(trunk, state, load)
+        work = None if symmetric else nonpotential_forces(trunk, state, load)
 
 
 @dataclass

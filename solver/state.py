@@ -10,7 +10,6 @@ copy whose poses no longer match the record is evaluated from its poses.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from functools import cached_property
 
 import numpy as np
 
@@ -30,13 +29,16 @@ class StrainRecord:
     # the effector points of these poses, once asked for: (the trunk's Effectors, turned offsets,
     # positions), read-only (solver.outputs.effector_points)
     effector_points: tuple | None = field(default=None, repr=False, compare=False)
+    _links: Links | None = field(default=None, init=False, repr=False, compare=False)
 
-    @cached_property
+    @property
     def links(self) -> Links:
         """Link kinematics from the strains and the chain's products (no logarithms), computed
-        when first asked for (the record's arrays are read-only: it cannot go stale)."""
-        return Links.of_strains(self.chain.rotations[:-1], self.xi, self.positions[1:] - self.positions[:-1],
-                                self.chain.link_coefficients)
+        when first asked for and kept (the record's arrays are read-only: it cannot go stale)."""
+        if self._links is None:
+            self._links = Links.of_strains(self.chain.rotations[:-1], self.xi,
+                                           self.positions[1:] - self.positions[:-1], self.chain.link_coefficients)
+        return self._links
 
 
 @dataclass

@@ -11,6 +11,7 @@ offsets kept, so gravity also makes moments).
 from __future__ import annotations
 
 import functools
+import math
 import dataclasses
 from dataclasses import dataclass, fields
 
@@ -108,6 +109,13 @@ class Actuators(_Frozen):
     def tendons(self) -> np.ndarray:
         """Indices of the stroke-driven cables (read-only)."""
         return _read_only(np.flatnonzero(self.stroke_driven))
+
+    @functools.cached_property
+    def state_bounded(self) -> bool:
+        """Has any stroke or volume growth a bound (checked at a solved state: solver.bounds)?"""
+        lower, upper = self.displacement_bounds
+        return bool(np.maximum.reduce(lower, initial=-math.inf) > -math.inf
+                    or np.minimum.reduce(upper, initial=math.inf) < math.inf)
 
     @functools.cached_property
     def frictional(self) -> bool:

@@ -123,3 +123,19 @@ def test_the_check_path_that_inflates_a_cavity_alone():
     endpoints, _ = path_endpoints(3, second)
     assert np.array_equal(endpoints[pressure_path(3, second)], [0, 0, 0, 0, 0, 0, 0, 1, 0])
     assert pressure_path(3, SamplingSettings(cavities=())) is None and pressure_path(0, SamplingSettings()) is None
+
+
+def test_verdict_reads_the_free_inflation_response():
+    """The verdict fails on the free inflation response even when the held-out errors pass
+    (numbers of the CBHA-like slice at 12 mm with ψ_nl from 16 mm), and on a check path that
+    stopped on a failed solve; a pose cap is no failure."""
+    held, own = {"load_max": 0.0173, "volume_max": 0.0118}, {"load_max": 0.0869, "volume_max": 0.0193}
+    inflation = {"entry_mesh": {"samples": 10, "pose_max": 0.0393, "volume_max": 0.0229},
+                 "nonlinear_mesh": {"samples": 10, "pose_max": 0.0094, "volume_max": 0.0075}}
+    passed, why = multifidelity.check_verdict({"held": held, "stopped": {"14": "pose beyond the caps"}}, own, None)
+    assert passed
+    passed, why = multifidelity.check_verdict({"held": held, "stopped": {}, "inflation": inflation}, own, None)
+    assert not passed and "free inflation pose error 0.0393 > 0.0141" in why and "volume error 0.0229" in why
+    passed, why = multifidelity.check_verdict({"held": held, "stopped": {"3": "no convergence"}}, own, None)
+    assert not passed and "path 3 stopped" in why
+    assert multifidelity.check_verdict({"held": held, "stopped": {}, "inflation": inflation}, own, 0.05)[0]

@@ -468,7 +468,8 @@ class InverseController:
         d_energy = float(cables.dot(model.rest_cable_lengths)) + float(cables.dot(lin.actuator_displacements[:n_cables]))
         exact_energy = model.n_chambers or model.n_tendons
         quality = 0.0
-        work = nonpotential_forces(model.trunk, state0, model.loads(lam0, 1.0))
+        work = (nonpotential_forces(model.trunk, state0, model.loads(lam0, 1.0)) if model.trunk.loads.unsymmetric
+                else None)
         if base is not None:
             trunk = model.trunk
             start = friction.geometry(trunk, state0)
