@@ -19,6 +19,7 @@ import resource
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import vertebra
 from benchmarks.common import RESULTS, ROOT, loadavg, log, now, write_json
@@ -27,20 +28,23 @@ EXAMPLE = ROOT / "examples" / "calibration" / "ftdcr_v4"
 STEM = "tdcr_sysid_20260511-183002"
 
 
-def command(extra=()) -> list[str]:
-    return [sys.executable, "-m", "vertebra.cli.main", "calibrate", str(EXAMPLE / "scene.toml"),
-            "--data", str(EXAMPLE / f"{STEM}_train.csv"), "--holdout", str(EXAMPLE / f"{STEM}_val.csv"),
-            "--map", str(EXAMPLE / "map.toml"), "--json", *extra]
+def command(extra=(), example=EXAMPLE) -> list[str]:
+    return [sys.executable, "-m", "vertebra.cli.main", "calibrate", str(example / "scene.toml"),
+            "--data", str(example / f"{STEM}_train.csv"), "--holdout", str(example / f"{STEM}_val.csv"),
+            "--map", str(example / "map.toml"), "--json", *extra]
 
 
 def run(root: str, extra=()) -> dict:
-    """One run of the command with ``root`` first on the path: wall and CPU seconds, the
-    held-out RMSE and the optimiser's counts."""
+    """One run of the command with ``root`` first on the path (on that tree's own copy of the
+    example, when it has one: a mapping file may name fields an older tree does not know): wall
+    and CPU seconds, the held-out RMSE and the optimiser's counts."""
     env = dict(os.environ, PYTHONPATH=root, MPLBACKEND="Agg")
+    own = Path(root) / "vertebra" / "examples" / "calibration" / "ftdcr_v4"
+    example = own if (own / "map.toml").exists() else EXAMPLE
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     load = loadavg()
     start = time.perf_counter()
-    done = subprocess.run(command(extra), env=env, capture_output=True, text=True, check=True)
+    done = subprocess.run(command(extra, example), env=env, capture_output=True, text=True, check=True)
     wall = time.perf_counter() - start
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     document = json.loads(done.stdout)
@@ -50,7 +54,10 @@ def run(root: str, extra=()) -> dict:
             "holdout_rmse_pct_length": document["holdout"]["rmse_pct_length"],
             "train_rmse_m": document["train"]["rmse_m"], "evaluations": optimiser["evaluations"],
             "jacobians": optimiser["jacobians"], "workers": optimiser.get("workers", 1),
-            "values": {p["name"]: p["value"] for p in document["parameters"]}}
+            "values": {p["name"]: p["value"] for p in document["parameters"]},
+            "standard_errors": {p["name"]: p["standard_error"] for p in document["parameters"]},
+            "unidentifiable": document.get("unidentifiable", []),
+            "offset_removed_holdout_rmse_m": document["holdout"]["offset_removed"]["rmse_m"]}
 
 
 def main(argv=None) -> int:

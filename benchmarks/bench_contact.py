@@ -107,7 +107,7 @@ def robots(count: int) -> dict:
                      "iterations": int(result.iterations), "load_stages": int(result.load_steps),
                      "pressed": sum(c.force > 0.0 for c in result.contacts),
                      "deepest_gap_m": float(min((c.gap for c in result.contacts), default=0.0)),
-                     "solve_s": elapsed, "message": result.message})
+                     "solve_s": elapsed, "tip_m": result.state.positions[-1].tolist(), "message": result.message})
         log(f"robot {seed}: converged {result.converged} ({result.iterations} iterations, {elapsed:.2f} s)")
     return {"robots": count, "converged": sum(r["converged"] for r in rows),
             "converged_folded_past_a_rim": sum(r["converged"] and r["largest_adjacent_turn_deg"] > 90.0 for r in rows),

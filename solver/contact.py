@@ -50,6 +50,8 @@ CHORD_SAMPLES = 8            # … and on a chord
 GOLDEN = 0.5 * (math.sqrt(5.0) - 1.0)
 GOLDEN_STEPS = 48            # shrinks the bracket by 1e-10
 BISECTIONS = 52              # of a rim's angle between discs: the bracket (2·2π/16) to the rounding of an angle
+FACE_POINTS = 8              # points on each rim of two discs lying face to face (fixed angles in the disc's frame) …
+FACE_REACH = 2.0             # … while their gap is below this × the sum of their thicknesses
 DIFFERENCE = 1e-6            # the step (rad; × the disc radius in m) of the disc pairs' curvature by central differences
 MARGIN = 0.25                # candidate contacts: a gap below this share of the trunk's length …
 FOLD_REACH = 1.0             # … and, for non-adjacent discs, bounding spheres apart by less than this × the sum of their radii
@@ -111,7 +113,7 @@ class ContactSet:
             frame = self.frames[:, side]
             used = frame > 0
             np.add.at(G, (np.flatnonzero(used), frame[used]), self.rows[used, side])
-        return G[:, 1:].reshape(self.count, -1)
+        return G[:, 1:].reshape(self.count, 6 * (n_frames - 1))
 
     def forces(self, multipliers: np.ndarray, n_frames: int) -> np.ndarray:
         """The contact forces' generalised forces ``Gᵀλ`` (n_frames, 6) on every frame."""
@@ -194,18 +196,26 @@ def check_rest(model: ContactModel, state, source: str) -> None:
                          field="segment" if found.key[k, 0] in DISCS else "obstacle")
 
 
+def interpenetration(model: ContactModel, contacts: ContactSet) -> tuple[float, int]:
+    """How far the disc pairs of ``contacts`` (the candidates at a state) have gone into each
+    other, as a share of the depth :func:`interpenetrating` refuses (half the sum of their half
+    thicknesses), and the deepest pair's index in ``contacts`` ((0, −1) without disc pairs)."""
+    pair = np.flatnonzero(np.isin(contacts.key[:, 0], DISCS))
+    if not pair.size:
+        return 0.0, -1
+    first, second = pair_discs(model, contacts.key[pair])
+    depth = -contacts.gap[pair] / (0.25 * (model.disc_thickness[first] + model.disc_thickness[second]))
+    worst = int(np.argmax(depth))
+    return float(depth[worst]), int(pair[worst])
+
+
 def interpenetrating(model: ContactModel, contacts: ContactSet) -> np.ndarray | None:
     """The key of a disc pair of ``contacts`` (the candidates at a state) that has gone more than
     half their thickness into each other (half the sum of their half thicknesses: half way to
     where the pucks' flat cores meet, the gap's floor, and its direction is lost) — beyond what a
     Newton iterate's penetration can be — or None."""
-    pair = np.flatnonzero(np.isin(contacts.key[:, 0], DISCS))
-    if not pair.size:
-        return None
-    first, second = pair_discs(model, contacts.key[pair])
-    depth = contacts.gap[pair] / (0.25 * (model.disc_thickness[first] + model.disc_thickness[second]))
-    worst = int(np.argmin(depth))
-    return contacts.key[pair[worst]] if depth[worst] < -1.0 else None
+    depth, worst = interpenetration(model, contacts)
+    return contacts.key[worst] if depth > 1.0 else None
 
 
 def fold_pairs(model: ContactModel, x: np.ndarray, reach: float = FOLD_REACH) -> tuple[np.ndarray, np.ndarray]:
@@ -427,17 +437,102 @@ def _rim_to_disk(center, e1, e2, radius, other_center, other_axis, other_radius)
     return np.sqrt(np.add.reduce((p - q) ** 2, -1)), p, q
 
 
-def _disc_pairs(model, R, x, first, second):
+def _disc_pairs(model, R, x, first, second, point=None):
     """Disc ``first`` against disc ``second`` (index arrays). Each disc is a puck: the flat disk of
     radius ``R − t/2`` in its frame's x–y plane swept by a ball of radius ``t/2`` (thickness
     ``t``, outer radius ``R``, a rounded rim). The gap is the distance between the two flat
     disks less the two half thicknesses: the nearer of each rim against the other's disk (the
     distance between two convex sets has a nearest point on a rim of one of them). Rim against
-    face, rim against rim and the discs folded past each other's rim are the same smooth gap."""
+    face, rim against rim and the discs folded past each other's rim are the same smooth gap.
+    ``point`` (default −1: the gap) ``≥ 0`` takes instead a rim point at a fixed angle against
+    the other's disk (:func:`_face_point`, :func:`_rim_point_gap`)."""
     fa, fb = model.disc_frame[first], model.disc_frame[second]
     ha, hb = 0.5 * model.disc_thickness[first], 0.5 * model.disc_thickness[second]
     ra, rb = model.disc_radius[first] - ha, model.disc_radius[second] - hb
-    return _puck_gap(x[fa], R[fa], ra, ha, x[fb], R[fb], rb, hb) + (np.stack([fa, fb], 1),)
+    if point is None:
+        return _puck_gap(x[fa], R[fa], ra, ha, x[fb], R[fb], rb, hb) + (np.stack([fa, fb], 1),)
+    return _pair_gap(x[fa], R[fa], ra, ha, x[fb], R[fb], rb, hb, point >= 0, *_face_point(np.maximum(point, 0))) + (
+        np.stack([fa, fb], 1),)
+
+
+def _pair_gap(xa, Ra, ra, ha, xb, Rb, rb, hb, fixed, second=None, angle=None):
+    """:func:`_puck_gap`, and where ``fixed`` the gap of a rim point held on its disc
+    (:func:`_rim_point_gap`: on the second's rim where ``second``, at ``angle`` in its frame)."""
+    if not np.any(fixed):
+        return _puck_gap(xa, Ra, ra, ha, xb, Rb, rb, hb)
+    out = _rim_point_gap(xa, Ra, ra, ha, xb, Rb, rb, hb, second, angle)
+    exact = ~fixed
+    if exact.any():
+        found = _puck_gap(xa[exact], Ra[exact], ra[exact], ha[exact], xb[exact], Rb[exact], rb[exact], hb[exact])
+        for whole, part in zip(out, found):
+            whole[exact] = part
+    return out
+
+
+def _rim_point_gap(xa, Ra, ra, ha, xb, Rb, rb, hb, second, angle):
+    """(gap, point on the first puck, unit normal pushing it away, rows (k, 2, 6)) of a point held
+    on one puck's rim against the other puck: on the second core's rim where ``second``, else on
+    the first's, at ``angle`` in its frame; the gap is its distance to the other flat disk less the
+    two half thicknesses (at least the pucks' gap)."""
+    c, sn = np.cos(angle)[..., None], np.sin(angle)[..., None]
+    own_x, own_R, own_r = (np.where(second[..., None], xb, xa), np.where(second[..., None, None], Rb, Ra),
+                           np.where(second, rb, ra))
+    other_x, other_R, other_r = (np.where(second[..., None], xa, xb), np.where(second[..., None, None], Ra, Rb),
+                                 np.where(second, ra, rb))
+    on_rim = own_x + own_r[..., None] * (c * own_R[..., 0] + sn * own_R[..., 1])
+    on_disk = _to_disk(on_rim, other_x, other_R[..., 2], other_r)
+    p = np.where(second[..., None], on_disk, on_rim)                # on the first core, on the second
+    q = np.where(second[..., None], on_rim, on_disk)
+    return _core_gap(p, q, np.sqrt(np.add.reduce((p - q) ** 2, -1)), xa, ha, xb, hb)
+
+
+def _face_point(point):
+    """The rim and angle of face point ``point`` (:func:`_face_points`): ``k < FACE_POINTS`` is the
+    first disc's rim at ``2πk/FACE_POINTS`` in its frame, ``FACE_POINTS + k`` the second's."""
+    return point >= FACE_POINTS, 2.0 * math.pi * (point % FACE_POINTS) / FACE_POINTS
+
+
+def _nearest_rim_point(xa, Ra, ra, xb, Rb, rb):
+    """Where the pucks' gap (:func:`_puck_gap`) has its nearest point: on the second's rim or the
+    first's, and its angle in that disc's frame."""
+    da, pa, _ = _rim_to_disk(xa, Ra[..., 0], Ra[..., 1], ra, xb, Rb[..., 2], rb)
+    db, pb, _ = _rim_to_disk(xb, Rb[..., 0], Rb[..., 1], rb, xa, Ra[..., 2], ra)
+    second = db < da
+    v = np.where(second[..., None], pb - xb, pa - xa)
+    own = np.where(second[..., None, None], Rb, Ra)
+    return second, np.arctan2(np.add.reduce(v * own[..., 1], -1), np.add.reduce(v * own[..., 0], -1))
+
+
+def _facing(model, R, first, second) -> np.ndarray:
+    """Do discs ``first`` and ``second`` lie face to face: their faces so nearly parallel (either
+    way) that across the wider disc the tilt moves the rim by less than the sum of their
+    thicknesses (``2 R sin θ < t₁ + t₂``)? Discs touching at their rims as a trunk bends are
+    tilted by far more (their far sides open by about twice the spacing less the thickness)."""
+    cosine = np.add.reduce(R[model.disc_frame[first], :, 2] * R[model.disc_frame[second], :, 2], -1)
+    tilt = np.sqrt(np.maximum(0.0, 1.0 - cosine * cosine))
+    return (2.0 * np.maximum(model.disc_radius[first], model.disc_radius[second]) * tilt
+            < model.disc_thickness[first] + model.disc_thickness[second])
+
+
+def _face_points(model, R, key, gap):
+    """The keys of the face points of the disc pairs ``key`` (gaps ``gap``) that lie face to face
+    (:func:`_facing`) with a gap below :data:`FACE_REACH` × the sum of their thicknesses:
+    :data:`FACE_POINTS` points held at fixed angles on each disc's rim (:func:`_face_point`), each
+    against the other's disk (:func:`_rim_point_gap`). A point's key is its pair's with
+    ``−2 − point`` in the obstacle's place. Two discs lying face to face touch over an area: the
+    pucks' gap then has its nearest point on whichever side of the rims the faces' tilt puts it,
+    and its derivative turns with the tilt's sign (no step that tilts them opens it); these
+    points, smooth each, keep the faces from entering each other on every side (a polygon of
+    support points, as for a flat contact), beside the pucks' gap."""
+    first, second = pair_discs(model, key)
+    near = _facing(model, R, first, second) & (gap < FACE_REACH * (model.disc_thickness[first]
+                                                                     + model.disc_thickness[second]))
+    if not near.any():
+        return np.zeros((0, 3), int)
+    points = np.arange(2 * FACE_POINTS)
+    chosen = np.repeat(key[near], points.size, 0)
+    chosen[:, 2] = -2 - np.tile(points, int(near.sum()))
+    return chosen
 
 
 def _puck_gap(xa, Ra, ra, ha, xb, Rb, rb, hb):
@@ -447,7 +542,13 @@ def _puck_gap(xa, Ra, ra, ha, xb, Rb, rb, hb):
     db, pb, qb = _rim_to_disk(xb, Rb[..., 0], Rb[..., 1], rb, xa, Ra[..., 2], ra)
     first = (da <= db)[..., None]
     p, q = np.where(first, pa, qb), np.where(first, qa, pb)          # on the first core, on the second
-    distance = np.minimum(da, db)
+    return _core_gap(p, q, np.minimum(da, db), xa, ha, xb, hb)
+
+
+def _core_gap(p, q, distance, xa, ha, xb, hb):
+    """(gap, point on the first puck, unit normal pushing it away, rows (k, 2, 6)) of two pucks
+    whose cores (on frames at ``xa``, ``xb``; half thicknesses ``h``) come nearest at ``p`` (on the
+    first) and ``q``, ``distance`` apart: the rows of the nearest points held on their bodies."""
     normal = (p - q) / np.maximum(distance, 1e-300)[..., None]
     rows = np.empty(p.shape[:-1] + (2, 6))
     rows[..., 0, :3] = normal
@@ -465,7 +566,7 @@ def disc_gaps(model: ContactModel, state, first: np.ndarray, second: np.ndarray)
 def _discs(model, R, x, key):
     """Disc–disc contacts ``key`` (m, 3; adjacent or not: :func:`_disc_pairs`); the sliding of the
     nearest points is in the curvature's differences (:func:`_pair_curvature`), not in ``slide``."""
-    gap, point, normal, rows, frames = _disc_pairs(model, R, x, *pair_discs(model, key))
+    gap, point, normal, rows, frames = _disc_pairs(model, R, x, *pair_discs(model, key), -2 - key[:, 2])
     return gap, point, normal, frames, rows, np.zeros((key.shape[0], 2, 3))
 
 
@@ -492,6 +593,11 @@ def evaluate(model: ContactModel, state, keys: np.ndarray | None = None) -> Cont
             key = np.column_stack([np.full(first.size, FOLD), first * model.disc_frame.size + second,
                                    np.full(first.size, -1)])
             parts.append((key, _discs(model, R, x, key)))
+        if parts:          # discs lying face to face: points round their rims beside the pucks' gap
+            key = _face_points(model, R, np.concatenate([k for k, _ in parts]),
+                               np.concatenate([found[0] for _, found in parts]))
+            if key.size:
+                parts.append((key, _discs(model, R, x, key)))
         for j, obstacle in enumerate(model.obstacles):
             near = _near(model, x, obstacle)
             for kind, function in _FEATURES.items():
@@ -648,6 +754,16 @@ class Constraints:
         self.keys = step.contacts.key[pressed]
         self.multipliers = step.multipliers[pressed]
         self.reference = step.contacts.gap[pressed]
+
+    def current(self) -> tuple:
+        """The current multipliers (keys, values), to return to them (:meth:`resume`)."""
+        return self.keys, self.multipliers
+
+    def resume(self, current: tuple, state) -> None:
+        """Take the multipliers ``current`` (:meth:`current`) again for a step from ``state`` that no
+        complementarity problem gave (a negative-curvature step, which keeps the pressed contacts)."""
+        self.keys, self.multipliers = current
+        self.reference = self.pressed(state).gap
 
     def reestimate(self, gradient: np.ndarray, state, weights: np.ndarray) -> None:
         """Replace the multipliers by the forces ``λ ≥ 0`` of the pressed contacts that balance
@@ -846,13 +962,24 @@ def _pair_curvature(model: ContactModel, state, key: np.ndarray, lam: np.ndarray
     """``−λ ∂²g`` (k, 12, 12) of disc–disc contacts on their frames ``[a; b]``: central differences
     of the gap's rows (the contact force's generalised force, its nearest points found again at
     each moved pose: the sliding of the points along the rims is in it) under moves of each frame
-    along the world axes (``DIFFERENCE`` × the disc radius) and turns about them (``DIFFERENCE`` rad)."""
+    along the world axes (``DIFFERENCE`` × the disc radius) and turns about them (``DIFFERENCE`` rad).
+    Face points (:func:`_face_points`) are held on their rims; so is the pucks' nearest point of
+    discs lying face to face (:func:`_facing`), where it would jump across the rims with the
+    faces' tilt (a difference across that jump is no curvature)."""
     first, second = pair_discs(model, key)
     fa, fb = model.disc_frame[first], model.disc_frame[second]
     ha, hb = 0.5 * model.disc_thickness[first], 0.5 * model.disc_thickness[second]
     ra, rb = model.disc_radius[first] - ha, model.disc_radius[second] - hb
     x, R = state.positions, qmatrix(state.quaternions)
     k = key.shape[0]
+    point = -2 - key[:, 2]
+    on_second, angle = _face_point(np.maximum(point, 0))
+    fixed = point >= 0
+    held = ~fixed & _facing(model, R, first, second)
+    if held.any():
+        on_second[held], angle[held] = _nearest_rim_point(x[fa[held]], R[fa[held]], ra[held], x[fb[held]],
+                                                          R[fb[held]], rb[held])
+        fixed = fixed | held
     moved = [np.repeat(v[None], 24, 0) for v in (x[fa], R[fa], x[fb], R[fb])]
     step = np.empty((12, k))
     for c in range(12):
@@ -866,8 +993,9 @@ def _pair_curvature(model: ContactModel, state, key: np.ndarray, lam: np.ndarray
                 moved[2 * body + 1][row] = _rotation(what - 3, sign * DIFFERENCE) @ moved[2 * body + 1][row]
         step[c] = h
     flat = [v.reshape((24 * k,) + v.shape[2:]) for v in moved]
-    rows = _puck_gap(flat[0], flat[1], np.tile(ra, 24), np.tile(ha, 24), flat[2], flat[3], np.tile(rb, 24),
-                     np.tile(hb, 24))[3].reshape(12, 2, k, 12)
+    rows = _pair_gap(flat[0], flat[1], np.tile(ra, 24), np.tile(ha, 24), flat[2], flat[3], np.tile(rb, 24),
+                     np.tile(hb, 24), np.tile(fixed, 24), np.tile(on_second, 24), np.tile(angle, 24))[3].reshape(
+                         12, 2, k, 12)
     derivative = (rows[:, 0] - rows[:, 1]) / (2.0 * step[:, :, None])              # (12 moves, k, 12 rows)
     return -lam[:, None, None] * np.transpose(derivative, (1, 2, 0))
 

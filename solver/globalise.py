@@ -12,6 +12,7 @@ import math
 import numpy as np
 
 from vertebra.core.lie import qconj, qlog, qmul
+from vertebra.solver import contact
 from vertebra.solver.potential import Evaluation, evaluate, nonpotential_forces, potential
 from vertebra.solver.state import retract, strain_change
 
@@ -19,6 +20,7 @@ NEUTRAL = 1e-9        # curvature above −NEUTRAL·D is neutral (a symmetry of 
 ARMIJO = 1e-4
 ROUNDING = 1e-12       # energy changes below this fraction of the energy are rounding
 SEARCH_FLOOR = 1e-3    # smallest step fraction of the line search
+DISC_DEPTH = 0.5       # a trial may take discs this far into each other, of the depth that cannot be followed
 
 
 def negative_curvature(factor, shift: float, scale: np.ndarray, n: int):
@@ -37,18 +39,84 @@ def negative_curvature(factor, shift: float, scale: np.ndarray, n: int):
     return (v, curvature) if curvature < -NEUTRAL else None
 
 
-def bend(stage, ev, r: np.ndarray, factor, shift: float, scale: np.ndarray):
-    """The step along the tangent's direction of most negative curvature (:func:`negative_curvature`),
-    turned downhill and stretched to the strain-space caps: (dq, strain change, r·dq, dqᵀH dq,
-    predicted decrease), or None when the curvature is not negative."""
-    found = negative_curvature(factor, shift, scale, r.size)
+def projected_curvature(factor, shift: float, scale: np.ndarray, matrix, held: np.ndarray):
+    """A direction ``v`` of negative curvature of the tangent ``matrix`` (``H``: the Lagrangian's)
+    on the directions the pressed contacts leave free — the null space of their gaps' rows
+    ``held`` (k, n): ``held v = 0`` — in the D-metric (``vᵀDv = 1``), and its curvature ``vᵀHv``;
+    None when it is not negative. ``factor`` is that of the tangent the step used (``H`` plus
+    springs along the pressed contacts, plus ``shift``·D, positive definite): the springs make
+    its most negative direction (:func:`negative_curvature`) nearly free of the contacts, and its
+    D-orthogonal projection onto the null space of ``held`` makes it exactly so."""
+    found = negative_curvature(factor, shift, scale, scale.size)
     if found is None:
         return None
-    v, curvature = found
-    if float(r @ v) < 0.0:
-        v = -v
-    change = strain_change(v, ev.links)
-    limit = stage.step_limit(v, change, ev)
+    v = found[0]
+    if held.shape[0]:
+        scaled = held / scale
+        v = v - scaled.T @ np.linalg.lstsq(scaled @ held.T, held @ v, rcond=1e-13)[0]
+    norm = math.sqrt(float(v @ (scale * v)))
+    if not (norm > 0.0 and math.isfinite(norm)):
+        return None
+    v = v / norm
+    curvature = matrix.quadratic(v)
+    return (v, curvature) if curvature < -NEUTRAL else None
+
+
+def gap_limit(v: np.ndarray, gaps: np.ndarray, rows: np.ndarray) -> float:
+    """The largest multiple ``α`` of the step ``v`` that closes no open candidate contact on its
+    linearisation: ``g_i + α G_i v ≥ 0`` for every contact (gaps ``gaps``, rows ``G`` = ``rows``)
+    that ``v`` closes (``G_i v < 0``); a contact already closed (``g_i ≤ 0``) that ``v`` closes
+    further allows none. ``inf`` when ``v`` closes none."""
+    closing = rows @ v
+    mask = closing < 0.0
+    if not mask.any():
+        return math.inf
+    return float(np.min(np.maximum(gaps[mask], 0.0) / -closing[mask]))
+
+
+def bend(stage, ev, r: np.ndarray, factor, shift: float, scale: np.ndarray, matrix=None, state=None):
+    """The step along the tangent's direction of most negative curvature (:func:`negative_curvature`),
+    turned downhill and stretched to the strain-space caps: (dq, strain change, r·dq, dqᵀH dq,
+    predicted decrease), or None when the curvature is not negative. With contacts
+    (``stage.constraints``) the direction is that of the Lagrangian's tangent ``matrix`` on the
+    directions the contacts that hold the trunk leave free (``Constraints.held``: the pressed
+    ones, with friction the stuck ones' slip rows too; :func:`projected_curvature`), and its length is
+    also capped where it would close another candidate contact (:func:`gap_limit`: it cannot step
+    through a disc or into an obstacle); of its two senses the one that predicts the larger
+    decrease of the Lagrangian is taken (``r·v`` is the Lagrangian's: ``v`` moves no pressed
+    contact; ``state``: the iterate)."""
+    constraints = stage.constraints
+    if constraints is None:
+        found = negative_curvature(factor, shift, scale, r.size)
+        if found is None:
+            return None
+        v, curvature = found
+        if float(r @ v) < 0.0:
+            v = -v
+        change = strain_change(v, ev.links)
+        limit = stage.step_limit(v, change, ev)
+    else:
+        holding, candidates = constraints.held(state), constraints.at(state)
+        rows = (holding.jacobian(constraints.n_frames) if holding is not None
+                else np.zeros((0, r.size)))
+        found = projected_curvature(factor, shift, scale, matrix, rows)
+        if found is None:
+            return None
+        v, curvature = found
+        held = set(map(tuple, constraints.keys.tolist()))
+        free = np.array([tuple(k) not in held for k in candidates.key.tolist()], bool)
+        rows = candidates.jacobian(constraints.n_frames)[free]
+        best = None
+        for sense in (1.0, -1.0):
+            w = sense * v
+            change = strain_change(w, ev.links)
+            limit = min(stage.step_limit(w, change, ev), gap_limit(w, candidates.gap[free], rows))
+            gain = limit * float(r @ w) - 0.5 * limit * limit * curvature
+            if best is None or gain > best[0]:
+                best = gain, w, change, limit
+        _, v, change, limit = best
+        if not limit > 0.0:
+            return None
     dq, change, curvature = limit * v, limit * change, curvature * limit * limit
     rp = float(r @ dq)
     return dq, change, rp, curvature, rp - 0.5 * curvature
@@ -92,9 +160,19 @@ def line_search(stage, state, ev, residual: float, dq, change, alpha: float, rp:
     trunk, load = stage.trunk, stage.load
     noise = ROUNDING * abs(ev.energy)
     quality = None
+    deepest = None
+    if stage.constraints is not None and trunk.contact.pair.size:
+        # discs may be pushed into each other by at most half the depth that cannot be followed,
+        # or no deeper than they are (the linearised disc gaps hold only for short steps)
+        deepest = max(DISC_DEPTH, contact.interpenetration(trunk.contact, stage.constraints.at(state))[0])
     while alpha >= SEARCH_FLOOR:
         step, strains = (dq, change) if alpha == 1.0 else (alpha * dq, alpha * change)
         trial = retract(state, step, ev.links, strains)
+        if deepest is not None and contact.interpenetration(trunk.contact, stage.constraints.at(trial))[0] > deepest:
+            if quality is None:
+                quality = 0.0
+            alpha *= 0.5
+            continue
         judged = potential(trunk, trial, load)       # the energy first: a refused trial needs no gradient
         predicted = alpha * rp - 0.5 * alpha * alpha * curvature
         decrease = ev.energy - judged.energy

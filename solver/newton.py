@@ -345,9 +345,8 @@ def _newton(stage: _Stage, state: State):
         if converged:
             if trusted or stage.stable(ev, state=state):
                 return True, state, residual
-            if escapes == ESCAPES or constraints is not None:
-                # a saddle that the negative-curvature steps did not leave (with contacts, none is
-                # taken: a step along negative curvature ignores the gaps)
+            if escapes == ESCAPES:
+                # a saddle that the negative-curvature steps did not leave
                 kinds.add("unstable")
                 return False, state, residual
         if stage.iterations >= stage.max_iterations:
@@ -371,6 +370,7 @@ def _newton(stage: _Stage, state: State):
             unshifted = matrix.factor(0.0, symmetric=False)
             step = globalise.residual_step(stage, state, ev, residual, unshifted[0], r)
             kind = "lu"
+        forces = constraints.current() if constraints is not None else None    # the forces the tangent has
         indefinite = False       # a factor of this tangent failed: it is not positive definite
         respringed = False       # the contacts' springs were set again from a step's pressed contacts
         spring = 0.0             # the springs' stiffness along the pressed contacts (0: none)
@@ -446,19 +446,32 @@ def _newton(stage: _Stage, state: State):
                         return False, state, residual
                     kinds.add(kind)
                     return True, state, residual
-            if constraints is None and (converged or (indefinite and shift >= BEND_SHIFT)):
+            if converged or (indefinite and shift >= BEND_SHIFT):
                 # a negative-curvature step (as far as the strain-space caps allow) where it
                 # promises more than the shifted Newton step: how a stationary point with an
                 # indefinite tangent (a saddle) is left, and how a column compressed far beyond
                 # its buckling load buckles (where the shift that makes the tangent positive
-                # definite leaves only a short, gradient-like step)
-                bend = globalise.bend(stage, ev, r, factor, shift, scale)
+                # definite leaves only a short, gradient-like step). With contacts: on the
+                # directions the pressed contacts leave free, at their forces before this
+                # iteration's complementarity problem, and no farther than the other candidate
+                # contacts' linearised gaps allow (globalise.bend)
+                if constraints is not None:
+                    if scale is None:
+                        scale = np.maximum(np.abs(matrix.diagonal()), trunk.rest.stiffness)
+                    taken = constraints.current()
+                    constraints.resume(forces, state)
+                bend = globalise.bend(stage, ev, r, factor, shift, scale, matrix, state)
                 if bend is None and converged:
-                    return True, state, residual        # the curvature is not negative: stable
+                    if constraints is None:
+                        return True, state, residual        # the curvature is not negative: stable
+                    kinds.add("unstable")         # the springs' test found it unstable, the free
+                    return False, state, residual   # directions no negative curvature: refused
                 if bend is not None and (dq is None or bend[-1] > alpha * rp - 0.5 * alpha * alpha * curvature):
                     dq, change, rp, curvature, _ = bend
                     alpha, kind = 1.0, "curvature"
                     escapes += converged
+                elif constraints is not None:
+                    constraints.resume(taken, state)
             # (with contacts, the residual a step must not raise is the one at the step's forces)
             before = residual if constraints is None or converged else stage.norm(ev, state)
             step = globalise.line_search(stage, state, ev, before, dq, change, alpha, rp, curvature, work)

@@ -18,7 +18,8 @@ from vertebra.core.errors import InputError, OptionError
 from vertebra.solver.calibration import (MappingError, Samples, calibrate, load_samples, parse_mapping,
                                          parse_parameters)
 from vertebra.solver.calibration.backend import RuntimePredictor
-from vertebra.solver.calibration.data import play
+from vertebra.solver.calibration.data import lag, play, transmission
+from vertebra.solver.calibration.tension_play import march
 
 SCENE = """name = "small tendon robot"
 [solver]
@@ -360,6 +361,243 @@ def test_backlash_derivatives_match_resolved_differences_and_a_play_is_recovered
     assert cal.identifiable[i]
     assert abs(cal.x[i] - 1.3e-4) <= 3.0 * cal.standard_errors[i], (cal.x[i], cal.standard_errors[i])
     assert cal.standard_errors[i] < 5e-5
+
+
+def test_lag_relaxes_towards_the_command_with_exact_derivatives():
+    """A first-order lag between the samples' times: the stroke covers ``1 − exp(−Δt/τ)`` of its
+    way to the command at each row; its derivatives by τ and by a play before it (carried through
+    the lag) against central differences to 1e-6; τ = 0 passes the commands on unchanged."""
+    commands = np.array([[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [3.0, -1.0], [2.0, -1.0], [2.5, 0.5]])
+    times = np.array([0.0, 0.5, 1.0, 1.2, 2.0, 2.0])
+    strokes, d_tau, _ = lag(commands, times, np.array([0.5, 0.0]))
+    a = math.exp(-1.0)
+    assert strokes[1, 0] == pytest.approx(1.0 - a) and strokes[2, 0] == pytest.approx(1.0 - a * a)
+    assert strokes[5, 0] == strokes[4, 0]                         # no time between them: no move
+    assert np.array_equal(strokes[:, 1], commands[:, 1])          # τ = 0: no lag
+    width, tau = np.array([0.3, 0.05]), np.array([0.4, 0.7])
+    _, derivatives = transmission(commands, times, width, tau)
+    for kind, base in (("backlash", width), ("lag", tau)):
+        for j in range(2):
+            h = np.zeros(2)
+            h[j] = 1e-6
+            moved = [transmission(commands, times, *((base + sign * h, tau) if kind == "backlash" else
+                                                    (width, base + sign * h)))[0] for sign in (1.0, -1.0)]
+            numeric = (moved[0] - moved[1])[:, j] / 2e-6
+            assert np.abs(numeric).max() > 0.1
+            assert np.abs(derivatives[kind][:, j] - numeric).max() <= 1e-6 * np.abs(numeric).max(), (kind, j)
+    for width in (np.zeros(2), np.array([0.3, 0.05])):
+        assert np.array_equal(transmission(commands, times, width, np.zeros(2))[0], play(commands, width)[0])
+
+
+def _lagged(robot, tau: float, noise: float, seed: int):
+    """Synthetic samples 0.6 s apart (one pause of 5 s) whose strokes follow the commands with a
+    lag of time constant ``tau`` on every tendon (the truth's other values as in TRUTH)."""
+    scene, mapping, _ = robot
+    ps, x = _truth_values(robot)
+    values = ps.values(x).with_elements([(("lag", i), tau) for i in range(3)])
+    commands = _commands()
+    times = 0.6 * np.arange(len(commands)) + 5.0 * (np.arange(len(commands)) >= len(commands) // 2)
+    empty = Samples(commands, np.zeros((len(commands), 1, 3)), ("pulls",) * len(commands), "synthetic",
+                    times=times)
+    markers = RuntimePredictor(scene, mapping).predict(values, empty).markers
+    rng = np.random.default_rng(seed)
+    return values, Samples(commands, markers + noise * rng.standard_normal(markers.shape), empty.patterns,
+                           "synthetic", times=times)
+
+
+def test_lag_derivatives_match_resolved_differences_and_a_lag_is_recovered(robot, tmp_path):
+    """The markers' derivative by a tendon's time constant and by a play before the lag (the
+    actuator's exact sensitivity times the stroke's derivative) against central differences of
+    re-solved sequences to 1e-6 of the largest (the equilibria solved to 1e-13 for the
+    differences: at the scene's 1e-10 they carry 2e-6); a lag of 0 gives today's predictions
+    exactly; and a time constant of 0.3 s in the synthetic data recovered within three standard
+    errors, with the other parameters, from noisy markers."""
+    scene, mapping, _ = robot
+    (tmp_path / "tight.toml").write_text(SCENE.replace("tolerance = 1e-10", "tolerance = 1e-13"))
+    values, samples = _lagged(robot, 0.3, 0.0, 0)
+    predictor = RuntimePredictor(solver.load_scene(tmp_path / "tight.toml"), mapping)
+    wrt = [("lag", 0), ("lag", 1), ("backlash", 0), ("stiffness", 0)]
+    played = values.with_elements([(("backlash", 0), 1e-4)])
+    analytic = predictor.predict(played, samples, wrt).derivatives
+    for j, (kind, index) in enumerate(wrt[:3]):
+        h = 3e-5 if kind == "lag" else 3e-8
+        plus = predictor.predict(played.with_elements([((kind, index), played.get(kind, index) + h)]), samples)
+        minus = predictor.predict(played.with_elements([((kind, index), played.get(kind, index) - h)]), samples)
+        numeric = (plus.markers - minus.markers) / (2 * h)
+        scale = np.abs(numeric).max()
+        assert scale > 0.0
+        assert np.abs(analytic[..., j] - numeric).max() <= 1e-6 * scale, (kind, index)
+    untimed = Samples(samples.commands, samples.markers, samples.patterns, "synthetic")
+    still = values.with_elements([(("lag", i), 0.0) for i in range(3)])
+    assert np.array_equal(RuntimePredictor(scene, mapping).predict(still, samples).markers,
+                          RuntimePredictor(scene, mapping).predict(still, untimed).markers)
+    with pytest.raises(OptionError, match="a lag needs each sample's time"):
+        RuntimePredictor(scene, mapping).predict(values, untimed)
+    _, noisy = _lagged(robot, 0.3, 5e-5, 1)
+    cal = calibrate(scene, mapping, noisy, fit=FIT + ["lag.a+b"])
+    names = list(cal.parameters.names)
+    i = names.index("lag.a+b")
+    assert cal.identifiable[i]
+    assert abs(cal.x[i] - 0.3) <= 3.0 * cal.standard_errors[i], (cal.x[i], cal.standard_errors[i])
+    assert cal.standard_errors[i] < 0.05
+
+
+def test_march_is_the_play_at_zero_rate_and_solves_the_linearised_play():
+    """Without growth (b1 = 0) the march is the plain play, exactly; with a tension linear in
+    the strokes it meets the implicit relation ``s = c ∓ (b0 + b1 T(s))`` on every moving row."""
+    rng = np.random.default_rng(5)
+    commands = np.cumsum(rng.normal(scale=0.4, size=(40, 3)), axis=0)
+    b0 = np.array([0.1, 0.05, 0.2])
+    G = np.array([[2.0, -0.3, 0.1], [-0.3, 1.5, 0.0], [0.1, 0.0, 1.0]])
+    tension = np.zeros((40, 3))
+    strokes, status = march(commands, b0, np.zeros(3), tension, np.broadcast_to(G, (40, 3, 3)), commands)
+    assert np.array_equal(strokes, play(commands, b0)[0])
+    b1 = np.array([0.05, 0.1, 0.02])
+    at = commands.copy()
+    offset = np.full(3, 4.0)                         # T(s) = 4 + G (s − at): positive on these rows
+    strokes, status = march(commands, b0, b1, offset + tension, np.broadcast_to(G, (40, 3, 3)), at)
+    T = offset + np.einsum("ij,kj->ki", G, strokes - at)
+    assert (status != 0).sum() > 40 and (status == 0).sum() > 5
+    w = b0 + b1 * T
+    moving = status != 0
+    np.testing.assert_allclose(strokes[moving], (commands - status * w)[moving], atol=1e-12)
+    assert np.array_equal(strokes[1:][~moving[1:]], strokes[:-1][~moving[1:]])
+    assert np.all(np.abs(strokes[1:] - commands[1:])[~moving[1:]] <= w[1:][~moving[1:]] + 1e-12)
+
+
+def _tension_played(robot, b0: float, b1: float, noise: float, seed: int, hold: float = 0.0):
+    """Synthetic samples through a play of ``b0 + b1·T`` on every tendon and an entry friction
+    ``hold`` (the truth's other values as in TRUTH)."""
+    scene, mapping, _ = robot
+    ps, x = _truth_values(robot)
+    values = ps.values(x).with_elements([(("backlash", i), b0) for i in range(3)]
+                                        + [(("backlash_rate", i), b1) for i in range(3)]
+                                        + [(("entry_friction", i), hold) for i in range(3)])
+    commands = _commands()
+    empty = Samples(commands, np.zeros((len(commands), 1, 3)), ("pulls",) * len(commands), "synthetic")
+    markers = RuntimePredictor(scene, mapping).predict(values, empty).markers
+    rng = np.random.default_rng(seed)
+    return values, Samples(commands, markers + noise * rng.standard_normal(markers.shape), empty.patterns,
+                           "synthetic")
+
+
+def test_tension_play_derivatives_match_resolved_differences_and_a_rate_is_recovered(robot, tmp_path):
+    """A play that grows with the tension: the strokes meet the implicit relation at the solved
+    tensions; the markers' derivatives by the rate, the play and model parameters (carried
+    through the strokes' recursion) against central differences of re-solved sequences to 1e-6
+    (equilibria to 1e-13); a rate of 0 gives the plain play's predictions; a rate of 0.1 mm/N in
+    the synthetic data recovered within three standard errors with the play and the others."""
+    scene, mapping, _ = robot
+    (tmp_path / "tight.toml").write_text(SCENE.replace("tolerance = 1e-10", "tolerance = 1e-13"))
+    tight = solver.load_scene(tmp_path / "tight.toml")
+    values, samples = _tension_played(robot, 5e-5, 1e-4, 0.0, 0)
+    wrt = [("backlash_rate", 0), ("backlash_rate", 1), ("backlash", 0), ("stiffness", 0), ("cable_stiffness", 1),
+           ("frame", 0)]
+    predictor = RuntimePredictor(tight, mapping)
+    analytic = predictor.predict(values, samples, wrt).derivatives
+    # the strokes found are consistent with the equilibria's tensions
+    strokes = predictor._tension_state[next(iter(predictor._tension_state))][1]
+    model = predictor.model
+    tensions = []
+    for command in strokes:
+        result = model.solve(command)
+        tensions.append(model.cable_tensions(result.state, result.actuation))
+    tensions = np.array(tensions)
+    assert tensions.max() > 1.0
+    again, status = march(samples.commands, np.full(3, 5e-5), np.full(3, 1e-4), tensions,
+                          np.zeros((len(strokes), 3, 3)), strokes)
+    assert (status != 0).sum() > 10
+    assert np.abs(again - strokes).max() <= 1e-12
+    size = {"backlash_rate": 1e-4, "backlash": 5e-5, "stiffness": 1.0, "cable_stiffness": 3000.0}
+    for j, (kind, index) in enumerate(wrt[:-1]):
+        h = 1e-4 * size[kind]
+        moved = [RuntimePredictor(tight, mapping).predict(
+            values.with_elements([((kind, index), values.get(kind, index) + sign * h)]), samples).markers
+            for sign in (1.0, -1.0)]
+        numeric = (moved[0] - moved[1]) / (2 * h)
+        scale = np.abs(numeric).max()
+        assert scale > 0.0, kind
+        assert np.abs(analytic[..., j] - numeric).max() <= 1e-6 * scale, (kind, index)
+    still = values.with_elements([(("backlash_rate", i), 0.0) for i in range(3)])
+    plain = RuntimePredictor(scene, mapping).predict(still, samples).markers
+    implicit = RuntimePredictor(scene, mapping).predict(still, samples, [("backlash_rate", 0)]).markers
+    assert np.abs(implicit - plain).max() <= 1e-12
+    _, noisy = _tension_played(robot, 5e-5, 1e-4, 5e-5, 1)
+    cal = calibrate(scene, mapping, noisy, fit=FIT + ["backlash.a+b", "backlash_rate.a+b"])
+    names = list(cal.parameters.names)
+    for name, truth in (("backlash_rate.a+b", 1e-4), ("backlash.a+b", 5e-5)):
+        i = names.index(name)
+        assert cal.identifiable[i], name
+        assert abs(cal.x[i] - truth) <= 3.0 * cal.standard_errors[i], (name, cal.x[i], cal.standard_errors[i])
+    assert cal.standard_errors[names.index("backlash_rate.a+b")] < 3e-5
+
+
+def test_entry_friction_holds_a_released_tendon_and_is_recovered(robot, tmp_path):
+    """Friction at the entry: a tendon released below its slack keeps the tension it can hold
+    there (the robot stays bent) — exactly ``hold`` where it slid back in, less where it stopped
+    before; the markers' derivatives by it against re-solved differences to 1e-6 (equilibria to
+    1e-13); 0.8 N in the synthetic data recovered within three standard errors."""
+    scene, mapping, _ = robot
+    (tmp_path / "tight.toml").write_text(SCENE.replace("tolerance = 1e-10", "tolerance = 1e-13"))
+    tight = solver.load_scene(tmp_path / "tight.toml")
+    values, samples = _tension_played(robot, 5e-5, 0.0, 0.0, 0, hold=0.8)
+    wrt = [("entry_friction", 0), ("entry_friction", 1), ("backlash", 0)]
+    predictor = RuntimePredictor(tight, mapping)
+    analytic = predictor.predict(values, samples, wrt).derivatives
+    strokes = predictor._tension_state[next(iter(predictor._tension_state))][1]
+    model = predictor.model
+    released = samples.commands[:, :2] < 0.0            # a and b at −2 mm, after a pull
+    tensions = np.array([model.cable_tensions(model.solve(command).state, command) for command in strokes])
+    assert released.sum() >= 10
+    assert np.all(tensions[:, :2][released] <= 0.8 + 1e-9)
+    assert np.sum(np.abs(tensions[:, :2][released] - 0.8) < 1e-9) >= 6
+    plain = RuntimePredictor(scene, mapping).predict(values.with_elements(
+        [(("entry_friction", i), 0.0) for i in range(3)]), samples).markers
+    assert np.abs(predictor.predict(values, samples).markers - plain).max() > 1e-3   # it holds the robot bent
+    for j, (kind, index) in enumerate(wrt):
+        h = 1e-4 * (1.0 if kind == "entry_friction" else 5e-5)
+        moved = [RuntimePredictor(tight, mapping).predict(
+            values.with_elements([((kind, index), values.get(kind, index) + sign * h)]), samples).markers
+            for sign in (1.0, -1.0)]
+        numeric = (moved[0] - moved[1]) / (2 * h)
+        scale = np.abs(numeric).max()
+        assert scale > 0.0, kind
+        assert np.abs(analytic[..., j] - numeric).max() <= 1e-6 * scale, (kind, index)
+    _, noisy = _tension_played(robot, 5e-5, 0.0, 5e-5, 1, hold=0.8)
+    cal = calibrate(scene, mapping, noisy, fit=FIT + ["backlash.a+b", "entry_friction.a+b"])
+    names = list(cal.parameters.names)
+    i = names.index("entry_friction.a+b")
+    assert cal.identifiable[i]
+    assert abs(cal.x[i] - 0.8) <= 3.0 * cal.standard_errors[i], (cal.x[i], cal.standard_errors[i])
+    assert cal.standard_errors[i] < 0.1
+
+
+def test_memory_terms_that_do_not_combine_are_refused(robot):
+    scene, mapping, _ = robot
+    values, samples = _lagged(robot, 0.3, 0.0, 0)
+    with pytest.raises(OptionError, match="and a lag together are not supported"):
+        RuntimePredictor(scene, mapping).predict(values.with_elements([(("entry_friction", 0), 0.5)]), samples)
+    with pytest.raises(OptionError, match="and a lag together are not supported"):
+        RuntimePredictor(scene, mapping).predict(values, samples, [("backlash_rate", 1)])
+    ps = parse_parameters(["lag.a=0:2", "entry_friction.b"], scene, mapping, solver.build_model(scene))
+    assert ps.units() == ["s", "N"] and (ps.lower[0], ps.upper[0]) == (0.0, 2.0)
+    assert ps.initial[1] > 0.0                      # (started inside its bounds: 0 is the lower one)
+
+
+def test_time_column_is_read_and_checked(robot, tmp_path):
+    scene, mapping, _ = robot
+    timed = parse_mapping(dict(MAPPING, data={"pattern": "pattern", "time": "t", "time_unit": "ms"}), "map.toml")
+    csv = tmp_path / "data.csv"
+    csv.write_text("t,pattern,servo_a,servo_b,servo_c,x,y,z\n0,p,1,2,3,4,5,6\n600,p,1,2,3,4,5,6\n")
+    samples = load_samples(csv, timed)
+    np.testing.assert_allclose(samples.times, [0.0, 0.6])
+    assert samples.take([1]).times.tolist() == [0.6]
+    assert load_samples(csv, mapping).times is None
+    csv.write_text("t,pattern,servo_a,servo_b,servo_c,x,y,z\n5,p,1,2,3,4,5,6\n4,p,1,2,3,4,5,6\n")
+    with pytest.raises(MappingError, match=r"data.csv: row 3, column t: time runs backwards \(5 then 4\)"):
+        load_samples(csv, timed)
+    with pytest.raises(MappingError, match=r"data.time_unit: must be one of"):
+        parse_mapping(dict(MAPPING, data={"time": "t", "time_unit": "hours"}), "map.toml")
 
 
 def test_the_statistical_stop_measures_the_gauss_newton_step_in_standard_errors():

@@ -21,7 +21,11 @@ act after the solve and are differentiated in closed form.
 the tendons are the commands passed through :func:`~vertebra.solver.calibration.data.play`, the
 samples taken as one time-ordered sequence (in the calling process, before the samples are split
 into blocks); a stroke's derivative with respect to its play is ±1 or carried, so the markers'
-derivative is the model's sensitivity to that actuator times it.
+derivative is the model's sensitivity to that actuator times it. A **lag** (the ``lag``
+elements: the stroke relaxes towards what the play passes on with a time constant, between the
+samples' times, :func:`~vertebra.solver.calibration.data.lag`) acts the same way: the strokes
+and their derivatives by the time constants and the plays come from
+:func:`~vertebra.solver.calibration.data.transmission`.
 
 **Warm starts.** Each sample's solve starts from its own equilibrium of the previous call, moved
 to first order by the change of the model elements since (``q + dq/dθ Δθ`` where the derivatives
@@ -47,7 +51,8 @@ import numpy as np
 from vertebra.core.errors import ConvergenceError, OptionError
 from vertebra.core.lie import qmatrix, so3_exp
 from vertebra.core.processes import exit_with_parent, pinned_environment
-from vertebra.solver.calibration.data import play
+from vertebra.solver.calibration.data import play, transmission
+from vertebra.solver.calibration.tension_play import march, stroke_derivatives
 from vertebra.solver.calibration.fit_parameters import Values
 from vertebra.solver.batch import predicted_strains
 from vertebra.solver.model import build_model
@@ -58,7 +63,19 @@ __all__ = ["Prediction", "Predictor", "RuntimePredictor", "default_workers"]
 
 #: the elements that act through the model, and the sensitivity parameter group of each
 MODEL_KINDS = {"stiffness": "stiffness_scale", "angle": "hole_angle", "radius": "hole_radius",
-               "cable_stiffness": "cable_stiffness", "pretension": "pretension", "backlash": "actuation"}
+               "cable_stiffness": "cable_stiffness", "pretension": "pretension", "backlash": "actuation",
+               "lag": "actuation", "stroke": "actuation"}
+#: the elements that act through the strokes (:func:`~vertebra.solver.calibration.data.transmission`)
+STROKE_KINDS = ("backlash", "lag")
+#: the elements of a play that depends on the tension (:mod:`~vertebra.solver.calibration.tension_play`)
+TENSION_KINDS = ("backlash_rate", "entry_friction")
+#: strokes through a tension-dependent play are consistent when the last Newton pass moves none
+#: by more than this share of the trunk's length, or when the passes stop contracting below
+#: PLAY_RESOLUTION of it (the equilibria's tensions resolve the strokes to about 1e-9 m on the v4
+#: robot: far below what a marker measures); at most this many passes
+PLAY_TOLERANCE = 1e-9
+PLAY_RESOLUTION = 1e-6
+PLAY_PASSES = 30
 #: the fewest samples per worker process worth starting one for (a process costs ~1 s to start)
 SAMPLES_PER_WORKER = 256
 
@@ -77,6 +94,8 @@ class Prediction:
     solve_s: float = 0.0
     derivative_s: float = 0.0
     iterations: int = 0             # Newton iterations of the solves
+    tensions: np.ndarray | None = None             # (n, n_actuators) the driven tendons' tensions (when asked)
+    tension_derivatives: np.ndarray | None = None  # (n, n_actuators, len(wrt))
 
 
 class Predictor(Protocol):
@@ -98,6 +117,8 @@ class RuntimePredictor:
         self.workers = workers
         self._pool = None
         self._scene, self._mapping = scene, mapping
+        self._tension_state: dict = {}   # the last strokes through a tension-dependent play, tensions, ∂T/∂s
+        self.play_passes = 0             # Newton passes of the tension-dependent play (solves of every sample)
 
     # the engine's pieces, for predictors built on this one (calibration.sequence)
     rest_radius = property(lambda self: self.engine.rest_radius)
@@ -127,22 +148,123 @@ class RuntimePredictor:
         derivatives. A call with the values and samples of the previous call reuses its
         equilibria (a least-squares step asks for the residuals, then the Jacobian, at one point)."""
         wrt = tuple(wrt)
+        if (values.backlash_rate.any() or values.entry_friction.any()
+                or any(kind in TENSION_KINDS for kind, _ in wrt)):
+            return self._predict_tension_play(values, samples, wrt)
         commands, slopes = samples.commands, None
-        if values.backlash.any() or any(kind == "backlash" for kind, _ in wrt):
-            commands, slopes = play(commands, values.backlash[self.engine.driven])
+        if values.backlash.any() or values.lag.any() or any(kind in STROKE_KINDS for kind, _ in wrt):
+            driven = self.engine.driven
+            if (values.lag.any() or any(kind == "lag" for kind, _ in wrt)) and samples.times is None:
+                raise OptionError(f"{samples.source}: a lag needs each sample's time: name the time column in the "
+                                  f"mapping's [data] table (time = \"COLUMN\", time_unit = \"s\")", field="--fit")
+            commands, slopes = transmission(commands, samples.times, values.backlash[driven], values.lag[driven])
+        return self._blocks(values, commands, samples, wrt, slopes)
+
+    def _blocks(self, values, commands, samples, wrt, slopes=None, tensions=False) -> Prediction:
+        """The engine's predictions of ``samples`` under the strokes ``commands``, in this process
+        or split into contiguous blocks among the worker processes."""
         blocks = min(self.workers, len(samples))
         if blocks <= 1:
-            return self.engine.predict(values, commands, samples.source, samples.rows, wrt, slopes)
+            return self.engine.predict(values, commands, samples.source, samples.rows, wrt, slopes, tensions)
         if self._pool is None:
             self._pool = _Pool(self.workers, self._scene, self._mapping)
         edges = np.linspace(0, len(samples), blocks + 1).round().astype(int)
         parts = self._pool.map("predict", [(values, commands[a:b], samples.source, samples.rows[a:b], wrt,
-                                            None if slopes is None else slopes[a:b])
+                                            None if slopes is None else {kind: d[a:b] for kind, d in slopes.items()},
+                                            tensions)
                                            for a, b in zip(edges[:-1], edges[1:])])
-        return Prediction(np.concatenate([p.markers for p in parts]),
-                          None if not wrt else np.concatenate([p.derivatives for p in parts]),
-                          max(p.solve_s for p in parts), max(p.derivative_s for p in parts),
-                          sum(p.iterations for p in parts))
+
+        def joined(name):
+            return None if getattr(parts[0], name) is None else np.concatenate([getattr(p, name) for p in parts])
+
+        return Prediction(joined("markers"), joined("derivatives"), max(p.solve_s for p in parts),
+                          max(p.derivative_s for p in parts), sum(p.iterations for p in parts), joined("tensions"),
+                          joined("tension_derivatives"))
+
+    def _predict_tension_play(self, values: Values, samples, wrt: tuple) -> Prediction:
+        """Markers and derivatives through a play that grows with the tendon's tension
+        (:mod:`~vertebra.solver.calibration.tension_play`): Newton over the sequence — every
+        sample's equilibrium with its tensions' derivatives by the strokes, the rows marched with
+        the tensions linearised — until no stroke moves by more than :data:`PLAY_TOLERANCE` of the
+        trunk's length (or the passes stall below :data:`PLAY_RESOLUTION` of it); the derivatives
+        by the strokes' recursion."""
+        if values.lag.any() or any(kind == "lag" for kind, _ in wrt):
+            raise OptionError("a play that depends on the tension (backlash_rate, entry_friction) and a lag "
+                              "together are not supported: fit one of them", field="--fit")
+        driven = self.engine.driven
+        a = len(driven)
+        b0, b1, hold = values.backlash[driven], values.backlash_rate[driven], values.entry_friction[driven]
+        strokes_wrt = tuple(("stroke", int(c)) for c in driven)
+        inner = tuple(e for e in wrt if e[0] not in ("backlash",) + TENSION_KINDS)
+        tolerance = PLAY_TOLERANCE * float(self.model.length_scale)
+        resolution = PLAY_RESOLUTION * float(self.model.length_scale)
+        key = (samples.source, samples.rows.tobytes(), samples.commands.tobytes())
+        at = tuple(getattr(values, f).tobytes() for f in ("stiffness", "angle", "radius", "cable_stiffness",
+                                                          "pretension", "backlash", "backlash_rate",
+                                                          "entry_friction"))
+        known = self._tension_state.get(key)
+        tension = gradient = None
+        if known is None:           # (the plain play's strokes to start from)
+            strokes = play(samples.commands, b0)[0]
+        elif known[0] == at:        # (the same values: the strokes, tensions and ∂T/∂s of the last call)
+            strokes, tension, gradient = known[1:4]
+        else:                       # (other values: the last call's strokes moved to first order by their change)
+            strokes = known[1]
+            if known[4] is not None:
+                elements, was, d_strokes = known[4]
+                change = np.array([values.get(kind, index) for kind, index in elements]) - was
+                strokes = strokes + d_strokes @ change
+        solve_s = derivative_s = 0.0
+        iterations = 0
+        changes = []
+        for _ in range(PLAY_PASSES):
+            if gradient is not None:
+                moved, status = march(samples.commands, b0, b1, tension, gradient, strokes, hold)
+                changes.append(float(np.abs(moved - strokes).max()))
+                stalled = len(changes) > 1 and changes[-1] > 0.5 * changes[-2]
+                if changes[-1] <= tolerance or (stalled and changes[-1] <= resolution):
+                    break           # (consistent, or at the resolution of the equilibria's tensions)
+                if stalled:
+                    # (not contracting: a tendon's tension has a kink where it goes slack, and Newton
+                    # from the slack side sees no slope — half a step, then the slope of the taut side)
+                    moved = strokes + 0.5 * (moved - strokes)
+                strokes = moved
+            found = self._blocks(values, strokes, samples, strokes_wrt, tensions=True)
+            self.play_passes += 1
+            solve_s, derivative_s = solve_s + found.solve_s, derivative_s + found.derivative_s
+            iterations += found.iterations
+            tension, gradient = found.tensions, found.tension_derivatives
+        else:
+            raise ConvergenceError(f"{samples.source}: the strokes through the tension-dependent play did not "
+                                   f"converge in {PLAY_PASSES} passes (largest change of a stroke in each: "
+                                   f"{', '.join(f'{c:.3g}' for c in changes)} m)", None)
+        first_order = None if known is None else known[4]
+        self._tension_state[key] = (at, strokes, tension, gradient, first_order)
+        found = self._blocks(values, strokes, samples, inner + strokes_wrt if wrt else (), tensions=bool(wrt))
+        derivatives = None
+        if wrt:
+            P = len(wrt)
+            column = {e: j for j, e in enumerate(wrt)}
+            d_b0, d_b1, d_hold = np.zeros((a, P)), np.zeros((a, P)), np.zeros((a, P))
+            for i, c in enumerate(driven.tolist()):
+                for kind, d in (("backlash", d_b0), ("backlash_rate", d_b1), ("entry_friction", d_hold)):
+                    if (kind, c) in column:
+                        d[i, column[(kind, c)]] = 1.0
+            where = [column[e] for e in inner]
+            m = len(inner)
+            d_tension = np.zeros((len(samples), a, P))
+            d_tension[..., where] = found.tension_derivatives[..., :m]
+            d_strokes = stroke_derivatives(status, b1, found.tensions, found.tension_derivatives[..., m:],
+                                           d_tension, d_b0, d_b1, d_hold)
+            derivatives = np.zeros(found.markers.shape + (P,))
+            derivatives[..., where] = found.derivatives[..., :m]
+            derivatives += np.einsum("bmxa,bap->bmxp", found.derivatives[..., m:], d_strokes)
+            moved_by = [j for j, (kind, _) in enumerate(wrt) if kind not in ("frame", "marker")]   # (the strokes')
+            self._tension_state[key] = (at, strokes, tension, gradient,
+                                        (tuple(wrt[j] for j in moved_by),
+                                         np.array([values.get(*wrt[j]) for j in moved_by]), d_strokes[..., moved_by]))
+            solve_s, derivative_s = solve_s + found.solve_s, derivative_s + found.derivative_s
+        return Prediction(found.markers, derivatives, solve_s, derivative_s, iterations + found.iterations)
 
 
 class _Engine:
@@ -176,7 +298,7 @@ class _Engine:
         self.marker_frames = np.array(frames, dtype=int)
         self._warm: dict = {}            # (samples source, index) -> _Warm
         self._last = None                # (key, markers, actuations, Solved) of the previous call
-        self._derived = None             # (key, wrt, derivatives) of the last derivatives taken
+        self._derived = None             # (key, wrt, tensions, derivatives, tension derivatives) last taken
         self._columns: dict = {}         # model elements -> the sensitivities' parameter columns
 
     # ------------------------------------------------------------------ parameters
@@ -194,11 +316,13 @@ class _Engine:
         return actuation
 
     def _model_columns(self, elements: tuple):
-        """The sensitivity columns of the model ``elements`` ((kind, index) pairs), made once."""
+        """The sensitivity columns of the model ``elements`` ((kind, index) pairs), made once, and
+        each element's column among them (a tendon's play and lag share its actuator's)."""
         if elements not in self._columns:
             names = [f"{MODEL_KINDS[kind]}:{index if kind == 'stiffness' else self.scene.cables[index].name}"
                      for kind, index in elements]
-            self._columns[elements] = parameters_of(self.model, names)
+            unique = list(dict.fromkeys(names))
+            self._columns[elements] = (parameters_of(self.model, unique), [unique.index(n) for n in names])
         return self._columns[elements]
 
     # ------------------------------------------------------------------ markers
@@ -220,17 +344,20 @@ class _Engine:
         return moved
 
     # ------------------------------------------------------------------ predict
-    def predict(self, values: Values, commands, source, rows, wrt: tuple, slopes=None) -> Prediction:
+    def predict(self, values: Values, commands, source, rows, wrt: tuple, slopes=None,
+                tensions: bool = False) -> Prediction:
         """Markers of the samples ``commands`` (rows ``rows`` of ``source``; the strokes that reach
         the tendons) under ``values`` and, for the elements ``wrt``, their derivatives
-        (``slopes``: the strokes' derivatives with respect to the play of their actuator column,
-        :func:`~vertebra.solver.calibration.data.play`, needed for ``backlash`` elements)."""
+        (``slopes``: the strokes' derivatives by the play and the lag of their actuator column,
+        :func:`~vertebra.solver.calibration.data.transmission`, needed for ``backlash`` and ``lag``
+        elements; ``("stroke", cable)`` elements: by a driven tendon's stroke itself).
+        ``tensions``: the driven tendons' tensions too, and with ``wrt`` their derivatives."""
         self._set(values)
         Rf = so3_exp(values.frame[3:])
         key = (source, rows.tobytes(), commands.tobytes(),
                tuple(getattr(values, f).tobytes() for f in ("stiffness", "angle", "radius", "cable_stiffness",
                                                             "pretension", "frame", "marker", "friction",
-                                                            "backlash")))
+                                                            "backlash", "lag", "backlash_rate", "entry_friction")))
         t0 = time.perf_counter()
         iterations = 0
         if self._last is not None and self._last[0] == key:
@@ -239,15 +366,22 @@ class _Engine:
             markers, actuations, states, iterations = self._solve(values, commands, source, rows, Rf)
             self._last = (key, markers, actuations, states)
         solve_s = time.perf_counter() - t0
-        derivatives = None
+        derivatives = d_tension = None
         if wrt:
-            if self._derived is not None and self._derived[:2] == (key, wrt):
-                derivatives = self._derived[2]       # (the optimiser's last Jacobian, asked for again)
+            if self._derived is not None and self._derived[:3] == (key, wrt, tensions):
+                derivatives, d_tension = self._derived[3:]       # (the optimiser's last Jacobian, asked for again)
             else:
-                derivatives = self._derivatives(values, wrt, states, actuations, source, rows, Rf, slopes)
-                self._derived = (key, wrt, derivatives)
+                derivatives, d_tension = self._derivatives(values, wrt, states, actuations, source, rows, Rf, slopes,
+                                                           tensions)
+                self._derived = (key, wrt, tensions, derivatives, d_tension)
+        tension = None
+        if tensions:
+            rest = self.model.trunk.rest_state
+            tension = np.array([self.model.cable_tensions(states.state(i, rest), actuations[i])[self.driven]
+                                for i in range(len(actuations))]).reshape(len(actuations), len(self.driven))
         return Prediction(markers.copy(), None if derivatives is None else derivatives.copy(), solve_s,
-                          time.perf_counter() - t0 - solve_s, iterations)
+                          time.perf_counter() - t0 - solve_s, iterations, tension,
+                          None if d_tension is None else d_tension.copy())
 
     def _solve(self, values, commands, source, rows, Rf):
         """Every sample's equilibrium. The samples solved before, in one batch
@@ -324,31 +458,41 @@ class _Engine:
         R = qmatrix(quaternions[:, self.marker_frames])
         return positions[:, self.marker_frames] + np.einsum("bmij,mj->bmi", R, offsets)
 
-    def _derivatives(self, values, wrt, solved, actuations, source, rows, Rf, slopes=None):
+    def _derivatives(self, values, wrt, solved, actuations, source, rows, Rf, slopes=None, tensions=False):
         """The markers' derivatives (n, n_markers, 3, len(wrt)): the model elements' from every
         sample's ``dq/dθ`` at once (:func:`~vertebra.solver.sensitivity.batch_sensitivities`, the
-        batched factors), the measurement frame's and the marker offsets' in closed form."""
+        batched factors), the measurement frame's and the marker offsets' in closed form; and with
+        ``tensions`` the driven tendons' tensions' (n, n_actuators, len(wrt)), else None."""
         model, n = self.model, len(actuations)
         nm, npar = len(self.marker_frames), len(wrt)
         out = np.zeros((n, nm, 3, npar))
+        d_tension = np.zeros((n, len(self.driven), npar)) if tensions else None
         inner = tuple((kind, index) for kind, index in wrt if kind in MODEL_KINDS)
         where = [col for col, (kind, _) in enumerate(wrt) if kind in MODEL_KINDS]
         R = qmatrix(solved.quaternions[:, self.marker_frames])                     # (n, nm, 3, 3)
         arm = np.einsum("bmij,mj->bmi", R, values.marker)                          # R r
         if inner:
             rest = model.trunk.rest_state
-            sens = batch_sensitivities(model, solved.strains, actuations, wrt=self._model_columns(inner), outputs=(),
-                                       method="direct", states=_States(solved, rest))
-            dq = sens.dq
-            # a play's column: the actuator's sensitivity times its stroke's slope (per sample)
+            columns, which = self._model_columns(inner)
+            sens = batch_sensitivities(model, solved.strains, actuations, wrt=columns,
+                                       outputs=("cable_tensions",) if tensions else (), method="direct",
+                                       states=_States(solved, rest))
+            dq = sens.dq if which == list(range(len(columns))) else sens.dq[:, :, which]
+            if tensions:
+                d_tension[..., where] = sens["cable_tensions"][:, self.driven][:, :, which]
+            # a play's or a lag's column: the actuator's sensitivity times its stroke's derivative (per sample)
             column_of = {int(c): a for a, c in enumerate(self.driven)}
             for k, (kind, index) in enumerate(inner):
-                if kind == "backlash":
-                    dq[:, :, k] *= slopes[:, column_of[index]][:, None]
-            at = np.array([values.get(kind, index) for kind, index in inner])
+                if kind in STROKE_KINDS:
+                    dq[:, :, k] *= slopes[kind][:, column_of[index]][:, None]
+            # (a warm start moves by the elements' change, not by the strokes': those come with the commands)
+            kept = [k for k, (kind, _) in enumerate(inner) if kind != "stroke"]
+            elements = tuple(inner[k] for k in kept)
+            at = np.array([values.get(kind, index) for kind, index in elements])
+            moves = dq if len(kept) == len(inner) else dq[:, :, kept]
             for i, row in enumerate(rows.tolist()):
                 if np.all(np.isfinite(solved.strains[i])):
-                    self._warm[(source, int(row))] = _Warm(solved.strains[i], inner, at, dq[i])
+                    self._warm[(source, int(row))] = _Warm(solved.strains[i], elements, at, moves[i])
             out[..., where] = np.einsum("ij,bmjp->bmip", Rf, self._marker_moves(dq, arm))
         points = self._batch_markers(solved.positions, solved.quaternions, values.marker)
         for col, (kind, index) in enumerate(wrt):
@@ -360,7 +504,7 @@ class _Engine:
             elif kind == "marker":
                 mi, c = index
                 out[:, mi, :, col] += R[:, mi, :, c] @ Rf.T
-        return out
+        return out, d_tension
 
 
 class _States:

@@ -26,13 +26,15 @@ from vertebra.core.errors import InputError, SceneError
 from vertebra.core.inputs import load_toml, read_text
 from vertebra.solver.tables import Table
 
-__all__ = ["ActuatorMap", "MappingError", "MarkerMap", "Mapping", "Samples", "UNITS", "load_mapping",
-           "load_samples", "parse_mapping", "play"]
+__all__ = ["ActuatorMap", "MappingError", "MarkerMap", "Mapping", "Samples", "TIME_UNITS", "UNITS", "lag",
+           "load_mapping", "load_samples", "parse_mapping", "play", "transmission"]
 
 #: largest samples file read (a million rows of a dozen numbers)
 MAX_DATA_BYTES = 256 * 2**20
 #: length units a mapping may name, in metres
 UNITS = {"m": 1.0, "cm": 1e-2, "mm": 1e-3, "um": 1e-6}
+#: time units a mapping may name, in seconds
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "min": 60.0}
 
 
 class MappingError(InputError):
@@ -73,6 +75,8 @@ class Mapping:
     fit: tuple                  # parameter specifications (strings) to fit when none are given
     max_samples: int | None     # training samples used at most (evenly spaced over the file)
     source: str = "<mapping>"
+    time_column: str | None = None  # column of each sample's time (a lag needs it)
+    time_scale: float = 1.0         # seconds per unit of the time column
 
     @property
     def cables(self) -> tuple:
@@ -100,6 +104,8 @@ def _parse_mapping(data: dict, source: str) -> Mapping:
     top = Table(data, "", source)
     dt = top.table("data")
     pattern_column = dt.string("pattern", None)
+    time_column = dt.string("time", None)
+    time_scale = TIME_UNITS[dt.string("time_unit", "s", choices=tuple(TIME_UNITS))]
     strip = dt.raw("pattern_strip", [])
     if not isinstance(strip, list) or not all(isinstance(s, str) for s in strip):
         raise dt.error("pattern_strip", f"expected a list of regular expressions, got {strip!r}")
@@ -159,7 +165,7 @@ def _parse_mapping(data: dict, source: str) -> Mapping:
     fit_t.done()
     top.done()
     return Mapping(tuple(actuators), tuple(markers), position, rotation, pattern_column, tuple(strip),
-                   tuple(fit), max_samples, source)
+                   tuple(fit), max_samples, source, time_column, time_scale)
 
 
 @dataclass(frozen=True)
@@ -168,13 +174,15 @@ class Samples:
     (sign applied), ``markers`` (n, n_markers, 3) in metres in the measurement frame,
     ``patterns`` the pattern name of each sample (grouped by the mapping's ``pattern_strip``),
     ``rows`` each sample's row in ``source`` (default 0…n−1; a selection keeps them: a sample is
-    the same sample in every selection of its file)."""
+    the same sample in every selection of its file), ``times`` each sample's time in seconds
+    (None: the mapping names no time column)."""
 
     commands: np.ndarray
     markers: np.ndarray
     patterns: tuple
     source: str = "<samples>"
     rows: np.ndarray | None = None
+    times: np.ndarray | None = None
 
     def __post_init__(self):
         n = len(self.commands)
@@ -185,6 +193,8 @@ class Samples:
             object.__setattr__(self, "rows", np.arange(n))
         elif len(self.rows) != n:
             raise ValueError(f"len(commands) = {n}, but len(rows) = {len(self.rows)}")
+        if self.times is not None and len(self.times) != n:
+            raise ValueError(f"len(commands) = {n}, but len(times) = {len(self.times)}")
 
     def __len__(self) -> int:
         return len(self.commands)
@@ -192,7 +202,7 @@ class Samples:
     def take(self, index) -> "Samples":
         index = np.asarray(index)
         return Samples(self.commands[index], self.markers[index], tuple(self.patterns[i] for i in index),
-                       self.source, self.rows[index])
+                       self.source, self.rows[index], None if self.times is None else self.times[index])
 
 
 def load_samples(path, mapping: Mapping) -> Samples:
@@ -217,10 +227,11 @@ def load_samples(path, mapping: Mapping) -> Samples:
     act = [column(a.column, f"actuator of cable {a.cable}") for a in mapping.actuators]
     mk = [[column(c, f"marker {m.name}") for c in m.columns] for m in mapping.markers]
     pat = column(mapping.pattern_column, "pattern") if mapping.pattern_column else None
+    tim = column(mapping.time_column, "time") if mapping.time_column else None
     rows = [r for r in rows if any(cell.strip() for cell in r)]
     if not rows:
         raise MappingError("no samples after the header row", file=source)
-    numeric = sorted(set(act) | {i for m in mk for i in m})
+    numeric = sorted(set(act) | {i for m in mk for i in m} | ({tim} if tim is not None else set()))
     values = np.empty((len(rows), len(header)))
     for i, row in enumerate(rows):
         if len(row) != len(header):
@@ -246,7 +257,16 @@ def load_samples(path, mapping: Mapping) -> Samples:
                 name = re.sub(expression, "", name)
             patterns.append(name or "(unnamed)")
         patterns = tuple(patterns)
-    return Samples(commands, markers, patterns, source)
+    times = None
+    if tim is not None:
+        times = values[:, tim] * mapping.time_scale
+        back = np.flatnonzero(np.diff(times) < 0.0)
+        if back.size:
+            i = int(back[0]) + 1
+            raise MappingError(f"time runs backwards ({rows[i - 1][tim].strip()} then {rows[i][tim].strip()}): "
+                               f"the rows must be in the order they were recorded", file=source,
+                               field=f"row {i + 2}, column {header[tim]}")
+    return Samples(commands, markers, patterns, source, times=times)
 
 
 def play(commands: np.ndarray, width: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -266,3 +286,44 @@ def play(commands: np.ndarray, width: np.ndarray) -> tuple[np.ndarray, np.ndarra
         strokes[k] = np.where(behind, low, np.where(ahead, high, strokes[k - 1]))
         slopes[k] = np.where(behind, -1.0, np.where(ahead, 1.0, slopes[k - 1]))
     return strokes, slopes
+
+
+def lag(strokes: np.ndarray, times, tau: np.ndarray, carried: dict | None = None):
+    """The strokes that reach the tendons when they relax towards ``strokes`` (n, n_actuators),
+    the time-ordered targets (the commands, or what a play passes on), with the time constant
+    ``tau`` (per actuator column, s) between the samples' ``times`` (n,) s: a first-order lag
+    ``s_k = u_k + a_k (s_{k−1} − u_k)``, ``a_k = exp(−(t_k − t_{k−1})/τ)`` (0 where ``τ = 0``: no
+    lag). The first row starts where it is targeted. Returns the strokes, their derivatives by
+    each column's ``τ`` and ``carried`` (name → (n, n_actuators) derivatives of the targets by
+    another parameter) passed through the lag."""
+    strokes = np.asarray(strokes, float)
+    tau = np.broadcast_to(np.asarray(tau, float), strokes.shape[1:])
+    out, d_tau = strokes.copy(), np.zeros_like(strokes)
+    carried = {name: np.array(d, float) for name, d in (carried or {}).items()}
+    if not np.any(tau):
+        return out, d_tau, carried
+    times = np.asarray(times, float)
+    lagging = tau > 0.0
+    safe = np.where(lagging, tau, 1.0)
+    for k in range(1, len(strokes)):
+        dt = times[k] - times[k - 1]
+        a = np.where(lagging, np.exp(-dt / safe), 0.0)
+        da = np.where(lagging, a * dt / safe ** 2, 0.0)
+        gap = out[k - 1] - strokes[k]
+        out[k] = strokes[k] + a * gap
+        d_tau[k] = a * d_tau[k - 1] + da * gap
+        for d in carried.values():
+            d[k] = (1.0 - a) * d[k] + a * d[k - 1]
+    return out, d_tau, carried
+
+
+def transmission(commands: np.ndarray, times, width: np.ndarray, tau: np.ndarray):
+    """The strokes that reach the tendons from the time-ordered ``commands`` through a play of
+    ``width`` (:func:`play`) and then a lag of time constant ``tau`` (:func:`lag`; ``times``
+    needed when any ``tau`` > 0), and their derivatives: ``{"backlash": d/d width, "lag":
+    d/d tau}``, each (n, n_actuators), a column's derivative by its own element."""
+    strokes, slopes = play(commands, width)
+    if not np.any(tau):
+        return strokes, {"backlash": slopes, "lag": np.zeros_like(strokes)}
+    strokes, d_tau, carried = lag(strokes, times, tau, {"backlash": slopes})
+    return strokes, {"backlash": carried["backlash"], "lag": d_tau}

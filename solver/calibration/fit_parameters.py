@@ -23,7 +23,13 @@ cable's holes, docs/friction.md: a calibration with friction predicts the sample
 time-ordered sequence, :mod:`~vertebra.solver.calibration.sequence`), ``backlash`` (play of a
 driven tendon's transmission, m: the stroke that reaches the tendon lags the command by up to
 this much in the direction it last moved, :func:`~vertebra.solver.calibration.data.play`; the
-samples are then a time-ordered sequence).
+samples are then a time-ordered sequence), ``lag`` (time constant of a driven tendon's stroke, s:
+the stroke relaxes towards the command at this rate between the samples' times,
+:func:`~vertebra.solver.calibration.data.lag`; the mapping names a time column),
+``backlash_rate`` (growth of the play with the tendon's tension, m/N: the play is
+``backlash + backlash_rate·T``, :mod:`~vertebra.solver.calibration.tension_play`),
+``entry_friction`` (N: friction at a tendon's entry into the robot; a released tendon slides back
+in only while its tension exceeds it, :mod:`~vertebra.solver.calibration.tension_play`).
 """
 
 from __future__ import annotations
@@ -52,6 +58,9 @@ class Values:
     marker: np.ndarray           # (n_markers, 3) offsets, m
     friction: np.ndarray         # (n_cables,) μ of the capstan law at a cable's holes (0: frictionless)
     backlash: np.ndarray         # (n_cables,) play between a driven tendon's command and its stroke, m
+    lag: np.ndarray              # (n_cables,) time constant of a driven tendon's stroke behind its command, s
+    backlash_rate: np.ndarray    # (n_cables,) growth of a driven tendon's play with its tension, m/N
+    entry_friction: np.ndarray   # (n_cables,) friction force holding a released tendon's tension at its entry, N
 
     def get(self, kind: str, index) -> float:
         return float(getattr(self, kind)[index])
@@ -86,6 +95,12 @@ KINDS = {
                          "then a time-ordered sequence)"),
     "backlash": Kind("m", "play between a driven tendon's command and the stroke that reaches it (the "
                           "samples are then a time-ordered sequence)"),
+    "backlash_rate": Kind("m/N", "growth of a driven tendon's play with the tension it carries (the samples are "
+                                 "then a time-ordered sequence)"),
+    "entry_friction": Kind("N", "friction at a driven tendon's entry into the robot: a released tendon keeps up "
+                                "to this tension (the samples are then a time-ordered sequence)"),
+    "lag": Kind("s", "time constant with which a driven tendon's stroke follows its command (the samples are "
+                     "then a time-ordered sequence with times)"),
 }
 
 
@@ -98,7 +113,8 @@ def initial_values(scene, mapping, model) -> Values:
                   frame=np.array(mapping.frame_position + mapping.frame_rotation),
                   marker=np.array([m.offset for m in mapping.markers]),
                   friction=np.array(model.compiled.actuators.friction, float),
-                  backlash=np.zeros(len(scene.cables)))
+                  backlash=np.zeros(len(scene.cables)), lag=np.zeros(len(scene.cables)),
+                  backlash_rate=np.zeros(len(scene.cables)), entry_friction=np.zeros(len(scene.cables)))
 
 
 def _members(kind: str, scene, mapping) -> dict:
@@ -107,7 +123,7 @@ def _members(kind: str, scene, mapping) -> dict:
         return {str(i): i for i in range(len(scene.segments))}
     if kind in ("angle", "radius"):
         return {c.name: i for i, c in enumerate(scene.cables)}
-    if kind in ("cable_stiffness", "pretension", "friction", "backlash"):
+    if kind in ("cable_stiffness", "pretension", "friction", "backlash", "backlash_rate", "entry_friction", "lag"):
         names = [c.name for c in scene.cables]
         return {a.cable: names.index(a.cable) for a in mapping.actuators if a.cable in names}
     if kind == "frame":
@@ -156,6 +172,12 @@ def _typical(kind: str, index, base: Values, scene, length: float) -> float:
         return 0.05
     if kind == "backlash":
         return 1e-3 * length
+    if kind == "lag":
+        return 0.1
+    if kind == "backlash_rate":
+        return 1.0 / base.cable_stiffness[index]        # a play of 1 mm per the tension of a 1 mm stretch
+    if kind == "entry_friction":
+        return 1e-3 * base.cable_stiffness[index] * length  # the tension of a stretch of 0.1 % of the trunk
     return 0.01 * length
 
 
@@ -178,6 +200,12 @@ def _default_bounds(kind: str, index, value: float, base: Values, scene, length:
         return 0.0, 1.0
     if kind == "backlash":
         return 0.0, 0.05 * length
+    if kind == "lag":
+        return 0.0, 60.0
+    if kind == "backlash_rate":
+        return 0.0, 10.0 / base.cable_stiffness[index]
+    if kind == "entry_friction":
+        return 0.0, 0.1 * base.cable_stiffness[index] * length
     return value - 0.5 * length, value + 0.5 * length
 
 
@@ -233,7 +261,7 @@ def parse_parameters(specs, scene, mapping, model, option: str = "--fit") -> Par
                                   field=option) from None
             if not low < high:
                 raise OptionError(f"{spec!r}: lower bound {low:g} is not below upper bound {high:g}", field=option)
-            if k0 in ("friction", "backlash") and value == low:
+            if k0 in ("friction", "backlash", "backlash_rate", "entry_friction", "lag") and value == low:
                 # none in the scene: start inside (the bounded optimiser cannot leave a start on its bound)
                 value = min(low + _typical(k0, i0, base, scene, length), 0.5 * (low + high))
             if not low <= value <= high:

@@ -38,13 +38,16 @@ def _parameters(cal) -> list:
 
 def _elements(cal, scene, mapping) -> dict:
     v = cal.values
+    index = {c.name: i for i, c in enumerate(scene.cables)}
     return {"stiffness_scale": {str(i): float(s) for i, s in enumerate(v.stiffness)},
             "cables": {c.name: {"angle_deg": math.degrees(c.angle + da), "radius": c.radius + dr}
                        for c, da, dr in zip(scene.cables, v.angle, v.radius)},
-            "tendons": {a.cable: {"stiffness": float(k), "pretension": float(p),
-                                  "friction": float(v.friction[[c.name for c in scene.cables].index(a.cable)]),
-                                  "backlash": float(v.backlash[[c.name for c in scene.cables].index(a.cable)])}
-                        for a, k, p in zip(mapping.actuators, v.cable_stiffness, v.pretension)},
+            "tendons": {a.cable: {name: float(getattr(v, kind)[index[a.cable]])
+                                  for name, kind in (("stiffness", "cable_stiffness"), ("pretension", "pretension"),
+                                                     ("friction", "friction"), ("backlash", "backlash"),
+                                                     ("backlash_rate", "backlash_rate"),
+                                                     ("entry_friction", "entry_friction"), ("lag", "lag"))}
+                        for a in mapping.actuators},
             "frame": {"position": v.frame[:3].tolist(), "rotation_vector": v.frame[3:].tolist()},
             "markers": {m.name: {"vertebra": m.vertebra, "offset": o.tolist()}
                         for m, o in zip(mapping.markers, v.marker)}}
@@ -129,6 +132,15 @@ def calibrated_scene_toml(cal, scene, mapping) -> str:
         header += ("\nthe calibration's transmission play (backlash, mm), to apply to the commands before "
                    "they become strokes: " + ", ".join(f"{c.name} {1e3 * b:.4g}" for c, b in zip(scene.cables, v.backlash)
                                                       if b))
+    if v.backlash_rate.any():
+        header += ("\nthe play grows with the tendon's tension (backlash_rate, mm/N): "
+                   + ", ".join(f"{c.name} {1e3 * b:.4g}" for c, b in zip(scene.cables, v.backlash_rate) if b))
+    if v.entry_friction.any():
+        header += ("\na released tendon keeps up to this tension, held by the friction at its entry (N): "
+                   + ", ".join(f"{c.name} {f:.4g}" for c, f in zip(scene.cables, v.entry_friction) if f))
+    if v.lag.any():
+        header += ("\nthe strokes follow the commands with a lag (time constant, s): "
+                   + ", ".join(f"{c.name} {t:.4g}" for c, t in zip(scene.cables, v.lag) if t))
     ordered = {k: data[k] for k in data if not isinstance(data[k], (dict, list))}
     ordered.update({k: data[k] for k in data if isinstance(data[k], (dict, list))})
     return scene_toml(ordered, header)

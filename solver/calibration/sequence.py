@@ -52,9 +52,12 @@ class SequencePredictor(RuntimePredictor):
     def predict(self, values: Values, samples, wrt=()) -> Prediction:
         if not np.any(values.friction) and not any(kind == "friction" for kind, _ in wrt):
             return super().predict(values, samples, wrt)
-        if np.any(values.backlash) or any(kind == "backlash" for kind, _ in wrt):
-            raise OptionError("backlash and friction together are not supported: fit one of them (the "
-                              "frictional sequence does not pass the commands through the play)", field="--fit")
+        if (np.any(values.backlash) or np.any(values.lag) or np.any(values.backlash_rate)
+                or np.any(values.entry_friction)
+                or any(kind in ("backlash", "lag", "backlash_rate", "entry_friction") for kind, _ in wrt)):
+            raise OptionError("backlash or lag and friction together are not supported: fit one of them (the "
+                              "frictional sequence does not pass the commands through the play and the lag)",
+                              field="--fit")
         t0 = time.perf_counter()
         markers, states = self._sequence(values, samples)
         solve_s = time.perf_counter() - t0
