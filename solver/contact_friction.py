@@ -265,9 +265,10 @@ def coulomb(W: np.ndarray, b: np.ndarray, m: int, fr: np.ndarray, mu: np.ndarray
     return (lam, status) if converged else None
 
 
-def _local(A: np.ndarray, q: np.ndarray, mu: float) -> tuple[np.ndarray, bool, np.ndarray]:
+def _local(A: np.ndarray, q: np.ndarray, mu: float, guess: np.ndarray | None = None) -> tuple[np.ndarray, bool, np.ndarray]:
     """One frictional contact's problem ``w = q + Aλ`` (rows: gap, two slips): open, stuck or
-    slipping (the slip direction by its angle: 64 samples, then bisection on ``w_t × d``).
+    slipping — the slip direction from ``guess`` (the last sweep's) by the fixed point
+    ``d ← w_t/|w_t|``, else by its angle: 64 samples, then regula falsi on ``w_t × d``.
     Returns (λ, slips, direction)."""
     none = np.array([1.0, 0.0])
     if q[0] >= 0.0:
@@ -286,6 +287,16 @@ def _local(A: np.ndarray, q: np.ndarray, mu: float) -> tuple[np.ndarray, bool, n
         w_t = q[1:] + A[1:, 0] * f_n[..., None] + lam_t @ A[1:, 1:].T
         return f_n, lam_t, w_t, d
 
+    if guess is not None:
+        angle = math.atan2(guess[1], guess[0])
+        for _ in range(8):
+            f_n, lam_t, w_t, d = at(np.array([angle]))
+            norm = math.hypot(*w_t[0])
+            if not (f_n[0] > 0.0 and norm > 0.0):
+                break
+            if abs(w_t[0, 0] * d[0, 1] - w_t[0, 1] * d[0, 0]) <= DIRECTION_TOLERANCE * norm and w_t[0] @ d[0] > 0.0:
+                return np.array([f_n[0], lam_t[0, 0], lam_t[0, 1]]), True, d[0]
+            angle = math.atan2(w_t[0, 1], w_t[0, 0])
     theta = 2.0 * math.pi * np.arange(64) / 64
     f_n, _, w_t, d = at(theta)
     cross = w_t[:, 0] * d[:, 1] - w_t[:, 1] * d[:, 0]
@@ -334,16 +345,18 @@ def _sweeps(W, b, m, fr, mu) -> tuple[np.ndarray, Friction, bool]:
         c = owner.get(i)
         blocks.append(np.array([i] if c is None else [i, m + 2 * c, m + 2 * c + 1]))
     status = Friction(np.zeros(m, bool), np.zeros(fr.size, bool), np.tile([1.0, 0.0], (fr.size, 1)))
+    diagonal = [W[np.ix_(rows, rows)] for rows in blocks]
+    coupling = [W[rows] for rows in blocks]
     converged = False
     for _ in range(SWEEPS):
         change = 0.0
         for i, rows in enumerate(blocks):
-            q = b[rows] + W[rows] @ lam - W[np.ix_(rows, rows)] @ lam[rows]
+            q = b[rows] + coupling[i] @ lam - diagonal[i] @ lam[rows]
             if rows.size == 1:
                 new = np.array([max(0.0, -q[0] / W[i, i])])
             else:
                 c = owner[i]
-                new, slips, direction = _local(W[np.ix_(rows, rows)], q, mu[c])
+                new, slips, direction = _local(diagonal[i], q, mu[c], status.direction[c] if status.slip[c] else None)
                 status.slip[c], status.direction[c] = slips, direction
             status.closed[i] = new[0] > 0.0
             change = max(change, float(np.abs(new - lam[rows]).max()))
