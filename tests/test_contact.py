@@ -470,15 +470,6 @@ def test_soft_robots_folding_their_discs_face_to_face_converge(seed):
     assert pressed(solved_with_discs_apart(seed))
 
 
-@pytest.mark.slow
-def test_a_robot_folding_onto_itself_converges_with_the_folded_pairs_nearest_points_held_only():
-    # random robot 71 folds onto itself; holding the pucks' nearest point in the curvature of
-    # every pair lying face to face, the same way up too, made it stall near load factor 0.75
-    # (1000 iterations; 99 too). Held only for pairs folded over onto each other, it converges,
-    # complementary at every contact, no two discs overlapping
-    solved_with_discs_apart(71)
-
-
 def test_a_saddle_with_discs_declared_is_left_along_negative_curvature():
     # random robot 88 comes, at load factor 0.767, to an equilibrium in balance whose tangent has
     # two negative eigenvalues (−5.1e-9 of its diagonal: it buckles sideways) with no disc pressed.
