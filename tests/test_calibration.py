@@ -93,14 +93,20 @@ def _truth_values(robot):
     return ps, x
 
 
+def _noisy_markers(scene, mapping, values, noise: float, seed: int) -> Samples:
+    """The predicted markers of the commands of :func:`_commands` at ``values``, with Gaussian noise
+    of ``noise`` m (seeded by ``seed``)."""
+    commands = _commands()
+    empty = Samples(commands, np.zeros((len(commands), 1, 3)), ("pulls",) * len(commands), "synthetic")
+    markers = RuntimePredictor(scene, mapping).predict(values, empty).markers
+    rng = np.random.default_rng(seed)
+    return Samples(commands, markers + noise * rng.standard_normal(markers.shape), empty.patterns, "synthetic")
+
+
 def _synthetic(robot, noise: float, seed: int) -> Samples:
     scene, mapping, _ = robot
     ps, x = _truth_values(robot)
-    commands = _commands()
-    empty = Samples(commands, np.zeros((len(commands), 1, 3)), ("pulls",) * len(commands), "synthetic")
-    markers = RuntimePredictor(scene, mapping).predict(ps.values(x), empty).markers
-    rng = np.random.default_rng(seed)
-    return Samples(commands, markers + noise * rng.standard_normal(markers.shape), empty.patterns, "synthetic")
+    return _noisy_markers(scene, mapping, ps.values(x), noise, seed)
 
 
 def test_prediction_is_the_scenes_equilibrium(robot):
@@ -327,12 +333,7 @@ def _played(robot, width: float, noise: float, seed: int):
     scene, mapping, _ = robot
     ps, x = _truth_values(robot)
     values = ps.values(x).with_elements([(("backlash", i), width) for i in range(3)])
-    commands = _commands()
-    empty = Samples(commands, np.zeros((len(commands), 1, 3)), ("pulls",) * len(commands), "synthetic")
-    markers = RuntimePredictor(scene, mapping).predict(values, empty).markers
-    rng = np.random.default_rng(seed)
-    return values, Samples(commands, markers + noise * rng.standard_normal(markers.shape), empty.patterns,
-                           "synthetic")
+    return values, _noisy_markers(scene, mapping, values, noise, seed)
 
 
 def test_backlash_derivatives_match_resolved_differences_and_a_play_is_recovered(robot):
@@ -346,14 +347,8 @@ def test_backlash_derivatives_match_resolved_differences_and_a_play_is_recovered
     predictor = RuntimePredictor(scene, mapping)
     wrt = [("backlash", 0), ("backlash", 1), ("stiffness", 0)]
     analytic = predictor.predict(values, samples, wrt).derivatives
-    for j, (kind, index) in enumerate(wrt[:2]):
-        h = 1e-7
-        plus = predictor.predict(values.with_elements([((kind, index), values.get(kind, index) + h)]), samples)
-        minus = predictor.predict(values.with_elements([((kind, index), values.get(kind, index) - h)]), samples)
-        numeric = (plus.markers - minus.markers) / (2 * h)
-        scale = np.abs(numeric).max()
-        assert scale > 0.0
-        assert np.abs(analytic[..., j] - numeric).max() <= 1e-4 * scale, (kind, index)
+    assert_matches_differences(lambda v: predictor.predict(v, samples).markers, values, analytic, wrt[:2],
+                               lambda kind: 1e-7, tolerance=1e-4)
     truth, noisy = _played(robot, 1.3e-4, 5e-5, 1)
     cal = calibrate(scene, mapping, noisy, fit=FIT + ["backlash.a+b"])
     names = list(cal.parameters.names)
@@ -419,14 +414,8 @@ def test_lag_derivatives_match_resolved_differences_and_a_lag_is_recovered(robot
     wrt = [("lag", 0), ("lag", 1), ("backlash", 0), ("stiffness", 0)]
     played = values.with_elements([(("backlash", 0), 1e-4)])
     analytic = predictor.predict(played, samples, wrt).derivatives
-    for j, (kind, index) in enumerate(wrt[:3]):
-        h = 3e-5 if kind == "lag" else 3e-8
-        plus = predictor.predict(played.with_elements([((kind, index), played.get(kind, index) + h)]), samples)
-        minus = predictor.predict(played.with_elements([((kind, index), played.get(kind, index) - h)]), samples)
-        numeric = (plus.markers - minus.markers) / (2 * h)
-        scale = np.abs(numeric).max()
-        assert scale > 0.0
-        assert np.abs(analytic[..., j] - numeric).max() <= 1e-6 * scale, (kind, index)
+    assert_matches_differences(lambda v: predictor.predict(v, samples).markers, played, analytic, wrt[:3],
+                               lambda kind: 3e-5 if kind == "lag" else 3e-8)
     untimed = Samples(samples.commands, samples.markers, samples.patterns, "synthetic")
     still = values.with_elements([(("lag", i), 0.0) for i in range(3)])
     assert np.array_equal(RuntimePredictor(scene, mapping).predict(still, samples).markers,
@@ -473,12 +462,7 @@ def _tension_played(robot, b0: float, b1: float, noise: float, seed: int, hold: 
     values = ps.values(x).with_elements([(("backlash", i), b0) for i in range(3)]
                                         + [(("backlash_rate", i), b1) for i in range(3)]
                                         + [(("entry_friction", i), hold) for i in range(3)])
-    commands = _commands()
-    empty = Samples(commands, np.zeros((len(commands), 1, 3)), ("pulls",) * len(commands), "synthetic")
-    markers = RuntimePredictor(scene, mapping).predict(values, empty).markers
-    rng = np.random.default_rng(seed)
-    return values, Samples(commands, markers + noise * rng.standard_normal(markers.shape), empty.patterns,
-                           "synthetic")
+    return values, _noisy_markers(scene, mapping, values, noise, seed)
 
 
 def test_tension_play_derivatives_match_resolved_differences_and_a_rate_is_recovered(robot, tmp_path):
@@ -509,15 +493,8 @@ def test_tension_play_derivatives_match_resolved_differences_and_a_rate_is_recov
     assert (status != 0).sum() > 10
     assert np.abs(again - strokes).max() <= 1e-12
     size = {"backlash_rate": 1e-4, "backlash": 5e-5, "stiffness": 1.0, "cable_stiffness": 3000.0}
-    for j, (kind, index) in enumerate(wrt[:-1]):
-        h = 1e-4 * size[kind]
-        moved = [RuntimePredictor(tight, mapping).predict(
-            values.with_elements([((kind, index), values.get(kind, index) + sign * h)]), samples).markers
-            for sign in (1.0, -1.0)]
-        numeric = (moved[0] - moved[1]) / (2 * h)
-        scale = np.abs(numeric).max()
-        assert scale > 0.0, kind
-        assert np.abs(analytic[..., j] - numeric).max() <= 1e-6 * scale, (kind, index)
+    assert_matches_differences(lambda v: RuntimePredictor(tight, mapping).predict(v, samples).markers, values,
+                               analytic, wrt[:-1], lambda kind: 1e-4 * size[kind])
     still = values.with_elements([(("backlash_rate", i), 0.0) for i in range(3)])
     plain = RuntimePredictor(scene, mapping).predict(still, samples).markers
     implicit = RuntimePredictor(scene, mapping).predict(still, samples, [("backlash_rate", 0)]).markers
@@ -530,6 +507,20 @@ def test_tension_play_derivatives_match_resolved_differences_and_a_rate_is_recov
         assert cal.identifiable[i], name
         assert abs(cal.x[i] - truth) <= 3.0 * cal.standard_errors[i], (name, cal.x[i], cal.standard_errors[i])
     assert cal.standard_errors[names.index("backlash_rate.a+b")] < 3e-5
+
+
+def assert_matches_differences(predict, values, analytic, wrt, step, tolerance=1e-6):
+    """The markers' derivatives ``analytic`` (…, len(wrt)) by the parameters ``wrt`` against central
+    differences of ``predict(values)`` (the markers; step ``step(kind)``), to ``tolerance`` of each
+    one's largest entry."""
+    for j, (kind, index) in enumerate(wrt):
+        h = step(kind)
+        moved = [predict(values.with_elements([((kind, index), values.get(kind, index) + sign * h)]))
+                 for sign in (1.0, -1.0)]
+        numeric = (moved[0] - moved[1]) / (2 * h)
+        scale = np.abs(numeric).max()
+        assert scale > 0.0, kind
+        assert np.abs(analytic[..., j] - numeric).max() <= tolerance * scale, (kind, index)
 
 
 def test_entry_friction_holds_a_released_tendon_and_is_recovered(robot, tmp_path):
@@ -554,15 +545,8 @@ def test_entry_friction_holds_a_released_tendon_and_is_recovered(robot, tmp_path
     plain = RuntimePredictor(scene, mapping).predict(values.with_elements(
         [(("entry_friction", i), 0.0) for i in range(3)]), samples).markers
     assert np.abs(predictor.predict(values, samples).markers - plain).max() > 1e-3   # it holds the robot bent
-    for j, (kind, index) in enumerate(wrt):
-        h = 1e-4 * (1.0 if kind == "entry_friction" else 5e-5)
-        moved = [RuntimePredictor(tight, mapping).predict(
-            values.with_elements([((kind, index), values.get(kind, index) + sign * h)]), samples).markers
-            for sign in (1.0, -1.0)]
-        numeric = (moved[0] - moved[1]) / (2 * h)
-        scale = np.abs(numeric).max()
-        assert scale > 0.0, kind
-        assert np.abs(analytic[..., j] - numeric).max() <= 1e-6 * scale, (kind, index)
+    assert_matches_differences(lambda v: RuntimePredictor(tight, mapping).predict(v, samples).markers, values,
+                               analytic, wrt, lambda kind: 1e-4 * (1.0 if kind == "entry_friction" else 5e-5))
     _, noisy = _tension_played(robot, 5e-5, 0.0, 5e-5, 1, hold=0.8)
     cal = calibrate(scene, mapping, noisy, fit=FIT + ["backlash.a+b", "entry_friction.a+b"])
     names = list(cal.parameters.names)
