@@ -63,6 +63,7 @@ STABILITY_SPRING = 1e6       # the springs (× the stiffness along the contact) 
 STEP_SPRING = 10.0           # … and that convexify a Newton step's model (augmented Lagrangian), first …
 SPRING_GROWTH = 100.0        # … then this many times stiffer, up to STABILITY_SPRING, while not convex
 PIVOTS = 200                 # principal pivoting steps per contact before the QP is refused
+BLOCK_TRIES = 3              # block pivots in a row that do not lower the wrong indices, before single pivots
 
 
 @dataclass(frozen=True, eq=False)
@@ -127,9 +128,12 @@ class ContactSet:
     def select(self, keys: np.ndarray) -> "ContactSet":
         """The contacts with the given keys, in their order (each must be present)."""
         index = {tuple(k): i for i, k in enumerate(self.key.tolist())}
-        take = np.array([index[tuple(k)] for k in keys.tolist()], int)
-        return ContactSet(self.key[take], self.gap[take], self.point[take], self.normal[take], self.frames[take],
-                          self.rows[take], self.origin[take], self.slide[take])
+        return self.take(np.array([index[tuple(k)] for k in keys.tolist()], int))
+
+    def take(self, index: np.ndarray) -> "ContactSet":
+        """The contacts at positions ``index``, in its order."""
+        return ContactSet(self.key[index], self.gap[index], self.point[index], self.normal[index], self.frames[index],
+                          self.rows[index], self.origin[index], self.slide[index])
 
 
 # ---------------------------------------------------------------------------------------------
@@ -623,9 +627,7 @@ def evaluate(model: ContactModel, state, keys: np.ndarray | None = None) -> Cont
     origin = np.where((frames >= 0)[:, :, None], x[np.maximum(frames, 0)], 0.0)
     found = ContactSet(key, gap, point, normal, frames, rows, origin, slide)
     if keys is None:
-        kept = np.flatnonzero(found.gap < model.margin)
-        return ContactSet(key[kept], gap[kept], point[kept], normal[kept], frames[kept], rows[kept], origin[kept],
-                          slide[kept])
+        return found.take(np.flatnonzero(found.gap < model.margin))
     return found.select(keys)
 
 
@@ -654,12 +656,20 @@ def _near(model, x, obstacle) -> dict:
 # the complementarity problem in constraint space
 
 
-def complementarity(W: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+def complementarity(W: np.ndarray, b: np.ndarray, start: np.ndarray | None = None) -> np.ndarray | None:
     """``λ ≥ 0`` with ``w = b + Wλ ≥ 0`` and ``wᵀλ = 0`` for a P-matrix ``W`` (positive definite,
-    or the unsymmetric Delassus operator of a dead-moment tangent), by Murty's principal pivoting
-    (least index rule: finite for P-matrices). None when it does not terminate."""
+    or the unsymmetric Delassus operator of a dead-moment tangent), by principal pivoting from the
+    pressed set ``start`` (bool (m,); default: the contacts with ``b < 0``): block pivots — every
+    wrong index of the set changed at once (Júdice and Pires) — while they lower the fewest wrong
+    indices seen (``BLOCK_TRIES`` more that do not), then Murty's single pivots (least index rule:
+    finite for P-matrices from any set). The answer is unique for a P-matrix, so the start
+    and the pivots change only the work. None when it does not terminate."""
     m = b.size
-    active = b < 0.0
+    active = (b < 0.0) if start is None else np.asarray(start, bool).copy()
+    scale = np.abs(b).max(initial=0.0) + 1e-300
+    force_floor = -1e-13 * scale / max(np.abs(np.diag(W)).max(initial=0.0), 1e-300)
+    gap_floor = -1e-13 * scale
+    fewest, spare, single = m + 1, BLOCK_TRIES, False
     for _ in range(PIVOTS * max(m, 1)):
         lam = np.zeros(m)
         index = np.flatnonzero(active)
@@ -669,12 +679,20 @@ def complementarity(W: np.ndarray, b: np.ndarray) -> np.ndarray | None:
             except np.linalg.LinAlgError:
                 return None
         w = b + W @ lam
-        scale = np.abs(b).max(initial=0.0) + 1e-300
-        wrong = np.flatnonzero((active & (lam < -1e-13 * scale / max(np.abs(np.diag(W)).max(initial=0.0), 1e-300)))
-                               | (~active & (w < -1e-13 * scale)))
+        wrong = np.flatnonzero((active & (lam < force_floor)) | (~active & (w < gap_floor)))
         if not wrong.size:
             return np.where(active, np.maximum(lam, 0.0), 0.0)
-        active[wrong[0]] = not active[wrong[0]]
+        if not single:
+            if wrong.size < fewest:
+                fewest, spare = wrong.size, BLOCK_TRIES
+            elif spare:
+                spare -= 1
+            else:
+                single = True                    # Murty's pivoting from here on
+        if single:
+            active[wrong[0]] = not active[wrong[0]]
+        else:
+            active[wrong] = ~active[wrong]
     return None
 
 
@@ -700,22 +718,40 @@ class Constraints:
         self.multipliers = np.zeros(0)
         self.reference = None                     # gaps of those contacts at the step's start
         self.springs = None                       # (G, k) of the last stiffened tangent
-        self._cache = (None, None)
+        self._cache = ((None, None), (None, None))    # the candidates of the last two states asked
         self._pressed = (None, None, None)
         assembler = trunk.assembler             # the cable pieces' terms by the frames they join
         self._pairs = {(int(a), int(b)): k for k, (a, b) in enumerate(zip(assembler.pair_a, assembler.pair_b))}
 
     def at(self, state) -> ContactSet:
-        """Every candidate contact at ``state`` (kept for the last state asked)."""
-        if self._cache[0] is not state:
-            self._cache = (state, evaluate(self.model, state))
-        return self._cache[1]
+        """Every candidate contact at ``state`` (kept for the last two states asked: an iterate and
+        its line search's trial)."""
+        last, before = self._cache
+        if last[0] is state:
+            return last[1]
+        if before[0] is state:
+            self._cache = (before, last)
+            return before[1]
+        self._cache = ((state, evaluate(self.model, state)), last)
+        return self._cache[0][1]
+
+    def contacts(self, state, keys: np.ndarray) -> ContactSet:
+        """The contacts ``keys`` at ``state``, in their order: taken from the candidates
+        (:meth:`at`, which the iterate's step or convergence test needs anyway) when they are all
+        among them, else evaluated (a contact whose gap left the margin, a chord's point at its end)."""
+        found = self.at(state)
+        if keys.shape[0] <= found.count:
+            index = {tuple(k): i for i, k in enumerate(found.key.tolist())}
+            take = [index.get(tuple(k), -1) for k in keys.tolist()]
+            if min(take, default=0) >= 0 and np.all(np.isfinite(found.gap[take])):
+                return found.take(np.array(take, int))
+        return evaluate(self.model, state, keys)
 
     def pressed(self, state) -> ContactSet:
         """The contacts carrying the current multipliers, at ``state`` (kept for the last state
         and multipliers asked)."""
         if self._pressed[0] is not state or self._pressed[1] is not self.keys:
-            self._pressed = (state, self.keys, evaluate(self.model, state, self.keys))
+            self._pressed = (state, self.keys, self.contacts(state, self.keys))
         return self._pressed[2]
 
     def balance(self, gradient: np.ndarray, state) -> np.ndarray:
@@ -737,7 +773,10 @@ class Constraints:
         b = contacts.gap + G @ p
         regularised = W.copy()
         regularised[np.diag_indices_from(W)] += REGULARISATION * max(float(np.abs(np.diag(W)).max()), 1e-300)
-        lam = complementarity(regularised, b)
+        # from the contacts pressed now (the last step's, mostly the answer again)
+        pressed = {tuple(k) for k in self.keys.tolist()}
+        start = (np.array([tuple(k) in pressed for k in contacts.key.tolist()], bool) if pressed else None)
+        lam = complementarity(regularised, b, start)
         if lam is None:
             return None
         active = np.flatnonzero(lam > 0.0)
@@ -868,7 +907,7 @@ class Constraints:
 
     def report(self, state) -> tuple:
         """Every candidate contact of ``state`` with its force (:func:`report`)."""
-        return report(self.model, state, self.keys, self.multipliers)
+        return report(self.model, state, self.keys, self.multipliers, found=self.at(state))
 
     def stiffened(self, matrix, state, stiffness: float = STABILITY_SPRING, step: "Step | None" = None):
         """The tangent plus a stiff spring along each pressed contact (``stiffness`` × the
@@ -1094,10 +1133,13 @@ class Contact:
         return out
 
 
-def report(model: ContactModel, state, keys: np.ndarray, multipliers: np.ndarray, tangential=None) -> tuple:
+def report(model: ContactModel, state, keys: np.ndarray, multipliers: np.ndarray, tangential=None,
+           found: ContactSet | None = None) -> tuple:
     """Every candidate contact of ``state`` with its force (the pressed ones first); ``tangential``
-    (a function of the contacts' keys, or None) gives each one's friction fields."""
-    found = evaluate(model, state)
+    (a function of the contacts' keys, or None) gives each one's friction fields; ``found``: the
+    candidates at ``state`` when they are known (:func:`evaluate`)."""
+    if found is None:
+        found = evaluate(model, state)
     force = np.zeros(found.count)
     index = {tuple(k): i for i, k in enumerate(found.key.tolist())}
     extra = []

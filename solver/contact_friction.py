@@ -462,7 +462,7 @@ class FrictionalConstraints(contact.Constraints):
     def pressed(self, state) -> ContactSet:
         if self._pressed[0] is not state or self._pressed[1] is not self.keys:
             normal = self.keys[self.keys[:, 0] < TANGENTIAL]
-            found = contact.evaluate(self.model, state, normal)
+            found = self.contacts(state, normal)
             rows, _ = self._rows(state, found)
             self._pressed = (state, self.keys, rows)
         return self._pressed[2]
@@ -650,7 +650,8 @@ class FrictionalConstraints(contact.Constraints):
                                                      friction.get(tuple(k), ((0.0, 0.0, 0.0), "open"))))
                     for i, k in enumerate(keys.tolist())]
 
-        return contact.report(self.model, state, self.keys[normal], self.multipliers[normal], tangential)
+        return contact.report(self.model, state, self.keys[normal], self.multipliers[normal], tangential,
+                              found=self.at(state))
 
 
 def _joined(a: ContactSet, b: ContactSet) -> ContactSet:
