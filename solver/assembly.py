@@ -95,7 +95,8 @@ class BandAssembler:
         destination = self._term_destinations()
         self._storage_gather, band_gather = self._gathers(destination, sym_ij, sym_ji)
         self._band_matrix = self._summing_matrix(band_gather, 0.5)
-        self._offsets = None               # the cable pairs by block offset (symmetric_blocks), when first asked for
+        self._offsets = None               # the cable pairs by block offset (symmetric_bands), when first asked for
+        self._band_index = None            # symmetric_bands' gather, when first asked for
 
     def _flat(self, band, c, offset, r, col):
         """Index in the flat storage of ``[lower, upper][band][c, offset, r, col]``."""
@@ -198,15 +199,18 @@ class BandAssembler:
         """Lower band (kd + 1, n) of the symmetric part of the tangent whose terms are ``terms``."""
         return (self._band_matrix @ terms).reshape(self.kd + 1, self.n)
 
-    def symmetric_blocks(self, links: np.ndarray, cables: np.ndarray | None, weight: np.ndarray | None) -> np.ndarray:
-        """Lower block band (B, n_blocks, span + 1, 6, 6), ``[:, c, s] = ½(A + Aᵀ)[c + s, c]``, of the
-        symmetric part of a batch of tangents given by their terms: the links' (B, n_blocks, 12, 12),
-        the cable pairs' (B, n_pairs, 12, 12) and the weight's (B, n_blocks, 3, 3) (None: none).
-        What :func:`~vertebra.solver.banded.factor_block_cholesky` factors: each term's 6×6 blocks
-        added where they couple (no gather), one batched sum per block offset."""
+    def symmetric_bands(self, links: np.ndarray, cables: np.ndarray | None, weight: np.ndarray | None) -> np.ndarray:
+        """LAPACK lower bands of the symmetric parts ½(A + Aᵀ) of a batch of tangents given by their
+        terms — the links' (B, n_blocks, 12, 12), the cable pairs' (B, n_pairs, 12, 12) and the
+        weight's (B, n_blocks, 3, 3) (None: none) — as (B, n, kd + 1) with ``[:, j, d] = A[j + d, j]``:
+        each sample's ``[i].T`` is the (kd + 1, n) Fortran-ordered band ``dpbtrf`` factors in place
+        (:func:`~vertebra.solver.banded.factor_cholesky_batch`). Each term's 6×6 blocks are added
+        where they couple (one batched sum per block offset) into the lower block band, whose
+        entries one gather puts in band order."""
         nb = self.n_blocks
         B = links.size // (nb * 144)
-        S = np.zeros((B, nb, self.span + 1, 6, 6))
+        flat = np.zeros((B, self._per_band + 1))            # the lower block band, then a zero
+        S = flat[:, :-1].reshape((B,) + self.block_shape)
         H = links.reshape(B, nb, 2, 6, 2, 6)                # link k joins blocks k − 1 (a) and k (b)
         S[:, :, 0] += H[:, :, 1, :, 1, :]
         S[:, :-1, 0] += H[:, 1:, 0, :, 0, :]
@@ -223,8 +227,23 @@ class BandAssembler:
             S[:, :, 0, 3:, 3:] += weight
         diagonal = S[:, :, 0]
         S[:, :, 0] = diagonal + diagonal.mT
-        S *= 0.5
-        return S
+        bands = flat.take(self._band_of_blocks(), axis=1).reshape(B, self.n, self.kd + 1)
+        bands *= 0.5
+        return bands
+
+    def _band_of_blocks(self) -> np.ndarray:
+        """(n · (kd + 1),): for every entry ``[j, d]`` of a transposed lower band, its place in a
+        lower block band flattened with a trailing zero (the zero where the entry lies outside the
+        block band or the matrix)."""
+        if self._band_index is None:
+            nb, span, kd = self.n_blocks, self.span, self.kd
+            j, d = np.meshgrid(np.arange(self.n), np.arange(kd + 1), indexing="ij")
+            i = j + d
+            J, s = j // 6, i // 6 - j // 6
+            inside = (i < self.n) & (s <= span)
+            self._band_index = np.where(inside, self._flat(0, J, np.minimum(s, span), i % 6, j % 6),
+                                        self._per_band).ravel()
+        return self._band_index
 
     def _pair_offsets(self) -> list:
         """The cable pairs by block offset: (offset, pairs, block a, block b, a is free), each with

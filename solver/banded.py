@@ -136,121 +136,39 @@ def general_band_of_symmetric(lower: np.ndarray) -> np.ndarray:
 
 # ----------------------------------------------------------------------------- batched
 @dataclass(slots=True)
-class BlockCholesky:
-    """Cholesky factors ``L Lᵀ`` of a batch of symmetric block-banded matrices (one per sample,
-    leading axis): ``n_blocks`` diagonal blocks of ``size`` × ``size`` whose couplings reach
-    ``span`` blocks. ``blocks[:, span + c, s]`` holds ``L[c + s, c]`` (block column ``c`` stored
-    after ``span`` padding columns, and as many after it, so that every step of the factor and
-    of its solves is one batched product without bounds); ``inverse[:, c]`` holds ``L[c, c]⁻¹``.
-    ``ok[i]``: sample ``i``'s matrix is positive definite (the others' factors are meaningless).
-    Built by :func:`factor_block_cholesky`."""
+class BandedFactors:
+    """Cholesky factors of a batch of symmetric band matrices, one LAPACK factor per sample:
+    ``data[i].T`` is sample ``i``'s lower band factor (``dpbtrf``'s, Fortran-ordered (kd + 1, n)).
+    ``ok[i]``: sample ``i``'s matrix is positive definite (``dpbtrf`` refused the others; their
+    solves are zero). Built by :func:`factor_cholesky_batch`."""
 
-    blocks: np.ndarray
-    inverse: np.ndarray
+    data: np.ndarray
     ok: np.ndarray
 
-    @property
-    def span(self) -> int:
-        return self.blocks.shape[2] - 1
-
     def solve(self, rhs: np.ndarray) -> np.ndarray:
-        """``A⁻¹ rhs`` per sample for ``rhs`` of shape (B, n) or (B, n, k) (n = blocks × size)."""
-        with np.errstate(all="ignore"):         # (a refused sample's numbers are meaningless)
-            return self._solve(rhs)
-
-    def _solve(self, rhs: np.ndarray) -> np.ndarray:
-        L, inverse = self.blocks, self.inverse
-        B, nb, size = inverse.shape[0], inverse.shape[1], inverse.shape[2]
-        p = self.span
+        """``A⁻¹ rhs`` per sample for ``rhs`` of shape (B, n) or (B, n, k) (``dpbtrs``, sample by
+        sample: each one LAPACK call on its whole band)."""
         rhs = np.asarray(rhs, dtype=float)
-        single = rhs.ndim == 2
-        y = np.zeros((B, nb + 2 * p, size, 1 if single else rhs.shape[2]))
-        y[:, p:p + nb] = rhs.reshape(B, nb, size, -1)
-        offsets = np.arange(1, p + 1)
-        for j in range(nb):                      # L y = b: y_j = L_jj⁻¹ (b_j − Σ_t L[j, j−t] y_{j−t})
-            c = p + j
-            acc = y[:, c]
-            if p:
-                acc = acc - np.add.reduce(L[:, c - offsets, offsets] @ y[:, c - offsets], 1)
-            y[:, c] = inverse[:, j] @ acc
-        for j in range(nb - 1, -1, -1):          # Lᵀ x = y: x_j = L_jj⁻ᵀ (y_j − Σ_s L[j+s, j]ᵀ x_{j+s})
-            c = p + j
-            acc = y[:, c]
-            if p:
-                acc = acc - np.add.reduce(L[:, c, 1:].mT @ y[:, c + 1:c + p + 1], 1)
-            y[:, c] = inverse[:, j].mT @ acc
-        x = y[:, p:p + nb]
-        return x.reshape(B, nb * size) if single else x.reshape(B, nb * size, -1)
+        out = np.zeros(rhs.shape)
+        data = self.data
+        for i in np.flatnonzero(self.ok).tolist():
+            x, info = dpbtrs(data[i].T, rhs[i], lower=1)
+            if info:
+                raise np.linalg.LinAlgError(f"banded solve failed (LAPACK info {info})")
+            out[i] = x
+        return out
 
 
-def _update_pairs(span: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The trailing update of a block column: for 1 ≤ s ≤ s′ ≤ span, block ``(j+s′, j+s)`` loses
-    ``L[j+s′, j] L[j+s, j]ᵀ``; returned as (s′ − 1, s − 1, column offset s, band offset s′ − s)."""
-    pairs = [(b, a) for a in range(1, span + 1) for b in range(a, span + 1)]
-    late, early = (np.array(v, int) for v in zip(*pairs)) if pairs else (np.zeros(0, int),) * 2
-    return late - 1, early - 1, early, late - early
-
-
-def _cholesky_blocks(pivot: np.ndarray, ok: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Lower Cholesky factors and their inverses (B, k, k) of symmetric blocks ``pivot``, column
-    by column over the batch (a pivot that is not positive — or NaN — refuses the sample in
-    ``ok``, as LAPACK's ``dpotrf``/``dpbtrf`` refuse the matrix; its factor is then meaningless).
-    Worked with the samples as the last axis (k, k, B): every scalar step of the factor is one
-    operation over the batch (a small matrix product per sample would cost more than its
-    arithmetic)."""
-    B, size = pivot.shape[0], pivot.shape[1]
-    P = np.ascontiguousarray(pivot.transpose(1, 2, 0))
-    L = np.zeros_like(P)
-    for j in range(size):
-        row = L[j, :j]
-        d = P[j, j] - np.add.reduce(row * row, 0) if j else P[j, j].copy()
-        positive = d > 0.0
-        if not positive.all():
-            ok &= positive
-            d[~positive] = 1.0
-        root = np.sqrt(d)
-        L[j, j] = root
-        if j + 1 < size:
-            column = P[j + 1:, j]
-            if j:
-                column = column - np.add.reduce(L[j + 1:, :j] * row, 1)
-            np.divide(column, root, out=L[j + 1:, j])
-    inverse = np.zeros_like(P)
-    diagonal = 1.0 / L[np.arange(size), np.arange(size)]
-    inverse[np.arange(size), np.arange(size)] = diagonal
-    for i in range(1, size):          # row i of L⁻¹: −(L[i, :i] L⁻¹[:i, :i]) / L[i, i]
-        inverse[i, :i] = -np.add.reduce(L[i, :i, None] * inverse[:i, :i], 0) * diagonal[i]
-    return L.transpose(2, 0, 1), inverse.transpose(2, 0, 1)
-
-
-def factor_block_cholesky(lower: np.ndarray) -> BlockCholesky:
-    """Batched block-banded Cholesky of symmetric positive definite matrices given by their
-    lower block band ``lower`` (B, n_blocks, span + 1, size, size), ``lower[:, c, s] = A[c + s, c]``
-    (entries with ``c + s ≥ n_blocks`` are ignored). Right-looking, one block column at a time:
-    every step is a batched product over the samples. A sample whose matrix is not positive
-    definite (a pivot that is not positive, where ``dpbtrf`` refuses its band) gets ``ok`` False;
-    the others are not affected."""
-    with np.errstate(all="ignore"):             # (a refused sample's numbers are meaningless)
-        return _factor_block_cholesky(lower)
-
-
-def _factor_block_cholesky(lower: np.ndarray) -> BlockCholesky:
-    B, nb, p1, size = lower.shape[0], lower.shape[1], lower.shape[2], lower.shape[3]
-    p = p1 - 1
-    L = np.zeros((B, nb + 2 * p, p1, size, size))
-    L[:, p:p + nb] = lower
-    for s in range(1, p1):                       # blocks beyond the matrix
-        L[:, p + nb - s:p + nb, s] = 0.0
-    inverse = np.empty((B, nb, size, size))
+def factor_cholesky_batch(bands: np.ndarray) -> BandedFactors:
+    """Banded Cholesky (``dpbtrf``, as :func:`factor_cholesky`) of a batch of symmetric positive
+    definite band matrices given by their transposed lower bands ``bands`` (B, n, kd + 1),
+    ``bands[i, j, d] = A_i[j + d, j]`` (C-ordered: each ``bands[i].T`` is LAPACK's band storage),
+    factored in place. A sample whose matrix is not positive definite gets ``ok`` False; the
+    others are not affected. One LAPACK call per sample: on bands of tens to hundreds of unknowns
+    that costs less than any formulation of the factor as products over the batch (the factor's
+    arithmetic is a few tens of thousands of operations, its steps 6×6 or smaller)."""
+    B = bands.shape[0]
     ok = np.ones(B, bool)
-    late, early, column, offset = _update_pairs(p)
-    for j in range(nb):
-        c = p + j
-        factor, inv = _cholesky_blocks(L[:, c, 0], ok)
-        L[:, c, 0] = factor
-        inverse[:, j] = inv
-        if p:
-            below = L[:, c, 1:] @ inv.mT[:, None]               # L[j+s, j] = A[j+s, j] L_jj⁻ᵀ
-            L[:, c, 1:] = below
-            L[:, c + column, offset] -= below[:, late] @ below[:, early].mT
-    return BlockCholesky(L, inverse, ok)
+    for i in range(B):
+        ok[i] = dpbtrf(bands[i].T, lower=1, overwrite_ab=1)[1] == 0
+    return BandedFactors(bands, ok)

@@ -5,8 +5,8 @@ actuations (and start states) with every array carrying a leading sample axis: t
 poses (:func:`~vertebra.solver.chain.chain_poses`), the link kinematics and tangents
 (:mod:`~vertebra.solver.links`, over the B·n links), the link energies (their ``prepare``,
 ``response`` and ``material_tangent`` take batches), the cable pieces
-(:mod:`~vertebra.solver.cables`), the assembly (:meth:`BandAssembler.symmetric_blocks_of`) and a
-batched block-banded Cholesky (:func:`~vertebra.solver.banded.factor_block_cholesky`). The
+(:mod:`~vertebra.solver.cables`), the assembly (:meth:`BandAssembler.symmetric_bands`) and the
+band's Cholesky factor of every sample (:func:`~vertebra.solver.banded.factor_cholesky_batch`). The
 kernels are the single solve's own; what differs is the orchestration: per-sample masks, shifts,
 step caps, line searches, load stages and convergence tests, each the single solve's rule
 applied to every sample of the active set.
@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vertebra.solver import bounds, newton
-from vertebra.solver.banded import factor_block_cholesky
+from vertebra.solver.banded import factor_cholesky_batch
 from vertebra.solver.cables import CablePieces, scatter_rows
 from vertebra.solver.chain import CARRY_ANGLE, chain_poses
 from vertebra.solver.globalise import ARMIJO, NEUTRAL, ROUNDING, SEARCH_FLOOR
@@ -296,33 +296,36 @@ def _material(context: _Context, ev: Evaluation, B: int) -> np.ndarray:
 
 @dataclass
 class Tangent:
-    """The symmetric tangents of a batch: the lower block band (B, n_blocks, span + 1, 6, 6) and,
-    with stroke-driven tendons, their dense term ``U diag(d) Uᵀ`` beside the band (``U`` (B, n_dof,
+    """The symmetric tangents of a batch: their lower bands (B, n, kd + 1)
+    (:meth:`vertebra.solver.assembly.BandAssembler.symmetric_bands`) and, with stroke-driven tendons, their dense term ``U diag(d) Uᵀ`` beside the band (``U`` (B, n_dof,
     t) the tendons' ``∂L/∂q``, ``d`` (B, t) their spring rates where taut, 0 where slack) — the
     batch's :class:`vertebra.solver.assembly.Tangent`."""
 
-    blocks: np.ndarray
+    bands: np.ndarray
     U: np.ndarray | None = None
     d: np.ndarray | None = None
 
     def take(self, rows: np.ndarray) -> "Tangent":
-        if rows.size == self.blocks.shape[0] and np.array_equal(rows, np.arange(rows.size)):    # all, in order
+        if rows.size == self.bands.shape[0] and np.array_equal(rows, np.arange(rows.size)):    # all, in order
             return self
-        return Tangent(self.blocks[rows], None if self.U is None else self.U[rows],
+        return Tangent(self.bands[rows], None if self.U is None else self.U[rows],
                        None if self.d is None else self.d[rows])
 
     def diagonal(self) -> np.ndarray:
         """The diagonal (B, n_dof), the dense term's included."""
-        diagonal = _diagonal(self.blocks)
+        diagonal = self.bands[:, :, 0]
         if self.U is not None:
             diagonal = diagonal + np.add.reduce(self.U * self.U * self.d[:, None, :], 2)
         return diagonal
 
     def factor(self, shift: np.ndarray | None = None, scale: np.ndarray | None = None) -> "Factor":
-        """The factor of every sample's tangent plus ``shift · diag(scale)`` (the band's block
-        Cholesky, updated by the dense term: Sherman–Morrison–Woodbury)."""
-        blocks = self.blocks if shift is None or not np.any(shift) else _shifted(self.blocks, shift, scale)
-        return Factor(factor_block_cholesky(blocks), self.U, self.d)
+        """The factor of every sample's tangent plus ``shift · diag(scale)`` (the band's Cholesky,
+        updated by the dense term: Sherman–Morrison–Woodbury). The bands are copied: the tangent
+        stays as it is."""
+        bands = self.bands.copy()
+        if shift is not None and np.any(shift):
+            bands[:, :, 0] += shift[:, None] * scale
+        return Factor(factor_cholesky_batch(bands), self.U, self.d)
 
 
 class Factor:
@@ -367,13 +370,13 @@ def tangent(context: _Context, ev: Evaluation) -> Tangent:
     weight = None
     if trunk.loads.has_gravity:
         weight = -ev.load.weight_hat[:, None] @ hat(ev.lever[:, 1:])
-    blocks = assembler.symmetric_blocks(links, cables, weight)
+    bands = assembler.symmetric_bands(links, cables, weight)
     if ev.load.tendons is None:
-        return Tangent(blocks)
+        return Tangent(bands)
     tendon_cables, k = ev.load.tendons[:2]
     jacobian = _cable_jacobian(context, ev.pieces, B)[:, tendon_cables, 1:]
     U = np.ascontiguousarray(jacobian.reshape(B, tendon_cables.size, -1).mT)
-    return Tangent(blocks, U, k * (ev.elongation > 0.0))
+    return Tangent(bands, U, k * (ev.elongation > 0.0))
 
 
 def _cable_jacobian(context: _Context, pieces: CablePieces, B: int) -> np.ndarray:
@@ -387,19 +390,6 @@ def _cable_jacobian(context: _Context, pieces: CablePieces, B: int) -> np.ndarra
     jacobian = ends[:, starting]
     jacobian += ends[:, ending]
     return jacobian.reshape(B, cables.n_cables, trunk.frames.count, 6)
-
-
-def _shifted(blocks: np.ndarray, shift: np.ndarray, scale: np.ndarray) -> np.ndarray:
-    """``blocks`` with ``shift · diag(scale)`` added to every sample's diagonal (a copy)."""
-    B, nb = blocks.shape[:2]
-    out = blocks.copy()
-    diagonal = out[:, :, 0].reshape(B, nb, 36)
-    diagonal[:, :, ::7] += (shift[:, None] * scale).reshape(B, nb, 6)
-    return out
-
-
-def _diagonal(blocks: np.ndarray) -> np.ndarray:
-    return np.diagonal(blocks[:, :, 0], axis1=-2, axis2=-1).reshape(blocks.shape[0], -1)
 
 
 # ----------------------------------------------------------------------------- rows of a batch

@@ -1,7 +1,7 @@
 """The batched forward solve (vertebra.solver.batch, ``model.solve_batch``) and its factor.
 
-Checked here: the batched block-banded Cholesky against scipy's banded solver (and which
-matrices it refuses against LAPACK's ``dpbtrf``); every sample of a batch against the single
+Checked here: the batch's band factors against scipy's banded solver (and which matrices they
+refuse against LAPACK's ``dpbtrf``), the batch's bands against the single solve's; every sample of a batch against the single
 solve of the same actuation and start — the same convergence, iterations, factor kinds and
 equilibrium to 1e-10 of the trunk's length — on beams with gravity and a dead force, cables
 (some slack), stroke-driven tendons, linear entries with chambers, nonlinear (fitted) entries
@@ -20,26 +20,20 @@ from fitted_energies import with_energy
 from test_solver_actuation import synthetic_entry
 from test_tendons import _with_tendons
 from vertebra import solver
-from vertebra.solver.banded import factor_block_cholesky
+from vertebra.solver import potential
+from vertebra.solver.banded import factor_cholesky_batch
 from vertebra.solver.scene import load_scene
 
 
-def _band_matrices(rng, B, nb, span, size=6, refuse=()):
-    n = nb * size
+def _band_matrices(rng, B, n, kd, refuse=()):
     dense = np.zeros((B, n, n))
     for b in range(B):
         M = rng.standard_normal((n, n))
-        blocks = np.subtract.outer(np.arange(n) // size, np.arange(n) // size)
-        M[np.abs(blocks) > span] = 0.0
+        M[np.abs(np.subtract.outer(np.arange(n), np.arange(n))) > kd] = 0.0
         A = 0.5 * (M + M.T)
         A += np.eye(n) * (-1.0 if b in refuse else np.abs(A).sum(1).max() + 1.0)
         dense[b] = A
-    lower = np.zeros((B, nb, span + 1, size, size))
-    for c in range(nb):
-        for s in range(span + 1):
-            if c + s < nb:
-                lower[:, c, s] = dense[:, size * (c + s):size * (c + s + 1), size * c:size * (c + 1)]
-    return dense, lower
+    return dense
 
 
 def _lapack_band(A, kd):
@@ -50,20 +44,38 @@ def _lapack_band(A, kd):
     return ab
 
 
-@pytest.mark.parametrize("nb, span", [(1, 1), (7, 1), (9, 2), (5, 4)])
-def test_block_cholesky_solves_as_scipys_banded_solver_and_refuses_what_dpbtrf_refuses(nb, span):
-    rng = np.random.default_rng(nb + 10 * span)
-    dense, lower = _band_matrices(rng, 6, nb, span, refuse=(2,))
-    factor = factor_block_cholesky(lower)
-    kd = min(6 * (span + 1) - 1, 6 * nb - 1)
+@pytest.mark.parametrize("n, kd", [(6, 5), (42, 11), (54, 17), (30, 29)])
+def test_batched_band_cholesky_solves_as_scipys_banded_solver_and_refuses_what_dpbtrf_refuses(n, kd):
+    rng = np.random.default_rng(n + 10 * kd)
+    dense = _band_matrices(rng, 6, n, kd, refuse=(2,))
+    bands = np.stack([np.ascontiguousarray(_lapack_band(A, kd).T) for A in dense])
+    factor = factor_cholesky_batch(bands.copy())
     refused = [dpbtrf(_lapack_band(A, kd), lower=1)[1] != 0 for A in dense]
     assert factor.ok.tolist() == [not r for r in refused]
-    rhs = rng.standard_normal((6, 6 * nb, 3))
+    rhs = rng.standard_normal((6, n, 3))
     x, single = factor.solve(rhs), factor.solve(rhs[:, :, 0])
     for b in np.flatnonzero(factor.ok):
         reference = solveh_banded(_lapack_band(dense[b], kd), rhs[b], lower=True)
         assert np.abs(x[b] - reference).max() <= 1e-12 * np.abs(reference).max()
         assert np.abs(single[b] - reference[:, 0]).max() <= 1e-12 * np.abs(reference).max()
+
+
+def test_the_batchs_symmetric_bands_are_the_single_solves_band():
+    """The bands assembled from a batch's terms (links, cable pairs, weight) are the single
+    solve's lower band of the same tangent (to rounding: the sums are taken in another order)."""
+    model = solver.build_model(load_scene("gallery:paper_5v_16t"))
+    trunk = model.trunk
+    rng = np.random.default_rng(5)
+    actuations = rng.uniform(0.0, 20.0, (3, model.n_cables))
+    result = model.solve_batch(actuations)
+    from vertebra.solver import batch as batch_module
+    context = batch_module._Context(trunk)
+    states, _ = batch_module.compose(trunk, result.strains)
+    ev = batch_module.evaluate(context, states, batch_module.Loads.of(trunk, actuations, np.ones(3)))
+    bands = batch_module.tangent(context, ev).bands
+    for i in range(3):
+        single = potential.tangent(trunk, model.evaluate(result.state(i), actuations[i])).symmetric_band()
+        assert np.abs(bands[i].T - single).max() <= 1e-12 * np.abs(single).max()
 
 
 def _compare(model, actuations, initial=None, **options):
