@@ -171,6 +171,22 @@ class _Context:
     def __init__(self, trunk):
         self.trunk = trunk
         self._kept = {}
+        self._rest = None
+
+    def rest(self, B):
+        """The rest state of B samples and its :class:`Geometry`, composed once and repeated
+        (every sample's reference force scale is taken there, under its own loads)."""
+        if self._rest is None:
+            trunk = self.trunk
+            states, _ = compose(trunk, trunk.rest_state.strains.xi[None].copy())
+            spans = pieces = None
+            if trunk.cables.piece_a.size:
+                spans = trunk.cables.spans(states.positions, states.rotations)
+                pieces = CablePieces.of_spans(*spans)
+            self._rest = states, Geometry(_links(states), spans, pieces)
+        states, geometry = self._rest
+        rows = np.zeros(B, int)
+        return states.take(rows), _take(geometry, rows, 1)
 
     def _rows(self, key, B, make):
         """The first rows, for B samples, of what ``make(count)`` builds for ``count`` samples."""
@@ -224,13 +240,30 @@ def _link_response(trunk, xi: np.ndarray, link_loads: tuple):
     return total, w, tuple(kept)
 
 
-def evaluate(context: _Context, states: States, load: Loads) -> Evaluation:
-    """Potential and gradient of every sample (the terms of :func:`vertebra.solver.potential.evaluate`)."""
+def _links(states: States) -> Links:
+    """The link kinematics of every sample (the B·n links as rows)."""
+    x, R = states.positions, states.rotations
+    return Links.of_strains(R[:, :-1].reshape(-1, 3, 3), states.xi.reshape(-1, 6),
+                            (x[:, 1:] - x[:, :-1]).reshape(-1, 3), states.coefficients)
+
+
+@dataclass
+class Geometry:
+    """The kinematics of a batch of states that do not depend on the loads: the links, and the
+    cable pieces' spans and pieces (None without cables)."""
+
+    links: Links
+    spans: tuple | None
+    pieces: CablePieces | None
+
+
+def evaluate(context: _Context, states: States, load: Loads, geometry: Geometry | None = None) -> Evaluation:
+    """Potential and gradient of every sample (the terms of :func:`vertebra.solver.potential.evaluate`);
+    ``geometry``: the states' kinematics when already known (:meth:`_Context.rest`)."""
     trunk = context.trunk
     B, n = states.xi.shape[:2]
     x, R = states.positions, states.rotations
-    links = Links.of_strains(R[:, :-1].reshape(-1, 3, 3), states.xi.reshape(-1, 6),
-                             (x[:, 1:] - x[:, :-1]).reshape(-1, 3), states.coefficients)
+    links = _links(states) if geometry is None else geometry.links
     energy, w, kept = _link_response(trunk, states.xi, load.link_loads)
     g_links = links.gradient(w.reshape(-1, 6))
     pairs = g_links.reshape(B, n, 12)
@@ -240,7 +273,7 @@ def evaluate(context: _Context, states: States, load: Loads) -> Evaluation:
     pieces = piece_tension = elongation = lever = None
     if load.cables:
         cables = trunk.cables
-        offsets, d, length = cables.spans(x, R)
+        offsets, d, length = cables.spans(x, R) if geometry is None else geometry.spans
         m = cables.piece_a.size
         piece_tension = load.piece_tension
         if piece_tension is not None:
@@ -255,7 +288,7 @@ def evaluate(context: _Context, states: States, load: Loads) -> Evaluation:
             tension[:, tendon_cables] = k * taut
             tendon_pieces = tension[:, cables.owner]
             piece_tension = tendon_pieces if piece_tension is None else tendon_pieces + piece_tension
-        pieces = CablePieces.of_spans(offsets, d, length)
+        pieces = CablePieces.of_spans(offsets, d, length) if geometry is None else geometry.pieces
         forces = (piece_tension.reshape(-1)[:, None] * pieces.unit).reshape(B, 2 * m, 6)
         grad += scatter_rows(cables.ends, forces.transpose(1, 0, 2).reshape(2 * m, -1),
                              trunk.frames.count).reshape(-1, B, 6).transpose(1, 0, 2)
@@ -900,9 +933,9 @@ def _solve_chunk(context: _Context, actuation: np.ndarray, start: np.ndarray | N
     run = _Run(context, actuation)
     rest_xi = trunk.rest_state.strains.xi
     full = Loads.of(trunk, actuation, np.ones(B))
-    rest_states, _ = compose(trunk, np.broadcast_to(rest_xi, (B,) + rest_xi.shape).copy())
+    rest_states, rest_geometry = context.rest(B)
     with np.errstate(all="ignore"):
-        reference = _force_scale(trunk, evaluate(context, rest_states, full).gradient)
+        reference = _force_scale(trunk, evaluate(context, rest_states, full, rest_geometry).gradient)
     # zero or non-finite references, dead moments and follower loads (LU factors): the single
     # solve's own cases
     run.leave(np.flatnonzero(~(reference > 0.0) | ~np.isfinite(reference)), "no load at rest, or not finite")
@@ -1092,15 +1125,32 @@ def path_tangents(model, strains: np.ndarray, actuation: np.ndarray) -> tuple[np
     factor with the same shifts when it is singular, the actuator forces of cables, tendons and
     chambers) — and which samples have one (a tangent that no shift factors has none). Taken in
     chunks of :func:`chunk_size` samples."""
+    paths, has, _ = _chunked_paths(model, strains, actuation, False)
+    return paths, has
+
+
+def strain_paths(model, strains: np.ndarray, actuation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The path tangents of :func:`path_tangents` in strain space: ``dξ/dλ = G K⁻¹ B``
+    (B, n, 6, n_act), the links' linearised strain change (``Links.strain_change``) along each
+    actuator's path tangent, and which samples have one. The Euler predictor of an equilibrium
+    ``ξ`` under an actuation change ``Δλ`` is then ``ξ + dξ/dλ Δλ`` (:func:`predicted_strains`'s
+    retraction, one small product per child instead of composing the parent's chain again)."""
+    _, has, paths = _chunked_paths(model, strains, actuation, True)
+    return paths, has
+
+
+def _chunked_paths(model, strains, actuation, in_strains: bool):
     size = chunk_size(model.trunk)
     if strains.shape[0] > size:
-        parts = [_path_tangents(model, strains[k:k + size], actuation[k:k + size])
+        parts = [_path_tangents(model, strains[k:k + size], actuation[k:k + size], in_strains)
                  for k in range(0, strains.shape[0], size)]
-        return np.concatenate([p for p, _ in parts]), np.concatenate([h for _, h in parts])
-    return _path_tangents(model, strains, actuation)
+        paths, has, xi_paths = (np.concatenate([p[i] for p in parts]) if parts[0][i] is not None else None
+                                for i in range(3))
+        return paths, has, xi_paths
+    return _path_tangents(model, strains, actuation, in_strains)
 
 
-def _path_tangents(model, strains: np.ndarray, actuation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _path_tangents(model, strains: np.ndarray, actuation: np.ndarray, in_strains: bool = False):
     trunk = model.trunk
     context = _Context(trunk)
     B = strains.shape[0]
@@ -1123,8 +1173,15 @@ def _path_tangents(model, strains: np.ndarray, actuation: np.ndarray) -> tuple[n
                 paths[done] = factor.solve(forces[pending].mT)[factor.ok]
                 has[done] = True
             pending = pending[~factor.ok]
-    has &= np.all(np.isfinite(paths.reshape(B, -1)), 1)
-    return paths, has
+        has &= np.all(np.isfinite(paths.reshape(B, -1)), 1)
+        xi_paths = None
+        if in_strains:                 # G [P_a; P_b] per link, the base frame fixed (its rows zero)
+            n_act = paths.shape[2]
+            frames = np.zeros((B, trunk.frames.count, 6, n_act))
+            frames[:, 1:] = paths.reshape(B, -1, 6, n_act)
+            pairs = np.concatenate([frames[:, :-1], frames[:, 1:]], 2).reshape(-1, 12, n_act)
+            xi_paths = (ev.links.G @ pairs).reshape(B, -1, 6, n_act)
+    return paths, has, xi_paths
 
 
 def actuator_forces(context: _Context, states: States, ev: Evaluation) -> np.ndarray:
@@ -1193,10 +1250,7 @@ def predicted_strains(model, strains: np.ndarray, paths: np.ndarray, change: np.
                                for k in range(0, strains.shape[0], size)])
     trunk = model.trunk
     states, _ = compose(trunk, strains)
-    B = strains.shape[0]
-    x, R = states.positions, states.rotations
-    links = Links.of_strains(R[:, :-1].reshape(-1, 3, 3), states.xi.reshape(-1, 6),
-                             (x[:, 1:] - x[:, :-1]).reshape(-1, 3), states.coefficients)
+    links = _links(states)
     dq = (paths @ change[:, :, None])[:, :, 0]
     return strains + _strain_change(links, dq)
 

@@ -42,7 +42,7 @@ from typing import Callable
 
 import numpy as np
 
-from vertebra.solver.batch import chunk_size, path_tangents, predicted_strains
+from vertebra.solver.batch import strain_paths
 from vertebra.solver.hull import Hull, convex_hull
 from vertebra.solver.workspace_order import ORDERINGS, SolveOrder, generations, response_coordinates
 from vertebra.core.lie import qrotate
@@ -432,9 +432,68 @@ class _Dask:
 
 EXECUTORS = ("local", "dask")
 
+SECANT_NEIGHBOURS = 32   # solved neighbours whose path tangents estimate a parent's second derivative
+SECANT_RIDGE = 1e-3      # ridge on the neighbours' weights, relative to their mean squared distance
 
-def _solve_generations(model, actuations: np.ndarray, plan: SolveOrder, tolerance, executor, chunk: int,
-                       progress) -> _Solved:
+
+def predicted_starts(strains: np.ndarray, paths: np.ndarray, has: np.ndarray, actuations: np.ndarray,
+                     coordinates: np.ndarray, scale: np.ndarray, of: np.ndarray, change: np.ndarray) -> np.ndarray:
+    """Start strains (m, n, 6) of m children from their parents' equilibria: the second-order
+    predictor ``ξ_p + ξ'_p Δ + ½ ξ''_p[Δ, Δ]`` along the equilibrium path (the Euler predictor
+    ``ξ_p + ξ'_p Δ`` plus its curvature term).
+
+    ``strains`` (P, n, 6) the parents' equilibria, ``paths`` (P, n, 6, a) their strain path
+    tangents ``ξ' = dξ/dλ`` (:func:`vertebra.solver.batch.strain_paths`), ``has`` (P,) which have
+    one, ``actuations`` (P, a), ``coordinates`` (P, r) their response coordinates (nearness),
+    ``scale`` (a,) the actuators' ranges; ``of`` (m,) each child's parent, ``change`` (m, a) its
+    actuation minus its parent's.
+
+    The curvature term comes from the path tangents of the parent's nearest solved neighbours
+    ``j`` (secants of the tangent field): ``ξ'_j − ξ'_p ≈ ξ''_p[d_j, ·]`` with ``d_j = λ_j − λ_p``,
+    so writing ``Δ ≈ Σ c_j d_j`` (ridge least squares in the actuation box's units) gives
+    ``ξ''_p[Δ, ·] ≈ Σ c_j (ξ'_j − ξ'_p)``. A child whose curvature term comes out larger than its
+    Euler step (the expansion not to be trusted there) keeps the Euler predictor."""
+    start = strains[of].copy()
+    move = np.flatnonzero(has[of])
+    if not move.size:
+        return start
+    users, slot = np.unique(of[move], return_inverse=True)
+    children = move[np.argsort(slot, kind="stable")]                 # the children, parent by parent
+    bounds = np.searchsorted(np.sort(slot), np.arange(users.size + 1))
+    valid = np.flatnonzero(has)
+    k = min(SECANT_NEIGHBOURS, valid.size - 1)
+    if k >= 2:
+        from scipy.spatial import cKDTree
+
+        _, near = cKDTree(coordinates[valid]).query(coordinates[users], k=k + 1)
+        near = valid[near]
+        other = near != users[:, None]                                # leave the parent itself out
+        near = np.take_along_axis(near, np.argsort(~other, axis=1, kind="stable")[:, :k], 1)
+        d = (actuations[near] - actuations[users][:, None]) / scale          # (U, k, a) in box units
+        gram = d.mT @ d
+        gram[:, np.arange(scale.size), np.arange(scale.size)] += \
+            (SECANT_RIDGE * np.trace(gram, axis1=1, axis2=2) / k)[:, None]
+        weights = d @ np.linalg.inv(gram)                                    # (U, k, a): c = W (Δ / scale)
+    flat = paths.reshape(paths.shape[0], -1)
+    shape = paths.shape[1:]
+    for u, p in enumerate(users.tolist()):
+        rows = children[bounds[u]:bounds[u + 1]]
+        delta = change[rows]
+        step = (paths[p] @ delta.T[None]).transpose(2, 0, 1)                 # (c, n, 6) Euler
+        start[rows] += step
+        if k < 2:
+            continue
+        c = (delta / scale) @ weights[u].T                                     # (c, k)
+        second = (c @ (flat[near[u]] - flat[p])).reshape((rows.size,) + shape)
+        curvature = 0.5 * (second @ delta[:, None, :, None])[..., 0]
+        trusted = (np.max(np.abs(curvature).reshape(rows.size, -1), 1)
+                   <= np.max(np.abs(step).reshape(rows.size, -1), 1))
+        start[rows[trusted]] += curvature[trusted]
+    return start
+
+
+def _solve_generations(model, actuations: np.ndarray, plan: SolveOrder, coordinates: np.ndarray, tolerance,
+                       executor, chunk: int, progress) -> _Solved:
     """Solve the samples generation by generation (:func:`generations`): each generation in
     batches (parts of at most ``chunk`` samples, spread over the executor's workers), every
     sample from the Euler prediction off its parent's equilibrium (the path tangents of a
@@ -442,6 +501,8 @@ def _solve_generations(model, actuations: np.ndarray, plan: SolveOrder, toleranc
     n = len(actuations)
     n_links = model.trunk.links.count
     depth = generations(plan)
+    scale = np.ptp(actuations, 0)
+    scale = np.where(scale > 0.0, scale, 1.0)              # the actuators' spread (units of the secants)
     positions = np.full((n, len(model.effector_names), 3), np.nan)
     converged, warm, predicted = np.zeros(n, bool), np.zeros(n, bool), np.zeros(n, bool)
     iterations = np.zeros(n, int)
@@ -465,17 +526,11 @@ def _solve_generations(model, actuations: np.ndarray, plan: SolveOrder, toleranc
         if from_parent.size:
             up = np.unique(mine[from_parent])
             strains = np.stack([kept[p] for p in up.tolist()])
-            paths, has = path_tangents(model, strains, actuations[up])
+            paths, has = strain_paths(model, strains, actuations[up])       # dξ/dλ of every parent
             which = np.searchsorted(up, mine[from_parent])
-            start[from_parent] = strains[which]
             move = has[which]
-            if move.any():
-                at, of = from_parent[move], which[move]
-                size = chunk_size(model.trunk)          # (the children's copies of their parents' paths, a chunk at a time)
-                for k in range(0, at.size, size):
-                    rows, parent = at[k:k + size], of[k:k + size]
-                    start[rows] = predicted_strains(model, strains[parent], paths[parent],
-                                                    actuations[wave[rows]] - actuations[mine[rows]])
+            start[from_parent] = predicted_starts(strains, paths, has, actuations[up], coordinates[up], scale,
+                                                  which, actuations[wave[from_parent]] - actuations[mine[from_parent]])
             warm[wave[from_parent]] = True
             predicted[wave[from_parent[move]]] = True
         size = max(1, min(chunk, -(-wave.size // max(1, executor.workers))))
@@ -550,7 +605,8 @@ def sample_workspace(model, n_samples: int = 1000, *, method: str = "sobol", see
             raise OptionError(f"actuations must be (n, {len(model.actuator_names)}), got {actuations.shape}",
                               field="actuations")
     n = len(actuations)
-    plan = ORDERINGS[ordering](response_coordinates(model, actuations))
+    coordinates = response_coordinates(model, actuations)
+    plan = ORDERINGS[ordering](coordinates)
     order_s = time.perf_counter() - wall
     if executor == "dask":
         pool = _Dask(model, workers, scheduler)
@@ -559,7 +615,7 @@ def sample_workspace(model, n_samples: int = 1000, *, method: str = "sobol", see
     else:
         pool = _InProcess(model)
     with pool:
-        pieces = [_solve_generations(model, actuations, plan, tolerance, pool, chunk, progress)]
+        pieces = [_solve_generations(model, actuations, plan, coordinates, tolerance, pool, chunk, progress)]
 
     per_sample = {"positions": np.full((n, len(model.effector_names), 3), np.nan),
                   "converged": np.zeros(n, bool), "iterations": np.zeros(n, int),

@@ -234,3 +234,43 @@ def test_workspace_command_prepares_design_segments(tmp_path, capsys):
     assert catalogue.exists() and "1 designed" in captured.err
     document = json.loads(captured.out)
     assert document["converged"] == 6 and document["effectors"]["tip"]["upper"][0] > 0   # pushed towards +x
+
+
+def test_strain_paths_are_the_path_tangents_in_strain_space(robot):
+    from vertebra.solver.batch import path_tangents, predicted_strains, strain_paths
+
+    actuations = sample_actuations(robot, 6, seed=4)
+    batch = robot.solve_batch(actuations)
+    paths, has = path_tangents(robot, batch.strains, actuations)
+    xi_paths, xi_has = strain_paths(robot, batch.strains, actuations)
+    assert has.all() and xi_has.all()
+    change = np.random.default_rng(0).normal(0.0, 0.1, actuations.shape)
+    # ξ + dξ/dλ Δλ is the Euler predictor q ⊕ K⁻¹B Δλ taken in strain space
+    euler = predicted_strains(robot, batch.strains, paths, change)
+    assert np.abs(batch.strains + (xi_paths @ change[:, None, :, None])[..., 0] - euler).max() <= 1e-14
+
+
+def test_the_second_order_predictor_starts_nearer_than_the_euler_predictor():
+    # parents spread over the box, children near them: the curvature term estimated from the
+    # neighbours' path tangents brings the starts nearer the children's equilibria than the
+    # Euler predictor ξ_p + ξ'_p Δλ alone (an error of order Δλ² against one of order Δλ³)
+    from vertebra.solver.batch import strain_paths
+    from vertebra.solver.workspace import predicted_starts
+
+    model = solver.build_model(solver.load_scene("gallery:paper_5v_16t"))
+    actuations = sample_actuations(model, 160, seed=1)
+    parents, children = np.arange(0, 160, 4), np.setdiff1d(np.arange(160), np.arange(0, 160, 4))
+    coordinates = response_coordinates(model, actuations)
+    near = np.argmin(((coordinates[children, None] - coordinates[None, parents]) ** 2).sum(2), 1)
+    solved = model.solve_batch(actuations[parents])
+    truth = model.solve_batch(actuations[children])
+    assert solved.converged.all() and truth.converged.all()
+    paths, has = strain_paths(model, solved.strains, actuations[parents])
+    change = actuations[children] - actuations[parents[near]]
+    second = predicted_starts(solved.strains, paths, has, actuations[parents], coordinates[parents],
+                              np.ptp(actuations, 0), near, change)
+    euler = solved.strains[near] + (paths[near] @ change[:, None, :, None])[..., 0]
+    error = {name: np.abs(start - truth.strains).reshape(len(children), -1).max(1)
+             for name, start in (("euler", euler), ("second", second))}
+    assert np.median(error["second"] / error["euler"]) < 0.5
+    assert np.mean(error["second"] < error["euler"]) > 0.8
