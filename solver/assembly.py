@@ -209,8 +209,7 @@ class BandAssembler:
         entries one gather puts in band order."""
         nb = self.n_blocks
         B = links.size // (nb * 144)
-        flat = np.zeros((B, self._per_band + 1))            # the lower block band, then a zero
-        S = flat[:, :-1].reshape((B,) + self.block_shape)
+        S = np.zeros((B,) + self.block_shape)               # the lower block band
         H = links.reshape(B, nb, 2, 6, 2, 6)                # link k joins blocks k − 1 (a) and k (b)
         S[:, :, 0] += H[:, :, 1, :, 1, :]
         S[:, :-1, 0] += H[:, 1:, 0, :, 0, :]
@@ -227,14 +226,15 @@ class BandAssembler:
             S[:, :, 0, 3:, 3:] += weight
         diagonal = S[:, :, 0]
         S[:, :, 0] = diagonal + diagonal.mT
-        bands = flat.take(self._band_of_blocks(), axis=1).reshape(B, self.n, self.kd + 1)
+        bands = S.reshape(B, -1)[:, self._band_of_blocks()].reshape(B, self.n, self.kd + 1)
         bands *= 0.5
         return bands
 
     def _band_of_blocks(self) -> np.ndarray:
         """(n · (kd + 1),): for every entry ``[j, d]`` of a transposed lower band, its place in a
-        lower block band flattened with a trailing zero (the zero where the entry lies outside the
-        block band or the matrix)."""
+        flattened lower block band; an entry outside the block band or the matrix takes the block
+        band's last entry, ``[n_blocks − 1, span, 5, 5]``, which lies outside the matrix (no term
+        is added there: it stays zero)."""
         if self._band_index is None:
             nb, span, kd = self.n_blocks, self.span, self.kd
             j, d = np.meshgrid(np.arange(self.n), np.arange(kd + 1), indexing="ij")
@@ -242,7 +242,7 @@ class BandAssembler:
             J, s = j // 6, i // 6 - j // 6
             inside = (i < self.n) & (s <= span)
             self._band_index = np.where(inside, self._flat(0, J, np.minimum(s, span), i % 6, j % 6),
-                                        self._per_band).ravel()
+                                        self._per_band - 1).ravel()
         return self._band_index
 
     def _pair_offsets(self) -> list:
