@@ -528,19 +528,34 @@ def _strain_change(links: Links, dq: np.ndarray) -> np.ndarray:
     return links.strain_change(np.concatenate([np.zeros((B, 1, 6)), dq.reshape(B, -1, 6)], 1)).reshape(B, -1, 6)
 
 
-def _join(parts: list, counts: list):
-    """The batch quantities ``parts`` (of ``counts`` samples each) side by side, in order."""
+def _join(parts: list, counts: list, rows: list | None = None):
+    """The batch quantities ``parts`` (of ``counts`` samples each) side by side, in order; with
+    ``rows``, of each part only its samples ``rows[i]`` (None: all). One copy of each array (none
+    for one part taken whole); an evaluation's load cases are left out (None)."""
+    rows = rows or [None] * len(parts)
     first = parts[0]
     if first is None or isinstance(first, (float, int)):
         return first
     if isinstance(first, np.ndarray):
         if first.ndim == 0:
             return first
-        return np.concatenate([p.reshape((c, -1) + p.shape[1:]) for p, c in zip(parts, counts)]) \
-            .reshape((-1,) + first.shape[1:])
+        if len(parts) == 1 and rows[0] is None:
+            return first
+        views = [p.reshape((c, -1) + p.shape[1:]) for p, c in zip(parts, counts)]
+        sizes = [c if r is None else len(r) for c, r in zip(counts, rows)]
+        out = np.empty((sum(sizes),) + views[0].shape[1:])
+        at = 0
+        for view, r, k in zip(views, rows, sizes):
+            if r is None:
+                out[at:at + k] = view
+            else:
+                np.take(view, r, axis=0, out=out[at:at + k], mode="clip")
+            at += k
+        return out.reshape((-1,) + first.shape[1:])
     if isinstance(first, tuple):
-        return tuple(_join([p[i] for p in parts], counts) for i in range(len(first)))
-    return type(first)(**{f: _join([getattr(p, f) for p in parts], counts) for f in first.__dataclass_fields__})
+        return tuple(_join([p[i] for p in parts], counts, rows) for i in range(len(first)))
+    return type(first)(**{f: None if f == "load" else _join([getattr(p, f) for p in parts], counts, rows)
+                          for f in first.__dataclass_fields__})
 
 
 class _Run:
@@ -795,10 +810,8 @@ class _Run:
         # the accepted trials (local rows, states, evaluation, residual) side by side, in the order
         # they were accepted (the working set needs no particular order: no sorting copy)
         order = np.concatenate([t[0] for t in accepted])
-        if len(accepted) == 1:
-            new_states, new_ev, new_residual = accepted[0][1:]
-        else:
-            new_states, new_ev, new_residual = _join([t[1:] for t in accepted], [len(t[0]) for t in accepted])
+        new_states, new_ev, new_residual = _join([t[1:4] for t in accepted], [t[5] for t in accepted],
+                                                 [t[4] for t in accepted])
         return order, new_states, new_ev, new_residual, cholesky
 
     def bend(self, rows, r, factor, shift, scale, links, pieces):
@@ -835,7 +848,7 @@ class _Run:
                     alpha, rp, curvature):
         """The backtracking line search (:func:`vertebra.solver.globalise.line_search`) of the samples
         ``good`` (local rows of ``ev``): returns (found, quality, [(local rows, states, evaluation,
-        residual), …] of the accepted trials)."""
+        residual, the accepted among them (None: all), their count), …] of the trials)."""
         trunk, context = self.trunk, self.context
         B = len(rows)
         energy = ev.energy[good]
@@ -873,8 +886,8 @@ class _Run:
             if accept.any():
                 at = np.flatnonzero(accept)
                 found[searching[at]] = True
-                trials.append((where[at], trial.take(at) if at.size < where.size else trial,
-                               _subset(trial_ev, at, where.size, None), trial_residual[at]))
+                trials.append((where[at], trial, trial_ev, trial_residual, at if at.size < where.size else None,
+                               where.size))
             alpha[searching] = a * 0.5
             searching = searching[~accept]
             searching = searching[alpha[searching] >= SEARCH_FLOOR]
