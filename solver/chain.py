@@ -3,7 +3,8 @@
 Each transform is packed as ``diag(L(q), [[R, p], [0, 1]])`` (8×8; ``L(q)`` multiplies
 quaternions, so the product carries the quaternion along with the homogeneous transform) and
 the prefix products are taken by doubling for short chains (log₂N batched products) and in √N
-blocks for long ones (O(N) work in about 2√N products).
+blocks for long ones (O(N) work in about 2√N products). A batch of chains composes its
+quaternions link after link over the batch (:func:`_batch`).
 """
 
 from __future__ import annotations
@@ -93,33 +94,19 @@ def chain_poses(q0: np.ndarray, x0: np.ndarray, xi: np.ndarray) -> Chain:
             link_coef = coef[:, :31]
     else:
         expc = exp_coefficients(theta2)
-    doubling = N <= 64 or bool(lead)
+    if lead:
+        return _batch(q0, x0, expc, phi, rho, lead, n, link_coef, largest, theta2)
+    doubling = N <= 64
     c = 1 if doubling else math.isqrt(N - 1) + 1
     m = N if doubling else -(-N // c)
-    template = _feature_template(m * c)
-    if lead:
-        F = np.empty(lead + template.shape)
-        F[...] = template
-    else:
-        F = template.copy()                             # features [q, q⊗q, p, 1] of each factor
-    F[..., 0, :4], F[..., 0, 20:23] = q0, x0
-    F[..., 1:N, 0] = expc[:, 0].reshape(lead + (n,))
-    F[..., 1:N, 1:4] = (expc[:, 1:2] * phi).reshape(lead + (n, 3))
-    F[..., 1:N, 20:23] = exp_translation(expc, phi, rho).reshape(lead + (n, 3))
-    quats = F[..., :N, :4]
-    F[..., :N, 4:20] = (quats[..., :, None] * quats[..., None, :]).reshape(lead + (N, 16))
-    if lead:
-        # a batch: the factors built block by block (no table product) and their prefix products
-        # taken one link after the other, each a product over the whole batch (N − 1 products
-        # instead of N log₂N: the batch, not the chain, fills the arrays)
-        M = np.zeros(lead + (N, 8, 8))
-        M[..., :4, :4] = (quats @ L_TABLE).reshape(lead + (N, 4, 4))
-        M[..., 4:7, 4:7] = (F[..., 4:20] @ R_TABLE).reshape(lead + (N, 3, 3))
-        M[..., 4:7, 7] = F[..., 20:23]
-        M[..., 7, 7] = 1.0
-        for k in range(1, N):
-            M[..., k, :, :] = M[..., k - 1, :, :] @ M[..., k, :, :]
-    elif doubling:           # (one chain: plain indexing, cheaper than an ellipsis)
+    F = _feature_template(m * c).copy()                 # features [q, q⊗q, p, 1] of each factor
+    F[0, :4], F[0, 20:23] = q0, x0
+    F[1:N, 0] = expc[:, 0]
+    F[1:N, 1:4] = expc[:, 1:2] * phi
+    F[1:N, 20:23] = exp_translation(expc, phi, rho)
+    quats = F[:N, :4]
+    F[:N, 4:20] = (quats[:, :, None] * quats[:, None, :]).reshape(N, 16)
+    if doubling:
         M = F.dot(_POSE_TABLE).reshape(N, 8, 8)
         shift = 1
         while shift < N:
@@ -134,7 +121,33 @@ def chain_poses(q0: np.ndarray, x0: np.ndarray, xi: np.ndarray) -> Chain:
         M = M.reshape(m * c, 8, 8)[:N]
     quaternions = M[..., :4, 0]
     quaternions = quaternions / np.sqrt(quaternions[..., None, :] @ quaternions[..., :, None])[..., 0]
-    chain = Chain(quaternions, M[..., 4:7, 7].copy(), M[..., 4:7, 4:7], F[..., 1:N, 20:23], link_coef, largest)
-    if lead:
-        chain.largest_turns2 = np.maximum.reduce(theta2.reshape(lead + (n,)), -1) if n else np.zeros(lead)
+    return Chain(quaternions, M[..., 4:7, 7].copy(), M[..., 4:7, 4:7], F[..., 1:N, 20:23], link_coef, largest)
+
+
+def _batch(q0, x0, expc, phi, rho, lead, n, link_coef, largest, theta2) -> Chain:
+    """The poses of a batch of chains (:func:`chain_poses` with leading batch axes ``lead``): the
+    quaternions composed one link after the other, each step one product of the batch's 4×4
+    quaternion-product matrices ``L(q_{k−1})`` with the links' exponentials ``q_k = q_{k−1} ⊗ e_k``
+    (the batch, not the chain, fills the arrays); then every frame's rotation matrix in one table
+    product, and the positions as running sums ``x_k = x_{k−1} + R_{k−1} t_k`` of the links'
+    translations turned into the world."""
+    N = n + 1
+    count = int(np.prod(lead)) if lead else 1
+    e = np.empty((count, n, 4))
+    e[:, :, 0] = expc[:, 0].reshape(count, n)
+    e[:, :, 1:] = (expc[:, 1:2] * phi).reshape(count, n, 3)
+    t = exp_translation(expc, phi, rho).reshape(count, n, 3)
+    q = np.empty((count, N, 4))
+    q[:, 0] = q0
+    for k in range(n):
+        np.matmul(q[:, k].dot(L_TABLE).reshape(count, 4, 4), e[:, k, :, None], out=q[:, k + 1, :, None])
+    q /= np.sqrt(q[:, :, None, :] @ q[:, :, :, None])[..., 0]
+    R = (q[:, :, :, None] * q[:, :, None, :]).reshape(count * N, 16).dot(R_TABLE).reshape(count, N, 3, 3)
+    x = np.empty((count, N, 3))
+    x[:, 0] = x0
+    np.matmul(R[:, :-1], t[:, :, :, None], out=x[:, 1:, :, None])
+    np.cumsum(x, axis=1, out=x)
+    chain = Chain(q.reshape(lead + (N, 4)), x.reshape(lead + (N, 3)), R.reshape(lead + (N, 3, 3)),
+                  t.reshape(lead + (n, 3)), link_coef, largest)
+    chain.largest_turns2 = np.maximum.reduce(theta2.reshape(lead + (n,)), -1) if n else np.zeros(lead)
     return chain
