@@ -35,7 +35,7 @@ import numpy as np
 
 from vertebra.solver import bounds, newton
 from vertebra.solver.banded import factor_cholesky_batch
-from vertebra.solver.cables import CablePieces, scatter_rows
+from vertebra.solver.cables import CablePieces
 from vertebra.solver.chain import CARRY_ANGLE, chain_poses
 from vertebra.solver.globalise import ARMIJO, NEUTRAL, ROUNDING, SEARCH_FLOOR
 from vertebra.solver.links import Links, link_tangent
@@ -196,6 +196,18 @@ class _Context:
             self._kept[key] = (value, count)
         return value[:len(value) // count * B]
 
+    def piece_ends(self):
+        """(2m·6, N·6) sparse incidence summing the piece ends' forces (rows ``a₀ b₀ a₁ b₁ …`` of
+        :attr:`CableRouting.ends`, six each) into their frames' (one sparse product per batch)."""
+        if "ends" not in self._kept:
+            from scipy.sparse import csr_array
+
+            cables = self.trunk.cables
+            rows = np.arange(cables.ends.size * 6)
+            self._kept["ends"] = csr_array((np.ones(rows.size), (rows, cables.frame_targets)),
+                                           shape=(rows.size, self.trunk.frames.count * 6))
+        return self._kept["ends"]
+
     def groups(self, B):
         """Each sample's groups of pieces (``CablePieces.tangent``), offset to its rows; B·m: none."""
         groups, m = self.trunk.assembler.cable_groups, self.trunk.cables.piece_a.size
@@ -290,8 +302,7 @@ def evaluate(context: _Context, states: States, load: Loads, geometry: Geometry 
             piece_tension = tendon_pieces if piece_tension is None else tendon_pieces + piece_tension
         pieces = CablePieces.of_spans(offsets, d, length) if geometry is None else geometry.pieces
         forces = (piece_tension.reshape(-1)[:, None] * pieces.unit).reshape(B, 2 * m, 6)
-        grad += scatter_rows(cables.ends, forces.transpose(1, 0, 2).reshape(2 * m, -1),
-                             trunk.frames.count).reshape(-1, B, 6).transpose(1, 0, 2)
+        grad += (forces.reshape(B, -1) @ context.piece_ends()).reshape(B, -1, 6)
     if load.weight is not None:
         lever = (R @ trunk.frames.moment[:, :, None])[..., 0]
         energy = energy - np.add.reduce((trunk.frames.mass @ x + np.add.reduce(lever, 1)) * load.weight, 1)
