@@ -78,7 +78,7 @@ class TrunkModel:
     link_rest = _forward("links", "rest", "rest strains ξ₀ of the links (n_links, 6)")
     n_cables = _forward("actuators", "n_cables", "cables (the first actuators)")
     n_chambers = _forward("actuators", "n_chambers", "chambers (the actuators after the cables)")
-    n_tendons = property(lambda self: int(self.trunk.actuators.stroke_driven.sum()),
+    n_tendons = property(lambda self: self.trunk.actuators.tendons.size,
                          doc="stroke-driven cables (tendons whose value is a servo stroke)")
     actuator_names = property(lambda self: list(self.trunk.actuators.names), doc="cable then chamber names")
     default_actuation = _forward("actuators", "default", "the scene's tensions and pressures")

@@ -243,12 +243,19 @@ class DaqpBackend:
             lower = np.concatenate([form.lower, form.row_lower])
         else:
             A, upper, lower = _writeable(form.G), _writeable(form.upper), _writeable(form.lower)
+        sense = _SENSES.get(upper.size)
+        if sense is None:
+            sense = _SENSES[upper.size] = np.zeros(upper.size, dtype=np.int32)
         x, _f, flag, info = daqp.solve(
-            _writeable(form.P), _writeable(form.q), A, upper, lower, np.zeros(upper.size, dtype=np.int32),
+            _writeable(form.P), _writeable(form.q), A, upper, lower, sense,
             iter_limit=max_iterations, primal_start=_writeable(start), eps_prox=0.0)
-        ok = flag in (1, 2)
-        lam = np.asarray(x, dtype=float) if ok else start.copy()
-        return BackendOutput(lam, int(info.get("iterations", 0)), ok, _DAQP_STATUS.get(flag) or f"daqp exitflag {flag}")
+        if flag == 1 or flag == 2:
+            return BackendOutput(x, info["iterations"], True, "optimal")
+        return BackendOutput(start.copy(), int(info.get("iterations", 0)), False,
+                             _DAQP_STATUS.get(flag) or f"daqp exitflag {flag}")
+
+
+_SENSES: dict = {}  # size -> the zeros (every constraint an inequality) passed as DAQP's ``sense`` (read, never written)
 
 
 _DAQP_STATUS = {1: "optimal", 2: "optimal", -1: "infeasible", -2: "cycling", -3: "unbounded",

@@ -727,12 +727,13 @@ class InverseController:
 
     def _targets(self, targets) -> np.ndarray:
         """``targets`` as a finite (n_eff, 3) float array (:class:`OptionError` naming what is wrong)."""
-        names = self.model.effector_names
+        names = self.model.trunk.effectors.names
         t = np.asarray(targets, dtype=float)
         if t.size != 3 * len(names):
             raise OptionError(f"must hold {len(names)}×3 values (effectors {', '.join(names)}), "
                               f"got shape {t.shape}", field="targets")
-        t = t.reshape(len(names), 3)
+        if t.ndim != 2 or t.shape[1] != 3:
+            t = t.reshape(len(names), 3)
         flat = t.reshape(-1)
         if not math.isfinite(flat.dot(flat)) and not np.isfinite(t).all():  # (a dot that overflows: finite)
             bad = [names[k] for k in np.flatnonzero(~np.isfinite(t).all(axis=1))]

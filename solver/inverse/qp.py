@@ -140,8 +140,8 @@ def quadratic_form(problem: ConstraintProblem, displacement_bounds=None, *, scal
     if scaled:
         root = np.sqrt(diagonal)
         scale = 1.0 / root
-        P *= scale[:, None] * scale  # P is this function's own array
-        q = q * scale
+        P *= scale[:, None] * scale  # P and q are this function's own arrays
+        q *= scale
         lower, upper = lower * root, upper * root
         if rows.size:
             G, row_lower, row_upper = _unit_rows(G * scale, row_lower, row_upper)

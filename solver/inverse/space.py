@@ -147,9 +147,8 @@ class ConstraintSpace:
         X = lin.solve(rhs, overwrite=True)
         JeX = Je.dot(X)
         JaX = Ja.dot(X)
-        W_ea, W_aa = JeX[:, 1:], JaX[:, 1:]
-        problem, _ = self._problem(lin, W_ea, JeX[:, 0], W_aa, JaX[:, 0], JeX, JaX, targets, actuation, box,
-                                   damping)
+        problem = self._problem(lin, JeX[:, 1:], JeX[:, 0], JaX[:, 1:], JaX[:, 0], JeX, JaX, targets, actuation, box,
+                                damping)
         return Projection(problem, JeX[:, 0].copy(), X[:, 0], X[:, 1:], lin)
 
     def _project_halves(self, lin, factor, scale, targets, actuation, box, damping) -> "Projection | None":
@@ -162,32 +161,33 @@ class ConstraintSpace:
         rhs[:, -1] = lin.residual
         Z = factor.forward(rhs, overwrite=True)
         products = Z[:, :-1].T.dot(Z)                    # [Ja; Je] K⁻¹ [Jaᵀ, Jeᵀ, r]
-        products[:, :n_act] *= scale
-        JaX, JeX = products[:n_act], products[n_act:]
-        problem, finite = self._problem(lin, JeX[:, :n_act], JeX[:, -1], JaX[:, :n_act], JaX[:, -1], JeX, JaX,
-                                        targets, actuation, box, damping, strict=False)
-        if not finite:
+        products[:, :n_act] *= scale                     # [Ja; Je] K⁻¹ [B, r] = [W_aa, Ja K⁻¹r; W_ea, Je K⁻¹r]
+        # the free gaps, actuators' rows then effectors': [a; e − target] + [Ja; Je] K⁻¹r − [W_aa; W_ea] λ0
+        free = np.concatenate((lin.actuator_displacements, (lin.effector_positions - targets).reshape(-1)))
+        free += products[:, -1]
+        W = products[:, :n_act]
+        free -= W.dot(actuation)
+        # finite unless a value is not (or the sum overflows): one sum over everything projected
+        if not math.isfinite(float(np.add.reduce(products, None)) + float(free.dot(free))):
             return None
-        return Projection(problem, JeX[:, -1].copy(), Z[:, -1], Z[:, :n_act] * scale, lin, (factor, Z[:, n_act:-1]))
+        problem = ConstraintProblem.projected(self, W[n_act:], free[n_act:], W[:n_act], free[:n_act], actuation, box,
+                                              damping, stacked=(W, free, n_act))
+        return Projection(problem, products[n_act:, -1], Z[:, -1], Z[:, :n_act] * scale, lin, (factor, Z[:, n_act:-1]))
 
-    def _problem(self, lin, W_ea, JeKr, W_aa, JaKr, JeX, JaX, targets, actuation, box, damping, strict=True):
-        """The :class:`ConstraintProblem` of a projection and whether it is finite (one sum over
-        everything projected: finite unless a value is not, or the sum overflows, when the
-        constructor's own check looks at each array); None when not and not ``strict``."""
+    def _problem(self, lin, W_ea, JeKr, W_aa, JaKr, JeX, JaX, targets, actuation, box, damping) -> "ConstraintProblem":
+        """The :class:`ConstraintProblem` of a projection by ``K⁻¹[r, B]``, checked finite by one sum
+        over everything projected (when that is not finite, or overflows, the constructor's own
+        check looks at each array and names the one that is not)."""
         # e − target + Je K⁻¹r − W_ea λ0 and a + Ja K⁻¹r − W_aa λ0
         delta_e_free = (lin.effector_positions - targets).reshape(-1)
         delta_e_free += JeKr
         delta_e_free -= W_ea.dot(actuation)
         delta_a_free = lin.actuator_displacements + JaKr
         delta_a_free -= W_aa.dot(actuation)
-        finite = math.isfinite(float(JeX.sum()) + float(JaX.sum()) + float(delta_e_free.dot(delta_e_free)) +
-                               float(delta_a_free.dot(delta_a_free)))
-        if finite:
-            return ConstraintProblem.projected(self, W_ea, delta_e_free, W_aa, delta_a_free, actuation, box,
-                                               damping), True
-        if not strict:
-            return None, False
-        return ConstraintProblem(self, W_ea, delta_e_free, W_aa, delta_a_free, actuation, box, damping), False
+        if math.isfinite(float(JeX.sum()) + float(JaX.sum()) + float(delta_e_free.dot(delta_e_free)) +
+                         float(delta_a_free.dot(delta_a_free))):
+            return ConstraintProblem.projected(self, W_ea, delta_e_free, W_aa, delta_a_free, actuation, box, damping)
+        return ConstraintProblem(self, W_ea, delta_e_free, W_aa, delta_a_free, actuation, box, damping)
 
 
 _ONES: dict = {}  # n -> read-only ones(n), for row sums
@@ -285,15 +285,16 @@ class ConstraintProblem:
 
     @classmethod
     def projected(cls, space: ConstraintSpace, W_ea, delta_e_free, W_aa, delta_a_free, lambda0, box=None,
-                  damping: float = 0.0) -> "ConstraintProblem":
+                  damping: float = 0.0, stacked: tuple | None = None) -> "ConstraintProblem":
         """The problem of :meth:`ConstraintSpace.project`, whose arrays have the space's shapes by
         construction and have been checked finite there: stored as they are, without the
-        constructor's conversions (``box`` is checked as there)."""
+        constructor's conversions (``box`` is checked as there). ``stacked``: ``([W_aa; W_ea],
+        [δa_free; δe_free], n_actuators)`` when the arrays are those rows of two stacked ones, so
+        that :meth:`predict` takes one product."""
         problem = object.__new__(cls)
-        for key, value in (("space", space), ("W_ea", W_ea), ("delta_e_free", delta_e_free), ("W_aa", W_aa),
-                           ("delta_a_free", delta_a_free), ("lambda0", lambda0),
-                           ("box", None if box is None else _box(box, space.n_actuators)), ("damping", damping)):
-            object.__setattr__(problem, key, value)
+        problem.__dict__.update(space=space, W_ea=W_ea, delta_e_free=delta_e_free, W_aa=W_aa, delta_a_free=delta_a_free,
+                                lambda0=lambda0, box=None if box is None else _box(box, space.n_actuators),
+                                damping=damping, _stacked=stacked)
         return problem
 
     @property
@@ -321,6 +322,11 @@ class ConstraintProblem:
 
     def predict(self, lam: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """Linearised effector gaps ``δe(λ)`` and actuator displacements ``δa(λ)`` (None without ``W_aa``)."""
+        stacked = self.__dict__.get("_stacked")        # (a projection's: its rows of two stacked arrays)
+        if stacked is not None:
+            W, free, n = stacked
+            both = free + W.dot(lam)
+            return both[n:], both[:n]
         de = self.delta_e_free + self.W_ea.dot(lam)
         da = None if self.W_aa is None else self.delta_a_free + self.W_aa.dot(lam)
         return de, da
