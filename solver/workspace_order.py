@@ -136,14 +136,14 @@ def order_tree(coordinates: np.ndarray) -> SolveOrder:
     return SolveOrder(np.concatenate(order), parent)
 
 
-LEVELS = (64, 8)         # the "levels" order: every 64th sample from rest, then every 8th, then the others
+LEVELS = (512, 64, 8)    # the "levels" order: every 512th sample from rest, then every 64th, every 8th, the others
 
 
 def order_levels(coordinates: np.ndarray) -> SolveOrder:
-    """Coarse to fine, for solving in batches: every 64th sample (of a low-discrepancy sequence:
-    spread over the box) starts from rest; every other 8th sample from the nearest of those;
-    every other sample from the nearest of all these (k-d tree queries). Three generations,
-    each one batch of independent solves."""
+    """Coarse to fine, for solving in batches: every 512th sample (of a low-discrepancy sequence:
+    spread over the box) starts from rest; every other 64th sample from the nearest of those;
+    every other 8th from the nearest of all these, and every other sample from the nearest of
+    all (k-d tree queries). Up to four generations, each one batch of independent solves."""
     from scipy.spatial import cKDTree
 
     n = len(coordinates)

@@ -128,13 +128,13 @@ def test_dask_executor_gives_the_same_clouds(robot):
 def test_generations_solve_each_sample_after_its_parent(robot):
     from vertebra.solver.workspace_order import generations
 
-    coordinates = response_coordinates(robot, sample_actuations(robot, 300))
-    levels = ORDERINGS["levels"](coordinates)
-    depth = generations(levels)
-    # every 64th from rest; every 8th from those; the others from the nearest of both (a sample whose
-    # nearest is one of the first starts in the second generation)
-    assert np.flatnonzero(depth == 0).tolist() == list(range(0, 300, 64)) and depth.max() == 2
-    assert np.all(depth[np.arange(0, 300, 8)] <= 1)
+    # every 512th from rest; every 64th from those; every 8th from the nearest of both; the others
+    # from the nearest of all (a sample whose nearest is an earlier start is in an earlier generation)
+    coordinates = response_coordinates(robot, sample_actuations(robot, 1100))
+    depth = generations(ORDERINGS["levels"](coordinates))
+    assert np.flatnonzero(depth == 0).tolist() == [0, 512, 1024] and depth.max() == 3
+    assert np.all(depth[np.arange(0, 1100, 64)] <= 1) and np.all(depth[np.arange(0, 1100, 8)] <= 2)
+    assert np.count_nonzero(depth == 3) > 500
     tree = ORDERINGS["tree"](coordinates)
     depth = generations(tree)
     has = tree.parent >= 0
