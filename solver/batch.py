@@ -172,6 +172,7 @@ class _Context:
         self.trunk = trunk
         self._kept = {}
         self._rest = None
+        self._rest_tiled, self._rest_count = None, 0
 
     def rest(self, B):
         """The rest state of B samples and its :class:`Geometry`, composed once and repeated
@@ -184,9 +185,13 @@ class _Context:
                 spans = trunk.cables.spans(states.positions, states.rotations)
                 pieces = CablePieces.of_spans(*spans)
             self._rest = states, Geometry(_links(states), spans, pieces)
-        states, geometry = self._rest
-        rows = np.zeros(B, int)
-        return states.take(rows), _take(geometry, rows, 1)
+        count = self._rest_count
+        if count < B:                  # repeated for the largest batch asked; a smaller one takes views of it
+            states, geometry = self._rest
+            rows = np.zeros(B, int)
+            self._rest_tiled, self._rest_count = (states.take(rows), _take(geometry, rows, 1)), B
+            count = B
+        return _first(self._rest_tiled, B, count)
 
     def _rows(self, key, B, make):
         """The first rows, for B samples, of what ``make(count)`` builds for ``count`` samples."""
@@ -478,6 +483,18 @@ def _take(value, rows: np.ndarray, count: int):
     if isinstance(value, tuple):
         return tuple(_take(v, rows, count) for v in value)
     return type(value)(**{f: _take(getattr(value, f), rows, count) for f in value.__dataclass_fields__})
+
+
+def _first(value, B: int, count: int):
+    """The first ``B`` samples of a batch quantity of ``count`` samples (:func:`_take`'s kinds of
+    quantities), as views."""
+    if value is None or isinstance(value, (float, int)):
+        return value
+    if isinstance(value, np.ndarray):
+        return value if value.ndim == 0 else value[:len(value) // count * B]
+    if isinstance(value, tuple):
+        return tuple(_first(v, B, count) for v in value)
+    return type(value)(**{f: _first(getattr(value, f), B, count) for f in value.__dataclass_fields__})
 
 
 def _put(target, rows: np.ndarray, count: int, source) -> None:
