@@ -414,13 +414,20 @@ def tangent(context: _Context, ev: Evaluation) -> Tangent:
     """The symmetric tangent of every sample (the terms of :func:`vertebra.solver.potential.tangent`).
     The samples are taken in blocks of about :data:`TANGENT_BLOCK_LINKS` links: a block's link and
     cable tangents and its band assembly (a dozen arrays of 12×12 and 6×6 blocks per link) stay in
-    the processor's cache between the steps, where the whole batch's would not."""
+    the processor's cache between the steps, where the whole batch's would not. A block of samples
+    at the unstressed rest state (their strains the rest strains, no link force, no pressure) takes
+    the links' tangent there, a model constant (``trunk.rest.link_tangent``), as the single solve
+    does."""
     trunk = context.trunk
     assembler = trunk.assembler
     B = ev.gradient.shape[0]
     n = trunk.links.count
     material = _material(context, ev, B)
     w = ev.w.reshape(-1, 6)
+    rest = ~np.any(ev.w.reshape(B, -1), 1)
+    if rest.any():
+        rest &= np.all(ev.links.xi.reshape(B, -1) == trunk.rest_state.strains.xi.reshape(-1), 1)
+        rest &= ~np.any(ev.load.pressures, 1)
     tension = None if ev.pieces is None else ev.piece_tension.reshape(-1)
     weight = None
     if trunk.loads.has_gravity:
@@ -429,8 +436,11 @@ def tangent(context: _Context, ev: Evaluation) -> Tangent:
     bands = np.empty((B, assembler.n, assembler.kd + 1))
     for start in range(0, B, size):
         stop = min(B, start + size)
-        links = link_tangent(_rows(ev.links, start, stop, B), w[start * n:stop * n],
-                             material[start * n:stop * n], ev.link_gradient[start * n:stop * n])
+        if rest[start:stop].all():
+            links = np.broadcast_to(trunk.rest.link_tangent, (stop - start,) + trunk.rest.link_tangent.shape)
+        else:
+            links = link_tangent(_rows(ev.links, start, stop, B), w[start * n:stop * n],
+                                 material[start * n:stop * n], ev.link_gradient[start * n:stop * n])
         cables = None
         if ev.pieces is not None:
             m = tension.size // B
