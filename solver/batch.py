@@ -489,7 +489,7 @@ def _take(value, rows: np.ndarray, count: int):
             return value
         if not len(rows):
             return value[:0]
-        return value.reshape((count, -1) + value.shape[1:])[rows].reshape((-1,) + value.shape[1:])
+        return value.reshape((count, -1) + value.shape[1:]).take(rows, 0).reshape((-1,) + value.shape[1:])
     if isinstance(value, tuple):
         return tuple(_take(v, rows, count) for v in value)
     return type(value)(**{f: _take(getattr(value, f), rows, count) for f in value.__dataclass_fields__})
@@ -577,8 +577,8 @@ def _join(parts: list, counts: list, rows: list | None = None):
     if isinstance(first, np.ndarray):
         if first.ndim == 0:
             return first
-        if len(parts) == 1 and rows[0] is None:
-            return first
+        if len(parts) == 1:
+            return first if rows[0] is None else _take(first, rows[0], counts[0])
         views = [p.reshape((c, -1) + p.shape[1:]) for p, c in zip(parts, counts)]
         sizes = [c if r is None else len(r) for c, r in zip(counts, rows)]
         out = np.empty((sum(sizes),) + views[0].shape[1:])
