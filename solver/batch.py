@@ -679,10 +679,10 @@ class _Run:
 
     # -- one load stage --------------------------------------------------------------
     def stage(self, rows: np.ndarray, states: States, load: Loads, tolerance: np.ndarray, budget: np.ndarray,
-              reference: np.ndarray) -> tuple[np.ndarray, States]:
+              reference: np.ndarray, geometry: "Geometry | None" = None) -> tuple[np.ndarray, States]:
         """Newton at a fixed load factor per sample (:func:`vertebra.solver.newton._newton`) for the
-        run's samples ``rows`` from ``states``. Returns which converged (the others are marked
-        for the single solve) and the states reached.
+        run's samples ``rows`` from ``states`` (``geometry``: their kinematics when known). Returns
+        which converged (the others are marked for the single solve) and the states reached.
 
         The samples still iterating are kept compacted: their states and evaluation are the
         working set, taken again only when some finish or leave (no scatter back into the
@@ -693,7 +693,7 @@ class _Run:
         done = np.zeros(k, bool)
         trusted = np.zeros(k, bool)
         taken = np.zeros(k, int)
-        ev = evaluate(context, states, load)
+        ev = evaluate(context, states, load, geometry)
         residual = _norm(ev.gradient, reference, self.weights)
         live = np.isfinite(residual + ev.energy)
         live &= self.represented(rows, states, ev)
@@ -1028,7 +1028,10 @@ def _solve_chunk(context: _Context, actuation: np.ndarray, start: np.ndarray | N
         given = warm & np.all(np.isfinite(start.reshape(B, -1)), 1)
         run.leave(np.flatnonzero(warm & ~given), "a start state given by its poses only")
         xi[given] = start[given]
-    states, carried = compose(trunk, xi)
+    if start is None:                  # every sample from rest: the rest state composed once (a copy: stages write it)
+        states, carried = rest_states.take(np.arange(B)), np.ones(B, bool)
+    else:
+        states, carried = compose(trunk, xi)
     run.leave(np.flatnonzero(~carried), "a start state whose links turn beyond the carried strains")
     scale = np.zeros(B)
     increment = np.where(warm, 1.0, 1.0 / load_steps)
@@ -1043,8 +1046,11 @@ def _solve_chunk(context: _Context, actuation: np.ndarray, start: np.ndarray | N
         budget = np.minimum(max_iterations, BUDGET * max_iterations - run.iterations[rows])
         load = Loads.of(trunk, actuation[rows], target)
         with np.errstate(all="ignore"):
+            geometry = None            # the first stage from rest: the rest state's kinematics, kept
+            if start is None and not stages[rows].any():
+                geometry = rest_geometry if rows.size == B else _take(rest_geometry, rows, B)
             done, reached = run.stage(rows, states.take(rows) if rows.size < B else states, load, tolerances,
-                                      budget, reference[rows] * np.maximum(target, 1e-300))
+                                      budget, reference[rows] * np.maximum(target, 1e-300), geometry)
         stages[rows] += 1
         ok = rows[done]
         states.put(ok, reached.take(np.flatnonzero(done)))
