@@ -55,6 +55,9 @@ def effector_points(trunk, state) -> tuple[np.ndarray, np.ndarray]:
     control tick reports the effectors where the next tick linearises."""
     effectors = trunk.effectors
     f = effectors.frames
+    origins = effectors.at_origins
+    if origins is not None:         # every effector a point at its frame's origin
+        return origins, state.positions.take(f, 0)
     record = state.carried_strains()
     if record is None:
         turned = qrotate(state.quaternions[f], effectors.offsets)
@@ -160,9 +163,12 @@ def linearise(trunk, state, actuation: np.ndarray, loads: LoadCases, previous=No
     # (new C-ordered arrays: their transposes are in the banded solves' order)
     forces = np.negative(jacobian) if n_chambers == 0 and tendons is None else jacobian * scale[:, None]
     free, where, turning = trunk.effectors.free_jacobian
-    Je = free.copy()
     turned, positions = effector_points(trunk, state)
-    Je.put(where, (turned if turning is None else turned[turning]).dot(_NEGATIVE_HAT))    # −[R r]ˣ on dφ
+    if trunk.effectors.at_origins is not None:      # points at their frames' origins: no turning part
+        Je = free
+    else:
+        Je = free.copy()
+        Je.put(where, (turned if turning is None else turned[turning]).dot(_NEGATIVE_HAT))    # −[R r]ˣ on dφ
     return Linearisation(
         residual=-ev.gradient[1:].reshape(-1), factor=factor,
         actuator_forces=forces.T,

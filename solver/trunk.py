@@ -174,6 +174,14 @@ class Effectors(_Frozen):
     translation_jacobian: np.ndarray   # (n, 3, n_frames, 6): the Jacobian's constant translation part
 
     @functools.cached_property
+    def at_origins(self) -> np.ndarray | None:
+        """When every effector is a point at its frame's origin (no offset: ``R r = 0``), the
+        read-only zeros (n, 3) of their turned offsets; else None."""
+        if self.offsets.any():        # (an axis effector's offset is its unit axis)
+            return None
+        return _read_only(np.zeros(self.offsets.shape))
+
+    @functools.cached_property
     def free_jacobian(self) -> tuple:
         """What the linearisation's effector Jacobian (3n, n_dof: the free frames' columns) is made
         of: its constant translation part (read-only), the flat indices (k, 9) in it of the turning
