@@ -111,6 +111,8 @@ class TrunkModel:
         names to values changes those and keeps the scene's value for the others. Unknown names
         or a wrong count are an :class:`OptionError`."""
         default = self.trunk.actuators.default
+        if type(actuation) is np.ndarray and actuation.dtype is default.dtype and actuation.shape == default.shape:
+            return actuation            # (already one float per actuator)
         if actuation is None:
             return default.copy()
         if isinstance(actuation, Mapping):
