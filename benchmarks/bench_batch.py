@@ -98,13 +98,30 @@ def bench_workspace(model, n: int, rounds: int) -> dict:
     b = float(np.median([r["cpu_s"] for r in rows["batch"]]))
     s = float(np.median([r["cpu_s"] for r in rows["serial"]]))
     both = batch.converged & np.isfinite(serial["positions"][:, 0, 0])
+    # the equilibria themselves: the samples where the two paths differ most and some drawn at
+    # random, solved again to a tolerance far below the workspace's (1e-13)
+    difference = np.abs(batch.positions - serial["positions"]).reshape(n, -1).max(1)
+    check = np.union1d(np.argsort(np.where(both, difference, -1.0))[-50:],
+                       np.random.default_rng(0).choice(n, min(n, 250), replace=False))
+    check = check[both[check]]
+    tight = model.solve_batch(actuations[check], tolerance=1e-13)
+    effectors = model.trunk.effectors
+    from vertebra.core.lie import qrotate
+    f = effectors.frames
+    truth = tight.positions[:, f] * effectors.point_mask + qrotate(tight.quaternions[:, f], effectors.offsets)
+    good = tight.converged
     return {"samples": n, "rounds": rows, "batch_cpu_s": b, "serial_cpu_s": s, "speedup_cpu": s / b,
             "batch_wall_s": float(np.median([r["wall_s"] for r in rows["batch"]])),
             "serial_wall_s": float(np.median([r["wall_s"] for r in rows["serial"]])),
             "batch_iterations_mean": float(batch.iterations[batch.converged].mean()),
             "serial_iterations_mean": float(serial["iterations"].mean()),
             "batch_converged": int(batch.converged.sum()), "serial_converged": int(np.isfinite(serial["positions"][:, 0, 0]).sum()),
-            "largest_effector_difference_m": float(np.abs(batch.positions[both] - serial["positions"][both]).max())}
+            "largest_effector_difference_m": float(np.abs(batch.positions[both] - serial["positions"][both]).max()),
+            "checked_against_tolerance_1e-13": int(good.sum()),
+            "batch_largest_distance_to_equilibrium_m": float(np.abs(batch.positions[check][good] - truth[good]).max()),
+            "serial_largest_distance_to_equilibrium_m": float(np.abs(serial["positions"][check][good]
+                                                                     - truth[good]).max()),
+            "batch_iterations_histogram": np.bincount(batch.iterations[batch.converged]).tolist()}
 
 
 def bench_same_samples(model, n: int, rounds: int) -> dict:
