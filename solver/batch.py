@@ -621,6 +621,8 @@ class _Run:
         self.history = [[] for _ in range(B)]
         self.weights = newton.residual_weights(trunk)
         self.axis, self.shortest = trunk.rest.axis, trunk.rest.shortest
+        holes = trunk.cables.hole_set
+        self.reach = float(np.sqrt(np.max(np.add.reduce(holes * holes, 1)))) if holes.size else 0.0   # max |s|
 
     def leave(self, rows: np.ndarray, why: str) -> None:
         """Samples ``rows`` leave the batch's path (the single solve redoes them), for ``why``."""
@@ -645,9 +647,13 @@ class _Run:
             good &= ~(folding & (np.minimum.reduce(axial, 1) < FOLD_LIMIT))
         return good
 
-    def step_limit(self, rows: np.ndarray, dq: np.ndarray, change: np.ndarray, pieces) -> np.ndarray:
+    def step_limit(self, rows: np.ndarray, dq: np.ndarray, change: np.ndarray, pieces,
+                   cap: float | None = None) -> np.ndarray:
         """:meth:`vertebra.solver.newton._Stage.step_limit` of every sample (``pieces``: the
-        samples' cable pieces, ``rows``: their index in the run)."""
+        samples' cable pieces, ``rows``: their index in the run). With ``cap``, a limit is only
+        needed up to ``cap`` (the caller takes ``min(cap, limit)``): the cable pieces of a sample
+        whose frames move too little to halve any piece within ``cap`` steps are not examined
+        (``|Δd| ≤ 2 (max |dx| + max |dφ| · max |s|)`` against the shortest piece)."""
         largest = np.maximum.reduce(np.abs(change), 1)                 # (B, 6)
         room = np.minimum(MAX_TURN, 0.5 * (math.pi - self.turn[rows]))
         stretch = SQRT3 * np.maximum.reduce(largest[:, :3], 1)
@@ -656,18 +662,28 @@ class _Run:
                            MAX_STRETCH * self.shortest / np.maximum(stretch, 1e-300))
         if pieces is not None:
             B = dq.shape[0]
-            moves = np.zeros((B, self.trunk.frames.count, 6))
-            moves[:, 1:] = dq.reshape(B, -1, 6)
-            delta = pieces.change(moves[:, self.trunk.cables.ends].reshape(-1, 12))
-            along = np.add.reduce(pieces.d * delta, 1)
-            squared = np.add.reduce(delta * delta, 1)
-            discriminant = along * along - 0.75 * squared * pieces.length ** 2
-            closing = (along < 0.0) & (discriminant > 0.0)
-            closing &= np.repeat(self.cabled[rows], closing.size // B)
-            if closing.any():
-                roots = np.full(closing.shape, np.inf)
-                roots[closing] = (-along[closing] - np.sqrt(discriminant[closing])) / squared[closing]
-                limit = np.minimum(limit, np.minimum.reduce(roots.reshape(B, -1), 1))
+            need = self.cabled[rows]
+            if cap is not None and need.any():
+                frames = dq.reshape(B, -1, 6)
+                moved = (np.sqrt(np.maximum.reduce(np.add.reduce(frames[:, :, :3] ** 2, 2), 1))
+                         + np.sqrt(np.maximum.reduce(np.add.reduce(frames[:, :, 3:] ** 2, 2), 1)) * self.reach)
+                need &= cap * 2.0 * moved > 0.49 * np.minimum.reduce(pieces.length.reshape(B, -1), 1)
+            need = np.flatnonzero(need)
+            if need.size:
+                if need.size < B:
+                    pieces, dq = _take(pieces, need, B), dq[need]
+                k = need.size
+                moves = np.zeros((k, self.trunk.frames.count, 6))
+                moves[:, 1:] = dq.reshape(k, -1, 6)
+                delta = pieces.change(moves[:, self.trunk.cables.ends].reshape(-1, 12))
+                along = np.add.reduce(pieces.d * delta, 1)
+                squared = np.add.reduce(delta * delta, 1)
+                discriminant = along * along - 0.75 * squared * pieces.length ** 2
+                closing = (along < 0.0) & (discriminant > 0.0)
+                if closing.any():
+                    roots = np.full(closing.shape, np.inf)
+                    roots[closing] = (-along[closing] - np.sqrt(discriminant[closing])) / squared[closing]
+                    limit[need] = np.minimum(limit[need], np.minimum.reduce(roots.reshape(k, -1), 1))
         return limit
 
     def below_resolution(self, positions: np.ndarray, dq: np.ndarray, alpha: np.ndarray) -> np.ndarray:
@@ -803,7 +819,7 @@ class _Run:
                 whole = good.size == B
                 change = _strain_change(ev.links if whole else _take(ev.links, good, B), dq)
                 pieces = ev.pieces if whole or ev.pieces is None else _take(ev.pieces, good, B)
-                alpha = np.minimum(1.0, self.step_limit(rows[good], dq, change, pieces))
+                alpha = np.minimum(1.0, self.step_limit(rows[good], dq, change, pieces, cap=1.0))
                 below = self.below_resolution(states.positions[good], dq, alpha)
                 self.leave(rows[good[below]], "a step below the resolution of the poses")
                 keep = ~below

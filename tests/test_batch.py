@@ -223,3 +223,28 @@ def test_actuation_sensitivities_of_a_batch_are_the_single_sensitivities():
         assert np.abs(found["dq"][i] - single.dq).max() <= 1e-8 * scale
         reference = single["effector_positions"]
         assert np.abs(found["effector_positions"][i] - reference).max() <= 1e-8 * np.abs(reference).max()
+
+
+def test_a_capped_step_limit_skips_only_the_cable_pieces_that_cannot_halve_within_the_cap():
+    # the cable pieces' half-length limit is left out only where it cannot be below the cap: the
+    # capped limits agree with the full ones wherever either is below the cap, for steps from tiny
+    # to ones that fold pieces
+    from vertebra.solver import batch
+
+    model = solver.build_model(load_scene("gallery:paper_5v_16t"))
+    trunk = model.trunk
+    rng = np.random.default_rng(3)
+    B = 60
+    actuations = rng.uniform(0.0, 20.0, (B, model.n_cables))
+    states, _ = batch.compose(trunk, np.broadcast_to(trunk.rest_state.strains.xi, (B, trunk.links.count, 6)).copy())
+    context = batch._Context(trunk)
+    ev = batch.evaluate(context, states, batch.Loads.of(trunk, actuations, np.ones(B)))
+    run = batch._Run(context, actuations)
+    rows = np.arange(B)
+    size = 10.0 ** rng.uniform(-9.0, -1.0, B)             # frame increments from 1 nm to 10 cm (rad)
+    dq = rng.normal(size=(B, trunk.n_dof)) * size[:, None]
+    change = np.zeros((B, trunk.links.count, 6))          # (no strain caps: the pieces' limit alone)
+    full = run.step_limit(rows, dq, change, ev.pieces)
+    capped = run.step_limit(rows, dq, change, ev.pieces, cap=1.0)
+    assert np.array_equal(np.minimum(1.0, full), np.minimum(1.0, capped))
+    assert np.any(full < 1.0) and np.any(full >= 1.0)     # both kinds of steps were tried
