@@ -305,30 +305,12 @@ def least_effort_form(problem: ConstraintProblem, first: np.ndarray, slack, disp
         scale = 1.0 / root
         P = _identity(n)
         lower, upper = lower * root, upper * root
-        if rows.size:
-            G, row_lower, row_upper = _unit_rows(G * scale, row_lower, row_upper)
-        else:       # (the effector rows' bounds side by side: one product normalises both)
-            G = W * scale
-            unit = 1.0 / np.maximum.reduce(np.abs(G), axis=1, initial=1e-300)
-            G *= unit[:, None]
-            row_lower, row_upper = (reached + _plus_minus(slack)) * unit
+        G, row_lower, row_upper = _unit_rows(G * scale, row_lower, row_upper)
     else:
         P = np.diag(d)
         G = G.copy() if G is W else G
         scale = _ones(n)
     return QuadraticForm(P, np.zeros(n), 0.0, lower, upper, G, row_lower, row_upper, rows, 0.0, d, scale)
-
-
-_PLUS_MINUS: dict = {}  # slack -> read-only [[−slack], [+slack]]
-
-
-def _plus_minus(slack: float) -> np.ndarray:
-    pm = _PLUS_MINUS.get(slack)
-    if pm is None:
-        if len(_PLUS_MINUS) > 64:
-            _PLUS_MINUS.clear()
-        pm = _PLUS_MINUS[slack] = _read_only(np.array([[-slack], [slack]]))
-    return pm
 
 
 _IDENTITY: dict = {}  # n -> read-only identity(n)
