@@ -15,7 +15,9 @@ What is timed (``--what``, comma-separated):
 * ``tick`` / ``tick_outside`` — ``benchmarks.bench_tick``'s control loop on ``paper_5v_16t`` /
   ``outside_6v_16t`` (this tree's loop, each revision's package);
 * ``tick_penalty`` — the ``paper_5v_16t`` loop with the one-stage QP (``effort="penalty"``) where
-  the revision has the setting (the least-effort QP's second stage left out), else its default.
+  the revision has the setting (the least-effort QP's second stage left out), else its default;
+* ``tick_reuse`` / ``tick_outside_reuse`` — the two loops with ``tangent_reuse=2`` (chord ticks)
+  where the revision has the setting, else its default.
 
 Run: ``.venv/bin/python -m benchmarks.bench_revisions --roots start=/tmp/a now=/tmp/b … [--rounds
 60] [--n 20] [--what cantilever,tick]``; writes ``benchmarks/results/revisions.json``
@@ -35,7 +37,7 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results"
-KINDS = ("cantilever", "serial", "tick", "tick_outside", "tick_penalty")
+KINDS = ("cantilever", "serial", "tick", "tick_outside", "tick_penalty", "tick_reuse", "tick_outside_reuse")
 
 WORKER = r"""
 import dataclasses, gc, json, sys, time
@@ -69,6 +71,13 @@ if "tick_penalty" in what:
         inverse.InverseSettings = lambda **k: settings(effort="penalty", **k)
     loops["tick_penalty"] = Loop("paper_5v_16t")
     inverse.InverseSettings = settings
+for kind, robot in (("tick_reuse", "paper_5v_16t"), ("tick_outside_reuse", "outside_6v_16t")):
+    if kind in what:
+        settings = inverse.InverseSettings
+        if "tangent_reuse" in {f.name for f in dataclasses.fields(settings)}:
+            inverse.InverseSettings = lambda **k: settings(tangent_reuse=2, **k)
+        loops[kind] = Loop(robot)
+        inverse.InverseSettings = settings
 calls = dict.fromkeys(runs, 0)
 print(json.dumps("ready"), flush=True)
 for line in sys.stdin:

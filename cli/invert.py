@@ -42,6 +42,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--budget", type=float, default=None, metavar="S",
                         help="time budget per target in converged mode, s (default 2): then the closest "
                              "reach so far is reported (status \"budget\", exit 1)")
+    parser.add_argument("--tangent-reuse", type=int, default=None, metavar="N",
+                        help="tick mode: use a tick's tangent factor again for up to N following ticks while the "
+                             "tensions stay near (chord steps; faster ticks, slightly larger tracking lag; default 0)")
     add_preparation(parser)
 
 
@@ -63,7 +66,8 @@ def run(args) -> int:
                           "(the default least-effort QP does not trade accuracy for effort)", field="--regularisation")
     options = {key: value for key, value in (("backend", args.backend), ("tolerance", args.tolerance),
                                              ("regularisation", args.regularisation), ("time_budget", args.budget),
-                                             ("effort", args.effort), ("max_iterations", args.max_iterations))
+                                             ("effort", args.effort), ("max_iterations", args.max_iterations),
+                                             ("tangent_reuse", args.tangent_reuse))
                if value is not None}
     settings = InverseSettings(mode=args.mode, **options)
     scene, code = prepared_scene(args)

@@ -265,16 +265,18 @@ class TrunkModel:
         return retract(state, dq, kinematics(state))
 
     # ------------------------------------------------------------------ outputs
-    def linearise(self, state: State, actuation=None, *, previous=None, history=None) -> Linearisation:
+    def linearise(self, state: State, actuation=None, *, previous=None, history=None, factor=None) -> Linearisation:
         """Tangent stiffness factor, actuator and effector Jacobians at ``state`` (``previous``:
-        an evaluation or :meth:`trial` of the same state and actuation to reuse). With cable
-        friction, the frictional transmission (:func:`~vertebra.solver.friction.linearise`) of
-        the command applied to ``history`` (a :class:`~vertebra.solver.friction.FrictionState`;
-        None: a pull from rest), holes at incipient slip sliding on in their last direction."""
+        an evaluation or :meth:`trial` of the same state and actuation to reuse; ``factor``: an
+        earlier linearisation's factor to use instead of this state's tangent, a chord step). With
+        cable friction, the frictional transmission (:func:`~vertebra.solver.friction.linearise`)
+        of the command applied to ``history`` (a :class:`~vertebra.solver.friction.FrictionState`;
+        None: a pull from rest), holes at incipient slip sliding on in their last direction (its
+        own tangent: ``factor`` is not taken)."""
         if self.trunk.actuators.frictional or history is not None:
             return friction.linearise(self.trunk, state, self.actuation(actuation), history,
                                       None if history is None else history.incipient(self.trunk))[0]
-        return outputs.linearise(self.trunk, state, self.actuation(actuation), self.loads, previous)
+        return outputs.linearise(self.trunk, state, self.actuation(actuation), self.loads, previous, factor)
 
     def cable_tensions(self, state: State, actuation=None) -> np.ndarray:
         """The tension of every cable at ``state`` under ``actuation``: a tension-driven cable's

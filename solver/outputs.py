@@ -115,10 +115,11 @@ def _unit_scale(n_cables: int, n_chambers: int) -> np.ndarray:
     return scale
 
 
-def linearise(trunk, state, actuation: np.ndarray, loads: LoadCases, previous=None) -> Linearisation:
+def linearise(trunk, state, actuation: np.ndarray, loads: LoadCases, previous=None, factor=None) -> Linearisation:
     """Tangent stiffness factor, actuator and effector Jacobians at ``state`` under ``actuation``
     (``previous``: an evaluation or trial the caller holds, reused where it is of the same state
-    and load case)."""
+    and load case). ``factor``: the factor of an earlier state's tangent to use instead of this
+    state's (a chord step: the tangent is neither assembled nor factored)."""
     load = loads(actuation, 1.0)
     if (isinstance(previous, Evaluation) and previous.load is load and previous.record is not None
             and previous.record is state.carried_strains()):
@@ -128,13 +129,16 @@ def linearise(trunk, state, actuation: np.ndarray, loads: LoadCases, previous=No
     if not math.isfinite(ev.energy):
         raise ConvergenceError("non-finite values appeared in the linearisation (the state or the actuation "
                                "is not finite)")
-    matrix = tangent(trunk, ev)
-    for shift in LINEARISATION_SHIFTS:
-        factor, _ = matrix.factor(shift, symmetric=not trunk.loads.unsymmetric)
-        if factor is not None:
-            break
     if factor is None:
-        raise ConvergenceError("tangent stiffness is singular at this state")
+        matrix = tangent(trunk, ev)
+        for shift in LINEARISATION_SHIFTS:
+            factor, _ = matrix.factor(shift, symmetric=not trunk.loads.unsymmetric)
+            if factor is not None:
+                break
+        if factor is None:
+            raise ConvergenceError("tangent stiffness is singular at this state")
+    else:
+        shift = 0.0
     n_frames, n_dof = trunk.frames.count, trunk.n_dof
     n_cables, n_chambers = trunk.actuators.n_cables, trunk.actuators.n_chambers
     n_act = n_cables + n_chambers

@@ -67,6 +67,7 @@ GUARD = DEFAULT_REGULARISATION   # the least-effort QP's first stage: keeps it d
 SECANTS = 4     # with friction: QPs again with the return map's affine piece at the best answer
 HALVINGS = (1.0, 0.5, 0.25, 0.125, 0.0625)   # … each answer taken as far along as it lowers the merit
 MISS = 0.5      # a tick is cut back when the equilibrium is farther from its prediction than this share of its motion
+REUSE_CHANGE = 0.15   # (tangent_reuse) a factor is used again while the cables' tensions (and the chambers' pressures) lie within this share of their largest value at its linearisation
 
 
 @dataclass(frozen=True)
@@ -87,6 +88,11 @@ class InverseSettings:
     actuation_tolerance: float = 1e-4  # … and, reached or not, once λ changes by less than this (relative)
     settle_iterations: int = 3  # extra iterations allowed, once reached, for λ to settle
     qp_tolerance: float = 1e-10
+    # tick mode: a tick's tangent factor is used again for up to this many following ticks (chord
+    # steps: no tangent assembled or factored), while each tick is applied in full and its
+    # prediction holds; 0 (default): every tick linearises with its own tangent. Trades tracking
+    # accuracy for time (docs/inverse.md, "Reusing the tangent").
+    tangent_reuse: int = 0
 
     def __post_init__(self):
         if self.mode not in MODES:
@@ -111,6 +117,8 @@ class InverseSettings:
             raise OptionError(f"must lie in (0, 1), got {self.progress}", field="progress")
         if self.patience < 1:
             raise OptionError(f"must be ≥ 1, got {self.patience}", field="patience")
+        if not (isinstance(self.tangent_reuse, (int, np.integer)) and self.tangent_reuse >= 0):
+            raise OptionError(f"must be an integer ≥ 0, got {self.tangent_reuse!r}", field="tangent_reuse")
         get_backend(self.backend)  # an unknown name raises here
 
 
@@ -231,6 +239,10 @@ class InverseController:
                 self.history = None
         self.trust = TrustRegion.of_model(model)
         self._judged = None     # the trial of the last state applied (its next linearisation reuses it)
+        # (settings.tangent_reuse) the factor the next tick may use again: (factor, trunk, the state
+        # it may be used at, ticks it has been used for, the actuation it was linearised at), or None
+        self._chord = None
+        self._held = 0.0        # the last applied tick's quality (the lower of its energy decrease and prediction)
 
     # ------------------------------------------------------------------ pieces
     def _linearised_step(self, targets, timings, box=None, damping=None, base=None, secants=0,
@@ -252,7 +264,11 @@ class InverseController:
         the step start from them)."""
         t0 = time.perf_counter()
         if base is None:
-            lin = self.model.linearise(self.state, self.actuation, previous=self._judged)
+            chord = self._chord
+            reused = (chord[0] if chord is not None and chord[1] is self.model.trunk and chord[2] is self.state
+                      and secants else None)
+            lin = (self.model.linearise(self.state, self.actuation, previous=self._judged) if reused is None else
+                   self.model.linearise(self.state, self.actuation, previous=self._judged, factor=reused))
         else:
             incipient = base.incipient(self.model.trunk)
             lin, current, continued = friction.linearise(self.model.trunk, self.state, self.actuation, base,
@@ -411,12 +427,14 @@ class InverseController:
         timings: dict = {}
         base = self._friction_base()
         started = self._contact_base()         # (friction at obstacles: the tick is an increment from here)
+        lam0 = self.actuation
         lin, projection, sol, aim = self._linearised_step(targets, timings, self.space.tick_box(self.actuation),
                                                           DAMPING, base, SECANTS, started)
         t0 = time.perf_counter()
         fraction = self._advance(lin, projection, sol.actuation, aim is not targets, base)
         if started is not None and fraction > 0.0:
             self.history = contact_friction.at_state(self.state)      # the next tick anchors where this one ends
+        self._chord = self._reusable(lin, lam0, fraction, base is not None or started is not None)
         self.equilibrium = False
         timings["step_s"] = time.perf_counter() - t0
         status = "tick" if fraction == 1.0 else ("cut back" if fraction > 0.0 else "not applied")
@@ -427,6 +445,31 @@ class InverseController:
         if base is not None or started is not None:
             result.history, result.friction = base if base is not None else started, self.history
         return result
+
+    def _reusable(self, lin, lam0, fraction: float, frictional: bool):
+        """What the next tick may linearise with (``settings.tangent_reuse``): this tick's factor
+        at the state it reached, when the tick was applied in full and its prediction held
+        (quality ≥ :data:`~vertebra.solver.inverse.trust.GOOD`) and the factor has been used for
+        fewer than ``tangent_reuse`` ticks; else None (the next tick factors its own tangent)."""
+        reuse = self.settings.tangent_reuse
+        model = self.model
+        if (not reuse or frictional or fraction != 1.0 or self._held < GOOD or model.trunk.contact is not None
+                or model.n_tendons):
+            return None
+        chord = self._chord
+        if chord is None or chord[0] is not lin.factor:     # this tick's own tangent, linearised at λ0
+            used, start = 0, lam0
+        else:
+            used, start = chord[3] + 1, chord[4]            # (this tick included)
+        if used >= reuse:
+            return None
+        # the cables' tangent grows with their tensions (a chamber's with its pressure): used again
+        # only while the actuation stays near the one it was linearised at
+        n = model.n_cables
+        for before, now in ((start[:n], self.actuation[:n]), (start[n:], self.actuation[n:])):
+            if before.size and not (float(np.abs(now - before).max()) <= REUSE_CHANGE * float(np.abs(before).max())):
+                return None
+        return lin.factor, model.trunk, self.state, used, start
 
     def _advance(self, lin, projection, lam_target, aimed: bool, base=None) -> float:
         """Move state and actuation by the largest share ``α`` of the linearised step towards
@@ -524,7 +567,8 @@ class InverseController:
                     if base is not None:
                         self.history = friction.FrictionState.after(base, following, lam, trial)
                         self._judged = None
-                    self.trust.update(min(quality, held), cut)
+                    self._held = min(quality, held)
+                    self.trust.update(self._held, cut)
                     return alpha
                 quality = min(quality, held)
             alpha *= 0.25
