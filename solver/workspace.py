@@ -12,20 +12,25 @@ Solve order
     rest, ``q ≈ K⁻¹ B λ`` (translations in m, rotations times the trunk length), projected on
     its principal directions. Orderings are registered in :data:`ORDERINGS`:
 
-    * ``"tree"`` (default): the minimum spanning tree of the k-nearest-neighbour graph in that
+    * ``"levels"`` (default): coarse to fine for solving in batches — every 512th sample from
+      rest, every other 64th from the nearest of those, every other 8th from the nearest of all
+      these, the others from the nearest of all (up to four generations, each one batch).
+    * ``"tree"``: the minimum spanning tree of the k-nearest-neighbour graph in that
       response space, visited depth first from the least deformed sample; each sample starts
       from its tree parent. Every warm start is a shortest available edge, and a parent with
-      several children serves them all.
+      several children serves them all (but the tree is ~150 generations deep).
     * ``"chain"``: a greedy nearest-neighbour chain in the same space (each sample starts from
       the previous one); its last links are long jumps between leftover samples.
     * ``"sampled"``: the order the sequence drew them in (neighbours are far apart).
 
 Warm start
-    A sample does not start from its parent's equilibrium ``q_p`` itself but from the Euler
-    predictor along the equilibrium path, ``q_p ⊕ K_p⁻¹ B_p (λ − λ_p)`` (the tangent of the
-    parent's equilibrium, factored once per parent): Newton's own first step from ``q_p``
-    uses the tangent at the new load, which is not the path's derivative, and needs about two
-    more iterations on the paper's 16-tendon robot.
+    A sample does not start from its parent's equilibrium ``ξ_p`` itself but from a
+    second-order predictor along the equilibrium path, ``ξ_p + ξ'_p Δλ + ½ ξ''_p[Δλ, Δλ]``
+    (:func:`predicted_starts`): the path tangent ``ξ' = dξ/dλ`` of the parent's equilibrium
+    (factored once per parent), the curvature from the path tangents of the parent's solved
+    neighbours. Newton's own first step from ``ξ_p`` uses the tangent at the new load, which is
+    not the path's derivative, and needs about four more iterations on the paper's 16-tendon
+    robot; the Euler predictor alone about half an iteration more per sample.
 
 ``benchmarks/bench_workspace.py`` measures orderings and predictor against each other.
 
@@ -496,8 +501,9 @@ def _solve_generations(model, actuations: np.ndarray, plan: SolveOrder, coordina
                        executor, chunk: int, progress) -> _Solved:
     """Solve the samples generation by generation (:func:`generations`): each generation in
     batches (parts of at most ``chunk`` samples, spread over the executor's workers), every
-    sample from the Euler prediction off its parent's equilibrium (the path tangents of a
-    generation's parents computed together), from rest where it has none."""
+    sample from the second-order prediction off its parent's equilibrium
+    (:func:`predicted_starts`; the path tangents of a generation's parents computed together),
+    from rest where it has none."""
     n = len(actuations)
     n_links = model.trunk.links.count
     depth = generations(plan)
