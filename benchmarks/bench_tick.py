@@ -24,8 +24,11 @@ worker process that keeps its controllers; the blocks alternate between the side
 B A, …) so that load bursts on a shared machine hit both alike, and the ratio reported is the
 median over blocks of B/A (B: this tree), with its quartiles.
 
+``--tangent-reuse N`` runs this tree's loops with ``InverseSettings(tangent_reuse=N)`` (chord ticks;
+the A side keeps its default), so the ratio and the settled errors show that knob's trade.
+
 Run: ``.venv/bin/python -m benchmarks.bench_tick [--base REV | --base-root DIR] [--rounds 40]
-[--block 50]``; writes ``benchmarks/results/tick.json``.
+[--block 50] [--tangent-reuse N]``; writes ``benchmarks/results/tick.json``.
 """
 
 from __future__ import annotations
@@ -74,7 +77,7 @@ class Loop:
     """One robot's control loop in tick mode (module docstring): ticks on demand, timed, and the
     checks of every tick run so far."""
 
-    def __init__(self, name: str):
+    def __init__(self, name: str, tangent_reuse: int = 0):
         import numpy as np
 
         from vertebra.solver.inverse import InverseController, InverseSettings
@@ -83,7 +86,9 @@ class Loop:
         lower, upper = model.actuator_bounds
         lam = np.clip(np.full(len(model.actuator_names), 0.3), lower, upper)
         state = model.solve(lam).state
-        self.controller = InverseController(model, InverseSettings(mode="tick"), actuation=lam, state=state)
+        settings = (InverseSettings(mode="tick", tangent_reuse=tangent_reuse) if tangent_reuse else
+                    InverseSettings(mode="tick"))
+        self.controller = InverseController(model, settings, actuation=lam, state=state)
         self.centre = model.effector_positions(state)
         self.k = 0
         self.run = []
@@ -141,7 +146,8 @@ class Loop:
 def worker() -> None:
     """The subprocess side: builds every robot's loop, then answers one JSON line per request
     ``["ticks", robot, count]`` (the CPU times) or ``["checks"]`` (the checks per robot)."""
-    loops = {name: Loop(name) for name in ROBOTS}
+    reuse = int(os.environ.get("BENCH_TICK_REUSE", "0"))
+    loops = {name: Loop(name, reuse) for name in ROBOTS}
     print(json.dumps("ready"), flush=True)
     for line in sys.stdin:
         request = json.loads(line)
@@ -155,9 +161,9 @@ def worker() -> None:
 class Side:
     """A worker subprocess with one revision's package first on its path."""
 
-    def __init__(self, root: Path):
+    def __init__(self, root: Path, tangent_reuse: int = 0):
         env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1",
-                   PYTHONPATH=str(root))
+                   PYTHONPATH=str(root), BENCH_TICK_REUSE=str(tangent_reuse))
         code = "import sys; sys.path.insert(0, sys.argv[1]); from bench_tick import worker; worker()"
         self.process = subprocess.Popen([sys.executable, "-c", code, str(Path(__file__).parent)], env=env,
                                         stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
@@ -201,6 +207,9 @@ def main(argv=None) -> int:
     parser.add_argument("--base-root", help="folder holding the A side's vertebra package")
     parser.add_argument("--rounds", type=int, default=40, help="blocks of ticks per robot and side")
     parser.add_argument("--block", type=int, default=50, help="ticks per block")
+    parser.add_argument("--tangent-reuse", type=int, default=0, metavar="N",
+                        help="this tree's (B) controllers reuse a tick's tangent factor for up to N ticks "
+                             "(InverseSettings.tangent_reuse; A keeps its default)")
     args = parser.parse_args(argv)
     import numpy as np
 
@@ -219,7 +228,7 @@ def main(argv=None) -> int:
             roots["A"] = tmp / "a"
             commits["A"] = snapshot(args.base, roots["A"])
         sides = sorted(roots)
-        workers = {side: Side(roots[side]) for side in sides}
+        workers = {side: Side(roots[side], args.tangent_reuse if side == "B" else 0) for side in sides}
         blocks = {side: {name: [] for name in ROBOTS} for side in sides}
         loads = []
         for r in range(args.rounds):
@@ -256,7 +265,7 @@ def main(argv=None) -> int:
         print(text)
     RESULTS.mkdir(parents=True, exist_ok=True)
     document = {"A": {"rev": args.base or args.base_root, "commit": commits.get("A")},
-                "B": {"commit": commits["B"]}, "rounds": args.rounds, "block": args.block,
+                "B": {"commit": commits["B"]}, "rounds": args.rounds, "block": args.block, "tangent_reuse_B": args.tangent_reuse,
                 "host": f"{platform.node()} · {platform.processor() or platform.machine()} · python "
                         f"{platform.python_version()} · {os.cpu_count()} cores",
                 "load_average": {"min": min(loads), "median": float(np.median(loads)), "max": max(loads)},
