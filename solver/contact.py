@@ -66,6 +66,9 @@ PIVOTS = 200                 # principal pivoting steps per contact before the Q
 BLOCK_TRIES = 3              # block pivots in a row that do not lower the wrong indices, before single pivots
 
 
+_SWAP = np.r_[6:12, 0:6]       # a 12×12 block's two frames swapped
+
+
 @dataclass(frozen=True, eq=False)
 class ContactModel:
     """What a trunk can touch: discs, capsule segments and obstacles (compiled once)."""
@@ -298,7 +301,8 @@ def bodies(model: ContactModel, key) -> tuple[str, str]:
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Row-wise cross products of (k, 3) arrays (numpy's is slow on small stacks)."""
-    a, b = np.broadcast_arrays(a, b)
+    if a.shape != b.shape:
+        a, b = np.broadcast_arrays(a, b)
     out = np.empty(a.shape)
     out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
     out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
@@ -859,18 +863,24 @@ class Constraints:
         a, b = frames[:, 0], frames[:, 1]
         lower = np.where(b >= 0, np.minimum(a, b), a)
         upper = np.where(b >= 0, np.maximum(a, b), -1)
-        swap = (b >= 0) & (b < a)
-        blocks = np.where(swap[:, None, None], blocks[:, np.r_[6:12, 0:6]][:, :, np.r_[6:12, 0:6]], blocks)
+        swap = np.flatnonzero((b >= 0) & (b < a))
+        if swap.size:
+            blocks[swap] = blocks[swap][:, _SWAP][:, :, _SWAP]
         joined = upper == lower + 1
-        np.add.at(links, lower[joined], blocks[joined])
+        if joined.any():
+            np.add.at(links, lower[joined], blocks[joined])
         single = (upper < 0) & (lower > 0)
-        np.add.at(links, (lower[single] - 1, slice(6, 12), slice(6, 12)), blocks[single, :6, :6])
+        if single.any():
+            np.add.at(links, (lower[single] - 1, slice(6, 12), slice(6, 12)), blocks[single, :6, :6])
         # frames a repetition apart: the slot of the cable pieces that join them, where a cable does
+        apart = (upper >= 0) & ~joined
+        if not apart.any():
+            return type(matrix)(matrix.assembler, terms, matrix.low_rank)
         slot = np.array([self._pairs.get((a, b), -1) for a, b in zip(lower.tolist(), upper.tolist())], int)
-        cabled = (upper >= 0) & ~joined & (slot >= 0)
+        cabled = apart & (slot >= 0)
         if cabled.any():
             np.add.at(matrix.assembler.views(terms)[1], slot[cabled], blocks[cabled])
-        apart = (upper >= 0) & ~joined & ~cabled
+        apart &= ~cabled
         low_rank = matrix.low_rank
         both = apart & (lower > 0)
         if both.any():
@@ -1059,7 +1069,7 @@ def curvature(model: ContactModel, contacts: ContactSet, multipliers: np.ndarray
     chord = key[:, 0] == CHORD
     radius[chord] = model.chord_radius[key[chord, 1]]
     point = contacts.point + radius[:, None] * n
-    pair = np.isin(key[:, 0], DISCS)
+    pair = (key[:, 0] == PAIR) | (key[:, 0] == FOLD)
     S = np.zeros((key.shape[0], 3, 3))
     surface = ~pair & (key[:, 0] < TANGENTIAL)       # (a tangential row's directions are held: no curvature)
     for j in np.unique(key[surface, 2]):
@@ -1075,41 +1085,54 @@ def _blocks(contacts, lam, S, point, n, pair, chord):
     key = contacts.key
     blocks = np.zeros((key.shape[0], 12, 12))
     origin = contacts.origin
-    l = point - origin[:, 0]
-    hat_l, hat_n = _hat(l), _hat(n)
-    obstacle = ~pair & ~chord
+    lam = lam[:, 0, 0]
+    obstacle = np.flatnonzero(~pair & ~chord)          # a point on one frame (a rim point, a ball)
+    l = point[obstacle] - origin[obstacle, 0]
+    So, lo = S[obstacle], lam[obstacle, None, None]
+    curved = So.any()                                   # (a plane's S is zero: its terms vanish)
+    hat_l, hat_n = _hat(l), _hat(n[obstacle])
     # −λ∂²g for a point on frame a: [[−λS, λS l̂], [−λ l̂ S, −λ n̂ l̂ + λ l̂ S l̂]]
-    blocks[obstacle, :3, :3] = -lam[obstacle] * S[obstacle]
-    blocks[obstacle, :3, 3:6] = lam[obstacle] * S[obstacle] @ hat_l[obstacle]
-    blocks[obstacle, 3:6, :3] = -lam[obstacle] * hat_l[obstacle] @ S[obstacle]
-    blocks[obstacle, 3:6, 3:6] = lam[obstacle] * (-hat_n[obstacle] @ hat_l[obstacle]
-                                                  + hat_l[obstacle] @ S[obstacle] @ hat_l[obstacle])
+    if curved:
+        blocks[obstacle, :3, :3] = -lo * So
+        blocks[obstacle, :3, 3:6] = lo * So @ hat_l
+        blocks[obstacle, 3:6, :3] = -lo * hat_l @ So
+        blocks[obstacle, 3:6, 3:6] = lo * (-hat_n @ hat_l + hat_l @ So @ hat_l)
+    else:
+        blocks[obstacle, 3:6, 3:6] = lo * (-hat_n @ hat_l)
     # a chord's axis point (1 − t) x_a + t x_b
-    if chord.any():
-        t = np.add.reduce(contacts.rows[chord, 1, :3] * n[chord], -1)
+    chords = np.flatnonzero(chord)
+    if chords.size:
+        t = np.add.reduce(contacts.rows[chords, 1, :3] * n[chords], -1)
         weights = np.stack([1.0 - t, t], 1)
         for i in range(2):
             for k in range(2):
-                blocks[chord, 6 * i:6 * i + 3, 6 * k:6 * k + 3] = -(lam[chord] * S[chord]
-                                                                   * (weights[:, i] * weights[:, k])[:, None, None])
+                blocks[chords, 6 * i:6 * i + 3, 6 * k:6 * k + 3] = -(lam[chords, None, None] * S[chords]
+                                                                    * (weights[:, i] * weights[:, k])[:, None, None])
     # (disc pairs: :func:`_pair_curvature`, by differences)
     # the closest point sliding along its rim or chord: g = min_s f(s, q) adds −f_qs f_sqᵀ / f_ss
-    # to ∂²g, so −λ∂²g gains λ v vᵀ / f_ss with v = ∂f_s/∂q
+    # to ∂²g, so −λ∂²g gains λ v vᵀ / f_ss with v = ∂f_s/∂q (a ball's point does not slide: τ = 0)
     tau, second = contacts.slide[:, 0], contacts.slide[:, 1]
-    S_tau = np.einsum("kij,kj->ki", S, tau)
-    f_ss = np.add.reduce(tau * S_tau, -1) + np.add.reduce(n * second, -1)
-    v = np.zeros((key.shape[0], 12))
-    rim = ~pair & ~chord
-    v[rim, :3] = S_tau[rim]
-    v[rim, 3:6] = _cross(l[rim], S_tau[rim]) + _cross(tau[rim], n[rim])
-    if chord.any():
-        t = np.add.reduce(contacts.rows[chord, 1, :3] * n[chord], -1)[:, None]
-        v[chord, :3] = (1.0 - t) * S_tau[chord] - n[chord]
-        v[chord, 6:9] = t * S_tau[chord] + n[chord]
-    sliding = f_ss > 1e-12 * np.sqrt(np.add.reduce(tau * tau, -1)) * (np.abs(S).max(axis=(1, 2)) * np.sqrt(
-        np.add.reduce(tau * tau, -1)) + np.sqrt(np.add.reduce(second * second, -1)) + 1e-300)
-    scale = np.where(sliding, lam[:, 0, 0] / np.where(sliding, f_ss, 1.0), 0.0)
-    blocks += scale[:, None, None] * v[:, :, None] * v[:, None, :]
+    length = np.sqrt(np.add.reduce(tau * tau, -1))
+    moving = np.flatnonzero(length > 0.0)
+    if not moving.size:
+        return blocks
+    tau, second, Sm, nm = tau[moving], second[moving], S[moving], n[moving]
+    S_tau = np.einsum("kij,kj->ki", Sm, tau)
+    f_ss = np.add.reduce(tau * S_tau, -1) + np.add.reduce(nm * second, -1)
+    v = np.zeros((moving.size, 12))
+    rim = np.isin(moving, obstacle)
+    if rim.any():
+        v[rim, :3] = S_tau[rim]
+        v[rim, 3:6] = _cross(point[moving[rim]] - origin[moving[rim], 0], S_tau[rim]) + _cross(tau[rim], nm[rim])
+    along = chord[moving]
+    if along.any():
+        t = np.add.reduce(contacts.rows[moving[along], 1, :3] * nm[along], -1)[:, None]
+        v[along, :3] = (1.0 - t) * S_tau[along] - nm[along]
+        v[along, 6:9] = t * S_tau[along] + nm[along]
+    sliding = f_ss > 1e-12 * length[moving] * (np.abs(Sm).max(axis=(1, 2)) * length[moving] + np.sqrt(
+        np.add.reduce(second * second, -1)) + 1e-300)
+    scale = np.where(sliding, lam[moving] / np.where(sliding, f_ss, 1.0), 0.0)
+    blocks[moving] += scale[:, None, None] * v[:, :, None] * v[:, None, :]
     return blocks
 
 
