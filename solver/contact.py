@@ -610,6 +610,8 @@ def evaluate(model: ContactModel, state, keys: np.ndarray | None = None) -> Cont
             near = _near(model, x, obstacle)
             for kind, function in _FEATURES.items():
                 features = near[kind]
+                if kind == CHORD and isinstance(obstacle, Plane):
+                    continue        # a plane is nearest a chord at an end, which a ball covers
                 if features.size:
                     parts.append((np.column_stack([np.full(features.size, kind), features,
                                                    np.full(features.size, j)]),
