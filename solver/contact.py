@@ -64,6 +64,8 @@ STEP_SPRING = 10.0           # … and that convexify a Newton step's model (aug
 SPRING_GROWTH = 100.0        # … then this many times stiffer, up to STABILITY_SPRING, while not convex
 PIVOTS = 200                 # principal pivoting steps per contact before the QP is refused
 BLOCK_TRIES = 3              # block pivots in a row that do not lower the wrong indices, before single pivots
+SINGLE_PIVOTS = 2            # single pivots per contact before the Dantzig–Cottle path is tried
+PATH_PIVOTS = 4              # … which gives up after this many pivots per contact
 
 
 _SWAP = np.r_[6:12, 0:6]       # a 12×12 block's two frames swapped
@@ -116,7 +118,7 @@ class ContactSet:
         for side in range(2):
             frame = self.frames[:, side]
             used = frame > 0
-            np.add.at(G, (np.flatnonzero(used), frame[used]), self.rows[used, side])
+            G[np.flatnonzero(used), frame[used]] += self.rows[used, side]     # (one frame per row and side)
         return G[:, 1:].reshape(self.count, 6 * (n_frames - 1))
 
     def forces(self, multipliers: np.ndarray, n_frames: int) -> np.ndarray:
@@ -664,18 +666,24 @@ def _near(model, x, obstacle) -> dict:
 
 def complementarity(W: np.ndarray, b: np.ndarray, start: np.ndarray | None = None) -> np.ndarray | None:
     """``λ ≥ 0`` with ``w = b + Wλ ≥ 0`` and ``wᵀλ = 0`` for a P-matrix ``W`` (positive definite,
-    or the unsymmetric Delassus operator of a dead-moment tangent), by principal pivoting from the
-    pressed set ``start`` (bool (m,); default: the contacts with ``b < 0``): block pivots — every
-    wrong index of the set changed at once (Júdice and Pires) — while they lower the fewest wrong
-    indices seen (``BLOCK_TRIES`` more that do not), then Murty's single pivots (least index rule:
-    finite for P-matrices from any set). The answer is unique for a P-matrix, so the start
-    and the pivots change only the work. None when it does not terminate."""
+    or the unsymmetric Delassus operator of a dead-moment tangent), by principal pivoting: the
+    forces of a pressed set come from one dense solve on its rows, and the set is the answer when
+    none of them pulls and no other gap penetrates (to 1e-13 of the problem's scale). From the set
+    ``start`` (bool (m,): the contacts pressed now, mostly the answer again along a solve; default
+    the contacts with ``b < 0``): block pivots — every wrong index of the set changed at once
+    (Júdice and Pires) — while they lower the fewest wrong indices seen (``BLOCK_TRIES`` more that
+    do not), then Murty's single pivots (least index rule: finite for P-matrices from any set).
+    Where those cycle (nearly redundant contacts: the answer is then unique only up to the
+    tolerance), after ``SINGLE_PIVOTS`` per contact the Dantzig–Cottle path from nothing pressed is
+    tried (:func:`_principal_path`, about one solve per contact it presses), then Murty's pivots go
+    on. The answer is unique for a P-matrix: the order changes only the work. None when no set is
+    found."""
     m = b.size
     active = (b < 0.0) if start is None else np.asarray(start, bool).copy()
     scale = np.abs(b).max(initial=0.0) + 1e-300
     force_floor = -1e-13 * scale / max(np.abs(np.diag(W)).max(initial=0.0), 1e-300)
     gap_floor = -1e-13 * scale
-    fewest, spare, single = m + 1, BLOCK_TRIES, False
+    fewest, spare, single = m + 1, BLOCK_TRIES, 0
     for _ in range(PIVOTS * max(m, 1)):
         lam = np.zeros(m)
         index = np.flatnonzero(active)
@@ -694,11 +702,72 @@ def complementarity(W: np.ndarray, b: np.ndarray, start: np.ndarray | None = Non
             elif spare:
                 spare -= 1
             else:
-                single = True                    # Murty's pivoting from here on
-        if single:
-            active[wrong[0]] = not active[wrong[0]]
-        else:
+                single = 1                       # Murty's pivoting from here on
+        if not single:
             active[wrong] = ~active[wrong]
+            continue
+        single += 1
+        if single == SINGLE_PIVOTS * m:
+            path = _principal_path(W, b, gap_floor)
+            if path is not None:
+                active = path
+                continue
+        active[wrong[0]] = not active[wrong[0]]
+    return None
+
+
+def _principal_path(W: np.ndarray, b: np.ndarray, floor: float) -> np.ndarray | None:
+    """The pressed set (bool (m,)) that the Dantzig–Cottle principal pivoting method reaches for
+    ``w = b + Wλ`` from nothing pressed: the most penetrating contact's force is raised, the
+    pressed ones' following to keep their gaps closed, until its gap closes (it is pressed), a
+    pressed force falls to zero (that contact opens) or another gap closes (that one is pressed
+    too); then the next penetrating contact (``w < floor``), until none is left. For a P-matrix
+    its gap always opens as its force rises. None when a pivot fails or it takes more than
+    ``PATH_PIVOTS`` pivots per contact (degenerate steps)."""
+    m = b.size
+    active = np.zeros(m, bool)
+    lam, w = np.zeros(m), b.copy()
+    r = -1
+    for _ in range(PATH_PIVOTS * max(m, 1)):
+        if r < 0:
+            open_ = np.flatnonzero(~active & (w < floor))
+            if not open_.size:
+                return active
+            r = int(open_[np.argmin(w[open_])])
+        index = np.flatnonzero(active)
+        d = np.zeros(m)
+        d[r] = 1.0
+        if index.size:
+            try:
+                d[index] = -np.linalg.solve(W[np.ix_(index, index)], W[index, r])
+            except np.linalg.LinAlgError:
+                return None
+        dw = W @ d
+        if not dw[r] > 0.0:
+            return None
+        t, leaving = -w[r] / dw[r], r
+        falling = index[d[index] < 0.0]
+        if falling.size:
+            ratio = lam[falling] / -d[falling]
+            k = int(np.argmin(ratio))
+            if ratio[k] < t:
+                t, leaving = ratio[k], int(falling[k])
+        closing = np.flatnonzero(~active & (dw < 0.0) & (w >= 0.0))
+        closing = closing[closing != r]
+        if closing.size:
+            ratio = w[closing] / -dw[closing]
+            k = int(np.argmin(ratio))
+            if ratio[k] < t:
+                t, leaving = ratio[k], int(closing[k])
+        t = max(t, 0.0)
+        lam += t * d
+        w += t * dw
+        if active[leaving]:                  # a pressed force fell to zero: that contact opens
+            active[leaving], lam[leaving] = False, 0.0
+        else:                                # a gap closed (the raised contact's: it is pressed)
+            active[leaving], w[leaving] = True, 0.0
+            if leaving == r:
+                r = -1
     return None
 
 
@@ -778,7 +847,7 @@ class Constraints:
         W = G @ Z
         b = contacts.gap + G @ p
         regularised = W.copy()
-        regularised[np.diag_indices_from(W)] += REGULARISATION * max(float(np.abs(np.diag(W)).max()), 1e-300)
+        regularised.flat[::W.shape[0] + 1] += REGULARISATION * max(float(np.abs(np.diag(W)).max()), 1e-300)
         # from the contacts pressed now (the last step's, mostly the answer again)
         pressed = {tuple(k) for k in self.keys.tolist()}
         start = (np.array([tuple(k) in pressed for k in contacts.key.tolist()], bool) if pressed else None)
@@ -1181,5 +1250,7 @@ def report(model: ContactModel, state, keys: np.ndarray, multipliers: np.ndarray
         force = np.concatenate([force, [lam for _, lam in extra]])
     order = np.lexsort((found.gap, -force))
     fields = tangential(found.key[order]) if tangential is not None else [{}] * order.size
-    return tuple(Contact(bodies(model, found.key[i]), tuple(found.point[i].tolist()), tuple(found.normal[i].tolist()),
-                         float(found.gap[i]), float(force[i]), **more) for i, more in zip(order, fields))
+    return tuple(Contact(bodies(model, key), tuple(point), tuple(normal), gap, lam, **more)
+                 for key, point, normal, gap, lam, more in zip(found.key[order].tolist(), found.point[order].tolist(),
+                                                               found.normal[order].tolist(), found.gap[order].tolist(),
+                                                               force[order].tolist(), fields))
