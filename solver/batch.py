@@ -596,6 +596,56 @@ def _join(parts: list, counts: list, rows: list | None = None):
                           for f in first.__dataclass_fields__})
 
 
+def _accepted(parts: list, count: int):
+    """The accepted trials of one Newton iteration (``line_search``'s parts) as the next working
+    set: (local rows, (states, evaluation, residual)). Usually the largest trial (the full step of
+    every sample that had a factor) holds every sample that moved, some of them accepted only at a
+    shorter step of a later trial: those are written into its arrays in place, and the working set
+    keeps its order. Otherwise the accepted samples are gathered side by side (:func:`_join`)."""
+    order = np.concatenate([p[0] for p in parts])
+    host = max(range(len(parts)), key=lambda i: parts[i][5])
+    where = parts[host][6]
+    inside = np.zeros(count, bool)
+    inside[where] = True
+    if len(parts) > 1 and order.size == where.size and inside[order].all():
+        position = np.empty(count, int)
+        position[where] = np.arange(where.size)
+        target = parts[host][1:4]
+        try:
+            for i, part in enumerate(parts):
+                if i != host:
+                    _put_rows(target, position[part[0]], where.size, part[1:4],
+                              part[4] if part[4] is not None else slice(None), part[5])
+        except ValueError:               # (an array of the host's that is not its own: gather instead)
+            pass
+        else:
+            states, ev, residual = target
+            return where, (states, dataclasses.replace(ev, load=None), residual)
+    return order, _join([p[1:4] for p in parts], [p[5] for p in parts], [p[4] for p in parts])
+
+
+def _put_rows(target, rows, count: int, source, source_rows, source_count: int) -> None:
+    """Write the samples ``source_rows`` of ``source`` (a batch quantity of ``source_count``
+    samples) over the samples ``rows`` of ``target`` (of ``count``), in place."""
+    if target is None or isinstance(target, (float, int)):
+        return
+    if isinstance(target, np.ndarray):
+        if target.ndim == 0:
+            return
+        view = target.reshape((count, -1) + target.shape[1:])
+        if not np.may_share_memory(view, target) or not target.flags.writeable:
+            raise ValueError("a batch array is not contiguous by sample")
+        view[rows] = source.reshape((source_count, -1) + source.shape[1:])[source_rows]
+        return
+    if isinstance(target, tuple):
+        for t, s in zip(target, source):
+            _put_rows(t, rows, count, s, source_rows, source_count)
+        return
+    for f in target.__dataclass_fields__:
+        if f != "load":
+            _put_rows(getattr(target, f), rows, count, getattr(source, f), source_rows, source_count)
+
+
 class _Run:
     """The per-sample bookkeeping of one chunk (what :class:`vertebra.solver.newton._Stage` and
     :func:`vertebra.solver.newton.solve` keep for one sample)."""
@@ -861,11 +911,7 @@ class _Run:
         self.kinds[rows[moved]] |= np.where(curved[moved], 4, np.where(cholesky[moved], 1, 2))
         if not moved.any():
             return np.zeros(0, int), None, None, np.zeros(0), cholesky
-        # the accepted trials (local rows, states, evaluation, residual) side by side, in the order
-        # they were accepted (the working set needs no particular order: no sorting copy)
-        order = np.concatenate([t[0] for t in accepted])
-        new_states, new_ev, new_residual = _join([t[1:4] for t in accepted], [t[5] for t in accepted],
-                                                 [t[4] for t in accepted])
+        order, (new_states, new_ev, new_residual) = _accepted(accepted, B)
         return order, new_states, new_ev, new_residual, cholesky
 
     def bend(self, rows, r, factor, shift, scale, links, pieces):
@@ -902,7 +948,8 @@ class _Run:
                     alpha, rp, curvature):
         """The backtracking line search (:func:`vertebra.solver.globalise.line_search`) of the samples
         ``good`` (local rows of ``ev``): returns (found, quality, [(local rows, states, evaluation,
-        residual, the accepted among them (None: all), their count), …] of the trials)."""
+        residual, the accepted among them (None: all), their count, the local rows tried), …] of the
+        trials)."""
         trunk, context = self.trunk, self.context
         B = len(rows)
         energy = ev.energy[good]
@@ -941,7 +988,7 @@ class _Run:
                 at = np.flatnonzero(accept)
                 found[searching[at]] = True
                 trials.append((where[at], trial, trial_ev, trial_residual, at if at.size < where.size else None,
-                               where.size))
+                               where.size, where))
             alpha[searching] = a * 0.5
             searching = searching[~accept]
             searching = searching[alpha[searching] >= SEARCH_FLOOR]
