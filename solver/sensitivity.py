@@ -297,7 +297,7 @@ def batch_sensitivities(model, strains, actuation, *, wrt: Iterable[str] = PARAM
                         chunk: int | None = None) -> BatchSensitivities:
     """The :func:`sensitivities` of B equilibria at once: link strains ``strains`` (B, n_links, 6)
     under ``actuation`` (B, n_actuators), from the batched evaluation, tangent and factor of
-    :mod:`vertebra.solver.batch` (block-banded Cholesky, the tendons' Woodbury term) and the same
+    :mod:`vertebra.solver.batch` (each sample's band Cholesky, the tendons' Woodbury term) and the same
     explicit terms, evaluated for all samples together. The results are the single route's to
     rounding (the sums are taken in another order).
 

@@ -328,7 +328,7 @@ def _kind(name: str) -> str:
 def check_batch(model, actuations, *, wrt=solver.sensitivity.PARAMETER_GROUPS, outputs=solver.sensitivity.OUTPUTS,
                 method="direct", chunk=None, drop=()):
     """``batch_sensitivities`` of the equilibria of ``actuations`` against ``model.sensitivities``
-    of each, every output and ``dq``: the batch sums in another order (block Cholesky, the
+    of each, every output and ``dq``: the batch sums in another order (its band assembly, the
     explicit terms over a sample axis), so they agree to rounding amplified by the tangent's
     condition — a column that nearly cancels in an output (a cable's stroke per unit moment at
     the base) has its rounding relative to the larger columns of its kind, whose scale it is
