@@ -476,8 +476,8 @@ def predicted_starts(strains: np.ndarray, paths: np.ndarray, has: np.ndarray, ac
         near = np.take_along_axis(near, np.argsort(~other, axis=1, kind="stable")[:, :k], 1)
         d = (actuations[near] - actuations[users][:, None]) / scale          # (U, k, a) in box units
         gram = d.mT @ d
-        gram[:, np.arange(scale.size), np.arange(scale.size)] += \
-            (SECANT_RIDGE * np.trace(gram, axis1=1, axis2=2) / k)[:, None]
+        ridge = np.maximum(SECANT_RIDGE * np.trace(gram, axis1=1, axis2=2) / k, np.finfo(float).tiny)
+        gram[:, np.arange(scale.size), np.arange(scale.size)] += ridge[:, None]   # (neighbours all at λ_p: c = 0)
         weights = d @ np.linalg.inv(gram)                                    # (U, k, a): c = W (Δ / scale)
     flat = paths.reshape(paths.shape[0], -1)
     shape = paths.shape[1:]

@@ -274,3 +274,17 @@ def test_the_second_order_predictor_starts_nearer_than_the_euler_predictor():
              for name, start in (("euler", euler), ("second", second))}
     assert np.median(error["second"] / error["euler"]) < 0.5
     assert np.mean(error["second"] < error["euler"]) > 0.8
+
+
+def test_parents_at_one_actuation_give_the_euler_predictor():
+    # neighbours that coincide with the parent carry no curvature (no secant): the children get
+    # the Euler step ξ_p + ξ'_p Δλ, and no singular least-squares system is solved
+    from vertebra.solver.workspace import predicted_starts
+
+    rng = np.random.default_rng(2)
+    strains, paths = rng.normal(size=(5, 3, 6)), rng.normal(size=(5, 3, 6, 2))
+    change = np.array([[0.1, -0.2], [0.3, 0.05]])
+    starts = predicted_starts(strains, paths, np.ones(5, bool), np.ones((5, 2)), np.zeros((5, 2)), np.ones(2),
+                              np.array([0, 3]), change)
+    euler = strains[[0, 3]] + np.einsum("bnia,ba->bni", paths[[0, 3]], change)
+    assert np.abs(starts - euler).max() <= 1e-15
