@@ -53,6 +53,7 @@ BISECTIONS = 52              # of a rim's angle between discs: the bracket (2·2
 FACE_POINTS = 8              # points on each rim of two discs lying face to face (fixed angles in the disc's frame) …
 FACE_REACH = 2.0             # … while their gap is below this × the sum of their thicknesses
 DIFFERENCE = 1e-6            # the step (rad; × the disc radius in m) of the disc pairs' curvature by central differences
+JUMP = 1e-3                  # a pucks' nearest point moved on its body by this × the radius by those steps has jumped
 MARGIN = 0.25                # candidate contacts: a gap below this share of the trunk's length …
 FOLD_REACH = 1.0             # … and, for non-adjacent discs, bounding spheres apart by less than this × the sum of their radii
 GAP_TOLERANCE = 1e-10        # a converged state's deepest penetration, per trunk length
@@ -545,14 +546,16 @@ def _face_points(model, R, key, gap):
     return chosen
 
 
-def _puck_gap(xa, Ra, ra, ha, xb, Rb, rb, hb):
+def _puck_gap(xa, Ra, ra, ha, xb, Rb, rb, hb, where: bool = False):
     """(gap, point on the first puck, unit normal pushing it away, rows (k, 2, 6)) of two pucks
-    on frames at ``xa``, ``xb`` with rotations ``Ra``, ``Rb`` (core radii ``r``, half thicknesses ``h``)."""
+    on frames at ``xa``, ``xb`` with rotations ``Ra``, ``Rb`` (core radii ``r``, half thicknesses ``h``);
+    with ``where``, also the nearest points of the two cores (on the first, on the second)."""
     da, pa, qa = _rim_to_disk(xa, Ra[..., 0], Ra[..., 1], ra, xb, Rb[..., 2], rb)
     db, pb, qb = _rim_to_disk(xb, Rb[..., 0], Rb[..., 1], rb, xa, Ra[..., 2], ra)
     first = (da <= db)[..., None]
     p, q = np.where(first, pa, qb), np.where(first, qa, pb)          # on the first core, on the second
-    return _core_gap(p, q, np.minimum(da, db), xa, ha, xb, hb)
+    out = _core_gap(p, q, np.minimum(da, db), xa, ha, xb, hb)
+    return out + ((p, q),) if where else out
 
 
 def _core_gap(p, q, distance, xa, ha, xb, hb):
@@ -1083,12 +1086,15 @@ def _pair_curvature(model: ContactModel, state, key: np.ndarray, lam: np.ndarray
     of the gap's rows (the contact force's generalised force, its nearest points found again at
     each moved pose: the sliding of the points along the rims is in it) under moves of each frame
     along the world axes (``DIFFERENCE`` × the disc radius) and turns about them (``DIFFERENCE`` rad).
-    Face points (:func:`_face_points`) are held on their rims; so is the pucks' nearest point of
-    discs folded over onto each other (lying face to face, :func:`_facing`, with their faces
-    turned more than 90° apart), where it would jump across the rims with the faces' tilt (a
-    difference across that jump is no curvature). Discs lying face to face the same way up (a
-    trunk pressed together along its axis) keep the differences of the moving nearest point:
-    holding it there made random robots 71 and 99 stall (docs/contact.md)."""
+    Face points (:func:`_face_points`) are held on their rims. The pucks' nearest point is held
+    where the differences make it jump (:data:`JUMP`: to the other rim, or along its rim by more
+    than ``JUMP`` rad for a step of ``DIFFERENCE``): faces within about ``DIFFERENCE / JUMP`` rad of
+    parallel, where it crosses the rims with the faces' tilt — a difference across that jump is no
+    curvature, and the sliding it would add holds only for steps shorter than the tilt. Elsewhere
+    (discs tilted against each other, folded over or not) it slides smoothly and its sliding is
+    the gap's curvature: holding it there (as the code before did for every pair folded over with
+    faces within ``2R sin θ < t₁ + t₂`` of parallel) left the tangent wrong by the sliding term
+    and random robot 46 crawling (docs/contact.md)."""
     first, second = pair_discs(model, key)
     fa, fb = model.disc_frame[first], model.disc_frame[second]
     ha, hb = 0.5 * model.disc_thickness[first], 0.5 * model.disc_thickness[second]
@@ -1098,12 +1104,6 @@ def _pair_curvature(model: ContactModel, state, key: np.ndarray, lam: np.ndarray
     point = -2 - key[:, 2]
     on_second, angle = _face_point(np.maximum(point, 0))
     fixed = point >= 0
-    folded = np.add.reduce(R[fa, :, 2] * R[fb, :, 2], -1) < 0.0
-    held = ~fixed & folded & _facing(model, R, first, second)
-    if held.any():
-        on_second[held], angle[held] = _nearest_rim_point(x[fa[held]], R[fa[held]], ra[held], x[fb[held]],
-                                                          R[fb[held]], rb[held])
-        fixed = fixed | held
     moved = [np.repeat(v[None], 24, 0) for v in (x[fa], R[fa], x[fb], R[fb])]
     step = np.empty((12, k))
     for c in range(12):
@@ -1117,9 +1117,34 @@ def _pair_curvature(model: ContactModel, state, key: np.ndarray, lam: np.ndarray
                 moved[2 * body + 1][row] = _rotation(what - 3, sign * DIFFERENCE) @ moved[2 * body + 1][row]
         step[c] = h
     flat = [v.reshape((24 * k,) + v.shape[2:]) for v in moved]
-    rows = _pair_gap(flat[0], flat[1], np.tile(ra, 24), np.tile(ha, 24), flat[2], flat[3], np.tile(rb, 24),
-                     np.tile(hb, 24), np.tile(fixed, 24), np.tile(on_second, 24), np.tile(angle, 24))[3].reshape(
-                         12, 2, k, 12)
+    tiled = (np.tile(ra, 24), np.tile(ha, 24), np.tile(rb, 24), np.tile(hb, 24))
+    rows = np.empty((24 * k, 2, 6))
+    free = np.tile(~fixed, 24)
+    if free.any():
+        # the pucks' gap with its nearest points found again at each moved pose, and where they lie
+        # on their bodies (a tie between the rims — rim on rim — moves neither point)
+        f = [v[free] for v in flat]
+        r_a, h_a, r_b, h_b = (v[free] for v in tiled)
+        *found, (p, q) = _puck_gap(f[0], f[1], r_a, h_a, f[2], f[3], r_b, h_b, where=True)
+        rows[free] = found[3]
+        *_, (p0, q0) = _puck_gap(x[fa], R[fa], ra, ha, x[fb], R[fb], rb, hb, where=True)
+        body = np.zeros((24 * k, 2, 3))
+        body[free, 0] = np.einsum("kji,kj->ki", f[1], p - f[0])
+        body[free, 1] = np.einsum("kji,kj->ki", f[3], q - f[2])
+        at = np.stack([np.einsum("kji,kj->ki", R[fa], p0 - x[fa]), np.einsum("kji,kj->ki", R[fb], q0 - x[fb])], 1)
+        slid = np.sqrt(np.add.reduce((body.reshape(24, k, 2, 3) - at) ** 2, -1)).max(axis=(0, 2))
+        jumped = ~fixed & (slid > JUMP * np.maximum(ra, rb))
+        if jumped.any():
+            # held where it jumps: at the pose's own nearest point
+            on_second[jumped], angle[jumped] = _nearest_rim_point(x[fa[jumped]], R[fa[jumped]], ra[jumped],
+                                                                  x[fb[jumped]], R[fb[jumped]], rb[jumped])
+            fixed = fixed | jumped
+    hold = np.tile(fixed, 24)
+    if hold.any():
+        rows[hold] = _rim_point_gap(*(v[hold] for v in (flat[0], flat[1], tiled[0], tiled[1], flat[2], flat[3],
+                                                         tiled[2], tiled[3])), np.tile(on_second, 24)[hold],
+                                    np.tile(angle, 24)[hold])[3]
+    rows = rows.reshape(12, 2, k, 12)
     derivative = (rows[:, 0] - rows[:, 1]) / (2.0 * step[:, :, None])              # (12 moves, k, 12 rows)
     return -lam[:, None, None] * np.transpose(derivative, (1, 2, 0))
 

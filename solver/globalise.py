@@ -185,6 +185,8 @@ def line_search(stage, state, ev, residual: float, dq, change, alpha: float, rp:
         if predicted <= noise:       # the energy cannot judge this step: the residual does
             ev_trial = _completed(trunk, trial, load, judged)
             good = stage.norm(ev_trial, trial) <= residual
+            if not good and stage.constraints is not None:
+                good = _settled(stage, ev_trial, trial, residual)
             ratio = 1.0
         else:
             good = decrease >= ARMIJO * predicted - noise
@@ -197,6 +199,24 @@ def line_search(stage, state, ev, residual: float, dq, change, alpha: float, rp:
             return trial, ev_trial, alpha, decrease, predicted, quality
         alpha *= 0.5
     return None
+
+
+def _settled(stage, ev_trial, trial, residual: float) -> bool:
+    """With contacts, a trial below the energy's rounding judged on its residual at the pressed
+    contacts' forces that balance it best (``Constraints.reestimate``, kept when it passes; the
+    step's forces are restored when not): where contacts are redundant — discs lying face to
+    face, pressed at the pucks' gap and at face points — the step's forces are one of many that
+    close the gaps, and the pucks' gap turns with the faces' tilt, so at the trial they can be
+    off balance by far more than the step's size explains while others balance it to rounding."""
+    constraints = stage.constraints
+    if not constraints.multipliers.size:
+        return False
+    kept = constraints.keys, constraints.multipliers, constraints.reference
+    constraints.reestimate(ev_trial.gradient, trial, stage.weights)
+    if stage.norm(ev_trial, trial) <= residual:
+        return True
+    constraints.keys, constraints.multipliers, constraints.reference = kept
+    return False
 
 
 def residual_step(stage, state, ev, residual: float, factor, r: np.ndarray):

@@ -78,6 +78,8 @@ SQRT3 = math.sqrt(3.0)
 STRETCHING = 1e-3      # a step changing a translation strain by more than this share of the shortest link
 SMALL_INCREMENT = 1.0 / 16.0   # a load increment this small that reaches an unrepresentable state: say so
 BUDGET = 10            # a solve stops after BUDGET × max_iterations Newton iterations
+OVERTIME = 2           # with contacts, a stage still improving goes on up to this × max_iterations more …
+PROGRESS = 25          # … while its residual reached a new best within this many iterations
 # continuation under loads without a potential, where the stepping above gives up (_continuation)
 PATIENCE = 8           # a continuation stage fails after this many iterations without a new best residual
 STAGE_ITERATIONS = 30  # iterations of one continuation stage at most
@@ -174,6 +176,8 @@ class _Stage:
         self.stretching = True                # the last step may have changed a link's length
         self.patience = None                  # iterations without a new best residual before the
                                               # stage fails (None: only max_iterations ends it)
+        self.overtime = 0                     # iterations beyond max_iterations while the residual
+                                              # reaches new bests (within PROGRESS iterations)
         # unilateral contacts (None: the trunk declares none and no contact code runs)
         # (with friction at obstacles, solver/contact_friction.py: their slip rows join the contacts')
         self.constraints = (None if trunk.contact is None else contact.Constraints(trunk) if friction is None
@@ -349,12 +353,13 @@ def _newton(stage: _Stage, state: State):
                 # a saddle that the negative-curvature steps did not leave
                 kinds.add("unstable")
                 return False, state, residual
-        if stage.iterations >= stage.max_iterations:
-            return False, state, residual
         if residual < best:
             best, best_at = residual, stage.iterations
         elif stage.patience is not None and stage.iterations - best_at >= stage.patience:
             return False, state, residual       # circling: no new best residual for a while
+        if stage.iterations >= stage.max_iterations and (
+                stage.iterations >= stage.max_iterations + stage.overtime or stage.iterations - best_at >= PROGRESS):
+            return False, state, residual
         stage.iterations += 1
         stage.stretching = False
         matrix = factored = tangent(trunk, ev)
@@ -491,12 +496,14 @@ def _newton(stage: _Stage, state: State):
         stage.shift = shift
         trusted = kind == "cholesky" and residual <= TRUSTED_RESIDUAL
         kinds.add(kind)
+        rounding = predicted <= globalise.ROUNDING * abs(ev.energy)    # (judged by its residual)
         state, ev = trial, ev_trial
-        if constraints is not None and (kind != "cholesky" or alpha < 1.0 or factored is not matrix):
-            # after a shifted, stiffened or cut-back step: the pressed contacts' forces that
-            # balance the new state best (a step whose complementarity problem overshot must not
-            # carry its forces into the next tangent; a full Newton step's forces are these to
-            # second order)
+        if constraints is not None and (kind != "cholesky" or alpha < 1.0 or factored is not matrix or rounding):
+            # after a shifted, stiffened or cut-back step, or one the energy could not judge: the
+            # pressed contacts' forces that balance the new state best (a step whose complementarity
+            # problem overshot must not carry its forces into the next tangent; a full Newton step's
+            # forces are these to second order; the line search judged a step below the energy's
+            # rounding on the residual at these forces, globalise.line_search)
             constraints.reestimate(ev.gradient, state, stage.weights)
         residual = stage.norm(ev, state)
         if not math.isfinite(residual):
@@ -674,6 +681,12 @@ def solve(trunk, loads: LoadCases, actuation: np.ndarray, initial: State | None,
         stage = _Stage(trunk, load, tolerance if target >= 1.0 else max(tolerance, 1e-6),
                        min(max_iterations, BUDGET * max_iterations - iterations),
                        reference * max(target, 1e-300), history, kinds, shift, linear, friction)
+        if stage.constraints is not None:
+            # a contact stage still improving at max_iterations goes on (within the budget): contacts
+            # that change along a long fall (a soft trunk snapping onto its discs) take many short
+            # steps, and a smaller increment would start that fall again from the last equilibrium
+            stage.overtime = max(0, min(OVERTIME * max_iterations, BUDGET * max_iterations - iterations
+                                        - stage.max_iterations))
         try:
             ok, state_new, residual = _newton(stage, last_good)
         except Unrepresentable as why:
@@ -689,7 +702,9 @@ def solve(trunk, loads: LoadCases, actuation: np.ndarray, initial: State | None,
             message = ""
         iterations += stage.iterations
         stages += 1
-        shift, linear = stage.shift, stage.linear
+        # (with contacts, a failed stage's shift, raised until its steps fell below resolution, is
+        # not carried into the smaller increment: every retry would start, and stall, there)
+        shift, linear = (stage.shift if ok or stage.constraints is None else shift), stage.linear
         if stage.constraints is not None:
             pressed = stage.constraints
         if ok:
