@@ -496,14 +496,13 @@ def _newton(stage: _Stage, state: State):
         stage.shift = shift
         trusted = kind == "cholesky" and residual <= TRUSTED_RESIDUAL
         kinds.add(kind)
-        rounding = predicted <= globalise.ROUNDING * abs(ev.energy)    # (judged by its residual)
         state, ev = trial, ev_trial
-        if constraints is not None and (kind != "cholesky" or alpha < 1.0 or factored is not matrix or rounding):
-            # after a shifted, stiffened or cut-back step, or one the energy could not judge: the
-            # pressed contacts' forces that balance the new state best (a step whose complementarity
-            # problem overshot must not carry its forces into the next tangent; a full Newton step's
-            # forces are these to second order; the line search judged a step below the energy's
-            # rounding on the residual at these forces, globalise.line_search)
+        if constraints is not None and (kind != "cholesky" or alpha < 1.0 or factored is not matrix):
+            # after a shifted, stiffened or cut-back step: the pressed contacts' forces that
+            # balance the new state best (a step whose complementarity problem overshot must not
+            # carry its forces into the next tangent; a full Newton step's forces are these to
+            # second order; a step below the energy's rounding that the step's forces left off
+            # balance was judged, and is taken, at these: globalise.line_search)
             constraints.reestimate(ev.gradient, state, stage.weights)
         residual = stage.norm(ev, state)
         if not math.isfinite(residual):
