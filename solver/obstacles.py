@@ -182,8 +182,17 @@ class Mesh:
         if triangles.shape[0] > MAX_TRIANGLES:
             raise t.error("path", f"{triangles.shape[0]} triangles; at most {MAX_TRIANGLES} are supported")
         if triangles.min() < 0 or triangles.max() >= vertices.shape[0]:
-            raise t.error("triangles", f"vertex indices must lie in 0..{vertices.shape[0] - 1}")
-        mesh = cls(vertices * scale + offset, triangles, source)
+            raise t.error("triangles" if source == "inline" else "path",
+                          f"vertex indices must lie in 0..{vertices.shape[0] - 1}")
+        with np.errstate(over="ignore", invalid="ignore"):
+            placed = vertices * scale + offset
+        if not np.all(np.isfinite(placed)):
+            # a file's NaN or inf coordinates (or ones the scale overflows): such a triangle's
+            # bounding box never passes the broad phase, so the obstacle would be silently missing
+            raise t.error("path" if source != "inline" else "vertices",
+                          f"vertex {int(np.flatnonzero(~np.isfinite(placed).all(1))[0])} has a coordinate that is "
+                          "not a finite number" + (" (after the scale)" if np.all(np.isfinite(vertices)) else ""))
+        mesh = cls(placed, triangles, source)
         if np.any(mesh.areas <= 0.0):
             raise t.error("triangles", f"triangle {int(np.argmin(mesh.areas))} has no area")
         return mesh
@@ -201,7 +210,7 @@ class Mesh:
         """Closest points on the triangles (Ericson, Real-Time Collision Detection §5.1.5) after a
         broad phase: a triangle whose bounding box is farther from a point than that point's
         distance to some triangle's corner cannot hold its closest point. The sign comes from
-        the closest triangle's face normal."""
+        the closest feature's angle-weighted pseudonormal (a face's normal inside it)."""
         shape = points.shape[:-1]
         p = points.reshape(-1, 3)
         c = self.corners
@@ -215,9 +224,31 @@ class Mesh:
         order = np.lexsort((d2, point))                                     # by point, nearest first
         first = order[np.r_[True, point[order][1:] != point[order][:-1]]]
         distance, surface, best = np.sqrt(d2[first]), q[first], triangle[first]
-        face = np.cross(c[best, 1] - c[best, 0], c[best, 2] - c[best, 0])
-        face, _ = _normalised(face)
         offset = p - surface
+        # the sign: the offset against the angle-weighted pseudonormal of the closest feature
+        # (Bærentzen & Aanæs 2005) — the face's normal inside a face, the sum of the triangles'
+        # normals weighted by their angle at the closest point on an edge (π each) or a vertex
+        # (the corner angles). One nearest triangle's normal is not enough: outside a vertex
+        # whose faces meet at more than 90° (a tetrahedron's) the offset can point against one
+        # of them, and the point was taken to be deep inside the mesh.
+        face, _ = _normalised(_cross3(c[best, 1] - c[best, 0], c[best, 2] - c[best, 0]))
+        scale = 1e-9 * (1.0 + np.abs(p).max())
+        tied = np.flatnonzero(np.add.reduce((q - surface[point]) ** 2, -1) <= scale * scale)
+        shared = np.bincount(point[tied], minlength=first.size) > 1        # on an edge or a vertex
+        if shared.any():
+            tied = tied[shared[point[tied]]]
+            corners = c[triangle[tied]]                                      # (m, 3, 3)
+            normal, _ = _normalised(_cross3(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]))
+            to_corner = np.add.reduce((corners - surface[point[tied]][:, None]) ** 2, -1)     # (m, 3)
+            corner = np.argmin(to_corner, 1)
+            rows = np.arange(tied.size)
+            e1 = corners[rows, (corner + 1) % 3] - corners[rows, corner]
+            e2 = corners[rows, (corner + 2) % 3] - corners[rows, corner]
+            angle = np.arctan2(np.sqrt(np.add.reduce(_cross3(e1, e2) ** 2, -1)), np.add.reduce(e1 * e2, -1))
+            weight = np.where(to_corner[rows, corner] <= scale * scale, angle, math.pi)
+            pseudo = np.zeros((first.size, 3))
+            np.add.at(pseudo, point[tied], weight[:, None] * normal)
+            face[shared] = _normalised(pseudo[shared])[0]
         sign = np.where(np.add.reduce(offset * face, -1) < 0.0, -1.0, 1.0)
         normal = np.where((distance > 1e-12 * (1.0 + np.abs(p).max()))[:, None], sign[:, None] * offset
                           / np.maximum(distance, TINY)[:, None], face)
@@ -225,6 +256,12 @@ class Mesh:
 
     def bounds(self):
         return self.vertices.min(0), self.vertices.max(0)
+
+
+def _cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross products of (n, 3) arrays (np.cross's axis handling costs more than the product)."""
+    return np.stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                     a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]], 1)
 
 
 def _closest_on_triangles(p: np.ndarray, c: np.ndarray) -> np.ndarray:
