@@ -90,3 +90,26 @@ def test_mesh_files_with_coordinates_that_are_not_finite_are_refused(name, conte
     with pytest.raises(SceneError) as error:
         solver.build_model(solver.parse_scene(scene, base_dir=tmp_path))
     assert error.value.field == "obstacle[0].path" and "not a finite number" in str(error.value)
+
+
+def test_a_tick_does_not_enter_an_obstacle_when_the_contacts_qp_gives_no_answer(monkeypatch):
+    # where the contacts' QP has no answer (bench_contact_fuzz seed 1: a frictional one, on two
+    # box meshes) the tick is the contact-free QP's, and its check of how deep the retracted state
+    # lies in an obstacle was skipped with it: the first tick went 4.4 mm into a box. Here the
+    # contacts' QP is made to give none: the ticks stop at the wall (they went 34 mm through it)
+    from vertebra.solver.inverse import InverseController, InverseSettings
+    from vertebra.solver.inverse import controller as inverse_controller
+
+    monkeypatch.setattr(inverse_controller, "contact_step", lambda *args, **kwargs: None)
+    wall = 0.02
+    model = solver.build_model(solver.parse_scene({
+        "segment": [{"type": "beam", "count": 4, "length": 0.02, "elements": 2, "youngs_modulus": 1e9,
+                     "section": {"shape": "circle", "radius": 0.001}, "contact_radius": 0.001}],
+        "cable": [{"name": "c", "radius": 0.008, "angle_deg": 180.0, "to": 4, "max_tension": 20.0}],
+        "effector": [{"name": "tip", "vertebra": -1}],
+        "obstacle": [{"type": "plane", "point": [-wall, 0, 0], "normal": [1, 0, 0]}]}))
+    controller = InverseController(model, InverseSettings(mode="tick", tolerance=1e-4))
+    for _ in range(6):
+        step = controller.step(np.array([[-0.06, 0.0, 0.05]]))          # 4 cm beyond the wall
+        assert contact.evaluate(model.trunk.contact, step.state).gap.min() >= -1e-6
+    assert step.positions[0][0] <= -0.018                                  # it went to the wall

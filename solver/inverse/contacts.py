@@ -38,6 +38,13 @@ RELEASES = 4              # up to this many pressed contacts, each is also tried
 PRESSED = 1e-9             # (when the start's complementarity problem fails) a gap below this share of the length is pressed
 
 
+def penetration(model, state) -> float:
+    """How deep (m, ≥ 0) ``state`` lies in an obstacle or a disc (contact model ``model``): its
+    most negative gap among the candidates."""
+    found = contact.evaluate(model, state)
+    return max(0.0, -float(found.gap.min(initial=0.0)))
+
+
 @dataclass
 class ContactProjection:
     """A projection (:class:`~vertebra.solver.inverse.space.Projection`) with the contacts of the
@@ -73,8 +80,7 @@ class ContactProjection:
 
     def penetration(self, state) -> float:
         """How deep (m, ≥ 0) ``state`` lies in an obstacle or a disc: its most negative gap."""
-        found = contact.evaluate(self.model, state)
-        return max(0.0, -float(found.gap.min(initial=0.0)))
+        return penetration(self.model, state)
 
     def contact_forces(self, actuation: np.ndarray) -> np.ndarray:
         """``Gᵀμ(λ)`` (n_dof,): the generalised forces of the contacts under ``actuation``."""

@@ -45,7 +45,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vertebra.solver.inverse.backends import DEFAULT_BACKEND, get_backend
-from vertebra.solver.inverse.contacts import ContactProjection, contact_step
+from vertebra.solver.inverse.contacts import ContactProjection, contact_step, penetration
 from vertebra.solver.inverse.friction_contacts import frictional_step
 from vertebra.solver.inverse.qp import ConstraintSolution, solve_constraint_problem
 from vertebra.solver.inverse.space import DEFAULT_REGULARISATION, ConstraintSpace
@@ -504,8 +504,10 @@ class InverseController:
         floor = 0.01 * self.settings.tolerance
         # with contacts: how deep the start lies in an obstacle (a tick may not go deeper than that
         # or the floor: the QP keeps the linearised gaps, the retraction's second order may not)
-        contacts = projection if isinstance(projection, ContactProjection) else None
-        entered = contacts.penetration(state0) if contacts is not None else 0.0
+        # (whatever the QP's projection: without a contact near the start, or where the contacts'
+        # QP failed, the step is the contact-free one and may still reach an obstacle)
+        contacts = model.trunk.contact
+        entered = penetration(contacts, state0) if contacts is not None else 0.0
         # ∂E/∂λ of the cables: their lengths L(q) = L0 + stroke
         cables = d_lam[:n_cables]
         d_energy = float(cables.dot(model.rest_cable_lengths)) + float(cables.dot(lin.actuator_displacements[:n_cables]))
@@ -539,7 +541,7 @@ class InverseController:
             decrease = before - after
             noise = 1e-12 * abs(before)
             quality = decrease / predicted if predicted > noise else (1.0 if decrease >= -noise else 0.0)
-            if contacts is not None and quality >= ACCEPT and contacts.penetration(trial) > max(floor, entered):
+            if contacts is not None and quality >= ACCEPT and penetration(contacts, trial) > max(floor, entered):
                 quality = 0.0            # a trial that enters an obstacle (or disc) deeper than the start is cut back
             if quality >= ACCEPT:        # (False for NaN)
                 # the prediction: the equilibrium under λ lies ≈ Je K⁻¹ r(trial) from the trial state
