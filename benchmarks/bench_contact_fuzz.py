@@ -90,8 +90,8 @@ def tendon(rng) -> dict:
     scene = tendon_robot(rng)
     holes = max(c["radius"] for c in scene["cable"])
     spacing = min(s["length"] for s in scene["segment"])
-    disc = {"disc_radius": holes * float(rng.uniform(1.05, 2.0)),
-            "disc_thickness": spacing * float(rng.uniform(0.05, 0.4))}
+    radius = holes * float(rng.uniform(1.05, 2.0))
+    disc = {"disc_radius": radius, "disc_thickness": min(spacing * float(rng.uniform(0.05, 0.4)), 1.9 * radius)}
     everywhere = rng.random() < 0.7
     segments = []
     for s in scene["segment"]:
@@ -120,9 +120,10 @@ def beam(rng) -> dict:
     if shape in (0, 2):
         segment["contact_radius"] = radius * float(rng.uniform(1.0, 4.0))
     if shape in (1, 2):
-        segment["vertebra"] = {"mass": float(rng.uniform(0, 2e-3)),
-                               "disc_radius": _log_uniform(rng, 2 * radius, 0.03),
-                               "disc_thickness": min(0.4 * length / count, 0.5 * _log_uniform(rng, 2 * radius, 0.02))}
+        disc = _log_uniform(rng, 2 * radius, 0.03)
+        segment["vertebra"] = {"mass": float(rng.uniform(0, 2e-3)), "disc_radius": disc,
+                               "disc_thickness": min(0.4 * length / count, 0.5 * _log_uniform(rng, 2 * radius, 0.02),
+                                                     1.9 * disc)}
     scene = {"name": "fuzz-beam", "segment": [segment], "effector": [{"name": "tip", "vertebra": -1}]}
     if rng.random() < 0.7:
         scene["load"] = [{"vertebra": -1, "force": (float(rng.uniform(0.2, 5)) * EI / length ** 2
@@ -258,6 +259,10 @@ def check_state(model, result, actuation) -> list[str]:
     # and the contact forces'
     rest = model.evaluate(model.trunk.rest_state, result.actuation).gradient[1:]
     scale = max(float(np.abs(rest * weights).max()), float(np.abs(applied[1:] * weights).max()), 1e-300)
+    if any(c.friction is not None and c.force > 0 and c.bodies[0].startswith("link") for c in result.contacts):
+        # a chord's frictional contact holds the chord parameter of the increment's start: how its
+        # tangential force splits between the two frames is not in the report
+        return problems, None
     if any(c.friction is not None and c.force > 0 for c in result.contacts):
         # a frictional contact's tangential force acts at the material point it holds since the
         # increment began (docs/contact.md, friction: it pivots, rolls only between increments),
@@ -551,7 +556,8 @@ def main(argv=None) -> int:
                            "reached": sum(bool(i.get("reached")) for i in inverse),
                            "bad": [dict(i, seed=r["seed"]) for r in rows if "inverse" in r
                                    for i in [r["inverse"]] if i["outcome"] not in ("ok", "target solve failed")]},
-               "largest_balance": max((r.get("balance", 0.0) for r in rows if r["outcome"] == "converged"), default=0.0),
+               "largest_balance": max((r.get("balance") or 0.0 for r in rows if r["outcome"] == "converged"), default=0.0),
+               "balance_not_checked": sum(r["outcome"] == "converged" and r.get("balance", 0.0) is None for r in rows),
                "scene_input": inputs, "rows": rows}
     print(f"forward: {len(rows)} scenes, outcomes {outcomes}; largest balance residual {summary['largest_balance']:.3g}")
     print(f"inverse: {summary['inverse']['runs']} runs, {summary['inverse']['outcomes']}, "
