@@ -12,6 +12,7 @@ runtime does not import meshio), or given inline as ``vertices`` and ``triangles
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -201,6 +202,17 @@ class Mesh:
     def corners(self) -> np.ndarray:
         return self.vertices[self.triangles]                 # (t, 3, 3)
 
+    @functools.cached_property
+    def _faces(self) -> tuple[np.ndarray, np.ndarray]:
+        """The triangles' unit normals (t, 3) and their angles at each corner (t, 3)."""
+        c = self.corners
+        normals, _ = _normalised(_cross3(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]))
+        angles = np.empty(c.shape[:2])
+        for k in range(3):
+            e1, e2 = c[:, (k + 1) % 3] - c[:, k], c[:, (k + 2) % 3] - c[:, k]
+            angles[:, k] = np.arctan2(np.sqrt(np.add.reduce(_cross3(e1, e2) ** 2, -1)), np.add.reduce(e1 * e2, -1))
+        return normals, angles
+
     @property
     def areas(self) -> np.ndarray:
         c = self.corners
@@ -231,23 +243,20 @@ class Mesh:
         # (the corner angles). One nearest triangle's normal is not enough: outside a vertex
         # whose faces meet at more than 90° (a tetrahedron's) the offset can point against one
         # of them, and the point was taken to be deep inside the mesh.
-        face, _ = _normalised(_cross3(c[best, 1] - c[best, 0], c[best, 2] - c[best, 0]))
+        normals, angles = self._faces
+        face = normals[best]
         scale = 1e-9 * (1.0 + np.abs(p).max())
         tied = np.flatnonzero(np.add.reduce((q - surface[point]) ** 2, -1) <= scale * scale)
         shared = np.bincount(point[tied], minlength=first.size) > 1        # on an edge or a vertex
         if shared.any():
             tied = tied[shared[point[tied]]]
-            corners = c[triangle[tied]]                                      # (m, 3, 3)
-            normal, _ = _normalised(_cross3(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]))
-            to_corner = np.add.reduce((corners - surface[point[tied]][:, None]) ** 2, -1)     # (m, 3)
+            to_corner = np.add.reduce((c[triangle[tied]] - surface[point[tied]][:, None]) ** 2, -1)     # (m, 3)
             corner = np.argmin(to_corner, 1)
             rows = np.arange(tied.size)
-            e1 = corners[rows, (corner + 1) % 3] - corners[rows, corner]
-            e2 = corners[rows, (corner + 2) % 3] - corners[rows, corner]
-            angle = np.arctan2(np.sqrt(np.add.reduce(_cross3(e1, e2) ** 2, -1)), np.add.reduce(e1 * e2, -1))
-            weight = np.where(to_corner[rows, corner] <= scale * scale, angle, math.pi)
+            weight = np.where(to_corner[rows, corner] <= scale * scale, angles[triangle[tied], corner], math.pi)
             pseudo = np.zeros((first.size, 3))
-            np.add.at(pseudo, point[tied], weight[:, None] * normal)
+            np.add.at(pseudo, point[tied], weight[:, None] * normals[triangle[tied]])
+            face = face.copy()
             face[shared] = _normalised(pseudo[shared])[0]
         sign = np.where(np.add.reduce(offset * face, -1) < 0.0, -1.0, 1.0)
         normal = np.where((distance > 1e-12 * (1.0 + np.abs(p).max()))[:, None], sign[:, None] * offset
