@@ -191,7 +191,7 @@ class _Context:
             rows = np.zeros(B, int)
             self._rest_tiled, self._rest_count = (states.take(rows), _take(geometry, rows, 1)), B
             count = B
-        return _first(self._rest_tiled, B, count)
+        return _samples(self._rest_tiled, 0, B, count)
 
     def _rows(self, key, B, make):
         """The first rows, for B samples, of what ``make(count)`` builds for ``count`` samples."""
@@ -439,12 +439,12 @@ def tangent(context: _Context, ev: Evaluation) -> Tangent:
         if rest[start:stop].all():
             links = np.broadcast_to(trunk.rest.link_tangent, (stop - start,) + trunk.rest.link_tangent.shape)
         else:
-            links = link_tangent(_rows(ev.links, start, stop, B), w[start * n:stop * n],
+            links = link_tangent(_samples(ev.links, start, stop, B), w[start * n:stop * n],
                                  material[start * n:stop * n], ev.link_gradient[start * n:stop * n])
         cables = None
         if ev.pieces is not None:
             m = tension.size // B
-            cables = _rows(ev.pieces, start, stop, B).tangent(tension[start * m:stop * m],
+            cables = _samples(ev.pieces, start, stop, B).tangent(tension[start * m:stop * m],
                                                                context.groups(stop - start))
         bands[start:stop] = assembler.symmetric_bands(links, cables, None if weight is None else weight[start:stop])
     if ev.load.tendons is None:
@@ -453,16 +453,6 @@ def tangent(context: _Context, ev: Evaluation) -> Tangent:
     jacobian = _cable_jacobian(context, ev.pieces, B)[:, tendon_cables, 1:]
     U = np.ascontiguousarray(jacobian.reshape(B, tendon_cables.size, -1).mT)
     return Tangent(bands, U, k * (ev.elongation > 0.0))
-
-
-def _rows(value, start: int, stop: int, count: int):
-    """The samples ``start:stop`` of a dataclass of batch arrays of ``count`` samples (first axis:
-    the samples or their links/pieces, sample by sample), as views."""
-    fields = {}
-    for f in value.__dataclass_fields__:
-        v = getattr(value, f)
-        fields[f] = v.reshape((count, -1) + v.shape[1:])[start:stop].reshape((-1,) + v.shape[1:])
-    return type(value)(**fields)
 
 
 def _cable_jacobian(context: _Context, pieces: CablePieces, B: int) -> np.ndarray:
@@ -495,16 +485,20 @@ def _take(value, rows: np.ndarray, count: int):
     return type(value)(**{f: _take(getattr(value, f), rows, count) for f in value.__dataclass_fields__})
 
 
-def _first(value, B: int, count: int):
-    """The first ``B`` samples of a batch quantity of ``count`` samples (:func:`_take`'s kinds of
-    quantities), as views."""
+def _samples(value, start: int, stop: int, count: int):
+    """The samples ``start:stop`` of a batch quantity of ``count`` samples (:func:`_take`'s kinds
+    of quantities: arrays whose first axis holds the samples or their links/pieces sample by
+    sample, tuples and dataclasses of them), as views."""
     if value is None or isinstance(value, (float, int)):
         return value
     if isinstance(value, np.ndarray):
-        return value if value.ndim == 0 else value[:len(value) // count * B]
+        if value.ndim == 0:
+            return value
+        per = len(value) // count
+        return value[start * per:stop * per]
     if isinstance(value, tuple):
-        return tuple(_first(v, B, count) for v in value)
-    return type(value)(**{f: _first(getattr(value, f), B, count) for f in value.__dataclass_fields__})
+        return tuple(_samples(v, start, stop, count) for v in value)
+    return type(value)(**{f: _samples(getattr(value, f), start, stop, count) for f in value.__dataclass_fields__})
 
 
 def _put(target, rows: np.ndarray, count: int, source) -> None:
