@@ -4,7 +4,10 @@ A backend receives a :class:`~solver.inverse.qp.QuadraticForm` — ``½ λᵀPλ
 and displacement rows — and a feasible start, and returns a :class:`BackendOutput`. It
 declares whether it wants the Jacobi-scaled form (``scaled``: ``λ = S y``, ``S =
 diag(1/√Pᵢᵢ)``, unit diagonal whatever the units of the actuators, so absolute tolerances
-inside a library see a well-scaled problem) and its default iteration budget.
+inside a library see a well-scaled problem) and its default iteration budget. A backend with
+``warm_duals`` (DAQP) also returns the constraints' multipliers and takes ``dual_start``, an
+earlier answer's multipliers whose nonzero entries are the working set it starts from (the
+least-effort stage of a tick starts from the last tick's: ``solver.inverse.qp``).
 
 Every backend is reached through :func:`get_backend` by name. A registration is one name
 (``"daqp"``) or a family of names sharing a prefix (``"qpsolvers:"``, whose factory takes the
@@ -47,6 +50,7 @@ class BackendOutput:
     iterations: int
     converged: bool
     status: str
+    duals: np.ndarray | None = None  # the constraints' multipliers (box then rows), when the backend gives them
 
 
 class QPBackend(Protocol):
@@ -217,8 +221,23 @@ register_backend("gauss-seidel", GaussSeidelBackend)
 
 
 def _writeable(a: np.ndarray) -> np.ndarray:
-    """``a``, or a copy when read-only (DAQP's wrapper takes writeable buffers; it only reads them)."""
-    return a if a.flags.writeable else a.copy()
+    """``a``, or a writeable copy when read-only (DAQP's wrapper takes writeable buffers; it only
+    reads them). The copy of a read-only array that owns its data (no view of another) is kept
+    with it: the least-effort form's identity is the same array every tick."""
+    if a.flags.writeable:
+        return a
+    kept = _COPIES.get(id(a))
+    if kept is not None and kept[0] is a:
+        return kept[1]
+    copy = a.copy()
+    if a.base is None:
+        if len(_COPIES) > 64:
+            _COPIES.clear()
+        _COPIES[id(a)] = (a, copy)     # (holds ``a``: its id stays its own)
+    return copy
+
+
+_COPIES: dict = {}  # id(read-only array owning its data) -> (the array, its copy, which DAQP only reads)
 
 
 class DaqpBackend:
@@ -229,28 +248,29 @@ class DaqpBackend:
     name = "daqp"
     scaled = True
     default_max_iterations = 1000
+    warm_duals = True   # ``solve`` takes ``dual_start``: multipliers whose nonzero entries are the working set to start from
     _daqp = None  # the module, imported at the first solve
 
-    def solve(self, form, start, *, tolerance, max_iterations):
+    def solve(self, form, start, *, tolerance, max_iterations, dual_start=None):
         daqp = DaqpBackend._daqp
         if daqp is None:
             import daqp
 
             DaqpBackend._daqp = daqp
         if form.G.shape[0]:
-            A = np.ascontiguousarray(form.G)
             upper = np.concatenate([form.upper, form.row_upper])
             lower = np.concatenate([form.lower, form.row_lower])
         else:
-            A, upper, lower = _writeable(form.G), _writeable(form.upper), _writeable(form.lower)
+            upper, lower = _writeable(form.upper), _writeable(form.lower)
         sense = _SENSES.get(upper.size)
         if sense is None:
             sense = _SENSES[upper.size] = np.zeros(upper.size, dtype=np.int32)
+        # (DAQP makes A C-contiguous itself)
         x, _f, flag, info = daqp.solve(
-            _writeable(form.P), _writeable(form.q), A, upper, lower, sense,
-            iter_limit=max_iterations, primal_start=_writeable(start), eps_prox=0.0)
+            _writeable(form.P), _writeable(form.q), _writeable(form.G), upper, lower, sense,
+            iter_limit=max_iterations, primal_start=_writeable(start), eps_prox=0.0, dual_start=dual_start)
         if flag == 1 or flag == 2:
-            return BackendOutput(x, info["iterations"], True, "optimal")
+            return BackendOutput(x, info["iterations"], True, "optimal", info["lam"])
         return BackendOutput(start.copy(), int(info.get("iterations", 0)), False,
                              _DAQP_STATUS.get(flag) or f"daqp exitflag {flag}")
 
