@@ -75,8 +75,8 @@ class ContactProjection:
             mu[self.active] = np.where(self.normal[self.active], np.maximum(forces, 0.0), forces)
         return mu
 
-    def state_change(self, actuation: np.ndarray) -> np.ndarray:
-        return self.base.state_change(actuation) + self.K_inv_Gt @ self.forces(actuation)
+    def state_change(self, actuation: np.ndarray, change: np.ndarray | None = None) -> np.ndarray:
+        return self.base.state_change(actuation, change) + self.K_inv_Gt @ self.forces(actuation)
 
     def penetration(self, state) -> float:
         """How deep (m, ≥ 0) ``state`` lies in an obstacle or a disc: its most negative gap."""

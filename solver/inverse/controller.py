@@ -325,10 +325,11 @@ class InverseController:
                                                                box, damping, secants, continued)
             self._incipient = incipient
         t4 = time.perf_counter()
-        for key, value in (("linearise_s", t1 - t0), ("W_s", t2 - t1), ("qp_s", t3 - t2), ("inverse_s", t3 - t0)):
-            timings[key] = timings.get(key, 0.0) + value
-        if t4 > t3:
-            timings["inverse_s"] += t4 - t3
+        get = timings.get
+        timings["linearise_s"] = get("linearise_s", 0.0) + (t1 - t0)
+        timings["W_s"] = get("W_s", 0.0) + (t2 - t1)
+        timings["qp_s"] = get("qp_s", 0.0) + (t3 - t2)
+        timings["inverse_s"] = get("inverse_s", 0.0) + (t3 - t0) + (t4 - t3 if t4 > t3 else 0.0)
         return lin, projection, sol, aim
 
     def _pieces(self, lin, projection, sol, current, base, incipient, aim, box, damping, rounds, continued):
@@ -492,7 +493,7 @@ class InverseController:
         <vertebra.solver.friction.FrictionState.after>`) for the next tick."""
         model, lam0, state0 = self.model, self.actuation, self.state
         d_lam = lam_target - lam0
-        dq = projection.state_change(lam_target)
+        dq = projection.state_change(lam_target, d_lam)
         alpha = self.trust.fraction(dq)
         cut = aimed or alpha < 1.0
         r = lin.residual
@@ -521,7 +522,8 @@ class InverseController:
             trunk = model.trunk
             start = friction.geometry(trunk, state0)
         for _ in range(CUTS):
-            lam = lam0 + alpha * d_lam
+            whole = alpha == 1.0        # (then α·x is x: not multiplied)
+            lam = lam0 + (d_lam if whole else alpha * d_lam)
             # the model of the potential under λ along α·dq: E_λ(q) − r_λ·d + ½ dᵀK d, with
             # r_λ = r + B(λ − λ0) and K dq = r + B d_lam
             predicted = alpha * (1.0 - 0.5 * alpha) * r_dq + 0.5 * alpha * alpha * b_dq
@@ -533,7 +535,7 @@ class InverseController:
                     before = model.potential(state0, lam)
                 else:      # the potential is linear in tension-driven cables' tensions: E_λ(q) = E_λ0(q) + (λ − λ0)·L(q)
                     before = lin.energy + alpha * d_energy
-                trial = model.step(state0, alpha * dq)
+                trial = model.step(state0, dq if whole else alpha * dq)
                 judged = model.trial(trial, lam) if base is None else potential(trunk, trial, load)
                 after = judged.energy
             except ConvergenceError:

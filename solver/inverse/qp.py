@@ -350,6 +350,7 @@ def solve_constraint_problem(problem: ConstraintProblem, backend: str | QPBacken
     """
     t0 = time.perf_counter()
     solver = get_backend(backend) if isinstance(backend, str) else backend
+    lower, upper = problem.lambda_lower, problem.lambda_upper
     start = problem.start()
     bounds, relaxation = None, None
     space = problem.space
@@ -358,7 +359,6 @@ def solve_constraint_problem(problem: ConstraintProblem, backend: str | QPBacken
     form = quadratic_form(problem, bounds, scaled=solver.scaled)
     tol = max(tolerance * math.sqrt(2.0 * form.c), absolute_tolerance, 1e-300)
     budget = solver.default_max_iterations if max_iterations is None else max_iterations
-    lower, upper = problem.lambda_lower, problem.lambda_upper
     out = solver.solve(form, start / form.scale, tolerance=tol, max_iterations=budget)
     lam = np.minimum(np.maximum(out.actuation * form.scale, lower), upper)
     iterations, status, converged = out.iterations, out.status, out.converged

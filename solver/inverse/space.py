@@ -347,10 +347,10 @@ class Projection:
     lin: object = field(repr=False, default=None)     # the linearisation projected
     halves: tuple | None = field(repr=False, default=None)
 
-    def state_change(self, actuation: np.ndarray) -> np.ndarray:
+    def state_change(self, actuation: np.ndarray, change: np.ndarray | None = None) -> np.ndarray:
         """``dq(λ) = K⁻¹r + K⁻¹B (λ − λ0)`` (paper eq. 10): the linearised motion to the
-        equilibrium under ``actuation``."""
-        dq = self.free + self.per_actuator.dot(actuation - self.problem.lambda0)
+        equilibrium under ``actuation`` (``change``: ``λ − λ0`` when the caller has it)."""
+        dq = self.free + self.per_actuator.dot(actuation - self.problem.lambda0 if change is None else change)
         return dq if self.halves is None else self.halves[0].backward(dq, overwrite=True)
 
     def effector_motion(self, force: np.ndarray) -> np.ndarray:
