@@ -250,12 +250,17 @@ class DaqpBackend:
     default_max_iterations = 1000
     warm_duals = True   # ``solve`` takes ``dual_start``: multipliers whose nonzero entries are the working set to start from
     _daqp = None  # the module, imported at the first solve
+    _primal_tol = None  # its default primal (feasibility) tolerance
 
     def solve(self, form, start, *, tolerance, max_iterations, dual_start=None):
         daqp = DaqpBackend._daqp
         if daqp is None:
+            import inspect
+
             import daqp
 
+            # (its default feasibility tolerance, for the forms that ask none of their own)
+            DaqpBackend._primal_tol = inspect.signature(daqp.solve).parameters["primal_tol"].default
             DaqpBackend._daqp = daqp
         if form.G.shape[0]:
             upper = np.concatenate([form.upper, form.row_upper])
@@ -268,7 +273,8 @@ class DaqpBackend:
         # (DAQP makes A C-contiguous itself)
         x, _f, flag, info = daqp.solve(
             _writeable(form.P), _writeable(form.q), _writeable(form.G), upper, lower, sense,
-            iter_limit=max_iterations, primal_start=_writeable(start), eps_prox=0.0, dual_start=dual_start)
+            iter_limit=max_iterations, primal_start=_writeable(start), eps_prox=0.0, dual_start=dual_start,
+            primal_tol=DaqpBackend._primal_tol if form.feasibility is None else form.feasibility)
         if flag == 1 or flag == 2:
             return BackendOutput(x, info["iterations"], True, "optimal", info["lam"])
         return BackendOutput(start.copy(), int(info.get("iterations", 0)), False,

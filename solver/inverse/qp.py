@@ -63,7 +63,8 @@ class QuadraticForm:
 
     In the Jacobi-scaled coordinates ``y = λ / scale`` when built with ``scaled`` (``scale =
     1/√Pᵢᵢ``, unit diagonal; rows normalised to unit largest entry), else ``scale`` is ones.
-    ``regularisation_weight`` (ρ) and ``energy_diagonal`` (d) are those of ``λ``.
+    ``regularisation_weight`` (ρ) and ``energy_diagonal`` (d) are those of ``λ``. ``feasibility``:
+    how far an active-set backend may leave a constraint (the form's units; None: its default).
     """
 
     P: np.ndarray
@@ -78,6 +79,7 @@ class QuadraticForm:
     regularisation_weight: float
     energy_diagonal: np.ndarray
     scale: np.ndarray
+    feasibility: float | None = None
 
 
 _NO_ROWS: dict = {}  # n -> the (0, n) matrix and (0,) bounds of a box-only problem (no entries to change)
@@ -313,7 +315,14 @@ def least_effort_form(problem: ConstraintProblem, first: np.ndarray, slack, disp
         P = np.diag(d)
         G = G.copy() if G is W else G
         scale = _ones(n)
-    return QuadraticForm(P, np.zeros(n), 0.0, lower, upper, G, row_lower, row_upper, rows, 0.0, d, scale)
+    return QuadraticForm(P, np.zeros(n), 0.0, lower, upper, G, row_lower, row_upper, rows, 0.0, d, scale,
+                         LEAST_EFFORT_FEASIBILITY)
+
+
+# how far the least-effort stage's answer may leave its rows (unit rows in the scaled form; DAQP's
+# default, 1e-6, is ~10 % of the effector rows' band of 2·slack): tight, so that the answer is the
+# stage's optimum to rounding whichever working set DAQP starts from (``effort_duals``)
+LEAST_EFFORT_FEASIBILITY = 1e-9
 
 
 _IDENTITY: dict = {}  # n -> read-only identity(n)
