@@ -117,7 +117,9 @@ _A = 2.0 * zeta(2.0 * _k) / (2.0 * np.pi) ** (2.0 * _k)        # a_1 … a_42
 def _series_table() -> np.ndarray:
     """(TERMS, 31): ``coefficients(θ²) = [t⁰ … t^(N−1)] @ table``, t = θ². Columns: SO(3) ``c``
     (J⁻¹ = I − ½Φ + cΦ²); the weights of [I, A, A², A³, A⁴] in J_l⁻¹ (1, −½, c₂, 0, c₄); and the
-    5×5 matrix (row-major) taking ``[w, u₁, u₂, u₃, u₄]`` to the vectors the link tangent needs."""
+    5×5 matrix (row-major) taking ``[z₀ … z₄]``, ``z_k = A^k S w``, to ``S v`` for the vectors ``v``
+    the link tangent needs (functions of ``u_k = (Aᵀ)^k w = (−1)^k S z_k``; ``S`` swaps a twist's
+    halves, ``Aᵀ = −SAS``)."""
     a = dict(zip(range(1, TERMS + 3), _A))
     j = np.arange(TERMS)
     const = lambda value: np.where(j == 0, value, 0.0)                  # noqa: E731
@@ -127,10 +129,12 @@ def _series_table() -> np.ndarray:
     dc2 = np.array([-i * (i + 1) * a[i + 2] for i in j])                   # d/dt of c₂
     dc4 = np.array([-(i + 2) * (i + 1) * a[i + 3] for i in j])             # d/dt of c₄
     zero = np.zeros(TERMS)
+    # the tangent's vectors from u_k = (−1)^k S z_k (z_k = A^k S w, S swapping a twist's halves):
+    # the weight of u_k times (−1)^k, which gives S v
     columns = [c_so3, const(1.0), const(-0.5), c2, zero, c4,
-               const(-0.5), c2, zero, c4, zero,            # v₃ = −½w + c₂u₁ + c₄u₃
+               const(-0.5), -c2, zero, -c4, zero,          # v₃ = −½w + c₂u₁ + c₄u₃
                c2, zero, c4, zero, zero,                   # v₂ = c₂w + c₄u₂
-               zero, c4, zero, zero, zero,                 # v₁ = c₄u₁
+               zero, -c4, zero, zero, zero,                # v₁ = c₄u₁
                c4, zero, zero, zero, zero,                 # v₀ = c₄w
                zero, zero, 2.0 * dc2, zero, 2.0 * dc4]     # ∂(c₂, c₄)/∂φ direction: 2(c₂′u₂ + c₄′u₄)
     return np.stack(columns, 1)

@@ -42,6 +42,9 @@ from vertebra.core.lie import (
 )
 
 _LAMBDA_TABLE = block_table({(0, 1): 0, (1, 0): 0, (1, 1): 1})    # Λ(u) = [[0, u_f^], [u_f^, u_m^]]
+_SWAP = np.array([3, 4, 5, 0, 1, 2])          # S: a twist's halves swapped (S = Sᵀ = S⁻¹)
+_LAMBDA_SWAPPED = _LAMBDA_TABLE[_SWAP]         # Λ(S v) = v @ _LAMBDA_SWAPPED
+_PHI_MASK = np.array([0.0, 0.0, 0.0, 1.0, 1.0, 1.0])     # [ρ; φ] → [0; φ]
 
 
 def _zw_table() -> np.ndarray:
@@ -167,13 +170,15 @@ def link_tangent(links: Links, w: np.ndarray, material: np.ndarray, gradient: np
     arms (:func:`_geometric_table`); the formula is in the module docstring. ``out``: an
     (n, 12, 12) array to write into."""
     n = links.xi.shape[0]
-    W = (w[:, None, None, :] @ links.Apow)[:, :, 0]   # [w, u₁ … u₄], u_k = (Aᵀ)^k w as rows
-    V = links.coef[:, 6:].reshape(n, 5, 5) @ W   # the four Λ arguments and the coefficient term
+    # u_k = (Aᵀ)^k w = (−1)^k S A^k S w (Aᵀ = −SAS): all five from one product of the stacked
+    # powers [I; A; …; A⁴] with S w; the signs and the swaps are in the coefficients (S v) and Λ's table
+    Z = links.Apow.reshape(n, 30, 6) @ w.take(_SWAP, 1, mode="clip")[:, :, None]
+    V = links.coef[:, 6:].reshape(n, 5, 5) @ Z.reshape(n, 5, 6)   # S v: the four Λ arguments, the coefficient term
     # ∂(J_l⁻ᵀ)/∂ξ [w] = Λ(v₃) + AᵀΛ(v₂) + A²ᵀΛ(v₁) + A³ᵀΛ(v₀): one product of the stacks
     # [I, Aᵀ, A²ᵀ, A³ᵀ] (the transposed vertical stack of powers) and [Λ(v₃); …; Λ(v₀)]
-    D = links.Apow[:, :4].reshape(n, 24, 6).mT @ V[:, :4].reshape(4 * n, 6).dot(_LAMBDA_TABLE).reshape(n, 24, 6)
+    D = links.Apow[:, :4].reshape(n, 24, 6).mT @ V[:, :4].reshape(4 * n, 6).dot(_LAMBDA_SWAPPED).reshape(n, 24, 6)
     D += links.Jl_inv.mT @ material
-    D[:, :, 3:] += V[:, 4, :, None] * links.xi[:, None, 3:]
+    D += V[:, 4].take(_SWAP, 1, mode="clip")[:, :, None] @ (links.xi * _PHI_MASK)[:, None, :]   # v₄ ⊗ [0; φ]
     H = np.matmul(links.Zw, D @ links.G, out=out)
     features = np.empty((n, 21))                # [g (12), span ⊗ f_b (9)]
     features[:, :12] = gradient
