@@ -171,6 +171,59 @@ def test_link_forces_and_tangent_equal_the_complex_step_reference(angle):
     assert np.abs(H - H_fd).max() <= 1e-6 * np.abs(H).max()
 
 
+_SWAP = np.array([3, 4, 5, 0, 1, 2])
+CLOSED_FORM_ANGLES = [0.0, 1e-12, 1e-6, 1e-3, 0.5, 2.0, 3.14, math.pi - 1e-6]
+
+
+@pytest.mark.parametrize("angle", CLOSED_FORM_ANGLES)
+def test_transposed_powers_of_ad_are_the_swapped_powers(angle):
+    # what the link tangent folds into one product: (Aᵀ)^k = (−1)^k S A^k S (A = ad(ξ), S swaps
+    # a twist's halves), against the powers of Aᵀ multiplied out; exact entry by entry for
+    # k ≤ 1, the same products in another order beyond (measured ≤ 1.7e-16 of the power's scale)
+    rng = _rng("swapped powers", angle)
+    xi = np.concatenate([rng.normal(size=(5, 3)), angle * _unit(rng, 5)], 1)
+    A = _ad(xi)
+    S = np.eye(6)[_SWAP]
+    power, transposed = np.broadcast_to(np.eye(6), A.shape), np.broadcast_to(np.eye(6), A.shape)
+    for k in range(5):
+        swapped = (-1.0) ** k * (S @ power @ S)
+        scale = np.abs(transposed).max()
+        assert np.abs(swapped - transposed).max() <= (0.0 if k <= 1 else 4.0 * EPS * scale), k
+        power, transposed = power @ A, transposed @ A.mT
+
+
+@pytest.mark.parametrize("angle", CLOSED_FORM_ANGLES)
+def test_link_tangent_equals_its_formula_with_the_powers_multiplied_out(angle):
+    # ∂y/∂ξ of the module docstring with u_k = (Aᵀ)^k w from explicit powers of Aᵀ and the
+    # coefficients of the series table unsigned, against link_tangent (swapped powers, signed
+    # table): the same sums in another order, measured ≤ 3.6e-16 of the tangent's scale
+    rng = _rng("tangent formula", angle)
+    n = 5
+    qa, xa, qb, xb = _pairs(rng, angle, n)
+    links = Links.of(qa, xa, qb, xb)
+    w, M = rng.normal(size=(n, 6)), _spd(rng, n)
+    g = links.gradient(w)
+    zw_d_g = link_tangent(links, w, M, g) - link_tangent(links, 0.0 * w, 0.0 * M, g)   # the geometric part cancels
+    A = _ad(links.xi)
+    u = [w]
+    for _ in range(4):
+        u.append((A.mT @ u[-1][:, :, None])[:, :, 0])
+    C = links.coef[:, 6:].reshape(n, 5, 5) * (-1.0) ** np.arange(5)       # the weights of u_k
+    v = [sum(C[:, r, k, None] * u[k] for k in range(5)) for r in range(5)]
+
+    def lam(x):
+        out = np.zeros((n, 6, 6))
+        out[:, :3, 3:] = out[:, 3:, :3] = hat(x[:, :3])
+        out[:, 3:, 3:] = hat(x[:, 3:])
+        return out
+
+    At = A.mT
+    D = lam(v[0]) + At @ lam(v[1]) + At @ At @ lam(v[2]) + At @ At @ At @ lam(v[3]) + links.Jl_inv.mT @ M
+    D[:, :, 3:] += v[4][:, :, None] * links.xi[:, None, 3:]
+    reference = links.Zw @ D @ links.G
+    assert np.abs(zw_d_g - reference).max() <= 1e-13 * np.abs(reference).max()
+
+
 def test_batched_transport_and_generalised_force_equal_the_single_ones():
     # (n, m, 6) inputs (the model's pressure columns) give the same as m separate (n, 6) calls
     rng = _rng("batched")
