@@ -39,6 +39,7 @@ import numpy as np
 
 from vertebra.core.errors import SceneError
 from vertebra.core.lie import qmatrix
+from vertebra.solver.contact_features import disk_polyhedron
 from vertebra.solver.obstacles import Plane, Sphere
 
 RIM, BALL, CHORD, PAIR, FOLD = 0, 1, 2, 3, 4   # kinds of contact (PAIR: adjacent discs, FOLD: any other two)
@@ -343,15 +344,44 @@ def _lowest_on_rim(center, axis, e1, radius, direction):
     return center - radius[:, None] * u
 
 
-def _rims(model, R, x, features, obstacle):
-    """Closest points of disc rims (feature 2d: the lower face of disc d, 2d + 1 its upper face)."""
+def _convex(obstacle):
+    """The obstacle's polyhedron when it is a convex one (a box, a convex mesh), else None."""
+    polyhedron = getattr(obstacle, "polyhedron", None)
+    return polyhedron if polyhedron is not None and polyhedron.convex else None
+
+
+def _faces_of(model, R, x, features):
+    """The disk of each disc face (feature 2d: the lower face of disc d, 2d + 1 its upper face):
+    frame, centre, in-plane axes, axis, radius."""
     disc = features // 2
     side = np.where(features % 2, 0.5, -0.5)
     frame = model.disc_frame[disc]
     axes = R[frame]
     e1, e2, axis = axes[:, :, 0], axes[:, :, 1], axes[:, :, 2]
     center = x[frame] + (side * model.disc_thickness[disc])[:, None] * axis
-    radius = model.disc_radius[disc]
+    return frame, center, e1, e2, axis, model.disc_radius[disc]
+
+
+def _polyhedron_rims(model, state, features, obstacle) -> np.ndarray:
+    """``∂²g`` (k, 6, 6) of disc faces ``features`` against a convex polyhedron at ``state``: the
+    derivative of the gap's row on the disc's frame, closed form (:func:`disk_polyhedron`)."""
+    x, R = state.positions, qmatrix(state.quaternions)
+    frame, center, e1, e2, axis, radius = _faces_of(model, R, x, features)
+    return disk_polyhedron(_convex(obstacle), x[frame], center, axis, e1, e2, radius, second=True)[4]
+
+
+def _rims(model, R, x, features, obstacle):
+    """Closest points of disc rims (feature 2d: the lower face of disc d, 2d + 1 its upper face)."""
+    frame, center, e1, e2, axis, radius = _faces_of(model, R, x, features)
+    polyhedron = _convex(obstacle)
+    if polyhedron is not None:
+        # a box or a convex mesh: the face's disk against its faces, edges and vertices (contact_features)
+        distance, point, normal, _ = disk_polyhedron(polyhedron, x[frame], center, axis, e1, e2, radius)
+        rows = np.zeros((features.size, 2, 6))
+        rows[:, 0, :3] = normal
+        rows[:, 0, 3:] = _cross(point - x[frame], normal)
+        return (distance, point, normal, np.stack([frame, np.full(frame.size, -1)], 1), rows,
+                np.zeros((features.size, 2, 3)))      # (its curvature: :func:`_polyhedron_rims`)
     if isinstance(obstacle, Plane):
         point = _lowest_on_rim(center, axis, e1, radius, np.broadcast_to(obstacle.normal, center.shape))
     elif isinstance(obstacle, Sphere):
@@ -1052,6 +1082,9 @@ def _surface_curvature(obstacle, point: np.ndarray, scale: float) -> np.ndarray:
     its normal, by central differences (zero for planes)."""
     if isinstance(obstacle, Plane):
         return np.zeros((point.shape[0], 3, 3))
+    polyhedron = getattr(obstacle, "polyhedron", None)
+    if polyhedron is not None:          # a box, a mesh: closed form by the nearest feature
+        return polyhedron.curvature(point, *obstacle.closest(point))
     h = 1e-6 * scale
     shifted = point[:, None, :] + h * np.eye(3)[None]
     plus = obstacle.closest(shifted.reshape(-1, 3))[1].reshape(-1, 3, 3)
@@ -1168,10 +1201,19 @@ def curvature(model: ContactModel, contacts: ContactSet, multipliers: np.ndarray
     pair = (key[:, 0] == PAIR) | (key[:, 0] == FOLD)
     S = np.zeros((key.shape[0], 3, 3))
     surface = ~pair & (key[:, 0] < TANGENTIAL)       # (a tangential row's directions are held: no curvature)
+    featured = np.zeros(key.shape[0], bool)          # disc faces on convex polyhedra: their own closed form
     for j in np.unique(key[surface, 2]):
         chosen = surface & (key[:, 2] == j)
-        S[chosen] = _surface_curvature(model.obstacles[j], point[chosen], model.length)
+        if _convex(model.obstacles[j]) is not None:
+            featured |= chosen & (key[:, 0] == RIM)
+            chosen &= key[:, 0] != RIM
+        if chosen.any():
+            S[chosen] = _surface_curvature(model.obstacles[j], point[chosen], model.length)
     blocks = _blocks(contacts, lam, S, point, n, pair, chord)
+    for j in np.unique(key[featured, 2]):
+        chosen = np.flatnonzero(featured & (key[:, 2] == j))
+        blocks[chosen, :6, :6] = -multipliers[chosen, None, None] * _polyhedron_rims(
+            model, state, key[chosen, 1], model.obstacles[j])
     if pair.any():
         blocks[pair] = _pair_curvature(model, state, key[pair], multipliers[pair])
     return frames, blocks

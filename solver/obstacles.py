@@ -38,6 +38,49 @@ def _normalised(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 @dataclass(frozen=True, eq=False)
+class Polyhedron:
+    """A box's or a mesh's vertices, face planes and sharp edges (the features a body touches:
+    docs/contact.md, "Sharp features"). ``convex``: every vertex on the inner side of every face
+    plane — then the separating-axis gap of :mod:`vertebra.solver.contact_features` holds."""
+
+    vertices: np.ndarray          # (v, 3)
+    face_normal: np.ndarray       # (f, 3) outward unit normals
+    face_offset: np.ndarray       # (f,) normal · x of the face's plane
+    edges: np.ndarray             # (e, 2) vertex indices of the convex edges (faces meeting at an angle)
+    convex: bool
+
+    @functools.cached_property
+    def size(self) -> float:
+        return float(np.ptp(self.vertices, 0).max()) + TINY
+
+    def curvature(self, points, distance, normal, surface) -> np.ndarray:
+        """The Hessian (k, 3, 3) of the signed distance at ``points`` from their closest surface
+        points: zero on a face, ``(I − uuᵀ − nnᵀ)/d`` beside an edge of direction ``u`` and
+        ``(I − nnᵀ)/d`` beside a vertex (the distance to a line, to a point); zero within rounding
+        of the surface, where the distance has a kink at an edge or a vertex."""
+        k = points.shape[0]
+        S = np.zeros((k, 3, 3))
+        tol = 1e-10 * self.size
+        off = np.flatnonzero(distance > 1e3 * tol)
+        if not off.size:
+            return S
+        q, n, d = surface[off], normal[off], distance[off]
+        outer = np.eye(3) - n[:, :, None] * n[:, None, :]
+        at_vertex = np.add.reduce((q[:, None] - self.vertices[None]) ** 2, -1).min(1) <= tol * tol
+        a, b = self.vertices[self.edges[:, 0]], self.vertices[self.edges[:, 1]]
+        u, _ = _normalised(b - a)
+        t = np.clip(np.einsum("kei,ei->ke", q[:, None] - a[None], b - a) / np.add.reduce((b - a) ** 2, -1), 0.0, 1.0)
+        apart = np.add.reduce((q[:, None] - a[None] - t[..., None] * (b - a)[None]) ** 2, -1)       # (k, e)
+        edge = np.argmin(apart, 1) if self.edges.size else np.zeros(off.size, int)
+        on_edge = ~at_vertex & (apart[np.arange(off.size), edge] <= tol * tol if self.edges.size else False)
+        S[off[at_vertex]] = outer[at_vertex] / d[at_vertex, None, None]
+        if np.any(on_edge):
+            ue = u[edge[on_edge]]
+            S[off[on_edge]] = (outer[on_edge] - ue[:, :, None] * ue[:, None, :]) / d[on_edge, None, None]
+        return S
+
+
+@dataclass(frozen=True, eq=False)
 class Plane:
     """The half-space below a plane through ``point`` with outward ``normal``."""
 
@@ -151,6 +194,15 @@ class Box:
         distance = np.where(inside, -np.take_along_axis(depth, face[..., None], -1)[..., 0], away)
         return distance, normal_local @ self.rotation.T, surface @ self.rotation.T + self.center
 
+    @functools.cached_property
+    def polyhedron(self) -> Polyhedron:
+        signs = np.array([[i, j, k] for i in (-1.0, 1.0) for j in (-1.0, 1.0) for k in (-1.0, 1.0)])
+        vertices = (signs * self.half) @ self.rotation.T + self.center
+        normals = np.concatenate([self.rotation.T, -self.rotation.T])          # rows: ±the box's axes
+        offsets = normals @ self.center + np.concatenate([self.half, self.half])
+        edges = np.array([(i, j) for i in range(8) for j in range(i + 1, 8) if np.sum(signs[i] != signs[j]) == 1])
+        return Polyhedron(vertices, normals, offsets, edges, True)
+
     def bounds(self):
         extent = np.abs(self.rotation) @ self.half
         return self.center - extent, self.center + extent
@@ -212,6 +264,27 @@ class Mesh:
             e1, e2 = c[:, (k + 1) % 3] - c[:, k], c[:, (k + 2) % 3] - c[:, k]
             angles[:, k] = np.arctan2(np.sqrt(np.add.reduce(_cross3(e1, e2) ** 2, -1)), np.add.reduce(e1 * e2, -1))
         return normals, angles
+
+    @functools.cached_property
+    def polyhedron(self) -> Polyhedron:
+        normals, _ = self._faces
+        c = self.corners
+        offsets = np.add.reduce(normals * c[:, 0], -1)
+        # edges with the triangles on either side; convex where each triangle's far corner lies
+        # below the other's plane (an edge between coplanar triangles is no feature)
+        sides = np.sort(np.stack([self.triangles, np.roll(self.triangles, -1, 1)], -1), -1).reshape(-1, 2)
+        far = np.roll(self.triangles, 1, 1).reshape(-1)
+        owner = np.repeat(np.arange(self.triangles.shape[0]), 3)
+        order = np.lexsort((sides[:, 1], sides[:, 0]))
+        sides, far, owner = sides[order], far[order], owner[order]
+        size = float(np.ptp(self.vertices, 0).max()) + TINY
+        paired = np.flatnonzero(np.all(sides[1:] == sides[:-1], 1))
+        first, second = paired, paired + 1
+        below = np.add.reduce(normals[owner[first]] * (self.vertices[far[second]] - c[owner[first], 0]), -1)
+        edges = sides[first][below < -1e-9 * size]
+        manifold = 2 * paired.size == sides.shape[0]
+        inside = self.vertices @ normals.T - offsets <= 1e-9 * size
+        return Polyhedron(self.vertices, normals, offsets, edges, bool(manifold and inside.all()))
 
     @property
     def areas(self) -> np.ndarray:
