@@ -96,6 +96,16 @@ def _rim_line(c, a, e1, e2, rho, o, u):
     return 0.5 * (low + high)
 
 
+def _crossing(tau, u, apart):
+    """Whether a rim–line pairing's direction is taken as ``τ × u`` (the rim crossing the line at
+    an angle: defined through contact) rather than as ``p − e`` (the rim parallel to the line where
+    they are nearest, as a disc bending over an edge across its bending plane: defined while apart):
+    the longer of the two (``|τ × u| = ρ sin θ`` against ``|p − e|``); where both are defined they
+    are the same direction."""
+    N = _cross(tau, u)
+    return _dot(N, N) >= _dot(apart, apart)
+
+
 def disk_polyhedron(poly, x, c, a, e1, e2, rho, second: bool = False):
     """The gap of each disk (centre ``c``, unit axis ``a``, in-plane axes ``e1``, ``e2``, radius
     ``rho``; (k, …)) on a frame at ``x`` against the convex polyhedron ``poly``: (gap (k,), point on
@@ -123,11 +133,13 @@ def disk_polyhedron(poly, x, c, a, e1, e2, rho, second: bool = False):
     s = _rim_line(c, a, e1, e2, rho, o, u)
     radial_e = np.cos(s)[..., None] * e1[:, None] + np.sin(s)[..., None] * e2[:, None]
     tau_e = rho[:, None, None] * _cross(a[:, None], radial_e)
-    N = _cross(tau_e, u[None])
-    norm_N = np.sqrt(_dot(N, N))
-    m = N / np.maximum(norm_N, 1e-300)[..., None]
+    apart = c[:, None] + rho[:, None, None] * radial_e - o[None]
+    apart -= _dot(apart, u[None])[..., None] * u[None]                          # p − e, ⊥ the line
+    m = np.where(_crossing(tau_e, u[None], apart)[..., None], _cross(tau_e, u[None]), apart)
+    norm_m = np.sqrt(_dot(m, m))
+    m = m / np.maximum(norm_m, 1e-300)[..., None]
     m = np.where((_dot(m, radial_e) < 0.0)[..., None], m, -m)                  # the rim point lowest along m
-    m = np.where((norm_N > 1e-9 * rho[:, None])[..., None], m, a[:, None])
+    m = np.where((norm_m > 0.0)[..., None], m, a[:, None])
     directions = np.concatenate([faces, axes, n_vertex, m], 1)
     phi = _separation(directions, c, a, rho, V)
     # a vertex's or an edge's pairing is the stationary point it stands for only where that
@@ -178,11 +190,15 @@ def disk_polyhedron(poly, x, c, a, e1, e2, rho, second: bool = False):
         Dtau = np.zeros((edge.sum(), 3, 6))
         Dtau[:, :, 3:] = -_hat(te)
         Dtau += ts[:, :, None] * ds[edge][:, None, :]
-        DN = -_hat(ue) @ Dtau                          # δτ × u
-        Ne = _cross(te, ue)
-        sigma = np.sign(_dot(Ne, ne)) / np.sqrt(_dot(Ne, Ne))
         project = np.eye(3) - ne[:, :, None] * ne[:, None, :]
-        Dn[edge] = sigma[:, None, None] * project @ DN
+        Ne = _cross(te, ue)
+        crossing = _crossing(te, ue, g[:, None] * ne)
+        sigma = np.where(crossing, np.sign(_dot(Ne, ne)) / np.maximum(np.sqrt(_dot(Ne, Ne)), 1e-300), 0.0)
+        Dn_edge = sigma[:, None, None] * project @ (-_hat(ue) @ Dtau)              # σ(I − nnᵀ)(δτ × u)/|τ × u|
+        # … or n = (p − e)/g, the line's point e following p along u
+        Dp_edge = Dx[edge] + te[:, :, None] * ds[edge][:, None, :]
+        along = project @ (Dp_edge - ue[:, :, None] * np.einsum("ki,kij->kj", ue, Dp_edge)[:, None, :])
+        Dn[edge] = np.where(crossing[:, None, None], Dn_edge, along / np.where(crossing, 1.0, g)[:, None, None])
     vertex = kind == VERTEX
     if vertex.any():
         nv, te, ts, le, g = n[vertex], tau[vertex], tau_s[vertex], l[vertex], gap[vertex]
