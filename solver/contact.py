@@ -21,8 +21,10 @@ Shapes. A vertebra with ``disc_radius > 0`` carries a disc of that radius and
 (a flat disk swept by a ball of half the thickness, :func:`_puck_gap`): adjacent discs are
 always candidates, any two others once their bounding spheres come near each other (a k-d
 tree of the discs' centres at each state, :func:`fold_pairs`: a trunk folding onto itself).
-A disc meets obstacles through the rims of its two faces (the closest
-point of each rim circle). A segment with ``contact_radius`` is a chain of capsules along the
+A disc meets obstacles through its two faces: the closest point of each
+rim circle, or against a box or a convex mesh the face's flat disk by the pairing of features
+that holds it apart (:mod:`~vertebra.solver.contact_features`: face, edge, vertex or the disc's
+own face; signed and smooth through contact at an edge). A segment with ``contact_radius`` is a chain of capsules along the
 chords between its frames: its frames are balls of that radius, and a chord's interior meets
 an obstacle where it is closer than both ends. The closest point of a rim or a chord to an
 obstacle is closed-form for planes and spheres and found by golden-section search for the
@@ -1079,7 +1081,8 @@ def _hat(v: np.ndarray) -> np.ndarray:
 
 def _surface_curvature(obstacle, point: np.ndarray, scale: float) -> np.ndarray:
     """The Hessian of the obstacle's signed distance at ``point`` (k, 3, 3): the derivative of
-    its normal, by central differences (zero for planes)."""
+    its normal — zero for planes, closed form by the nearest feature for boxes and meshes
+    (:meth:`~vertebra.solver.obstacles.Polyhedron.curvature`), else by central differences."""
     if isinstance(obstacle, Plane):
         return np.zeros((point.shape[0], 3, 3))
     polyhedron = getattr(obstacle, "polyhedron", None)
@@ -1184,10 +1187,10 @@ def _pair_curvature(model: ContactModel, state, key: np.ndarray, lam: np.ndarray
 
 def curvature(model: ContactModel, contacts: ContactSet, multipliers: np.ndarray, state=None):
     """``−λ_i ∂²g_i`` of each contact as a 12×12 block on its frames ``[a; b]`` (the derivative of
-    the contact forces' generalised forces with the contact point held on the body: the turning
-    of the lever arms, the turning of a disc's face normal and the obstacle's surface curvature;
-    the sliding of a closest point along a rim or chord is not included). Returns (frames (k, 2),
-    blocks (k, 12, 12))."""
+    the contact forces' generalised forces: the turning of the lever arms, the turning of a disc's
+    face normal, the obstacle's surface curvature and the sliding of a closest point along a rim
+    or chord; a disc's face on a box or convex mesh: its pairing's closed form, disc pairs: central
+    differences). ``state``: the contacts' state. Returns (frames (k, 2), blocks (k, 12, 12))."""
     key, frames = contacts.key, contacts.frames
     lam = multipliers[:, None, None]
     n = contacts.normal
