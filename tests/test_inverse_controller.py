@@ -392,3 +392,33 @@ def test_step_errors_reached_and_settled_equilibria():
         assert settled.reached is bool(np.all(settled.errors <= 1e-4))
         assert controller.state is step.state  # the controller continues from its own prediction
     assert seen == {True, False}
+
+
+def test_ticks_warm_started_by_the_kept_least_effort_model_equal_cold_ones():
+    # A controller's DAQP backend keeps the least-effort stage's model and solves each tick's
+    # second stage from the working set the last one left (1–2 active-set iterations instead of
+    # ~25). The answer is the stage's optimum whatever the start: ticks whose every QP is solved
+    # by a new backend (the stage from the first stage's answer) command the same tensions to
+    # rounding, and the kept model takes fewer iterations.
+    from vertebra.solver.inverse.backends import get_backend
+
+    model = solver.build_model(load("paper_5v_16t"))
+    lower, upper = model.actuator_bounds
+    lam = np.clip(np.full(len(model.actuator_names), 0.3), lower, upper)
+    state = model.solve(lam).state
+    warm, cold = (InverseController(model, InverseSettings(mode="tick"), actuation=lam, state=state)
+                  for _ in range(2))
+    centre = model.effector_positions(state)
+    iterations = {"warm": 0, "cold": 0}
+    for k in range(25):
+        angle = 2 * np.pi * k / 25
+        target = centre + 1e-3 * np.array([np.cos(angle), np.sin(angle), 0.0])
+        cold.backend = get_backend("daqp")        # nothing kept from the last tick
+        a, b = warm.step(target), cold.step(target)
+        np.testing.assert_allclose(a.actuation, b.actuation, rtol=0, atol=1e-9 * float(np.abs(b.actuation).max()))
+        assert a.status == b.status == "tick"
+        if k:
+            iterations["warm"] += a.qp.iterations
+            iterations["cold"] += b.qp.iterations
+    assert len(warm.backend._models) == 1       # the least-effort stage's, set up once
+    assert iterations["warm"] < 0.5 * iterations["cold"], iterations

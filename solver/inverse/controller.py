@@ -243,7 +243,6 @@ class InverseController:
         # it may be used at, ticks it has been used for, the actuation it was linearised at), or None
         self._chord = None
         self._held = 0.0        # the last applied tick's quality (the lower of its energy decrease and prediction)
-        self._effort_duals = None   # the last QP's least-effort multipliers: where the next one's working set starts
 
     # ------------------------------------------------------------------ pieces
     def _linearised_step(self, targets, timings, box=None, damping=None, base=None, secants=0,
@@ -293,10 +292,9 @@ class InverseController:
                                      tolerance=self.settings.qp_tolerance, slack=self._slack))
         if found is not None:
             projection, sol = found
-        else:       # (the least-effort stage from the last such QP's working set)
+        else:
             sol = solve_constraint_problem(projection.problem, self.backend, tolerance=self.settings.qp_tolerance,
-                                           slack=self._slack, effort_duals=self._effort_duals)
-            self._effort_duals = sol.effort_duals
+                                           slack=self._slack)
         t3 = time.perf_counter()
         if base is not None:
             n_cables = self.model.n_cables

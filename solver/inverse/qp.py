@@ -203,9 +203,6 @@ class ConstraintSolution:
     regularisation_weight: float
     problem: ConstraintProblem = field(repr=False, compare=False)
     displacement_bounds: tuple = field(repr=False, compare=False)  # the (possibly widened) limits solved with
-    # the least-effort stage's multipliers (box, then rows), when its backend gives them: the
-    # working set the next solve's second stage may start from (``effort_duals``)
-    effort_duals: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     def diagnostics(self) -> QPDiagnostics:
         """Objective, stationarity and active bounds at :attr:`actuation` (computed on each call)."""
@@ -321,7 +318,7 @@ def least_effort_form(problem: ConstraintProblem, first: np.ndarray, slack, disp
 
 # how far the least-effort stage's answer may leave its rows (unit rows in the scaled form; DAQP's
 # default, 1e-6, is ~10 % of the effector rows' band of 2·slack): tight, so that the answer is the
-# stage's optimum to rounding whichever working set DAQP starts from (``effort_duals``)
+# stage's optimum to rounding whichever working set DAQP starts from (its model's last one)
 LEAST_EFFORT_FEASIBILITY = 1e-9
 
 
@@ -337,8 +334,7 @@ def _identity(n: int) -> np.ndarray:
 
 def solve_constraint_problem(problem: ConstraintProblem, backend: str | QPBackend = DEFAULT_BACKEND, *,
                              tolerance: float = 1e-10, absolute_tolerance: float = 0.0,
-                             max_iterations: int | None = None, slack: float | None = None,
-                             effort_duals: np.ndarray | None = None) -> ConstraintSolution:
+                             max_iterations: int | None = None, slack: float | None = None) -> ConstraintSolution:
     """Solve one inverse step; the answer never leaves the λ box.
 
     ``backend`` is a registered name or a :class:`~solver.inverse.backends.QPBackend`.
@@ -350,12 +346,9 @@ def solve_constraint_problem(problem: ConstraintProblem, backend: str | QPBacken
     ``displacement_relaxation`` by how much. An unreachable target needs nothing special: the QP
     returns the closest reach and ``effector_error`` says how far it is.
 
-    ``effort_duals``: an earlier solution's :attr:`ConstraintSolution.effort_duals` (a tick's
-    predecessor's). A backend that takes them (``warm_duals``: DAQP) starts the least-effort stage
-    from their working set instead of the constraints active at the first stage's answer: from
-    one tick to the next the set barely changes (1–2 active-set iterations instead of ~25). The
-    answer is that QP's optimum either way, to the solver's rounding along its other path; a
-    start that does not serve (not converged) is solved again from the first stage's answer.
+    A backend object kept between calls may carry state from one solve to the next: DAQP's
+    solves the least-effort stage from the working set its last such solve left
+    (:class:`~vertebra.solver.inverse.backends.DaqpBackend`).
     """
     t0 = time.perf_counter()
     solver = get_backend(backend) if isinstance(backend, str) else backend
@@ -372,24 +365,14 @@ def solve_constraint_problem(problem: ConstraintProblem, backend: str | QPBacken
     lam = np.minimum(np.maximum(out.actuation * form.scale, lower), upper)
     iterations, status, converged = out.iterations, out.status, out.converged
     limits = (space.displacement_lower, space.displacement_upper) if bounds is None else bounds
-    duals = None
     if slack is not None and converged:
         # second stage: the least effort among the efforts that keep the first stage's effector gaps
         second = least_effort_form(problem, lam, slack, limits, scaled=solver.scaled,
                                    energy=form.energy_diagonal if problem.W_aa is not None else None)
-        start = lam / second.scale
-        if (effort_duals is not None and effort_duals.size == second.lower.size + second.G.shape[0]
-                and getattr(solver, "warm_duals", False)):
-            out2 = solver.solve(second, start, tolerance=tol, max_iterations=budget, dual_start=effort_duals)
-            if not out2.converged:      # (the earlier working set does not serve: from the first stage's answer)
-                iterations += out2.iterations
-                out2 = solver.solve(second, start, tolerance=tol, max_iterations=budget)
-        else:
-            out2 = solver.solve(second, start, tolerance=tol, max_iterations=budget)
+        out2 = solver.solve(second, lam / second.scale, tolerance=tol, max_iterations=budget)
         iterations += out2.iterations
         if out2.converged:
             lam = np.minimum(np.maximum(out2.actuation * second.scale, lower), upper)
-            duals = out2.duals
     de, da = problem.predict(lam)
     relaxed = relaxation is not None
     return ConstraintSolution(
@@ -397,5 +380,4 @@ def solve_constraint_problem(problem: ConstraintProblem, backend: str | QPBacken
         converged=converged, status="relaxed" if (relaxed and converged) else status,
         backend=solver.name, time_s=time.perf_counter() - t0,
         displacement_relaxation=relaxation if relaxed else _no_relaxation(lam.size),
-        regularisation_weight=form.regularisation_weight, problem=problem, displacement_bounds=limits,
-        effort_duals=duals)
+        regularisation_weight=form.regularisation_weight, problem=problem, displacement_bounds=limits)
