@@ -260,7 +260,9 @@ class DaqpBackend:
     _primal_tol = None  # its default primal (feasibility) tolerance
 
     def __init__(self):
-        self._models: dict = {}  # (id(P), constraints) -> [P, daqp.Model, its (iteration limit, primal tolerance)]
+        # (id(P), constraints) -> [P, daqp.Model, its (iteration limit, primal tolerance), its linear term
+        # when a read-only array owning its data (the same at every call: not updated), else None]
+        self._models: dict = {}
 
     def solve(self, form, start, *, tolerance, max_iterations):
         daqp = DaqpBackend._daqp
@@ -289,7 +291,11 @@ class DaqpBackend:
                 if kept[2] != settings:
                     model.settings = {"iter_limit": max_iterations, "primal_tol": feasibility}
                     kept[2] = settings
-                model.update(f=_writeable(form.q), A=_writeable(form.G), bupper=upper, blower=lower)
+                if form.q is kept[3]:       # (the same read-only linear term: the model has it)
+                    model.update(A=_writeable(form.G), bupper=upper, blower=lower)
+                else:
+                    model.update(f=_writeable(form.q), A=_writeable(form.G), bupper=upper, blower=lower)
+                    kept[3] = form.q if not form.q.flags.writeable and form.q.base is None else None
                 x, _f, flag, info = model.solve()
                 if flag == 1 or flag == 2:
                     return BackendOutput(x, info["iterations"], True, "optimal")
@@ -307,7 +313,8 @@ class DaqpBackend:
                 model.settings = {"iter_limit": max_iterations, "primal_tol": feasibility, "eps_prox": 0.0}
                 model.setup(_writeable(P), _writeable(form.q), _writeable(form.G), upper, lower, sense,
                             dual_start=info["lam"])
-                self._models[key] = [P, model, settings]
+                self._models[key] = [P, model, settings,
+                                     form.q if not form.q.flags.writeable and form.q.base is None else None]
             return BackendOutput(x, info["iterations"], True, "optimal")
         return BackendOutput(start.copy(), int(info.get("iterations", 0)), False,
                              _DAQP_STATUS.get(flag) or f"daqp exitflag {flag}")

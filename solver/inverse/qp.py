@@ -269,10 +269,10 @@ def _feasible_start(problem: ConstraintProblem, start: np.ndarray):
     return start, (np.where(below, da, dlo), np.where(above, da, dhi)), relaxation
 
 
-_ZEROS: dict = {}  # n -> read-only zeros(n)
+_ZEROS: dict = {}  # n -> read-only zeros(n): no relaxation, the least-effort stage's linear term
 
 
-def _no_relaxation(n: int) -> np.ndarray:
+def _zeros(n: int) -> np.ndarray:
     zeros = _ZEROS.get(n)
     if zeros is None:
         zeros = _ZEROS[n] = _read_only(np.zeros(n))
@@ -312,7 +312,8 @@ def least_effort_form(problem: ConstraintProblem, first: np.ndarray, slack, disp
         P = np.diag(d)
         G = G.copy() if G is W else G
         scale = _ones(n)
-    return QuadraticForm(P, np.zeros(n), 0.0, lower, upper, G, row_lower, row_upper, rows, 0.0, d, scale,
+    # (its linear term: the same read-only zeros at every call, as the scaled Hessian is one identity)
+    return QuadraticForm(P, _zeros(n), 0.0, lower, upper, G, row_lower, row_upper, rows, 0.0, d, scale,
                          LEAST_EFFORT_FEASIBILITY)
 
 
@@ -379,5 +380,5 @@ def solve_constraint_problem(problem: ConstraintProblem, backend: str | QPBacken
         actuation=lam, delta_e=de, delta_a=da, effector_error=math.sqrt(de.dot(de)), iterations=iterations,
         converged=converged, status="relaxed" if (relaxed and converged) else status,
         backend=solver.name, time_s=time.perf_counter() - t0,
-        displacement_relaxation=relaxation if relaxed else _no_relaxation(lam.size),
+        displacement_relaxation=relaxation if relaxed else _zeros(lam.size),
         regularisation_weight=form.regularisation_weight, problem=problem, displacement_bounds=limits)
