@@ -47,7 +47,7 @@ from typing import Callable
 
 import numpy as np
 
-from vertebra.solver.batch import strain_paths
+from vertebra.solver.batch import kept_heap, strain_paths
 from vertebra.solver.hull import Hull, convex_hull
 from vertebra.solver.workspace_order import ORDERINGS, SolveOrder, generations, response_coordinates
 from vertebra.core.lie import qrotate
@@ -620,7 +620,7 @@ def sample_workspace(model, n_samples: int = 1000, *, method: str = "sobol", see
         pool = _Processes(model, workers)
     else:
         pool = _InProcess(model)
-    with pool:
+    with pool, kept_heap():
         pieces = [_solve_generations(model, actuations, plan, coordinates, tolerance, pool, chunk, progress)]
 
     per_sample = {"positions": np.full((n, len(model.effector_names), 3), np.nan),

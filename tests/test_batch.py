@@ -248,3 +248,26 @@ def test_a_capped_step_limit_skips_only_the_cable_pieces_that_cannot_halve_withi
     capped = run.step_limit(rows, dq, change, ev.pieces, cap=1.0)
     assert np.array_equal(np.minimum(1.0, full), np.minimum(1.0, capped))
     assert np.any(full < 1.0) and np.any(full >= 1.0)     # both kinds of steps were tried
+
+
+def test_kept_heap_pads_the_c_heap_while_the_outermost_batch_runs(monkeypatch):
+    # glibc keeps MEMORY_BUDGET of freed heap at its top from the outermost batch's start to its
+    # end (nested batches and an error inside leave it as it is, then restore the default once)
+    from vertebra.solver import batch as batch_module
+
+    calls = []
+    monkeypatch.setattr(batch_module, "_MALLOPT", lambda parameter, value: calls.append((parameter, value)) or 1)
+    with batch_module.kept_heap():
+        with batch_module.kept_heap():
+            assert calls == [(-2, batch_module.MEMORY_BUDGET)]
+        assert calls == [(-2, batch_module.MEMORY_BUDGET)]
+    assert calls == [(-2, batch_module.MEMORY_BUDGET), (-2, 128 * 1024)]
+    calls.clear()
+    with pytest.raises(RuntimeError):
+        with batch_module.kept_heap():
+            raise RuntimeError("inside")
+    assert calls == [(-2, batch_module.MEMORY_BUDGET), (-2, 128 * 1024)] and batch_module._heap_users == 0
+    monkeypatch.setattr(batch_module, "_MALLOPT", None)         # no mallopt (not glibc): nothing to do
+    with batch_module.kept_heap():
+        pass
+    assert batch_module._heap_users == 0
