@@ -191,7 +191,7 @@ class BandAssembler:
     def storage_of(self, terms: np.ndarray) -> np.ndarray:
         """Flat block storage (with its trailing zero) of the tangent whose terms are ``terms``."""
         storage = np.empty(self.storage_size)
-        np.add.reduce(terms.take(self._storage_gather), axis=0, out=storage[:-1])
+        np.add.reduce(terms.take(self._storage_gather, mode="clip"), axis=0, out=storage[:-1])
         storage[-1] = 0.0
         return storage
 
@@ -268,8 +268,8 @@ class BandAssembler:
 
     def symmetric_from_storage(self, storage: np.ndarray) -> np.ndarray:
         """Lower band of the symmetric part ½(A + Aᵀ) of the blocks held in ``storage``."""
-        ab = storage.take(self._sym_ij)
-        ab += storage.take(self._sym_ji)
+        ab = storage.take(self._sym_ij, mode="clip")       # indices made with the assembler (clip: no check)
+        ab += storage.take(self._sym_ji, mode="clip")
         ab *= 0.5
         return ab.reshape(self.kd + 1, self.n)
 

@@ -60,7 +60,10 @@ def _group_table() -> np.ndarray:
 
 _GROUP_TABLE = _group_table()
 # (a × b)_i = a_{i+1} b_{i+2} − a_{i+2} b_{i+1}: the cross products of the pieces' kinematics as
-# elementwise products of two gathers (one product for all the terms, whatever the number of rows)
+# elementwise products of two gathers (one product for all the terms, whatever the number of rows).
+# These constant indices are taken with ``mode="clip"``: numpy's default mode checks every index and
+# gathers a few columns of many rows 2–4× slower (1.6 against 0.4 ms for 56,000 rows; 1.2 against
+# 0.6 µs for a tick's 56)
 _UNIT_OFFSETS = np.array([1, 2, 0, 4, 5, 3, 2, 0, 1, 5, 3, 4])       # [s_a, s_b] at i+1, then at i+2
 _UNIT_SPAN = np.array([2, 0, 1, 2, 0, 1, 1, 2, 0, 1, 2, 0])          # u at i+2, then at i+1
 _CHANGE_OFFSETS = np.array([1, 2, 0, 2, 0, 1, 5, 3, 4, 4, 5, 3])     # s_a at i+1, i+2; s_b at i+2, i+1
@@ -106,8 +109,8 @@ class CablePieces:
         (:meth:`CableRouting.spans`)."""
         m = d.shape[0]
         u = d / length[:, None]
-        terms = offsets.take(_UNIT_OFFSETS, 1)                   # the terms of s_a × u and s_b × u
-        terms *= u.take(_UNIT_SPAN, 1)
+        terms = offsets.take(_UNIT_OFFSETS, 1, mode="clip")     # the terms of s_a × u and s_b × u
+        terms *= u.take(_UNIT_SPAN, 1, mode="clip")
         unit = np.empty((m, 12))
         np.negative(u, out=unit[:, 0:3])
         unit[:, 6:9] = u
@@ -118,8 +121,8 @@ class CablePieces:
     def change(self, moves: np.ndarray) -> np.ndarray:
         """``Δd = Cᵀ [dq_a; dq_b]`` (m, 3), the linearised change of every piece's span under the
         increments ``moves`` (m, 12) of its two frames: ``dx_b − dx_a − dφ_a × s_a + dφ_b × s_b``."""
-        terms = self.offsets.take(_CHANGE_OFFSETS, 1)            # the terms of s_a × dφ_a and dφ_b × s_b
-        terms *= moves.take(_CHANGE_MOVES, 1)
+        terms = self.offsets.take(_CHANGE_OFFSETS, 1, mode="clip")   # the terms of s_a × dφ_a and dφ_b × s_b
+        terms *= moves.take(_CHANGE_MOVES, 1, mode="clip")
         delta = moves[:, 6:9] - moves[:, 0:3]
         delta += terms[:, 0:3]
         delta -= terms[:, 3:6]
