@@ -41,7 +41,7 @@ import numpy as np
 
 from vertebra.core.errors import SceneError
 from vertebra.core.lie import qmatrix
-from vertebra.solver.contact_features import disk_polyhedron
+from vertebra.solver.contact_features import disk_polyhedron, segment_polyhedron
 from vertebra.solver.obstacles import Plane, Sphere
 
 RIM, BALL, CHORD, PAIR, FOLD = 0, 1, 2, 3, 4   # kinds of contact (PAIR: adjacent discs, FOLD: any other two)
@@ -427,12 +427,22 @@ def _chords(model, R, x, features, obstacle, ends=False):
         t = np.clip(np.add.reduce((obstacle.center - a) * ab, -1) / np.maximum(np.add.reduce(ab * ab, -1), 1e-300),
                     0.0, 1.0)
     else:
-        samples = np.linspace(0.0, 1.0, CHORD_SAMPLES + 1)
-        trial = a[:, None] + samples[None, :, None] * (b - a)[:, None]
-        start = samples[np.argmin(obstacle.closest(trial.reshape(-1, 3))[0].reshape(link.size, -1), 1)]
-        width = 1.0 / CHORD_SAMPLES
-        t = _golden(lambda s: obstacle.closest(a + s[:, None] * (b - a))[0],
-                    np.maximum(start - width, 0.0), np.minimum(start + width, 1.0))
+        polyhedron = _convex(obstacle)
+        t, search = np.zeros(link.size), np.ones(link.size, bool)
+        if polyhedron is not None:
+            # a convex polyhedron: outside it the distance along the chord is smooth and convex, its
+            # pieces a face's (linear), an edge's or a vertex's, so its least is at an end, a
+            # vertex's projection or the chord's nearest point to an edge's line (one query)
+            t, distance = segment_polyhedron(polyhedron, obstacle.closest, a, b)
+            search = distance <= 0.0             # (inside: the faces' planes meet where it is least)
+        if search.any():
+            a_s, b_s = a[search], b[search]
+            samples = np.linspace(0.0, 1.0, CHORD_SAMPLES + 1)
+            trial = a_s[:, None] + samples[None, :, None] * (b_s - a_s)[:, None]
+            start = samples[np.argmin(obstacle.closest(trial.reshape(-1, 3))[0].reshape(a_s.shape[0], -1), 1)]
+            width = 1.0 / CHORD_SAMPLES
+            t[search] = _golden(lambda s: obstacle.closest(a_s + s[:, None] * (b_s - a_s))[0],
+                                np.maximum(start - width, 0.0), np.minimum(start + width, 1.0))
     interior = (t > 1e-9) & (t < 1.0 - 1e-9)
     point = a + t[:, None] * (b - a)
     distance, normal, _ = obstacle.closest(point)

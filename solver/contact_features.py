@@ -219,3 +219,28 @@ def disk_polyhedron(poly, x, c, a, e1, e2, rho, second: bool = False):
     Dl[:, :, :3] -= np.eye(3)
     M[:, 3:] = -_hat(n) @ Dl + _hat(l) @ Dn            # δ(l × n) = δl × n + l × δn
     return gap, point, n, kind, M
+
+
+def segment_polyhedron(poly, closest, a, b):
+    """The parameter ``t`` (k,) of the point of each segment ``a → b`` (k, 3) nearest the convex
+    polyhedron ``poly`` (``closest``: its obstacle's :meth:`closest`), and that point's signed
+    distance. Outside the polyhedron the distance along a line is smooth and convex, made of a
+    face's (linear), an edge's or a vertex's pieces, so its least is at an end, at a vertex's
+    projection on the segment or at the segment's point nearest an edge's line: each candidate's
+    distance from one query, the least taken (exact where it is positive)."""
+    V = poly.vertices
+    ab = b - a
+    length2 = np.maximum(_dot(ab, ab), 1e-300)
+    at_vertex = _dot(V[None] - a[:, None], ab[:, None]) / length2[:, None]                  # (k, v)
+    o, u = V[poly.edges[:, 0]], V[poly.edges[:, 1]] - V[poly.edges[:, 0]]
+    u = u / np.sqrt(_dot(u, u))[:, None]
+    r = a[:, None] - o[None]                                                               # (k, e, 3)
+    along = _dot(ab[:, None], u[None])                                                     # (k, e)
+    square = length2[:, None] - along * along
+    at_edge = np.where(square > 1e-12 * length2[:, None],
+                       (along * _dot(r, u[None]) - _dot(r, ab[:, None])) / np.maximum(square, 1e-300), 0.0)
+    t = np.clip(np.concatenate([np.zeros((a.shape[0], 1)), np.ones((a.shape[0], 1)), at_vertex, at_edge], 1), 0.0, 1.0)
+    distance = closest((a[:, None] + t[..., None] * ab[:, None]).reshape(-1, 3))[0].reshape(t.shape)
+    best = np.argmin(distance, 1)
+    rows = np.arange(a.shape[0])
+    return t[rows, best], distance[rows, best]
