@@ -434,7 +434,7 @@ def _chords(model, R, x, features, obstacle, ends=False):
             # pieces a face's (linear), an edge's or a vertex's, so its least is at an end, a
             # vertex's projection or the chord's nearest point to an edge's line (one query)
             t, distance = segment_polyhedron(polyhedron, obstacle.closest, a, b)
-            search = distance <= 0.0             # (inside: the faces' planes meet where it is least)
+            search = distance <= 0.0             # (through it: the least is inside, where faces' planes meet)
         if search.any():
             a_s, b_s = a[search], b[search]
             samples = np.linspace(0.0, 1.0, CHORD_SAMPLES + 1)

@@ -227,7 +227,8 @@ def segment_polyhedron(poly, closest, a, b):
     distance. Outside the polyhedron the distance along a line is smooth and convex, made of a
     face's (linear), an edge's or a vertex's pieces, so its least is at an end, at a vertex's
     projection on the segment or at the segment's point nearest an edge's line: each candidate's
-    distance from one query, the least taken (exact where it is positive)."""
+    distance from one query, the least taken (exact where it is positive). A segment that passes
+    through the polyhedron has its least inside, at none of these: its distance is −∞."""
     V = poly.vertices
     ab = b - a
     length2 = np.maximum(_dot(ab, ab), 1e-300)
@@ -243,4 +244,13 @@ def segment_polyhedron(poly, closest, a, b):
     distance = closest((a[:, None] + t[..., None] * ab[:, None]).reshape(-1, 3))[0].reshape(t.shape)
     best = np.argmin(distance, 1)
     rows = np.arange(a.shape[0])
-    return t[rows, best], distance[rows, best]
+    # a segment through the polyhedron (clipped by the faces' half-spaces): its least distance is
+    # inside, where the candidates need not be — reported as −∞ (the caller searches)
+    start = a @ poly.face_normal.T - poly.face_offset                                      # (k, f)
+    end = b @ poly.face_normal.T - poly.face_offset
+    with np.errstate(divide="ignore", invalid="ignore"):
+        crossing = start / (start - end)
+    enter = np.max(np.where((start > 0.0) & (end <= 0.0), crossing, np.where(start > 0.0, np.inf, 0.0)), 1)
+    leave = np.min(np.where((start <= 0.0) & (end > 0.0), crossing, 1.0), 1)
+    through = enter <= leave
+    return t[rows, best], np.where(through, -np.inf, distance[rows, best])
