@@ -184,7 +184,7 @@ class Loads:
             tendons = (cables, k, trunk.rest_cable_lengths[cables],
                        tensions[:, cables] + factor * (actuators.pretension[cables] / k))
             tensions = np.where(actuators.stroke_driven, 0.0, tensions)
-        piece_tension = tensions[:, trunk.cables.owner] if n_cables and np.any(tensions) else None
+        piece_tension = tensions.take(trunk.cables.owner, 1, mode="clip") if n_cables and np.any(tensions) else None
         weight = weight_hat = frame_weight = dead = None
         loads = trunk.loads
         if loads.has_gravity:
@@ -345,7 +345,7 @@ def evaluate(context: _Context, states: States, load: Loads, geometry: Geometry 
             energy = energy + 0.5 * np.add.reduce(k * taut * taut, 1)
             tension = np.zeros((B, cables.n_cables))
             tension[:, tendon_cables] = k * taut
-            tendon_pieces = tension[:, cables.owner]
+            tendon_pieces = tension.take(cables.owner, 1, mode="clip")
             piece_tension = tendon_pieces if piece_tension is None else tendon_pieces + piece_tension
         pieces = CablePieces.of_spans(offsets, d, length) if geometry is None else geometry.pieces
         forces = (piece_tension.reshape(-1)[:, None] * pieces.unit).reshape(B, 2 * m, 6)
@@ -505,8 +505,8 @@ def _cable_jacobian(context: _Context, pieces: CablePieces, B: int) -> np.ndarra
     ends = np.zeros((B, 2 * cables.piece_a.size + 1, 6))         # the piece ends' gradients, then a zero row
     ends[:, :-1] = pieces.unit.reshape(B, -1, 6)
     starting, ending = cables.jacobian_ends
-    jacobian = ends[:, starting]
-    jacobian += ends[:, ending]
+    jacobian = ends.take(starting, 1, mode="clip")            # (indices made with the routing: no check)
+    jacobian += ends.take(ending, 1, mode="clip")
     return jacobian.reshape(B, cables.n_cables, trunk.frames.count, 6)
 
 
@@ -761,7 +761,7 @@ class _Run:
                 k = need.size
                 moves = np.zeros((k, self.trunk.frames.count, 6))
                 moves[:, 1:] = dq.reshape(k, -1, 6)
-                delta = pieces.change(moves[:, self.trunk.cables.ends].reshape(-1, 12))
+                delta = pieces.change(moves.take(self.trunk.cables.ends, 1, mode="clip").reshape(-1, 12))
                 along = np.add.reduce(pieces.d * delta, 1)
                 squared = np.add.reduce(delta * delta, 1)
                 discriminant = along * along - 0.75 * squared * pieces.length ** 2

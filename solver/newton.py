@@ -266,7 +266,7 @@ class _Stage:
             # root in α of |d|² + 2α d·Δd + α²|Δd|² = ¼|d|², where there is one
             moves = np.zeros((self.trunk.frames.count, 6))
             moves[1:] = dq.reshape(-1, 6)
-            delta = pieces.change(moves[self.trunk.cables.ends].reshape(-1, 12))
+            delta = pieces.change(moves.take(self.trunk.cables.ends, 0, mode="clip").reshape(-1, 12))
             along = np.add.reduce(pieces.d * delta, 1)                          # d·Δd
             squared = np.add.reduce(delta * delta, 1)                           # |Δd|²
             discriminant = along * along - 0.75 * squared * pieces.length ** 2

@@ -62,7 +62,7 @@ class LoadCase:
         if n_cables and actuators.tendons.size:
             tendons = Tendons.of(trunk, tensions, scale)       # (the stroke-driven values are strokes)
             tensions = np.where(actuators.stroke_driven, 0.0, tensions)
-        piece_tension = tensions[trunk.cables.owner] if n_cables and tensions.any() else None
+        piece_tension = tensions.take(trunk.cables.owner, mode="clip") if n_cables and tensions.any() else None
         if previous is not None and previous.scale == scale:
             return cls(actuation, scale, pressures, link_loads, piece_tension, tendons, previous.weight,
                        previous.weight_hat, previous.frame_weight, previous.dead, previous.dead_forces,
