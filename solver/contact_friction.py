@@ -51,6 +51,8 @@ SWEEPS = 25                           # projected Gauss–Seidel sweeps at most
 SWEEP_TOLERANCE = 1e-10               # their forces' change per sweep, of the largest, that ends them
 DIRECTION_ITERATIONS = 30             # Newton iterations on the slip directions of one active set
 DIRECTION_TOLERANCE = 1e-14           # |w_t × d| relative to the rows' scale: the slip along its direction
+NEWTON_ITERATIONS = 60                # semismooth Newton iterations on the Alart–Curnier equations at most
+NEWTON_TOLERANCE = 1e-14              # their residual, of the forces' scale, that ends them
 
 
 def frictional(trunk) -> bool:
@@ -181,80 +183,214 @@ class Friction:
     direction: np.ndarray
 
 
+def _set_equations(W, b, m, fr, mu, status: Friction) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The linear equations of the statuses on the forces they leave free: an open contact has no
+    force (and no tangential one), a pressed one closes its gap, a sticking one its slip, a
+    slipping one has ``f_t = −μ f_n d``. Returns (the rows ``U`` of those forces — the pressed
+    contacts' normal rows and their slip rows —, ``A``, ``rhs``) with ``A λ_U = rhs`` and
+    ``λ = 0`` off ``U``: a system the size of the pressed contacts, not of the candidates."""
+    t = m + 2 * np.arange(fr.size)
+    pressed = status.closed[fr]
+    slips = pressed & status.slip
+    held = np.zeros(b.size, bool)                  # the rows whose equation is w = 0
+    held[:m] = status.closed
+    held[t[pressed & ~slips]] = held[t[pressed & ~slips] + 1] = True
+    tied = np.zeros(b.size, bool)                  # the slip rows tied to their normal force
+    tied[t[slips]] = tied[t[slips] + 1] = True
+    U = np.flatnonzero(held | tied)
+    position = np.full(b.size, -1)
+    position[U] = np.arange(U.size)
+    A = W[np.ix_(U, U)]
+    rhs = -b[U]
+    rows = position[np.concatenate([t[slips], t[slips] + 1])]
+    A[rows] = 0.0
+    rhs[rows] = 0.0
+    A[rows, rows] = 1.0
+    slipping = np.flatnonzero(slips)
+    for k in range(2):
+        A[position[t[slipping] + k], position[fr[slipping]]] = mu[slipping] * status.direction[slipping, k]
+    return U, A, rhs
+
+
 def _solve_set(W, b, m, fr, mu, status: Friction) -> np.ndarray:
-    """λ for the statuses: an open contact has no force, a pressed one closes its gap, a sticking
-    one its slip, a slipping one has ``f_t = −μ f_n d``."""
-    n = b.size
-    A = np.zeros((n, n))
-    rhs = np.zeros(n)
-    for i in range(m):
-        if status.closed[i]:
-            A[i], rhs[i] = W[i], -b[i]
-        else:
-            A[i, i] = 1.0
-    for c, i in enumerate(fr.tolist()):
-        for k in range(2):
-            j = m + 2 * c + k
-            if not status.closed[i]:
-                A[j, j] = 1.0
-            elif status.slip[c]:
-                A[j, j] = 1.0
-                A[j, i] = mu[c] * status.direction[c, k]
-            else:
-                A[j], rhs[j] = W[j], -b[j]
-    try:
-        return np.linalg.solve(A, rhs)
-    except np.linalg.LinAlgError:
-        return np.linalg.lstsq(A, rhs, rcond=1e-13)[0]
+    """λ for the statuses (:func:`_set_equations`)."""
+    U, A, rhs = _set_equations(W, b, m, fr, mu, status)
+    lam = np.zeros(b.size)
+    if U.size:
+        try:
+            lam[U] = np.linalg.solve(A, rhs)
+        except np.linalg.LinAlgError:
+            lam[U] = np.linalg.lstsq(A, rhs, rcond=1e-13)[0]
+    return lam
 
 
 def _directions(W, b, m, fr, mu, status: Friction, scale: float) -> np.ndarray:
     """Solve the slipping contacts' directions so that each one's slip ``w_t`` lies along its
-    ``d`` (``w_t × d = 0``; Newton on the directions' angles, the Jacobian by differences of the
-    linear solves), keeping ``status.direction``; returns λ."""
+    ``d = (cos θ, sin θ)`` (``h = w_t × d = 0``; Newton on the angles), keeping
+    ``status.direction``; returns λ. The Jacobian is exact: with ``A(θ)λ_U = rhs`` the statuses'
+    equations (:func:`_set_equations`), ``∂λ/∂θ_s = −A⁻¹ (∂A/∂θ_s) λ``, whose only entries are the
+    slipping contact's two rows, ``μ λ_n ∂d/∂θ_s`` — one factorisation of ``A`` a Newton iteration."""
+    from scipy.linalg import lu_factor, lu_solve
+
     sliding = np.flatnonzero(status.slip & status.closed[fr])
-    lam = _solve_set(W, b, m, fr, mu, status)
     if not sliding.size:
-        return lam
+        return _solve_set(W, b, m, fr, mu, status)
     rows = m + 2 * sliding
-
-    def residual(lam):
-        w = b + W @ lam
-        d = status.direction[sliding]
-        return w[rows] * d[:, 1] - w[rows + 1] * d[:, 0]
-
+    normal = fr[sliding]
+    index = np.arange(sliding.size)
     angle = np.arctan2(status.direction[sliding, 1], status.direction[sliding, 0])
-    h = residual(lam)
-    for _ in range(DIRECTION_ITERATIONS):
-        if float(np.abs(h).max()) <= DIRECTION_TOLERANCE * scale:
+    lam = np.zeros(b.size)
+    for iteration in range(DIRECTION_ITERATIONS + 1):
+        status.direction[sliding] = np.stack([np.cos(angle), np.sin(angle)], 1)
+        U, A, rhs = _set_equations(W, b, m, fr, mu, status)
+        factor = lu_factor(A, check_finite=False)
+        if not np.all(np.isfinite(factor[0])) or not np.all(np.diag(factor[0])):
+            lam[U] = np.linalg.lstsq(A, rhs, rcond=1e-13)[0]
             break
-        J = np.empty((sliding.size, sliding.size))
-        delta = 1e-7
-        for k in range(sliding.size):
-            moved = angle.copy()
-            moved[k] += delta
-            status.direction[sliding] = np.stack([np.cos(moved), np.sin(moved)], 1)
-            J[:, k] = (residual(_solve_set(W, b, m, fr, mu, status)) - h) / delta
+        lam[U] = lu_solve(factor, rhs, check_finite=False)
+        position = np.full(b.size, -1)
+        position[U] = np.arange(U.size)
+        slip_rows = np.concatenate([rows, rows + 1])
+        w = b[slip_rows] + W[np.ix_(slip_rows, U)] @ lam[U]
+        w0, w1 = w[:sliding.size], w[sliding.size:]
+        cos, sin = np.cos(angle), np.sin(angle)
+        h = w0 * sin - w1 * cos
+        if iteration == DIRECTION_ITERATIONS or float(np.abs(h).max()) <= DIRECTION_TOLERANCE * scale:
+            break
+        E = np.zeros((U.size, sliding.size))
+        E[position[rows], index] = -mu[sliding] * lam[normal] * sin
+        E[position[rows + 1], index] = mu[sliding] * lam[normal] * cos
+        dw = W[np.ix_(slip_rows, U)] @ -lu_solve(factor, E, check_finite=False)       # ∂w/∂θ
+        J = dw[:sliding.size] * sin[:, None] - dw[sliding.size:] * cos[:, None]
+        J[index, index] += w0 * cos + w1 * sin
         try:
             change = np.linalg.solve(J, -h)
         except np.linalg.LinAlgError:
             change = np.linalg.lstsq(J, -h, rcond=1e-13)[0]
-        change = np.clip(change, -0.5, 0.5)
-        angle = angle + change
-        status.direction[sliding] = np.stack([np.cos(angle), np.sin(angle)], 1)
-        lam = _solve_set(W, b, m, fr, mu, status)
-        h = residual(lam)
-    status.direction[sliding] = np.stack([np.cos(angle), np.sin(angle)], 1)
+        angle = angle + np.clip(change, -0.5, 0.5)
     return lam
+
+
+def _alart_curnier(W: np.ndarray, b: np.ndarray, m: int, fr: np.ndarray, mu: np.ndarray,
+                   lam: np.ndarray) -> tuple[np.ndarray, bool]:
+    """The frictional complementarity problem on ``w = b + Wλ`` (:func:`coulomb`) as the
+    Alart–Curnier equations ``F(λ) = 0`` solved by semismooth Newton from ``lam``:
+
+        normal rows      ``F_n = min(λ_n, ρ_n w_n)``                      (complementarity)
+        slip rows        ``F_t = λ_t − P_r(λ_t − ρ_t w_t)``               (Coulomb's law)
+
+    ``P_r`` the projection onto the disc of radius ``r = μ max(λ_n − ρ_n w_n, 0)`` in the
+    tangent plane (``μ λ_n`` at a solution; from the augmented normal force, so that a contact
+    that starts to press has a cone at once),
+    ``ρ`` the inverse diagonal of ``W`` (per contact for its two slip rows). ``F`` is piecewise
+    smooth; each iteration solves with one element of its generalised Jacobian — the branch of
+    every ``min`` and projection at ``λ``, so every status changes at once — and halves the step
+    until ``½|F|²`` falls (Armijo). Returns (λ, converged to :data:`NEWTON_TOLERANCE`)."""
+    n, k = b.size, fr.size
+    diagonal = np.abs(np.diag(W))
+    rho_n = 1.0 / np.maximum(diagonal[:m], 1e-300)
+    t = m + 2 * np.arange(k)
+    rho_t = 2.0 / np.maximum(diagonal[t] + diagonal[t + 1], 1e-300)
+    rows_t = np.stack([t, t + 1], 1)
+    rho = np.concatenate([rho_n, np.repeat(rho_t, 2)])
+    force_scale = max(float(np.abs(rho * b).max(initial=0.0)), 1e-300)
+
+    def equations(lam):
+        w = b + W @ lam
+        F = np.empty(n)
+        F[:m] = np.minimum(lam[:m], rho_n * w[:m])
+        lam_t = lam[rows_t]
+        xi = lam_t - rho_t[:, None] * w[rows_t]
+        radius = mu * np.maximum(lam[fr] - rho_n[fr] * w[fr], 0.0)
+        norm = np.sqrt(np.add.reduce(xi * xi, 1))
+        slips = norm > radius
+        shrink = np.where(slips, radius / np.maximum(norm, 1e-300), 1.0)
+        F[m:] = (lam_t - shrink[:, None] * xi).reshape(-1)
+        return F, xi, norm, slips, shrink, w
+
+    F, xi, norm, slips, shrink, w = equations(lam)
+    merit = float(F @ F)
+    for _ in range(NEWTON_ITERATIONS):
+        if float(np.abs(F).max(initial=0.0)) <= NEWTON_TOLERANCE * max(force_scale, float(np.abs(lam).max(initial=0.0))):
+            return lam, True
+        J = np.zeros((n, n))
+        pressing = lam[:m] > rho_n * w[:m]
+        J[:m] = np.where(pressing[:, None], rho_n[:, None] * W[:m], 0.0)
+        J[np.flatnonzero(~pressing), np.flatnonzero(~pressing)] = 1.0
+        # the slip rows: dF_t = dλ_t − s M (dλ_t − ρ_t W_t dλ) − ξ̂ μ (dλ_n − ρ_n W_n dλ) (slipping;
+        # s = r/|ξ|, M = I − ξ̂ξ̂ᵀ), ρ_t W_t dλ (sticking: s = 1, M = I, r fixed)
+        unit = xi / np.maximum(norm, 1e-300)[:, None]
+        M = np.eye(2) - np.where(slips[:, None, None], unit[:, :, None] * unit[:, None, :], 0.0)
+        sM = shrink[:, None, None] * M                                         # (k, 2, 2)
+        J[m:] = (np.einsum("kij,kjn->kin", sM * rho_t[:, None, None], W[rows_t])).reshape(2 * k, n)
+        block = np.eye(2) - sM
+        J[rows_t[:, :, None], rows_t[:, None, :]] += block
+        pushing = np.flatnonzero(slips & pressing[fr])
+        if pushing.size:
+            # −μ ξ̂ (e_n − ρ_n W_n): the cone's radius follows the augmented normal force
+            J[rows_t[pushing]] += (mu[pushing, None, None] * unit[pushing][:, :, None]
+                                   * (rho_n[fr[pushing], None] * W[fr[pushing]])[:, None, :])
+            J[rows_t[pushing], fr[pushing, None]] -= mu[pushing, None] * unit[pushing]
+        try:
+            delta = np.linalg.solve(J, -F)
+        except np.linalg.LinAlgError:
+            delta = np.linalg.lstsq(J, -F, rcond=1e-13)[0]
+        if not np.all(np.isfinite(delta)):
+            return lam, False
+        alpha = 1.0
+        for _ in range(40):
+            trial = lam + alpha * delta
+            found = equations(trial)
+            new = float(found[0] @ found[0])
+            if new <= (1.0 - 1e-4 * alpha) * merit:
+                break
+            alpha *= 0.5
+        else:
+            return lam, False
+        lam, merit = trial, new
+        F, xi, norm, slips, shrink, w = found
+    return lam, bool(float(np.abs(F).max(initial=0.0))
+                     <= NEWTON_TOLERANCE * max(force_scale, float(np.abs(lam).max(initial=0.0))))
+
+
+def _statuses(W: np.ndarray, b: np.ndarray, m: int, fr: np.ndarray, mu: np.ndarray, lam: np.ndarray) -> Friction:
+    """The statuses of a solution ``lam`` of the Alart–Curnier equations (:func:`_alart_curnier`):
+    a contact is pressed where its ``min`` takes ``ρ_n w_n`` with ``λ_n > 0``, a pressed frictional
+    one slips where ``λ_t − ρ_t w_t`` lies outside its cone's disc (beyond its rounding), along ``d = −(λ_t − ρ_t w_t)``
+    normalised (``w_t = γ d``, ``λ_t = −μ λ_n d``)."""
+    w = b + W @ lam
+    diagonal = np.abs(np.diag(W))
+    closed = (lam[:m] > 0.0) & (lam[:m] > w[:m] / np.maximum(diagonal[:m], 1e-300))
+    t = m + 2 * np.arange(fr.size)
+    rho_t = 2.0 / np.maximum(diagonal[t] + diagonal[t + 1], 1e-300)
+    xi = np.stack([lam[t] - rho_t * w[t], lam[t + 1] - rho_t * w[t + 1]], 1)
+    norm = np.sqrt(np.add.reduce(xi * xi, 1))
+    radius = mu * np.maximum(lam[fr], 0.0)
+    slip = closed[fr] & (norm - radius > 1e-12 * radius)    # (on the cone's edge, not moving: stuck)
+    direction = np.tile([1.0, 0.0], (fr.size, 1))
+    direction[slip] = -xi[slip] / norm[slip, None]
+    return Friction(closed, slip, direction)
 
 
 def coulomb(W: np.ndarray, b: np.ndarray, m: int, fr: np.ndarray, mu: np.ndarray,
             start: Friction | None = None) -> tuple[np.ndarray, Friction] | None:
-    """The frictional complementarity problem on ``w = b + Wλ`` (:func:`_active_set`): from
-    ``start`` by the active set; where its statuses run in a cycle (near-redundant contacts, e.g.
-    both rims of a disc on a wall, can make them), from the statuses of projected Gauss–Seidel
-    sweeps (:func:`_sweeps`) — and where that cycles too, the sweeps' answer itself when they
-    converged to :data:`SWEEP_TOLERANCE`."""
+    """The frictional complementarity problem on ``w = b + Wλ`` (:func:`_active_set` states it):
+    the Alart–Curnier equations by semismooth Newton (:func:`_alart_curnier`), from the forces of
+    the statuses ``start`` (the last step's: along a solve mostly the answer's) and, where that
+    does not converge, from no force. Where neither converges (the law's non-associated coupling
+    can leave Newton circling at large μ), the active set from ``start``; where its statuses run
+    in a cycle (near-redundant contacts, e.g. both rims of a disc on a wall, can make them), from
+    the statuses of projected Gauss–Seidel sweeps (:func:`_sweeps`) — and where that cycles too,
+    the sweeps' answer itself when they converged to :data:`SWEEP_TOLERANCE`."""
+    starts = [np.zeros(b.size)]
+    if start is not None and start.closed.any():
+        guess = _solve_set(W, b, m, fr, mu, start)
+        if np.all(np.isfinite(guess)):
+            starts.insert(0, guess)
+    for guess in starts:
+        lam, converged = _alart_curnier(W, b, m, fr, mu, guess)
+        if converged:
+            return lam, _statuses(W, b, m, fr, mu, lam)
     found = _active_set(W, b, m, fr, mu, start)
     if found is not None:
         return found
@@ -394,33 +530,28 @@ def _active_set(W: np.ndarray, b: np.ndarray, m: int, fr: np.ndarray, mu: np.nda
         visited.add(seen)
         lam = _directions(W, b, m, fr, mu, status, scale)
         w = b + W @ lam
-        worst, change = 0.0, None
-        for i in range(m):
-            if status.closed[i] and lam[i] < -1e-13 * force_scale:
-                score = -lam[i] / force_scale
-                if score > worst:
-                    worst, change = score, ("open", i)
-            elif not status.closed[i] and w[i] < -1e-13 * scale:
-                score = -w[i] / scale
-                if score > worst:
-                    worst, change = score, ("close", i)
-        for c, i in enumerate(fr.tolist()):
-            if not status.closed[i]:
-                continue
-            f_t = lam[m + 2 * c:m + 2 * c + 2]
-            w_t = w[m + 2 * c:m + 2 * c + 2]
-            if not status.slip[c]:
-                excess = float(np.hypot(*f_t)) - mu[c] * max(lam[i], 0.0)
-                if excess > 1e-12 * max(mu[c] * abs(lam[i]), 1e-13 * force_scale):
-                    score = excess / force_scale
-                    if score > worst:
-                        worst, change = score, ("slip", c)
+        # the violations' scores (0: none), normal rows then frictional contacts: the first largest changes
+        closed = status.closed
+        pulls = closed & (lam[:m] < -1e-13 * force_scale)
+        penetrates = ~closed & (w[:m] < -1e-13 * scale)
+        normal_score = np.where(pulls, -lam[:m] / force_scale, np.where(penetrates, -w[:m] / scale, 0.0))
+        t = m + 2 * np.arange(fr.size)
+        f_t, w_t = np.stack([lam[t], lam[t + 1]], 1), np.stack([w[t], w[t + 1]], 1)
+        lam_n = lam[fr]
+        excess = np.sqrt(np.add.reduce(f_t * f_t, 1)) - mu * np.maximum(lam_n, 0.0)
+        outside = ~status.slip & (excess > 1e-12 * np.maximum(mu * np.abs(lam_n), 1e-13 * force_scale))
+        along = np.add.reduce(w_t * status.direction, 1)
+        back = status.slip & (along < -1e-13 * scale)
+        friction_score = np.where(closed[fr] & outside, excess / force_scale,
+                                  np.where(closed[fr] & back, -along / scale, 0.0))
+        scores = np.concatenate([normal_score, friction_score])
+        change = None
+        if scores.size and float(scores.max()) > 0.0:
+            j = int(np.argmax(scores))
+            if j < m:
+                change = ("open" if pulls[j] else "close", j)
             else:
-                along = float(w_t @ status.direction[c])
-                if along < -1e-13 * scale:
-                    score = -along / scale
-                    if score > worst:
-                        worst, change = score, ("stick", c)
+                change = ("slip" if not status.slip[j - m] else "stick", j - m)
         if change is None:
             return lam, status
         what, index = change
