@@ -51,7 +51,8 @@ SWEEPS = 25                           # projected Gauss–Seidel sweeps at most
 SWEEP_TOLERANCE = 1e-10               # their forces' change per sweep, of the largest, that ends them
 DIRECTION_ITERATIONS = 30             # Newton iterations on the slip directions of one active set
 DIRECTION_TOLERANCE = 1e-14           # |w_t × d| relative to the rows' scale: the slip along its direction
-NEWTON_ITERATIONS = 60                # semismooth Newton iterations on the Alart–Curnier equations at most
+NEWTON_ITERATIONS = 40                # semismooth Newton iterations on the Alart–Curnier equations at most
+HALVINGS = 12                         # … and halvings of one's step (then it has stalled: a local minimum of ½|F|²)
 NEWTON_TOLERANCE = 1e-14              # their residual, of the forces' scale, that ends them
 
 
@@ -338,7 +339,7 @@ def _alart_curnier(W: np.ndarray, b: np.ndarray, m: int, fr: np.ndarray, mu: np.
         if not np.all(np.isfinite(delta)):
             return lam, False
         alpha = 1.0
-        for _ in range(40):
+        for _ in range(HALVINGS):
             trial = lam + alpha * delta
             found = equations(trial)
             new = float(found[0] @ found[0])
@@ -374,16 +375,59 @@ def _statuses(W: np.ndarray, b: np.ndarray, m: int, fr: np.ndarray, mu: np.ndarr
 
 def coulomb(W: np.ndarray, b: np.ndarray, m: int, fr: np.ndarray, mu: np.ndarray,
             start: Friction | None = None) -> tuple[np.ndarray, Friction] | None:
-    """The frictional complementarity problem on ``w = b + Wλ`` (:func:`_active_set` states it):
-    the Alart–Curnier equations by semismooth Newton (:func:`_alart_curnier`), from the forces of
-    the statuses ``start`` (the last step's: along a solve mostly the answer's) and, where that
-    does not converge, from no force. Where neither converges (the law's non-associated coupling
-    can leave Newton circling at large μ), the active set from ``start``; where its statuses run
-    in a cycle (near-redundant contacts, e.g. both rims of a disc on a wall, can make them), from
-    the statuses of projected Gauss–Seidel sweeps (:func:`_sweeps`) — and where that cycles too,
-    the sweeps' answer itself when they converged to :data:`SWEEP_TOLERANCE`."""
+    """The frictional complementarity problem on ``w = b + Wλ`` (:func:`_active_set` states it),
+    on a working set of contacts: those whose linearised gap is negative or that ``start`` presses
+    (with their slip rows), solved by :func:`_solve_working`; a contact outside it whose gap the
+    answer closes beyond the rounding joins it and the problem is solved again. Its answer, with
+    no force on the others, is the whole problem's answer (their gaps open, no force, no friction);
+    the candidates far from touching cost one product with ``W`` instead of rows in every solve."""
+    scale = float(np.abs(b).max(initial=0.0)) + 1e-300
+    start = start if start is not None else Friction(b[:m] < 0.0, np.zeros(fr.size, bool),
+                                                     np.tile([1.0, 0.0], (fr.size, 1)))
+    working = start.closed | (b[:m] < 0.0)
+    owner = np.full(m, -1)
+    owner[fr] = np.arange(fr.size)
+    for _ in range(m + 1):
+        normal = np.flatnonzero(working)
+        inside = working[fr]
+        c = np.flatnonzero(inside)
+        t = m + 2 * c
+        rows = np.concatenate([normal, np.stack([t, t + 1], 1).reshape(-1)])
+        position = np.full(m, -1)
+        position[normal] = np.arange(normal.size)
+        sub_start = Friction(start.closed[normal], start.slip[c], start.direction[c])
+        found = _solve_working(W[np.ix_(rows, rows)], b[rows], normal.size, position[fr[c]], mu[c], sub_start)
+        if found is None:
+            return None
+        sub_lam, sub_status = found
+        lam = np.zeros(b.size)
+        lam[rows] = sub_lam
+        w = b[:m] + W[:m, rows] @ sub_lam
+        closing = ~working & (w < -1e-13 * scale)
+        if not closing.any():
+            closed = np.zeros(m, bool)
+            closed[normal] = sub_status.closed
+            slip = np.zeros(fr.size, bool)
+            slip[c] = sub_status.slip
+            direction = np.tile([1.0, 0.0], (fr.size, 1))
+            direction[c] = sub_status.direction
+            return lam, Friction(closed, slip, direction)
+        working |= closing
+    return None
+
+
+def _solve_working(W: np.ndarray, b: np.ndarray, m: int, fr: np.ndarray, mu: np.ndarray,
+                   start: Friction) -> tuple[np.ndarray, Friction] | None:
+    """The frictional complementarity problem of :func:`coulomb` on its working set: the
+    Alart–Curnier equations by semismooth Newton (:func:`_alart_curnier`), from the forces of the
+    statuses ``start`` (the last step's: along a solve mostly the answer's) and, where that does
+    not converge, from no force. Where neither converges (nearly redundant contacts — both rims
+    of a disc on a sphere — leave Newton at a local minimum of its merit), the active set from
+    ``start``; where its statuses run in a cycle, from the statuses of projected Gauss–Seidel
+    sweeps (:func:`_sweeps`) — and where that cycles too, the sweeps' answer itself when they
+    converged to :data:`SWEEP_TOLERANCE`."""
     starts = [np.zeros(b.size)]
-    if start is not None and start.closed.any():
+    if start.closed.any():
         guess = _solve_set(W, b, m, fr, mu, start)
         if np.all(np.isfinite(guess)):
             starts.insert(0, guess)
@@ -582,6 +626,35 @@ class FrictionalConstraints(contact.Constraints):
         super().__init__(trunk)
         self.session = session
         self.status: dict = {}        # contact key → (slips, direction (2,)) of the last step
+        self.centre = None            # Σ k Gᵀc of the springs on frictional rows in the tangent factored now
+
+    def lagrangian(self, matrix, state):
+        self.centre = None            # (a new iteration's tangent: no springs until stiffened)
+        return super().lagrangian(matrix, state)
+
+    def stiffened(self, matrix, state, stiffness: float = contact.STABILITY_SPRING, step: Step | None = None):
+        """:meth:`Constraints.stiffened`, with the springs on the frictional contacts' rows (their
+        gaps and the stuck ones' slips) centred on the linearised row ``c + Gp`` instead of the
+        step ``Gp``: a spring about ``Gp`` would carry ``−k c`` of the contact's force — beside the
+        multiplier, so outside the friction law, which bounds the tangential force by ``μ`` times
+        the multiplier (a slipping disc on a sphere: the cone shrunk by the spring's share every
+        other step, the residual thrown back from 1e-7 to 1e-2). Centred, a row held closed carries
+        no spring force and the multiplier is the whole force. The step's right-hand side takes
+        ``−Σ k Gᵀc`` (:attr:`centre`)."""
+        stiffened = super().stiffened(matrix, state, stiffness, step)
+        self.centre = None
+        if self.springs is not None:
+            G, spring, key = self.springs
+            held = self.held(state, step)
+            value = {tuple(k): c for k, c in zip(held.key.tolist(), held.gap.tolist())}
+            owner = key.copy()
+            tangential = key[:, 0] >= TANGENTIAL
+            owner[tangential, 0] = (key[tangential, 0] - TANGENTIAL) // 2
+            frictional = coefficients(self.model, owner) > 0.0
+            if frictional.any():
+                c = np.array([value[tuple(k)] for k in key[frictional].tolist()])
+                self.centre = G[frictional].T @ (spring[frictional] * c)
+        return stiffened
 
     # the rows of a set of contacts: normal ones (contact.evaluate) and, for the frictional, slip rows
     def _rows(self, state, normal: ContactSet) -> tuple[ContactSet, np.ndarray]:
@@ -604,7 +677,7 @@ class FrictionalConstraints(contact.Constraints):
         problem, and any the frictional answer presses (then solved again): an open contact has
         no tangential force."""
         normal = self.at(state)
-        p = factor.solve(r)
+        p = factor.solve(r if self.centre is None else r - self.centre)
         if not normal.count:
             return Step(p, np.zeros(0), normal, r)
         m = normal.count
@@ -630,7 +703,7 @@ class FrictionalConstraints(contact.Constraints):
             regularised = W.copy()
             regularised[np.diag_indices_from(W)] += floor
             mu = mu_all[fr]
-            found = coulomb(regularised, b, m, fr, mu, self._start(normal.key, fr, b[:m]))
+            found = coulomb(regularised, b, m, fr, mu, self._start(normal.key, fr, b[:m], frictionless))
             if found is None:
                 return None
             lam, status = found
@@ -649,11 +722,15 @@ class FrictionalConstraints(contact.Constraints):
             self.status[tuple(normal.key[i].tolist())] = (bool(status.slip[c]), status.direction[c].copy())
         return Step(p + Z @ lam, lam, contacts, r + G.T @ lam)
 
-    def _start(self, key: np.ndarray, fr: np.ndarray, b: np.ndarray) -> Friction:
-        """The statuses the last step left for these contacts (new ones: pressed where their
-        linearised gap is negative, stuck)."""
+    def _start(self, key: np.ndarray, fr: np.ndarray, b: np.ndarray, frictionless: np.ndarray | None) -> Friction:
+        """The statuses the last step left for these contacts (new ones: pressed where the
+        frictionless problem presses them — else where their linearised gap is negative —, stuck).
+        (Where many linearised gaps are negative and few contacts press — a soft trunk whose one
+        contact lifts its whole length — starting from every negative gap pressed made the active
+        set open them one by one.)"""
         pressed = {tuple(k) for k in self.keys[self.keys[:, 0] < TANGENTIAL].tolist()}
-        closed = np.array([tuple(k) in pressed for k in key.tolist()], bool) | (b < 0.0)
+        closed = (np.array([tuple(k) in pressed for k in key.tolist()], bool)
+                  | (b < 0.0 if frictionless is None else frictionless > 0.0))
         slip = np.zeros(fr.size, bool)
         direction = np.tile([1.0, 0.0], (fr.size, 1))
         for c, i in enumerate(fr.tolist()):
