@@ -9,7 +9,7 @@ import pytest
 
 from vertebra import solver
 from vertebra.core.errors import OptionError, SceneError
-from vertebra.solver import contact_friction
+from vertebra.solver import contact, contact_friction
 from vertebra.solver.timoshenko import Section, timoshenko_compliance
 
 E, NU, RADIUS, LENGTH = 200e9, 0.3, 1e-3, 0.5
@@ -330,3 +330,124 @@ def test_a_cabled_robot_on_a_frictional_wall_reports_and_writes():
     assert any(c["force"] > 0.0 and c["sliding"] in ("stick", "slip") for c in document["contacts"])
     data = trunk_polydata(model, result.state, result.actuation, friction=result.friction, contacts=result.contacts)
     assert data is not None
+
+
+# --- the frictional problem in constraint space (contact_friction.coulomb) ----------------------
+
+def frictional_problem(rng, pressing=3, far=12, mu=0.3):
+    """A constraint-space problem ``w = b + Wλ``: ``pressing`` frictional contacts whose linearised
+    gaps are negative, then ``far`` frictionless candidates well open; ``W`` positive definite
+    with its normal–tangential coupling (a lever arm), as ``G K⁻¹ Gᵀ`` is."""
+    m = pressing + far
+    n = m + 2 * pressing
+    G = rng.normal(size=(n, 3 * n))
+    W = G @ G.T / (3 * n) + 0.05 * np.eye(n)
+    b = np.concatenate([-rng.uniform(0.5, 1.0, pressing), rng.uniform(5.0, 10.0, far),
+                        rng.normal(scale=0.5, size=2 * pressing)])
+    return W, b, m, np.arange(pressing), np.full(pressing, mu)
+
+
+def law_violation(W, b, m, fr, mu, lam, status):
+    """How far ``lam`` is from the frictional law (forces and gaps of the scale 1)."""
+    w = b + W @ lam
+    worst = max(float(np.abs(np.minimum(lam[:m], w[:m])).max()), float(-lam[:m].min()), float(-w[:m].min()))
+    for c, i in enumerate(fr.tolist()):
+        f_t, w_t = lam[m + 2 * c:m + 2 * c + 2], w[m + 2 * c:m + 2 * c + 2]
+        worst = max(worst, float(np.hypot(*f_t)) - mu[c] * lam[i])          # inside the cone
+        if status.closed[i] and status.slip[c]:
+            d = status.direction[c]
+            worst = max(worst, float(np.abs(f_t + mu[c] * lam[i] * d).max()),      # on its edge, against d
+                        abs(w_t[0] * d[1] - w_t[1] * d[0]), -float(w_t @ d))     # sliding along d
+        elif status.closed[i]:
+            worst = max(worst, float(np.abs(w_t).max()))                          # stuck
+    return worst
+
+
+@pytest.mark.parametrize("mu", [0.1, 0.3, 1.0])
+def test_the_frictional_problem_is_solved_to_the_law_and_agrees_with_the_active_set(mu):
+    # semismooth Newton on the Alart–Curnier equations (on the working set of the contacts that
+    # press) answers within the rounding of the law; where the answer is unique (small μ), it is
+    # the active set's on the whole problem
+    rng = np.random.default_rng(11)
+    for _ in range(20):
+        W, b, m, fr, mu_c = frictional_problem(rng, mu=mu)
+        lam, status = contact_friction.coulomb(W, b, m, fr, mu_c)
+        assert law_violation(W, b, m, fr, mu_c, lam, status) <= 1e-12
+        assert np.all(lam[3:m] == 0.0) and not status.closed[3:].any()           # far contacts: no force
+        if mu <= 0.1:
+            other, _ = contact_friction._active_set(W, b, m, fr, mu_c)
+            assert np.allclose(lam, other, rtol=0.0, atol=1e-10)
+
+
+def test_a_contact_outside_the_working_set_joins_when_the_answer_closes_it():
+    # contact 1 is open at no force (b > 0) but pressing contact 0 pulls it shut (W₁₀ < 0): the
+    # working set starts with contact 0 alone and takes 1 in when the answer closes it
+    W = np.array([[1.0, -0.8, 0.1, 0.0], [-0.8, 1.0, 0.0, 0.05], [0.1, 0.0, 2.0, 0.2], [0.0, 0.05, 0.2, 2.0]])
+    b = np.array([-1.0, 0.2, 0.3, -0.1])
+    lam, status = contact_friction.coulomb(W, b, 2, np.array([0]), np.array([0.5]))
+    assert status.closed.tolist() == [True, True]
+    assert law_violation(W, b, 2, np.array([0]), np.array([0.5]), lam, status) <= 1e-12
+
+
+def test_slip_directions_converge_with_the_exact_jacobian(monkeypatch):
+    # the slipping contacts' directions by Newton on w_t × d with ∂λ/∂θ = −A⁻¹(∂A/∂θ)λ: quadratic,
+    # a handful of factorisations for three sliding contacts, each started opposite its stuck
+    # tangential force as the active set starts it (differences took one more solve per contact
+    # each iteration, and stopped at their own accuracy)
+    import scipy.linalg
+
+    rng = np.random.default_rng(5)
+    W, b, m, fr, mu = frictional_problem(rng, far=0, mu=0.2)
+    b[m:] *= 20.0                                       # far beyond the cone: all three slide
+    stuck = contact_friction.Friction(np.ones(m, bool), np.zeros(3, bool), np.tile([1.0, 0.0], (3, 1)))
+    f_t = contact_friction._solve_set(W, b, m, fr, mu, stuck)[m:].reshape(-1, 2)
+    status = contact_friction.Friction(np.ones(m, bool), np.ones(3, bool), -f_t / np.linalg.norm(f_t, axis=1)[:, None])
+    calls = []
+    factor = scipy.linalg.lu_factor
+    monkeypatch.setattr(scipy.linalg, "lu_factor", lambda *args, **kwargs: calls.append(1) or factor(*args, **kwargs))
+    lam = contact_friction._directions(W, b, m, fr, mu, status, float(np.abs(b).max()))
+    w = b + W @ lam
+    d = status.direction
+    cross = w[m::2] * d[:, 1] - w[m + 1::2] * d[:, 0]
+    assert np.abs(cross).max() <= contact_friction.DIRECTION_TOLERANCE * np.abs(b).max()
+    assert np.all(np.add.reduce(w[m:].reshape(-1, 2) * d, 1) > 0.0)        # slip along d
+    assert np.allclose(lam[m:].reshape(-1, 2), -mu[:, None] * lam[:m, None] * d, rtol=0.0, atol=1e-12)
+    assert len(calls) <= 8
+
+
+def test_springs_on_frictional_contacts_leave_the_step_its_forces():
+    # an indefinite tangent is factored with stiff springs along the pressed contacts (docs/contact.md,
+    # Solver, item 3). About the step Gp, a spring along a contact whose gap c ≠ 0 carries −k·c of
+    # its force, and the multiplier k·c more — which the friction law then takes for the normal
+    # force: a cone k·c/f_n times too wide. Centred on the linearised gap c + Gp it carries
+    # nothing where the step closes the gap. A state 1e-12 m into the box (as near convergence,
+    # where the gaps are closed to ~1e-12 of the length): the stiffened step's normal force is the
+    # step's without springs to 2e-3 (the factor with springs 1e11 N/m stiff resolves k·c to ~1e-6
+    # of itself), about the step it was 190 times the force
+    from vertebra.solver.potential import evaluate, tangent
+
+    model, first = pressed(0.3)
+    load(model, [P, 0.5 * 0.3 * P, 0.0])
+    trunk = model.trunk
+    state = first.state.copy()
+    state.positions[1:, 0] += 1e-12
+    loads = model.loads(model.actuation(None), 1.0)
+    constraints = contact_friction.Session(trunk, first.state, first.friction).constraints(trunk)
+    ev = evaluate(trunk, state, loads)
+    r = -ev.gradient[1:].reshape(-1)
+    constraints.accept(constraints.step(constraints.lagrangian(tangent(trunk, ev), state).factor(0.0)[0], r, state))
+    matrix = constraints.lagrangian(tangent(trunk, ev), state)
+    free = constraints.step(matrix.factor(0.0)[0], r, state)
+    stiff = constraints.stiffened(matrix, state, contact.STABILITY_SPRING)
+    sprung = constraints.step(stiff.factor(0.0)[0], r, state)
+    constraints.centre = None
+    about_the_step = constraints.step(stiff.factor(0.0)[0], r, state)
+
+    def forces(step):
+        return {tuple(k): f for k, f in zip(step.contacts.key.tolist(), step.multipliers) if f != 0.0}
+
+    normal = tuple(constraints.keys[0].tolist())
+    assert forces(free).keys() == forces(sprung).keys() and len(forces(free)) == 3     # pressed, two tangential
+    assert math.isclose(forces(free)[normal], P, rel_tol=1e-9)
+    assert math.isclose(forces(sprung)[normal], P, rel_tol=2e-3)
+    assert forces(about_the_step)[normal] > 100.0 * P
