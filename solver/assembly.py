@@ -29,6 +29,17 @@ from vertebra.solver.banded import BandedFactor, LowRankFactor, factor_cholesky,
 _NO_PIECES = np.zeros(0, int)
 
 
+def _as_slice(index: np.ndarray):
+    """``index`` (increasing, non-negative) as the slice that takes the same entries when they are
+    evenly spaced, else as it is."""
+    if index.size == 0:
+        return index
+    step = int(index[1] - index[0]) if index.size > 1 else 1
+    if step > 0 and np.array_equal(index, index[0] + step * np.arange(index.size)):
+        return slice(int(index[0]), int(index[-1]) + 1, step)
+    return index
+
+
 class BandAssembler:
     """Index maps from the tangent's terms to LAPACK band storage for ``n_blocks`` free frames
     whose couplings reach ``span`` blocks, cable pieces joining frames ``piece_a`` → ``piece_b``
@@ -217,11 +228,10 @@ class BandAssembler:
         if cables is not None and self.n_pairs:
             C = cables.reshape(B, self.n_pairs, 2, 6, 2, 6)
             aa, ab, ba, bb = C[:, :, 0, :, 0, :], C[:, :, 0, :, 1, :], C[:, :, 1, :, 0, :], C[:, :, 1, :, 1, :]
-            for offset, pairs, a, b, free in self._pair_offsets():
+            for offset, pairs, b, free_pairs, a in self._pair_offsets():
                 S[:, b, 0] += bb[:, pairs]
-                pairs, a = pairs[free], a[free]
-                S[:, a, 0] += aa[:, pairs]
-                S[:, a, offset] += ba[:, pairs] + ab[:, pairs].mT
+                S[:, a, 0] += aa[:, free_pairs]
+                S[:, a, offset] += ba[:, free_pairs] + ab[:, free_pairs].mT
         if weight is not None:
             S[:, :, 0, 3:, 3:] += weight
         diagonal = S[:, :, 0]
@@ -246,12 +256,18 @@ class BandAssembler:
         return self._band_index
 
     def _pair_offsets(self) -> list:
-        """The cable pairs by block offset: (offset, pairs, block a, block b, a is free), each with
-        distinct blocks (so that one batched sum per offset adds no block twice)."""
+        """The cable pairs by block offset: (offset, pairs, their blocks b, the pairs whose block a
+        is free, those blocks a), each with distinct blocks (so that one batched sum per offset adds
+        no block twice). Evenly spaced indices (the usual routing: a cable pair every few blocks)
+        are slices, so that the sums are taken on views rather than by gathers and scatters."""
         if self._offsets is None:
             gap = self.pair_b - self.pair_a
-            self._offsets = [(int(o), np.flatnonzero(gap == o), self.pair_a[gap == o] - 1, self.pair_b[gap == o] - 1,
-                              self.pair_a[gap == o] > 0) for o in np.unique(gap)]
+            self._offsets = []
+            for o in np.unique(gap):
+                pairs = np.flatnonzero(gap == o)
+                free = self.pair_a[pairs] > 0
+                self._offsets.append((int(o), _as_slice(pairs), _as_slice(self.pair_b[pairs] - 1),
+                                      _as_slice(pairs[free]), _as_slice(self.pair_a[pairs][free] - 1)))
         return self._offsets
 
     # ------------------------------------------------------------------ block storage

@@ -151,3 +151,17 @@ def test_the_solve_returns_the_stable_column_straight_or_buckled(ratio):
         assert np.abs(result.state.positions[:, :2]).max() == 0.0
     else:
         assert tip == pytest.approx(column_tip_angle(ratio), rel=1e-4)
+
+
+def test_evenly_spaced_pair_indices_become_slices_that_take_the_same_entries():
+    # the batch's band assembly sums the cable pairs of one block offset on views where their
+    # blocks are evenly spaced (the usual routing), and by the index arrays otherwise
+    from vertebra.solver.assembly import _as_slice
+
+    x = np.arange(40.0).reshape(20, 2)
+    for index, sliced in (([], False), ([3], True), ([1, 3, 5, 7], True), ([0, 1, 2], True), ([1, 2, 4], False),
+                          ([2, 5, 8, 11], True), ([4, 4], False)):
+        index = np.array(index, int)
+        taken = _as_slice(index)
+        assert isinstance(taken, slice) == sliced
+        assert np.array_equal(x[taken], x[index])
