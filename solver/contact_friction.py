@@ -374,13 +374,14 @@ def _statuses(W: np.ndarray, b: np.ndarray, m: int, fr: np.ndarray, mu: np.ndarr
 
 
 def coulomb(W: np.ndarray, b: np.ndarray, m: int, fr: np.ndarray, mu: np.ndarray,
-            start: Friction | None = None) -> tuple[np.ndarray, Friction] | None:
+            start: Friction | None = None, guess: np.ndarray | None = None) -> tuple[np.ndarray, Friction] | None:
     """The frictional complementarity problem on ``w = b + Wλ`` (:func:`_active_set` states it),
     on a working set of contacts: those whose linearised gap is negative or that ``start`` presses
     (with their slip rows), solved by :func:`_solve_working`; a contact outside it whose gap the
     answer closes beyond the rounding joins it and the problem is solved again. Its answer, with
     no force on the others, is the whole problem's answer (their gaps open, no force, no friction);
-    the candidates far from touching cost one product with ``W`` instead of rows in every solve."""
+    the candidates far from touching cost one product with ``W`` instead of rows in every solve.
+    ``guess``: forces (n,) to start Newton from besides the statuses' (the frictionless answer's)."""
     scale = float(np.abs(b).max(initial=0.0)) + 1e-300
     start = start if start is not None else Friction(b[:m] < 0.0, np.zeros(fr.size, bool),
                                                      np.tile([1.0, 0.0], (fr.size, 1)))
@@ -396,7 +397,8 @@ def coulomb(W: np.ndarray, b: np.ndarray, m: int, fr: np.ndarray, mu: np.ndarray
         position = np.full(m, -1)
         position[normal] = np.arange(normal.size)
         sub_start = Friction(start.closed[normal], start.slip[c], start.direction[c])
-        found = _solve_working(W[np.ix_(rows, rows)], b[rows], normal.size, position[fr[c]], mu[c], sub_start)
+        found = _solve_working(W[np.ix_(rows, rows)], b[rows], normal.size, position[fr[c]], mu[c], sub_start,
+                               None if guess is None else guess[rows])
         if found is None:
             return None
         sub_lam, sub_status = found
@@ -417,16 +419,18 @@ def coulomb(W: np.ndarray, b: np.ndarray, m: int, fr: np.ndarray, mu: np.ndarray
 
 
 def _solve_working(W: np.ndarray, b: np.ndarray, m: int, fr: np.ndarray, mu: np.ndarray,
-                   start: Friction) -> tuple[np.ndarray, Friction] | None:
+                   start: Friction, guess: np.ndarray | None = None) -> tuple[np.ndarray, Friction] | None:
     """The frictional complementarity problem of :func:`coulomb` on its working set: the
     Alart–Curnier equations by semismooth Newton (:func:`_alart_curnier`), from the forces of the
     statuses ``start`` (the last step's: along a solve mostly the answer's) and, where that does
-    not converge, from no force. Where neither converges (nearly redundant contacts — both rims
+    not converge, from ``guess`` (the frictionless answer's forces), then from no force. Where neither converges (nearly redundant contacts — both rims
     of a disc on a sphere — leave Newton at a local minimum of its merit), the active set from
     ``start``; where its statuses run in a cycle, from the statuses of projected Gauss–Seidel
     sweeps (:func:`_sweeps`) — and where that cycles too, the sweeps' answer itself when they
     converged to :data:`SWEEP_TOLERANCE`."""
     starts = [np.zeros(b.size)]
+    if guess is not None and np.any(guess):
+        starts.insert(0, guess)
     if start.closed.any():
         guess = _solve_set(W, b, m, fr, mu, start)
         if np.all(np.isfinite(guess)):
@@ -703,7 +707,11 @@ class FrictionalConstraints(contact.Constraints):
             regularised = W.copy()
             regularised[np.diag_indices_from(W)] += floor
             mu = mu_all[fr]
-            found = coulomb(regularised, b, m, fr, mu, self._start(normal.key, fr, b[:m], frictionless))
+            guess = None
+            if frictionless is not None:
+                guess = np.zeros(b.size)
+                guess[:m] = frictionless
+            found = coulomb(regularised, b, m, fr, mu, self._start(normal.key, fr, b[:m], frictionless), guess)
             if found is None:
                 return None
             lam, status = found
