@@ -20,8 +20,9 @@ the candidate contacts' rows ``G = ∂[g; s]/∂q`` and the Delassus operator ``
 
     ``w = [g; s] + G K⁻¹ r + W λ``,   normal rows complementary, tangential rows stick or slip
 
-(:func:`coulomb`: an active set over open / stick / slip with the slip directions solved for
-``w_t ∥ d``), and the step is ``p = K⁻¹(r + Gᵀλ)``. At the converged state ``w = [g; s]``: the
+(:func:`coulomb`: semismooth Newton on the Alart–Curnier equations on a working set of the
+contacts that can press, an active set over open / stick / slip with the slip directions solved
+for ``w_t ∥ d`` where it does not converge), and the step is ``p = K⁻¹(r + Gᵀλ)``. At the converged state ``w = [g; s]``: the
 increment's equilibrium, with the friction law above holding exactly.
 
 History. :class:`ContactFriction` is the committed state with each pressed frictional contact's
@@ -641,8 +642,7 @@ class FrictionalConstraints(contact.Constraints):
         gaps and the stuck ones' slips) centred on the linearised row ``c + Gp`` instead of the
         step ``Gp``: a spring about ``Gp`` would carry ``−k c`` of the contact's force — beside the
         multiplier, so outside the friction law, which bounds the tangential force by ``μ`` times
-        the multiplier (a slipping disc on a sphere: the cone shrunk by the spring's share every
-        other step, the residual thrown back from 1e-7 to 1e-2). Centred, a row held closed carries
+        the multiplier (docs/contact.md, Friction). Centred, a row held closed carries
         no spring force and the multiplier is the whole force. The step's right-hand side takes
         ``−Σ k Gᵀc`` (:attr:`centre`)."""
         stiffened = super().stiffened(matrix, state, stiffness, step)
@@ -732,10 +732,10 @@ class FrictionalConstraints(contact.Constraints):
 
     def _start(self, key: np.ndarray, fr: np.ndarray, b: np.ndarray, frictionless: np.ndarray | None) -> Friction:
         """The statuses the last step left for these contacts (new ones: pressed where the
-        frictionless problem presses them — else where their linearised gap is negative —, stuck).
-        (Where many linearised gaps are negative and few contacts press — a soft trunk whose one
-        contact lifts its whole length — starting from every negative gap pressed made the active
-        set open them one by one.)"""
+        frictionless problem presses them — else where their linearised gap is negative —, stuck):
+        where many linearised gaps are negative and few contacts press (a soft trunk whose one
+        contact lifts its whole length), the frictionless answer is near the frictional one, every
+        negative gap pressed is far from it."""
         pressed = {tuple(k) for k in self.keys[self.keys[:, 0] < TANGENTIAL].tolist()}
         closed = (np.array([tuple(k) in pressed for k in key.tolist()], bool)
                   | (b < 0.0 if frictionless is None else frictionless > 0.0))
