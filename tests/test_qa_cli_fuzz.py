@@ -1,6 +1,7 @@
 """QA: a seeded fuzzer over the command line — its flags, the scenes, trajectories and sweep specs
 it reads (mutated tables, corrupted bytes, hostile paths) — run in one subprocess capped at
-2 GiB of address space, each case under a 20 s alarm.
+2 GiB of address space, each case under a 20 s alarm on its CPU time (and a 60 s one on the
+wall clock, for a case that waits instead of computing).
 
 Every case must end with exit code 0, 1 or 2, no traceback, and when it is refused (2) the
 refusal is one line on stderr (``vertebra COMMAND: error: …``; argparse's usage lines and
@@ -32,7 +33,8 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 GALLERY = ROOT / "solver" / "gallery"
 SWEEPS = ROOT / "examples" / "sweeps"
-CASE_SECONDS = 20            # a case that runs longer is a hang
+CASE_SECONDS = 20            # a case that computes longer (CPU time: the machine's load aside) is a hang
+WALL_SECONDS = 60            # ... or that takes longer on the wall clock (waiting on a lock or a file)
 BUDGET_SECONDS = 18          # the worker starts no new case after this (the test stays under 30 s)
 MEMORY = 2 << 30             # bytes of address space for the worker
 
@@ -258,7 +260,9 @@ def _options(rnd, parser, inputs, command) -> list[str]:
 
 # ---------------------------------------------------------------------------- the worker
 class Hang(BaseException):
-    """Raised by the alarm in a case that runs longer than CASE_SECONDS."""
+    """Raised by the alarms in a case that computes longer than CASE_SECONDS (its process's CPU
+    time, so that a loaded machine does not turn a slow case into a hang) or waits longer than
+    WALL_SECONDS."""
 
 
 def _run_case(argv: list[str]) -> dict:
@@ -275,7 +279,9 @@ def _run_case(argv: list[str]) -> dict:
 
     out, err = io.StringIO(), io.StringIO()
     signal.signal(signal.SIGALRM, alarm)
-    signal.alarm(CASE_SECONDS)
+    signal.signal(signal.SIGPROF, alarm)
+    signal.setitimer(signal.ITIMER_PROF, CASE_SECONDS)
+    signal.alarm(WALL_SECONDS)
     try:
         with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err), warnings.catch_warnings():
             try:
@@ -289,6 +295,7 @@ def _run_case(argv: list[str]) -> dict:
         err.write(traceback.format_exc())
     finally:
         signal.alarm(0)
+        signal.setitimer(signal.ITIMER_PROF, 0)
     return {"argv": argv, "code": code, "stderr": err.getvalue()[-3000:]}
 
 
@@ -330,7 +337,7 @@ def _problems(result: dict) -> str | None:
 def test_cli_fuzz_no_traceback_no_hang_bounded_memory(seed, tmp_path):
     env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MPLBACKEND="Agg")
     done = subprocess.run([sys.executable, __file__, str(seed), str(BUDGET_SECONDS / 2), str(tmp_path)],
-                          capture_output=True, text=True, timeout=CASE_SECONDS + BUDGET_SECONDS + 30, env=env,
+                          capture_output=True, text=True, timeout=WALL_SECONDS + BUDGET_SECONDS + 30, env=env,
                           cwd=tmp_path)
     results = [json.loads(line) for line in done.stdout.splitlines() if line.startswith("{")]
     assert done.returncode == 0, done.stderr[-3000:]
