@@ -30,6 +30,7 @@ import contextlib
 import ctypes
 import dataclasses
 import math
+import platform
 import threading
 import time
 from dataclasses import dataclass, field
@@ -54,7 +55,10 @@ MEMORY_BUDGET = 256 * 2**20     # bytes of working arrays per chunk (see chunk_s
 
 
 def _c_mallopt():
-    """The C library's ``mallopt`` (glibc's), or None where there is none."""
+    """glibc's ``mallopt``, or None under another C library (whose ``mallopt``, where it has one,
+    does not number its parameters as glibc does)."""
+    if platform.libc_ver()[0] != "glibc":
+        return None
     try:
         return ctypes.CDLL(None).mallopt
     except (AttributeError, OSError, TypeError):
