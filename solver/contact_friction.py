@@ -719,10 +719,13 @@ class FrictionalConstraints(contact.Constraints):
             if not missing.any():
                 break
             relevant |= missing
-        exact = _directions(W, b, m, fr, mu, Friction(status.closed, status.slip, status.direction.copy()),
-                            float(np.abs(b).max()) + 1e-300)
+        refined = Friction(status.closed, status.slip, status.direction.copy())
+        exact = _directions(W, b, m, fr, mu, refined, float(np.abs(b).max()) + 1e-300)
         if np.all(exact[:m][status.closed] > 0.0):
-            lam = exact                 # the pressed contacts' gaps and the stuck ones' slips closed exactly
+            # the pressed contacts' gaps and the stuck ones' slips closed exactly, the slipping ones'
+            # slips along the directions solved with them: those directions are the statuses' (the
+            # forces are −μ f_n d along them, and the converged state's slip is checked against them)
+            lam, status = exact, refined
         lam[:m] = np.where(status.closed, np.maximum(lam[:m], 0.0), 0.0)
         for c, i in enumerate(fr.tolist()):
             if not status.closed[i]:
