@@ -451,3 +451,21 @@ def test_springs_on_frictional_contacts_leave_the_step_its_forces():
     assert math.isclose(forces(free)[normal], P, rel_tol=1e-9)
     assert math.isclose(forces(sprung)[normal], P, rel_tol=2e-3)
     assert forces(about_the_step)[normal] > 100.0 * P
+
+
+def test_a_slipping_contact_keeps_the_direction_solved_with_its_forces():
+    # the contact fuzz's seed 59 (a tendon robot's disc slipping on a box, μ = 1): the step's
+    # exact solve turns the slip direction by ~1e-8 rad from the Alart–Curnier one; the status
+    # must keep that direction, else the converged slip lies off it beyond ACTIVE_GAP and the
+    # state is never feasible (1000 iterations at a residual of 1e-11)
+    import json
+    from pathlib import Path
+
+    scene = json.loads((Path(__file__).parent / "reference" / "contact_fuzz_seed59.json").read_text())
+    model = solver.build_model(solver.parse_scene(scene))
+    result = model.solve(max_iterations=30, raise_on_failure=False)
+    assert result.converged and result.iterations <= 20, result.message
+    sliding = [c for c in result.contacts if c.force > 0.0 and c.sliding == "slip"]
+    assert sliding
+    for c in sliding:
+        assert math.hypot(*c.friction) <= c.force * (1 + 1e-9)
