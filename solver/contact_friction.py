@@ -632,6 +632,7 @@ class FrictionalConstraints(contact.Constraints):
         self.session = session
         self.status: dict = {}        # contact key → (slips, direction (2,)) of the last step
         self.centre = None            # Σ k Gᵀc of the springs on frictional rows in the tangent factored now
+        self.across = None            # (contacts, their slip directions) sprung across the slip now
 
     def lagrangian(self, matrix, state):
         self.centre = None            # (a new iteration's tangent: no springs until stiffened)
@@ -658,7 +659,76 @@ class FrictionalConstraints(contact.Constraints):
             if frictional.any():
                 c = np.array([value[tuple(k)] for k in key[frictional].tolist()])
                 self.centre = G[frictional].T @ (spring[frictional] * c)
+        self.across = None
+        across = self._across(state, step) if self.springs is not None else None
+        if across is not None:
+            G, spring, c, owners = across
+            self.across = (owners, {k: self.status[k][1].copy() for k in owners})
+            centre = G.T @ (spring * c)
+            self.centre = centre if self.centre is None else self.centre + centre
+            U, d = stiffened.low_rank if stiffened.low_rank is not None else (np.zeros((G.shape[1], 0)), np.zeros(0))
+            stiffened = type(stiffened)(stiffened.assembler, stiffened.terms, (np.hstack([U, G.T]), np.concatenate([d, spring])))
         return stiffened
+
+    def _across(self, state, step: Step | None):
+        """The slipping contacts' friction across their slip: ``f_t = −μ f_n s/|s|`` turns with the
+        slip ``s``, a stiffness ``μ f_n/|s|`` across the slip direction ``d`` (the tangent of
+        Coulomb's law on the cone's edge, symmetric and positive: the friction force follows the
+        slip sideways). The Lagrangian's tangent leaves it out — the step's problem solves the
+        direction instead — so a trunk pressed and slipping over a convex obstacle can be
+        indefinite on the free directions where with it it is not, and the shift would damp every
+        step. Returns the rows across (``d_⊥ᵀ ∂s/∂q``), their stiffnesses, their values
+        ``d_⊥ᵀ s`` (the springs are centred there: at the step's answer, whose slip lies along
+        ``d``, they carry no force) and the contacts; None when none slips."""
+        if step is None:
+            if not self.multipliers.size:
+                return None
+            found, lam = self.pressed(state), self.multipliers
+        else:
+            keep = self._kept(step)
+            found, lam = step.contacts.take(np.flatnonzero(keep)), step.multipliers[keep]
+        slipping = self._slipping(found.key)
+        if not slipping.any():
+            return None
+        force = {tuple(k): f for k, f in zip(found.key.tolist(), lam.tolist()) if k[0] < TANGENTIAL}
+        rows, springs, values, owners = [], [], [], []
+        G = found.jacobian(self.n_frames)
+        for j in np.flatnonzero(slipping)[::2].tolist():
+            owner = tuple(normal_keys(found.key[j:j + 2])[0].tolist())
+            s = found.gap[j:j + 2]
+            size = float(np.hypot(*s))
+            f_n = force.get(owner, 0.0)
+            if not (size > 0.0 and f_n > 0.0):
+                continue
+            d = self.status[owner][1]
+            across = np.array([-d[1], d[0]])
+            row = across[0] * G[j] + across[1] * G[j + 1]
+            squared = float(row @ row)
+            if squared == 0.0:
+                continue
+            mu = float(coefficients(self.model, np.array([owner]))[0])
+            rows.append(row)
+            springs.append(mu * f_n / size)
+            values.append(float(across @ s))
+            owners.append(owner)
+        if not rows:
+            return None
+        return np.array(rows), np.array(springs), np.array(values), owners
+
+    def released(self, step: Step) -> bool:
+        """:meth:`Constraints.released`, or a contact sprung across its slip that the step leaves
+        sticking or open or slipping another way (the springs across the old direction would
+        carry force at the step's answer)."""
+        if super().released(step):
+            return True
+        if getattr(self, "across", None) is None:
+            return False
+        owners, directions = self.across
+        for k in owners:
+            slips, d = self.status.get(k, (False, None))
+            if not slips or not np.array_equal(d, directions[k]):
+                return True
+        return False
 
     # the rows of a set of contacts: normal ones (contact.evaluate) and, for the frictional, slip rows
     def _rows(self, state, normal: ContactSet) -> tuple[ContactSet, np.ndarray]:
