@@ -27,8 +27,8 @@ that holds it apart (:mod:`~vertebra.solver.contact_features`: face, edge, verte
 own face; signed and smooth through contact at an edge). A segment with ``contact_radius`` is a chain of capsules along the
 chords between its frames: its frames are balls of that radius, and a chord's interior meets
 an obstacle where it is closer than both ends. The closest point of a rim or a chord to an
-obstacle is closed-form for planes and spheres and found by golden-section search for the
-other types; its gap's derivative is that of the closest point held fixed on the body (the
+obstacle is closed-form for planes and spheres and found by bisection on the distance's
+derivative along it for the other types; its gap's derivative is that of the closest point held fixed on the body (the
 envelope theorem).
 """
 
@@ -48,11 +48,9 @@ RIM, BALL, CHORD, PAIR, FOLD = 0, 1, 2, 3, 4   # kinds of contact (PAIR: adjacen
 TANGENTIAL = 16              # kinds from here on: the tangential rows of frictional contacts (contact_friction)
 KIND_NAMES = ("disc", "frame", "segment", "disc", "disc")
 DISCS = (PAIR, FOLD)         # the kinds between two discs
-SAMPLES = 16                 # starting samples of the golden-section search on a rim
-CHORD_SAMPLES = 8            # … and on a chord
-GOLDEN = 0.5 * (math.sqrt(5.0) - 1.0)
-GOLDEN_STEPS = 48            # shrinks the bracket by 1e-10
-BISECTIONS = 52              # of a rim's angle between discs: the bracket (2·2π/16) to the rounding of an angle
+SAMPLES = 16                 # starting samples of the search for a rim's nearest point
+CHORD_SAMPLES = 8            # … and a chord's
+BISECTIONS = 52              # of a rim's angle (the bracket 2·2π/16) or a chord's parameter (2/8) to its rounding
 FACE_POINTS = 8              # points on each rim of two discs lying face to face (fixed angles in the disc's frame) …
 FACE_REACH = 2.0             # … while their gap is below this × the sum of their thicknesses
 DIFFERENCE = 1e-6            # the step (rad; × the disc radius in m) of the disc pairs' curvature by central differences
@@ -316,22 +314,18 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
-def _golden(distance, low: np.ndarray, high: np.ndarray) -> np.ndarray:
-    """The minimiser of each ``distance(s)`` (batched) in ``[low, high]`` by golden-section search."""
-    a, b = low.copy(), high.copy()
-    c, d = b - GOLDEN * (b - a), a + GOLDEN * (b - a)
-    fc, fd = distance(c), distance(d)
-    for _ in range(GOLDEN_STEPS):
-        left = fc < fd
-        b = np.where(left, d, b)
-        a = np.where(left, a, c)
-        c_new = np.where(left, b - GOLDEN * (b - a), d)
-        d_new = np.where(left, c, a + GOLDEN * (b - a))
-        moved = np.where(left, c_new, d_new)
-        f_moved = distance(moved)
-        fd, fc = np.where(left, fc, f_moved), np.where(left, f_moved, fd)
-        c, d = c_new, d_new
-    return 0.5 * (a + b)
+def _least(slope, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """The minimiser of each distance (batched) in ``[low, high]`` by bisection on the sign of its
+    derivative ``slope(s)`` (the obstacle's normal at the point along the point's motion), to the
+    rounding of ``s``. A search on the distance's value (golden section) ends at √ε of the
+    bracket — the value is flat at its least — and a nearest point off by that moves the
+    contact's lever arm: a chord's force split between its frames by 1e-8 of itself, a
+    residual floor above the solve's tolerance."""
+    for _ in range(BISECTIONS):
+        middle = 0.5 * (low + high)
+        falling = slope(middle) < 0.0
+        low, high = np.where(falling, middle, low), np.where(falling, high, middle)
+    return 0.5 * (low + high)
 
 
 def _rim_points(center, e1, e2, radius, angle):
@@ -394,8 +388,11 @@ def _rims(model, R, x, features, obstacle):
                             np.repeat(radius, SAMPLES), np.tile(samples, center.shape[0]))
         start = samples[np.argmin(obstacle.closest(trial)[0].reshape(-1, SAMPLES), 1)]
         width = 2.0 * math.pi / SAMPLES
-        angle = _golden(lambda s: obstacle.closest(_rim_points(center, e1, e2, radius, s))[0],
-                        start - width, start + width)
+        def slope(s):
+            along = radius[:, None] * (np.cos(s)[:, None] * e2 - np.sin(s)[:, None] * e1)
+            return np.add.reduce(obstacle.closest(_rim_points(center, e1, e2, radius, s))[1] * along, -1)
+
+        angle = _least(slope, start - width, start + width)
         point = _rim_points(center, e1, e2, radius, angle)
     distance, normal, _ = obstacle.closest(point)
     rows = np.zeros((features.size, 2, 6))
@@ -439,10 +436,16 @@ def _chords(model, R, x, features, obstacle, ends=False):
             a_s, b_s = a[search], b[search]
             samples = np.linspace(0.0, 1.0, CHORD_SAMPLES + 1)
             trial = a_s[:, None] + samples[None, :, None] * (b_s - a_s)[:, None]
-            start = samples[np.argmin(obstacle.closest(trial.reshape(-1, 3))[0].reshape(a_s.shape[0], -1), 1)]
+            sampled = obstacle.closest(trial.reshape(-1, 3))[0].reshape(a_s.shape[0], -1)
+            start = samples[np.argmin(sampled, 1)]
             width = 1.0 / CHORD_SAMPLES
-            t[search] = _golden(lambda s: obstacle.closest(a_s + s[:, None] * (b_s - a_s))[0],
-                                np.maximum(start - width, 0.0), np.minimum(start + width, 1.0))
+            least = _least(lambda s: np.add.reduce(obstacle.closest(a_s + s[:, None] * (b_s - a_s))[1]
+                                                   * (b_s - a_s), -1),
+                           np.maximum(start - width, 0.0), np.minimum(start + width, 1.0))
+            # an interior point no nearer than an end (the distance flat along the chord: lying on a
+            # face) is the end's, whose ball covers it
+            nearer = obstacle.closest(a_s + least[:, None] * (b_s - a_s))[0] < np.minimum(sampled[:, 0], sampled[:, -1])
+            t[search] = np.where(nearer, least, np.where(sampled[:, 0] <= sampled[:, -1], 0.0, 1.0))
     interior = (t > 1e-9) & (t < 1.0 - 1e-9)
     point = a + t[:, None] * (b - a)
     distance, normal, _ = obstacle.closest(point)
