@@ -68,16 +68,20 @@ def _separation(n, c, a, rho, vertices):
 
 
 def _rim_line(c, a, e1, e2, rho, o, u):
-    """The rim angle ``s`` (k, e) nearest each line ``o + w u`` (e, 3): 16 samples, then bisection on
-    the derivative of the squared distance (``r⊥·τ``) to the rounding of the angle."""
+    """The rim angle ``s`` (k, e) nearest each line ``o + w u`` (e, 3, or (k, e, 3) per disk): 16
+    samples, then bisection on the derivative of the squared distance (``r⊥·τ``) to the rounding
+    of the angle."""
+    if o.ndim == 2:
+        o, u = o[None], u[None]
+
     def at(s):
         cs, sn = np.cos(s)[..., None], np.sin(s)[..., None]
         radial = cs * e1[:, None] + sn * e2[:, None]
-        r = c[:, None] + rho[:, None, None] * radial - o[None]
-        perp = r - _dot(r, u[None])[..., None] * u[None]
+        r = c[:, None] + rho[:, None, None] * radial - o
+        perp = r - _dot(r, u)[..., None] * u
         return perp, rho[:, None, None] * (cs * e2[:, None] - sn * e1[:, None])
 
-    k, e = c.shape[0], o.shape[0]
+    k, e = c.shape[0], o.shape[-2]
     samples = 2.0 * math.pi * np.arange(SAMPLES) / SAMPLES
     best = np.full((k, e), np.inf)
     start = np.zeros((k, e))
@@ -164,6 +168,20 @@ def disk_polyhedron(poly, x, c, a, e1, e2, rho, second: bool = False):
                      c - rho[:, None] * inplane / np.maximum(norm_in, 1e-300)[:, None])
     if not second:
         return gap, point, n, kind
+    u_edge = np.zeros((k, 3))
+    edge = kind == EDGE
+    u_edge[edge] = u[best[edge] - (f + 2 + V.shape[0])]
+    return gap, point, n, kind, _pairing_derivative(x, c, a, rho, gap, point, n, kind, u_edge, support)
+
+
+def _pairing_derivative(x, c, a, rho, gap, point, n, kind, u_edge, support):
+    """``M`` (k, 6, 6): the derivative of a disk's gap row ``[n, (p − x) × n]`` under a move ``δx``
+    and a turn ``δφ`` (world axes) of its frame at ``x``, for the pairing ``kind`` that gives its gap
+    (``u_edge``: an edge pairing's line direction; ``support``: an axis pairing's vertex)."""
+    k = c.shape[0]
+    inplane = n - _dot(n, a)[:, None] * a
+    norm_in = np.sqrt(_dot(inplane, inplane))
+    axis = kind == AXIS
     l = point - x
     tau = _cross(a, point - c)                        # ∂p/∂s along the rim
     tau_s = c - point                                 # ∂τ/∂s
@@ -180,8 +198,7 @@ def disk_polyhedron(poly, x, c, a, e1, e2, rho, second: bool = False):
         ds[face, 3:] = np.where(ok[:, None], -_cross(tau[face], n[face]) / np.where(ok, f_ss, 1.0)[:, None], 0.0)
     edge = kind == EDGE
     if edge.any():
-        j = best[edge] - (f + 2 + V.shape[0])
-        ue, ne, te, ts, le, g = u[j], n[edge], tau[edge], tau_s[edge], l[edge], gap[edge]
+        ue, ne, te, ts, le, g = u_edge[edge], n[edge], tau[edge], tau_s[edge], l[edge], gap[edge]
         perp = te - _dot(te, ue)[:, None] * ue
         f_ss = _dot(perp, perp) + g * _dot(ne, ts)
         v = np.concatenate([perp, _cross(le, perp) + g[:, None] * _cross(te, ne)], 1)
@@ -218,7 +235,7 @@ def disk_polyhedron(poly, x, c, a, e1, e2, rho, second: bool = False):
     Dl = Dp.copy()
     Dl[:, :, :3] -= np.eye(3)
     M[:, 3:] = -_hat(n) @ Dl + _hat(l) @ Dn            # δ(l × n) = δl × n + l × δn
-    return gap, point, n, kind, M
+    return M
 
 
 def segment_polyhedron(poly, closest, a, b):

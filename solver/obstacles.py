@@ -291,19 +291,34 @@ class Mesh:
         c = self.corners
         return 0.5 * np.linalg.norm(np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]), axis=-1)
 
+    @functools.cached_property
+    def surface(self) -> "MeshSurface":
+        """The mesh's features for contact (:class:`MeshSurface`): built once."""
+        return MeshSurface.of(self)
+
+    def near(self, points: np.ndarray, reach: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pairs (point index, triangle index) of the triangles that may hold a surface point within
+        ``reach`` (k,) of each point (their centroids within ``reach`` + their circumradius: a k-d tree)."""
+        surface = self.surface
+        found = surface.tree.query_ball_point(points, np.maximum(reach, 0.0) + surface.radius_max)
+        counts = np.fromiter((len(f) for f in found), int, len(found))
+        point = np.repeat(np.arange(len(found)), counts)
+        triangle = np.fromiter((t for f in found for t in f), int, int(counts.sum()))
+        keep = np.add.reduce((surface.centroid[triangle] - points[point]) ** 2, -1) <= (
+            reach[point] + surface.radius[triangle]) ** 2
+        return point[keep], triangle[keep]
+
     def closest(self, points):
         """Closest points on the triangles (Ericson, Real-Time Collision Detection §5.1.5) after a
-        broad phase: a triangle whose bounding box is farther from a point than that point's
-        distance to some triangle's corner cannot hold its closest point. The sign comes from
-        the closest feature's angle-weighted pseudonormal (a face's normal inside it)."""
+        broad phase: the nearest vertex (a k-d tree) bounds each point's distance, and only the
+        triangles whose centroid lies within that bound and their circumradius can hold its
+        closest point (:meth:`near`). The sign comes from the closest feature's angle-weighted
+        pseudonormal (a face's normal inside it)."""
         shape = points.shape[:-1]
         p = points.reshape(-1, 3)
         c = self.corners
-        low, high = c.min(1), c.max(1)
-        gap = np.maximum(np.maximum(low[None] - p[:, None], p[:, None] - high[None]), 0.0)
-        box_distance = np.add.reduce(gap * gap, -1)                          # (k, t) squared
-        corner = np.add.reduce((p[:, None] - c[None, :, 0]) ** 2, -1)
-        point, triangle = np.nonzero(box_distance <= corner.min(1)[:, None])
+        bound, _ = self.surface.vertex_tree.query(p)
+        point, triangle = self.near(p, bound * (1.0 + 1e-9) + 1e-12 * self.surface.size)
         q = _closest_on_triangles(p[point], c[triangle])
         d2 = np.add.reduce((q - p[point]) ** 2, -1)
         order = np.lexsort((d2, point))                                     # by point, nearest first
@@ -338,6 +353,64 @@ class Mesh:
 
     def bounds(self):
         return self.vertices.min(0), self.vertices.max(0)
+
+
+@dataclass(frozen=True, eq=False)
+class MeshSurface:
+    """A mesh's triangles, edges and vertices as the features a disc's face touches
+    (:func:`vertebra.solver.contact_features.disk_mesh`), with k-d trees of its triangles'
+    centroids and of its vertices (the broad phase: cost ~log of the triangles)."""
+
+    size: float
+    normal: np.ndarray            # (t, 3) the triangles' outward unit normals
+    offset: np.ndarray            # (t,) normal · x of their planes
+    centroid: np.ndarray          # (t, 3)
+    radius: np.ndarray            # (t,) the farthest corner from the centroid
+    radius_max: float
+    edges: np.ndarray             # (e, 2) every edge's vertices (once)
+    edge_far: np.ndarray          # (e, 2) the far corners of the triangles on either side (an open edge: its one twice)
+    edge_normal: np.ndarray       # (e, 3) the sum of the two triangles' normals (outward at the edge)
+    triangle_edges: np.ndarray    # (t, 3) each triangle's edges (corners 0–1, 1–2, 2–0)
+    neighbours: np.ndarray        # (v, m) each vertex's neighbours along edges (padded with itself)
+    pseudonormal: np.ndarray      # (v, 3) the angle-weighted normal (outward at the vertex)
+    tree: object                  # scipy.spatial.cKDTree of the centroids
+    vertex_tree: object           # … of the vertices
+
+    @classmethod
+    def of(cls, mesh: "Mesh") -> "MeshSurface":
+        from scipy.spatial import cKDTree
+
+        c = mesh.corners
+        normals, angles = mesh._faces
+        t = mesh.triangles.shape[0]
+        centroid = c.mean(1)
+        radius = np.sqrt(np.add.reduce((c - centroid[:, None]) ** 2, -1).max(1))
+        sides = np.sort(np.stack([mesh.triangles, np.roll(mesh.triangles, -1, 1)], -1), -1).reshape(-1, 2)
+        far = np.roll(mesh.triangles, 1, 1).reshape(-1)                          # the corner opposite each side
+        owner = np.repeat(np.arange(t), 3)
+        edges, first, inverse = np.unique(sides, axis=0, return_index=True, return_inverse=True)
+        inverse = inverse.reshape(-1)
+        e = edges.shape[0]
+        count = np.bincount(inverse, minlength=e)
+        order = np.argsort(inverse, kind="stable")
+        start = np.r_[0, np.cumsum(count)[:-1]]
+        one, two = order[start], order[start + np.minimum(count, 2) - 1]
+        edge_far = np.stack([far[one], far[two]], 1)
+        edge_normal = normals[owner[one]] + normals[owner[two]]
+        v = mesh.vertices.shape[0]
+        pairs = np.concatenate([edges, edges[:, ::-1]])
+        degree = np.bincount(pairs[:, 0], minlength=v)
+        slot = np.argsort(pairs[:, 0], kind="stable")
+        begin = np.r_[0, np.cumsum(degree)[:-1]]
+        neighbours = np.repeat(np.arange(v)[:, None], max(int(degree.max()), 1), 1)
+        rank = np.arange(pairs.shape[0]) - np.repeat(begin, degree)
+        neighbours[pairs[slot, 0], rank] = pairs[slot, 1]
+        pseudo = np.zeros((v, 3))
+        np.add.at(pseudo, mesh.triangles.reshape(-1), (angles[:, :, None] * normals[:, None, :]).reshape(-1, 3))
+        size = float(np.ptp(mesh.vertices, 0).max()) + TINY
+        return cls(size, normals, np.add.reduce(normals * c[:, 0], -1), centroid, radius, float(radius.max()),
+                   edges, edge_far, edge_normal, inverse.reshape(t, 3), neighbours, _normalised(pseudo)[0],
+                   cKDTree(centroid), cKDTree(mesh.vertices))
 
 
 def _cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
