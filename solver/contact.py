@@ -41,8 +41,8 @@ import numpy as np
 
 from vertebra.core.errors import SceneError
 from vertebra.core.lie import qmatrix
-from vertebra.solver.contact_features import disk_polyhedron, segment_polyhedron
-from vertebra.solver.obstacles import Plane, Sphere
+from vertebra.solver.contact_features import disk_mesh, disk_polyhedron, segment_polyhedron
+from vertebra.solver.obstacles import Mesh, Plane, Sphere
 
 RIM, BALL, CHORD, PAIR, FOLD = 0, 1, 2, 3, 4   # kinds of contact (PAIR: adjacent discs, FOLD: any other two)
 TANGENTIAL = 16              # kinds from here on: the tangential rows of frictional contacts (contact_friction)
@@ -346,6 +346,18 @@ def _convex(obstacle):
     return polyhedron if polyhedron is not None and polyhedron.convex else None
 
 
+def _disk_gap(obstacle):
+    """The closed-form gap of a disc's face against the obstacle (a function of the frame and the
+    face's disk, :mod:`~vertebra.solver.contact_features`): a triangle mesh's by the features near the
+    disk (convex or not), a box's by the separating axes; None for the other types."""
+    if isinstance(obstacle, Mesh):
+        return lambda *disk, second=False: disk_mesh(obstacle, *disk, second=second)
+    polyhedron = _convex(obstacle)
+    if polyhedron is not None:
+        return lambda *disk, second=False: disk_polyhedron(polyhedron, *disk, second=second)
+    return None
+
+
 def _faces_of(model, R, x, features):
     """The disk of each disc face (feature 2d: the lower face of disc d, 2d + 1 its upper face):
     frame, centre, in-plane axes, axis, radius."""
@@ -363,16 +375,16 @@ def _polyhedron_rims(model, state, features, obstacle) -> np.ndarray:
     derivative of the gap's row on the disc's frame, closed form (:func:`disk_polyhedron`)."""
     x, R = state.positions, qmatrix(state.quaternions)
     frame, center, e1, e2, axis, radius = _faces_of(model, R, x, features)
-    return disk_polyhedron(_convex(obstacle), x[frame], center, axis, e1, e2, radius, second=True)[4]
+    return _disk_gap(obstacle)(x[frame], center, axis, e1, e2, radius, second=True)[4]
 
 
 def _rims(model, R, x, features, obstacle):
     """Closest points of disc rims (feature 2d: the lower face of disc d, 2d + 1 its upper face)."""
     frame, center, e1, e2, axis, radius = _faces_of(model, R, x, features)
-    polyhedron = _convex(obstacle)
-    if polyhedron is not None:
-        # a box or a convex mesh: the face's disk against its faces, edges and vertices (contact_features)
-        distance, point, normal, _ = disk_polyhedron(polyhedron, x[frame], center, axis, e1, e2, radius)
+    gap = _disk_gap(obstacle)
+    if gap is not None:
+        # a box or a mesh: the face's disk against its faces, edges and vertices (contact_features)
+        distance, point, normal, _ = gap(x[frame], center, axis, e1, e2, radius)
         rows = np.zeros((features.size, 2, 6))
         rows[:, 0, :3] = normal
         rows[:, 0, 3:] = _cross(point - x[frame], normal)
@@ -1220,7 +1232,7 @@ def curvature(model: ContactModel, contacts: ContactSet, multipliers: np.ndarray
     featured = np.zeros(key.shape[0], bool)          # disc faces on convex polyhedra: their own closed form
     for j in np.unique(key[surface, 2]):
         chosen = surface & (key[:, 2] == j)
-        if _convex(model.obstacles[j]) is not None:
+        if _disk_gap(model.obstacles[j]) is not None:
             featured |= chosen & (key[:, 0] == RIM)
             chosen &= key[:, 0] != RIM
         if chosen.any():

@@ -35,7 +35,7 @@ import math
 
 import numpy as np
 
-FACE, EDGE, VERTEX, AXIS = 0, 1, 2, 3          # the pairing that gives a disk's gap
+FACE, EDGE, VERTEX, AXIS, POINT = 0, 1, 2, 3, 4   # the pairing that gives a disk's gap (POINT: disk_mesh)
 SAMPLES = 16                                    # starting samples of a rim's angle against a line …
 BISECTIONS = 52                                 # … then bisection to the rounding of the angle
 
@@ -83,21 +83,24 @@ def _rim_line(c, a, e1, e2, rho, o, u):
 
     k, e = c.shape[0], o.shape[-2]
     samples = 2.0 * math.pi * np.arange(SAMPLES) / SAMPLES
-    best = np.full((k, e), np.inf)
-    start = np.zeros((k, e))
-    for s in samples:
-        perp, _ = at(np.full((k, e), s))
-        d2 = _dot(perp, perp)
-        start = np.where(d2 < best, s, start)
-        best = np.minimum(best, d2)
+    d2 = np.stack([_dot(*(at(np.full((k, e), s))[0],) * 2) for s in samples], -1)          # (k, e, SAMPLES)
+    # the squared distance along the rim is a trigonometric polynomial of degree 2: at most two
+    # local minima; each of the two best sampled ones is bisected and the nearer kept
+    low_here = (d2 <= np.roll(d2, 1, -1)) & (d2 <= np.roll(d2, -1, -1))
+    ranked = np.argsort(np.where(low_here, d2, np.inf), -1)[..., :2]
+    starts = samples[ranked]                                                                 # (k, e, 2)
     width = 2.0 * math.pi / SAMPLES
-    low, high = start - width, start + width
-    for _ in range(BISECTIONS):
-        middle = 0.5 * (low + high)
-        perp, tau = at(middle)
-        falling = _dot(perp, tau) < 0.0
-        low, high = np.where(falling, middle, low), np.where(falling, high, middle)
-    return 0.5 * (low + high)
+    found = []
+    for j in range(2):
+        low, high = starts[..., j] - width, starts[..., j] + width
+        for _ in range(BISECTIONS):
+            middle = 0.5 * (low + high)
+            perp, tau = at(middle)
+            falling = _dot(perp, tau) < 0.0
+            low, high = np.where(falling, middle, low), np.where(falling, high, middle)
+        found.append(0.5 * (low + high))
+    near = [_dot(*(at(s)[0],) * 2) for s in found]
+    return np.where(near[1] < near[0], found[1], found[0])
 
 
 def _crossing(tau, u, apart):
@@ -174,10 +177,11 @@ def disk_polyhedron(poly, x, c, a, e1, e2, rho, second: bool = False):
     return gap, point, n, kind, _pairing_derivative(x, c, a, rho, gap, point, n, kind, u_edge, support)
 
 
-def _pairing_derivative(x, c, a, rho, gap, point, n, kind, u_edge, support):
+def _pairing_derivative(x, c, a, rho, gap, point, n, kind, u_edge, support, curvature=None):
     """``M`` (k, 6, 6): the derivative of a disk's gap row ``[n, (p − x) × n]`` under a move ``δx``
     and a turn ``δφ`` (world axes) of its frame at ``x``, for the pairing ``kind`` that gives its gap
-    (``u_edge``: an edge pairing's line direction; ``support``: an axis pairing's vertex)."""
+    (``u_edge``: an edge pairing's line direction; ``support``: an axis pairing's vertex;
+    ``curvature``: the surface's Hessian (k, 3, 3) at a point held on the disk, pairing ``POINT``)."""
     k = c.shape[0]
     inplane = n - _dot(n, a)[:, None] * a
     norm_in = np.sqrt(_dot(inplane, inplane))
@@ -222,6 +226,9 @@ def _pairing_derivative(x, c, a, rho, gap, point, n, kind, u_edge, support):
         f_ss = _dot(te, te) + g * _dot(nv, ts)
         ds[vertex] = -np.concatenate([te, _cross(le, te) + g[:, None] * _cross(te, nv)], 1) / f_ss[:, None]
     Dp = Dx + tau[:, :, None] * ds[:, None, :]
+    held = kind == POINT
+    if held.any():
+        Dn[held] = curvature[held] @ Dx[held]                   # the normal at a point held on the disk
     if vertex.any():
         project = np.eye(3) - n[vertex][:, :, None] * n[vertex][:, None, :]
         Dn[vertex] = project @ Dp[vertex] / gap[vertex][:, None, None]
@@ -271,3 +278,178 @@ def segment_polyhedron(poly, closest, a, b):
     leave = np.min(np.where((start <= 0.0) & (end > 0.0), crossing, 1.0), 1)
     through = enter <= leave
     return t[rows, best], np.where(through, -np.inf, distance[rows, best])
+
+
+RIM_SAMPLES = 16                                # rim points (and the centre) that bound a disk's distance to a mesh
+
+
+def _pick(value, group, groups, largest):
+    """Per group (0..groups−1) the index of its largest (or least) finite ``value``, −1 where none."""
+    best = np.full(groups, -1)
+    finite = np.flatnonzero(np.isfinite(value))
+    if finite.size:
+        order = finite[np.lexsort((-value[finite] if largest else value[finite], group[finite]))]
+        first = np.r_[True, group[order][1:] != group[order][:-1]]
+        best[group[order][first]] = order[first]
+    return best
+
+
+def disk_mesh(mesh, x, c, a, e1, e2, rho, second: bool = False):
+    """The gap of each disk (as :func:`disk_polyhedron`) against a triangle mesh, convex or not:
+    the pairings of its face with the features of the triangles near it (a k-d tree: cost ~log of
+    the triangles), each one's closed form as on a convex polyhedron.
+
+    Apart, the gap is the disk's distance to the surface: the least over the pairings that stand
+    for a pair of nearest points — a face's where the disk's lowest point along its normal lies
+    over the triangle, an edge's where the line's point lies on the segment, and an edge's or a
+    vertex's where its direction lies in the feature's normal cone (the surface on the inner side
+    of the plane through the feature: ``n·(w − e) ≤ 0`` for the far corners and neighbours ``w``) and
+    the disk's point is its lowest along it. Each such value is the distance between a point of
+    the disk and a point of the surface, so none is below the gap, and the nearest pair is among
+    them. A concave edge or vertex has no outward normal cone and never holds a gap.
+
+    Across the surface (a pairing of that kind with a negative value whose disk point is inside
+    the mesh), the gap is the largest such value, as the separating axes of a convex polyhedron
+    give it: a rim crossing a convex edge keeps the edge's signed, smooth gap through contact.
+    Where no pairing says so but one of the bounding points is inside (deep, confused overlaps),
+    the gap is that point's signed distance (pairing ``POINT``: a point held on the disk)."""
+    S = mesh.surface
+    V = mesh.vertices
+    k = c.shape[0]
+    tol = 1e-9 * S.size
+    rows = np.arange(k)
+    # bounding points: the centre and RIM_SAMPLES rim points (their distance bounds the gap)
+    angle = 2.0 * math.pi * np.arange(RIM_SAMPLES) / RIM_SAMPLES
+    ring = (c[:, None] + rho[:, None, None] * (np.cos(angle)[None, :, None] * e1[:, None]
+                                                + np.sin(angle)[None, :, None] * e2[:, None]))
+    probes = np.concatenate([c[:, None], ring], 1)
+    d_probe, n_probe, _ = mesh.closest(probes.reshape(-1, 3))
+    d_probe, n_probe = d_probe.reshape(k, -1), n_probe.reshape(k, -1, 3)
+    nearest = np.argmin(d_probe, 1)
+    bound = d_probe[rows, nearest]
+    # the broad phase: triangles within reach of the disk (a ball round its centre, then the slab
+    # of its plane); deeper than the bound only for overlaps
+    reach = np.where(bound >= 0.0, bound, 4.0 * np.abs(bound)) + tol
+    disk, tri = mesh.near(c, rho + reach)
+    keep = np.abs(_dot(S.centroid[tri] - c[disk], a[disk])) <= reach[disk] + S.radius[tri]
+    disk, tri = disk[keep], tri[keep]
+    # faces: the disk's lowest point along the normal, over the triangle (``outside``: how far its
+    # foot lies beyond the triangle's edges)
+    nf = S.normal[tri]
+    cf, af = c[disk], a[disk]
+    inplane = nf - _dot(nf, af)[:, None] * af
+    norm_in = np.sqrt(_dot(inplane, inplane))
+    pf = cf - rho[disk, None] * inplane / np.maximum(norm_in, 1e-300)[:, None]
+    vf = _dot(nf, pf) - S.offset[tri]
+    corners = V[mesh.triangles[tri]]
+    q = pf - vf[:, None] * nf
+    outside = np.full(tri.size, -np.inf)
+    for j in range(3):
+        edge = corners[:, (j + 1) % 3] - corners[:, j]
+        outside = np.maximum(outside, -_dot(_cross(edge, q - corners[:, j]), nf) / np.sqrt(_dot(edge, edge)))
+    # edges of those triangles (once per disk): the rim point nearest the line, the direction outward
+    pair = np.unique((disk[:, None] * S.edges.shape[0] + S.triangle_edges[tri]).reshape(-1))
+    de, je = np.divmod(pair, S.edges.shape[0])
+    o, b = V[S.edges[je, 0]], V[S.edges[je, 1]]
+    length = np.sqrt(_dot(b - o, b - o))
+    u = (b - o) / length[:, None]
+    s = _rim_line(c[de], a[de], e1[de], e2[de], rho[de], o[:, None], u[:, None])[:, 0]
+    radial_e = np.cos(s)[:, None] * e1[de] + np.sin(s)[:, None] * e2[de]
+    pe = c[de] + rho[de, None] * radial_e
+    tau_e = rho[de, None] * _cross(a[de], radial_e)
+    along = _dot(pe - o, u)
+    apart = pe - o - along[:, None] * u                                         # p − e, ⊥ the line
+    m = np.where(_crossing(tau_e, u, apart)[:, None], _cross(tau_e, u), apart)
+    norm_m = np.sqrt(_dot(m, m))
+    m = m / np.maximum(norm_m, 1e-300)[:, None]
+    m = np.where((_dot(m, S.edge_normal[je]) >= 0.0)[:, None], m, -m)
+    ve = _dot(m, apart)
+    edge_ok = (~S.flat_edge[je] & (norm_m > 0.0) & (along >= -tol) & (along <= length + tol)
+               & (_dot(m, V[S.edge_far[je, 0]] - pe + apart) <= tol) & (_dot(m, V[S.edge_far[je, 1]] - pe + apart) <= tol))
+    edge_lowest = _dot(m, radial_e) <= 1e-9
+    # edges through the disk (ends on either side of its plane, crossing it within the radius):
+    # an overlap the rims need not see; their ends' axis pairings stand for it
+    h0, h1 = _dot(o - c[de], a[de]), _dot(b - c[de], a[de])
+    through = (h0 * h1 < 0.0)
+    crossing_point = o + (h0 / np.where(through, h0 - h1, 1.0))[:, None] * (b - o)
+    through &= _dot(crossing_point - c[de], crossing_point - c[de]) <= rho[de] ** 2
+    pierced_keys = np.r_[de[through] * V.shape[0] + S.edges[je[through], 0], de[through] * V.shape[0] + S.edges[je[through], 1]]
+    pierced = np.bincount(de[through], minlength=k) > 0
+    # vertices of those triangles: the rim beside them; the axis both ways (the disk's face over
+    # them — a bound on the distance apart — or beside them: a separating axis only)
+    pair = np.unique((disk[:, None] * V.shape[0] + mesh.triangles[tri]).reshape(-1))
+    dv, jv = np.divmod(pair, V.shape[0])
+    w = V[jv] - c[dv]
+    w_in = w - _dot(w, a[dv])[:, None] * a[dv]
+    rho_v = np.sqrt(_dot(w_in, w_in))
+    beside = rho_v > rho[dv]
+    rim = np.flatnonzero(beside)
+    p_rim = c[dv[rim]] + rho[dv[rim], None] * w_in[rim] / rho_v[rim, None]
+    offset = p_rim - V[jv[rim]]
+    v_rim = np.sqrt(_dot(offset, offset))
+    n_rim = offset / np.maximum(v_rim, 1e-300)[:, None]
+    axis_sign = np.r_[np.ones(dv.size), -np.ones(dv.size)]
+    d_axis, j_axis = np.r_[dv, dv], np.r_[jv, jv]
+    n_axis = axis_sign[:, None] * a[d_axis]
+    v_axis = _dot(n_axis, c[d_axis] - V[j_axis])
+    p_axis = V[j_axis] + v_axis[:, None] * n_axis
+    dv, jv = np.r_[dv[rim], d_axis], np.r_[jv[rim], j_axis]
+    nv, vv, pv = np.concatenate([n_rim, n_axis]), np.r_[v_rim, v_axis], np.concatenate([p_rim, p_axis])
+    kind_v = np.r_[np.full(rim.size, VERTEX), np.full(d_axis.size, AXIS)]
+    upper_v = np.r_[v_rim > 0.0, ~np.r_[beside, beside]]
+    cone = ~S.flat_vertex[jv] & (np.max(np.einsum("ki,kmi->km", nv, V[S.neighbours[jv]] - V[jv][:, None]), 1) <= tol)
+    # (an edge's end beside the disk it passes through: its axis pairing, where no other holds)
+    forced = ~cone & (kind_v == AXIS) & np.isin(dv * V.shape[0] + jv, pierced_keys)
+    kind = np.concatenate([np.full(tri.size, FACE), np.full(je.size, EDGE), kind_v])
+    group = np.concatenate([disk, de, dv])
+    value = np.concatenate([vf, ve, vv])
+    point = np.concatenate([pf, pe, pv])
+    normal = np.concatenate([nf, m, nv])
+    line = np.concatenate([np.zeros((tri.size, 3)), u, np.zeros((jv.size, 3))])
+    vertex = np.concatenate([np.zeros((tri.size, 3)), np.zeros((je.size, 3)), V[jv]])
+    # the pairings: ``exact`` stands for a pair of nearest points (a bound on the distance apart);
+    # ``separating`` is a separating axis of the feature's local convex patch (across the surface)
+    feature = np.r_[outside <= tol, edge_ok, cone]
+    lowest = np.r_[np.ones(tri.size, bool), edge_lowest, np.ones(jv.size, bool)]
+    exact = feature & lowest & np.r_[np.ones(tri.size + je.size, bool), upper_v]
+    separating = lowest & np.r_[outside <= np.abs(vf) + tol, edge_ok, cone]
+    # overlap: a bounding point inside, an edge through the disk, or a pairing whose disk point it
+    # puts under the surface lying inside the mesh
+    # (beyond rounding: a touching pairing's value is zero either way)
+    claim = np.flatnonzero(feature & (value < -tol) & (kind != AXIS))
+    overlap = (bound < -tol) | pierced
+    if claim.size:
+        under = mesh.closest(point[claim])[0] < -tol
+        overlap |= np.bincount(group[claim[under]], minlength=k) > 0
+    # across, the largest negative separating value — no deeper than the disk's radius or four
+    # times the deepest bounding point (a face's plane far off is no separating axis of the
+    # local patch)
+    deepest = np.maximum(rho, 4.0 * np.maximum(-bound, 0.0))
+    negative = (value < 0.0) & overlap[group] & (value >= -deepest[group])
+    across = _pick(np.where(negative & separating, value, np.nan), group, k, largest=True)
+    fallback = _pick(np.where(negative & np.r_[np.zeros(tri.size + je.size, bool), forced], value, np.nan),
+                     group, k, largest=True)
+    across = np.where(across >= 0, across, fallback)
+    apart_best = _pick(np.where(exact & (value >= -tol), value, np.nan), group, k, largest=False)
+    best = np.where(overlap, across, apart_best)
+    found = best >= 0
+    pick = np.maximum(best, 0)
+    gap = np.where(found, value[pick], np.inf)
+    n = normal[pick]
+    p = point[pick]
+    kinds = np.where(found, kind[pick], POINT)
+    # a bounding point nearer than every pairing (an overlap no pairing stands for): held there
+    held = bound < gap - tol
+    gap = np.where(held, bound, gap)
+    n = np.where(held[:, None], n_probe[rows, nearest], n)
+    p = np.where(held[:, None], probes[rows, nearest], p)
+    kinds = np.where(held, POINT, kinds)
+    if not second:
+        return gap, p, n, kinds
+    u_edge = np.where((kinds == EDGE)[:, None], line[pick], 0.0)
+    support = np.where((kinds == AXIS)[:, None], vertex[pick], 0.0)
+    curvature = np.zeros((k, 3, 3))
+    if held.any():
+        d, normal, surface = mesh.closest(p[held])
+        curvature[held] = mesh.polyhedron.curvature(p[held], d, normal, surface)
+    return gap, p, n, kinds, _pairing_derivative(x, c, a, rho, gap, p, n, kinds, u_edge, support, curvature)

@@ -373,6 +373,8 @@ class MeshSurface:
     triangle_edges: np.ndarray    # (t, 3) each triangle's edges (corners 0–1, 1–2, 2–0)
     neighbours: np.ndarray        # (v, m) each vertex's neighbours along edges (padded with itself)
     pseudonormal: np.ndarray      # (v, 3) the angle-weighted normal (outward at the vertex)
+    flat_edge: np.ndarray         # (e,) between coplanar triangles: no feature
+    flat_vertex: np.ndarray       # (v,) inside a plane of triangles: no feature
     tree: object                  # scipy.spatial.cKDTree of the centroids
     vertex_tree: object           # … of the vertices
 
@@ -408,8 +410,14 @@ class MeshSurface:
         pseudo = np.zeros((v, 3))
         np.add.at(pseudo, mesh.triangles.reshape(-1), (angles[:, :, None] * normals[:, None, :]).reshape(-1, 3))
         size = float(np.ptp(mesh.vertices, 0).max()) + TINY
+        pseudo = _normalised(pseudo)[0]
+        flat = 1.0 - 1e-12
+        lowest = np.full(v, np.inf)
+        np.minimum.at(lowest, mesh.triangles.reshape(-1), np.add.reduce(
+            np.repeat(normals, 3, 0) * pseudo[mesh.triangles.reshape(-1)], -1))
+        flat_edge = (count == 2) & (np.add.reduce(normals[owner[one]] * normals[owner[two]], -1) >= flat)
         return cls(size, normals, np.add.reduce(normals * c[:, 0], -1), centroid, radius, float(radius.max()),
-                   edges, edge_far, edge_normal, inverse.reshape(t, 3), neighbours, _normalised(pseudo)[0],
+                   edges, edge_far, edge_normal, inverse.reshape(t, 3), neighbours, pseudo, flat_edge, lowest >= flat,
                    cKDTree(centroid), cKDTree(mesh.vertices))
 
 
