@@ -41,7 +41,7 @@ import numpy as np
 
 from vertebra.core.errors import SceneError
 from vertebra.core.lie import qmatrix
-from vertebra.solver.contact_features import disk_mesh, disk_polyhedron, segment_polyhedron
+from vertebra.solver.contact_features import disk_mesh, disk_polyhedron, mesh_near_segments, segment_polyhedron
 from vertebra.solver.obstacles import Mesh, Plane, Sphere
 
 RIM, BALL, CHORD, PAIR, FOLD = 0, 1, 2, 3, 4   # kinds of contact (PAIR: adjacent discs, FOLD: any other two)
@@ -442,7 +442,8 @@ def _chords(model, R, x, features, obstacle, ends=False):
             # a convex polyhedron: outside it the distance along the chord is smooth and convex, its
             # pieces a face's (linear), an edge's or a vertex's, so its least is at an end, a
             # vertex's projection or the chord's nearest point to an edge's line (one query)
-            t, distance = segment_polyhedron(polyhedron, obstacle.closest, a, b)
+            near = (lambda a, b: mesh_near_segments(obstacle, a, b)) if isinstance(obstacle, Mesh) else None
+            t, distance = segment_polyhedron(polyhedron, obstacle.closest, a, b, near)
             search = distance <= 0.0             # (through it: the least is inside, where faces' planes meet)
         if search.any():
             a_s, b_s = a[search], b[search]

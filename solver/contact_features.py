@@ -245,29 +245,37 @@ def _pairing_derivative(x, c, a, rho, gap, point, n, kind, u_edge, support, curv
     return M
 
 
-def segment_polyhedron(poly, closest, a, b):
+def segment_polyhedron(poly, closest, a, b, near=None):
     """The parameter ``t`` (k,) of the point of each segment ``a → b`` (k, 3) nearest the convex
     polyhedron ``poly`` (``closest``: its obstacle's :meth:`closest`), and that point's signed
     distance. Outside the polyhedron the distance along a line is smooth and convex, made of a
     face's (linear), an edge's or a vertex's pieces, so its least is at an end, at a vertex's
     projection on the segment or at the segment's point nearest an edge's line: each candidate's
     distance from one query, the least taken (exact where it is positive). A segment that passes
-    through the polyhedron has its least inside, at none of these: its distance is −∞."""
+    through the polyhedron has its least inside, at none of these: its distance is −∞.
+    ``near(a, b)``: the (segment, vertex) and (segment, edge) pairs that may hold the least (a
+    mesh's broad phase: ``(segment, vertex index)``, ``(segment, edge's vertices (·, 2))``); default
+    every vertex and edge of ``poly`` for every segment."""
     V = poly.vertices
+    k = a.shape[0]
+    if near is None:
+        vc, vi = np.repeat(np.arange(k), V.shape[0]), np.tile(np.arange(V.shape[0]), k)
+        ec, ev = np.repeat(np.arange(k), poly.edges.shape[0]), np.tile(poly.edges, (k, 1))
+    else:
+        (vc, vi), (ec, ev) = near(a, b)
     ab = b - a
     length2 = np.maximum(_dot(ab, ab), 1e-300)
-    at_vertex = _dot(V[None] - a[:, None], ab[:, None]) / length2[:, None]                  # (k, v)
-    o, u = V[poly.edges[:, 0]], V[poly.edges[:, 1]] - V[poly.edges[:, 0]]
+    at_vertex = _dot(V[vi] - a[vc], ab[vc]) / length2[vc]
+    o, u = V[ev[:, 0]], V[ev[:, 1]] - V[ev[:, 0]]
     u = u / np.sqrt(_dot(u, u))[:, None]
-    r = a[:, None] - o[None]                                                               # (k, e, 3)
-    along = _dot(ab[:, None], u[None])                                                     # (k, e)
-    square = length2[:, None] - along * along
-    at_edge = np.where(square > 1e-12 * length2[:, None],
-                       (along * _dot(r, u[None]) - _dot(r, ab[:, None])) / np.maximum(square, 1e-300), 0.0)
-    t = np.clip(np.concatenate([np.zeros((a.shape[0], 1)), np.ones((a.shape[0], 1)), at_vertex, at_edge], 1), 0.0, 1.0)
-    distance = closest((a[:, None] + t[..., None] * ab[:, None]).reshape(-1, 3))[0].reshape(t.shape)
-    best = np.argmin(distance, 1)
-    rows = np.arange(a.shape[0])
+    r = a[ec] - o
+    along = _dot(ab[ec], u)
+    square = length2[ec] - along * along
+    at_edge = np.where(square > 1e-12 * length2[ec], (along * _dot(r, u) - _dot(r, ab[ec])) / np.maximum(square, 1e-300), 0.0)
+    chord = np.r_[np.arange(k), np.arange(k), vc, ec]
+    t = np.clip(np.r_[np.zeros(k), np.ones(k), at_vertex, at_edge], 0.0, 1.0)
+    distance = closest(a[chord] + t[:, None] * ab[chord])[0]
+    best = _pick(distance, chord, k, largest=False)
     # a segment through the polyhedron (clipped by the faces' half-spaces): its least distance is
     # inside, where the candidates need not be — reported as −∞ (the caller searches)
     start = a @ poly.face_normal.T - poly.face_offset                                      # (k, f)
@@ -277,7 +285,25 @@ def segment_polyhedron(poly, closest, a, b):
     enter = np.max(np.where((start > 0.0) & (end <= 0.0), crossing, np.where(start > 0.0, np.inf, 0.0)), 1)
     leave = np.min(np.where((start <= 0.0) & (end > 0.0), crossing, 1.0), 1)
     through = enter <= leave
-    return t[rows, best], np.where(through, -np.inf, distance[rows, best])
+    return t[best], np.where(through, -np.inf, distance[best])
+
+
+def mesh_near_segments(mesh, a, b):
+    """The (segment, vertex) and (segment, edge) pairs of the triangles that may hold a segment's
+    least distance to the mesh (for :func:`segment_polyhedron`): within the least of the distances
+    of its ends and middle, by the k-d tree of the triangles."""
+    S = mesh.surface
+    middle = 0.5 * (a + b)
+    bound = np.min(np.abs(mesh.closest(np.concatenate([a, b, middle]))[0].reshape(3, -1)), 0)
+    half = 0.5 * np.sqrt(_dot(b - a, b - a))
+    segment, tri = mesh.near(middle, half + bound + 1e-9 * S.size)
+    nv, ne = mesh.vertices.shape[0], S.edges.shape[0]
+    vertices = np.unique((segment[:, None] * nv + mesh.triangles[tri]).reshape(-1))
+    edges = np.unique((segment[:, None] * ne + S.triangle_edges[tri]).reshape(-1))
+    vc, vi = np.divmod(vertices, nv)
+    ec, ei = np.divmod(edges, ne)
+    keep = ~S.flat_edge[ei]
+    return (vc, vi), (ec[keep], S.edges[ei[keep]])
 
 
 RIM_SAMPLES = 16                                # rim points (and the centre) that bound a disk's distance to a mesh
