@@ -165,6 +165,9 @@ def line_search(stage, state, ev, residual: float, dq, change, alpha: float, rp:
         # discs may be pushed into each other by at most half the depth that cannot be followed,
         # or no deeper than they are (the linearised disc gaps hold only for short steps)
         deepest = max(DISC_DEPTH, contact.interpenetration(trunk.contact, stage.constraints.at(state))[0])
+    outrun = None
+    if stage.constraints is not None:
+        outrun = _outrun_check(stage, state)
     while alpha >= SEARCH_FLOOR:
         step, strains = (dq, change) if alpha == 1.0 else (alpha * dq, alpha * change)
         trial = retract(state, step, ev.links, strains)
@@ -191,6 +194,8 @@ def line_search(stage, state, ev, residual: float, dq, change, alpha: float, rp:
         else:
             good = decrease >= ARMIJO * predicted - noise
             ratio = decrease / predicted
+        if good and outrun is not None and predicted > noise and outrun(trial):
+            good = False        # (judged after the merit: the trials it refuses need no contacts evaluated)
         if quality is None:
             quality = ratio if good else 0.0
         if good:
@@ -199,6 +204,33 @@ def line_search(stage, state, ev, residual: float, dq, change, alpha: float, rp:
             return trial, ev_trial, alpha, decrease, predicted, quality
         alpha *= 0.5
     return None
+
+
+def _outrun_check(stage, state):
+    """A test of trials: does one take an obstacle contact that the step's problem left open (no
+    force) into its obstacle, deeper than it is and than the converged states' tolerance? Its
+    linearised gap kept it open: the step has outrun the linearisation (a rim's nearest point
+    turning over a large rotation), and the next step would push it out again (a disc in a wedge
+    between two obstacles pressed on each in turn)."""
+    constraints = stage.constraints
+    model = stage.trunk.contact
+    now = constraints.at(state)
+    obstacle = np.isin(now.key[:, 0], (contact.RIM, contact.BALL, contact.CHORD))
+    if not obstacle.any():
+        return None
+    pressed = {tuple(k) for k in constraints.keys.tolist()}
+    tolerance = contact.GAP_TOLERANCE * model.length
+    floor = {tuple(k): min(g, 0.0) - tolerance for k, g, o in zip(now.key.tolist(), now.gap.tolist(), obstacle) if o
+             and tuple(k) not in pressed}
+
+    def outrun(trial) -> bool:
+        found = constraints.at(trial)
+        for k, g in zip(found.key.tolist(), found.gap.tolist()):
+            if g < -tolerance and tuple(k) in floor and g < floor[tuple(k)]:
+                return True
+        return False
+
+    return outrun
 
 
 def _settled(stage, ev_trial, trial, residual: float) -> bool:

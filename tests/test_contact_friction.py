@@ -485,3 +485,36 @@ def test_a_slipping_contact_stiffens_the_tangent_across_its_slip():
     assert result.converged and result.iterations <= 30, result.message
     (c,) = [c for c in result.contacts if c.force > 0.0]
     assert c.sliding == "slip" and math.isclose(math.hypot(*c.friction), c.force, rel_tol=1e-9)
+
+
+
+def test_a_trial_that_takes_an_open_contact_into_its_obstacle_has_outrun_the_step():
+    # the line search refuses a trial that takes an obstacle contact the step's problem left open
+    # (no force) into its obstacle beyond the tolerance, deeper than it was: its linearised gap
+    # kept it open, so the step outran the linearisation (the contact fuzz's seed 36, a disc in a
+    # wedge between a box and a mesh pressed on each in turn: 140 iterations → 62; seed 74 over
+    # 20 s → 39 iterations); a pressed contact, a contact moved out, or one no deeper are not refused
+    from types import SimpleNamespace
+
+    from vertebra.solver import globalise
+
+    model = rod()
+    trunk = model.trunk
+    constraints = contact.Constraints(trunk)
+    stage = SimpleNamespace(constraints=constraints, trunk=trunk)
+    state = trunk.rest_state.copy()
+    tip = contact.evaluate(trunk.contact, state)
+    assert tip.count and abs(float(tip.gap.min())) <= 1e-12          # the tip on the box's face
+
+    def moved(dx):
+        trial = state.copy()
+        trial.positions[-1, 0] += dx
+        return trial
+
+    outrun = globalise._outrun_check(stage, state)
+    assert outrun(moved(1e-6))                    # 1 µm into the box, the contact open in the step
+    assert not outrun(moved(-1e-6))               # away from it
+    assert not outrun(moved(1e-14))               # within the converged states' tolerance
+    constraints.keys = tip.key[np.argmin(tip.gap)][None]
+    constraints.multipliers = np.array([1.0])
+    assert not globalise._outrun_check(stage, state)(moved(1e-6))   # pressed in the step: its gap is held
