@@ -135,3 +135,18 @@ def rod_scene(obstacle, disc=0.0, contact_radius=None, push=0.01) -> dict:
             "load": [{"vertebra": -1, "force": [force, 0.0, 0.0]}]}
 
 
+
+
+def torus(major: float, minor: float, center, segments: int = 48, sides: int = 24) -> tuple[np.ndarray, np.ndarray]:
+    """A ring of radii ``major`` (to the tube's axis) and ``minor`` (the tube's), its axis along z,
+    ``segments`` × ``sides`` quads split into triangles (outward)."""
+    u = 2.0 * math.pi * np.arange(segments) / segments
+    v = 2.0 * math.pi * np.arange(sides) / sides
+    U, W = np.meshgrid(u, v, indexing="ij")
+    ring = major + minor * np.cos(W)
+    vertices = np.stack([ring * np.cos(U), ring * np.sin(U), minor * np.sin(W)], -1).reshape(-1, 3)
+    i, j = np.meshgrid(np.arange(segments), np.arange(sides), indexing="ij")
+    a, b = i * sides + j, ((i + 1) % segments) * sides + j
+    c, d = ((i + 1) % segments) * sides + (j + 1) % sides, i * sides + (j + 1) % sides
+    triangles = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)])
+    return vertices + np.asarray(center, float), triangles

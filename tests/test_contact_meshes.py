@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from meshes import icosphere, l_block, mesh_obstacle, rod_scene, u_channel
+from meshes import icosphere, l_block, mesh_obstacle, rod_scene, torus, u_channel
 from vertebra import solver
 from vertebra.core.lie import qmatrix
 from vertebra.solver import contact
@@ -22,7 +22,8 @@ U_CHANNEL = Mesh(*u_channel(0.0, 0.0, 0.02, 0.01, 0.04, 0.06))
 ICOSPHERE = Mesh(*icosphere(0.03, [0.0, 0.0, 0.0], 2))
 TETRAHEDRON = Mesh(np.array([[0.0, 0.0, 0.0], [0.05, 0.0, 0.0], [0.01, 0.045, 0.0], [0.015, 0.012, 0.04]]),
                    np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]))
-MESHES = {"L-block": L_BLOCK, "U-channel": U_CHANNEL, "icosphere": ICOSPHERE, "tetrahedron": TETRAHEDRON}
+RING = Mesh(*torus(0.03, 0.01, [0.0, 0.0, 0.0], 24, 12))
+MESHES = {"L-block": L_BLOCK, "U-channel": U_CHANNEL, "icosphere": ICOSPHERE, "tetrahedron": TETRAHEDRON, "torus": RING}
 
 
 def _rotation(axis, angle):
@@ -58,10 +59,10 @@ def _poses(mesh, count, seed, low=-5e-3, high=5e-3):
 
 @pytest.mark.parametrize("name", list(MESHES))
 def test_a_disks_gap_on_a_mesh_has_the_derivatives_of_its_differences(name):
-    # 40 poses within 5 mm of contact, apart and across: the row [n, (p − x) × n] is the gap's
+    # 30 poses within 5 mm of contact, apart and across: the row [n, (p − x) × n] is the gap's
     # derivative and M the row's (central differences, the pairing unchanged across them)
     mesh = MESHES[name]
-    x, R = _poses(mesh, 40, 1)
+    x, R = _poses(mesh, 30, 1)
     n, h = x.shape[0], 1e-6
     moved_x, moved_R, steps = [], [], []
     for c in range(6):
@@ -83,19 +84,19 @@ def test_a_disks_gap_on_a_mesh_has_the_derivatives_of_its_differences(name):
     base_gap, base_row, base_kind = _rows(mesh, x, R)
     M = disk_mesh(mesh, *_disk(x, R), second=True)[4]
     same = np.all(kind == base_kind, (0, 1)) & (base_kind != POINT)
-    assert same.sum() >= 32
+    assert same.sum() >= 24
     assert np.abs(gaps - base_row)[same].max() <= 1e-7
     assert np.abs(rows - M)[same].max() <= 1e-5
     kinds = set(base_kind[same].tolist())
     assert {FACE, EDGE} <= kinds
 
 
-@pytest.mark.parametrize("name", ["L-block", "U-channel"])
+@pytest.mark.parametrize("name", ["L-block", "U-channel", "torus"])
 def test_a_disks_gap_apart_from_a_non_convex_mesh_is_its_distance(name):
-    # gaps in (0, 5 mm): none above the least distance of 7,200 points of the disk (rim and
+    # 8 gaps in (0, 5 mm): none above the least distance of 7,200 points of the disk (rim and
     # inside) and none more than the sampling's error below it
     mesh = MESHES[name]
-    x, R = _poses(mesh, 10, 5, low=0.0)
+    x, R = _poses(mesh, 8, 5, low=0.0)
     gap = disk_mesh(mesh, *_disk(x, R))[0]
     r, t = np.linspace(0.0, RHO, 20), np.linspace(0.0, 2.0 * math.pi, 360)
     for k in range(x.shape[0]):
