@@ -30,6 +30,7 @@ import time
 import numpy as np
 
 from benchmarks.common import RESULTS, ROOT, loadavg, log, now, write_json
+from vertebra.designer.threads import pin_blas_threads
 from vertebra import __version__, solver
 from vertebra.core.lie import qmatrix
 from vertebra.solver import contact
@@ -173,6 +174,7 @@ def main(argv=None) -> int:
     parser.add_argument("--rounds", type=int, default=9)
     parser.add_argument("--robots", type=int, default=100)
     args = parser.parse_args(argv)
+    pin_blas_threads()          # one BLAS thread: threaded BLAS on the small solves is 40x slower on a busy machine
     result = {"vertebra_version": __version__, "date": now(), "loadavg": loadavg(),
               "machine": "2 cores shared with other jobs: ratios are interleaved medians",
               "cost": cost(args.rounds), "random_robots": robots(args.robots), "inverse": inverse()}

@@ -20,6 +20,7 @@ import numpy as np
 
 from benchmarks.bench_contact import trunk
 from benchmarks.common import RESULTS, loadavg, now, write_json
+from vertebra.designer.threads import pin_blas_threads
 from vertebra import __version__, solver
 
 MU = 0.3
@@ -63,6 +64,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rounds", type=int, default=9)
     args = parser.parse_args(argv)
+    pin_blas_threads()          # one BLAS thread: threaded BLAS on the small solves is 40x slower on a busy machine
     before = loadavg()
     c = cost(args.rounds)
     result = {"vertebra_version": __version__, "date": now(), "loadavg_before": before, "loadavg_after": loadavg(),

@@ -41,6 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.common import RESULTS, ROOT, loadavg, log, now, write_json
+from vertebra.designer.threads import pin_blas_threads
 from vertebra import __version__, solver
 from vertebra.core.errors import ConvergenceError, SceneError, VertebraError
 from vertebra.solver import contact
@@ -528,6 +529,7 @@ def main(argv=None) -> int:
     parser.add_argument("--input-cases", type=int, default=400)
     parser.add_argument("--output", default="contact_fuzz.json", help="the file written in benchmarks/results")
     args = parser.parse_args(argv)
+    pin_blas_threads()          # one BLAS thread: threaded BLAS on the small solves is 40x slower on a busy machine
     sys.path.insert(0, str(ROOT / "tests"))
     began, load = time.perf_counter(), [loadavg()]
     inputs = scene_input_fuzz(np.random.default_rng(12345), args.input_cases)

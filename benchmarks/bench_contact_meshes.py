@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from vertebra import solver
+from vertebra.designer.threads import pin_blas_threads
 
 ROOT = Path(__file__).resolve().parent
 
@@ -101,6 +102,7 @@ def main(argv=None) -> int:
     parser.add_argument("--out", default=str(ROOT / "results" / "contact_meshes.json"))
     parser.add_argument("--only", default="")
     args = parser.parse_args(argv)
+    pin_blas_threads()          # one BLAS thread: threaded BLAS on the small solves is 40x slower on a busy machine
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for name, scene, twin in cases(Path(tmp)):
