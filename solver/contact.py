@@ -41,7 +41,8 @@ import numpy as np
 
 from vertebra.core.errors import SceneError
 from vertebra.core.lie import qmatrix
-from vertebra.solver.contact_features import disk_mesh, disk_polyhedron, mesh_near_segments, segment_polyhedron
+from vertebra.solver.contact_features import (_cross, disk_mesh, disk_polyhedron, mesh_near_segments,
+                                              segment_polyhedron)
 from vertebra.solver.obstacles import Mesh, Plane, Sphere
 
 RIM, BALL, CHORD, PAIR, FOLD = 0, 1, 2, 3, 4   # kinds of contact (PAIR: adjacent discs, FOLD: any other two)
@@ -301,17 +302,6 @@ def bodies(model: ContactModel, key) -> tuple[str, str]:
 
 # ---------------------------------------------------------------------------------------------
 # gaps at a state
-
-
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise cross products of (k, 3) arrays (numpy's is slow on small stacks)."""
-    if a.shape != b.shape:
-        a, b = np.broadcast_arrays(a, b)
-    out = np.empty(a.shape)
-    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
-    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
-    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
-    return out
 
 
 def _least(slope, low: np.ndarray, high: np.ndarray) -> np.ndarray:

@@ -150,3 +150,39 @@ def torus(major: float, minor: float, center, segments: int = 48, sides: int = 2
     c, d = ((i + 1) % segments) * sides + (j + 1) % sides, i * sides + (j + 1) % sides
     triangles = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)])
     return vertices + np.asarray(center, float), triangles
+
+
+def _turn(axis: int, angle: float) -> np.ndarray:
+    """The rotation matrix by ``angle`` about the world axis ``axis``."""
+    c, s_ = math.cos(angle), math.sin(angle)
+    i, j = (axis + 1) % 3, (axis + 2) % 3
+    out = np.eye(3)
+    out[i, i] = out[j, j] = c
+    out[j, i], out[i, j] = s_, -s_
+    return out
+
+
+def moved_differences(rows, x, R, reach: float, h: float = 1e-6):
+    """Central differences of ``rows(x, R) -> (gap (n,), row (n, 6), kind (n,))`` under moves of the
+    frames ``x`` (n, 3), ``R`` (n, 3, 3) along the world axes (``h × reach``) and turns about them
+    (``h`` rad): the gaps' (n, 6), the rows' (n, 6 rows, 6 moves), and the kinds at every moved
+    pose (6, 2, n) to tell where the pairing stayed the same across the differences."""
+    n = x.shape[0]
+    moved_x, moved_R, steps = [], [], []
+    for c in range(6):
+        for sign in (1.0, -1.0):
+            if c < 3:
+                shifted = x.copy()
+                shifted[:, c] += sign * h * reach
+                moved_x.append(shifted)
+                moved_R.append(R)
+            else:
+                moved_x.append(x)
+                moved_R.append(_turn(c - 3, sign * h) @ R)
+        steps.append(h * reach if c < 3 else h)
+    gap, row, kind = rows(np.concatenate(moved_x), np.concatenate(moved_R))
+    gap, row, kind = gap.reshape(6, 2, n), row.reshape(6, 2, n, 6), kind.reshape(6, 2, n)
+    step = np.array(steps)
+    gaps = ((gap[:, 0] - gap[:, 1]) / (2.0 * step[:, None])).T                                 # (n, 6)
+    derivative = np.transpose((row[:, 0] - row[:, 1]) / (2.0 * step[:, None, None]), (1, 2, 0))
+    return gaps, derivative, kind

@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+from meshes import moved_differences, rod_scene
 from vertebra import solver
 from vertebra.core.lie import qmatrix, qmul
 from vertebra.solver import contact
@@ -65,26 +66,9 @@ def _differences(poly, x, R, h=1e-6):
     """Central differences of the gaps and of their rows (n, 6, 6) under moves (h × the radius)
     and turns (h rad) of the frames, and whether the pairings stayed the same across them."""
     x, R = np.reshape(x, (-1, 3)), np.reshape(R, (-1, 3, 3))
-    n = x.shape[0]
-    moved_x, moved_R, steps = [], [], []
-    for c in range(6):
-        for sign in (1.0, -1.0):
-            if c < 3:
-                shifted = x.copy()
-                shifted[:, c] += sign * h * RHO
-                moved_x.append(shifted)
-                moved_R.append(R)
-            else:
-                moved_x.append(x)
-                moved_R.append(_rotation(c - 3, sign * h) @ R)
-        steps.append(h * RHO if c < 3 else h)
-    gap, row, kind = _rows(poly, np.concatenate(moved_x), np.concatenate(moved_R))
-    gap, row, kind = gap.reshape(6, 2, n), row.reshape(6, 2, n, 6), kind.reshape(6, 2, n)
-    step = np.array(steps)
-    gaps = ((gap[:, 0] - gap[:, 1]) / (2.0 * step[:, None])).T                      # (n, 6)
-    rows = np.transpose((row[:, 0] - row[:, 1]) / (2.0 * step[:, None, None]), (1, 2, 0))  # (n, 6 rows, 6 moves)
+    gaps, rows, kind = moved_differences(lambda xs, Rs: _rows(poly, xs, Rs), x, R, RHO, h)
     same = np.all(kind == _rows(poly, x, R)[2], (0, 1))
-    return (gaps, rows, same) if n > 1 else (gaps[0], rows[0], bool(same[0]))
+    return (gaps, rows, same) if x.shape[0] > 1 else (gaps[0], rows[0], bool(same[0]))
 
 
 @pytest.mark.parametrize("poly", [BOX.polyhedron, TETRAHEDRON.polyhedron], ids=["box", "tetrahedron"])
@@ -242,16 +226,7 @@ def _quadratic(history, floor=1e-7):
 def _rod(obstacle, disc=0.0, contact_radius=None):
     """A nylon-like rod (E 2 GPa, 1 mm radius, 0.3 m, 20 elements) along +z, its tip pushed along
     +x by the force that would move it 10 mm; a disc on its tip vertebra or a capsule radius."""
-    E, radius, length = 2e9, 1e-3, 0.3
-    force = 0.01 * 3.0 * E * math.pi * radius ** 4 / 4.0 / length ** 3
-    segment = {"type": "beam", "count": 1, "elements": 20, "length": length, "youngs_modulus": E,
-               "poisson_ratio": 0.3, "section": {"shape": "circle", "radius": radius}}
-    if disc:
-        segment["vertebra"] = {"mass": 0.0, "disc_radius": disc, "disc_thickness": 0.002}
-    if contact_radius is not None:
-        segment["contact_radius"] = contact_radius
-    return solver.build_model(solver.parse_scene({"segment": [segment], "obstacle": [obstacle],
-                                                  "load": [{"vertebra": -1, "force": [force, 0.0, 0.0]}]}))
+    return solver.build_model(solver.parse_scene(rod_scene(obstacle, disc, contact_radius)))
 
 
 @pytest.mark.parametrize("tilt", [0.0, 0.3])

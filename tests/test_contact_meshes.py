@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from meshes import icosphere, l_block, mesh_obstacle, rod_scene, torus, u_channel
+from meshes import icosphere, l_block, mesh_obstacle, moved_differences, rod_scene, torus, u_channel
 from vertebra import solver
 from vertebra.core.lie import qmatrix
 from vertebra.solver import contact
@@ -63,24 +63,7 @@ def test_a_disks_gap_on_a_mesh_has_the_derivatives_of_its_differences(name):
     # derivative and M the row's (central differences, the pairing unchanged across them)
     mesh = MESHES[name]
     x, R = _poses(mesh, 30, 1)
-    n, h = x.shape[0], 1e-6
-    moved_x, moved_R, steps = [], [], []
-    for c in range(6):
-        for sign in (1.0, -1.0):
-            if c < 3:
-                shifted = x.copy()
-                shifted[:, c] += sign * h * RHO
-                moved_x.append(shifted)
-                moved_R.append(R)
-            else:
-                moved_x.append(x)
-                moved_R.append(_rotation(c - 3, sign * h) @ R)
-        steps.append(h * RHO if c < 3 else h)
-    gap, row, kind = _rows(mesh, np.concatenate(moved_x), np.concatenate(moved_R))
-    gap, row, kind = gap.reshape(6, 2, n), row.reshape(6, 2, n, 6), kind.reshape(6, 2, n)
-    step = np.array(steps)
-    gaps = ((gap[:, 0] - gap[:, 1]) / (2.0 * step[:, None])).T
-    rows = np.transpose((row[:, 0] - row[:, 1]) / (2.0 * step[:, None, None]), (1, 2, 0))
+    gaps, rows, kind = moved_differences(lambda xs, Rs: _rows(mesh, xs, Rs), x, R, RHO)
     base_gap, base_row, base_kind = _rows(mesh, x, R)
     M = disk_mesh(mesh, *_disk(x, R), second=True)[4]
     same = np.all(kind == base_kind, (0, 1)) & (base_kind != POINT)
