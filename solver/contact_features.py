@@ -68,10 +68,12 @@ def _separation(n, c, a, rho, vertices):
             - np.max(n @ vertices.T, -1))
 
 
-def _rim_line(c, a, e1, e2, rho, o, u):
+def _rim_line(c, a, e1, e2, rho, o, u, both: bool = False):
     """The rim angle ``s`` (k, e) nearest each line ``o + w u`` (e, 3, or (k, e, 3) per disk): 16
     samples, then bisection on the derivative of the squared distance (``r⊥·τ``) to the rounding
-    of the angle."""
+    of the angle. With ``both``, the two local minima (k, e, 2) and whether the second is one (a
+    line through the disk has one on either side of its crossing: the rim crossing the line
+    there, or nearest it, on the segment or not)."""
     if o.ndim == 2:
         o, u = o[None], u[None]
 
@@ -100,6 +102,9 @@ def _rim_line(c, a, e1, e2, rho, o, u):
             falling = _dot(perp, tau) < 0.0
             low, high = np.where(falling, middle, low), np.where(falling, high, middle)
         found.append(0.5 * (low + high))
+    if both:
+        second = np.isfinite(np.take_along_axis(np.where(low_here, d2, np.inf), ranked[..., 1:], -1)[..., 0])
+        return np.stack(found, -1), second
     near = [_dot(*(at(s)[0],) * 2) for s in found]
     return np.where(near[1] < near[0], found[1], found[0])
 
@@ -378,9 +383,17 @@ def disk_mesh(mesh, x, c, a, e1, e2, rho, second: bool = False):
     pair = np.unique((disk[:, None] * S.edges.shape[0] + S.triangle_edges[tri]).reshape(-1))
     de, je = np.divmod(pair, S.edges.shape[0])
     o, b = V[S.edges[je, 0]], V[S.edges[je, 1]]
+    u = (b - o) / np.sqrt(_dot(b - o, b - o))[:, None]
+    # both local minima of the rim's distance to the line: an edge through the disk, one end under
+    # its face and the other beyond the rim, is held where the rim crosses (or nears) the segment,
+    # which need not be the nearer of the two
+    s, other = _rim_line(c[de], a[de], e1[de], e2[de], rho[de], o[:, None], u[:, None], both=True)
+    minima = np.r_[np.arange(je.size), np.flatnonzero(other[:, 0])]
+    s = np.r_[s[:, 0, 0], s[other[:, 0], 0, 1]]
+    de, je = de[minima], je[minima]
+    o, b = V[S.edges[je, 0]], V[S.edges[je, 1]]
     length = np.sqrt(_dot(b - o, b - o))
     u = (b - o) / length[:, None]
-    s = _rim_line(c[de], a[de], e1[de], e2[de], rho[de], o[:, None], u[:, None])[:, 0]
     radial_e = np.cos(s)[:, None] * e1[de] + np.sin(s)[:, None] * e2[de]
     pe = c[de] + rho[de, None] * radial_e
     tau_e = rho[de, None] * _cross(a[de], radial_e)
