@@ -415,7 +415,8 @@ def _rims(model, R, x, features, obstacle):
 def _corner_keys(model, R, x, faces, obstacle) -> np.ndarray:
     """The corner features (face · v + vertex) of the disc faces ``faces`` against a box's or
     mesh's ``v`` vertices: each vertex over the face's disk (within its radius), on the face's
-    side of the disc's mid-plane and within :data:`FACE_REACH` × the disc's thickness of the face."""
+    side of the disc's mid-plane, nearer the face than the rim if inside the disc, and within
+    :data:`FACE_REACH` × the disc's thickness of the face."""
     polyhedron = getattr(obstacle, "polyhedron", None)
     if polyhedron is None or not faces.size:
         return np.zeros(0, int)
@@ -426,8 +427,9 @@ def _corner_keys(model, R, x, faces, obstacle) -> np.ndarray:
     w = V[None] - center[:, None]                                                    # (k, v, 3)
     height = np.add.reduce(w * outward[:, None], -1)
     inplane = w - height[..., None] * outward[:, None]
-    inside = np.add.reduce(inplane * inplane, -1) < (radius * radius)[:, None]
-    near = inside & (height > -0.5 * thickness[:, None]) & (height < FACE_REACH * thickness[:, None])
+    margin = radius[:, None] - np.sqrt(np.add.reduce(inplane * inplane, -1))          # to the rim
+    # (a vertex in the disc nearer its rim than its face left through the rim: not the face's)
+    near = (margin > 0.0) & (height > -np.minimum(0.5 * thickness[:, None], margin)) & (height < FACE_REACH * thickness[:, None])
     face, vertex = np.nonzero(near)
     return faces[face] * V.shape[0] + vertex
 
