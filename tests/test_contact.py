@@ -1030,25 +1030,6 @@ _FLAT_EDGE = (
 )
 
 
-def test_a_box_edge_lying_flat_on_a_discs_face_converges():
-    # the disk's gap alone flips its pairing between the vertex under the face and the edge across
-    # the rim as the edge tilts either way (a kink: the edge is held at two points), and Newton
-    # circled 1000 iterations; with the vertices under the face as contacts of their own it
-    # converges, the vertex pressed beside the disk's gap
-    import json
-
-    model = solver.build_model(solver.parse_scene(json.loads("".join(_FLAT_EDGE))))
-    result = model.solve()
-    assert result.converged and result.iterations <= 40, result.iterations
-    length = model.trunk.contact.length
-    assert all(c.gap >= -1e-9 and c.force >= 0.0 and (abs(c.gap * c.force) <= 1e-12
-                                                       or abs(c.gap) <= contact.ACTIVE_GAP * length)
-               for c in result.contacts)
-    found = contact.evaluate(model.trunk.contact, result.state)
-    corners = [k for k, g in zip(found.key.tolist(), found.gap) if k[0] == contact.CORNER and abs(g) <= 1e-12]
-    assert corners, "no vertex of the box touches a disc's face at the equilibrium"
-
-
 def test_a_corners_gap_has_the_derivatives_of_its_differences():
     # a box's vertex under a disc's face: the gap's row and its derivative (the curvature's block)
     # against central differences of the gap and of the row under moves and turns of the disc's frame

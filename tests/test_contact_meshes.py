@@ -187,3 +187,45 @@ def test_a_disc_and_a_capsule_on_an_icosphere_agree_with_the_sphere(tmp_path):
             assert all(c.gap >= -1e-9 and abs(c.gap * c.force) <= 1e-12 for c in result.contacts)
             tips.append(result.state.positions)
         assert np.abs(tips[0] - tips[1]).max() <= 2e-4, np.abs(tips[0] - tips[1]).max()
+
+
+def test_an_edge_through_a_disk_beside_its_rim_is_held_where_the_rim_nears_it():
+    # fuzz seed 116's box mesh and a disk (a disc's face) it pierces: the edge from a vertex under
+    # the face (0.7 mm clear of it) to one beyond the rim crosses the face's plane 0.6 mm inside the
+    # rim. The rim's distance to the edge's line has two minima; the nearer lies off the segment,
+    # and with it alone the gap read a vertex's axis bound (−7.3 mm). The gap is the separating
+    # axes' (largest over every direction of the disk's and the box's supports), smooth
+    V = np.array([[-0.01906096722914585, 0.0001744772636286427, 0.09327686745233842],
+                  [-0.0311734239930162, -0.03935199032618013, 0.07837110535162296],
+                  [-0.05486109300666201, 0.024812889691105493, 0.05703303563700372],
+                  [-0.06697354977053235, -0.014713577898703272, 0.042127273536288284],
+                  [-0.033112109384949996, -0.0005642573471491324, 0.10665380317345668],
+                  [-0.045224566148820346, -0.0400907249369579, 0.09174804107274125],
+                  [-0.06891223516246615, 0.02407415508032772, 0.070409971358122],
+                  [-0.0810246919263365, -0.015452312509481045, 0.05550420925740655]])
+    T = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1], [2, 3, 7], [2, 7, 6],
+                  [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+    box = Mesh(V, T)
+    x = np.array([[-0.03179625603627595, 0.016740321215468354, 0.09108736132214326]])
+    c = np.array([[-0.0313412158505402, 0.015884813153484147, 0.09032716822308502]])
+    a = np.array([[-0.36946946686614324, 0.6946289964476845, 0.617238098587353]])
+    e1 = np.array([[0.8415575927110893, -0.031546331245670356, 0.5392454423870962]])
+    e2 = np.array([[0.39404711799982056, 0.7186761344855007, -0.5729148998909125]])
+    rho = np.array([0.02548154975444144])
+
+    def phi(n):
+        inplane = n - np.outer(n @ a[0], a[0])
+        return n @ c[0] - rho[0] * np.linalg.norm(inplane, axis=1) - (n @ V.T).max(1)
+
+    gap, point, normal, kind = disk_mesh(box, x, c, a, e1, e2, rho)
+    assert kind[0] == EDGE and -4.5e-3 < gap[0] < -4.2e-3, (gap, kind)
+    assert abs(phi(normal)[0] - gap[0]) <= 1e-12                  # a separating value …
+    directions = np.random.default_rng(0).normal(size=(20000, 3))
+    directions /= np.linalg.norm(directions, axis=1)[:, None]
+    assert phi(directions).max() <= gap[0] + 1e-12                # … the largest
+    h = 1e-7
+    for j in range(3):
+        step = np.zeros((1, 3))
+        step[0, j] = h
+        moved = [disk_mesh(box, x + s * step, c + s * step, a, e1, e2, rho)[0][0] for s in (1.0, -1.0)]
+        assert abs((moved[0] - moved[1]) / (2 * h) - normal[0, j]) <= 1e-6
