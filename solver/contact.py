@@ -45,17 +45,15 @@ from vertebra.solver.contact_features import (_cross, disk_mesh, disk_polyhedron
                                               segment_polyhedron)
 from vertebra.solver.obstacles import Mesh, Plane, Sphere
 
-RIM, BALL, CHORD, PAIR, FOLD, CORNER = 0, 1, 2, 3, 4, 5   # kinds of contact (PAIR: adjacent discs, FOLD: any
-                             # other two, CORNER: a box's or mesh's vertex under a disc's face)
+RIM, BALL, CHORD, PAIR, FOLD = 0, 1, 2, 3, 4   # kinds of contact (PAIR: adjacent discs, FOLD: any other two)
 TANGENTIAL = 16              # kinds from here on: the tangential rows of frictional contacts (contact_friction)
-KIND_NAMES = ("disc", "frame", "segment", "disc", "disc", "disc")
+KIND_NAMES = ("disc", "frame", "segment", "disc", "disc")
 DISCS = (PAIR, FOLD)         # the kinds between two discs
 SAMPLES = 16                 # starting samples of the search for a rim's nearest point
 CHORD_SAMPLES = 8            # … and a chord's
 BISECTIONS = 52              # of a rim's angle (the bracket 2·2π/16) or a chord's parameter (2/8) to its rounding
 FACE_POINTS = 8              # points on each rim of two discs lying face to face (fixed angles in the disc's frame) …
 FACE_REACH = 2.0             # … while their gap is below this × the sum of their thicknesses
-                             # (and a box's or mesh's vertex under a disc's face within this × its thickness)
 DIFFERENCE = 1e-6            # the step (rad; × the disc radius in m) of the disc pairs' curvature by central differences
 JUMP = 1e-3                  # a pucks' nearest point moved on its body by this × the radius by those steps has jumped
 MARGIN = 0.25                # candidate contacts: a gap below this share of the trunk's length …
@@ -278,19 +276,13 @@ def describe(model: ContactModel, key) -> str:
     if kind in DISCS:
         a, b = (int(model.disc_vertebra[d[0]]) for d in pair_discs(model, np.array([key], int)))
         return f"the discs of vertebrae {min(a, b)} and {max(a, b)}"
-    if kind in (RIM, CORNER):
-        body = f"the disc of vertebra {int(model.disc_vertebra[_face(model, key) // 2])}"
+    if kind == RIM:
+        body = f"the disc of vertebra {int(model.disc_vertebra[feature // 2])}"
     elif kind == BALL:
         body = f"frame {int(model.ball_frame[feature])} (vertebra {int(model.vertebra_of_frame[model.ball_frame[feature]])})"
     else:
         body = f"link {int(model.chord[feature])}"
     return f"{body} and obstacle {obstacle} ({model.obstacles[obstacle].type})"
-
-
-def _face(model: ContactModel, key) -> int:
-    """The disc face (2d or 2d + 1) of a disc's contact with an obstacle (a rim's or a corner's)."""
-    kind, feature, obstacle = (int(v) for v in key)
-    return feature // model.obstacles[obstacle].polyhedron.vertices.shape[0] if kind == CORNER else feature
 
 
 def bodies(model: ContactModel, key) -> tuple[str, str]:
@@ -299,8 +291,8 @@ def bodies(model: ContactModel, key) -> tuple[str, str]:
     if kind in DISCS:
         a, b = sorted(int(model.disc_vertebra[d[0]]) for d in pair_discs(model, np.array([key], int)))
         return f"vertebra {a} disc", f"vertebra {b} disc"
-    if kind in (RIM, CORNER):
-        body = f"vertebra {int(model.disc_vertebra[_face(model, key) // 2])} disc"
+    if kind == RIM:
+        body = f"vertebra {int(model.disc_vertebra[feature // 2])} disc"
     elif kind == BALL:
         body = f"frame {int(model.ball_frame[feature])}"
     else:
@@ -410,69 +402,6 @@ def _rims(model, R, x, features, obstacle):
     rows[:, 0, 3:] = _cross(point - x[frame], normal)
     return (distance, point, normal, np.stack([frame, np.full(frame.size, -1)], 1), rows,
             np.stack([_cross(axis, point - center), center - point], 1))
-
-
-def _corner_keys(model, R, x, faces, obstacle) -> np.ndarray:
-    """The corner features (face · v + vertex) of the disc faces ``faces`` against a box's or
-    mesh's ``v`` vertices: each vertex over the face's disk (within its radius), on the face's
-    side of the disc's mid-plane, nearer the face than the rim if inside the disc, and within
-    :data:`FACE_REACH` × the disc's thickness of the face."""
-    polyhedron = getattr(obstacle, "polyhedron", None)
-    if polyhedron is None or not faces.size:
-        return np.zeros(0, int)
-    V = polyhedron.vertices
-    frame, center, e1, e2, axis, radius = _faces_of(model, R, x, faces)
-    thickness = model.disc_thickness[faces // 2]
-    outward = np.where(faces % 2, 1.0, -1.0)[:, None] * axis
-    w = V[None] - center[:, None]                                                    # (k, v, 3)
-    height = np.add.reduce(w * outward[:, None], -1)
-    inplane = w - height[..., None] * outward[:, None]
-    margin = radius[:, None] - np.sqrt(np.add.reduce(inplane * inplane, -1))          # to the rim
-    # (a vertex in the disc nearer its rim than its face left through the rim: not the face's)
-    near = (margin > 0.0) & (height > -np.minimum(0.5 * thickness[:, None], margin)) & (height < FACE_REACH * thickness[:, None])
-    face, vertex = np.nonzero(near)
-    return faces[face] * V.shape[0] + vertex
-
-
-def _corners(model, R, x, features, obstacle):
-    """A box's or mesh's vertex ``v`` under a disc's face (feature face · vertices + vertex): the
-    vertex's height over the face's plane along its outward axis ``o``, ``g = (v − c)·o``, with the
-    normal ``−o`` and the point under the vertex. Every vertex is a point of the obstacle, so no
-    vertex may enter the disc through its face: where an edge or a face of the obstacle lies flat
-    on the disc's face its vertices under the face and the disk's own gap (:func:`_rims`, whose
-    pairing flips between the vertex under the face and the edge across the rim as the edge tilts
-    either way) hold it together, as the points of a flat contact's support polygon; each gap is
-    smooth (its curvature: :func:`_corner_curvature`)."""
-    V = obstacle.polyhedron.vertices
-    faces, vertex = features // V.shape[0], features % V.shape[0]
-    frame, center, e1, e2, axis, radius = _faces_of(model, R, x, faces)
-    outward = np.where(faces % 2, 1.0, -1.0)[:, None] * axis
-    v = V[vertex]
-    gap = np.add.reduce((v - center) * outward, -1)
-    normal = -outward
-    point = v - gap[:, None] * outward
-    rows = np.zeros((features.size, 2, 6))
-    rows[:, 0, :3] = normal
-    rows[:, 0, 3:] = _cross(point - x[frame], normal)
-    return (gap, point, normal, np.stack([frame, np.full(frame.size, -1)], 1), rows,
-            np.zeros((features.size, 2, 3)))
-
-
-def _corner_curvature(model, state, features, obstacle) -> np.ndarray:
-    """``∂²g`` (k, 6, 6) of corners ``features`` (:func:`_corners`): the derivative of the row
-    ``[n, (v − x) × n]`` (the force's line passes through the vertex) as the disc's frame moves
-    (``δx``) and turns (``δφ``, the normal turning with it): ``[[0, −n̂], [n̂, −l̂ n̂]]``, ``l = v − x``."""
-    x, R = state.positions, qmatrix(state.quaternions)
-    V = obstacle.polyhedron.vertices
-    faces, vertex = features // V.shape[0], features % V.shape[0]
-    frame = model.disc_frame[faces // 2]
-    n = -np.where(faces % 2, 1.0, -1.0)[:, None] * R[frame][:, :, 2]
-    hat_n, hat_l = _hat(n), _hat(V[vertex] - x[frame])
-    M = np.zeros((features.size, 6, 6))
-    M[:, :3, 3:] = -hat_n
-    M[:, 3:, :3] = hat_n
-    M[:, 3:, 3:] = -hat_l @ hat_n
-    return M
 
 
 def _balls(model, R, x, features, obstacle):
@@ -702,7 +631,7 @@ def _discs(model, R, x, key):
     return gap, point, normal, frames, rows, np.zeros((key.shape[0], 2, 3))
 
 
-_FEATURES = {RIM: _rims, BALL: _balls, CHORD: _chords, CORNER: _corners}
+_FEATURES = {RIM: _rims, BALL: _balls, CHORD: _chords}
 
 
 def _counts(model) -> dict:
@@ -732,7 +661,6 @@ def evaluate(model: ContactModel, state, keys: np.ndarray | None = None) -> Cont
                 parts.append((key, _discs(model, R, x, key)))
         for j, obstacle in enumerate(model.obstacles):
             near = _near(model, x, obstacle)
-            near[CORNER] = _corner_keys(model, R, x, near[RIM], obstacle)
             for kind, function in _FEATURES.items():
                 features = near[kind]
                 if kind == CHORD and isinstance(obstacle, Plane):
@@ -1298,19 +1226,12 @@ def curvature(model: ContactModel, contacts: ContactSet, multipliers: np.ndarray
         if _disk_gap(model.obstacles[j]) is not None:
             featured |= chosen & (key[:, 0] == RIM)
             chosen &= key[:, 0] != RIM
-        chosen &= key[:, 0] != CORNER
         if chosen.any():
             S[chosen] = _surface_curvature(model.obstacles[j], point[chosen], model.length)
     blocks = _blocks(contacts, lam, S, point, n, pair, chord)
     for j in np.unique(key[featured, 2]):
         chosen = np.flatnonzero(featured & (key[:, 2] == j))
         blocks[chosen, :6, :6] = -multipliers[chosen, None, None] * _polyhedron_rims(
-            model, state, key[chosen, 1], model.obstacles[j])
-    corner = np.flatnonzero(key[:, 0] == CORNER)
-    for j in np.unique(key[corner, 2]):
-        chosen = corner[key[corner, 2] == j]
-        blocks[chosen] = 0.0
-        blocks[chosen, :6, :6] = -multipliers[chosen, None, None] * _corner_curvature(
             model, state, key[chosen, 1], model.obstacles[j])
     if pair.any():
         blocks[pair] = _pair_curvature(model, state, key[pair], multipliers[pair])

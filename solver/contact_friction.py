@@ -44,9 +44,9 @@ import numpy as np
 
 from vertebra.core.lie import qmatrix
 from vertebra.solver import contact, newton
-from vertebra.solver.contact import BALL, CHORD, CORNER, RIM, TANGENTIAL, ContactSet, Step
+from vertebra.solver.contact import BALL, CHORD, RIM, TANGENTIAL, ContactSet, Step
 
-OBSTACLE_KINDS = (RIM, BALL, CHORD, CORNER)   # the contacts that friction acts at (a body against an obstacle)
+OBSTACLE_KINDS = (RIM, BALL, CHORD)   # the contacts that friction acts at (a body against an obstacle)
 STATUS_CHANGES = 60                   # active-set changes per frictional contact before the step is refused
 SWEEPS = 25                           # projected Gauss–Seidel sweeps at most
 SWEEP_TOLERANCE = 1e-10               # their forces' change per sweep, of the largest, that ends them
