@@ -153,8 +153,8 @@ def acquire(lock_file: Path, until: float, *, tidy_dir: bool = False, how: str |
                 handle = _try_filelock(lock_file)
                 held = None if handle is None else Held(lock_file, how, handle=handle)
         except FileNotFoundError:
-            if not tidy_dir:
-                raise
+            if not tidy_dir or not lock_file.parent.parent.is_dir():
+                raise               # (no directory to make it in: the catalogue's own is missing)
             continue                # a releasing holder removed the empty directory just now: again
         if held is not None:
             return held

@@ -302,6 +302,10 @@ def catalogue_lock(path, timeout: float = LOCK_TIMEOUT_S):
             held = locking.acquire(lock_file, min(start + timeout, report_at), tidy_dir=True, how=how)
         except NotADirectoryError:
             raise _not_a_directory(path) from None
+        except FileNotFoundError as error:
+            if not Path(path).parent.is_dir():
+                raise disk_error(path, f"its directory {Path(path).parent} does not exist", error) from None
+            raise disk_error(lock_file, "cannot create the catalogue lock file", error) from None
         except OSError as error:
             raise disk_error(lock_file, "cannot create the catalogue lock file", error) from None
         if held is not None:

@@ -518,3 +518,19 @@ def test_lock_wait_is_reported_and_gives_up_with_a_clear_error(tmp_path, caplog,
     catalogue.consolidate(path)
     with catalogue.open_catalogue(path) as cat:
         assert len(cat) == 2 and cat.pending == []
+
+
+def test_a_catalogue_in_a_missing_directory_is_refused_at_once(tmp_path):
+    """Its lock's directory cannot be made where the catalogue's own is missing: consolidating (or
+    any writer) says so instead of retrying the directory for ever (the command-line fuzz found a
+    busy loop). A subprocess, so that a regression fails by its timeout instead of hanging the run."""
+    missing = tmp_path / "no" / "x.h5"
+    done = subprocess.run([sys.executable, "-m", "vertebra.cli.main", "catalogue", "consolidate", str(missing)],
+                          capture_output=True, text=True, timeout=60, cwd=tmp_path,
+                          env=dict(os.environ, OPENBLAS_NUM_THREADS="1"))
+    assert done.returncode == 2, done.stderr
+    assert f"its directory {missing.parent} does not exist" in done.stderr
+    assert "Traceback" not in done.stderr
+    with pytest.raises(CatalogueError, match="does not exist"):
+        with shards.catalogue_lock(missing):
+            pass
