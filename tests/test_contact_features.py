@@ -71,6 +71,15 @@ def _differences(poly, x, R, h=1e-6):
     return (gaps, rows, same) if x.shape[0] > 1 else (gaps[0], rows[0], bool(same[0]))
 
 
+def _assert_the_differences(poly, x, R):
+    """One disk's pairing unchanged across the differences, its row their gap's and its curvature
+    their rows'."""
+    gaps, rows, same = _differences(poly, x, R)
+    M = disk_polyhedron(poly, *_disk(x, R), second=True)[4][0]
+    row = _row(poly, x, R)[1]
+    assert same and np.abs(gaps - row).max() <= 1e-7 and np.abs(rows - M).max() <= 1e-6 * np.abs(M).max()
+
+
 @pytest.mark.parametrize("poly", [BOX.polyhedron, TETRAHEDRON.polyhedron], ids=["box", "tetrahedron"])
 def test_a_disks_gap_on_a_polyhedron_has_the_derivatives_of_its_differences(poly):
     # every pairing (face, edge, vertex, axis), apart and overlapping by up to 5 mm: the row is the
@@ -99,10 +108,7 @@ def test_a_rim_across_an_edge_has_a_signed_smooth_gap_through_contact():
             gap, _, normal, kind = disk_polyhedron(box.polyhedron, *_disk(x, R))
             x = x - (gap[0] - target) * normal[0]
         assert kind[0] == EDGE and abs(gap[0] - target) <= 1e-15
-        gaps, rows, same = _differences(box.polyhedron, x, R)
-        M = disk_polyhedron(box.polyhedron, *_disk(x, R), second=True)[4][0]
-        row = _row(box.polyhedron, x, R)[1]
-        assert same and np.abs(gaps - row).max() <= 1e-7 and np.abs(rows - M).max() <= 1e-6 * np.abs(M).max()
+        _assert_the_differences(box.polyhedron, x, R)
 
 
 def test_a_rim_parallel_to_an_edge_has_the_distance_between_them():
@@ -117,10 +123,7 @@ def test_a_rim_parallel_to_an_edge_has_the_distance_between_them():
     x = nearest + RHO * inward - 0.002 * R[:, 2]
     gap, point, normal, kind = disk_polyhedron(box.polyhedron, *_disk(x, R))
     assert kind[0] == EDGE and abs(gap[0] - 5e-4) <= 1e-12 and np.allclose(normal[0], direction, atol=1e-9)
-    gaps, rows, same = _differences(box.polyhedron, x, R)
-    M = disk_polyhedron(box.polyhedron, *_disk(x, R), second=True)[4][0]
-    row = _row(box.polyhedron, x, R)[1]
-    assert same and np.abs(gaps - row).max() <= 1e-7 and np.abs(rows - M).max() <= 1e-6 * np.abs(M).max()
+    _assert_the_differences(box.polyhedron, x, R)
 
 
 def test_a_rim_beside_a_vertex_has_the_distance_to_it():
@@ -135,10 +138,7 @@ def test_a_rim_beside_a_vertex_has_the_distance_to_it():
     x = nearest + RHO * inplane / np.linalg.norm(inplane) - 0.002 * R[:, 2]
     gap, point, normal, kind = disk_polyhedron(box.polyhedron, *_disk(x, R))
     assert kind[0] == VERTEX and abs(gap[0] - 5e-4) <= 1e-12 and np.allclose(normal[0], direction, atol=1e-12)
-    gaps, rows, same = _differences(box.polyhedron, x, R)
-    M = disk_polyhedron(box.polyhedron, *_disk(x, R), second=True)[4][0]
-    row = _row(box.polyhedron, x, R)[1]
-    assert same and np.abs(gaps - row).max() <= 1e-7 and np.abs(rows - M).max() <= 1e-6 * np.abs(M).max()
+    _assert_the_differences(box.polyhedron, x, R)
 
 
 @pytest.mark.parametrize("obstacle", [BOX, TETRAHEDRON], ids=["box", "tetrahedron"])
